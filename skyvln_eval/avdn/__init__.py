@@ -1,0 +1,126 @@
+"""AVDN data layer: typed records, loading and validation, official geometry and step.
+
+Follow one episode: :func:`load_split` reads ``annotations/<split>_data.json`` into
+:class:`AvdnRecord` objects, :meth:`AvdnSplit.episodes` turns them into :class:`Episode`
+objects (ANDH or ANDH-Full), and :func:`official_step` moves a view as the official code.
+"""
+
+from skyvln_eval.avdn.constants import (
+    DEFAULT_MAX_ACTION_LEN,
+    EPISODE_MODES,
+    METERS_PER_DEGREE,
+    OBSERVATION_SIZE_PX,
+    OFFICIAL_HALF_PI,
+    OFFICIAL_PI,
+    SPLITS,
+    SUCCESS_IOU,
+    EpisodeMode,
+    Split,
+    annotation_file_name,
+)
+from skyvln_eval.avdn.geometry import (
+    degrees_to_metres,
+    distance_m,
+    hull_iou,
+    metres_to_degrees,
+    official_bearing_deg,
+    point_in_view_strict,
+    view_axes,
+    view_centre,
+    view_edge_m,
+    view_from_pose,
+    view_heading_deg,
+)
+from skyvln_eval.avdn.imagery import (
+    MapGeoref,
+    load_map_bgr,
+    map_image_path,
+    observe_view,
+    resize_to_degree_grid,
+)
+from skyvln_eval.avdn.loader import (
+    AvdnSplit,
+    build_episodes,
+    check_split,
+    group_trajectories,
+    load_split,
+    read_annotation_file,
+)
+from skyvln_eval.avdn.records import (
+    AttentionCircle,
+    AvdnRecord,
+    DialogTurn,
+    Episode,
+    episode_id_of,
+    parse_utterances,
+)
+from skyvln_eval.avdn.step import (
+    OfficialAction,
+    OfficialStepResult,
+    action_between_views,
+    action_target_edge_m,
+    action_turn_deg,
+    official_step,
+    official_step_detailed,
+    official_step_variants,
+    replay_actions,
+    replay_ground_truth,
+)
+from skyvln_eval.avdn.summary import SplitSummary, summarise_split
+from skyvln_eval.avdn.validation import parse_record, parse_records
+
+__all__ = [
+    "DEFAULT_MAX_ACTION_LEN",
+    "EPISODE_MODES",
+    "METERS_PER_DEGREE",
+    "OBSERVATION_SIZE_PX",
+    "OFFICIAL_HALF_PI",
+    "OFFICIAL_PI",
+    "SPLITS",
+    "SUCCESS_IOU",
+    "AttentionCircle",
+    "AvdnRecord",
+    "AvdnSplit",
+    "DialogTurn",
+    "Episode",
+    "EpisodeMode",
+    "MapGeoref",
+    "OfficialAction",
+    "OfficialStepResult",
+    "Split",
+    "SplitSummary",
+    "action_between_views",
+    "action_target_edge_m",
+    "action_turn_deg",
+    "annotation_file_name",
+    "build_episodes",
+    "check_split",
+    "degrees_to_metres",
+    "distance_m",
+    "episode_id_of",
+    "group_trajectories",
+    "hull_iou",
+    "load_map_bgr",
+    "load_split",
+    "map_image_path",
+    "metres_to_degrees",
+    "observe_view",
+    "official_bearing_deg",
+    "official_step",
+    "official_step_detailed",
+    "official_step_variants",
+    "parse_record",
+    "parse_records",
+    "parse_utterances",
+    "point_in_view_strict",
+    "read_annotation_file",
+    "replay_actions",
+    "replay_ground_truth",
+    "resize_to_degree_grid",
+    "summarise_split",
+    "view_axes",
+    "view_centre",
+    "view_edge_m",
+    "view_from_pose",
+    "view_heading_deg",
+]

@@ -1,0 +1,204 @@
+"""Load AVDN splits from disk: ``annotations/<split>_data.json`` and ``train_images/``.
+
+``load_split`` validates every record (see :mod:`skyvln_eval.avdn.validation`), checks
+that each map image exists, and either raises with every problem or, with
+``skip_invalid=True``, loads the rest and reports what it skipped in ``AvdnSplit.skipped``.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import defaultdict
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from skyvln_eval.avdn.constants import (
+    ANNOTATIONS_DIR,
+    IMAGES_DIR,
+    SPLITS,
+    EpisodeMode,
+    annotation_file_name,
+)
+from skyvln_eval.avdn.imagery import map_image_path
+from skyvln_eval.avdn.records import AvdnRecord, Episode
+from skyvln_eval.avdn.validation import parse_records_indexed
+from skyvln_eval.errors import (
+    AvdnFileError,
+    AvdnValidationError,
+    ConfigError,
+    NoGroundTruthError,
+    ValidationIssue,
+)
+
+TrajectoryKey = tuple[str, str]
+
+
+@dataclass(frozen=True)
+class AvdnSplit:
+    """The valid records of one split, and the issues of any records that were skipped."""
+
+    split: str
+    data_dir: Path
+    records: tuple[AvdnRecord, ...]
+    skipped: tuple[ValidationIssue, ...] = field(default=())
+
+    @property
+    def annotation_path(self) -> Path:
+        return self.data_dir / ANNOTATIONS_DIR / annotation_file_name(self.split)
+
+    @property
+    def images_dir(self) -> Path:
+        return self.data_dir / IMAGES_DIR
+
+    @property
+    def skipped_record_indices(self) -> list[int]:
+        return sorted({i.record_index for i in self.skipped if i.record_index is not None})
+
+    @property
+    def ground_truth_withheld(self) -> bool:
+        """True when no record has more than the start view (the real test_unseen)."""
+        return bool(self.records) and not any(r.has_ground_truth for r in self.records)
+
+    def map_names(self) -> list[str]:
+        return sorted({r.map_name for r in self.records})
+
+    def trajectories(self) -> dict[TrajectoryKey, tuple[AvdnRecord, ...]]:
+        """Records grouped by (map_name, trajectory index) and sorted by round."""
+        return group_trajectories(self.records)
+
+    def episodes(self, mode: EpisodeMode = "andh", skip_incomplete: bool = False) -> list[Episode]:
+        """ANDH: one episode per record (file order). ANDH-Full: one per trajectory.
+
+        A trajectory with missing rounds cannot form an ANDH-Full episode: it raises, or
+        with ``skip_incomplete`` is left out (see :func:`build_episodes` for the report).
+        """
+        episodes, issues = build_episodes(self.records, self.split, mode, str(self.annotation_path))
+        if issues and not skip_incomplete:
+            raise AvdnValidationError(issues)
+        return episodes
+
+    def require_ground_truth(self) -> None:
+        """Raise :class:`NoGroundTruthError` if any record lacks a ground-truth path."""
+        missing = [r.episode_id for r in self.records if not r.has_ground_truth]
+        if missing:
+            raise NoGroundTruthError(self.split, missing)
+
+
+def group_trajectories(
+    records: Iterable[AvdnRecord],
+) -> dict[TrajectoryKey, tuple[AvdnRecord, ...]]:
+    """Group by (map_name, trajectory index), rounds ascending, keys in a stable order."""
+    groups: dict[TrajectoryKey, list[AvdnRecord]] = defaultdict(list)
+    for record in records:
+        groups[(record.map_name, record.trajectory_index)].append(record)
+    ordered = sorted(groups, key=lambda key: (key[0], int(key[1])))
+    return {key: tuple(sorted(groups[key], key=lambda r: r.round_index)) for key in ordered}
+
+
+def build_episodes(
+    records: Sequence[AvdnRecord], split: str, mode: EpisodeMode, file: str = "<records>"
+) -> tuple[list[Episode], list[ValidationIssue]]:
+    """Episodes of a split in either mode, plus issues for incomplete trajectories."""
+    if mode == "andh":
+        return [Episode(split=split, mode="andh", records=(r,)) for r in records], []
+    if mode != "andh-full":
+        raise ConfigError(f"unknown episode mode {mode!r}; use 'andh' or 'andh-full'")
+    episodes: list[Episode] = []
+    issues: list[ValidationIssue] = []
+    for (map_name, traj), rounds in group_trajectories(records).items():
+        present = [r.round_index for r in rounds]
+        declared = [r.last_round_idx for r in rounds if r.last_round_idx is not None]
+        expected = max(declared) if declared else max(present)
+        missing = sorted(set(range(1, expected + 1)) - set(present))
+        if missing:
+            issues.append(
+                ValidationIssue(
+                    file,
+                    f"trajectory {map_name}/{traj} is missing round(s) {missing}; "
+                    "it cannot form an ANDH-Full episode",
+                    episode_id=rounds[0].episode_id,
+                    field="route_index",
+                )
+            )
+            continue
+        episodes.append(Episode(split=split, mode="andh-full", records=rounds))
+    return episodes, issues
+
+
+def read_annotation_file(path: Path) -> list[object]:
+    """Decode an annotation file; raises :class:`AvdnFileError` unless it is a JSON list."""
+    if not path.is_file():
+        raise AvdnFileError(str(path), "annotation file not found")
+    try:
+        data = json.loads(path.read_bytes())
+    except json.JSONDecodeError as exc:
+        raise AvdnFileError(
+            str(path), f"not valid JSON (line {exc.lineno}, column {exc.colno}: {exc.msg})"
+        ) from exc
+    except UnicodeDecodeError as exc:
+        raise AvdnFileError(str(path), f"not UTF-8 text ({exc.reason})") from exc
+    if not isinstance(data, list):
+        kind = type(data).__name__.replace("dict", "object")
+        raise AvdnFileError(str(path), f"expected a JSON list of records, got a JSON {kind}")
+    return data
+
+
+def _missing_map_issues(
+    records: Sequence[AvdnRecord], images_dir: Path, file: str, indices: Sequence[int]
+) -> list[ValidationIssue]:
+    exists: dict[str, bool] = {}
+    issues = []
+    for record, index in zip(records, indices, strict=True):
+        if record.map_name not in exists:
+            exists[record.map_name] = map_image_path(images_dir, record.map_name).is_file()
+        if not exists[record.map_name]:
+            issues.append(
+                ValidationIssue(
+                    file,
+                    f"map image {map_image_path(images_dir, record.map_name)} not found",
+                    index,
+                    record.episode_id,
+                    "map_name",
+                )
+            )
+    return issues
+
+
+def check_split(
+    data_dir: str | Path, split: str, check_map_images: bool = True
+) -> tuple[list[AvdnRecord], list[ValidationIssue]]:
+    """Every valid record of a split and every issue found, without raising on records."""
+    if split not in SPLITS:
+        raise ConfigError(f"unknown split {split!r}; choose one of {', '.join(SPLITS)}")
+    data_dir = Path(data_dir)
+    path = data_dir / ANNOTATIONS_DIR / annotation_file_name(split)
+    data = read_annotation_file(path)
+    indices, records, issues = parse_records_indexed(data, str(path))
+    if check_map_images:
+        map_issues = _missing_map_issues(records, data_dir / IMAGES_DIR, str(path), indices)
+        if map_issues:
+            bad = {i.record_index for i in map_issues}
+            records = [r for r, i in zip(records, indices, strict=True) if i not in bad]
+            issues = sorted(issues + map_issues, key=lambda i: i.record_index or 0)
+    return records, issues
+
+
+def load_split(
+    data_dir: str | Path,
+    split: str,
+    *,
+    skip_invalid: bool = False,
+    check_map_images: bool = True,
+) -> AvdnSplit:
+    """Load and validate one split of an AVDN-format dataset.
+
+    Raises :class:`AvdnValidationError` listing every problem, unless ``skip_invalid``:
+    then invalid records are left out and described in ``AvdnSplit.skipped``.
+    """
+    records, issues = check_split(data_dir, split, check_map_images)
+    if issues and not skip_invalid:
+        raise AvdnValidationError(issues)
+    return AvdnSplit(
+        split=split, data_dir=Path(data_dir), records=tuple(records), skipped=tuple(issues)
+    )

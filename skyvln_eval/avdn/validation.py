@@ -1,0 +1,407 @@
+"""Parse and validate AVDN records, reporting every problem with file, record and field.
+
+Validation is split in two passes so that a whole AVDN-sized split validates in a small
+multiple of ``json.load``: a per-record pass checks keys and types and turns corner lists
+into arrays; a vectorised pass checks the geometry of every view of the split at once
+(finite, square, corner order, inside the map). The slow, precise walk over nested lists
+runs only for the rare record whose corners fail the fast checks.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skyvln_eval.avdn.constants import METERS_PER_DEGREE
+from skyvln_eval.avdn.records import (
+    RECORD_KEYS,
+    REQUIRED_KEYS,
+    AttentionCircle,
+    AvdnRecord,
+    episode_id_of,
+)
+from skyvln_eval.errors import ValidationIssue
+
+#: A view whose sides or diagonals differ from a square's by more than this (relative) is
+#: rejected. Real AVDN views deviate by up to about 1%.
+SQUARE_TOLERANCE = 0.05
+#: A view with an edge shorter than this is degenerate, metres.
+MIN_EDGE_M = 1.0
+
+_MAP_NAME = re.compile(r"[0-9A-Za-z_-]+")
+_ROUTE_INDEX = re.compile(r"(\d+)_(\d+)")
+
+
+@dataclass
+class _Pending:
+    """A record that passed the per-record checks, waiting for the geometry pass."""
+
+    index: int
+    raw: dict[str, Any]
+    corners: NDArray[np.float64]
+    destination: NDArray[np.float64] | None
+    attention: tuple[AttentionCircle, ...]
+
+
+def _is_number(value: Any) -> bool:
+    # bool is a subclass of int in Python but a different JSON type.
+    return type(value) is float or type(value) is int
+
+
+def _type_name(value: Any) -> str:
+    if value is None:
+        return "null"
+    return {
+        bool: "boolean",
+        int: "integer",
+        float: "number",
+        str: "string",
+        list: "list",
+        dict: "object",
+    }.get(type(value), type(value).__name__)
+
+
+def _locate_bad_number(value: Any, path: str, depth: int) -> tuple[str, str] | None:
+    """Walk a nested list and return (path, problem) for its first bad element."""
+    if depth == 0:
+        if not _is_number(value):
+            return path, f"expected a number, got {_type_name(value)} {value!r}"
+        if not math.isfinite(value):
+            return path, f"NaN or infinite coordinate ({value!r})"
+        return None
+    if not isinstance(value, list):
+        return path, f"expected a list, got {_type_name(value)}"
+    for i, item in enumerate(value):
+        found = _locate_bad_number(item, f"{path}[{i}]", depth - 1)
+        if found:
+            return found
+    return None
+
+
+def _corner_array(
+    value: Any, name: str, expected_tail: tuple[int, ...], report: Any
+) -> NDArray[np.float64] | None:
+    """Nested list of numbers -> float array with trailing shape ``expected_tail``."""
+    depth = len(expected_tail) + (1 if name == "gt_path_corners" else 0)
+    try:
+        # Without a dtype, numpy keeps strings as strings and null as object, so only
+        # nested lists of JSON numbers come out as float or int arrays.
+        arr = np.array(value)
+    except (ValueError, TypeError):
+        arr = None
+    good_shape = (
+        arr is not None
+        and arr.dtype.kind in "fi"
+        and arr.ndim == depth
+        and arr.shape[arr.ndim - len(expected_tail) :] == expected_tail
+    )
+    if arr is not None and good_shape:
+        arr = arr.astype(np.float64, copy=False)
+        if np.isfinite(arr).all():
+            return arr
+    located = _locate_bad_number(value, name, depth)
+    if located is not None:
+        report(located[0], located[1])
+    elif isinstance(value, list) and name == "gt_path_corners" and not value:
+        report(name, "empty gt_path_corners: at least the start view is required")
+    else:
+        shape = "x".join(str(n) for n in expected_tail)
+        got = "x".join(str(n) for n in arr.shape) if arr is not None else "ragged"
+        report(name, f"expected views of shape {shape} ([lat, lng] corners), got {got}")
+    return None
+
+
+def _check_latlng(value: Any, name: str, report: Any) -> bool:
+    if not (isinstance(value, list) and len(value) == 2):
+        report(name, f"expected [lat, lng], got {_type_name(value)} {value!r}")
+        return False
+    for i, v in enumerate(value):
+        if not _is_number(v):
+            report(f"{name}[{i}]", f"expected a number, got {_type_name(v)} {v!r}")
+            return False
+        if not math.isfinite(v):
+            report(f"{name}[{i}]", f"NaN or infinite coordinate ({v!r})")
+            return False
+    if not (-90.0 <= value[0] <= 90.0 and -180.0 <= value[1] <= 180.0):
+        report(name, f"not a valid [lat, lng]: {value!r}")
+        return False
+    return True
+
+
+def _check_scalars(raw: dict[str, Any], report: Any) -> bool:
+    ok = True
+    map_name = raw["map_name"]
+    if not isinstance(map_name, str):
+        report("map_name", f"expected a string, got {_type_name(map_name)} {map_name!r}")
+        ok = False
+    elif not _MAP_NAME.fullmatch(map_name):
+        report("map_name", f"expected an xView id such as '1913', got {map_name!r}")
+        ok = False
+    route = raw["route_index"]
+    if not isinstance(route, str):
+        report("route_index", f"expected a string, got {_type_name(route)} {route!r}")
+        ok = False
+    else:
+        match = _ROUTE_INDEX.fullmatch(route)
+        if not match or int(match.group(2)) < 1:
+            report("route_index", f"expected '<trajectory>_<round>' with round >= 1, got {route!r}")
+            ok = False
+    last = raw.get("last_round_idx")
+    if "last_round_idx" in raw and (type(last) is not int or last < 1):
+        report("last_round_idx", f"expected an integer >= 1, got {_type_name(last)} {last!r}")
+        ok = False
+    if not isinstance(raw["instructions"], str):
+        report("instructions", f"expected a string, got {_type_name(raw['instructions'])}")
+        ok = False
+    pre = raw["pre_dialogs"]
+    if not isinstance(pre, list):
+        report("pre_dialogs", f"expected a list of strings, got {_type_name(pre)}")
+        ok = False
+    else:
+        for i, item in enumerate(pre):
+            if not isinstance(item, str):
+                report(f"pre_dialogs[{i}]", f"expected a string, got {_type_name(item)}")
+                ok = False
+    for key in ("lng_ratio", "lat_ratio", "angle"):
+        v = raw[key]
+        if not _is_number(v):
+            report(key, f"expected a number, got {_type_name(v)} {v!r}")
+            ok = False
+        elif not math.isfinite(v):
+            report(key, f"NaN or infinite value ({v!r})")
+            ok = False
+        elif key != "angle" and v <= 0:
+            report(key, f"expected degrees per pixel > 0, got {v!r}")
+            ok = False
+    corners_ok = _check_latlng(raw["gps_botm_left"], "gps_botm_left", report)
+    corners_ok &= _check_latlng(raw["gps_top_right"], "gps_top_right", report)
+    if corners_ok:
+        (lat0, lng0), (lat1, lng1) = raw["gps_botm_left"], raw["gps_top_right"]
+        if not (lat0 < lat1 and lng0 < lng1):
+            report("gps_top_right", "must lie north-east of gps_botm_left")
+            corners_ok = False
+    if ok and isinstance(route, str) and type(last) is int and last < int(route.split("_")[1]):
+        report("last_round_idx", f"{last} is smaller than the round in route_index {route!r}")
+        ok = False
+    return ok and corners_ok
+
+
+def _check_attention(value: Any, report: Any) -> tuple[AttentionCircle, ...] | None:
+    if not isinstance(value, list):
+        report("attention_list", f"expected a list, got {_type_name(value)}")
+        return None
+    circles = []
+    for i, item in enumerate(value):
+        name = f"attention_list[{i}]"
+        if not (isinstance(item, list) and len(item) == 2):
+            report(name, f"expected [[lat, lng], radius_px], got {item!r}")
+            return None
+        if not _check_latlng(item[0], f"{name}[0]", report):
+            return None
+        radius = item[1]
+        if not _is_number(radius) or not math.isfinite(radius) or radius < 0:
+            report(f"{name}[1]", f"expected a radius >= 0 in pixels, got {radius!r}")
+            return None
+        circles.append(AttentionCircle((item[0][0], item[0][1]), radius))
+    return tuple(circles)
+
+
+def _check_record(
+    raw: Any, index: int, file: str, issues: list[ValidationIssue]
+) -> _Pending | None:
+    """Per-record checks; appends issues and returns None when the record is invalid."""
+    if not isinstance(raw, dict):
+        issues.append(
+            ValidationIssue(file, f"expected a JSON object, got {_type_name(raw)}", index)
+        )
+        return None
+    map_name, route = raw.get("map_name"), raw.get("route_index")
+    episode = (
+        episode_id_of(map_name, route)
+        if isinstance(map_name, str) and isinstance(route, str)
+        else None
+    )
+    count = len(issues)
+
+    def report(field: str, message: str) -> None:
+        issues.append(ValidationIssue(file, message, index, episode, field))
+
+    missing = [key for key in REQUIRED_KEYS if key not in raw]
+    for key in missing:
+        report(key, "missing required key")
+    if missing:
+        return None
+    _check_scalars(raw, report)
+    corners = _corner_array(raw["gt_path_corners"], "gt_path_corners", (4, 2), report)
+    destination = None
+    if "destination" in raw:
+        destination = _corner_array(raw["destination"], "destination", (4, 2), report)
+    attention = _check_attention(raw["attention_list"], report)
+    if len(issues) > count or corners is None or attention is None:
+        return None
+    return _Pending(index, raw, corners, destination, attention)
+
+
+def _check_view_geometry(
+    pending: list[_Pending], file: str, issues: list[ValidationIssue]
+) -> set[int]:
+    """Vectorised geometry checks over every view of every record; returns bad indices."""
+    if not pending:
+        return set()
+    counts = np.array([len(p.corners) for p in pending])
+    views = np.concatenate([p.corners for p in pending])  # (V, 4, 2)
+    owner = np.repeat(np.arange(len(pending)), counts)
+    view_k = np.concatenate([np.arange(n) for n in counts])
+    sides = np.linalg.norm(views - np.roll(views, -1, axis=1), axis=-1) * METERS_PER_DEGREE
+    diagonals = np.linalg.norm(views[:, [0, 1]] - views[:, [2, 3]], axis=-1) * METERS_PER_DEGREE
+    mean_side = sides.mean(axis=1)
+    degenerate = sides.min(axis=1) < MIN_EDGE_M
+    with np.errstate(divide="ignore", invalid="ignore"):
+        side_err = np.abs(sides / mean_side[:, None] - 1.0).max(axis=1)
+        diag_err = np.abs(diagonals / (mean_side[:, None] * math.sqrt(2.0)) - 1.0).max(axis=1)
+    not_square = ~degenerate & ((side_err > SQUARE_TOLERANCE) | (diag_err > SQUARE_TOLERANCE))
+    # FL -> FR -> BR -> BL runs clockwise on a north-up map: negative cross product in
+    # (east, north) coordinates.
+    a = views[:, 1] - views[:, 0]
+    b = views[:, 3] - views[:, 0]
+    cross = a[:, 1] * b[:, 0] - a[:, 0] * b[:, 1]
+    mirrored = ~degenerate & ~not_square & (cross > 0)
+    lo = np.array([p.raw["gps_botm_left"] for p in pending])[owner]
+    hi = np.array([p.raw["gps_top_right"] for p in pending])[owner]
+    outside = ((views < lo[:, None, :]) | (views > hi[:, None, :])).any(axis=(1, 2))
+
+    bad: set[int] = set()
+    problems = (
+        (degenerate, "degenerate view: an edge is shorter than {min} m (sides {sides} m)"),
+        (not_square, "view is not square (sides {sides} m, diagonals {diags} m)"),
+        (mirrored, "corners are not in the order front-left, front-right, back-right, back-left"),
+        (outside, "view lies outside the map bounds gps_botm_left..gps_top_right"),
+    )
+    for mask, template in problems:
+        for v in np.flatnonzero(mask):
+            p = pending[owner[v]]
+            message = template.format(
+                min=MIN_EDGE_M,
+                sides=", ".join(f"{s:.1f}" for s in sides[v]),
+                diags=", ".join(f"{d:.1f}" for d in diagonals[v]),
+            )
+            episode = episode_id_of(p.raw["map_name"], p.raw["route_index"])
+            issues.append(
+                ValidationIssue(file, message, p.index, episode, f"gt_path_corners[{view_k[v]}]")
+            )
+            bad.add(p.index)
+    return bad
+
+
+def _check_consistency(
+    pending: list[_Pending], file: str, issues: list[ValidationIssue]
+) -> set[int]:
+    """Duplicate episode ids and maps whose records disagree on the geo-reference."""
+    bad: set[int] = set()
+    first_of_episode: dict[str, int] = {}
+    georef_of_map: dict[str, tuple[Any, ...]] = {}
+    for p in pending:
+        raw = p.raw
+        episode = episode_id_of(raw["map_name"], raw["route_index"])
+        if episode in first_of_episode:
+            issues.append(
+                ValidationIssue(
+                    file,
+                    f"duplicate episode id (first seen in record {first_of_episode[episode]})",
+                    p.index,
+                    episode,
+                    "route_index",
+                )
+            )
+            bad.add(p.index)
+            continue
+        first_of_episode[episode] = p.index
+        georef = (
+            tuple(raw["gps_botm_left"]),
+            tuple(raw["gps_top_right"]),
+            raw["lng_ratio"],
+            raw["lat_ratio"],
+        )
+        known = georef_of_map.setdefault(raw["map_name"], georef)
+        if known != georef:
+            issues.append(
+                ValidationIssue(
+                    file,
+                    f"geo-reference differs from other records of map {raw['map_name']!r}",
+                    p.index,
+                    episode,
+                    "gps_botm_left",
+                )
+            )
+            bad.add(p.index)
+    return bad
+
+
+def _frozen(arr: NDArray[np.float64]) -> NDArray[np.float64]:
+    arr.flags.writeable = False
+    return arr
+
+
+def _build(p: _Pending) -> AvdnRecord:
+    raw = p.raw
+    extra = {k: v for k, v in raw.items() if k not in RECORD_KEYS}
+    return AvdnRecord(
+        map_name=raw["map_name"],
+        route_index=raw["route_index"],
+        instructions=raw["instructions"],
+        pre_dialogs=tuple(raw["pre_dialogs"]),
+        gps_botm_left=(raw["gps_botm_left"][0], raw["gps_botm_left"][1]),
+        gps_top_right=(raw["gps_top_right"][0], raw["gps_top_right"][1]),
+        lng_ratio=raw["lng_ratio"],
+        lat_ratio=raw["lat_ratio"],
+        angle=raw["angle"],
+        gt_path_corners=_frozen(p.corners),
+        attention_list=p.attention,
+        last_round_idx=raw.get("last_round_idx"),
+        destination=None if p.destination is None else _frozen(p.destination),
+        extra=MappingProxyType(extra),
+        source=MappingProxyType(raw),
+    )
+
+
+def parse_records_indexed(
+    data: Sequence[Any], file: str
+) -> tuple[list[int], list[AvdnRecord], list[ValidationIssue]]:
+    """:func:`parse_records`, also returning each valid record's index in ``data``."""
+    issues: list[ValidationIssue] = []
+    pending = [p for i, raw in enumerate(data) if (p := _check_record(raw, i, file, issues))]
+    bad = _check_view_geometry(pending, file, issues)
+    good = [p for p in pending if p.index not in bad]
+    bad |= _check_consistency(good, file, issues)
+    kept = [p for p in good if p.index not in bad]
+    issues.sort(key=lambda issue: issue.record_index if issue.record_index is not None else -1)
+    return [p.index for p in kept], [_build(p) for p in kept], issues
+
+
+def parse_records(data: Sequence[Any], file: str) -> tuple[list[AvdnRecord], list[ValidationIssue]]:
+    """Validate a decoded annotation list; returns the valid records and every issue.
+
+    Records are returned in file order; an invalid record is left out and described by
+    at least one issue. Nothing is dropped without an issue.
+    """
+    _, records, issues = parse_records_indexed(data, file)
+    return records, issues
+
+
+def parse_record(raw: Any, file: str = "<record>", index: int = 0) -> AvdnRecord:
+    """Validate and type a single record; raises AvdnValidationError when it is invalid."""
+    from skyvln_eval.errors import AvdnValidationError
+
+    records, issues = parse_records([raw], file)
+    if issues:
+        raise AvdnValidationError(
+            [ValidationIssue(i.file, i.message, index, i.episode_id, i.field) for i in issues]
+        )
+    return records[0]

@@ -1,0 +1,119 @@
+"""The toolkit's exceptions: one root, specific subclasses that build their own message.
+
+Anything a user can cause (a bad file, a wrong option, a missing map) raises one of these,
+never an ``assert``: callers can catch ``SkyvlnError`` and show the message as it is.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+
+class SkyvlnError(Exception):
+    """Root of every error the toolkit raises on purpose."""
+
+
+@dataclass(frozen=True)
+class ValidationIssue:
+    """One problem found in an input file, located as precisely as we can.
+
+    ``record_index`` is the 0-based position of the record in the file's JSON list and
+    ``field`` a path such as ``gt_path_corners[3][1]``; either is ``None`` when the problem
+    concerns the whole file or the whole record.
+    """
+
+    file: str
+    message: str
+    record_index: int | None = None
+    episode_id: str | None = None
+    field: str | None = None
+
+    def __str__(self) -> str:
+        where = self.file
+        if self.record_index is not None:
+            where += f", record {self.record_index}"
+        if self.episode_id is not None:
+            where += f" (episode {self.episode_id})"
+        if self.field is not None:
+            where += f", field '{self.field}'"
+        return f"{where}: {self.message}"
+
+
+class DataError(SkyvlnError):
+    """Input data is missing or malformed."""
+
+
+class AvdnFileError(DataError):
+    """A whole annotation file cannot be used (missing, not JSON, not a list)."""
+
+    def __init__(self, file: str, message: str) -> None:
+        self.issue = ValidationIssue(file=file, message=message)
+        super().__init__(str(self.issue))
+
+
+class AvdnValidationError(DataError):
+    """One or more records of an annotation file are invalid.
+
+    ``issues`` holds every problem found, so a caller can report them all at once.
+    """
+
+    max_listed = 20
+
+    def __init__(self, issues: Sequence[ValidationIssue]) -> None:
+        self.issues = tuple(issues)
+        lines = [str(issue) for issue in self.issues[: self.max_listed]]
+        more = len(self.issues) - len(lines)
+        if more > 0:
+            lines.append(f"... and {more} more problem(s); `skyvln-eval validate` lists them all")
+        hint = "(load with skip_invalid=True / --skip-invalid to skip the invalid records)"
+        super().__init__(
+            f"{len(self.issues)} invalid record(s) {hint}:\n" + "\n".join("  " + x for x in lines)
+        )
+
+
+class MapImageError(DataError):
+    """A map image is missing or cannot be decoded."""
+
+    def __init__(self, path: str, message: str, episode_id: str | None = None) -> None:
+        where = f" (episode {episode_id})" if episode_id else ""
+        super().__init__(f"{path}{where}: {message}")
+        self.path = path
+
+
+class NoGroundTruthError(SkyvlnError):
+    """Scoring was asked for episodes whose ground truth is withheld (real AVDN test_unseen)."""
+
+    def __init__(self, split: str, episode_ids: Sequence[str]) -> None:
+        shown = ", ".join(list(episode_ids)[:5])
+        super().__init__(
+            f"split '{split}' has no ground truth for {len(episode_ids)} episode(s) ({shown}...): "
+            "the real AVDN release keeps only the start view in test_unseen and its test server "
+            "is closed, so these episodes cannot be scored. Score val_seen / val_unseen, or use "
+            "the synthetic sample, whose test_unseen keeps its full ground truth."
+        )
+
+
+class FormatVersionError(SkyvlnError):
+    """A persisted file was written by an incompatible version of a format."""
+
+    def __init__(self, path: str, found: object, expected: object, what_to_do: str) -> None:
+        super().__init__(
+            f"{path}: format version {found!r} is not supported (expected {expected!r}). "
+            f"{what_to_do}"
+        )
+
+
+class ConfigError(SkyvlnError):
+    """A configuration value or command-line option is invalid."""
+
+
+class UnknownNameError(ConfigError):
+    """A registry lookup failed; the message suggests close matches."""
+
+    def __init__(self, kind: str, name: str, known: Sequence[str]) -> None:
+        import difflib
+
+        close = difflib.get_close_matches(name, list(known), n=3)
+        hint = f" Did you mean {', '.join(repr(c) for c in close)}?" if close else ""
+        super().__init__(f"unknown {kind} {name!r}.{hint} Known: {', '.join(sorted(known))}.")

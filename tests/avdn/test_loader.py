@@ -1,0 +1,133 @@
+"""Splits, trajectories and episodes (ANDH and ANDH-Full), dialogs and withheld ground truth."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from skyvln_eval.avdn import SPLITS, AvdnRecord, DialogTurn, load_split, parse_utterances
+from skyvln_eval.errors import AvdnValidationError, ConfigError, NoGroundTruthError
+from tests.conftest import make_record
+
+
+def trajectory(traj: str, rounds: int, map_name: str = "1913") -> list[dict]:
+    records = []
+    for r in range(1, rounds + 1):
+        instructions = "[INS] go north." if r == 1 else f"[QUE] where now {r}? [INS] turn left {r}."
+        records.append(
+            make_record(
+                map_name=map_name,
+                route_index=f"{traj}_{r}",
+                last_round_idx=rounds,
+                instructions=instructions,
+                pre_dialogs=[f"round {k}" for k in range(1, r)],
+                n_views=2 + r,
+            )
+        )
+    return records
+
+
+def test_all_four_splits_load(dataset_factory: Callable[..., Path]) -> None:
+    root = dataset_factory({split: trajectory("0", 1) for split in SPLITS})
+    for split in SPLITS:
+        loaded = load_split(root, split)
+        assert loaded.split == split and len(loaded.records) == 1
+        assert isinstance(loaded.records[0], AvdnRecord)
+
+
+def test_trajectories_are_grouped_and_sorted_by_round_not_file_order(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    records = trajectory("3", 3) + trajectory("10", 2) + trajectory("2", 1, map_name="55")
+    shuffled = [records[i] for i in (4, 1, 5, 0, 3, 2)]
+    root = dataset_factory({"val_seen": shuffled}, maps=("1913", "55"))
+    loaded = load_split(root, "val_seen")
+    groups = loaded.trajectories()
+    assert list(groups) == [("1913", "3"), ("1913", "10"), ("55", "2")]
+    assert [r.round_index for r in groups[("1913", "3")]] == [1, 2, 3]
+
+    andh = loaded.episodes("andh")
+    assert [e.episode_id for e in andh] == [
+        r["map_name"] + "__" + r["route_index"] for r in shuffled
+    ]
+    assert all(e.mode == "andh" and len(e.records) == 1 for e in andh)
+
+    full = loaded.episodes("andh-full")
+    assert [e.episode_id for e in full] == ["1913__3_1", "1913__10_1", "55__2_1"]
+    first = full[0]
+    assert [r.round_index for r in first.records] == [1, 2, 3]
+    assert np.array_equal(first.start_view, first.records[0].gt_path_corners[0])
+    assert np.array_equal(first.gt_end_view, first.records[-1].gt_path_corners[-1])
+    assert len(first.gt_path_corners) == 3 + 4 + 5
+    assert [t.speaker for t in first.dialog()] == [
+        "commander",
+        "follower",
+        "commander",
+        "follower",
+        "commander",
+    ]
+
+
+def test_incomplete_trajectory_cannot_form_a_full_episode(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    records = trajectory("0", 3)
+    del records[1]
+    root = dataset_factory({"val_seen": records + trajectory("1", 1)})
+    loaded = load_split(root, "val_seen")
+    with pytest.raises(AvdnValidationError, match=r"missing round\(s\) \[2\]"):
+        loaded.episodes("andh-full")
+    assert [e.episode_id for e in loaded.episodes("andh-full", skip_incomplete=True)] == [
+        "1913__1_1"
+    ]
+    with pytest.raises(ConfigError, match="unknown episode mode"):
+        loaded.episodes("full")  # type: ignore[arg-type]
+
+
+def test_test_split_with_only_start_views_has_no_ground_truth(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    records = [make_record(route_index=f"{i}_1", n_views=1) for i in range(3)]
+    root = dataset_factory({"test_unseen": records})
+    loaded = load_split(root, "test_unseen")
+    assert loaded.ground_truth_withheld
+    assert not loaded.episodes()[0].has_ground_truth
+    with pytest.raises(NoGroundTruthError, match="no ground truth for 3 episode") as info:
+        loaded.require_ground_truth()
+    assert "test server is closed" in str(info.value)
+
+
+def test_record_properties(dataset_factory: Callable[..., Path]) -> None:
+    root = dataset_factory(
+        {"val_unseen": [make_record(route_index="12_2", angle=359.6, last_round_idx=2)]}
+    )
+    record = load_split(root, "val_unseen").records[0]
+    assert record.episode_id == "1913__12_2"
+    assert (record.trajectory_index, record.round_index) == ("12", 2)
+    assert record.start_heading_deg == 0  # round(359.6) % 360
+    assert record.georef.lat_ratio == 1e-5
+    assert record.gt_path_corners.shape == (3, 4, 2)
+    assert not record.gt_path_corners.flags.writeable
+
+
+def test_dialog_parsing() -> None:
+    turns = parse_utterances("[QUE] is it the church? [INS] yes, land there.", 2)
+    assert turns == [
+        DialogTurn(2, "follower", "is it the church?"),
+        DialogTurn(2, "commander", "yes, land there."),
+    ]
+    assert parse_utterances("fly north", 1) == [DialogTurn(1, "commander", "fly north")]
+    record = make_record(
+        route_index="0_2", pre_dialogs=["[INS] go east."], instructions="[QUE] now? [INS] stop."
+    )
+    from skyvln_eval.avdn import parse_record
+
+    dialog = parse_record(record).dialog()
+    assert [(t.round_index, t.speaker) for t in dialog] == [
+        (1, "commander"),
+        (2, "follower"),
+        (2, "commander"),
+    ]

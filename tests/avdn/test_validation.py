@@ -1,0 +1,249 @@
+"""Bad input gets a specific error naming the file, record index, episode id and field."""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from skyvln_eval.avdn import check_split, load_split, parse_record
+from skyvln_eval.errors import AvdnFileError, AvdnValidationError, ValidationIssue
+from tests.conftest import make_record
+
+
+def only_issue(dataset_factory: Callable[..., Path], records: list[Any]) -> ValidationIssue:
+    root = dataset_factory({"val_seen": records})
+    _, issues = check_split(root, "val_seen")
+    assert len(issues) == 1, [str(i) for i in issues]
+    issue = issues[0]
+    assert issue.file.endswith("annotations/val_seen_data.json")
+    return issue
+
+
+def test_valid_records_have_no_issues(dataset_factory: Callable[..., Path]) -> None:
+    root = dataset_factory(
+        {"val_seen": [make_record(route_index="0_1"), make_record(route_index="1_1")]}
+    )
+    records, issues = check_split(root, "val_seen")
+    assert issues == []
+    assert [r.episode_id for r in records] == ["1913__0_1", "1913__1_1"]
+
+
+def test_missing_key(dataset_factory: Callable[..., Path]) -> None:
+    bad = make_record(route_index="3_1")
+    del bad["angle"]
+    issue = only_issue(dataset_factory, [make_record(), bad])
+    assert (issue.record_index, issue.episode_id, issue.field) == (1, "1913__3_1", "angle")
+    assert "missing required key" in issue.message
+    assert (
+        "record 1" in str(issue) and "episode 1913__3_1" in str(issue) and "'angle'" in str(issue)
+    )
+
+
+def test_optional_keys_may_be_absent(dataset_factory: Callable[..., Path]) -> None:
+    record = make_record()
+    del record["destination"], record["last_round_idx"]
+    root = dataset_factory({"val_seen": [record]})
+    records, issues = check_split(root, "val_seen")
+    assert issues == [] and records[0].destination is None and records[0].last_round_idx is None
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("map_name", 1913, "expected a string, got integer"),
+        ("angle", "north", "expected a number, got string"),
+        ("pre_dialogs", "hello", "expected a list of strings"),
+        ("lat_ratio", True, "expected a number, got boolean"),
+        ("last_round_idx", 1.5, "expected an integer >= 1"),
+        ("route_index", "7", "expected '<trajectory>_<round>'"),
+    ],
+)
+def test_wrong_type(
+    dataset_factory: Callable[..., Path], field: str, value: Any, message: str
+) -> None:
+    issue = only_issue(dataset_factory, [make_record(**{field: value})])
+    assert issue.field == field
+    assert message in issue.message
+
+
+def test_corner_with_wrong_type_is_located(dataset_factory: Callable[..., Path]) -> None:
+    record = make_record()
+    record["gt_path_corners"][1][2][0] = "30.1"
+    issue = only_issue(dataset_factory, [record])
+    assert issue.field == "gt_path_corners[1][2][0]"
+    assert "expected a number, got string" in issue.message
+
+
+@pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf])
+def test_nan_or_infinite_coordinate(dataset_factory: Callable[..., Path], value: float) -> None:
+    record = make_record()
+    record["gt_path_corners"][2][3][1] = value
+    issue = only_issue(dataset_factory, [record])
+    assert issue.field == "gt_path_corners[2][3][1]"
+    assert "NaN or infinite" in issue.message
+
+
+def test_nan_in_json_text_is_caught(tmp_path: Path, dataset_factory: Callable[..., Path]) -> None:
+    root = dataset_factory({"val_seen": [make_record()]})
+    path = root / "annotations" / "val_seen_data.json"
+    text = path.read_text()
+    path.write_text(text.replace('"angle": 30.0', '"angle": NaN'))
+    _, issues = check_split(root, "val_seen")
+    assert [(i.field, "NaN" in i.message) for i in issues] == [("angle", True)]
+
+
+def test_empty_gt_path(dataset_factory: Callable[..., Path]) -> None:
+    issue = only_issue(dataset_factory, [make_record(gt_path_corners=[])])
+    assert issue.field == "gt_path_corners"
+    assert "empty gt_path_corners" in issue.message
+
+
+def test_wrong_view_shape(dataset_factory: Callable[..., Path]) -> None:
+    record = make_record()
+    record["gt_path_corners"][0] = record["gt_path_corners"][0][:3]
+    issue = only_issue(dataset_factory, [record])
+    assert issue.field == "gt_path_corners"
+    assert "shape 4x2" in issue.message
+
+
+def test_degenerate_view(dataset_factory: Callable[..., Path]) -> None:
+    record = make_record()
+    point = record["gt_path_corners"][1][0]
+    record["gt_path_corners"][1] = [point, point, point, point]
+    issue = only_issue(dataset_factory, [record])
+    assert issue.field == "gt_path_corners[1]"
+    assert "degenerate view" in issue.message
+
+
+def test_non_square_view(dataset_factory: Callable[..., Path]) -> None:
+    record = make_record()
+    view = record["gt_path_corners"][0]
+    view[1] = [view[1][0] + 0.0002, view[1][1]]  # stretch the front-right corner by ~22 m
+    issue = only_issue(dataset_factory, [record])
+    assert issue.field == "gt_path_corners[0]"
+    assert "not square" in issue.message
+
+
+def test_mirrored_corner_order(dataset_factory: Callable[..., Path]) -> None:
+    record = make_record()
+    fl, fr, br, bl = record["gt_path_corners"][0]
+    record["gt_path_corners"][0] = [fr, fl, bl, br]
+    issue = only_issue(dataset_factory, [record])
+    assert "front-left, front-right" in issue.message
+
+
+def test_view_outside_the_map(dataset_factory: Callable[..., Path]) -> None:
+    record = make_record()
+    record["gt_path_corners"] = [
+        [[lat + 0.0049, lng] for lat, lng in view] for view in record["gt_path_corners"]
+    ]
+    root = dataset_factory({"val_seen": [record]})
+    _, issues = check_split(root, "val_seen")
+    assert issues and all("outside the map bounds" in i.message for i in issues)
+    assert issues[-1].field == "gt_path_corners[2]"
+
+
+def test_duplicate_episode_id(dataset_factory: Callable[..., Path]) -> None:
+    issue = only_issue(
+        dataset_factory, [make_record(), make_record(), make_record(route_index="1_1")]
+    )
+    assert (issue.record_index, issue.episode_id, issue.field) == (1, "1913__0_1", "route_index")
+    assert "duplicate episode id (first seen in record 0)" in issue.message
+
+
+def test_inconsistent_georeference_on_one_map(dataset_factory: Callable[..., Path]) -> None:
+    issue = only_issue(
+        dataset_factory, [make_record(), make_record(route_index="1_1", lat_ratio=2e-5)]
+    )
+    assert issue.record_index == 1 and "geo-reference differs" in issue.message
+
+
+def test_missing_map_image(dataset_factory: Callable[..., Path]) -> None:
+    root = dataset_factory(
+        {"val_seen": [make_record(), make_record(map_name="77")]}, maps=("1913",)
+    )
+    _, issues = check_split(root, "val_seen")
+    assert len(issues) == 1
+    assert (issues[0].record_index, issues[0].episode_id, issues[0].field) == (
+        1,
+        "77__0_1",
+        "map_name",
+    )
+    assert "77.tif not found" in issues[0].message
+    records, issues = check_split(root, "val_seen", check_map_images=False)
+    assert len(records) == 2 and issues == []
+
+
+def test_record_that_is_not_an_object(dataset_factory: Callable[..., Path]) -> None:
+    issue = only_issue(dataset_factory, [make_record(), ["not", "a", "record"]])
+    assert issue.record_index == 1 and "expected a JSON object, got list" in issue.message
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ('{"a": 1}', "expected a JSON list of records, got a JSON object"),
+        ("[1, 2", "not valid JSON"),
+    ],
+)
+def test_file_that_is_not_a_json_list(
+    dataset_factory: Callable[..., Path], content: str, message: str
+) -> None:
+    root = dataset_factory({"val_seen": []})
+    (root / "annotations" / "val_seen_data.json").write_text(content)
+    with pytest.raises(AvdnFileError, match=message) as info:
+        load_split(root, "val_seen")
+    assert "val_seen_data.json" in str(info.value)
+
+
+def test_missing_annotation_file(tmp_path: Path) -> None:
+    with pytest.raises(AvdnFileError, match="annotation file not found"):
+        load_split(tmp_path, "val_unseen")
+
+
+def test_load_raises_with_every_problem_or_skips_and_reports(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    bad_angle = make_record(route_index="1_1", angle=None)
+    bad_corner = make_record(route_index="2_1")
+    bad_corner["gt_path_corners"][0][0][0] = math.nan
+    root = dataset_factory(
+        {"val_unseen": [make_record(), bad_angle, bad_corner, make_record(route_index="3_1")]}
+    )
+    with pytest.raises(AvdnValidationError) as info:
+        load_split(root, "val_unseen")
+    assert len(info.value.issues) == 2
+    assert "record 1" in str(info.value) and "record 2" in str(info.value)
+    loaded = load_split(root, "val_unseen", skip_invalid=True)
+    assert [r.route_index for r in loaded.records] == ["0_1", "3_1"]
+    assert loaded.skipped_record_indices == [1, 2]
+    assert {i.field for i in loaded.skipped} == {"angle", "gt_path_corners[0][0][0]"}
+
+
+def test_every_problem_of_a_record_is_reported(dataset_factory: Callable[..., Path]) -> None:
+    record = make_record(angle="x", lng_ratio=-1.0)
+    del record["instructions"]
+    root = dataset_factory({"val_seen": [record]})
+    _, issues = check_split(root, "val_seen")
+    assert [i.field for i in issues] == ["instructions"]  # missing keys stop the record early
+    record["instructions"] = "[INS] go"
+    root = dataset_factory({"val_seen": [record]})
+    _, issues = check_split(root, "val_seen")
+    assert sorted(i.field for i in issues) == ["angle", "lng_ratio"]
+
+
+def test_parse_record_round_trips_the_source() -> None:
+    raw = make_record(extra_key={"kept": True})
+    record = parse_record(copy.deepcopy(raw))
+    assert record.to_json_dict() == raw
+    assert record.extra == {"extra_key": {"kept": True}}
+    rebuilt = json.loads(json.dumps(record.to_json_dict()))
+    assert parse_record(rebuilt) == record
+    with pytest.raises(AvdnValidationError, match="angle"):
+        parse_record(make_record(angle=math.inf))

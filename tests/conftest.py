@@ -1,0 +1,91 @@
+"""Shared fixtures: small hand-made AVDN datasets and the bundled synthetic sample."""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+
+from skyvln_eval.avdn import view_from_pose
+
+REPO = Path(__file__).resolve().parent.parent
+FIXTURES = REPO / "tests" / "fixtures"
+SHARED_FIXTURES = REPO.parent / "shared" / "fixtures"
+
+BOTM_LEFT = (30.0, 40.0)
+TOP_RIGHT = (30.01, 40.01)  # about 1.1 km square in flat degrees
+
+
+def make_record(
+    map_name: str = "1913",
+    route_index: str = "0_1",
+    n_views: int = 3,
+    heading: float = 30.0,
+    **overrides: Any,
+) -> dict[str, Any]:
+    """A valid AVDN record on a 0.01 x 0.01 degree map, moving forward along ``heading``."""
+    centre = np.array([30.005, 40.005])
+    views = []
+    for k in range(n_views):
+        offset = np.array([np.cos(np.radians(heading)), np.sin(np.radians(heading))]) * 0.0004 * k
+        views.append(view_from_pose(centre + offset, heading, 100.0).tolist())
+    record: dict[str, Any] = {
+        "map_name": map_name,
+        "route_index": route_index,
+        "last_round_idx": int(route_index.split("_")[-1]),
+        "instructions": "[INS] go north and stop at the red building.",
+        "pre_dialogs": [],
+        "gps_botm_left": list(BOTM_LEFT),
+        "gps_top_right": list(TOP_RIGHT),
+        "lng_ratio": 1e-5,
+        "lat_ratio": 1e-5,
+        "angle": heading,
+        "destination": [list(corner) for corner in views[-1]],
+        "gt_path_corners": views,
+        "attention_list": [[[30.005, 40.005], 20]],
+    }
+    record.update(overrides)
+    return record
+
+
+def write_dataset(
+    root: Path, splits: dict[str, list[Any]], maps: tuple[str, ...] = ("1913",)
+) -> Path:
+    """Write annotation files (any JSON, valid or not) and small map images."""
+    (root / "annotations").mkdir(parents=True, exist_ok=True)
+    (root / "train_images").mkdir(parents=True, exist_ok=True)
+    for split, data in splits.items():
+        (root / "annotations" / f"{split}_data.json").write_text(json.dumps(data))
+    image = np.full((100, 100, 3), 128, np.uint8)
+    for name in maps:
+        cv2.imwrite(str(root / "train_images" / f"{name}.tif"), image)
+    return root
+
+
+@pytest.fixture
+def dataset_factory(tmp_path: Path) -> Callable[..., Path]:
+    counter = iter(range(1000))
+
+    def factory(splits: dict[str, list[Any]], maps: tuple[str, ...] = ("1913",)) -> Path:
+        return write_dataset(tmp_path / f"ds{next(counter)}", splits, maps)
+
+    return factory
+
+
+@pytest.fixture(scope="session")
+def sample_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The bundled synthetic sample, built once per session (or reused from the cache).
+
+    Set SKYVLN_EVAL_CACHE to reuse a cache between runs; otherwise it is built into a
+    temporary folder.
+    """
+    from skyvln_eval.worlds.sample import ensure_sample
+
+    root = os.environ.get("SKYVLN_EVAL_CACHE") or tmp_path_factory.mktemp("cache")
+    return ensure_sample(root)
