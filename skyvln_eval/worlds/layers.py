@@ -1,0 +1,115 @@
+"""Read and write the extra layers of synthetic tiles, next to the AVDN layout.
+
+``<data_dir>/world_layers/<map_name>/`` holds ``semantic.png`` (uint8 classes),
+``instance.png`` (uint16 landmark ids), ``height_dm.png`` (uint16 decimetres) and
+``landmarks.json``; all on the official resized grid of the map. PNG keeps the files
+lossless, byte-identical for identical input, and viewable with any image tool.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from skyvln_eval.errors import FormatVersionError, MapImageError
+from skyvln_eval.fileio import atomic_write_bytes, atomic_write_json
+from skyvln_eval.worlds.tile import Landmark
+
+LAYERS_DIR = "world_layers"
+LAYERS_FORMAT = "skyvln-eval/world-layers"
+LAYERS_FORMAT_VERSION = 1
+
+
+def layers_dir(data_dir: str | Path, map_name: str) -> Path:
+    return Path(data_dir) / LAYERS_DIR / map_name
+
+
+def _png(array: NDArray[Any]) -> bytes:
+    ok, buf = cv2.imencode(".png", array, [cv2.IMWRITE_PNG_COMPRESSION, 6])
+    if not ok:  # pragma: no cover - OpenCV always encodes these dtypes
+        raise RuntimeError("PNG encoding failed")
+    return buf.tobytes()
+
+
+def write_world_layers(
+    data_dir: str | Path,
+    map_name: str,
+    semantic: NDArray[np.uint8],
+    instance: NDArray[np.uint16],
+    height_m: NDArray[np.float32],
+    landmarks: list[Landmark],
+    meta: dict[str, Any],
+) -> None:
+    folder = layers_dir(data_dir, map_name)
+    atomic_write_bytes(folder / "semantic.png", _png(semantic.astype(np.uint8)))
+    atomic_write_bytes(folder / "instance.png", _png(instance.astype(np.uint16)))
+    height_dm = np.clip(np.round(height_m * 10.0), 0, 65535).astype(np.uint16)
+    atomic_write_bytes(folder / "height_dm.png", _png(height_dm))
+    atomic_write_json(
+        folder / "landmarks.json",
+        {
+            "format": LAYERS_FORMAT,
+            "version": LAYERS_FORMAT_VERSION,
+            "map_name": map_name,
+            "meta": meta,
+            "landmarks": [
+                {
+                    "landmark_id": lm.landmark_id,
+                    "name": lm.name,
+                    "category": lm.category,
+                    "description": lm.description,
+                    "centre": list(lm.centre),
+                    "footprint": [list(p) for p in lm.footprint],
+                    "height_m": lm.height_m,
+                }
+                for lm in landmarks
+            ],
+        },
+        indent=1,
+    )
+
+
+def _read_png(path: Path, flags: int) -> NDArray[Any]:
+    image = cv2.imread(str(path), flags)
+    if image is None:
+        raise MapImageError(str(path), "missing or unreadable layer image")
+    return image
+
+
+def read_world_layers(
+    data_dir: str | Path, map_name: str
+) -> tuple[NDArray[np.uint8], NDArray[np.uint16], NDArray[np.float32], tuple[Landmark, ...]] | None:
+    """The layers of a synthetic map, or None when the map has none (e.g. real xView)."""
+    folder = layers_dir(data_dir, map_name)
+    meta_path = folder / "landmarks.json"
+    if not meta_path.is_file():
+        return None
+    info = json.loads(meta_path.read_text(encoding="utf-8"))
+    if info.get("format") != LAYERS_FORMAT or info.get("version") != LAYERS_FORMAT_VERSION:
+        raise FormatVersionError(
+            str(meta_path),
+            info.get("version"),
+            LAYERS_FORMAT_VERSION,
+            "Regenerate the synthetic dataset with this version (`skyvln-eval sample --force`).",
+        )
+    semantic = _read_png(folder / "semantic.png", cv2.IMREAD_UNCHANGED).astype(np.uint8)
+    instance = _read_png(folder / "instance.png", cv2.IMREAD_UNCHANGED).astype(np.uint16)
+    height = _read_png(folder / "height_dm.png", cv2.IMREAD_UNCHANGED).astype(np.float32) / 10.0
+    landmarks = tuple(
+        Landmark(
+            landmark_id=int(item["landmark_id"]),
+            name=item["name"],
+            category=item["category"],
+            description=item["description"],
+            centre=(float(item["centre"][0]), float(item["centre"][1])),
+            footprint=tuple((float(p[0]), float(p[1])) for p in item["footprint"]),
+            height_m=float(item["height_m"]),
+        )
+        for item in info["landmarks"]
+    )
+    return semantic, instance, height, landmarks
