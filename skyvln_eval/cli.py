@@ -1,0 +1,240 @@
+"""The ``skyvln-eval`` command: one sub-command per verb.
+
+Commands only parse options, call the library and format its results; everything they
+do is available from Python too. Errors the user can fix (``SkyvlnError``) print as one
+clear message and exit with status 2; validation problems exit with status 1.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import asdict
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
+
+import typer
+from rich import box
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from skyvln_eval.errors import SkyvlnError
+
+if TYPE_CHECKING:
+    from skyvln_eval.avdn import SplitSummary
+
+app = typer.Typer(
+    name="skyvln-eval",
+    help="Dataset and evaluation toolkit for aerial vision-and-language navigation (AVDN, SkyVLN).",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+# Without a terminal Rich assumes 80 columns, which truncates tables in logs and CI.
+console = Console(width=None if sys.stdout.isatty() else 110)
+err_console = Console(stderr=True, width=None if sys.stderr.isatty() else 110)
+
+DATASET_SIZES = ("sample", "full")
+
+
+def _echo_problem(text: str, colour: str = "red") -> None:
+    """One problem per line on stderr: plain text (no wrapping, no markup), easy to grep."""
+    typer.echo(typer.style(text, fg=colour), err=True)
+
+
+def _build_dataset(size: str, out: Path | None, force: bool, workers: int) -> Path:
+    from skyvln_eval.worlds.sample import SPECS, ensure_dataset
+
+    if size not in DATASET_SIZES:
+        raise typer.BadParameter(f"--size must be one of {', '.join(DATASET_SIZES)}")
+    spec = SPECS[size]
+    with Progress(
+        TextColumn("[bold]generating {task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=err_console,
+        transient=True,
+    ) as progress:
+        task = progress.add_task(f"{size} dataset maps", total=len(spec.map_splits()))
+        return ensure_dataset(
+            spec,
+            out,
+            workers=workers,
+            force=force,
+            on_map_done=lambda _: progress.advance(task),
+        )
+
+
+@app.command()
+def sample(
+    size: Annotated[
+        str,
+        typer.Option(
+            help="'sample' (a few maps and episodes) or 'full' (AVDN-sized, 6,269 records)"
+        ),
+    ] = "sample",
+    out: Annotated[
+        Path | None, typer.Option(help="Parent folder for the dataset (default: the cache)")
+    ] = None,
+    force: Annotated[bool, typer.Option(help="Rebuild even if it exists")] = False,
+    workers: Annotated[int, typer.Option(min=1, help="Processes for map generation")] = 1,
+) -> None:
+    """Generate the synthetic AVDN-format dataset (byte-identical each time); print its folder."""
+    path = _build_dataset(size, out, force, workers)
+    console.print(str(path))
+
+
+def _split_table(summaries: list[SplitSummary]) -> Table:
+    table = Table(
+        title="AVDN-format dataset",
+        caption="rounds: trajectories with 1/2/3/4+ rounds",
+        box=box.SIMPLE_HEAD,
+    )
+    for column in (
+        "split",
+        "records",
+        "traj",
+        "maps",
+        "rounds",
+        "views",
+        "GT m",
+        "D_net m",
+        "edge m",
+        "replay IoU",
+    ):
+        table.add_column(column, justify="left" if column == "split" else "right")
+    for s in summaries:
+        if s.ground_truth_withheld:
+            replay = "withheld"
+        else:
+            replay = f"{s.gt_replay_min_iou:.6f}" if s.gt_replay_min_iou is not None else "-"
+        rounds = (
+            "/".join(str(s.rounds.get(k, 0)) for k in (1, 2, 3))
+            + f"/{sum(v for k, v in s.rounds.items() if k >= 4)}"
+        )
+        table.add_row(
+            s.split,
+            str(s.records),
+            str(s.trajectories),
+            str(s.maps),
+            rounds,
+            f"{s.mean_views:.1f}",
+            f"{s.mean_gt_length_m:.0f}",
+            f"{s.mean_d_net_m:.0f}",
+            f"{s.min_edge_m:.0f}-{s.max_edge_m:.0f}",
+            replay,
+        )
+    return table
+
+
+def _summarise(data_dir: Path, skip_invalid: bool) -> list[SplitSummary]:
+    from skyvln_eval.avdn import SPLITS, annotation_file_name, load_split, summarise_split
+
+    summaries = []
+    for split in SPLITS:
+        if not (data_dir / "annotations" / annotation_file_name(split)).is_file():
+            _echo_problem(f"{split}: no annotation file, skipped", "yellow")
+            continue
+        loaded = load_split(data_dir, split, skip_invalid=skip_invalid)
+        for issue in loaded.skipped:
+            _echo_problem(f"skipped: {issue}", "yellow")
+        if loaded.skipped:
+            _echo_problem(
+                f"{split}: skipped {len(loaded.skipped_record_indices)} invalid record(s), "
+                f"loaded {len(loaded.records)}",
+                "yellow",
+            )
+        summaries.append(summarise_split(loaded))
+    return summaries
+
+
+@app.command()
+def summary(
+    data_dir: Annotated[
+        Path, typer.Argument(help="Dataset folder with annotations/ and train_images/")
+    ],
+    skip_invalid: Annotated[
+        bool, typer.Option(help="Skip invalid records (each is reported) instead of failing")
+    ] = False,
+) -> None:
+    """Load every split of a dataset and print its figures."""
+    console.print(_split_table(_summarise(data_dir, skip_invalid)))
+
+
+@app.command()
+def validate(
+    paths: Annotated[list[Path], typer.Argument(help="Dataset folders to check")],
+    no_images: Annotated[
+        bool, typer.Option("--no-images", help="Do not check that map images exist")
+    ] = False,
+) -> None:
+    """Report every problem in every split of the given datasets; exit 1 if there is any."""
+    from skyvln_eval.avdn import SPLITS, annotation_file_name, check_split
+
+    problems = 0
+    for path in paths:
+        found = False
+        for split in SPLITS:
+            if not (path / "annotations" / annotation_file_name(split)).is_file():
+                continue
+            found = True
+            try:
+                records, issues = check_split(path, split, check_map_images=not no_images)
+            except SkyvlnError as exc:
+                _echo_problem(str(exc))
+                problems += 1
+                continue
+            for issue in issues:
+                _echo_problem(str(issue))
+            problems += len(issues)
+            bad = len({i.record_index for i in issues})
+            status = "ok" if not issues else f"{len(issues)} problem(s) in {bad} record(s)"
+            typer.echo(f"{path} {split}: {len(records)} valid record(s), {status}")
+        if not found:
+            _echo_problem(f"{path}: no annotations/<split>_data.json found")
+            problems += 1
+    if problems:
+        raise typer.Exit(1)
+
+
+@app.command()
+def reproduce(
+    out: Annotated[Path, typer.Option(help="Folder for everything reproduce writes")] = Path(
+        "reproduce-output"
+    ),
+    data_dir: Annotated[
+        Path | None,
+        typer.Option(
+            help="AVDN-format dataset (default: the bundled sample, generated on first use)"
+        ),
+    ] = None,
+) -> None:
+    """Run the main job on the bundled sample: generate, load and validate it, and summarise it."""
+    if data_dir is None:
+        data_dir = _build_dataset("sample", None, False, 1)
+    console.print(f"dataset: {data_dir}")
+    summaries = _summarise(data_dir, skip_invalid=False)
+    console.print(_split_table(summaries))
+    out.mkdir(parents=True, exist_ok=True)
+    from skyvln_eval.fileio import atomic_write_json
+
+    atomic_write_json(
+        out / "dataset_summary.json",
+        {"data_dir": str(data_dir), "splits": [asdict(s) for s in summaries]},
+        indent=1,
+    )
+    console.print(f"wrote {out / 'dataset_summary.json'}")
+
+
+def main() -> None:
+    """Entry point of the console script."""
+    try:
+        app()
+    except SkyvlnError as exc:
+        _echo_problem(f"error: {exc}")
+        raise SystemExit(2) from None
+
+
+if __name__ == "__main__":
+    main()

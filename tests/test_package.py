@@ -1,0 +1,47 @@
+"""Package hygiene: light imports, lint, formatting and types."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+from tests.conftest import REPO
+
+HEAVY = ("ray", "transformers", "torch", "openai")
+
+
+def test_importing_the_toolkit_imports_no_optional_heavy_dependency() -> None:
+    code = (
+        "import sys, skyvln_eval, skyvln_eval.avdn, skyvln_eval.worlds, skyvln_eval.cli\n"
+        f"print([m for m in {HEAVY!r} if m in sys.modules])"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO
+    )
+    assert out.stdout.strip() == "[]"
+
+
+def _tool(name: str) -> list[str]:
+    # The test extra installs ruff and mypy into this interpreter's environment.
+    return [sys.executable, "-m", name]
+
+
+def test_ruff_lint_is_clean() -> None:
+    result = subprocess.run(
+        [*_tool("ruff"), "check", "."], capture_output=True, text=True, cwd=REPO
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
+def test_ruff_format_is_clean() -> None:
+    result = subprocess.run(
+        [*_tool("ruff"), "format", "--check", "."], capture_output=True, text=True, cwd=REPO
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
+def test_mypy_is_clean() -> None:
+    result = subprocess.run(
+        [sys.executable, "-m", "mypy"], capture_output=True, text=True, cwd=REPO
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
