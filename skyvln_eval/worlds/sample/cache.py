@@ -16,16 +16,9 @@ from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
 
+from skyvln_eval.paths import cache_root
 from skyvln_eval.worlds.city.generate import GENERATOR_VERSION
 from skyvln_eval.worlds.sample.build import DATASET_INFO, SPECS, DatasetSpec, build_dataset
-
-
-def cache_root() -> Path:
-    if env := os.environ.get("SKYVLN_EVAL_CACHE"):
-        return Path(env)
-    if xdg := os.environ.get("XDG_CACHE_HOME"):
-        return Path(xdg) / "skyvln-eval"
-    return Path.home() / ".cache" / "skyvln-eval"
 
 
 def dataset_dir_name(spec: DatasetSpec) -> str:
