@@ -16,7 +16,20 @@ from skyvln_eval.avdn import view_from_pose
 
 REPO = Path(__file__).resolve().parent.parent
 FIXTURES = REPO / "tests" / "fixtures"
-SHARED_FIXTURES = REPO.parent / "shared" / "fixtures"
+
+
+def _shared_fixtures() -> Path:
+    """The project's shared fixtures: $SKYVLN_SHARED_DIR, else ../shared beside the checkout,
+    else /work/shared (where CI clones elsewhere on the same machine)."""
+    candidates = [Path(p) for p in (os.environ.get("SKYVLN_SHARED_DIR"),) if p]
+    candidates += [REPO.parent / "shared", Path("/work/shared")]
+    for candidate in candidates:
+        if (candidate / "fixtures").is_dir():
+            return candidate / "fixtures"
+    return candidates[0] / "fixtures"
+
+
+SHARED_FIXTURES = _shared_fixtures()
 
 BOTM_LEFT = (30.0, 40.0)
 TOP_RIGHT = (30.01, 40.01)  # about 1.1 km square in flat degrees
