@@ -26,6 +26,7 @@ from skyvln_eval.metrics.cost import COST_COLUMNS, episode_costs, module_costs, 
 from skyvln_eval.metrics.official import OFFICIAL_COLUMNS, official_metrics, sparse_hull_iou
 from skyvln_eval.metrics.predictions import (
     Prediction,
+    ground_truth_episodes,
     read_official_npy,
     read_predictions,
     read_predictions_json,
@@ -94,6 +95,7 @@ __all__ = [
     "dtw_and_coverage",
     "dtw_distance",
     "episode_costs",
+    "ground_truth_episodes",
     "module_costs",
     "official_metrics",
     "paired_comparison",

@@ -220,6 +220,21 @@ def read_predictions(path: str | Path) -> dict[str, Prediction]:
     raise DataError(f"{path}: unknown predictions format; expected .npy (official) or .json")
 
 
+def ground_truth_episodes(
+    data_dir: str | Path, split: str, mode: EpisodeMode = "andh"
+) -> list[Episode]:
+    """The episodes of a dataset split, refusing splits whose ground truth is withheld.
+
+    Raises :class:`~skyvln_eval.errors.NoGroundTruthError` for the real AVDN test_unseen
+    (start views only); the synthetic sample's test_unseen keeps its ground truth.
+    """
+    from skyvln_eval.avdn.loader import load_split
+
+    loaded = load_split(data_dir, split, check_map_images=False)
+    loaded.require_ground_truth()
+    return loaded.episodes(mode)
+
+
 def results_from_predictions(
     predictions: Mapping[str, Prediction],
     ground_truth: Mapping[str, NDArray[np.float64]] | Sequence[Episode],
