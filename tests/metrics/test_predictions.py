@@ -24,13 +24,18 @@ from skyvln_eval.metrics import (
     summarise,
     write_predictions_json,
 )
-from tests.conftest import FIXTURES, SHARED_FIXTURES, make_record
+from tests.conftest import FIXTURES, REPO, SHARED_FIXTURES, make_record
+
+FULL_ROLLOUTS = "avdn_test_unseen_official_rollouts.json"
 
 
 def load_rollouts() -> list[dict[str, Any]]:
-    shared = SHARED_FIXTURES / "avdn_test_unseen_official_rollouts.json"
-    path = shared if shared.is_file() else FIXTURES / "avdn_official_rollouts_subset.json"
-    return json.loads(path.read_text())
+    """All 897 official rollouts from ../shared (beside a clone, or two levels up from a
+    worktree), else the project's 40-episode copy of them."""
+    for folder in (SHARED_FIXTURES, REPO.parents[1] / "shared" / "fixtures"):
+        if (folder / FULL_ROLLOUTS).is_file():
+            return json.loads((folder / FULL_ROLLOUTS).read_text())
+    return json.loads((FIXTURES / "avdn_official_rollouts_subset.json").read_text())
 
 
 def save_official_npy(path: Path, rollouts: list[dict[str, Any]]) -> None:
