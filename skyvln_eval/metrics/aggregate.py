@@ -87,8 +87,8 @@ def summarise(
 ) -> pd.DataFrame:
     """Per (system, split, mode, metric): n, mean and, if ``n_resamples``, a CI.
 
-    Bootstrap intervals resample episodes jointly for all metrics of a group (one set of
-    indices per group, seeded by ``seed``), so intervals of different metrics agree.
+    Every metric of a group is resampled with the same ``seed``, so metrics defined on
+    the same episodes share their resamples (their intervals agree with each other).
     """
     if scores.empty:
         raise MetricInputError("no scores to summarise")

@@ -16,8 +16,9 @@ from skyvln_eval.errors import MetricInputError
 
 FloatArray = NDArray[np.float64]
 
-#: Resampled values gathered per chunk (bounds memory to ~80 MB at float64).
-_CHUNK_VALUES = 10_000_000
+#: Resampled values gathered per chunk: ~8 MB of indices, small enough to stay in cache
+#: (larger chunks measured slower); drawing the random indices is the floor of the cost.
+_CHUNK_VALUES = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -78,10 +79,11 @@ def bootstrap_means(values: ArrayLike, n_resamples: int = 10_000, seed: int = 0)
     width = int(np.prod(arr.shape[1:], dtype=np.int64)) if arr.ndim > 1 else 1
     chunk = max(1, _CHUNK_VALUES // (n * width))
     out = np.empty((n_resamples, *arr.shape[1:]))
-    index_type = np.int32 if n < 2**31 else np.int64
     for start in range(0, n_resamples, chunk):
         stop = min(n_resamples, start + chunk)
-        idx = rng.integers(0, n, size=(stop - start, n), dtype=index_type)
+        idx = rng.integers(
+            0, n, size=(stop - start, n), dtype=np.int64
+        )  # int64 draws faster than int32
         out[start:stop] = arr[idx].mean(axis=1)
     return out
 

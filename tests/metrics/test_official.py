@@ -167,3 +167,24 @@ def test_an_ok_episode_needs_its_start_view_and_scoring_needs_input() -> None:
         score_results([])
     with pytest.raises(ResultRecordError, match="duplicate"):
         score_results([result([square(0, 0)], [square(0, 0)])] * 2)
+
+
+def test_the_iou_upper_bound_holds_and_oracle_success_matches_a_dense_computation() -> None:
+    from skyvln_eval.metrics.official import hull_iou_upper_bound
+
+    rng = np.random.default_rng(11)
+    a = np.stack([square(*rng.uniform(-60, 60, 2), rng.uniform(40, 200)) for _ in range(400)])
+    b = np.stack([square(*rng.uniform(-60, 60, 2), rng.uniform(40, 200)) for _ in range(400)])
+    p, g = iou_exactly_04()
+    a, b = np.concatenate([a, [p, g, p[[1, 0, 3, 2]]]]), np.concatenate([b, [g, g, g]])
+    assert (hull_iou_upper_bound(a, b) >= hull_iou(a, b) * (1 - 1e-9)).all()
+    # Oracle success of random paths equals the dense definition (every view's IoU).
+    results, dense = [], []
+    for k in range(150):
+        gt = np.stack([square(0, 0), square(*rng.uniform(-80, 80, 2), rng.uniform(40, 200))])
+        path = np.stack([square(*rng.uniform(-80, 80, 2), rng.uniform(40, 200)) for _ in range(4)])
+        results.append(result(path, gt, episode_id=f"e{k}"))
+        dense.append(float((hull_iou(path, np.repeat(gt[-1:], 4, axis=0)) > 0.4).any()))
+    scores = score_results(results)
+    assert scores.oracle_success.tolist() == dense
+    assert 0 < sum(dense) < len(dense)

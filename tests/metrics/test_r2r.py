@@ -156,7 +156,7 @@ def test_every_metric_is_finite_and_spl_never_exceeds_one(episodes: list) -> Non
         numeric = scores.select_dtypes("number").drop(columns=["n_views", "n_gt_views"])
         core = numeric.loc[:, ~numeric.columns.isin(["min_clearance_m"])].astype(float)
         assert np.isfinite(core.dropna(axis=1, how="all").to_numpy()).all()
-        for column in ("spl", "r2r_spl", "ndtw", "sdtw", "cls", "final_iou", "max_iou"):
+        for column in ("spl", "r2r_spl", "ndtw", "sdtw", "cls", "final_iou"):
             assert ((scores[column] >= 0) & (scores[column] <= 1 + 1e-12)).all(), column
         summary = summarise(scores, n_resamples=20)
         assert np.isfinite(summary[["mean", "ci_low", "ci_high"]].to_numpy()).all()
