@@ -37,6 +37,8 @@ FloatArray = NDArray[np.float64]
 #: SPL's floor on the denominator, metres (official).
 SPL_MIN_DENOMINATOR_M = 0.01
 
+_IOU_BLOCK = 8192
+
 #: Columns :func:`official_metrics` returns, with their units.
 OFFICIAL_COLUMNS: dict[str, str] = {
     "success": "0/1",
@@ -118,8 +120,11 @@ def sparse_hull_iou(a: FloatArray, b: FloatArray, needed_above: float | None = N
         # A relative margin keeps float error in the bound on the safe side.
         keep &= hull_iou_upper_bound(a, b) * (1.0 + 1e-6) > needed_above
     candidates = np.flatnonzero(keep)
-    if len(candidates):
-        out[candidates] = hull_iou(a[candidates], b[candidates])
+    # Blocks of a few thousand pairs: shapely's vectorised calls slow down per pair on
+    # very large arrays (measured ~1.5x at 60,000 pairs).
+    for start in range(0, len(candidates), _IOU_BLOCK):
+        block = candidates[start : start + _IOU_BLOCK]
+        out[block] = hull_iou(a[block], b[block])
     return out
 
 
