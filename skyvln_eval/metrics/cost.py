@@ -42,7 +42,8 @@ def call_totals(calls: Sequence[LlmCall]) -> dict[str, float]:
 
 def episode_costs(results: Sequence[EpisodeResult]) -> pd.DataFrame:
     """One row per result with its LLM totals (zeros when it made no call)."""
-    rows = [call_totals(r.llm_calls) for r in results]
+    zeros = call_totals(())
+    rows = [call_totals(r.llm_calls) if r.llm_calls else zeros for r in results]
     return pd.DataFrame(rows, columns=list(COST_COLUMNS))
 
 

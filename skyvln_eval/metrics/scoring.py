@@ -84,15 +84,13 @@ def score_results(
         frame[name] = values
     frame = pd.concat([frame, episode_costs(results)], axis=1)
     frame["has_control"] = [r.control is not None for r in results]
+    with_control = [k for k, r in enumerate(results) if r.control is not None]
     for column in CONTROL_COLUMNS:
-        cells: list[float | None] = []
-        for r in results:
-            if r.control is None:
-                cells.append(None)
-            elif column == "collided":
-                cells.append(float(r.control.collided))
-            else:
-                cells.append(getattr(r.control, column))
+        cells: list[float | None] = [None] * len(results)
+        for k in with_control:  # only rows with dynamics; the rest stay empty
+            control = results[k].control
+            assert control is not None
+            cells[k] = float(control.collided) if column == "collided" else getattr(control, column)
         frame[column] = pd.array(cells, dtype="Float64")
     bad = [c for c in metrics if not np.isfinite(frame[c].to_numpy(np.float64)).all()]
     if bad:  # a bug, never user input (inputs are checked finite): fail loudly
