@@ -227,6 +227,18 @@ def reproduce(
     console.print(f"wrote {out / 'dataset_summary.json'}")
 
 
+def _register_report_commands() -> None:
+    # Implementations live in skyvln_eval.reports.commands; they import heavy modules lazily.
+    from skyvln_eval.reports.commands import plot_app, score, table
+
+    app.command()(score)
+    app.command()(table)
+    app.add_typer(plot_app, name="plot")
+
+
+_register_report_commands()
+
+
 def main() -> None:
     """Entry point of the console script."""
     try:
