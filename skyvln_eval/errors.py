@@ -117,3 +117,15 @@ class UnknownNameError(ConfigError):
         close = difflib.get_close_matches(name, list(known), n=3)
         hint = f" Did you mean {', '.join(repr(c) for c in close)}?" if close else ""
         super().__init__(f"unknown {kind} {name!r}.{hint} Known: {', '.join(sorted(known))}.")
+
+
+class McapLogError(DataError):
+    """An MCAP log cannot be used: not MCAP, truncated, corrupt, or not what it should hold.
+
+    The message names the file and says what is wrong, so a user can tell a damaged copy
+    (fetch or convert it again) from a file of another kind.
+    """
+
+    def __init__(self, path: str, message: str) -> None:
+        self.path = path
+        super().__init__(f"{path}: {message}")
