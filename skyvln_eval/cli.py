@@ -164,16 +164,27 @@ def summary(
 
 @app.command()
 def validate(
-    paths: Annotated[list[Path], typer.Argument(help="Dataset folders to check")],
+    paths: Annotated[
+        list[Path],
+        typer.Argument(help="Dataset folders, MCAP files, or folders of converted MCAP logs"),
+    ],
     no_images: Annotated[
         bool, typer.Option("--no-images", help="Do not check that map images exist")
     ] = False,
 ) -> None:
-    """Report every problem in every split of the given datasets; exit 1 if there is any."""
+    """Report every problem in the given datasets or MCAP logs; exit 1 if there is any.
+
+    MCAP files are checked byte by byte (CRCs), message by message (JSON schema of their
+    channel) and for their format version; folders of logs also against their manifest.
+    """
     from skyvln_eval.avdn import SPLITS, annotation_file_name, check_split
+    from skyvln_eval.converters.commands import is_mcap_target, run_validate_mcap
 
     problems = 0
     for path in paths:
+        if is_mcap_target(path):
+            problems += run_validate_mcap(path, typer.echo, _echo_problem)
+            continue
         found = False
         for split in SPLITS:
             if not (path / "annotations" / annotation_file_name(split)).is_file():
@@ -195,6 +206,55 @@ def validate(
             _echo_problem(f"{path}: no annotations/<split>_data.json found")
             problems += 1
     if problems:
+        raise typer.Exit(1)
+
+
+@app.command()
+def convert(
+    data_dir: Annotated[Path, typer.Option(help="AVDN-format dataset folder")],
+    split: Annotated[str, typer.Option(help="Split to convert, e.g. val_unseen")],
+    out: Annotated[Path, typer.Option(help="Output folder (logs go to OUT/SPLIT/MODE/)")],
+    mode: Annotated[str, typer.Option(help="'andh' (one per record) or 'andh-full'")] = "andh",
+    workers: Annotated[int, typer.Option(min=1, help="Processes; output is identical")] = 1,
+    observations: Annotated[
+        bool, typer.Option(help="Write the GT observation image at each view")
+    ] = True,
+    skip_invalid: Annotated[
+        bool, typer.Option(help="Skip invalid records (each is reported) instead of failing")
+    ] = False,
+) -> None:
+    """Convert a split to one Foxglove-ready MCAP log per episode plus a parquet manifest.
+
+    Re-running skips episodes already converted from the same input; exit 1 if any failed.
+    """
+    from skyvln_eval.avdn import EPISODE_MODES
+    from skyvln_eval.converters import ConvertOptions
+    from skyvln_eval.converters.commands import run_convert
+
+    if mode not in EPISODE_MODES:
+        raise typer.BadParameter(f"--mode must be one of {', '.join(EPISODE_MODES)}")
+    with Progress(
+        TextColumn("[bold]converting {task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=err_console,
+        transient=True,
+    ) as progress:
+        task = progress.add_task(split, total=None)
+        failures = run_convert(
+            data_dir,
+            split,
+            out,
+            mode,
+            workers,
+            ConvertOptions(observations=observations),
+            skip_invalid,
+            typer.echo,
+            _echo_problem,
+            on_progress=lambda n: progress.advance(task, n),
+        )
+    if failures:
         raise typer.Exit(1)
 
 
