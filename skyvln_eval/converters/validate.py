@@ -28,6 +28,7 @@ from skyvln_eval.converters.reader import (
     McapLog,
     episode_from_log,
     read_log,
+    read_log_bytes,
 )
 from skyvln_eval.errors import SkyvlnError, ValidationIssue
 from skyvln_eval.fileio import sha256_file
@@ -68,18 +69,18 @@ def _message_problems(message: LogMessage, validator: Any) -> list[tuple[str, st
         ("/".join(str(p) for p in error.absolute_path), error.message)
         for error in validator.iter_errors(value)
     ]
-    if problems or not isinstance(value, dict):
+    if not isinstance(value, dict):
         return problems
     stamp = value.get("timestamp")
-    if isinstance(stamp, dict):
-        t_ns = stamp.get("sec", 0) * 1_000_000_000 + stamp.get("nsec", 0)
+    if isinstance(stamp, dict) and all(type(stamp.get(k)) is int for k in ("sec", "nsec")):
+        t_ns = stamp["sec"] * 1_000_000_000 + stamp["nsec"]
         if t_ns != message.log_time_ns:
             problems.append(
                 ("timestamp", f"is {t_ns} ns but the log time is {message.log_time_ns} ns")
             )
-    if message.schema_name == topics.COMPRESSED_IMAGE:
+    if message.schema_name == topics.COMPRESSED_IMAGE and isinstance(value.get("data"), str):
         try:
-            base64.b64decode(value.get("data", ""), validate=True)
+            base64.b64decode(value["data"], validate=True)
         except (binascii.Error, ValueError) as exc:
             problems.append(("data", f"is not valid base64: {exc}"))
     return problems
@@ -154,6 +155,20 @@ def check_log(path: str | Path) -> LogCheck:
         log = read_log(path)
     except SkyvlnError as exc:
         return LogCheck(str(path), 0, (ValidationIssue(str(path), str(exc)),))
+    return check_loaded_log(log)
+
+
+def check_log_bytes(data: bytes, name: str = "<bytes>") -> LogCheck:
+    """:func:`check_log` for a log held in memory."""
+    try:
+        log = read_log_bytes(data, name)
+    except SkyvlnError as exc:
+        return LogCheck(name, 0, (ValidationIssue(name, str(exc)),))
+    return check_loaded_log(log)
+
+
+def check_loaded_log(log: McapLog) -> LogCheck:
+    """Channel, version, record and message checks of a log that read without damage."""
     issues = _channel_issues(log)
     episode_id = None
     if topics.EPISODE_METADATA in log.metadata:
