@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import io
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 
 from skyvln_eval.avdn import SPLITS, Episode, MapGeoref, load_split
 from skyvln_eval.converters import DEFAULT_OPTIONS, ConvertOptions, McapLogWriter, convert_episode
@@ -59,3 +61,17 @@ def convert_to_bytes(
     with McapLogWriter(buffer) as writer:
         convert_episode(episode, world, writer, options)
     return buffer.getvalue()
+
+
+def chunk_payload_span(data: bytes) -> tuple[int, int]:
+    """(start, end) of the first chunk's compressed records, from the chunk index."""
+    summary = make_reader(io.BytesIO(data)).get_summary()
+    assert summary is not None
+    index = summary.chunk_indexes[0]
+    # Chunk record: opcode, length, start/end time, uncompressed size and CRC,
+    # compression string, records length, then the compressed records.
+    offset = index.chunk_start_offset + 1 + 8 + 8 + 8 + 8 + 4
+    (compression_len,) = struct.unpack_from("<I", data, offset)
+    offset += 4 + compression_len
+    (records_len,) = struct.unpack_from("<Q", data, offset)
+    return offset + 8, offset + 8 + records_len

@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import struct
 from pathlib import Path
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from mcap.reader import make_reader
 
 from skyvln_eval.avdn import Episode, parse_record
 from skyvln_eval.converters import McapLogWriter, read_episode, read_episode_bytes
@@ -17,7 +15,7 @@ from skyvln_eval.converters.convert import DEFAULT_OPTIONS, episode_metadata
 from skyvln_eval.converters.messages import log
 from skyvln_eval.errors import FormatVersionError, McapLogError
 from tests.conftest import make_record
-from tests.converters.conftest import convert_to_bytes, synthetic_world
+from tests.converters.conftest import chunk_payload_span, convert_to_bytes, synthetic_world
 
 EPISODE = Episode("val_seen", "andh", (parse_record(make_record(n_views=4)),))
 GOOD = convert_to_bytes(EPISODE, synthetic_world())
@@ -27,22 +25,6 @@ def _write(tmp_path: Path, data: bytes, name: str = "e.mcap") -> Path:
     path = tmp_path / name
     path.write_bytes(data)
     return path
-
-
-def _chunk_span(data: bytes) -> tuple[int, int]:
-    """(start, end) of the first chunk's compressed records, from the chunk index."""
-    import io
-
-    summary = make_reader(io.BytesIO(data)).get_summary()
-    assert summary is not None
-    index = summary.chunk_indexes[0]
-    # Chunk record: opcode, length, start/end time, uncompressed size and CRC,
-    # compression string, records length, then the compressed records.
-    offset = index.chunk_start_offset + 1 + 8 + 8 + 8 + 8 + 4
-    (compression_len,) = struct.unpack_from("<I", data, offset)
-    offset += 4 + compression_len
-    (records_len,) = struct.unpack_from("<Q", data, offset)
-    return offset + 8, offset + 8 + records_len
 
 
 def test_the_good_file_reads(tmp_path: Path) -> None:
@@ -64,7 +46,7 @@ def test_empty_file(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("where", [0.0, 0.3, 0.6, 0.99])
 def test_flipped_byte_in_a_chunk(tmp_path: Path, where: float) -> None:
-    start, end = _chunk_span(GOOD)
+    start, end = chunk_payload_span(GOOD)
     damaged = bytearray(GOOD)
     damaged[start + int((end - start - 1) * where)] ^= 0x40
     path = _write(tmp_path, bytes(damaged))
@@ -77,7 +59,7 @@ def test_flipped_chunk_byte_is_caught_by_the_chunk_crc_too() -> None:
     """Even without the data-section CRC, the chunk's own CRC or zstd catches the change."""
     from skyvln_eval.converters.reader import _records
 
-    start, end = _chunk_span(GOOD)
+    start, end = chunk_payload_span(GOOD)
     damaged = bytearray(GOOD)
     damaged[(start + end) // 2] ^= 0x01
     with pytest.raises(McapLogError, match="damaged"):
