@@ -27,6 +27,9 @@ from skyvln_eval.frames import view_to_pose
 if TYPE_CHECKING:
     import datasets
 
+#: Columns returned as float64 NumPy arrays.
+ARRAY_COLUMNS = ("gt_views_latlng", "gt_poses_enu")
+
 
 def _features(include_observations: bool) -> datasets.Features:
     import datasets
@@ -110,13 +113,22 @@ def _log_paths(source: str | Path | Iterable[str | Path]) -> list[Path]:
 def to_hf_dataset(
     source: str | Path | Iterable[str | Path], include_observations: bool = False
 ) -> datasets.Dataset:
-    """A ``datasets.Dataset`` of episodes from a folder of logs (sorted by name) or a list."""
+    """A ``datasets.Dataset`` of episodes from a folder of logs (sorted by name) or a list.
+
+    The array columns come back as float64 NumPy arrays (``datasets``' NumPy format would
+    otherwise cast them to float32, which loses about a metre in latitude); other columns
+    are plain Python values.
+    """
     import datasets
 
     rows = [episode_row(p, include_observations) for p in _log_paths(source)]
     features = _features(include_observations)
     columns = {name: [row[name] for row in rows] for name in features}
-    return datasets.Dataset.from_dict(columns, features=features)
+    table = datasets.Dataset.from_dict(columns, features=features)
+    table.set_format(
+        "numpy", columns=list(ARRAY_COLUMNS), output_all_columns=True, dtype=np.float64
+    )
+    return table
 
 
 def export_parquet(dataset: datasets.Dataset, path: str | Path) -> Path:

@@ -226,8 +226,8 @@ def check_manifest_folder(folder: str | Path) -> list[ValidationIssue]:
 
 def mcap_targets(path: Path) -> tuple[list[Path], list[Path]]:
     """(folders holding a manifest or logs, loose log files) at or below ``path``."""
-    if path.is_file():
-        return [], [path]
+    if not path.is_dir():
+        return [], [path]  # a file, or a missing path that check_log reports as not found
     folders = sorted(
         {p.parent for p in path.rglob("*.mcap")} | {p.parent for p in path.rglob(MANIFEST_NAME)}
     )
