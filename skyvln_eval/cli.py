@@ -42,20 +42,25 @@ def _echo_problem(text: str, colour: str = "red") -> None:
     typer.echo(typer.style(text, fg=colour), err=True)
 
 
+def _progress(verb: str) -> Progress:
+    """A transient progress bar on stderr: '<verb> <task description>'."""
+    return Progress(
+        TextColumn(f"[bold]{verb} {{task.description}}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=err_console,
+        transient=True,
+    )
+
+
 def _build_dataset(size: str, out: Path | None, force: bool, workers: int) -> Path:
     from skyvln_eval.worlds.sample import SPECS, ensure_dataset
 
     if size not in DATASET_SIZES:
         raise typer.BadParameter(f"--size must be one of {', '.join(DATASET_SIZES)}")
     spec = SPECS[size]
-    with Progress(
-        TextColumn("[bold]generating {task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        console=err_console,
-        transient=True,
-    ) as progress:
+    with _progress("generating") as progress:
         task = progress.add_task(f"{size} dataset maps", total=len(spec.map_splits()))
         return ensure_dataset(
             spec,
@@ -233,14 +238,7 @@ def convert(
 
     if mode not in EPISODE_MODES:
         raise typer.BadParameter(f"--mode must be one of {', '.join(EPISODE_MODES)}")
-    with Progress(
-        TextColumn("[bold]converting {task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        console=err_console,
-        transient=True,
-    ) as progress:
+    with _progress("converting") as progress:
         task = progress.add_task(split, total=None)
         failures = run_convert(
             data_dir,

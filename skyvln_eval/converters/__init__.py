@@ -6,6 +6,13 @@ on success); :func:`read_episode` verifies the file and returns an ``Episode`` e
 the one the AVDN reader produced. Topic, schema and frame names live in :mod:`.topics`.
 """
 
+from skyvln_eval.converters.batch import (
+    ConvertReport,
+    EpisodeOutcome,
+    convert_split,
+    episode_file_name,
+    split_output_dir,
+)
 from skyvln_eval.converters.convert import (
     CLOCK_STEP_NS,
     DEFAULT_OPTIONS,
@@ -13,6 +20,8 @@ from skyvln_eval.converters.convert import (
     convert_episode,
     episode_metadata,
 )
+from skyvln_eval.converters.hf import export_parquet, to_hf_dataset
+from skyvln_eval.converters.manifest import MANIFEST_NAME, ManifestRow, read_manifest
 from skyvln_eval.converters.reader import (
     LogChannel,
     LogMessage,
@@ -25,24 +34,38 @@ from skyvln_eval.converters.reader import (
     read_log,
     read_log_bytes,
 )
+from skyvln_eval.converters.validate import LogCheck, check_log, check_paths
 from skyvln_eval.converters.writer import McapLogWriter, encode_json
 
 __all__ = [
     "CLOCK_STEP_NS",
     "DEFAULT_OPTIONS",
+    "MANIFEST_NAME",
     "ConvertOptions",
+    "ConvertReport",
+    "EpisodeOutcome",
     "LogChannel",
+    "LogCheck",
     "LogMessage",
     "LogSummary",
+    "ManifestRow",
     "McapLog",
     "McapLogWriter",
+    "check_log",
+    "check_paths",
     "convert_episode",
+    "convert_split",
     "encode_json",
+    "episode_file_name",
     "episode_from_log",
     "episode_metadata",
+    "export_parquet",
     "message_digest",
     "read_episode",
     "read_episode_bytes",
     "read_log",
     "read_log_bytes",
+    "read_manifest",
+    "split_output_dir",
+    "to_hf_dataset",
 ]

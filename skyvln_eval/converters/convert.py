@@ -8,9 +8,11 @@ Layout of an episode log (names in :mod:`skyvln_eval.converters.topics`):
   (``PosesInFrame``), GT view squares, destination and attention circles
   (``SceneUpdate`` lines in the ``map`` frame, ENU metres), the start pose, and the fixed
   ``drone`` -> ``camera`` transform;
-- then, for GT view k at ``k * clock_step_ns``: the ``map`` -> ``drone`` transform, the
-  GPS fix of the view centre, the 224 x 224 GT observation, and the dialog turns of a
-  round at the first view of that round (ANDH gives the whole dialog at time 0).
+- then, for GT view k at ``k * clock_step_ns``: the ``map`` -> ``drone`` transform (drone at
+  height edge / 2 above the view centre, yaw from the official view heading), the GPS fix
+  of the view centre (its ``altitude`` is that height above ground, m), the 224 x 224 GT
+  observation, and the dialog turns of a round at the first view of that round (ANDH
+  gives the whole dialog at time 0).
 """
 
 from __future__ import annotations

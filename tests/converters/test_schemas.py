@@ -140,3 +140,18 @@ def test_check_log_reports_an_unreadable_file_once(tmp_path: Path) -> None:
     path.write_bytes(b"nope")
     check = check_log(path)
     assert len(check.issues) == 1 and "not an MCAP file" in check.issues[0].message
+
+
+def test_importing_the_converters_imports_no_heavy_dependency() -> None:
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, skyvln_eval.converters\n"
+        "heavy = ('datasets', 'torch', 'transformers', 'ray', 'openai')\n"
+        "print([m for m in heavy if m in sys.modules])"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO
+    )
+    assert out.stdout.strip() == "[]"
