@@ -10,7 +10,6 @@ from skyvln_eval.converters.batch import (
     ConvertReport,
     EpisodeOutcome,
     convert_split,
-    episode_file_name,
     split_output_dir,
 )
 from skyvln_eval.converters.convert import (
@@ -21,7 +20,12 @@ from skyvln_eval.converters.convert import (
     episode_metadata,
 )
 from skyvln_eval.converters.hf import export_parquet, to_hf_dataset
-from skyvln_eval.converters.manifest import MANIFEST_NAME, ManifestRow, read_manifest
+from skyvln_eval.converters.manifest import (
+    MANIFEST_NAME,
+    ManifestRow,
+    episode_file_name,
+    read_manifest,
+)
 from skyvln_eval.converters.reader import (
     LogChannel,
     LogMessage,

@@ -43,6 +43,7 @@ from skyvln_eval.converters.convert import (
 from skyvln_eval.converters.manifest import (
     MANIFEST_NAME,
     ManifestRow,
+    episode_file_name,
     gt_lengths_m,
     write_manifest,
 )
@@ -57,11 +58,6 @@ Status = Literal["converted", "skipped", "failed"]
 
 def split_output_dir(out_dir: str | Path, split: str, mode: str) -> Path:
     return Path(out_dir) / split / mode
-
-
-def episode_file_name(episode_id: str) -> str:
-    # Episode ids are map_name__route_index with validated characters: safe as file names.
-    return f"{episode_id}.mcap"
 
 
 @dataclass(frozen=True)

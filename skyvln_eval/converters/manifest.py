@@ -27,6 +27,12 @@ MANIFEST_VERSION: Final = 1
 _VERSION_KEY: Final = b"skyvln_eval.manifest_version"
 
 
+def episode_file_name(episode_id: str) -> str:
+    """The log's file name: ``<episode_id>.mcap``."""
+    # Episode ids are map_name__route_index with validated characters: safe as file names.
+    return f"{episode_id}.mcap"
+
+
 @dataclass(frozen=True)
 class ManifestRow:
     """One converted episode. Lengths in metres on the official flat 111,300 m/deg."""

@@ -5,7 +5,8 @@ see :func:`read_log`), the format and own-schema versions, the episode records
 re-parsed, each topic written with its declared schema, and every message decoded as JSON
 and validated against the JSON schema stored in its own channel (plus: ``timestamp``
 equals the log time, base64 image data decodes). For a folder with a manifest: every
-listed file present with the listed content hash and episode id, and no unlisted logs.
+listed file present, named after its episode id, with the listed content hash (so it is
+the very file the conversion wrote), and no unlisted logs.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from typing import Any, Final
 import jsonschema
 
 from skyvln_eval.converters import topics
-from skyvln_eval.converters.manifest import MANIFEST_NAME, read_manifest
+from skyvln_eval.converters.manifest import MANIFEST_NAME, episode_file_name, read_manifest
 from skyvln_eval.converters.reader import (
     LogChannel,
     LogMessage,
@@ -198,6 +199,11 @@ def check_manifest_folder(folder: str | Path) -> list[ValidationIssue]:
     issues = []
     for index, row in enumerate(rows):
         path = folder / row.file_name
+        if row.file_name != episode_file_name(row.episode_id):
+            message = f"file name {row.file_name} is not {episode_file_name(row.episode_id)}"
+            issues.append(
+                ValidationIssue(str(manifest), message, index, row.episode_id, "file_name")
+            )
         if not path.is_file():
             issues.append(
                 ValidationIssue(

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import shutil
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +16,8 @@ from skyvln_eval.avdn import distance_m, load_split, view_centre
 from skyvln_eval.converters import ConvertOptions, batch, read_log
 from skyvln_eval.converters import topics as t
 from skyvln_eval.converters.batch import convert_split, episode_file_name
-from skyvln_eval.converters.manifest import MANIFEST_NAME, read_manifest
+from skyvln_eval.converters.manifest import MANIFEST_NAME, read_manifest, write_manifest
+from skyvln_eval.converters.validate import check_manifest_folder
 from skyvln_eval.errors import AvdnValidationError, FormatVersionError
 from skyvln_eval.fileio import sha256_file
 from tests.conftest import make_record
@@ -152,3 +155,19 @@ def test_options_are_part_of_the_skip_decision(
     episode = load_split(data_dir, "val_seen").episodes("andh")[0]
     log = read_log(report.out_dir / episode_file_name(episode.episode_id))
     assert t.TOPIC_GT_OBSERVATION not in log.summary().topic_counts
+
+
+def test_manifest_check_catches_renamed_and_unlisted_files(
+    converted_sample: ConvertedSample, tmp_path: Path
+) -> None:
+    folder = tmp_path / "copy"
+    shutil.copytree(converted_sample.reports[("val_seen", "andh")].out_dir, folder)
+    assert check_manifest_folder(folder) == []
+    rows = read_manifest(folder / MANIFEST_NAME)
+    write_manifest(folder / MANIFEST_NAME, [replace(rows[0], episode_id="42__9_1"), *rows[2:]])
+    problems = [str(i) for i in check_manifest_folder(folder)]
+    assert problems == [
+        f"{folder / MANIFEST_NAME}, record 0 (episode 42__9_1), field 'file_name': "
+        f"file name {rows[0].file_name} is not 42__9_1.mcap",
+        f"{folder / rows[1].file_name}: not listed in {MANIFEST_NAME}",
+    ]
