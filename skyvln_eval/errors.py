@@ -171,3 +171,15 @@ class UnsafePickleError(DataError):
             "file with numpy.load(allow_pickle=True) either; ask its author for the JSON "
             "predictions format."
         )
+
+
+class McapLogError(DataError):
+    """An MCAP log cannot be used: not MCAP, truncated, corrupt, or not what it should hold.
+
+    The message names the file and says what is wrong, so a user can tell a damaged copy
+    (fetch or convert it again) from a file of another kind.
+    """
+
+    def __init__(self, path: str, message: str) -> None:
+        self.path = path
+        super().__init__(f"{path}: {message}")
