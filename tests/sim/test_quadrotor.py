@@ -1,4 +1,4 @@
-"""The paper's model: conventions, symbolic/float agreement, feed-forward inversion, config errors."""
+"""The paper's model: conventions, symbolic vs float, feed-forward inversion, config errors."""
 
 from __future__ import annotations
 
