@@ -117,3 +117,7 @@ class UnknownNameError(ConfigError):
         close = difflib.get_close_matches(name, list(known), n=3)
         hint = f" Did you mean {', '.join(repr(c) for c in close)}?" if close else ""
         super().__init__(f"unknown {kind} {name!r}.{hint} Known: {', '.join(sorted(known))}.")
+
+
+class SolverBuildError(SkyvlnError):
+    """A controller's solver functions had to be compiled (``compile: always``) and could not be."""
