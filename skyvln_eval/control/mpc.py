@@ -102,12 +102,7 @@ class MpcController(Controller):
             return self._fallback(start, iterations, "", yaw_ref)
         self._plan, self._plan_origin, self._plan_age = solution, origin, 0
         u = self.clip_input(solution[NZ : NZ + NU])
-        slack = max(
-            float(
-                np.max(solution[k * self.qp.stage + NZ + NU : (k + 1) * self.qp.stage], initial=0.0)
-            )
-            for k in range(n)
-        )
+        slack = float(np.max(solution[self.qp.slack_index], initial=0.0))
         status = "solved_soft" if slack > SLACK_TOLERANCE else "solved"
         elapsed_ms = (time.perf_counter() - start) * 1e3
         return self.command(u, yaw_ref, SolveStats(elapsed_ms, iterations, status))
@@ -135,19 +130,16 @@ class MpcController(Controller):
         self, x0: NDArray[np.float64], origin: NDArray[np.float64]
     ) -> NDArray[np.float64]:
         """The previous plan shifted by one step (in the new origin), else a hover guess."""
-        stage, n = self.qp.stage, self.horizon_steps
+        stage, first = self.qp.stage, np.concatenate([x0, self.previous_input])
         if self._plan is None:
-            guess = np.zeros(self.qp.n_w)
-            for k in range(n + 1):
-                guess[k * stage : k * stage + NZ] = np.concatenate([x0, self.previous_input])
-                if k < n:
-                    guess[k * stage + NZ : k * stage + NZ + NU] = self.previous_input
-            return guess
+            guess = np.zeros((self.horizon_steps + 1, stage))
+            guess[:, :NZ] = first
+            guess[:, NZ : NZ + NU] = self.previous_input
+            return guess.ravel()[: self.qp.n_w]
         plan = self._plan.copy()
-        for k in range(n + 1):
-            plan[k * stage : k * stage + 3] += self._plan_origin - origin
+        plan[self.qp.position_index] += np.tile(self._plan_origin - origin, self.horizon_steps + 1)
         guess = np.concatenate([plan[stage:], plan[-stage:]])  # shift; repeat the last stage
-        guess[:NZ] = np.concatenate([x0, self.previous_input])
+        guess[:NZ] = first
         return guess
 
     def _fallback(self, start: float, iterations: int, reason: str, yaw_ref: float) -> Command:

@@ -79,6 +79,10 @@ class StageQp:
         self.n_v = NU + (1 if m else 0)
         self.stage = NZ + self.n_v
         self.n_w = n * self.stage + NZ
+        starts = self.stage * np.arange(n + 1)
+        #: Where in ``w`` the positions of every stage, and the slacks, are.
+        self.position_index = (starts[:, None] + np.arange(3)).ravel()
+        self.slack_index = (starts[:n, None] + NZ + np.arange(NU, self.n_v)).ravel()
         self.n_p = NX + NU + (n + 1) * NX + n * NU + m * n * 3 + 2 * m
         w = ca.SX.sym("w", self.n_w)
         p = ca.SX.sym("p", self.n_p)
@@ -214,7 +218,7 @@ class StageQp:
         g, a, lba, uba, lbx, ubx = self.data(w_bar, params)
         out = self.solver(h=self.hessian, g=g, a=a, lba=lba, uba=uba, lbx=lbx, ubx=ubx, x0=w_bar)
         stats = self.solver.stats()
-        w = np.asarray(out["x"]).ravel()
+        w = out["x"].full().ravel()
         success = bool(stats.get("success", False)) and bool(np.isfinite(w).all())
         return QpSolution(
             w, success, int(stats.get("iter_count", -1)), str(stats.get("return_status", ""))
