@@ -32,6 +32,8 @@ from skyvln_eval.sim.reference import ReferenceConfig, ReferenceTrajectory, segm
 
 #: Slack for floating-point noise when checking the commands against the limits.
 LIMIT_TOLERANCE = 1e-9
+#: How long a segment may take beyond its reference to settle on the target, by default.
+SETTLE_TIME_S = 30.0
 
 
 class Predictor(Protocol):
@@ -93,16 +95,38 @@ class Flight:
     def dt_s(self) -> float:
         return self.controller.dt_s
 
-    def fly_to(self, target: ViewPose, max_time_s: float = 120.0) -> SegmentResult:
-        """Fly from the current state to ``target`` (ENU waypoint, height z_m, heading yaw_rad).
+    def segment_reference(self, target: ViewPose) -> ReferenceTrajectory:
+        """The reference :meth:`fly_to` would fly to ``target`` from here and now.
 
-        The reference starts now from the current position at ``reference_config``'s cruise
-        speed; the segment ends once the reference has ended and the drone has settled on
-        the target (:class:`ArrivalCriteria`), or after ``max_time_s``.
+        Useful to place obstacles against a segment before flying it::
+
+            reference = flight.segment_reference(target)
+            times = np.arange(flight.t_s, reference.end_time_s, 0.1)
+            new = make_scenario(spec, times, reference.window(times).position_m)
+            flight.scenario = flight.scenario.merged(new)
+            flight.fly_to(target, reference=reference)
         """
-        reference = segment_reference(
+        return segment_reference(
             self.state, target, self.t_s, self.reference_config, self.plant_config.params
         )
+
+    def fly_to(
+        self,
+        target: ViewPose,
+        max_time_s: float | None = None,
+        reference: ReferenceTrajectory | None = None,
+    ) -> SegmentResult:
+        """Fly from the current state to ``target`` (ENU waypoint, height z_m, heading yaw_rad).
+
+        The reference (``reference``, else :meth:`segment_reference`) starts now from the
+        current position at ``reference_config``'s cruise speed; the segment ends once the
+        reference has ended and the drone has settled on the target
+        (:class:`ArrivalCriteria`), or after ``max_time_s`` (default: the reference's
+        duration plus :data:`SETTLE_TIME_S`).
+        """
+        reference = reference or self.segment_reference(target)
+        if max_time_s is None:
+            max_time_s = max(reference.end_time_s - self.t_s, 0.0) + SETTLE_TIME_S
         goal = np.array([target.x_m, target.y_m, target.z_m])
 
         def arrived(state: DroneState, t_s: float) -> bool:
@@ -242,7 +266,7 @@ def fly_to(
     controller: Controller,
     scenario: ObstacleScenario | None = None,
     t0_s: float = 0.0,
-    max_time_s: float = 120.0,
+    max_time_s: float | None = None,
     seed: int = 0,
     plant_config: PlantConfig | None = None,
     reference_config: ReferenceConfig | None = None,

@@ -20,6 +20,7 @@ previous plan (``fallback_shift``, for at most a horizon) or eases to hover
 from __future__ import annotations
 
 import time
+from abc import abstractmethod
 from typing import Any
 
 import casadi as ca
@@ -50,9 +51,9 @@ class MpcController(Controller):
         self._plan_origin = np.zeros(3)
         self._plan_age = 0  # control steps since the plan was computed
 
+    @abstractmethod
     def prediction_model(self) -> ca.Function:
         """The discrete model ``x+ = F(x, u)`` the controller predicts with."""
-        raise NotImplementedError
 
     def reset(self) -> None:
         super().reset()

@@ -114,6 +114,13 @@ class ObstacleScenario:
     obstacles: tuple[SphereObstacle, ...] = ()
     seed: int = 0
 
+    def merged(self, other: ObstacleScenario) -> ObstacleScenario:
+        """Both scenarios' obstacles in one (e.g. those added for a new flight segment)."""
+        if not self.obstacles:
+            return other
+        name = self.name if not other.obstacles else f"{self.name}+{other.name}"
+        return ObstacleScenario(name, self.obstacles + other.obstacles, self.seed)
+
     def positions_m(self, t_s: float) -> NDArray[np.float64]:
         """Obstacle centres at time ``t_s``, shape ``(M, 3)``."""
         return self.trajectories_m(np.array([t_s]))[:, 0, :]

@@ -20,6 +20,7 @@ from skyvln_eval.control import (
 )
 from skyvln_eval.errors import DataError, FormatVersionError
 from skyvln_eval.frames import ViewPose
+from skyvln_eval.sim import ScenarioSpec, make_scenario
 from tests.control.helpers import START, TARGET, controller, scenario
 
 SECOND = ViewPose(4.0, 14.0, 15.0, -2.5)
@@ -105,3 +106,31 @@ def test_a_log_of_another_format_version_says_what_to_do(tmp_path: Path) -> None
     pq.write_table(table.replace_schema_metadata(metadata), path)
     with pytest.raises(FormatVersionError, match="Record the run again"):
         load_flight_log(path)
+
+
+def test_obstacles_added_per_segment_keep_moving_across_segments() -> None:
+    # The replay-harness pattern: plan the segment, place obstacles against it, fly it.
+    flight = Flight(controller("nmpc"), START, seed=3)
+    for i, target in enumerate((TARGET, SECOND)):
+        reference = flight.segment_reference(target)
+        times = np.arange(flight.t_s, reference.end_time_s, 0.1)
+        spec = ScenarioSpec(kind="crossing", n_obstacles=2, seed=10 + i)
+        new = make_scenario(spec, times, reference.window(times).position_m)
+        flight.scenario = flight.scenario.merged(new)
+        result = flight.fly_to(target, reference=reference)
+        assert result.reached and (result.log.min_clearance_m >= 0).all()
+    assert len(flight.scenario.obstacles) == 4
+    assert flight.log().scenario.iloc[-1] == "crossing-2-seed10+crossing-2-seed11"
+
+
+def test_more_obstacles_than_slots_are_still_avoided() -> None:
+    ctl = controller("nmpc", max_obstacles=2)
+    flight = Flight(ctl, START, scenario=scenario("crossing", seed=5, n_obstacles=5))
+    log = flight.fly_to(TARGET).log
+    assert (log.min_clearance_m >= 0).all()
+
+
+def test_a_long_segment_gets_the_time_it_needs_by_default() -> None:
+    far = ViewPose(300.0, 0.0, 10.0, 0.0)  # 150 s at the default 2 m/s cruise speed
+    result = Flight(controller("pid"), START).fly_to(far)
+    assert result.reached and result.t_end_s > 150.0

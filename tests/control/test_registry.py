@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -107,3 +109,12 @@ def test_a_bad_config_file_names_the_file_and_the_field(tmp_path: Path) -> None:
         ConfigError, match=r"bad.yaml: expected a mapping with a 'controller' field"
     ):
         load_controller(path)
+
+
+def test_importing_control_imports_no_optional_heavy_dependency() -> None:
+    heavy = ("ray", "transformers", "torch", "openai", "do_mpc")
+    code = f"import sys, skyvln_eval.control\nprint([m for m in {heavy!r} if m in sys.modules])"
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO
+    )
+    assert out.stdout.strip() == "[]"
