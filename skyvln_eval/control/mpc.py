@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 from skyvln_eval.control.base import Command, Controller, SolveStats
 from skyvln_eval.control.mpc_config import MpcConfig
 from skyvln_eval.control.stage_qp import NZ, StageQp
+from skyvln_eval.errors import ConfigError
 from skyvln_eval.sim.obstacles import ObstacleForecast
 from skyvln_eval.sim.quadrotor import NU, NX, DroneState, rk4_symbolic
 from skyvln_eval.sim.reference import ReferenceWindow
@@ -68,6 +69,12 @@ class MpcController(Controller):
     ) -> Command:
         start = time.perf_counter()
         n = self.horizon_steps
+        if len(reference.times_s) < n + 1 or obstacles.positions_m.shape[1] < n + 1:
+            raise ConfigError(
+                f"{self.name} needs the reference and the obstacle forecast at {n + 1} times "
+                f"(now and {n} steps of {self.dt_s} s), got {len(reference.times_s)} and "
+                f"{obstacles.positions_m.shape[1]}"
+            )
         yaw_ref = (
             float(reference.yaw_rad[0]) if np.isfinite(reference.yaw_rad[0]) else state.yaw_rad
         )
@@ -130,7 +137,8 @@ class MpcController(Controller):
     def _initial_guess(
         self, x0: NDArray[np.float64], origin: NDArray[np.float64]
     ) -> NDArray[np.float64]:
-        """The previous plan shifted by one step (in the new origin), else a hover guess."""
+        """The previous plan shifted to now (one step, more after fallbacks) and re-expressed
+        in the new origin, else a hover guess."""
         stage, first = self.qp.stage, np.concatenate([x0, self.previous_input])
         if self._plan is None:
             guess = np.zeros((self.horizon_steps + 1, stage))
@@ -139,7 +147,9 @@ class MpcController(Controller):
             return guess.ravel()[: self.qp.n_w]
         plan = self._plan.copy()
         plan[self.qp.position_index] += np.tile(self._plan_origin - origin, self.horizon_steps + 1)
-        guess = np.concatenate([plan[stage:], plan[-stage:]])  # shift; repeat the last stage
+        shift = min(self._plan_age + 1, self.horizon_steps)
+        # Drop the stages already flown; repeat the last input and state to fill the horizon.
+        guess = np.concatenate([plan[shift * stage :], np.tile(plan[-stage:], shift)])
         guess[:NZ] = first
         return guess
 

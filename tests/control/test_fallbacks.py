@@ -10,6 +10,7 @@ import pytest
 from skyvln_eval.control import Flight
 from skyvln_eval.control.mpc import MpcController
 from skyvln_eval.control.stage_qp import NZ, QpSolution
+from skyvln_eval.errors import ConfigError
 from skyvln_eval.sim import (
     ConstantVelocity,
     DroneState,
@@ -115,3 +116,27 @@ def test_a_flight_with_a_broken_solver_keeps_flying_and_counts_failures() -> Non
     assert result.failed_steps == int(result.log.solve_failed.sum()) > 0
     assert ctl.failures == result.failed_steps
     assert set(result.log.status[result.log.solve_failed]) == {"fallback_shift"}
+
+
+def test_a_too_short_reference_window_is_a_clear_error() -> None:
+    ctl = controller("nmpc")
+    times = 0.1 * np.arange(5)
+    window = segment_reference(START, TARGET, 0.0).window(times)
+    with pytest.raises(ConfigError, match="needs the reference and the obstacle forecast at 21"):
+        ctl.step(START, window, ObstacleForecast.none(times))
+
+
+def test_after_fallbacks_the_warm_start_is_shifted_to_now() -> None:
+    ctl = controller("nmpc")
+    assert isinstance(ctl, MpcController)
+    window, forecast = window_and_forecast(ctl)
+    ctl.step(START, window, forecast)
+    plan = ctl._plan.copy()  # type: ignore[union-attr]
+    solve = ctl.qp.solve
+    ctl.qp.solve = lambda w, p: QpSolution(w, False, 0, "max_iter")  # type: ignore[method-assign]
+    ctl.step(START, window, forecast)
+    ctl.step(START, window, forecast)  # two fallbacks: now is three steps after the plan
+    ctl.qp.solve = solve  # type: ignore[method-assign]
+    guess = ctl._initial_guess(START.model_vector() - [0, 0, 10, 0, 0, 0, 0, 0], START.position_m)
+    stage = ctl.qp.stage
+    assert np.allclose(guess[stage : 2 * stage], plan[4 * stage : 5 * stage])
