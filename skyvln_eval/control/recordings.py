@@ -9,12 +9,11 @@ across it at 0.5 m/s. Every controller meets the same obstacles at the same time
 is one flight log (:mod:`skyvln_eval.control.flight_log`) with the reference, so the
 reports can draw x/y/z and roll/pitch/yaw against the reference, and their errors.
 
-    python -m skyvln_eval.control.recordings OUT_DIR [--seed 0]
+    python -m skyvln_eval.control OUT_DIR [--seed 0]
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import math
 from collections.abc import Sequence
@@ -100,16 +99,3 @@ def record_paper_runs(
             path = Path(out_dir) / f"{case}_{name}.parquet"
             paths[(name, case)] = save_flight_log(frame, path, frame.attrs["settings"])
     return paths
-
-
-def main(argv: Sequence[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description="Record the paper's control-figure runs.")
-    parser.add_argument("out_dir", type=Path)
-    parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args(argv)
-    for (name, case), path in record_paper_runs(args.out_dir, seed=args.seed).items():
-        print(f"{case:8} {name:5} {path}")
-
-
-if __name__ == "__main__":
-    main()
