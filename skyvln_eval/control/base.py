@@ -63,6 +63,8 @@ class Controller(ABC):
 
     Subclasses set ``name``, ``horizon_steps`` (how many reference intervals ``step`` needs
     after now; 0 for a controller that only looks at the present) and ``dt_s``.
+    ``failures`` counts the failed (fallback) steps since the controller was made;
+    ``previous_input`` is the last input applied, which the rate limits start from.
     """
 
     name: str = "controller"

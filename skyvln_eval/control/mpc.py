@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from skyvln_eval.control.base import Command, Controller, SolveStats
 from skyvln_eval.control.mpc_config import MpcConfig
-from skyvln_eval.control.stage_qp import NZ, StageQp
+from skyvln_eval.control.stage_qp import NZ, QpSolution, StageQp
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.sim.obstacles import ObstacleForecast
 from skyvln_eval.sim.quadrotor import NU, NX, DroneState, rk4_symbolic
@@ -98,7 +98,10 @@ class MpcController(Controller):
         w_bar = self._initial_guess(x0, origin)
         solution, iterations = None, 0
         for _ in range(self.config.sqp_iterations):
-            attempt = self.qp.solve(w_bar, params)
+            try:
+                attempt = self.qp.solve(w_bar, params)
+            except RuntimeError as error:  # CasADi reports solver crashes this way
+                attempt = QpSolution(w_bar, False, 0, f"error: {error}")
             iterations += max(attempt.iterations, 0)
             if not attempt.success:
                 break

@@ -140,3 +140,17 @@ def test_after_fallbacks_the_warm_start_is_shifted_to_now() -> None:
     guess = ctl._initial_guess(START.model_vector() - [0, 0, 10, 0, 0, 0, 0, 0], START.position_m)
     stage = ctl.qp.stage
     assert np.allclose(guess[stage : 2 * stage], plan[4 * stage : 5 * stage])
+
+
+def test_a_solver_that_raises_is_a_failed_step_not_a_crash() -> None:
+    ctl = controller("mpc")
+    assert isinstance(ctl, MpcController)
+    window, forecast = window_and_forecast(ctl)
+
+    def crashing(w_bar: np.ndarray, params: np.ndarray) -> QpSolution:
+        raise RuntimeError("hpipm: internal error")
+
+    ctl.qp.solve = crashing  # type: ignore[method-assign]
+    command = ctl.step(START, window, forecast)
+    assert command.is_finite() and command.stats.status == "fallback_hover"
+    assert ctl.failures == 1
