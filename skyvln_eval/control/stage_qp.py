@@ -20,11 +20,12 @@ that stage's path constraints. With ``p_{k+1} = F_p(x_k, u_k)`` the predicted po
          |pitch_ref,k - pitch_ref_prev,k| <= d_tilt_max
          (r_obs,i + r_s,i)^2 - ||p_{k+1} - p_obs,i,k+1||^2 <= s_k,   s_k >= 0
 
-The cost is a sum of squares of terms linear in ``w``, so its Hessian is constant: the
-Gauss-Newton Hessian is exact for the cost and ignores only the constraints' curvature.
-Linearising ``g(w)`` at a guess ``w_bar`` gives a QP in ``w``. The sphere constraint is
-convex in ``p``, so its linearisation is a tangent half-space that lies outside the sphere:
-whatever the guess, a QP-feasible predicted position is outside the keep-out sphere.
+The cost is quadratic in ``w`` (squares of linear terms plus the slack penalty), so its
+Hessian is constant: the Gauss-Newton Hessian is exact for the cost and ignores only the
+constraints' curvature. Linearising ``g(w)`` at a guess ``w_bar`` gives a QP in ``w``.
+``||p - p_obs||^2`` is convex, so its linearisation under-estimates it everywhere: the
+linearised sphere constraint is a half-space outside the keep-out sphere, and whatever the
+guess, a position the QP predicts is outside the sphere (up to the linearised dynamics).
 Positions are relative to an origin chosen by the caller (the drone's position), which
 keeps the numbers small and the squared distances well scaled.
 
