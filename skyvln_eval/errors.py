@@ -183,3 +183,7 @@ class McapLogError(DataError):
     def __init__(self, path: str, message: str) -> None:
         self.path = path
         super().__init__(f"{path}: {message}")
+
+
+class SolverBuildError(SkyvlnError):
+    """A controller's solver functions had to be compiled (``compile: always``) and could not be."""
