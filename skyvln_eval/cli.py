@@ -42,20 +42,25 @@ def _echo_problem(text: str, colour: str = "red") -> None:
     typer.echo(typer.style(text, fg=colour), err=True)
 
 
+def _progress(verb: str) -> Progress:
+    """A transient progress bar on stderr: '<verb> <task description>'."""
+    return Progress(
+        TextColumn(f"[bold]{verb} {{task.description}}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=err_console,
+        transient=True,
+    )
+
+
 def _build_dataset(size: str, out: Path | None, force: bool, workers: int) -> Path:
     from skyvln_eval.worlds.sample import SPECS, ensure_dataset
 
     if size not in DATASET_SIZES:
         raise typer.BadParameter(f"--size must be one of {', '.join(DATASET_SIZES)}")
     spec = SPECS[size]
-    with Progress(
-        TextColumn("[bold]generating {task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        console=err_console,
-        transient=True,
-    ) as progress:
+    with _progress("generating") as progress:
         task = progress.add_task(f"{size} dataset maps", total=len(spec.map_splits()))
         return ensure_dataset(
             spec,
@@ -164,16 +169,27 @@ def summary(
 
 @app.command()
 def validate(
-    paths: Annotated[list[Path], typer.Argument(help="Dataset folders to check")],
+    paths: Annotated[
+        list[Path],
+        typer.Argument(help="Dataset folders, MCAP files, or folders of converted MCAP logs"),
+    ],
     no_images: Annotated[
         bool, typer.Option("--no-images", help="Do not check that map images exist")
     ] = False,
 ) -> None:
-    """Report every problem in every split of the given datasets; exit 1 if there is any."""
+    """Report every problem in the given datasets or MCAP logs; exit 1 if there is any.
+
+    MCAP files are checked byte by byte (CRCs), message by message (JSON schema of their
+    channel) and for their format version; folders of logs also against their manifest.
+    """
     from skyvln_eval.avdn import SPLITS, annotation_file_name, check_split
+    from skyvln_eval.converters.commands import is_mcap_target, run_validate_mcap
 
     problems = 0
     for path in paths:
+        if is_mcap_target(path):
+            problems += run_validate_mcap(path, typer.echo, _echo_problem)
+            continue
         found = False
         for split in SPLITS:
             if not (path / "annotations" / annotation_file_name(split)).is_file():
@@ -195,6 +211,48 @@ def validate(
             _echo_problem(f"{path}: no annotations/<split>_data.json found")
             problems += 1
     if problems:
+        raise typer.Exit(1)
+
+
+@app.command()
+def convert(
+    data_dir: Annotated[Path, typer.Option(help="AVDN-format dataset folder")],
+    split: Annotated[str, typer.Option(help="Split to convert, e.g. val_unseen")],
+    out: Annotated[Path, typer.Option(help="Output folder (logs go to OUT/SPLIT/MODE/)")],
+    mode: Annotated[str, typer.Option(help="'andh' (one per record) or 'andh-full'")] = "andh",
+    workers: Annotated[int, typer.Option(min=1, help="Processes; output is identical")] = 1,
+    observations: Annotated[
+        bool, typer.Option(help="Write the GT observation image at each view")
+    ] = True,
+    skip_invalid: Annotated[
+        bool, typer.Option(help="Skip invalid records (each is reported) instead of failing")
+    ] = False,
+) -> None:
+    """Convert a split to one Foxglove-ready MCAP log per episode plus a parquet manifest.
+
+    Re-running skips episodes already converted from the same input; exit 1 if any failed.
+    """
+    from skyvln_eval.avdn import EPISODE_MODES
+    from skyvln_eval.converters import ConvertOptions
+    from skyvln_eval.converters.commands import run_convert
+
+    if mode not in EPISODE_MODES:
+        raise typer.BadParameter(f"--mode must be one of {', '.join(EPISODE_MODES)}")
+    with _progress("converting") as progress:
+        task = progress.add_task(split, total=None)
+        failures = run_convert(
+            data_dir,
+            split,
+            out,
+            mode,
+            workers,
+            ConvertOptions(observations=observations),
+            skip_invalid,
+            typer.echo,
+            _echo_problem,
+            on_progress=lambda n: progress.advance(task, n),
+        )
+    if failures:
         raise typer.Exit(1)
 
 
@@ -225,6 +283,18 @@ def reproduce(
         indent=1,
     )
     console.print(f"wrote {out / 'dataset_summary.json'}")
+
+
+def _register_report_commands() -> None:
+    # Implementations live in skyvln_eval.reports.commands; they import heavy modules lazily.
+    from skyvln_eval.reports.commands import plot_app, score, table
+
+    app.command()(score)
+    app.command()(table)
+    app.add_typer(plot_app, name="plot")
+
+
+_register_report_commands()
 
 
 def main() -> None:

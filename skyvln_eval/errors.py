@@ -117,3 +117,73 @@ class UnknownNameError(ConfigError):
         close = difflib.get_close_matches(name, list(known), n=3)
         hint = f" Did you mean {', '.join(repr(c) for c in close)}?" if close else ""
         super().__init__(f"unknown {kind} {name!r}.{hint} Known: {', '.join(sorted(known))}.")
+
+
+class ResultRecordError(DataError):
+    """A per-episode result row (or a predictions entry) is malformed.
+
+    The message names the file, the row (0-based), the episode and the field, like the
+    annotation validator does.
+    """
+
+    def __init__(self, issue: ValidationIssue) -> None:
+        self.issue = issue
+        super().__init__(str(issue))
+
+
+class IncompleteRunError(DataError):
+    """A run does not cover every episode of its split (or covers unknown ones)."""
+
+    max_listed = 20
+
+    def __init__(self, what: str, missing: Sequence[str], unexpected: Sequence[str] = ()) -> None:
+        self.missing = tuple(missing)
+        self.unexpected = tuple(unexpected)
+        parts = []
+        if self.missing:
+            shown = ", ".join(self.missing[: self.max_listed])
+            more = len(self.missing) - min(len(self.missing), self.max_listed)
+            parts.append(
+                f"{len(self.missing)} missing episode(s): {shown}"
+                + (f" ... and {more} more" if more else "")
+            )
+        if self.unexpected:
+            shown = ", ".join(self.unexpected[: self.max_listed])
+            parts.append(f"{len(self.unexpected)} episode(s) not in the split: {shown}")
+        super().__init__(f"{what} is incomplete: " + "; ".join(parts))
+
+
+class MetricInputError(SkyvlnError):
+    """A metric or statistic was asked for on input it has no defined value for.
+
+    Examples: an average over zero episodes, a paired test on systems that did not run
+    the same episodes, a non-finite value where a finite one is required.
+    """
+
+
+class UnsafePickleError(DataError):
+    """A pickled predictions file asked for something other than plain data."""
+
+    def __init__(self, path: str, name: str) -> None:
+        super().__init__(
+            f"{path}: refused to unpickle {name!r}: an official-format predictions file may "
+            "hold only plain containers, numbers, strings and numpy arrays. Do not load this "
+            "file with numpy.load(allow_pickle=True) either; ask its author for the JSON "
+            "predictions format."
+        )
+
+
+class McapLogError(DataError):
+    """An MCAP log cannot be used: not MCAP, truncated, corrupt, or not what it should hold.
+
+    The message names the file and says what is wrong, so a user can tell a damaged copy
+    (fetch or convert it again) from a file of another kind.
+    """
+
+    def __init__(self, path: str, message: str) -> None:
+        self.path = path
+        super().__init__(f"{path}: {message}")
+
+
+class SolverBuildError(SkyvlnError):
+    """A controller's solver functions had to be compiled (``compile: always``) and could not be."""

@@ -14,14 +14,25 @@ from pathlib import Path
 from typing import Any
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically (temporary file in the same folder, then rename)."""
+    """Write ``data`` to ``path`` atomically (temporary file in the same folder, then rename).
+
+    The file gets the usual permissions (0666 minus the umask), not the 0600 that
+    temporary files are created with.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as handle:
             handle.write(data)
+        Path(tmp).chmod(0o666 & ~_umask())
         Path(tmp).replace(path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -33,7 +44,7 @@ def atomic_write_text(path: str | Path, text: str) -> None:
 
 
 def atomic_write_json(path: str | Path, data: Any, indent: int | None = None) -> None:
-    """JSON with sorted-free, stable formatting (insertion order), UTF-8, trailing newline."""
+    """JSON in insertion order, UTF-8, no NaN, with a trailing newline."""
     atomic_write_text(
         path, json.dumps(data, indent=indent, ensure_ascii=False, allow_nan=False) + "\n"
     )

@@ -1,0 +1,125 @@
+"""The closed-loop log: one row per control step, saved as versioned Parquet.
+
+Columns (:data:`LOG_COLUMNS`; other columns may follow):
+
+- ``controller``, ``scenario`` (str): controller name and obstacle scenario name;
+- ``t_s``: time on the flight clock at the start of the step;
+- ``x_m`` ... ``yaw_rad``: the true state (ENU metres, m/s, rad) at ``t_s``;
+- ``ref_x_m``, ``ref_y_m``, ``ref_z_m``, ``ref_yaw_rad``: the reference at ``t_s``;
+- ``cmd_thrust_m_s2``, ``cmd_roll_rad``, ``cmd_pitch_rad``: the command held over the step
+  (thrust and the roll / pitch *references* sent to the attitude loop);
+- ``solve_time_ms``, ``iterations`` (QP solver iterations; 0 for PID), ``status`` and
+  ``solve_failed`` (a fallback command was used);
+- ``min_clearance_m``: over all obstacles, the distance from the drone to the obstacle
+  centre minus ``r_obs + r_s`` (negative = inside a keep-out sphere); ``inf`` without
+  obstacles;
+- ``collision``: inside some obstacle's own sphere (distance < ``r_obs``);
+- ``constraint_violation``: ``min_clearance_m < 0`` or a command outside the input bounds or
+  beyond the per-step rate limit of roll_ref / pitch_ref.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from skyvln_eval.errors import DataError, FormatVersionError
+from skyvln_eval.fileio import atomic_write_bytes
+
+LOG_FORMAT = "skyvln-flight-log"
+LOG_FORMAT_VERSION = 1
+LOG_COLUMNS: tuple[str, ...] = (
+    "controller",
+    "scenario",
+    "t_s",
+    "x_m",
+    "y_m",
+    "z_m",
+    "vx_m_s",
+    "vy_m_s",
+    "vz_m_s",
+    "roll_rad",
+    "pitch_rad",
+    "yaw_rad",
+    "ref_x_m",
+    "ref_y_m",
+    "ref_z_m",
+    "ref_yaw_rad",
+    "cmd_thrust_m_s2",
+    "cmd_roll_rad",
+    "cmd_pitch_rad",
+    "solve_time_ms",
+    "iterations",
+    "status",
+    "solve_failed",
+    "min_clearance_m",
+    "collision",
+    "constraint_violation",
+)
+_STRING = ("controller", "scenario", "status")
+_BOOL = ("solve_failed", "collision", "constraint_violation")
+_INT = ("iterations",)
+
+
+def log_frame(rows: list[dict[str, Any]]) -> pd.DataFrame:
+    """A log DataFrame from row dicts, with the columns in order and their dtypes fixed."""
+    frame = pd.DataFrame(rows, columns=list(LOG_COLUMNS) if not rows else None)
+    missing = [c for c in LOG_COLUMNS if c not in frame.columns]
+    if missing:
+        raise DataError(f"flight log rows lack the column(s) {', '.join(missing)}")
+    extra = [c for c in frame.columns if c not in LOG_COLUMNS]
+    frame = frame[[*LOG_COLUMNS, *extra]]
+    types: dict[str, Any] = {c: "float64" for c in LOG_COLUMNS if c not in _STRING + _BOOL + _INT}
+    types.update(dict.fromkeys(_STRING, "str"))
+    types.update(dict.fromkeys(_BOOL, "bool"))
+    types.update(dict.fromkeys(_INT, "int64"))
+    return frame.astype(types)
+
+
+def save_flight_log(
+    frame: pd.DataFrame, path: str | Path, settings: dict[str, Any] | None = None
+) -> Path:
+    """Write ``frame`` as Parquet (atomically), with the format version and ``settings``
+    (e.g. the controller's and scenario's, JSON) in the file's metadata."""
+    missing = [c for c in LOG_COLUMNS if c not in frame.columns]
+    if missing:
+        raise DataError(f"not a flight log: column(s) {', '.join(missing)} missing")
+    table = pa.Table.from_pandas(frame, preserve_index=False)
+    metadata = dict(table.schema.metadata or {})
+    metadata[b"skyvln_format"] = LOG_FORMAT.encode()
+    metadata[b"skyvln_format_version"] = str(LOG_FORMAT_VERSION).encode()
+    metadata[b"skyvln_settings"] = json.dumps(settings or {}, default=str).encode()
+    table = table.replace_schema_metadata(metadata)
+    buffer = io.BytesIO()
+    pq.write_table(table, buffer)
+    atomic_write_bytes(path, buffer.getvalue())
+    return Path(path)
+
+
+def load_flight_log(path: str | Path) -> pd.DataFrame:
+    """Read a flight log written by :func:`save_flight_log`, checking its format version.
+
+    The settings stored with it are in ``frame.attrs["settings"]``.
+    """
+    path = Path(path)
+    try:
+        table = pq.read_table(path)
+    except (OSError, pa.ArrowInvalid) as error:
+        raise DataError(f"{path}: cannot read a flight log: {error}") from error
+    metadata = table.schema.metadata or {}
+    if metadata.get(b"skyvln_format") != LOG_FORMAT.encode():
+        raise DataError(f"{path}: not a flight log (no '{LOG_FORMAT}' format marker)")
+    version = metadata.get(b"skyvln_format_version", b"?").decode()
+    if version != str(LOG_FORMAT_VERSION):
+        raise FormatVersionError(
+            str(path), version, LOG_FORMAT_VERSION, "Record the run again with this version."
+        )
+    frame = table.to_pandas()
+    frame.attrs["settings"] = json.loads(metadata.get(b"skyvln_settings", b"{}"))
+    return frame

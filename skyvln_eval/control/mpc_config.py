@@ -1,0 +1,95 @@
+"""Settings of the MPC controllers (NMPC and linear MPC), with documented defaults.
+
+The weights are those measured in ``NMPC_NOTES.md``: ``Qx = diag(10, 10, 10, 1, 1, 1, .5, .5)``,
+``Qu = diag(.5, 5, 5)``, ``Q_du = diag(.5, 20, 20)`` around ``u_ref`` (hover thrust plus the
+reference's feed-forward), N = 20 steps of dt = 0.1 s.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Any, Literal
+
+from skyvln_eval.errors import ConfigError
+from skyvln_eval.sim.quadrotor import (
+    NU,
+    NX,
+    InputLimits,
+    QuadrotorParams,
+    require_non_negative,
+    require_positive,
+)
+
+#: ``"auto"`` compiles the solver's functions to C when a compiler is found (cached), else
+#: runs them interpreted with one warning; ``"always"`` fails without a compiler; ``"never"``
+#: always interprets.
+CompileMode = Literal["auto", "always", "never"]
+
+
+@dataclass(frozen=True)
+class MpcWeights:
+    """Diagonal weights of the paper's cost and of the obstacle slack."""
+
+    #: Q_x on ``[x, y, z, vx, vy, vz, roll, pitch]`` errors.
+    state: tuple[float, ...] = (10.0, 10.0, 10.0, 1.0, 1.0, 1.0, 0.5, 0.5)
+    #: Q_u on ``[T, roll_ref, pitch_ref]`` errors from ``u_ref``.
+    input: tuple[float, ...] = (0.5, 5.0, 5.0)
+    #: Q_du on the change of ``[T, roll_ref, pitch_ref]`` from the previous step.
+    input_rate: tuple[float, ...] = (0.5, 20.0, 20.0)
+    #: Multiplies Q_x at the last horizon step.
+    terminal_scale: float = 1.0
+    #: The obstacle constraints are soft only as a last resort: an exact L1 penalty (per m^2
+    #: of squared keep-out radius violated) far above any tracking gain keeps them hard
+    #: whenever they can be met, and a start inside an obstacle still gets the way out.
+    slack_linear: float = 1.0e4
+    slack_quadratic: float = 1.0e2
+
+    def __post_init__(self) -> None:
+        for name, size in (("state", NX), ("input", NU), ("input_rate", NU)):
+            values = getattr(self, name)
+            if len(values) != size or not all(math.isfinite(v) and v >= 0 for v in values):
+                raise ConfigError(
+                    f"MpcWeights.{name} must be {size} finite numbers >= 0, got {values!r}"
+                )
+        require_positive(self, "terminal_scale", "slack_linear", "slack_quadratic")
+
+
+@dataclass(frozen=True)
+class MpcConfig:
+    """One MPC controller's settings (shared by the NMPC and the linear MPC)."""
+
+    horizon_steps: int = 20
+    dt_s: float = 0.1
+    #: Obstacle slots in the problem; the nearest obstacles of the forecast fill them.
+    max_obstacles: int = 2
+    #: Added to r_obs + r_s inside the controller: the constraint holds at the predicted
+    #: samples of a one-step RK4 model, while the plant is integrated finer and may carry
+    #: wind and noise, so a few centimetres keep the true clearance at or above zero.
+    obstacle_margin_m: float = 0.05
+    weights: MpcWeights = field(default_factory=MpcWeights)
+    limits: InputLimits = field(default_factory=InputLimits)
+    params: QuadrotorParams = field(default_factory=QuadrotorParams)
+    #: SQP iterations per control step: 1 is the real-time iteration (RTI); more iterate
+    #: towards the converged NLP solution (stopping early once the step is below tolerance).
+    sqp_iterations: int = 1
+    sqp_step_tolerance: float = 1e-4
+    compile: CompileMode = "auto"
+
+    def __post_init__(self) -> None:
+        for name in ("horizon_steps", "max_obstacles", "sqp_iterations"):
+            value = getattr(self, name)
+            minimum = 0 if name == "max_obstacles" else 1
+            if not isinstance(value, int) or value < minimum:
+                raise ConfigError(
+                    f"MpcConfig.{name} must be an integer >= {minimum}, got {value!r}"
+                )
+        require_positive(self, "dt_s", "sqp_step_tolerance")
+        require_non_negative(self, "obstacle_margin_m")
+        if self.compile not in ("auto", "always", "never"):
+            raise ConfigError(
+                f"MpcConfig.compile must be 'auto', 'always' or 'never', got {self.compile!r}"
+            )
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)

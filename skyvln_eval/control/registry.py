@@ -1,0 +1,142 @@
+"""Controllers by name, with settings from a mapping or a YAML file.
+
+Names: ``pid`` (cascaded PID), ``mpc`` (linear MPC; alias ``lmpc``) and ``nmpc`` (the
+paper's NMPC) - the rows of the paper's control ablation. Settings are the fields of the
+controller's config dataclass (:class:`~skyvln_eval.control.pid.PidConfig`,
+:class:`~skyvln_eval.control.mpc_config.MpcConfig`), nested dataclasses as nested
+mappings; an unknown name or field is a :class:`ConfigError` that names it and suggests
+close matches. The NMPC and linear MPC modules (CasADi solvers) are imported on use.
+
+A controller YAML file (``configs/controllers/*.yaml``) reads::
+
+    controller: nmpc
+    settings:
+      horizon_steps: 20
+      weights: {state: [10, 10, 10, 1, 1, 1, 0.5, 0.5]}
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import typing
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+
+from skyvln_eval.control.base import Controller
+from skyvln_eval.control.mpc_config import MpcConfig
+from skyvln_eval.control.pid import PidConfig
+from skyvln_eval.errors import ConfigError, UnknownNameError
+
+T = TypeVar("T")
+
+
+def _nmpc(config: MpcConfig) -> Controller:
+    from skyvln_eval.control.mpc import NmpcController
+
+    return NmpcController(config)
+
+
+def _mpc(config: MpcConfig) -> Controller:
+    from skyvln_eval.control.mpc import LinearMpcController
+
+    return LinearMpcController(config)
+
+
+def _pid(config: PidConfig) -> Controller:
+    from skyvln_eval.control.pid import PidController
+
+    return PidController(config)
+
+
+#: name -> (config class, factory)
+_REGISTRY: dict[str, tuple[type[Any], Callable[[Any], Controller]]] = {
+    "pid": (PidConfig, _pid),
+    "mpc": (MpcConfig, _mpc),
+    "nmpc": (MpcConfig, _nmpc),
+}
+_ALIASES = {"lmpc": "mpc", "linear_mpc": "mpc"}
+
+
+def controller_names() -> list[str]:
+    """The registered controller names (aliases not included)."""
+    return sorted(_REGISTRY)
+
+
+def make_controller(name: str, settings: Mapping[str, Any] | None = None) -> Controller:
+    """A new controller ``name`` with ``settings`` overriding its config's defaults."""
+    key = _ALIASES.get(name, name)
+    if key not in _REGISTRY:
+        raise UnknownNameError("controller", name, [*_REGISTRY, *_ALIASES])
+    config_class, factory = _REGISTRY[key]
+    return factory(config_from_mapping(config_class, settings or {}, f"{key} settings"))
+
+
+def load_controller(path: str | Path) -> Controller:
+    """The controller a YAML file describes (``controller: name``, optional ``settings:``)."""
+    path = Path(path)
+    try:
+        document = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError) as error:
+        raise ConfigError(f"{path}: cannot read the controller config: {error}") from error
+    if not isinstance(document, dict) or "controller" not in document:
+        raise ConfigError(f"{path}: expected a mapping with a 'controller' field")
+    unknown = set(document) - {"controller", "settings"}
+    if unknown:
+        raise ConfigError(f"{path}: unknown field(s) {', '.join(sorted(unknown))}")
+    try:
+        return make_controller(str(document["controller"]), document.get("settings") or {})
+    except ConfigError as error:
+        raise ConfigError(f"{path}: {error}") from error
+
+
+def config_from_mapping(cls: type[T], values: Mapping[str, Any], where: str = "settings") -> T:
+    """An instance of dataclass ``cls`` from ``values``, nested dataclasses included.
+
+    Lists become tuples; unknown fields and wrong types raise :class:`ConfigError` naming
+    the field path (e.g. ``nmpc settings.weights.state``).
+    """
+    if not isinstance(values, Mapping):
+        raise ConfigError(f"{where} must be a mapping, got {type(values).__name__}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    hints = typing.get_type_hints(cls)
+    kwargs: dict[str, Any] = {}
+    for key, value in values.items():
+        if key not in fields:
+            close = difflib.get_close_matches(str(key), list(fields), n=3)
+            hint = f" Did you mean {', '.join(repr(c) for c in close)}?" if close else ""
+            raise ConfigError(f"{where}: unknown field {key!r}.{hint}")
+        kwargs[key] = _convert(hints[key], value, f"{where}.{key}")
+    try:
+        return cls(**kwargs)
+    except TypeError as error:
+        raise ConfigError(f"{where}: {error}") from error
+
+
+def _convert(hint: Any, value: Any, where: str) -> Any:
+    if dataclasses.is_dataclass(hint) and isinstance(hint, type):
+        return config_from_mapping(hint, value, where)
+    origin = typing.get_origin(hint)
+    if origin is tuple:
+        if not isinstance(value, list | tuple):
+            raise ConfigError(f"{where} must be a list, got {value!r}")
+        return tuple(_number(v, f"{where}[{i}]") for i, v in enumerate(value))
+    if hint is float:
+        return _number(value, where)
+    if hint is int and (isinstance(value, bool) or not isinstance(value, int)):
+        raise ConfigError(f"{where} must be an integer, got {value!r}")
+    if hint is bool and not isinstance(value, bool):
+        raise ConfigError(f"{where} must be true or false, got {value!r}")
+    if origin is typing.Literal and value not in typing.get_args(hint):
+        allowed = ", ".join(repr(a) for a in typing.get_args(hint))
+        raise ConfigError(f"{where} must be one of {allowed}, got {value!r}")
+    return value
+
+
+def _number(value: Any, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ConfigError(f"{where} must be a number, got {value!r}")
+    return float(value)

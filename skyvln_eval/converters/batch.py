@@ -1,0 +1,295 @@
+"""Convert a whole split: one episode log per episode plus the split's manifest.
+
+Output layout: ``OUT/<split>/<mode>/<episode_id>.mcap`` and
+``OUT/<split>/<mode>/manifest.parquet``. Work is grouped by map (each map image is read
+once per group) and spread over ``workers`` processes; every file is a pure function of
+its episode, its map and the options, so the output is byte-identical whatever the
+number of workers.
+
+A re-run skips an episode whose file exists, reads back without any error, and was made
+from the same input (same records, map image, options, toolkit and format versions: the
+``input_sha256`` in its conversion metadata). Anything else is converted again.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import skyvln_eval
+from skyvln_eval.avdn import (
+    Episode,
+    EpisodeMode,
+    MapGeoref,
+    build_episodes,
+    load_map_bgr,
+    load_split,
+    map_image_path,
+    parse_record,
+)
+from skyvln_eval.avdn.constants import IMAGES_DIR
+from skyvln_eval.converters import topics
+from skyvln_eval.converters.convert import (
+    DEFAULT_OPTIONS,
+    ConvertOptions,
+    convert_episode,
+    episode_rounds,
+)
+from skyvln_eval.converters.manifest import (
+    MANIFEST_NAME,
+    ManifestRow,
+    episode_file_name,
+    gt_lengths_m,
+    write_manifest,
+)
+from skyvln_eval.converters.reader import read_log
+from skyvln_eval.converters.writer import McapLogWriter
+from skyvln_eval.errors import AvdnValidationError, SkyvlnError, ValidationIssue
+from skyvln_eval.fileio import sha256_bytes, sha256_file
+from skyvln_eval.worlds import WorldTile
+
+Status = Literal["converted", "skipped", "failed"]
+
+
+def split_output_dir(out_dir: str | Path, split: str, mode: str) -> Path:
+    return Path(out_dir) / split / mode
+
+
+@dataclass(frozen=True)
+class EpisodeOutcome:
+    """What happened to one episode; ``note`` explains a failure or a replaced file."""
+
+    episode_id: str
+    status: Status
+    row: ManifestRow | None = None
+    note: str | None = None
+
+
+@dataclass(frozen=True)
+class MapJob:
+    """All episodes of one map, as raw AVDN records (picklable for worker processes)."""
+
+    data_dir: str
+    annotation_file: str
+    split: str
+    mode: EpisodeMode
+    map_name: str
+    georef: MapGeoref
+    episodes: tuple[tuple[dict[str, Any], ...], ...]
+    out_dir: str
+    options: ConvertOptions
+
+
+@dataclass
+class ConvertReport:
+    """The result of converting a split: manifest rows, and what was skipped or failed."""
+
+    out_dir: Path
+    manifest_path: Path
+    rows: list[ManifestRow] = field(default_factory=list)
+    outcomes: list[EpisodeOutcome] = field(default_factory=list)
+    invalid: list[ValidationIssue] = field(default_factory=list)
+    removed_stale: list[str] = field(default_factory=list)
+
+    def count(self, status: Status) -> int:
+        return sum(1 for o in self.outcomes if o.status == status)
+
+    @property
+    def failed(self) -> list[EpisodeOutcome]:
+        return [o for o in self.outcomes if o.status == "failed"]
+
+
+def input_fingerprint(
+    raw_records: Sequence[dict[str, Any]],
+    split: str,
+    mode: str,
+    map_sha256: str,
+    options: ConvertOptions,
+) -> str:
+    """SHA-256 of everything a converted file depends on."""
+    payload = {
+        "format_version": topics.EPISODE_FORMAT_VERSION,
+        "toolkit_version": skyvln_eval.__version__,
+        "split": split,
+        "mode": mode,
+        "records": list(raw_records),
+        "map_image_sha256": map_sha256,
+        "options": options.as_metadata(),
+    }
+    return sha256_bytes(json.dumps(payload, ensure_ascii=False).encode("utf-8"))
+
+
+def _existing_row(path: Path, fingerprint: str, episode: Episode) -> ManifestRow | None:
+    """The manifest row of a file that can be skipped, or None to convert again."""
+    if not path.is_file():
+        return None
+    try:
+        log = read_log(path)
+    except SkyvlnError:
+        return None
+    if log.metadata.get(topics.CONVERSION_METADATA, {}).get("input_sha256") != fingerprint:
+        return None
+    return _row(episode, path, fingerprint)
+
+
+def _row(episode: Episode, path: Path, fingerprint: str) -> ManifestRow:
+    gt_length, d_net = gt_lengths_m(episode)
+    return ManifestRow(
+        episode_id=episode.episode_id,
+        split=episode.split,
+        mode=episode.mode,
+        map_name=episode.map_name,
+        rounds=episode_rounds(episode),
+        gt_views=len(episode.gt_path_corners),
+        gt_length_m=gt_length,
+        d_net_m=d_net,
+        file_name=path.name,
+        sha256=sha256_file(path),
+        size_bytes=path.stat().st_size,
+        input_sha256=fingerprint,
+    )
+
+
+def run_map_job(job: MapJob) -> list[EpisodeOutcome]:
+    """Convert (or skip) every episode of one map; failures are reported, not raised."""
+    image = map_image_path(Path(job.data_dir) / IMAGES_DIR, job.map_name)
+    try:
+        map_sha256 = sha256_file(image)
+    except OSError as exc:
+        note = f"map image {image} cannot be read: {exc}"
+        return [EpisodeOutcome(_first_id(raw), "failed", note=note) for raw in job.episodes]
+    world: WorldTile | None = None
+    outcomes = []
+    for raw in job.episodes:
+        try:
+            episode = Episode(
+                job.split,
+                job.mode,
+                tuple(parse_record(r, job.annotation_file) for r in raw),
+            )
+            fingerprint = input_fingerprint(raw, job.split, job.mode, map_sha256, job.options)
+            path = Path(job.out_dir) / episode_file_name(episode.episode_id)
+            row = _existing_row(path, fingerprint, episode)
+            if row is not None:
+                outcomes.append(EpisodeOutcome(episode.episode_id, "skipped", row))
+                continue
+            if world is None and (job.options.observations or job.options.map_tile_max_side_px):
+                world = WorldTile(job.map_name, job.georef, load_map_bgr(image, job.georef))
+            with McapLogWriter(path) as writer:
+                writer.add_metadata(
+                    topics.CONVERSION_METADATA,
+                    {"input_sha256": fingerprint, "map_image_sha256": map_sha256},
+                )
+                convert_episode(episode, world, writer, job.options)
+            outcomes.append(
+                EpisodeOutcome(episode.episode_id, "converted", _row(episode, path, fingerprint))
+            )
+        except SkyvlnError as exc:
+            outcomes.append(EpisodeOutcome(_first_id(raw), "failed", note=str(exc)))
+    return outcomes
+
+
+def _first_id(raw: Sequence[dict[str, Any]]) -> str:
+    first = raw[0] if raw else {}
+    return f"{first.get('map_name', '?')}__{first.get('route_index', '?')}"
+
+
+def _worker_init() -> None:
+    # One OpenCV thread per process: the processes already use every core.
+    import cv2
+
+    cv2.setNumThreads(1)
+
+
+def _jobs(
+    episodes: Sequence[Episode],
+    data_dir: Path,
+    annotation_file: str,
+    out_dir: Path,
+    options: ConvertOptions,
+) -> list[MapJob]:
+    by_map: dict[str, list[Episode]] = {}
+    for episode in episodes:
+        by_map.setdefault(episode.map_name, []).append(episode)
+    jobs = [
+        MapJob(
+            data_dir=str(data_dir),
+            annotation_file=annotation_file,
+            split=group[0].split,
+            mode=group[0].mode,
+            map_name=map_name,
+            georef=group[0].georef,
+            episodes=tuple(tuple(r.to_json_dict() for r in e.records) for e in group),
+            out_dir=str(out_dir),
+            options=options,
+        )
+        for map_name, group in by_map.items()
+    ]
+    # Largest first, so the last job to finish is a small one (balanced workers).
+    return sorted(jobs, key=lambda job: (-len(job.episodes), job.map_name))
+
+
+def _remove_stale(out_dir: Path, keep: set[str]) -> list[str]:
+    """Delete episode logs of this folder that are not episodes of this run, and temp files."""
+    removed = []
+    for path in sorted(out_dir.glob("*.mcap")):
+        if path.name not in keep:
+            path.unlink()
+            removed.append(path.name)
+    for tmp in out_dir.glob(".*.mcap.*.tmp"):
+        tmp.unlink(missing_ok=True)
+    return removed
+
+
+def convert_split(
+    data_dir: str | Path,
+    split: str,
+    out_dir: str | Path,
+    mode: EpisodeMode = "andh",
+    workers: int = 1,
+    options: ConvertOptions = DEFAULT_OPTIONS,
+    skip_invalid: bool = False,
+    on_progress: Callable[[int], None] | None = None,
+) -> ConvertReport:
+    """Convert one split (see the module docstring); ``on_progress(n)`` after n more episodes."""
+    data_dir = Path(data_dir)
+    loaded = load_split(data_dir, split, skip_invalid=skip_invalid)
+    episodes, incomplete = build_episodes(loaded.records, split, mode, str(loaded.annotation_path))
+    if incomplete and not skip_invalid:
+        raise AvdnValidationError(incomplete)
+    target = split_output_dir(out_dir, split, mode)
+    target.mkdir(parents=True, exist_ok=True)
+    report = ConvertReport(target, target / MANIFEST_NAME, invalid=[*loaded.skipped, *incomplete])
+    jobs = _jobs(episodes, data_dir, str(loaded.annotation_path), target, options)
+    results: dict[str, EpisodeOutcome] = {}
+    for outcomes in _run(jobs, workers):
+        for outcome in outcomes:
+            results[outcome.episode_id] = outcome
+        if on_progress is not None:
+            on_progress(len(outcomes))
+    report.outcomes = [results[e.episode_id] for e in episodes]
+    report.rows = [o.row for o in report.outcomes if o.row is not None]
+    report.removed_stale = _remove_stale(target, {r.file_name for r in report.rows})
+    write_manifest(report.manifest_path, report.rows)
+    return report
+
+
+def _run(jobs: list[MapJob], workers: int) -> Any:
+    if workers <= 1 or len(jobs) <= 1:
+        return map(run_map_job, jobs)
+    # spawn, not fork: the parent may hold threads (progress display, OpenCV pools).
+    context = multiprocessing.get_context("spawn")
+    executor = ProcessPoolExecutor(min(workers, len(jobs)), context, initializer=_worker_init)
+
+    def results() -> Any:
+        with executor:
+            futures = [executor.submit(run_map_job, job) for job in jobs]
+            for future in as_completed(futures):
+                yield future.result()
+
+    return results()

@@ -1,0 +1,77 @@
+"""The ``convert`` command and the MCAP part of ``validate``, called from skyvln_eval.cli.
+
+They print plain lines (one problem per line on stderr) and return the number of problems;
+the CLI turns that into the exit status.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+from skyvln_eval.avdn import EpisodeMode
+from skyvln_eval.converters.batch import convert_split
+from skyvln_eval.converters.convert import ConvertOptions
+from skyvln_eval.converters.manifest import MANIFEST_NAME
+from skyvln_eval.converters.validate import check_paths
+
+Echo = Callable[[str], None]
+
+
+def is_mcap_target(path: Path) -> bool:
+    """An MCAP file, or a folder of converted logs (a manifest or .mcap files at or below it)."""
+    if path.suffix == ".mcap" or path.is_file():
+        # A missing .mcap path is reported as a missing MCAP file, not as a dataset.
+        return path.suffix == ".mcap"
+    if not path.is_dir() or (path / "annotations").is_dir():
+        return False
+    return any(path.rglob("*.mcap")) or any(path.rglob(MANIFEST_NAME))
+
+
+def run_convert(
+    data_dir: Path,
+    split: str,
+    out: Path,
+    mode: EpisodeMode,
+    workers: int,
+    options: ConvertOptions,
+    skip_invalid: bool,
+    echo: Echo,
+    problem: Echo,
+    on_progress: Callable[[int], None] | None = None,
+) -> int:
+    """Convert one split; report skipped records, failures and stale files. Returns failures."""
+    report = convert_split(
+        data_dir, split, out, mode, workers, options, skip_invalid, on_progress=on_progress
+    )
+    for issue in report.invalid:
+        problem(f"skipped: {issue}")
+    for outcome in report.failed:
+        problem(f"failed: {outcome.episode_id}: {outcome.note}")
+    for name in report.removed_stale:
+        problem(f"removed {report.out_dir / name}: not an episode of this split and mode")
+    size_mb = sum(r.size_bytes for r in report.rows) / 1e6
+    echo(
+        f"{split} ({mode}): {report.count('converted')} converted, "
+        f"{report.count('skipped')} already converted (skipped), {len(report.failed)} failed, "
+        f"{len(report.invalid)} invalid record(s) left out; {size_mb:.1f} MB in {report.out_dir}"
+    )
+    echo(f"manifest: {report.manifest_path}")
+    return len(report.failed)
+
+
+def run_validate_mcap(path: Path, echo: Echo, problem: Echo) -> int:
+    """Check MCAP files / converted folders; print each problem; return how many."""
+    checks, folder_issues = check_paths([path])
+    for issue in folder_issues:
+        problem(str(issue))
+    bad_files = 0
+    for check in checks:
+        for issue in check.issues:
+            problem(str(issue))
+        bad_files += bool(check.issues)
+    total = len(folder_issues) + sum(len(c.issues) for c in checks)
+    messages = sum(c.messages for c in checks)
+    status = "ok" if not total else f"{total} problem(s) in {bad_files} file(s)"
+    echo(f"{path}: {len(checks)} MCAP file(s), {messages} message(s) checked, {status}")
+    return total

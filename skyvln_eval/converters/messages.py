@@ -1,0 +1,150 @@
+"""Builders for Foxglove well-known messages in their JSON encoding.
+
+Foxglove's JSON encoding writes times as ``{"sec", "nsec"}``, bytes fields as base64
+strings, and enums as integers. Builders take SI units (metres, radians, nanoseconds) and
+return plain dicts with Python floats, ready for :meth:`McapLogWriter.write`.
+"""
+
+from __future__ import annotations
+
+import base64
+import math
+from collections.abc import Iterable, Sequence
+from typing import Any, Final
+
+Json = dict[str, Any]
+Rgba = tuple[float, float, float, float]
+
+NS_PER_S: Final = 1_000_000_000
+#: foxglove.LineType
+LINE_STRIP: Final = 0
+LINE_LOOP: Final = 1
+#: foxglove.Log level INFO.
+LOG_INFO: Final = 2
+#: foxglove.LocationFix position_covariance_type UNKNOWN.
+COVARIANCE_UNKNOWN: Final = 0
+
+
+def timestamp(t_ns: int) -> Json:
+    """Foxglove time from integer nanoseconds."""
+    sec, nsec = divmod(t_ns, NS_PER_S)
+    return {"sec": sec, "nsec": nsec}
+
+
+def vector3(x: float, y: float, z: float) -> Json:
+    return {"x": float(x), "y": float(y), "z": float(z)}
+
+
+def yaw_quaternion(yaw_rad: float) -> Json:
+    """Rotation about +z by ``yaw_rad`` (ENU yaw: 0 = east, counter-clockwise)."""
+    half = 0.5 * float(yaw_rad)
+    return {"x": 0.0, "y": 0.0, "z": math.sin(half), "w": math.cos(half)}
+
+
+#: Body (x forward, y left, z up) to the downward camera's optical frame (x right, y down
+#: in the image = backwards, z into the scene = down): a half turn about (1, -1, 0) / sqrt 2.
+CAMERA_FROM_BODY_QUATERNION: Final[Json] = {
+    "x": math.sqrt(0.5),
+    "y": -math.sqrt(0.5),
+    "z": 0.0,
+    "w": 0.0,
+}
+IDENTITY_QUATERNION: Final[Json] = {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}
+
+
+def pose(x_m: float, y_m: float, z_m: float, yaw_rad: float) -> Json:
+    return {"position": vector3(x_m, y_m, z_m), "orientation": yaw_quaternion(yaw_rad)}
+
+
+def pose_in_frame(t_ns: int, frame_id: str, pose_json: Json) -> Json:
+    return {"timestamp": timestamp(t_ns), "frame_id": frame_id, "pose": pose_json}
+
+
+def poses_in_frame(t_ns: int, frame_id: str, poses: Sequence[Json]) -> Json:
+    return {"timestamp": timestamp(t_ns), "frame_id": frame_id, "poses": list(poses)}
+
+
+def frame_transform(t_ns: int, parent: str, child: str, translation: Json, rotation: Json) -> Json:
+    return {
+        "timestamp": timestamp(t_ns),
+        "parent_frame_id": parent,
+        "child_frame_id": child,
+        "translation": translation,
+        "rotation": rotation,
+    }
+
+
+def color(rgba: Rgba) -> Json:
+    r, g, b, a = rgba
+    return {"r": float(r), "g": float(g), "b": float(b), "a": float(a)}
+
+
+def line(points_xyz: Iterable[Sequence[float]], rgba: Rgba, loop: bool, width_px: float) -> Json:
+    """A line primitive with ``width_px`` screen pixels (scale invariant) in its entity frame."""
+    return {
+        "type": LINE_LOOP if loop else LINE_STRIP,
+        "pose": {"position": vector3(0.0, 0.0, 0.0), "orientation": IDENTITY_QUATERNION},
+        "thickness": float(width_px),
+        "scale_invariant": True,
+        "points": [vector3(*p) for p in points_xyz],
+        "color": color(rgba),
+        "colors": [],
+        "indices": [],
+    }
+
+
+def scene_update(
+    t_ns: int, frame_id: str, entity_id: str, lines: Sequence[Json], metadata: dict[str, str]
+) -> Json:
+    """One entity of line primitives, shown forever (lifetime 0) until replaced."""
+    entity = {
+        "timestamp": timestamp(t_ns),
+        "frame_id": frame_id,
+        "id": entity_id,
+        "lifetime": {"sec": 0, "nsec": 0},
+        "frame_locked": False,
+        "metadata": [{"key": k, "value": v} for k, v in metadata.items()],
+        "arrows": [],
+        "cubes": [],
+        "spheres": [],
+        "cylinders": [],
+        "lines": list(lines),
+        "triangles": [],
+        "texts": [],
+        "models": [],
+    }
+    return {"deletions": [], "entities": [entity]}
+
+
+def compressed_image(t_ns: int, frame_id: str, data: bytes, image_format: str) -> Json:
+    return {
+        "timestamp": timestamp(t_ns),
+        "frame_id": frame_id,
+        "data": base64.b64encode(data).decode("ascii"),
+        "format": image_format,
+    }
+
+
+def location_fix(
+    t_ns: int, frame_id: str, latitude: float, longitude: float, altitude_m: float
+) -> Json:
+    return {
+        "timestamp": timestamp(t_ns),
+        "frame_id": frame_id,
+        "latitude": float(latitude),
+        "longitude": float(longitude),
+        "altitude": float(altitude_m),
+        "position_covariance": [0.0] * 9,
+        "position_covariance_type": COVARIANCE_UNKNOWN,
+    }
+
+
+def log(t_ns: int, name: str, message: str) -> Json:
+    return {
+        "timestamp": timestamp(t_ns),
+        "level": LOG_INFO,
+        "message": message,
+        "name": name,
+        "file": "",
+        "line": 0,
+    }

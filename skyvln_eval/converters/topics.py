@@ -1,0 +1,135 @@
+"""Every MCAP topic, schema, frame and metadata name the toolkit writes, in one place.
+
+Episode logs (converted from AVDN) and run logs (written by the replay harness) use the
+same writer and these names, so Foxglove layouts and notebooks work on both. A topic is
+declared once with its schema; the writer refuses an undeclared topic or a topic written
+with another schema, so a typo cannot create a new channel silently.
+
+Schemas are JSON schemas (MCAP ``jsonschema`` encoding, messages ``json``). Foxglove
+well-known schemas keep their exact names and official content (vendored under
+``schemas/foxglove``, see its SOURCE.md); the toolkit's own schemas are named
+``skyvln_eval.<Type>`` and carry a version, stored in the channel metadata and checked on
+read.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from functools import cache
+from importlib import resources
+from typing import Any, Final
+
+#: Version of the episode log layout (topics, metadata keys, clock). Checked on read.
+EPISODE_FORMAT: Final = "skyvln_eval.episode_log"
+EPISODE_FORMAT_VERSION: Final = 1
+
+#: MCAP header strings: fixed, so identical inputs give byte-identical files.
+MCAP_PROFILE: Final = ""
+MCAP_LIBRARY: Final = "skyvln-eval"
+
+#: The npm package the vendored Foxglove schemas come from.
+FOXGLOVE_SCHEMAS_PACKAGE: Final = "@foxglove/schemas"
+FOXGLOVE_SCHEMAS_VERSION: Final = "2.1.0"
+
+MESSAGE_ENCODING: Final = "json"
+SCHEMA_ENCODING: Final = "jsonschema"
+#: Channel metadata key holding an own schema's version.
+SCHEMA_VERSION_KEY: Final = "schema_version"
+
+# Metadata record names and keys.
+EPISODE_METADATA: Final = "skyvln_eval.episode"
+CONVERSION_METADATA: Final = "skyvln_eval.conversion"
+
+# Frames. ``map`` is the ENU frame of skyvln_eval.frames (x east, y north, metres from the
+# map's south-west corner); ``drone`` is the body (x forward, y left, z up); ``camera`` is
+# the downward camera's optical frame (x right, y down in the image, z into the scene).
+MAP_FRAME: Final = "map"
+DRONE_FRAME: Final = "drone"
+CAMERA_FRAME: Final = "camera"
+MAP_TILE_FRAME: Final = "map_tile"
+
+# Schema names.
+COMPRESSED_IMAGE: Final = "foxglove.CompressedImage"
+FRAME_TRANSFORM: Final = "foxglove.FrameTransform"
+LOCATION_FIX: Final = "foxglove.LocationFix"
+LOG: Final = "foxglove.Log"
+POSE_IN_FRAME: Final = "foxglove.PoseInFrame"
+POSES_IN_FRAME: Final = "foxglove.PosesInFrame"
+SCENE_UPDATE: Final = "foxglove.SceneUpdate"
+DIALOG_TURN: Final = "skyvln_eval.DialogTurn"
+
+# Episode topics: static content (log time 0) ...
+TOPIC_MAP_TILE: Final = "/map/tile"
+TOPIC_GT_PATH: Final = "/episode/gt_path"
+TOPIC_GT_VIEWS: Final = "/episode/gt_views"
+TOPIC_DESTINATION: Final = "/episode/destination"
+TOPIC_ATTENTION: Final = "/episode/attention"
+TOPIC_START_POSE: Final = "/episode/start_pose"
+# ... and time series on the episode clock.
+TOPIC_TF: Final = "/tf"
+TOPIC_GPS: Final = "/drone/gps"
+TOPIC_GT_OBSERVATION: Final = "/camera/gt_observation"
+TOPIC_DIALOG: Final = "/dialog/turns"
+TOPIC_DIALOG_LOG: Final = "/dialog/log"
+
+
+@dataclass(frozen=True)
+class SchemaSpec:
+    """A JSON schema the toolkit writes: its MCAP name, vendored file and own version.
+
+    ``version`` is ``None`` for Foxglove schemas (their version is the vendored package's).
+    """
+
+    name: str
+    resource: str
+    version: int | None = None
+
+    @property
+    def is_own(self) -> bool:
+        return self.version is not None
+
+
+SCHEMAS: Final[dict[str, SchemaSpec]] = {
+    spec.name: spec
+    for spec in (
+        SchemaSpec(COMPRESSED_IMAGE, "foxglove/foxglove.CompressedImage.json"),
+        SchemaSpec(FRAME_TRANSFORM, "foxglove/foxglove.FrameTransform.json"),
+        SchemaSpec(LOCATION_FIX, "foxglove/foxglove.LocationFix.json"),
+        SchemaSpec(LOG, "foxglove/foxglove.Log.json"),
+        SchemaSpec(POSE_IN_FRAME, "foxglove/foxglove.PoseInFrame.json"),
+        SchemaSpec(POSES_IN_FRAME, "foxglove/foxglove.PosesInFrame.json"),
+        SchemaSpec(SCENE_UPDATE, "foxglove/foxglove.SceneUpdate.json"),
+        SchemaSpec(DIALOG_TURN, "skyvln_eval/skyvln_eval.DialogTurn.json", version=1),
+    )
+}
+
+#: Every topic and the one schema its messages use.
+TOPICS: Final[dict[str, str]] = {
+    TOPIC_MAP_TILE: COMPRESSED_IMAGE,
+    TOPIC_GT_PATH: POSES_IN_FRAME,
+    TOPIC_GT_VIEWS: SCENE_UPDATE,
+    TOPIC_DESTINATION: SCENE_UPDATE,
+    TOPIC_ATTENTION: SCENE_UPDATE,
+    TOPIC_START_POSE: POSE_IN_FRAME,
+    TOPIC_TF: FRAME_TRANSFORM,
+    TOPIC_GPS: LOCATION_FIX,
+    TOPIC_GT_OBSERVATION: COMPRESSED_IMAGE,
+    TOPIC_DIALOG: DIALOG_TURN,
+    TOPIC_DIALOG_LOG: LOG,
+}
+
+
+@cache
+def schema_json(name: str) -> dict[str, Any]:
+    """The JSON schema of a declared schema name, as a dict (cached; do not mutate)."""
+    spec = SCHEMAS[name]
+    text = resources.files("skyvln_eval.converters").joinpath("schemas", *spec.resource.split("/"))
+    loaded: dict[str, Any] = json.loads(text.read_text(encoding="utf-8"))
+    return loaded
+
+
+@cache
+def schema_bytes(name: str) -> bytes:
+    """The schema as stored in MCAP schema records: compact JSON, UTF-8 (same content)."""
+    return json.dumps(schema_json(name), separators=(",", ":"), ensure_ascii=False).encode()

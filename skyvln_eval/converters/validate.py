@@ -1,0 +1,253 @@
+"""Check MCAP logs and converted folders, reporting every problem found.
+
+For a file: every byte verified (magic, footer, summary, data and chunk CRCs, statistics,
+see :func:`read_log`), the format and own-schema versions, the episode records
+re-parsed, each topic written with its declared schema, and every message decoded as JSON
+and validated against the JSON schema stored in its own channel (plus: ``timestamp``
+equals the log time, base64 image data decodes). For a folder with a manifest: every
+listed file present, named after its episode id, with the listed content hash (so it is
+the very file the conversion wrote), and no unlisted logs.
+"""
+
+from __future__ import annotations
+
+import base64
+import binascii
+import json
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Final
+
+import jsonschema
+
+from skyvln_eval.converters import topics
+from skyvln_eval.converters.manifest import MANIFEST_NAME, episode_file_name, read_manifest
+from skyvln_eval.converters.reader import (
+    LogChannel,
+    LogMessage,
+    McapLog,
+    episode_from_log,
+    read_log,
+    read_log_bytes,
+)
+from skyvln_eval.errors import SkyvlnError, ValidationIssue
+from skyvln_eval.fileio import sha256_file
+
+#: Problems listed per channel before the rest are summarised in one line.
+MAX_ISSUES_PER_CHANNEL: Final = 5
+
+_validators: dict[bytes, Any] = {}
+
+
+@dataclass(frozen=True)
+class LogCheck:
+    """The outcome of checking one file: its message count and every issue."""
+
+    path: str
+    messages: int
+    issues: tuple[ValidationIssue, ...]
+
+
+def _validator(channel: LogChannel) -> Any:
+    validator = _validators.get(channel.schema_data)
+    if validator is None:
+        schema = json.loads(channel.schema_data)
+        cls = jsonschema.validators.validator_for(schema, default=jsonschema.Draft202012Validator)
+        cls.check_schema(schema)
+        validator = cls(schema)
+        _validators[channel.schema_data] = validator
+    return validator
+
+
+def _message_problems(message: LogMessage, validator: Any) -> list[tuple[str, str]]:
+    """(field path, problem) pairs for one message."""
+    try:
+        value = message.decode()
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        return [("", f"not valid JSON: {exc}")]
+    problems = [
+        ("/".join(str(p) for p in error.absolute_path), error.message)
+        for error in validator.iter_errors(value)
+    ]
+    if not isinstance(value, dict):
+        return problems
+    stamp = value.get("timestamp")
+    if isinstance(stamp, dict) and all(type(stamp.get(k)) is int for k in ("sec", "nsec")):
+        t_ns = stamp["sec"] * 1_000_000_000 + stamp["nsec"]
+        if t_ns != message.log_time_ns:
+            problems.append(
+                ("timestamp", f"is {t_ns} ns but the log time is {message.log_time_ns} ns")
+            )
+    if message.schema_name == topics.COMPRESSED_IMAGE and isinstance(value.get("data"), str):
+        try:
+            base64.b64decode(value["data"], validate=True)
+        except (binascii.Error, ValueError) as exc:
+            problems.append(("data", f"is not valid base64: {exc}"))
+    return problems
+
+
+def _channel_issues(log: McapLog) -> list[ValidationIssue]:
+    issues: list[ValidationIssue] = []
+    for channel in log.channels:
+        declared = topics.TOPICS.get(channel.topic)
+        if declared is not None and declared != channel.schema_name:
+            issues.append(
+                ValidationIssue(
+                    log.path,
+                    f"written with schema {channel.schema_name}, declared {declared}",
+                    field=channel.topic,
+                )
+            )
+        encodings = (channel.schema_encoding, channel.message_encoding)
+        if encodings != (topics.SCHEMA_ENCODING, topics.MESSAGE_ENCODING):
+            issues.append(
+                ValidationIssue(
+                    log.path, f"encodings {encodings} are not jsonschema/json", field=channel.topic
+                )
+            )
+    return issues
+
+
+def _message_issues(log: McapLog) -> list[ValidationIssue]:
+    issues: list[ValidationIssue] = []
+    by_topic = {c.topic: c for c in log.channels}
+    listed: dict[str, int] = {}
+    for message in log.messages:
+        channel = by_topic[message.topic]
+        if (channel.schema_encoding, channel.message_encoding) != (
+            topics.SCHEMA_ENCODING,
+            topics.MESSAGE_ENCODING,
+        ):
+            continue
+        try:
+            validator = _validator(channel)
+        except (json.JSONDecodeError, jsonschema.SchemaError) as exc:
+            issues.append(
+                ValidationIssue(
+                    log.path,
+                    f"channel schema is not a valid JSON schema: {exc}",
+                    field=channel.topic,
+                )
+            )
+            listed[channel.topic] = MAX_ISSUES_PER_CHANNEL + 1
+            continue
+        for where, problem in _message_problems(message, validator):
+            count = listed.get(message.topic, 0) + 1
+            listed[message.topic] = count
+            if count <= MAX_ISSUES_PER_CHANNEL:
+                field = f"{message.topic} message {message.sequence}" + (
+                    f" /{where}" if where else ""
+                )
+                issues.append(ValidationIssue(log.path, problem, field=field))
+    for topic, count in listed.items():
+        if count > MAX_ISSUES_PER_CHANNEL:
+            issues.append(
+                ValidationIssue(
+                    log.path, f"{count - MAX_ISSUES_PER_CHANNEL} more problem(s)", field=topic
+                )
+            )
+    return issues
+
+
+def check_log(path: str | Path) -> LogCheck:
+    """Every problem of one MCAP log (an unreadable file gives a single issue)."""
+    try:
+        log = read_log(path)
+    except SkyvlnError as exc:
+        return LogCheck(str(path), 0, (ValidationIssue(str(path), str(exc)),))
+    return check_loaded_log(log)
+
+
+def check_log_bytes(data: bytes, name: str = "<bytes>") -> LogCheck:
+    """:func:`check_log` for a log held in memory."""
+    try:
+        log = read_log_bytes(data, name)
+    except SkyvlnError as exc:
+        return LogCheck(name, 0, (ValidationIssue(name, str(exc)),))
+    return check_loaded_log(log)
+
+
+def check_loaded_log(log: McapLog) -> LogCheck:
+    """Channel, version, record and message checks of a log that read without damage."""
+    issues = _channel_issues(log)
+    episode_id = None
+    if topics.EPISODE_METADATA in log.metadata:
+        try:
+            episode_id = episode_from_log(log).episode_id
+        except SkyvlnError as exc:
+            issues.append(ValidationIssue(log.path, str(exc)))
+    issues.extend(_message_issues(log))
+    if episode_id is not None:
+        issues = [
+            ValidationIssue(i.file, i.message, i.record_index, episode_id, i.field) for i in issues
+        ]
+    return LogCheck(log.path, len(log.messages), tuple(issues))
+
+
+def check_manifest_folder(folder: str | Path) -> list[ValidationIssue]:
+    """Completeness of a converted folder against its manifest (files, hashes, ids)."""
+    folder = Path(folder)
+    manifest = folder / MANIFEST_NAME
+    logs = {p.name for p in folder.glob("*.mcap")}
+    if not manifest.is_file():
+        return [ValidationIssue(str(folder), f"{len(logs)} MCAP file(s) but no {MANIFEST_NAME}")]
+    try:
+        rows = read_manifest(manifest)
+    except SkyvlnError as exc:
+        return [ValidationIssue(str(manifest), str(exc))]
+    issues = []
+    for index, row in enumerate(rows):
+        path = folder / row.file_name
+        if row.file_name != episode_file_name(row.episode_id):
+            message = f"file name {row.file_name} is not {episode_file_name(row.episode_id)}"
+            issues.append(
+                ValidationIssue(str(manifest), message, index, row.episode_id, "file_name")
+            )
+        if not path.is_file():
+            issues.append(
+                ValidationIssue(
+                    str(manifest),
+                    f"lists {row.file_name}, which is missing",
+                    index,
+                    row.episode_id,
+                    "file_name",
+                )
+            )
+        elif sha256_file(path) != row.sha256:
+            issues.append(
+                ValidationIssue(
+                    str(path),
+                    "content differs from the manifest's sha256 (changed after conversion)",
+                    index,
+                    row.episode_id,
+                    "sha256",
+                )
+            )
+    listed = {row.file_name for row in rows}
+    for name in sorted(logs - listed):
+        issues.append(ValidationIssue(str(folder / name), f"not listed in {MANIFEST_NAME}"))
+    return issues
+
+
+def mcap_targets(path: Path) -> tuple[list[Path], list[Path]]:
+    """(folders holding a manifest or logs, loose log files) at or below ``path``."""
+    if not path.is_dir():
+        return [], [path]  # a file, or a missing path that check_log reports as not found
+    folders = sorted(
+        {p.parent for p in path.rglob("*.mcap")} | {p.parent for p in path.rglob(MANIFEST_NAME)}
+    )
+    return folders, []
+
+
+def check_paths(paths: Iterable[Path]) -> tuple[list[LogCheck], list[ValidationIssue]]:
+    """Check files and folders of logs: per-file checks and per-folder manifest issues."""
+    checks: list[LogCheck] = []
+    folder_issues: list[ValidationIssue] = []
+    for path in paths:
+        folders, files = mcap_targets(path)
+        for folder in folders:
+            folder_issues.extend(check_manifest_folder(folder))
+            files.extend(sorted(folder.glob("*.mcap")))
+        checks.extend(check_log(f) for f in files)
+    return checks, folder_issues

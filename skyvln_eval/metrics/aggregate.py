@@ -1,0 +1,170 @@
+"""Aggregate per-episode scores per system and split, check completeness, compare systems.
+
+The summary is a long table, one row per (system, split, mode, metric): ``n`` episodes,
+``mean`` (rates in percent, lengths in metres) and, when asked, a seeded bootstrap
+interval. Rules: a group with no value for a metric (e.g. no control summary) has no
+row for it; NaN / inf never reach a mean (they raise); a run that misses episodes of its
+split fails :func:`check_complete` with the missing ids.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+import pandas as pd
+
+from skyvln_eval.errors import IncompleteRunError, MetricInputError
+from skyvln_eval.metrics.scoring import METRIC_UNITS
+from skyvln_eval.metrics.stats import bootstrap_means, finite_values, paired_comparison
+
+GROUP_KEYS = ["system", "split", "mode"]
+
+#: Fractions reported in percent.
+PERCENT_METRICS = frozenset(
+    {
+        "success",
+        "oracle_success",
+        "spl",
+        "r2r_sr",
+        "r2r_osr",
+        "r2r_spl",
+        "ndtw",
+        "sdtw",
+        "cls",
+        "collided",
+    }
+)
+
+#: Short display names of the metrics that tables and figures show.
+DISPLAY_NAMES: dict[str, str] = {
+    "success": "SR",
+    "oracle_success": "OSR",
+    "spl": "SPL",
+    "gp_m": "GP",
+    "oracle_gp_m": "OGP",
+    "ne_m": "NE",
+    "path_length_m": "TL",
+    "r2r_sr": "SR@d",
+    "r2r_osr": "OSR@d",
+    "r2r_spl": "SPL@d",
+    "ndtw": "nDTW",
+    "sdtw": "SDTW",
+    "cls": "CLS",
+}
+
+#: Metrics where lower is better (tables mark the best accordingly).
+LOWER_IS_BETTER = frozenset(
+    {
+        "ne_m",
+        "r2r_ne_m",
+        "collision_steps",
+        "collided",
+        "constraint_violation_steps",
+        "solve_failures",
+        "rmse_x_m",
+        "rmse_y_m",
+        "rmse_z_m",
+        "rmse_yaw_rad",
+        "solve_time_mean_ms",
+        "solve_time_p95_ms",
+        "llm_cost_usd",
+        "llm_latency_s",
+    }
+)
+
+
+def unit_of(metric: str) -> str:
+    return "%" if metric in PERCENT_METRICS else METRIC_UNITS.get(metric, "")
+
+
+def summarise(
+    scores: pd.DataFrame,
+    metrics: Sequence[str] | None = None,
+    n_resamples: int = 0,
+    confidence: float = 0.95,
+    seed: int = 0,
+) -> pd.DataFrame:
+    """Per (system, split, mode, metric): n, mean and, if ``n_resamples``, a CI.
+
+    Every metric of a group is resampled with the same ``seed``, so metrics defined on
+    the same episodes share their resamples (their intervals agree with each other).
+    """
+    if scores.empty:
+        raise MetricInputError("no scores to summarise")
+    metrics = list(metrics or [m for m in METRIC_UNITS if m in scores.columns])
+    rows = []
+    for key, group in scores.groupby(GROUP_KEYS, sort=True):
+        for metric in metrics:
+            column = group[metric]
+            present = column.notna().to_numpy()
+            if not present.any():
+                continue
+            scale = 100.0 if metric in PERCENT_METRICS else 1.0
+            values = finite_values(column[present].to_numpy(np.float64), f"{key} {metric}") * scale
+            row = dict(zip(GROUP_KEYS, key, strict=True))
+            row.update(
+                metric=metric, unit=unit_of(metric), n=len(values), mean=float(values.mean())
+            )
+            if n_resamples:
+                means = bootstrap_means(values, n_resamples, seed)
+                tail = (1.0 - confidence) / 2.0 * 100.0
+                low, high = np.percentile(means, [tail, 100.0 - tail])
+                row.update(ci_low=float(low), ci_high=float(high), confidence=confidence)
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def check_complete(
+    episode_ids: Iterable[str], expected_ids: Iterable[str], what: str = "run"
+) -> None:
+    """Raise :class:`IncompleteRunError` naming missing (and unknown) episode ids."""
+    got = set(episode_ids)
+    expected = list(dict.fromkeys(expected_ids))
+    missing = [e for e in expected if e not in got]
+    unexpected = sorted(got - set(expected))
+    if missing or unexpected:
+        raise IncompleteRunError(what, missing, unexpected)
+
+
+def check_scores_complete(scores: pd.DataFrame, expected_ids: Sequence[str]) -> None:
+    """Every (system, split, mode) group of ``scores`` must cover ``expected_ids`` exactly."""
+    for key, group in scores.groupby(GROUP_KEYS, sort=True):
+        check_complete(group["episode_id"], expected_ids, "run " + "/".join(map(str, key)))
+
+
+def compare_systems(
+    scores: pd.DataFrame,
+    system_a: str,
+    system_b: str,
+    metric: str,
+    split: str,
+    mode: str = "andh",
+    n_resamples: int = 10_000,
+    seed: int = 0,
+) -> pd.Series:
+    """Paired bootstrap and sign-flip test of ``metric`` between two systems on one split.
+
+    Both systems must have scored exactly the same episodes (else it raises, naming the
+    episodes only one of them has). Rates are compared in percent.
+    """
+
+    def values(system: str) -> pd.Series:
+        sel = scores[(scores.system == system) & (scores.split == split) & (scores["mode"] == mode)]
+        if sel.empty:
+            raise MetricInputError(f"no scores for system {system!r} on {split}/{mode}")
+        return sel.set_index("episode_id")[metric].astype(np.float64)
+
+    a, b = values(system_a), values(system_b)
+    only_a, only_b = sorted(set(a.index) - set(b.index)), sorted(set(b.index) - set(a.index))
+    if only_a or only_b:
+        raise MetricInputError(
+            f"{system_a!r} and {system_b!r} did not run the same episodes on {split}: "
+            f"only {system_a!r}: {only_a[:10]}, only {system_b!r}: {only_b[:10]}"
+        )
+    b = b.loc[a.index]
+    scale = 100.0 if metric in PERCENT_METRICS else 1.0
+    result = paired_comparison(a.to_numpy() * scale, b.to_numpy() * scale, n_resamples, seed=seed)
+    return pd.Series(
+        {"metric": metric, "system_a": system_a, "system_b": system_b, **result.__dict__}
+    )

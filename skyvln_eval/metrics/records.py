@@ -1,0 +1,242 @@
+"""Per-episode result records: what a run leaves behind, and all metrics are computed from.
+
+One :class:`EpisodeResult` per (run, episode). It holds the visited views (start
+included) and the ground truth, so every metric can be recomputed later; optional
+:class:`ControlSummary` (runs with dynamics) and :class:`LlmCall` records (LLM agents)
+feed the safety and cost metrics. Nothing here is an average: aggregation and bootstrap
+come later (:mod:`skyvln_eval.metrics.aggregate`, :mod:`skyvln_eval.metrics.stats`).
+
+Views are ``[lat, lng]`` degrees, corner order front-left, front-right, back-right,
+back-left, as in AVDN. Construction validates shapes and finiteness and raises
+:class:`~skyvln_eval.errors.ResultRecordError` naming the episode and the field.
+The file formats are in :mod:`skyvln_eval.metrics.results_io`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+from typing import Any, Literal, get_args
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from skyvln_eval.avdn.constants import EPISODE_MODES, EpisodeMode
+from skyvln_eval.errors import ResultRecordError, ValidationIssue
+
+ResultStatus = Literal["ok", "failed"]
+#: ``ok``: the agent stopped or hit the step cap; ``failed``: the episode crashed (the
+#: harness, the agent or the controller raised); a failed episode never counts as success.
+RESULT_STATUSES: tuple[ResultStatus, ...] = get_args(ResultStatus)
+
+
+def _issue(message: str, field_name: str, episode_id: str | None) -> ResultRecordError:
+    return ResultRecordError(
+        ValidationIssue(
+            file="<EpisodeResult>", message=message, episode_id=episode_id, field=field_name
+        )
+    )
+
+
+def as_views(
+    value: ArrayLike, field_name: str, episode_id: str | None, min_len: int
+) -> NDArray[np.float64]:
+    """A read-only ``(K, 4, 2)`` float64 copy of ``value``, checked finite, ``K >= min_len``."""
+    try:
+        arr = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise _issue(f"not an array of numbers ({exc})", field_name, episode_id) from None
+    if arr.size == 0 and min_len == 0:
+        arr = arr.reshape(0, 4, 2)
+    if arr.ndim != 3 or arr.shape[1:] != (4, 2):
+        raise _issue(
+            f"expected shape (K, 4, 2) [lat, lng] corners, got {arr.shape}", field_name, episode_id
+        )
+    if len(arr) < min_len:
+        raise _issue(f"needs at least {min_len} view(s), got {len(arr)}", field_name, episode_id)
+    bad = np.argwhere(~np.isfinite(arr))
+    if len(bad):
+        k, c, a = (int(v) for v in bad[0])
+        raise _issue(
+            f"non-finite value {arr[k, c, a]!r} (NaN or inf)",
+            f"{field_name}[{k}][{c}][{a}]",
+            episode_id,
+        )
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True)
+class LlmCall:
+    """One LLM call made by an agent module during an episode.
+
+    ``module`` is the agent part that called (``"subgoals"``, ``"hsd_describe"``,
+    ``"hsd_rank"``, ``"motion"``, ``"clarify"``, ...); ``cost_usd`` and ``latency_s`` are
+    what the call cost and took (0 for a cache hit's cost is the caller's choice);
+    ``error`` is the error message when the call failed.
+    """
+
+    module: str
+    backend: str
+    model: str
+    prompt_tokens: int
+    completion_tokens: int
+    cost_usd: float
+    latency_s: float
+    cached: bool = False
+    error: str | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("prompt_tokens", "completion_tokens"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise _issue(
+                    f"must be a non-negative integer, got {value!r}", f"llm_calls.{name}", None
+                )
+        for name in ("cost_usd", "latency_s"):
+            value = getattr(self, name)
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, int | float)
+                or not math.isfinite(value)
+                or value < 0
+            ):
+                raise _issue(
+                    f"must be a finite non-negative number, got {value!r}",
+                    f"llm_calls.{name}",
+                    None,
+                )
+
+    def to_json_dict(self) -> dict[str, Any]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+@dataclass(frozen=True)
+class ControlSummary:
+    """Safety and control statistics of one closed-loop episode (see :mod:`.safety`).
+
+    ``min_clearance_m`` is ``None`` when the episode had no obstacles; the RMSEs are of
+    flown minus reference (roll and pitch against the commanded angles, yaw wrapped to
+    (-pi, pi]); solve times are over every control step.
+    """
+
+    controller: str
+    scenario: str
+    steps: int
+    duration_s: float
+    collision_steps: int
+    min_clearance_m: float | None
+    constraint_violation_steps: int
+    solve_failures: int
+    rmse_x_m: float
+    rmse_y_m: float
+    rmse_z_m: float
+    rmse_roll_rad: float
+    rmse_pitch_rad: float
+    rmse_yaw_rad: float
+    solve_time_mean_ms: float
+    solve_time_p50_ms: float
+    solve_time_p95_ms: float
+    solve_time_max_ms: float
+
+    @property
+    def collided(self) -> bool:
+        return self.collision_steps > 0
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name in ("controller", "scenario"):
+                continue
+            if value is None and f.name == "min_clearance_m":
+                continue
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, int | float)
+                or not math.isfinite(value)
+            ):
+                raise _issue(f"must be a finite number, got {value!r}", f"control.{f.name}", None)
+
+    def to_json_dict(self) -> dict[str, Any]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+@dataclass(frozen=True, eq=False)
+class EpisodeResult:
+    """What one run did on one episode: the input of every metric.
+
+    - ``visited_views``: ``(K, 4, 2)``, the start view first, in visiting order; ``K = 0``
+      only when the episode failed before its first view.
+    - ``gt_path_corners``: ``(N, 4, 2)``, ``N >= 1``, the ground truth (start first).
+      ``N = 1`` gives ``D_net = 0`` (SPL 0), as for fixtures scored against their start.
+    - ``system``: the run / configuration label shown in tables (e.g. ``"SkyVLN full"``,
+      ``"rule-based backend"``); rows are labelled by it.
+    - ``control_log``: where the episode's control log (parquet) lives, relative to the
+      results file, so the safety metrics can be recomputed; ``control`` its summary.
+    - ``extra``: JSON-able extra facts (seeds, config hashes), kept verbatim.
+    """
+
+    episode_id: str
+    split: str
+    mode: EpisodeMode
+    system: str
+    status: ResultStatus
+    visited_views: NDArray[np.float64]
+    gt_path_corners: NDArray[np.float64]
+    error: str | None = None
+    control: ControlSummary | None = None
+    control_log: str | None = None
+    llm_calls: tuple[LlmCall, ...] = ()
+    extra: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        eid = self.episode_id if isinstance(self.episode_id, str) else None
+        for name in ("episode_id", "split", "system"):
+            value = getattr(self, name)
+            if not isinstance(value, str) or not value:
+                raise _issue(f"must be a non-empty string, got {value!r}", name, eid)
+        if self.mode not in EPISODE_MODES:
+            raise _issue(f"must be one of {EPISODE_MODES}, got {self.mode!r}", "mode", eid)
+        if self.status not in RESULT_STATUSES:
+            raise _issue(f"must be one of {RESULT_STATUSES}, got {self.status!r}", "status", eid)
+        object.__setattr__(
+            self, "visited_views", as_views(self.visited_views, "visited_views", eid, 0)
+        )
+        object.__setattr__(
+            self, "gt_path_corners", as_views(self.gt_path_corners, "gt_path_corners", eid, 1)
+        )
+        if len(self.visited_views) == 0 and self.status == "ok":
+            raise _issue(
+                "an 'ok' episode must include at least its start view", "visited_views", eid
+            )
+        object.__setattr__(self, "llm_calls", tuple(self.llm_calls))
+        for call in self.llm_calls:
+            if not isinstance(call, LlmCall):
+                raise _issue(
+                    f"expected LlmCall records, got {type(call).__name__}", "llm_calls", eid
+                )
+
+    @property
+    def key(self) -> tuple[str, str, str, str]:
+        """``(system, split, mode, episode_id)``: unique within a set of results."""
+        return (self.system, self.split, self.mode, self.episode_id)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, EpisodeResult):
+            return NotImplemented
+        return (
+            self.key == other.key
+            and self.status == other.status
+            and self.visited_views.shape == other.visited_views.shape
+            and bool(np.array_equal(self.visited_views, other.visited_views))
+            and self.gt_path_corners.shape == other.gt_path_corners.shape
+            and bool(np.array_equal(self.gt_path_corners, other.gt_path_corners))
+            and self.error == other.error
+            and self.control == other.control
+            and self.control_log == other.control_log
+            and self.llm_calls == other.llm_calls
+            and dict(self.extra) == dict(other.extra)
+        )
+
+    __hash__ = None  # type: ignore[assignment]

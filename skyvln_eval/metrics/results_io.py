@@ -1,0 +1,262 @@
+"""Lossless, versioned files of :class:`EpisodeResult` rows: JSON lines and parquet.
+
+JSON lines (``.jsonl``): the first line is the header
+``{"format": "skyvln-eval.episode-results", "version": 1}``; every further line is one
+result::
+
+    {"episode_id": "1913__3_1", "split": "val_unseen", "mode": "andh",
+     "system": "SkyVLN full", "status": "ok", "error": null,
+     "visited_views": [[[lat, lng] x 4], ...], "gt_path_corners": [[[lat, lng] x 4], ...],
+     "control": null | {ControlSummary fields}, "control_log": null | "logs/x.parquet",
+     "llm_calls": [{LlmCall fields}, ...], "extra": {}}
+
+Floats are written with Python's shortest round-trip repr, so reading gives back the
+same bits. Parquet (``.parquet``) holds the same rows, views as nested float64 lists and
+``control`` / ``llm_calls`` / ``extra`` as JSON text; the format and version are in the
+file's schema metadata. Both readers check the version and name the file, row and field
+of any problem. Writers write to a temporary name and rename.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from skyvln_eval.errors import DataError, FormatVersionError, ResultRecordError, ValidationIssue
+from skyvln_eval.fileio import atomic_write_bytes
+from skyvln_eval.metrics.records import ControlSummary, EpisodeResult, LlmCall
+
+RESULTS_FORMAT = "skyvln-eval.episode-results"
+RESULTS_VERSION = 1
+_FIELDS = (
+    "episode_id",
+    "split",
+    "mode",
+    "system",
+    "status",
+    "error",
+    "visited_views",
+    "gt_path_corners",
+    "control",
+    "control_log",
+    "llm_calls",
+    "extra",
+)
+_UPGRADE_HINT = "Rewrite the results with this toolkit version (rerun or convert the run)."
+
+
+def result_to_json_dict(result: EpisodeResult) -> dict[str, Any]:
+    """One result as plain JSON data (the shape of a JSON-lines row)."""
+    return {
+        "episode_id": result.episode_id,
+        "split": result.split,
+        "mode": result.mode,
+        "system": result.system,
+        "status": result.status,
+        "error": result.error,
+        "visited_views": result.visited_views.tolist(),
+        "gt_path_corners": result.gt_path_corners.tolist(),
+        "control": None if result.control is None else result.control.to_json_dict(),
+        "control_log": result.control_log,
+        "llm_calls": [c.to_json_dict() for c in result.llm_calls],
+        "extra": dict(result.extra),
+    }
+
+
+def _where(
+    file: str, row: int, episode_id: str | None, field: str, message: str
+) -> ResultRecordError:
+    return ResultRecordError(ValidationIssue(file, message, row, episode_id, field))
+
+
+def result_from_json_dict(data: Any, file: str = "<json>", row: int = 0) -> EpisodeResult:
+    """Parse one row; errors name ``file``, ``row``, the episode and the field."""
+    if not isinstance(data, dict):
+        raise _where(file, row, None, "", f"expected a JSON object, got {type(data).__name__}")
+    eid = data.get("episode_id") if isinstance(data.get("episode_id"), str) else None
+    missing = [k for k in _FIELDS if k not in data]
+    if missing:
+        raise _where(file, row, eid, missing[0], f"missing required key(s) {missing}")
+    unknown = sorted(set(data) - set(_FIELDS))
+    if unknown:
+        raise _where(file, row, eid, unknown[0], f"unknown key(s) {unknown}")
+    try:
+        control = None if data["control"] is None else ControlSummary(**data["control"])
+        calls = tuple(LlmCall(**c) for c in data["llm_calls"])
+        if not isinstance(data["extra"], dict):
+            raise _where(file, row, eid, "extra", "must be a JSON object")
+        return EpisodeResult(
+            episode_id=data["episode_id"],
+            split=data["split"],
+            mode=data["mode"],
+            system=data["system"],
+            status=data["status"],
+            error=data["error"],
+            visited_views=np.asarray(data["visited_views"], dtype=np.float64)
+            if data["visited_views"]
+            else np.zeros((0, 4, 2)),
+            gt_path_corners=data["gt_path_corners"],
+            control=control,
+            control_log=data["control_log"],
+            llm_calls=calls,
+            extra=data["extra"],
+        )
+    except ResultRecordError as exc:
+        issue = exc.issue
+        raise _where(file, row, eid, issue.field or "", issue.message) from None
+    except (TypeError, ValueError) as exc:
+        raise _where(file, row, eid, "", str(exc)) from None
+
+
+def check_unique(results: Sequence[EpisodeResult], file: str = "<results>") -> None:
+    """Raise if two rows share ``(system, split, mode, episode_id)``."""
+    seen: dict[tuple[str, str, str, str], int] = {}
+    for row, result in enumerate(results):
+        if result.key in seen:
+            raise _where(
+                file,
+                row,
+                result.episode_id,
+                "episode_id",
+                f"duplicate of row {seen[result.key]} (same system, split and mode)",
+            )
+        seen[result.key] = row
+
+
+def results_to_jsonl_bytes(results: Iterable[EpisodeResult]) -> bytes:
+    header = json.dumps({"format": RESULTS_FORMAT, "version": RESULTS_VERSION})
+    lines = [header]
+    lines += [
+        json.dumps(result_to_json_dict(r), allow_nan=False, ensure_ascii=False) for r in results
+    ]
+    return ("\n".join(lines) + "\n").encode("utf-8")
+
+
+def _check_header(header: Any, file: str) -> None:
+    if not isinstance(header, dict) or header.get("format") != RESULTS_FORMAT:
+        raise DataError(
+            f"{file}: not an episode-results file (its first line must be "
+            f'{{"format": "{RESULTS_FORMAT}", "version": {RESULTS_VERSION}}})'
+        )
+    if header.get("version") != RESULTS_VERSION:
+        raise FormatVersionError(file, header.get("version"), RESULTS_VERSION, _UPGRADE_HINT)
+
+
+def results_from_jsonl_bytes(data: bytes, file: str = "<jsonl>") -> list[EpisodeResult]:
+    lines = data.decode("utf-8").splitlines()
+    if not lines:
+        raise DataError(f"{file}: empty file (no header line)")
+    try:
+        _check_header(json.loads(lines[0]), file)
+    except json.JSONDecodeError as exc:
+        raise DataError(f"{file}: header line is not JSON ({exc.msg})") from None
+    results = []
+    for row, line in enumerate(lines[1:]):
+        if not line.strip():
+            continue
+        try:
+            obj = json.loads(line)
+        except json.JSONDecodeError as exc:
+            raise _where(
+                file,
+                row,
+                None,
+                "",
+                f"not valid JSON (line {row + 2}, column {exc.colno}: {exc.msg})",
+            ) from None
+        results.append(result_from_json_dict(obj, file, row))
+    check_unique(results, file)
+    return results
+
+
+def _parquet_table(results: Sequence[EpisodeResult]) -> Any:
+    import pyarrow as pa
+
+    views = pa.list_(pa.list_(pa.list_(pa.float64(), 2), 4))
+    columns = {
+        "episode_id": pa.array([r.episode_id for r in results], pa.string()),
+        "split": pa.array([r.split for r in results], pa.string()),
+        "mode": pa.array([r.mode for r in results], pa.string()),
+        "system": pa.array([r.system for r in results], pa.string()),
+        "status": pa.array([r.status for r in results], pa.string()),
+        "error": pa.array([r.error for r in results], pa.string()),
+        "visited_views": pa.array([r.visited_views.tolist() for r in results], views),
+        "gt_path_corners": pa.array([r.gt_path_corners.tolist() for r in results], views),
+        "control": pa.array(
+            [None if r.control is None else json.dumps(r.control.to_json_dict()) for r in results],
+            pa.string(),
+        ),
+        "control_log": pa.array([r.control_log for r in results], pa.string()),
+        "llm_calls": pa.array(
+            [json.dumps([c.to_json_dict() for c in r.llm_calls]) for r in results], pa.string()
+        ),
+        "extra": pa.array(
+            [json.dumps(dict(r.extra), sort_keys=True) for r in results], pa.string()
+        ),
+    }
+    meta = {
+        b"skyvln_eval.format": RESULTS_FORMAT.encode(),
+        b"skyvln_eval.version": str(RESULTS_VERSION).encode(),
+    }
+    return pa.table(columns).replace_schema_metadata(meta)
+
+
+def results_to_parquet_bytes(results: Sequence[EpisodeResult]) -> bytes:
+    import pyarrow.parquet as pq
+
+    sink = io.BytesIO()
+    pq.write_table(_parquet_table(results), sink, compression="zstd")
+    return sink.getvalue()
+
+
+def results_from_parquet_bytes(data: bytes, file: str = "<parquet>") -> list[EpisodeResult]:
+    import pyarrow.parquet as pq
+
+    try:
+        table = pq.read_table(io.BytesIO(data))
+    except Exception as exc:  # pyarrow raises several unrelated types for a bad file
+        raise DataError(f"{file}: not a readable parquet file ({exc})") from None
+    meta = table.schema.metadata or {}
+    if meta.get(b"skyvln_eval.format") != RESULTS_FORMAT.encode():
+        raise DataError(
+            f"{file}: not an episode-results parquet file (no '{RESULTS_FORMAT}' metadata)"
+        )
+    version = meta.get(b"skyvln_eval.version", b"?").decode()
+    if version != str(RESULTS_VERSION):
+        raise FormatVersionError(file, version, RESULTS_VERSION, _UPGRADE_HINT)
+    results = []
+    for row, rec in enumerate(table.to_pylist()):
+        for key in ("control", "llm_calls", "extra"):
+            rec[key] = None if rec[key] is None else json.loads(rec[key])
+        results.append(result_from_json_dict(rec, file, row))
+    check_unique(results, file)
+    return results
+
+
+def write_results(path: str | Path, results: Sequence[EpisodeResult]) -> None:
+    """Write results atomically; the suffix (``.jsonl`` or ``.parquet``) picks the format."""
+    path = Path(path)
+    check_unique(results, str(path))
+    if path.suffix == ".jsonl":
+        atomic_write_bytes(path, results_to_jsonl_bytes(results))
+    elif path.suffix == ".parquet":
+        atomic_write_bytes(path, results_to_parquet_bytes(results))
+    else:
+        raise DataError(f"{path}: unknown results format; use a .jsonl or .parquet name")
+
+
+def read_results(path: str | Path) -> list[EpisodeResult]:
+    """Read a results file written by :func:`write_results` (format by suffix)."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: results file not found")
+    if path.suffix == ".jsonl":
+        return results_from_jsonl_bytes(path.read_bytes(), str(path))
+    if path.suffix == ".parquet":
+        return results_from_parquet_bytes(path.read_bytes(), str(path))
+    raise DataError(f"{path}: unknown results format; expected .jsonl or .parquet")

@@ -1,0 +1,172 @@
+"""Safety and control metrics from closed-loop control logs.
+
+A control log is a pandas DataFrame with one row per control step and the columns of
+:data:`CONTROL_LOG_COLUMNS` (x east, y north, z up in metres; angles in radians; for
+roll and pitch the reference is the commanded angle). ``min_clearance_m`` is ``inf``
+when a scenario has no obstacles. Logs may hold several controllers and scenarios (and
+an optional ``episode_id`` column); every metric is computed per group.
+
+Per group: steps, duration, collision steps, minimum clearance (``None`` without
+obstacles), constraint-violation steps, solver failures, tracking RMSE per axis (yaw
+error wrapped to (-pi, pi]) and solve-time mean / median / 95th percentile / max.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from skyvln_eval.errors import DataError
+from skyvln_eval.metrics.records import ControlSummary
+
+CONTROL_LOG_COLUMNS: dict[str, str] = {
+    "controller": "str",
+    "scenario": "str",
+    "t_s": "float",
+    "x_m": "float",
+    "y_m": "float",
+    "z_m": "float",
+    "vx_m_s": "float",
+    "vy_m_s": "float",
+    "vz_m_s": "float",
+    "roll_rad": "float",
+    "pitch_rad": "float",
+    "yaw_rad": "float",
+    "ref_x_m": "float",
+    "ref_y_m": "float",
+    "ref_z_m": "float",
+    "ref_yaw_rad": "float",
+    "cmd_thrust_m_s2": "float",
+    "cmd_roll_rad": "float",
+    "cmd_pitch_rad": "float",
+    "solve_time_ms": "float",
+    "iterations": "int",
+    "status": "str",
+    "solve_failed": "bool",
+    "min_clearance_m": "float",
+    "collision": "bool",
+    "constraint_violation": "bool",
+}
+
+#: Flown column -> reference column for the tracking errors.
+TRACKED_AXES: dict[str, tuple[str, str]] = {
+    "x": ("x_m", "ref_x_m"),
+    "y": ("y_m", "ref_y_m"),
+    "z": ("z_m", "ref_z_m"),
+    "roll": ("roll_rad", "cmd_roll_rad"),
+    "pitch": ("pitch_rad", "cmd_pitch_rad"),
+    "yaw": ("yaw_rad", "ref_yaw_rad"),
+}
+
+
+def wrap_angle(angle: np.ndarray) -> np.ndarray:
+    """Angles (rad) wrapped to (-pi, pi]."""
+    return np.pi - np.mod(np.pi - np.asarray(angle, dtype=np.float64), 2.0 * np.pi)
+
+
+def tracking_errors(log: pd.DataFrame) -> pd.DataFrame:
+    """Flown minus reference per step and axis (``err_x_m`` ... ``err_yaw_rad``)."""
+    out = {}
+    for axis, (flown, ref) in TRACKED_AXES.items():
+        unit = "m" if flown.endswith("_m") else "rad"
+        err = log[flown].to_numpy(np.float64) - log[ref].to_numpy(np.float64)
+        out[f"err_{axis}_{unit}"] = wrap_angle(err) if axis == "yaw" else err
+    return pd.DataFrame(out, index=log.index)
+
+
+def check_control_log(log: pd.DataFrame, source: str = "<control log>") -> None:
+    """Raise :class:`DataError` naming the source, column and row of the first problem."""
+    missing = [c for c in CONTROL_LOG_COLUMNS if c not in log.columns]
+    if missing:
+        raise DataError(f"{source}: control log is missing column(s) {missing}")
+    if log.empty:
+        raise DataError(f"{source}: control log has no rows")
+    for column, kind in CONTROL_LOG_COLUMNS.items():
+        values = log[column]
+        if kind == "float":
+            arr = pd.to_numeric(values, errors="coerce").to_numpy(np.float64)
+            finite = np.isfinite(arr)
+            if column == "min_clearance_m":
+                finite |= np.isposinf(arr)  # inf means "no obstacle"
+            if not finite.all():
+                row = int(np.flatnonzero(~finite)[0])
+                raise DataError(
+                    f"{source}: row {row}, column '{column}': non-finite value {values.iloc[row]!r}"
+                )
+        elif kind == "bool" and values.dtype != bool:
+            raise DataError(f"{source}: column '{column}' must be boolean, got {values.dtype}")
+        elif kind == "str" and values.isna().any():
+            row = int(np.flatnonzero(values.isna().to_numpy())[0])
+            raise DataError(f"{source}: row {row}, column '{column}': missing value")
+
+
+def read_control_log(path: str | Path) -> pd.DataFrame:
+    """Read a control log from parquet or CSV and check it."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: control log not found")
+    if path.suffix == ".parquet":
+        log = pd.read_parquet(path)
+    elif path.suffix == ".csv":
+        log = pd.read_csv(path)
+    else:
+        raise DataError(f"{path}: unknown control log format; use .parquet or .csv")
+    check_control_log(log, str(path))
+    return log
+
+
+def _rmse(err: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(err))))
+
+
+def summarise_control(log: pd.DataFrame, source: str = "<control log>") -> ControlSummary:
+    """The :class:`ControlSummary` of one controller on one scenario (one group)."""
+    check_control_log(log, source)
+    for column in ("controller", "scenario"):
+        if log[column].nunique() != 1:
+            raise DataError(f"{source}: one summary needs one {column}; use control_metrics()")
+    err = tracking_errors(log)
+    t = log["t_s"].to_numpy(np.float64)
+    solve = log["solve_time_ms"].to_numpy(np.float64)
+    clearance = log["min_clearance_m"].to_numpy(np.float64)
+    return ControlSummary(
+        controller=str(log["controller"].iloc[0]),
+        scenario=str(log["scenario"].iloc[0]),
+        steps=len(log),
+        duration_s=float(t.max() - t.min()),
+        collision_steps=int(log["collision"].sum()),
+        min_clearance_m=None if np.isposinf(clearance).all() else float(clearance.min()),
+        constraint_violation_steps=int(log["constraint_violation"].sum()),
+        solve_failures=int(log["solve_failed"].sum()),
+        rmse_x_m=_rmse(err["err_x_m"].to_numpy()),
+        rmse_y_m=_rmse(err["err_y_m"].to_numpy()),
+        rmse_z_m=_rmse(err["err_z_m"].to_numpy()),
+        rmse_roll_rad=_rmse(err["err_roll_rad"].to_numpy()),
+        rmse_pitch_rad=_rmse(err["err_pitch_rad"].to_numpy()),
+        rmse_yaw_rad=_rmse(err["err_yaw_rad"].to_numpy()),
+        solve_time_mean_ms=float(solve.mean()),
+        solve_time_p50_ms=float(np.percentile(solve, 50)),
+        solve_time_p95_ms=float(np.percentile(solve, 95)),
+        solve_time_max_ms=float(solve.max()),
+    )
+
+
+def control_metrics(log: pd.DataFrame, source: str = "<control log>") -> pd.DataFrame:
+    """One row of :class:`ControlSummary` fields per (controller, scenario[, episode_id]).
+
+    Adds ``collided`` (any collision step). ``min_clearance_m`` is NaN-free: groups
+    without obstacles get ``None`` (shown as "no obstacles" in reports).
+    """
+    check_control_log(log, source)
+    keys = ["controller", "scenario"] + (["episode_id"] if "episode_id" in log.columns else [])
+    rows = []
+    for key, group in log.groupby(keys, sort=True):
+        summary = summarise_control(group.reset_index(drop=True), f"{source} {key}")
+        row = summary.to_json_dict()
+        if "episode_id" in keys:
+            row["episode_id"] = key[2]
+        row["collided"] = summary.collided
+        rows.append(row)
+    return pd.DataFrame(rows)

@@ -1,0 +1,93 @@
+"""Per-episode scores files: CSV with the format version and the conventions in its header.
+
+The first two lines are comments::
+
+    # skyvln-eval.scores v1
+    # conventions: {"distance":"2d",...}
+
+then a CSV header and one row per episode (the frame of
+:func:`~skyvln_eval.metrics.scoring.score_results`). Floats are written with Python's
+shortest round-trip repr, so reading gives back the same values; empty cells are
+"not applicable" (e.g. control metrics of an episode without dynamics).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from collections.abc import Sequence
+from pathlib import Path
+
+import pandas as pd
+
+from skyvln_eval.errors import DataError, FormatVersionError
+from skyvln_eval.fileio import atomic_write_text
+from skyvln_eval.metrics.conventions import MetricConventions
+from skyvln_eval.metrics.scoring import CONTROL_COLUMNS
+
+SCORES_FORMAT = "skyvln-eval.scores"
+SCORES_VERSION = 1
+
+
+def scores_to_csv_text(scores: pd.DataFrame, conventions: MetricConventions) -> str:
+    buffer = io.StringIO()
+    buffer.write(f"# {SCORES_FORMAT} v{SCORES_VERSION}\n# conventions: {conventions.to_json()}\n")
+    scores.to_csv(buffer, index=False, lineterminator="\n")
+    return buffer.getvalue()
+
+
+def write_scores(path: str | Path, scores: pd.DataFrame, conventions: MetricConventions) -> None:
+    """Write a scores CSV atomically (see the module docstring)."""
+    atomic_write_text(path, scores_to_csv_text(scores, conventions))
+
+
+def read_scores(path: str | Path) -> tuple[pd.DataFrame, MetricConventions]:
+    """Read a scores CSV; checks the format version and parses the conventions."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: scores file not found")
+    text = path.read_text(encoding="utf-8")
+    lines = text.split("\n", 2)
+    if len(lines) < 3 or not lines[0].startswith(f"# {SCORES_FORMAT} v"):
+        raise DataError(
+            f"{path}: not a scores file (its first line must be '# {SCORES_FORMAT} v1')"
+        )
+    version = lines[0].rsplit("v", 1)[1]
+    if version != str(SCORES_VERSION):
+        raise FormatVersionError(
+            str(path), version, SCORES_VERSION, "Rescore the results with `skyvln-eval score`."
+        )
+    if not lines[1].startswith("# conventions: "):
+        raise DataError(f"{path}: line 2 must be '# conventions: {{...}}'")
+    try:
+        conventions = MetricConventions.from_dict(
+            json.loads(lines[1][len("# conventions: ") :]), f"{path} conventions"
+        )
+    except json.JSONDecodeError as exc:
+        raise DataError(f"{path}: conventions line is not JSON ({exc.msg})") from None
+    frame = pd.read_csv(
+        io.StringIO(lines[2]), dtype={"episode_id": str, "split": str, "system": str}
+    )
+    for column in CONTROL_COLUMNS:
+        if column in frame.columns:
+            frame[column] = frame[column].astype("Float64")
+    return frame, conventions
+
+
+def read_many_scores(paths: Sequence[str | Path]) -> tuple[pd.DataFrame, MetricConventions]:
+    """Concatenate scores files made under the same conventions (else raise, naming both)."""
+    if not paths:
+        raise DataError("no scores files given")
+    frames = []
+    first: MetricConventions | None = None
+    for path in paths:
+        frame, conventions = read_scores(path)
+        if first is not None and conventions != first:
+            raise DataError(
+                f"{path}: scored under different conventions ({conventions.describe()}) than "
+                f"{paths[0]} ({first.describe()}); rescore one of them"
+            )
+        first = conventions
+        frames.append(frame)
+    assert first is not None  # paths is non-empty
+    return pd.concat(frames, ignore_index=True), first

@@ -1,0 +1,98 @@
+"""Score episode results: one row of every per-episode metric per result.
+
+:func:`score_results` is the one entry point: official AVDN metrics, the R2R family
+(under the given :class:`MetricConventions`), LLM cost totals and control statistics,
+as a pandas DataFrame keyed by ``system, split, mode, episode_id``. Nothing is averaged
+here (see :mod:`.aggregate`). Identical inputs give identical frames.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import pandas as pd
+
+from skyvln_eval.errors import MetricInputError
+from skyvln_eval.metrics.batch import pack_views
+from skyvln_eval.metrics.conventions import MetricConventions
+from skyvln_eval.metrics.cost import COST_COLUMNS, episode_costs
+from skyvln_eval.metrics.official import OFFICIAL_COLUMNS, official_metrics
+from skyvln_eval.metrics.r2r import R2R_COLUMNS, r2r_metrics
+from skyvln_eval.metrics.records import EpisodeResult
+from skyvln_eval.metrics.results_io import check_unique
+
+KEY_COLUMNS = ("system", "split", "mode", "episode_id")
+
+#: Control columns of the scores frame (NaN-free: missing summaries leave them empty,
+#: ``has_control`` says which rows have them; ``min_clearance_m`` is empty without
+#: obstacles).
+CONTROL_COLUMNS: dict[str, str] = {
+    "collision_steps": "steps",
+    "collided": "0/1",
+    "min_clearance_m": "m",
+    "constraint_violation_steps": "steps",
+    "solve_failures": "steps",
+    "rmse_x_m": "m",
+    "rmse_y_m": "m",
+    "rmse_z_m": "m",
+    "rmse_yaw_rad": "rad",
+    "solve_time_mean_ms": "ms",
+    "solve_time_p95_ms": "ms",
+}
+
+#: Every metric column of the scores frame with its unit.
+METRIC_UNITS: dict[str, str] = {
+    **OFFICIAL_COLUMNS,
+    **R2R_COLUMNS,
+    **COST_COLUMNS,
+    **CONTROL_COLUMNS,
+}
+
+
+def score_results(
+    results: Sequence[EpisodeResult], conventions: MetricConventions | None = None
+) -> pd.DataFrame:
+    """Every per-episode metric of ``results``, one row each, in input order.
+
+    Raises :class:`MetricInputError` on empty input, and
+    :class:`~skyvln_eval.errors.ResultRecordError` on duplicate episodes.
+    """
+    conventions = conventions or MetricConventions()
+    if not results:
+        raise MetricInputError("no episode results to score")
+    check_unique(results)
+    gt = pack_views([r.gt_path_corners for r in results])
+    visited = pack_views(
+        [r.visited_views for r in results], stand_ins=[r.gt_path_corners[0] for r in results]
+    )
+    ok = np.array([r.status == "ok" for r in results]) & ~visited.empty
+    frame = pd.DataFrame(
+        {
+            "system": [r.system for r in results],
+            "split": [r.split for r in results],
+            "mode": [r.mode for r in results],
+            "episode_id": [r.episode_id for r in results],
+            "status": [r.status for r in results],
+            "n_views": visited.lengths,
+            "n_gt_views": gt.lengths,
+        }
+    )
+    metrics = official_metrics(visited, gt, ok, legacy_gp=conventions.legacy_gp)
+    metrics.update(r2r_metrics(visited, gt, ok, conventions))
+    for name, values in metrics.items():
+        frame[name] = values
+    frame = pd.concat([frame, episode_costs(results)], axis=1)
+    frame["has_control"] = [r.control is not None for r in results]
+    with_control = [k for k, r in enumerate(results) if r.control is not None]
+    for column in CONTROL_COLUMNS:
+        cells: list[float | None] = [None] * len(results)
+        for k in with_control:  # only rows with dynamics; the rest stay empty
+            control = results[k].control
+            assert control is not None
+            cells[k] = float(control.collided) if column == "collided" else getattr(control, column)
+        frame[column] = pd.array(cells, dtype="Float64")
+    bad = [c for c in metrics if not np.isfinite(frame[c].to_numpy(np.float64)).all()]
+    if bad:  # a bug, never user input (inputs are checked finite): fail loudly
+        raise MetricInputError(f"non-finite per-episode values in {bad}")
+    return frame

@@ -1,0 +1,291 @@
+"""The ``score``, ``table`` and ``plot`` commands (registered in :mod:`skyvln_eval.cli`).
+
+Each parses options, calls :mod:`skyvln_eval.metrics` / :mod:`skyvln_eval.reports` and
+writes files atomically; heavy imports happen inside the commands so ``skyvln-eval
+--help`` stays fast.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
+
+import typer
+
+from skyvln_eval.avdn.constants import EpisodeMode
+from skyvln_eval.errors import ConfigError
+
+if TYPE_CHECKING:
+    from skyvln_eval.metrics import MetricConventions
+
+plot_app = typer.Typer(
+    help="Figures: control curves, SR vs threshold, NE distribution, maps.", no_args_is_help=True
+)
+
+SUMMARY_METRICS = ("success", "oracle_success", "spl", "gp_m", "oracle_gp_m", "ne_m",
+                   "path_length_m", "r2r_sr", "r2r_spl", "ndtw", "sdtw", "cls")  # fmt: skip
+
+
+def _mode(mode: str) -> EpisodeMode:
+    if mode == "andh":
+        return "andh"
+    if mode == "andh-full":
+        return "andh-full"
+    raise ConfigError(f"--mode must be 'andh' or 'andh-full', not {mode!r}")
+
+
+def _conventions(
+    threshold_m: float, distance: str, non_strict: bool, legacy_gp: bool
+) -> MetricConventions:
+    from skyvln_eval.metrics import MetricConventions
+
+    if distance not in ("2d", "3d"):
+        raise ConfigError(f"--distance must be '2d' or '3d', not {distance!r}")
+    return MetricConventions(
+        distance="2d" if distance == "2d" else "3d",
+        threshold_m=threshold_m,
+        strict_threshold=not non_strict,
+        legacy_gp=legacy_gp,
+    )
+
+
+def _load_results(
+    paths: list[Path], data_dir: Path | None, split: str | None, mode: str, system: str | None
+) -> list:
+    from skyvln_eval.metrics import (
+        ground_truth_episodes,
+        read_predictions,
+        read_results,
+        results_from_predictions,
+    )
+
+    results = []
+    for path in paths:
+        if path.suffix in (".jsonl", ".parquet"):
+            results.extend(read_results(path))
+            continue
+        if data_dir is None or split is None:
+            raise ConfigError(
+                f"{path}: predictions need --data-dir and --split for their ground truth"
+            )
+        episodes = ground_truth_episodes(data_dir, split, _mode(mode))
+        predictions = read_predictions(path)
+        label = system or path.stem
+        results.extend(results_from_predictions(predictions, episodes, label, split, _mode(mode)))
+    return results
+
+
+def score(
+    results: Annotated[
+        list[Path],
+        typer.Argument(help="Result rows (.jsonl/.parquet) or predictions (.npy official, .json)"),
+    ],
+    out: Annotated[Path, typer.Option(help="Folder for scores.csv and summary.csv")] = Path(
+        "scores"
+    ),
+    data_dir: Annotated[
+        Path | None,
+        typer.Option(
+            help="AVDN-format dataset: GT for predictions; completeness check for results"
+        ),
+    ] = None,
+    split: Annotated[
+        str | None, typer.Option(help="Split of the predictions (with --data-dir)")
+    ] = None,
+    mode: Annotated[str, typer.Option(help="Episode mode: andh or andh-full")] = "andh",
+    system: Annotated[
+        str | None, typer.Option(help="Row label for predictions (default: file name)")
+    ] = None,
+    threshold_m: Annotated[
+        float, typer.Option(help="R2R success radius and nDTW/CLS d_th, metres")
+    ] = 20.0,
+    distance: Annotated[
+        str, typer.Option(help="R2R distances on '2d' centres or '3d' (height = edge/2)")
+    ] = "2d",
+    non_strict: Annotated[
+        bool, typer.Option("--non-strict", help="R2R success when NE <= threshold (default <)")
+    ] = False,
+    legacy_gp: Annotated[
+        bool, typer.Option("--legacy-gp", help="Official GP against G[N-2] (pre-Nov-2023 code)")
+    ] = False,
+    resamples: Annotated[
+        int, typer.Option(min=0, help="Bootstrap resamples for 95% CIs (0: none)")
+    ] = 1000,
+    seed: Annotated[int, typer.Option(help="Bootstrap seed")] = 0,
+) -> None:
+    """Score results or predictions: per-episode scores and a per-system summary with CIs."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from skyvln_eval.fileio import atomic_write_text
+    from skyvln_eval.metrics import (
+        check_scores_complete,
+        ground_truth_episodes,
+        score_results,
+        summarise,
+    )
+    from skyvln_eval.metrics.scores_io import write_scores
+
+    conventions = _conventions(threshold_m, distance, non_strict, legacy_gp)
+    loaded = _load_results(results, data_dir, split, mode, system)
+    scores = score_results(loaded, conventions)
+    if data_dir is not None:
+        for (split_name, mode_name), group in scores.groupby(["split", "mode"]):
+            episodes = ground_truth_episodes(data_dir, str(split_name), _mode(str(mode_name)))
+            ids = [e.episode_id for e in episodes]
+            check_scores_complete(group, ids)
+    summary = summarise(scores, [m for m in SUMMARY_METRICS if m in scores], resamples, seed=seed)
+    out.mkdir(parents=True, exist_ok=True)
+    write_scores(out / "scores.csv", scores, conventions)
+    atomic_write_text(
+        out / "summary.csv",
+        f"# conventions: {conventions.to_json()}\n"
+        + summary.to_csv(index=False, lineterminator="\n"),
+    )
+    table = Table(title="scores", caption=conventions.describe())
+    shown = [m for m in SUMMARY_METRICS if m in set(summary.metric)]
+    for column in ("system", "split", "n", *shown):
+        table.add_column(column, justify="left" if column in ("system", "split") else "right")
+    for (sys_name, split_name, _), group in summary.groupby(["system", "split", "mode"], sort=True):
+        by_metric = group.set_index("metric")
+        cells = [f"{by_metric.loc[m, 'mean']:.2f}" if m in by_metric.index else "-" for m in shown]
+        table.add_row(str(sys_name), str(split_name), str(int(group.n.max())), *cells)
+    console = Console(width=160)
+    console.print(table)
+    console.print(f"wrote {out / 'scores.csv'} and {out / 'summary.csv'}")
+
+
+def table(
+    scores: Annotated[list[Path], typer.Argument(help="scores.csv files from `skyvln-eval score`")],
+    kind: Annotated[
+        str,
+        typer.Option(help="table1 (systems x splits, SPL/SR) or table2 (LLM backends, SPL/SR/NE)"),
+    ] = "table1",
+    fmt: Annotated[str, typer.Option("--format", help="md, latex or csv")] = "md",
+    row: Annotated[
+        list[str] | None, typer.Option(help="Systems to show, in order (repeatable; default all)")
+    ] = None,
+    mode: Annotated[str, typer.Option(help="Episode mode")] = "andh",
+    ci: Annotated[
+        bool, typer.Option("--ci", help="Show 95% bootstrap confidence intervals")
+    ] = False,
+    resamples: Annotated[int, typer.Option(min=1, help="Bootstrap resamples with --ci")] = 1000,
+    seed: Annotated[int, typer.Option(help="Bootstrap seed")] = 0,
+    digits: Annotated[int, typer.Option(min=0, max=6, help="Decimals")] = 2,
+    out: Annotated[Path | None, typer.Option(help="Write here instead of printing")] = None,
+) -> None:
+    """Render a paper-style table from scores files."""
+    from skyvln_eval.fileio import atomic_write_text
+    from skyvln_eval.metrics import summarise
+    from skyvln_eval.metrics.scores_io import read_many_scores
+    from skyvln_eval.reports.tables import RENDERERS, TABLES, build_table
+
+    if kind not in TABLES:
+        raise ConfigError(f"--kind must be one of {sorted(TABLES)}, not {kind!r}")
+    if fmt not in RENDERERS:
+        raise ConfigError(f"--format must be one of {sorted(RENDERERS)}, not {fmt!r}")
+    frame, conventions = read_many_scores(scores)
+    spec = TABLES[kind]
+    metrics = [m for m, _ in spec.metrics]
+    summary = summarise(frame, metrics, resamples if ci else 0, seed=seed)
+    text = RENDERERS[fmt](build_table(summary, spec, conventions, row, mode, digits, ci))
+    if out is None:
+        typer.echo(text, nl=False)
+    else:
+        atomic_write_text(out, text)
+        typer.echo(f"wrote {out}")
+
+
+@plot_app.command("control")
+def plot_control(
+    logs: Annotated[list[Path], typer.Argument(help="Control logs (.parquet or .csv)")],
+    out: Annotated[Path, typer.Option(help="Folder for control_<scenario>.<format>")] = Path(
+        "figures"
+    ),
+    fmt: Annotated[str, typer.Option("--format", help="png, pdf or svg")] = "png",
+) -> None:
+    """Position / attitude vs reference with error curves, one figure per scenario."""
+    import pandas as pd
+
+    from skyvln_eval.metrics import read_control_log
+    from skyvln_eval.reports.control_figures import control_figure
+    from skyvln_eval.reports.render import save_figure
+
+    log = pd.concat([read_control_log(p) for p in logs], ignore_index=True)
+    for scenario in sorted(log["scenario"].unique()):
+        path = save_figure(control_figure(log, scenario), out / f"control_{scenario}.{fmt}")
+        typer.echo(f"wrote {path}")
+
+
+@plot_app.command("sr-threshold")
+def plot_sr_threshold(
+    scores: Annotated[list[Path], typer.Argument(help="scores.csv files")],
+    out: Annotated[Path, typer.Option(help="Figure file (.png, .pdf, .svg)")] = Path(
+        "sr_vs_threshold.png"
+    ),
+    max_threshold_m: Annotated[float, typer.Option(help="Largest radius shown, metres")] = 100.0,
+) -> None:
+    """Success rate vs success radius, one line per system."""
+    from skyvln_eval.metrics.scores_io import read_many_scores
+    from skyvln_eval.reports.nav_figures import sr_vs_threshold_figure
+    from skyvln_eval.reports.render import save_figure
+
+    frame, conventions = read_many_scores(scores)
+    figure = sr_vs_threshold_figure(frame, conventions, None, max_threshold_m)
+    typer.echo(f"wrote {save_figure(figure, out)}")
+
+
+@plot_app.command("ne")
+def plot_ne(
+    scores: Annotated[list[Path], typer.Argument(help="scores.csv files")],
+    out: Annotated[Path, typer.Option(help="Figure file (.png, .pdf, .svg)")] = Path(
+        "ne_distribution.png"
+    ),
+) -> None:
+    """Distribution of the navigation error, one histogram per system."""
+    from skyvln_eval.metrics.scores_io import read_many_scores
+    from skyvln_eval.reports.nav_figures import ne_distribution_figure
+    from skyvln_eval.reports.render import save_figure
+
+    frame, _ = read_many_scores(scores)
+    typer.echo(f"wrote {save_figure(ne_distribution_figure(frame), out)}")
+
+
+@plot_app.command("trajectory")
+def plot_trajectory(
+    results: Annotated[Path, typer.Argument(help="Result rows (.jsonl or .parquet)")],
+    episode: Annotated[str, typer.Option(help="Episode id, e.g. 1913__3_1")],
+    data_dir: Annotated[
+        Path, typer.Option(help="The dataset the episode comes from (for its map)")
+    ],
+    system: Annotated[str | None, typer.Option(help="Which system's row, if several")] = None,
+    out: Annotated[Path, typer.Option(help="Figure file (.png, .pdf, .svg)")] = Path(
+        "trajectory.png"
+    ),
+) -> None:
+    """An episode's GT and flown views drawn over its map tile."""
+    from skyvln_eval.avdn import load_split
+    from skyvln_eval.metrics import read_results
+    from skyvln_eval.reports.nav_figures import trajectory_figure
+    from skyvln_eval.reports.render import save_figure
+    from skyvln_eval.worlds import load_world
+
+    rows = [
+        r
+        for r in read_results(results)
+        if r.episode_id == episode and (system is None or r.system == system)
+    ]
+    if len(rows) != 1:
+        systems = sorted({r.system for r in rows})
+        raise ConfigError(
+            f"{results}: {len(rows)} rows for episode {episode!r} (systems {systems}); use --system"
+        )
+    row = rows[0]
+    records = [r for r in load_split(data_dir, row.split).records if r.episode_id == episode]
+    if not records:
+        raise ConfigError(f"{data_dir}: split {row.split} has no episode {episode!r}")
+    tile = load_world(data_dir, records[0].map_name, records[0].georef)
+    figure = trajectory_figure(
+        tile, row.gt_path_corners, row.visited_views, f"{row.system}: {episode}"
+    )
+    typer.echo(f"wrote {save_figure(figure, out)}")

@@ -1,0 +1,114 @@
+"""The paper's 6-DOF figures: position and attitude, reference vs flown, with error curves.
+
+One figure per scenario (e.g. static and dynamic obstacle cases), one line per
+controller, from control logs (:data:`skyvln_eval.metrics.CONTROL_LOG_COLUMNS`). Layout,
+4 rows x 3 columns: x / y / z position; x / y / z error; roll / pitch / yaw; roll /
+pitch / yaw error. The position and yaw reference is drawn once in red when every
+controller tracked the same reference (the usual case), else dashed per controller;
+roll and pitch references are each controller's commanded angles (dotted). Errors are
+flown minus reference (yaw wrapped to (-pi, pi]), angles shown in degrees.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+
+from skyvln_eval.errors import DataError
+from skyvln_eval.metrics.safety import check_control_log, tracking_errors
+from skyvln_eval.reports.render import new_figure
+
+_POSITION = (("x", "x_m", "ref_x_m"), ("y", "y_m", "ref_y_m"), ("z", "z_m", "ref_z_m"))
+_ATTITUDE = (
+    ("roll", "roll_rad", "cmd_roll_rad"),
+    ("pitch", "pitch_rad", "cmd_pitch_rad"),
+    ("yaw", "yaw_rad", "ref_yaw_rad"),
+)
+REFERENCE_COLOUR = "tab:red"
+
+
+def _shared_reference(groups: dict[str, pd.DataFrame], column: str) -> bool:
+    series = [g[["t_s", column]].to_numpy() for g in groups.values()]
+    return all(s.shape == series[0].shape and np.allclose(s, series[0]) for s in series[1:])
+
+
+def control_figure(
+    log: pd.DataFrame, scenario: str | None = None, title: str | None = None
+) -> Figure:
+    """The 6-DOF figure of one scenario of ``log`` (every controller in it)."""
+    check_control_log(log)
+    scenarios = sorted(log["scenario"].unique())
+    if scenario is None:
+        if len(scenarios) != 1:
+            raise DataError(f"the log has scenarios {scenarios}; choose one")
+        scenario = scenarios[0]
+    sel = log[log["scenario"] == scenario]
+    if sel.empty:
+        raise DataError(f"no rows for scenario {scenario!r}; the log has {scenarios}")
+    groups = {c: g.sort_values("t_s") for c, g in sel.groupby("controller", sort=True)}
+    colours = {c: f"C{k if k < 3 else k + 1}" for k, c in enumerate(groups)}  # C3 is red-like
+    figure = new_figure(12.0, 10.0)
+    axes = figure.subplots(4, 3, sharex=True)
+    for col, (axis, flown, ref) in enumerate(_POSITION):
+        _plot_pair(axes[0, col], axes[1, col], groups, colours, axis, flown, ref, "m", 1.0)
+    for col, (axis, flown, ref) in enumerate(_ATTITUDE):
+        _plot_pair(
+            axes[2, col], axes[3, col], groups, colours, axis, flown, ref, "deg", 180.0 / np.pi
+        )
+    for ax in axes[3]:
+        ax.set_xlabel("time (s)")
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    figure.legend(handles, labels, loc="outside lower center", ncols=len(labels))
+    figure.suptitle(title or f"6-DOF curves and errors, scenario: {scenario}")
+    return figure
+
+
+def _plot_pair(
+    ax_value: object,
+    ax_error: object,
+    groups: dict[str, pd.DataFrame],
+    colours: dict[str, str],
+    axis: str,
+    flown: str,
+    ref: str,
+    unit: str,
+    scale: float,
+) -> None:
+    from matplotlib.axes import Axes
+
+    assert isinstance(ax_value, Axes) and isinstance(ax_error, Axes)
+    is_command = ref.startswith("cmd_")
+    shared = not is_command and _shared_reference(groups, ref)
+    if shared:
+        first = next(iter(groups.values()))
+        ax_value.plot(
+            first["t_s"],
+            first[ref] * scale,
+            color=REFERENCE_COLOUR,
+            lw=1.6,
+            ls="--",
+            label="reference",
+        )
+    for controller, g in groups.items():
+        colour = colours[controller]
+        ax_value.plot(g["t_s"], g[flown] * scale, color=colour, lw=1.2, label=controller)
+        if not shared:
+            label = f"{controller} command" if is_command else f"{controller} reference"
+            ax_value.plot(
+                g["t_s"],
+                g[ref] * scale,
+                color=colour,
+                lw=0.9,
+                ls=":" if is_command else "--",
+                label=label,
+            )
+        err_column = f"err_{axis}_{'m' if unit == 'm' else 'rad'}"
+        ax_error.plot(g["t_s"], tracking_errors(g)[err_column] * scale, color=colour, lw=1.1)
+    ax_value.set_title(f"{axis} {'position' if unit == 'm' else 'angle'}")
+    ax_value.set_ylabel(f"{axis} ({unit})")
+    ax_error.set_title(f"{axis} error")
+    ax_error.set_ylabel(f"error ({unit})")
+    ax_error.axhline(0.0, color="0.6", lw=0.6)
+    for ax in (ax_value, ax_error):
+        ax.grid(True, lw=0.3, alpha=0.6)

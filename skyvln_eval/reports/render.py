@@ -1,0 +1,49 @@
+"""Headless, deterministic figure output.
+
+Figures are built as :class:`matplotlib.figure.Figure` objects with the Agg canvas, so no
+display and no pyplot global state are involved. :func:`save_figure` strips the metadata
+that changes between runs (creation dates, software versions), so identical inputs give
+byte-identical PNG, PDF and SVG files.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from skyvln_eval.errors import ConfigError
+from skyvln_eval.fileio import atomic_write_bytes
+
+FIGURE_FORMATS = ("png", "pdf", "svg")
+
+_METADATA: dict[str, dict[str, str | None]] = {
+    "png": {"Software": None},
+    "pdf": {"Creator": None, "Producer": None, "CreationDate": None, "ModDate": None},
+    "svg": {"Creator": None, "Date": None},
+}
+
+
+def new_figure(width_in: float, height_in: float) -> Figure:
+    """A figure on the Agg canvas (works without a display)."""
+    figure = Figure(figsize=(width_in, height_in), dpi=100, layout="constrained")
+    FigureCanvasAgg(figure)
+    return figure
+
+
+def save_figure(figure: Figure, path: str | Path, dpi: int = 150) -> Path:
+    """Write ``figure`` atomically; the format comes from the suffix (png, pdf or svg)."""
+    import io
+
+    path = Path(path)
+    fmt = path.suffix.lstrip(".").lower()
+    if fmt not in FIGURE_FORMATS:
+        raise ConfigError(f"{path}: unknown figure format {fmt!r}; use one of {FIGURE_FORMATS}")
+    buffer = io.BytesIO()
+    # SVG ids are random unless salted; a fixed salt makes them repeatable.
+    with matplotlib.rc_context({"svg.hashsalt": "skyvln-eval", "svg.fonttype": "path"}):
+        figure.savefig(buffer, format=fmt, dpi=dpi, metadata=_METADATA[fmt])
+    atomic_write_bytes(path, buffer.getvalue())
+    return path

@@ -1,0 +1,266 @@
+"""Paper-style tables (SkyVLN Table I and Table II) as Markdown, LaTeX and CSV.
+
+Input is a summary from :func:`skyvln_eval.metrics.summarise` (one row per system,
+split, mode and metric, with optional ``ci_low`` / ``ci_high``). Rows are the systems,
+labelled exactly as the results name them (a rule-based backend is labelled so by the
+caller), in the order given. Column groups are splits, each with a few metrics:
+
+- :data:`TABLE_I`: Seen Validation / Unseen Validation / Unseen Testing x SPL, SR;
+- :data:`TABLE_II`: Unseen Testing x SPL, SR, NE (rows are LLM backends).
+
+In every column the best value is bold and the second best underlined (higher is better
+except NE); ranks use the displayed (rounded) values, so tied values share a mark, and
+a column where every row shows the same value has no mark. Every rendering
+carries the metric conventions (a comment in LaTeX and CSV, a footnote in Markdown).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import pandas as pd
+
+from skyvln_eval.errors import MetricInputError
+from skyvln_eval.metrics.aggregate import LOWER_IS_BETTER
+from skyvln_eval.metrics.conventions import MetricConventions
+
+
+@dataclass(frozen=True)
+class TableSpec:
+    """Shape of a table: column groups ``(split, title)`` and metrics ``(key, label)``."""
+
+    name: str
+    row_header: str
+    groups: tuple[tuple[str, str], ...]
+    metrics: tuple[tuple[str, str], ...]
+    caption: str
+    label: str
+
+
+TABLE_I = TableSpec(
+    name="table1",
+    row_header="Model",
+    groups=(
+        ("val_seen", "Seen Validation"),
+        ("val_unseen", "Unseen Validation"),
+        ("test_unseen", "Unseen Testing"),
+    ),
+    metrics=(("spl", "SPL/%"), ("success", "SR/%")),
+    caption="Comparison on the validation and unseen test sets (AVDN-format data).",
+    label="tab:results_systems",
+)
+TABLE_II = TableSpec(
+    name="table2",
+    row_header="LLM",
+    groups=(("test_unseen", "Unseen Testing"),),
+    metrics=(("spl", "SPL/%"), ("success", "SR/%"), ("ne_m", "NE/m")),
+    caption="Ablation over LLM backends.",
+    label="tab:results_backends",
+)
+TABLES = {spec.name: spec for spec in (TABLE_I, TABLE_II)}
+
+
+@dataclass(frozen=True)
+class Cell:
+    mean: float
+    ci_low: float | None = None
+    ci_high: float | None = None
+    rank: int | None = None  # 1 = best, 2 = second best, None = neither
+
+
+@dataclass(frozen=True)
+class Table:
+    """A table ready to render: ``cells[row][(split, metric)]`` (None when not run)."""
+
+    spec: TableSpec
+    rows: tuple[str, ...]
+    cells: dict[str, dict[tuple[str, str], Cell | None]]
+    conventions: MetricConventions
+    digits: int
+    show_ci: bool
+
+    @property
+    def columns(self) -> list[tuple[str, str]]:
+        return [(split, metric) for split, _ in self.spec.groups for metric, _ in self.spec.metrics]
+
+
+def _ranks(values: dict[str, float], lower_is_better: bool, digits: int) -> dict[str, int]:
+    shown = {row: round(v, digits) for row, v in values.items()}
+    distinct = sorted(set(shown.values()), reverse=not lower_is_better)
+    ranks = {}
+    for row, v in shown.items():
+        position = distinct.index(v) + 1
+        if position <= 2 and len(distinct) > 1:
+            ranks[row] = position
+    return ranks
+
+
+def build_table(
+    summary: pd.DataFrame,
+    spec: TableSpec,
+    conventions: MetricConventions,
+    rows: Sequence[str] | None = None,
+    mode: str = "andh",
+    digits: int = 2,
+    show_ci: bool = False,
+) -> Table:
+    """Arrange a summary into ``spec``'s shape. ``rows``: systems in order (default: all)."""
+    sel = summary[summary["mode"] == mode]
+    if sel.empty:
+        raise MetricInputError(f"the summary has no {mode!r} episodes")
+    if show_ci and "ci_low" not in sel.columns:
+        raise MetricInputError("confidence intervals were asked for but the summary has none")
+    row_names = tuple(rows) if rows else tuple(dict.fromkeys(sel["system"]))
+    unknown = [r for r in row_names if r not in set(sel["system"])]
+    if unknown:
+        raise MetricInputError(
+            f"no scores for system(s) {unknown}; have {sorted(set(sel['system']))}"
+        )
+    index = sel.set_index(["system", "split", "metric"])
+    cells: dict[str, dict[tuple[str, str], Cell | None]] = {r: {} for r in row_names}
+    for split, _ in spec.groups:
+        for metric, _ in spec.metrics:
+            present = {}
+            for row in row_names:
+                key = (row, split, metric)
+                present[row] = index.loc[key] if key in index.index else None
+            means = {r: float(v["mean"]) for r, v in present.items() if v is not None}
+            ranks = _ranks(means, metric in LOWER_IS_BETTER, digits)
+            for row, v in present.items():
+                if v is None:
+                    cells[row][(split, metric)] = None
+                    continue
+                low = float(v["ci_low"]) if show_ci else None
+                high = float(v["ci_high"]) if show_ci else None
+                cells[row][(split, metric)] = Cell(float(v["mean"]), low, high, ranks.get(row))
+    return Table(spec, row_names, cells, conventions, digits, show_ci)
+
+
+def _number(cell: Cell | None, digits: int, with_ci: bool) -> str:
+    if cell is None:
+        return "-"
+    text = f"{cell.mean:.{digits}f}"
+    if with_ci and cell.ci_low is not None:
+        text += f" [{cell.ci_low:.{digits}f}, {cell.ci_high:.{digits}f}]"
+    return text
+
+
+def _arrow(metric: str) -> str:
+    return "↓" if metric in LOWER_IS_BETTER else "↑"
+
+
+def to_markdown(table: Table) -> str:
+    spec = table.spec
+    head = [spec.row_header] + [
+        f"{title} {label} {_arrow(metric)}"
+        for _, title in spec.groups
+        for metric, label in spec.metrics
+    ]
+    lines = [
+        "| " + " | ".join(head) + " |",
+        "|" + "|".join([":---"] + ["---:"] * (len(head) - 1)) + "|",
+    ]
+    for row in table.rows:
+        out = [row.replace("|", "\\|")]
+        for column in table.columns:
+            cell = table.cells[row][column]
+            text = _number(cell, table.digits, table.show_ci)
+            if cell is not None and cell.rank == 1:
+                text = f"**{text}**"
+            elif cell is not None and cell.rank == 2:
+                text = f"<u>{text}</u>"
+            out.append(text)
+        lines.append("| " + " | ".join(out) + " |")
+    ci = " Brackets: 95% bootstrap CI." if table.show_ci else ""
+    lines += [
+        "",
+        f"Best in bold, second underlined.{ci} Conventions: {table.conventions.describe()}.",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+_LATEX_SPECIALS = {"&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_", "{": r"\{",
+                   "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}",
+                   "\\": r"\textbackslash{}"}  # fmt: skip
+
+
+def latex_escape(text: str) -> str:
+    return "".join(_LATEX_SPECIALS.get(ch, ch) for ch in text)
+
+
+def to_latex(table: Table) -> str:
+    """A booktabs ``table`` environment (needs the booktabs and multirow packages)."""
+    spec = table.spec
+    n_metrics = len(spec.metrics)
+    arrow = {"↑": r"$\uparrow$", "↓": r"$\downarrow$"}
+    lines = [
+        f"% generated by skyvln-eval; conventions: {table.conventions.to_json()}",
+        r"% needs \usepackage{booktabs} and \usepackage{multirow}",
+        r"\begin{table}[t]",
+        r"\centering",
+        f"\\caption{{{latex_escape(spec.caption)}}}",
+        f"\\label{{{spec.label}}}",
+        r"\begin{tabular}{l " + " ".join(["c" * n_metrics] * len(spec.groups)) + "}",
+        r"\toprule",
+        f"\\multirow{{2}}{{*}}{{\\textbf{{{latex_escape(spec.row_header)}}}}}"
+        + "".join(
+            f" & \\multicolumn{{{n_metrics}}}{{c}}{{\\textbf{{{latex_escape(t)}}}}}"
+            for _, t in spec.groups
+        )
+        + r" \\",
+        " ".join(
+            f"\\cmidrule(lr){{{2 + g * n_metrics}-{1 + (g + 1) * n_metrics}}}"
+            for g in range(len(spec.groups))
+        ),
+        "".join(
+            f" & \\textbf{{{latex_escape(label)}}} {arrow[_arrow(metric)]}"
+            for _ in spec.groups
+            for metric, label in spec.metrics
+        )
+        + r" \\",
+        r"\midrule",
+    ]
+    for row in table.rows:
+        out = [latex_escape(row)]
+        for column in table.columns:
+            cell = table.cells[row][column]
+            text = _number(cell, table.digits, False)
+            if cell is not None and cell.rank == 1:
+                text = f"\\textbf{{{text}}}"
+            elif cell is not None and cell.rank == 2:
+                text = f"\\underline{{{text}}}"
+            if table.show_ci and cell is not None and cell.ci_low is not None:
+                low, high = f"{cell.ci_low:.{table.digits}f}", f"{cell.ci_high:.{table.digits}f}"
+                text += f"\\,{{\\scriptsize[{low}, {high}]}}"
+            out.append(text)
+        lines.append(" & ".join(out) + r" \\")
+    lines += [r"\bottomrule", r"\end{tabular}", r"\end{table}"]
+    return "\n".join(lines) + "\n"
+
+
+def to_csv(table: Table) -> str:
+    """One line per system: mean (and CI bounds) per split and metric; conventions first."""
+    buffer = io.StringIO()
+    buffer.write(f"# conventions: {table.conventions.to_json()}\n")
+    writer = csv.writer(buffer, lineterminator="\n")
+    header = [table.spec.row_header]
+    for split, metric in table.columns:
+        header.append(f"{split}:{metric}")
+        if table.show_ci:
+            header += [f"{split}:{metric}:ci_low", f"{split}:{metric}:ci_high"]
+    writer.writerow(header)
+    for row in table.rows:
+        out: list[str] = [row]
+        for column in table.columns:
+            cell = table.cells[row][column]
+            out.append("" if cell is None else repr(cell.mean))
+            if table.show_ci:
+                out += ["", ""] if cell is None else [repr(cell.ci_low), repr(cell.ci_high)]
+        writer.writerow(out)
+    return buffer.getvalue()
+
+
+RENDERERS = {"md": to_markdown, "latex": to_latex, "csv": to_csv}

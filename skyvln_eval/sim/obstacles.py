@@ -1,0 +1,218 @@
+"""Spherical obstacles (static, constant-velocity or spline motion) and their forecast.
+
+An obstacle is a sphere of radius ``radius_m`` plus a safety radius ``safety_radius_m``
+(the paper's r_obs and r_s): the drone must keep its centre out of the keep-out sphere of
+radius ``r_obs + r_s`` around the obstacle centre. Positions are ENU metres on the same
+clock as the flight (seconds), so motion continues across successive flight segments.
+
+A predictor turns the obstacles into an :class:`ObstacleForecast` over a controller's
+horizon: :class:`ConstantVelocityPredictor` extrapolates the measured position and velocity
+(as the paper does, "based on the measured initial condition"); :class:`ExactPredictor`
+knows the true motion (an oracle, for ablations).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.interpolate import CubicSpline
+
+from skyvln_eval.errors import ConfigError
+from skyvln_eval.sim.quadrotor import require_non_negative, require_positive
+
+Vec3 = tuple[float, float, float]
+
+
+def _vec3(value: ArrayLike, name: str) -> Vec3:
+    array = np.asarray(value, dtype=np.float64)
+    if array.shape != (3,) or not np.isfinite(array).all():
+        raise ConfigError(f"{name} must be 3 finite numbers (ENU metres), got {value!r}")
+    return (float(array[0]), float(array[1]), float(array[2]))
+
+
+@dataclass(frozen=True)
+class ConstantVelocity:
+    """``p(t) = start_m + velocity_m_s (t - start_time_s)``; zero velocity = a static obstacle."""
+
+    start_m: Vec3
+    velocity_m_s: Vec3 = (0.0, 0.0, 0.0)
+    start_time_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        _vec3(self.start_m, "ConstantVelocity.start_m")
+        _vec3(self.velocity_m_s, "ConstantVelocity.velocity_m_s")
+
+    def position_m(self, t_s: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Positions at the times ``t_s`` (shape ``(n,)``), shape ``(n, 3)``."""
+        dt = (np.asarray(t_s) - self.start_time_s)[:, None]
+        return np.asarray(self.start_m) + dt * np.asarray(self.velocity_m_s)
+
+    def velocity_at(self, t_s: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.broadcast_to(np.asarray(self.velocity_m_s), (len(t_s), 3)).copy()
+
+
+@dataclass(frozen=True)
+class SplinePath:
+    """A cubic spline through ``points_m`` at ``times_s`` (zero velocity at both ends), held
+    at its first and last point outside that time span."""
+
+    times_s: tuple[float, ...]
+    points_m: tuple[Vec3, ...]
+
+    def __post_init__(self) -> None:
+        times = np.asarray(self.times_s, dtype=np.float64)
+        if len(times) < 2 or len(times) != len(self.points_m) or not np.all(np.diff(times) > 0):
+            raise ConfigError(
+                "SplinePath.times_s must be increasing and as long as points_m (at least 2), got "
+                f"{len(self.times_s)} times and {len(self.points_m)} points"
+            )
+        for i, point in enumerate(self.points_m):
+            _vec3(point, f"SplinePath.points_m[{i}]")
+
+    @cached_property
+    def _spline(self) -> CubicSpline:
+        return CubicSpline(self.times_s, np.asarray(self.points_m), bc_type="clamped")
+
+    def position_m(self, t_s: NDArray[np.float64]) -> NDArray[np.float64]:
+        t = np.clip(np.asarray(t_s), self.times_s[0], self.times_s[-1])
+        return np.asarray(self._spline(t))
+
+    def velocity_at(self, t_s: NDArray[np.float64]) -> NDArray[np.float64]:
+        t = np.asarray(t_s)
+        inside = ((t >= self.times_s[0]) & (t <= self.times_s[-1]))[:, None]
+        return np.where(inside, self._spline(t, 1), 0.0)
+
+
+Motion = ConstantVelocity | SplinePath
+
+
+@dataclass(frozen=True)
+class SphereObstacle:
+    """A moving sphere: ``radius_m`` (r_obs) plus ``safety_radius_m`` (r_s) to keep out of."""
+
+    motion: Motion
+    radius_m: float = 0.4
+    safety_radius_m: float = 0.3
+
+    def __post_init__(self) -> None:
+        require_positive(self, "radius_m")
+        require_non_negative(self, "safety_radius_m")
+
+    @property
+    def keep_out_radius_m(self) -> float:
+        return self.radius_m + self.safety_radius_m
+
+
+@dataclass(frozen=True)
+class ObstacleScenario:
+    """A named, seeded set of obstacles on the flight clock."""
+
+    name: str
+    obstacles: tuple[SphereObstacle, ...] = ()
+    seed: int = 0
+
+    def merged(self, other: ObstacleScenario) -> ObstacleScenario:
+        """Both scenarios' obstacles in one (e.g. those added for a new flight segment)."""
+        if not self.obstacles:
+            return other
+        name = self.name if not other.obstacles else f"{self.name}+{other.name}"
+        return ObstacleScenario(name, self.obstacles + other.obstacles, self.seed)
+
+    def positions_m(self, t_s: float) -> NDArray[np.float64]:
+        """Obstacle centres at time ``t_s``, shape ``(M, 3)``."""
+        return self.trajectories_m(np.array([t_s]))[:, 0, :]
+
+    def trajectories_m(self, times_s: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Obstacle centres at each time, shape ``(M, n, 3)``."""
+        out = np.empty((len(self.obstacles), len(times_s), 3))
+        for i, obstacle in enumerate(self.obstacles):
+            out[i] = obstacle.motion.position_m(times_s)
+        return out
+
+    def velocities_m_s(self, t_s: float) -> NDArray[np.float64]:
+        out = np.empty((len(self.obstacles), 3))
+        for i, obstacle in enumerate(self.obstacles):
+            out[i] = obstacle.motion.velocity_at(np.array([t_s]))[0]
+        return out
+
+    @property
+    def radii_m(self) -> NDArray[np.float64]:
+        return np.array([o.radius_m for o in self.obstacles])
+
+    @property
+    def safety_radii_m(self) -> NDArray[np.float64]:
+        return np.array([o.safety_radius_m for o in self.obstacles])
+
+    def distances_m(self, position_m: ArrayLike, t_s: float) -> NDArray[np.float64]:
+        """Distance from ``position_m`` to each obstacle centre at ``t_s``, shape ``(M,)``."""
+        return np.linalg.norm(self.positions_m(t_s) - np.asarray(position_m), axis=1)
+
+
+@dataclass(frozen=True)
+class ObstacleForecast:
+    """Predicted obstacle centres over a horizon: what a controller is given each step.
+
+    ``positions_m`` has shape ``(M, n, 3)`` for the ``n`` times in ``times_s`` (the first is
+    now); ``radius_m`` and ``safety_radius_m`` have shape ``(M,)``.
+    """
+
+    times_s: NDArray[np.float64]
+    positions_m: NDArray[np.float64]
+    radius_m: NDArray[np.float64]
+    safety_radius_m: NDArray[np.float64]
+
+    @classmethod
+    def none(cls, times_s: NDArray[np.float64]) -> ObstacleForecast:
+        return cls(np.asarray(times_s), np.zeros((0, len(times_s), 3)), np.zeros(0), np.zeros(0))
+
+    @property
+    def count(self) -> int:
+        return int(self.positions_m.shape[0])
+
+    @property
+    def keep_out_radius_m(self) -> NDArray[np.float64]:
+        return self.radius_m + self.safety_radius_m
+
+
+class ExactPredictor:
+    """Forecasts with the obstacles' true motion (an oracle)."""
+
+    def forecast(
+        self, scenario: ObstacleScenario, times_s: NDArray[np.float64]
+    ) -> ObstacleForecast:
+        return ObstacleForecast(
+            np.asarray(times_s),
+            scenario.trajectories_m(times_s),
+            scenario.radii_m,
+            scenario.safety_radii_m,
+        )
+
+
+class ConstantVelocityPredictor:
+    """Extrapolates each obstacle's measured position and velocity at ``times_s[0]``.
+
+    Optional seeded Gaussian measurement noise models an imperfect obstacle tracker.
+    """
+
+    def __init__(
+        self, position_std_m: float = 0.0, velocity_std_m_s: float = 0.0, seed: int = 0
+    ) -> None:
+        self.position_std_m = position_std_m
+        self.velocity_std_m_s = velocity_std_m_s
+        self._rng = np.random.default_rng(seed)
+
+    def forecast(
+        self, scenario: ObstacleScenario, times_s: NDArray[np.float64]
+    ) -> ObstacleForecast:
+        times = np.asarray(times_s)
+        position = scenario.positions_m(float(times[0]))
+        velocity = scenario.velocities_m_s(float(times[0]))
+        if self.position_std_m > 0.0 or self.velocity_std_m_s > 0.0:
+            position = position + self.position_std_m * self._rng.standard_normal(position.shape)
+            velocity = velocity + self.velocity_std_m_s * self._rng.standard_normal(velocity.shape)
+        ahead = (times - times[0])[None, :, None]
+        positions = position[:, None, :] + ahead * velocity[:, None, :]
+        return ObstacleForecast(times, positions, scenario.radii_m, scenario.safety_radii_m)

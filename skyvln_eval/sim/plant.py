@@ -1,0 +1,158 @@
+"""The simulated drone: the paper's model integrated with RK4, plus wind, sensor noise and yaw.
+
+The plant integrates :func:`~skyvln_eval.sim.quadrotor.model_rhs` with several RK4 sub-steps
+per control step (the controllers predict with one, so there is a small, realistic model
+mismatch), holds each command constant over the step (zero-order hold), saturates it to the
+actuator limits, and adds what the controllers' model lacks: wind (a constant mean plus a
+seeded Ornstein-Uhlenbeck gust on the air velocity that drag acts on) and the heading loop
+``yaw' = clip(wrap(yaw_ref - yaw) / tau_yaw, +-yaw_rate_max)``. :meth:`Plant.measure`
+returns the state with seeded Gaussian sensor noise.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skyvln_eval.errors import ConfigError
+from skyvln_eval.frames import wrap_angle_rad
+from skyvln_eval.sim.quadrotor import (
+    NX,
+    DroneState,
+    InputLimits,
+    QuadrotorParams,
+    model_rhs,
+    require_non_negative,
+    require_positive,
+)
+
+
+@dataclass(frozen=True)
+class WindConfig:
+    """Air velocity in ENU m/s: a constant mean plus a first-order (OU) random gust."""
+
+    mean_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    gust_std_m_s: float = 0.0
+    gust_time_constant_s: float = 2.0
+
+    def __post_init__(self) -> None:
+        if len(self.mean_m_s) != 3 or not all(math.isfinite(v) for v in self.mean_m_s):
+            raise ConfigError(
+                f"WindConfig.mean_m_s must be 3 finite numbers, got {self.mean_m_s!r}"
+            )
+        require_non_negative(self, "gust_std_m_s")
+        require_positive(self, "gust_time_constant_s")
+
+
+@dataclass(frozen=True)
+class SensorNoise:
+    """Standard deviations of the Gaussian noise :meth:`Plant.measure` adds (0 = exact)."""
+
+    position_std_m: float = 0.0
+    velocity_std_m_s: float = 0.0
+    attitude_std_rad: float = 0.0
+
+    def __post_init__(self) -> None:
+        require_non_negative(self, "position_std_m", "velocity_std_m_s", "attitude_std_rad")
+
+
+@dataclass(frozen=True)
+class PlantConfig:
+    """Everything that defines the simulated drone; ``substeps`` RK4 steps per control step."""
+
+    params: QuadrotorParams = field(default_factory=QuadrotorParams)
+    limits: InputLimits = field(default_factory=InputLimits)
+    wind: WindConfig = field(default_factory=WindConfig)
+    noise: SensorNoise = field(default_factory=SensorNoise)
+    substeps: int = 4
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.substeps, int) or self.substeps < 1:
+            raise ConfigError(
+                f"PlantConfig.substeps must be an integer >= 1, got {self.substeps!r}"
+            )
+
+
+class Plant:
+    """The true drone. ``step`` advances it by one control step; ``measure`` reads its sensors."""
+
+    def __init__(self, state: DroneState, config: PlantConfig | None = None, seed: int = 0) -> None:
+        self.config = config or PlantConfig()
+        self._x = np.append(state.model_vector(), state.yaw_rad)
+        self._gust_m_s = np.zeros(3)
+        # Two streams, so turning noise on or off does not change the wind a run sees.
+        self._wind_rng = np.random.default_rng([seed, 0])
+        self._noise_rng = np.random.default_rng([seed, 1])
+
+    @property
+    def state(self) -> DroneState:
+        """The true state (no noise)."""
+        return DroneState.from_model_vector(self._x[:NX], self._x[NX])
+
+    @property
+    def wind_m_s(self) -> NDArray[np.float64]:
+        return np.asarray(self.config.wind.mean_m_s) + self._gust_m_s
+
+    def step(
+        self,
+        thrust_m_s2: float,
+        roll_ref_rad: float,
+        pitch_ref_rad: float,
+        yaw_ref_rad: float,
+        dt_s: float,
+    ) -> DroneState:
+        """Apply one command for ``dt_s`` seconds (saturated to the limits); the new true state."""
+        limits = self.config.limits
+        u = (
+            min(max(thrust_m_s2, limits.thrust_min_m_s2), limits.thrust_max_m_s2),
+            min(max(roll_ref_rad, -limits.tilt_ref_max_rad), limits.tilt_ref_max_rad),
+            min(max(pitch_ref_rad, -limits.tilt_ref_max_rad), limits.tilt_ref_max_rad),
+        )
+        wind = self.wind_m_s
+        h = dt_s / self.config.substeps
+        for _ in range(self.config.substeps):
+            x = self._x
+            k1 = self._rhs(x, u, wind, yaw_ref_rad)
+            k2 = self._rhs(x + h / 2 * k1, u, wind, yaw_ref_rad)
+            k3 = self._rhs(x + h / 2 * k2, u, wind, yaw_ref_rad)
+            k4 = self._rhs(x + h * k3, u, wind, yaw_ref_rad)
+            self._x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        self._x[NX] = wrap_angle_rad(float(self._x[NX]))
+        self._advance_gust(dt_s)
+        return self.state
+
+    def measure(self) -> DroneState:
+        """The state as the sensors report it (true state plus seeded Gaussian noise)."""
+        noise = self.config.noise
+        std = np.array(
+            [noise.position_std_m] * 3 + [noise.velocity_std_m_s] * 3 + [noise.attitude_std_rad] * 3
+        )
+        if not std.any():
+            return self.state
+        x = self._x + std * self._noise_rng.standard_normal(NX + 1)
+        return DroneState.from_model_vector(x[:NX], wrap_angle_rad(float(x[NX])))
+
+    def _rhs(
+        self,
+        x: NDArray[np.float64],
+        u: tuple[float, float, float],
+        wind: NDArray[np.float64],
+        yaw_ref: float,
+    ) -> NDArray[np.float64]:
+        params = self.config.params
+        derivative = model_rhs([float(v) for v in x], u, params, [float(w) for w in wind])
+        yaw_rate = wrap_angle_rad(yaw_ref - float(x[NX])) / params.yaw_time_constant_s
+        yaw_rate = min(max(yaw_rate, -params.yaw_rate_max_rad_s), params.yaw_rate_max_rad_s)
+        return np.array([*derivative, yaw_rate])
+
+    def _advance_gust(self, dt_s: float) -> None:
+        wind = self.config.wind
+        if wind.gust_std_m_s == 0.0:
+            return
+        # Exact discretisation of an OU process with stationary std gust_std_m_s.
+        decay = math.exp(-dt_s / wind.gust_time_constant_s)
+        spread = wind.gust_std_m_s * math.sqrt(1.0 - decay**2)
+        self._gust_m_s = decay * self._gust_m_s + spread * self._wind_rng.standard_normal(3)

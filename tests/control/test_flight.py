@@ -1,0 +1,136 @@
+"""The closed-loop runner and its log: segments, determinism, columns, Parquet round trip."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from skyvln_eval.control import (
+    LOG_COLUMNS,
+    Flight,
+    fly_to,
+    load_flight_log,
+    log_frame,
+    save_flight_log,
+)
+from skyvln_eval.errors import DataError, FormatVersionError
+from skyvln_eval.frames import ViewPose
+from skyvln_eval.sim import ScenarioSpec, make_scenario
+from tests.control.helpers import START, TARGET, controller, scenario
+
+SECOND = ViewPose(4.0, 14.0, 15.0, -2.5)
+
+
+def two_segments(name: str, seed: int = 0) -> tuple[Flight, list[pd.DataFrame]]:
+    flight = Flight(controller(name), START, scenario=scenario("crossing", seed=2), seed=seed)
+    logs = [flight.fly_to(TARGET, 40.0).log, flight.fly_to(SECOND, 40.0).log]
+    return flight, logs
+
+
+@pytest.mark.parametrize("name", ["nmpc", "mpc", "pid"])
+def test_successive_segments_continue_time_state_and_obstacles(name: str) -> None:
+    flight, (first, second) = two_segments(name)
+    dt = flight.dt_s
+    assert second.t_s.iloc[0] == pytest.approx(first.t_s.iloc[-1] + dt)
+    assert np.allclose(np.diff(pd.concat([first, second]).t_s), dt)
+    # The second segment starts where the first ended, with the obstacles where they are then.
+    assert second.x_m.iloc[0] == pytest.approx(first.x_m.iloc[-1], abs=0.1)
+    pd.testing.assert_frame_equal(flight.log(), pd.concat([first, second], ignore_index=True))
+    assert np.linalg.norm(flight.state.position_m - [SECOND.x_m, SECOND.y_m, SECOND.z_m]) < 0.5
+
+
+@pytest.mark.parametrize("name", ["nmpc", "pid"])
+def test_runs_are_deterministic_given_their_seeds(name: str) -> None:
+    _, a = two_segments(name, seed=4)
+    _, b = two_segments(name, seed=4)
+    timeless = [c for c in LOG_COLUMNS if c != "solve_time_ms"]
+    for left, right in zip(a, b, strict=True):
+        pd.testing.assert_frame_equal(left[timeless], right[timeless])
+
+
+def test_the_log_has_the_agreed_columns_and_types() -> None:
+    log = two_segments("nmpc")[0].log()
+    assert list(log.columns[: len(LOG_COLUMNS)]) == list(LOG_COLUMNS)
+    assert log.controller.unique().tolist() == ["nmpc"]
+    assert log.scenario.unique().tolist() == ["crossing-2-seed2"]
+    assert log.solve_failed.dtype == bool and log.collision.dtype == bool
+    assert log.constraint_violation.dtype == bool and log.iterations.dtype == np.int64
+    numeric = [c for c in LOG_COLUMNS if c not in ("controller", "scenario", "status")]
+    assert np.isfinite(log[numeric].astype(float)).all().all()
+    assert (log.solve_time_ms > 0).all() and (log.iterations > 0).all()
+    assert set(log.status) <= {"solved", "solved_soft"}
+
+
+def test_fly_to_is_one_segment_of_a_flight() -> None:
+    final, log = fly_to(START, TARGET, controller("nmpc"), scenario("static"), t0_s=3.0)
+    assert log.t_s.iloc[0] == pytest.approx(3.0)
+    assert np.linalg.norm(final.position_m - [TARGET.x_m, TARGET.y_m, TARGET.z_m]) < 0.5
+    assert (log.min_clearance_m >= 0).all()
+
+
+def test_the_log_round_trips_through_parquet(tmp_path: Path) -> None:
+    flight, _ = two_segments("mpc")
+    log = flight.log()
+    path = save_flight_log(log, tmp_path / "runs" / "flight.parquet", flight.controller.settings())
+    again = load_flight_log(path)
+    pd.testing.assert_frame_equal(again, log)
+    assert again.attrs["settings"]["name"] == "mpc"
+    assert again.attrs["settings"]["horizon_steps"] == 20
+    assert [p.name for p in path.parent.iterdir()] == ["flight.parquet"]  # no temporary left
+
+
+def test_an_empty_log_still_has_the_columns() -> None:
+    assert list(log_frame([]).columns) == list(LOG_COLUMNS)
+
+
+def test_reading_something_else_is_a_clear_error(tmp_path: Path) -> None:
+    other = tmp_path / "other.parquet"
+    pq.write_table(pa.table({"a": [1]}), other)
+    with pytest.raises(DataError, match="not a flight log"):
+        load_flight_log(other)
+    with pytest.raises(DataError, match="cannot read a flight log"):
+        load_flight_log(tmp_path / "missing.parquet")
+    with pytest.raises(DataError, match="column"):
+        save_flight_log(pd.DataFrame({"t_s": [0.0]}), tmp_path / "bad.parquet")
+
+
+def test_a_log_of_another_format_version_says_what_to_do(tmp_path: Path) -> None:
+    path = save_flight_log(log_frame([]), tmp_path / "old.parquet")
+    table = pq.read_table(path)
+    metadata = {**table.schema.metadata, b"skyvln_format_version": b"0"}
+    pq.write_table(table.replace_schema_metadata(metadata), path)
+    with pytest.raises(FormatVersionError, match="Record the run again"):
+        load_flight_log(path)
+
+
+def test_obstacles_added_per_segment_keep_moving_across_segments() -> None:
+    # The replay-harness pattern: plan the segment, place obstacles against it, fly it.
+    flight = Flight(controller("nmpc"), START, seed=3)
+    for i, target in enumerate((TARGET, SECOND)):
+        reference = flight.segment_reference(target)
+        times = np.arange(flight.t_s, reference.end_time_s, 0.1)
+        spec = ScenarioSpec(kind="crossing", n_obstacles=2, seed=10 + i)
+        new = make_scenario(spec, times, reference.window(times).position_m)
+        flight.scenario = flight.scenario.merged(new)
+        result = flight.fly_to(target, reference=reference)
+        assert result.reached and (result.log.min_clearance_m >= 0).all()
+    assert len(flight.scenario.obstacles) == 4
+    assert flight.log().scenario.iloc[-1] == "crossing-2-seed10+crossing-2-seed11"
+
+
+def test_more_obstacles_than_slots_are_still_avoided() -> None:
+    ctl = controller("nmpc", max_obstacles=2)
+    flight = Flight(ctl, START, scenario=scenario("crossing", seed=5, n_obstacles=5))
+    log = flight.fly_to(TARGET).log
+    assert (log.min_clearance_m >= 0).all()
+
+
+def test_a_long_segment_gets_the_time_it_needs_by_default() -> None:
+    far = ViewPose(300.0, 0.0, 10.0, 0.0)  # 150 s at the default 2 m/s cruise speed
+    result = Flight(controller("pid"), START).fly_to(far)
+    assert result.reached and result.t_end_s > 150.0

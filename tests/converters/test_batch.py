@@ -1,0 +1,173 @@
+"""Split conversion: manifest, re-runs that skip, workers that change nothing, failures."""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from skyvln_eval.avdn import distance_m, load_split, view_centre
+from skyvln_eval.converters import ConvertOptions, batch, read_log
+from skyvln_eval.converters import topics as t
+from skyvln_eval.converters.batch import convert_split, episode_file_name
+from skyvln_eval.converters.manifest import MANIFEST_NAME, read_manifest, write_manifest
+from skyvln_eval.converters.validate import check_manifest_folder
+from skyvln_eval.errors import AvdnValidationError, FormatVersionError
+from skyvln_eval.fileio import sha256_file
+from tests.conftest import make_record
+from tests.converters.conftest import ConvertedSample
+
+
+def _tree(folder: Path) -> dict[str, str]:
+    return {p.name: sha256_file(p) for p in sorted(folder.iterdir())}
+
+
+def test_manifest_lists_every_episode_with_its_figures(converted_sample: ConvertedSample) -> None:
+    for (split, mode), report in converted_sample.reports.items():
+        rows = read_manifest(report.manifest_path)
+        episodes = converted_sample.episodes[(split, mode)]
+        assert [r.episode_id for r in rows] == [e.episode_id for e in episodes]
+        for row, episode in zip(rows, episodes, strict=True):
+            centres = view_centre(episode.gt_path_corners)
+            assert (row.split, row.mode, row.map_name) == (split, mode, episode.map_name)
+            assert row.rounds == episode.records[-1].round_index
+            assert row.gt_views == len(centres)
+            assert row.d_net_m == pytest.approx(float(distance_m(centres[0], centres[-1])))
+            assert row.gt_length_m == pytest.approx(
+                float(np.sum(distance_m(centres[1:], centres[:-1])))
+            )
+            assert row.gt_length_m >= row.d_net_m - 1e-9
+            path = report.out_dir / row.file_name
+            assert row.file_name == episode_file_name(episode.episode_id)
+            assert row.sha256 == sha256_file(path) and row.size_bytes == path.stat().st_size
+        names = {p.name for p in report.out_dir.iterdir()}
+        assert names == {r.file_name for r in rows} | {MANIFEST_NAME}
+
+
+def test_rerun_skips_converted_episodes_and_workers_give_identical_output(
+    converted_sample: ConvertedSample, tmp_path: Path
+) -> None:
+    data_dir = converted_sample.data_dir
+    reference = converted_sample.reports[("val_seen", "andh")]
+    parallel = convert_split(data_dir, "val_seen", tmp_path, "andh", workers=2)
+    assert parallel.count("converted") == len(parallel.outcomes) > 0
+    assert _tree(parallel.out_dir) == _tree(reference.out_dir), "byte-identical for 1 and 2 workers"
+    again = convert_split(data_dir, "val_seen", tmp_path, "andh", workers=2)
+    assert again.count("skipped") == len(again.outcomes) and again.count("converted") == 0
+    assert _tree(again.out_dir) == _tree(reference.out_dir)
+
+
+def test_damaged_stale_and_leftover_files_are_handled(
+    converted_sample: ConvertedSample, tmp_path: Path
+) -> None:
+    data_dir = converted_sample.data_dir
+    first = convert_split(data_dir, "test_unseen", tmp_path, "andh-full")
+    folder = first.out_dir
+    expected = _tree(folder)
+    victim = folder / first.rows[0].file_name
+    victim.write_bytes(victim.read_bytes()[:-10])  # damaged: must be converted again
+    (folder / "9999__1_1.mcap").write_bytes(b"stale")  # not an episode of this split
+    (folder / ".x.mcap.123.tmp").write_bytes(b"left by a killed run")
+    report = convert_split(data_dir, "test_unseen", tmp_path, "andh-full")
+    assert report.count("converted") == 1 and report.count("skipped") == len(first.rows) - 1
+    assert report.removed_stale == ["9999__1_1.mcap"]
+    assert _tree(folder) == expected
+
+
+def test_an_interrupted_conversion_leaves_only_whole_files(
+    converted_sample: ConvertedSample, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    calls = {"n": 0}
+    real = batch.convert_episode
+
+    def flaky(*args: object, **kwargs: object) -> None:
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise KeyboardInterrupt  # like Ctrl-C in the middle of the third episode
+        real(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(batch, "convert_episode", flaky)
+    with pytest.raises(KeyboardInterrupt):
+        convert_split(converted_sample.data_dir, "val_unseen", tmp_path, "andh")
+    folder = tmp_path / "val_unseen" / "andh"
+    assert sorted(p.name for p in folder.iterdir()) == sorted(
+        episode_file_name(e.episode_id)
+        for e in converted_sample.episodes[("val_unseen", "andh")][:2]
+    )
+    monkeypatch.setattr(batch, "convert_episode", real)
+    report = convert_split(converted_sample.data_dir, "val_unseen", tmp_path, "andh")
+    assert report.count("skipped") == 2 and report.count("converted") == len(report.outcomes) - 2
+    assert _tree(folder) == _tree(converted_sample.reports[("val_unseen", "andh")].out_dir)
+
+
+def test_failures_and_invalid_records_are_reported_not_lost(
+    dataset_factory: Callable[..., Path], tmp_path: Path
+) -> None:
+    good = make_record(route_index="1_1")
+    bad = make_record(route_index="2_1", angle="north")
+    other_map = make_record(map_name="77", route_index="3_1")
+    root = dataset_factory({"val_seen": [good, bad, other_map]}, maps=("1913", "77"))
+    with pytest.raises(AvdnValidationError, match="angle"):
+        convert_split(root, "val_seen", tmp_path)
+    (root / "train_images" / "77.tif").write_bytes(b"not a tiff")
+    report = convert_split(root, "val_seen", tmp_path, skip_invalid=True)
+    assert [i.record_index for i in report.invalid] == [1]
+    assert [(o.episode_id, o.status) for o in report.outcomes] == [
+        ("1913__1_1", "converted"),
+        ("77__3_1", "failed"),
+    ]
+    assert "77.tif" in (report.failed[0].note or "")
+    assert [r.episode_id for r in read_manifest(report.manifest_path)] == ["1913__1_1"]
+
+
+def test_incomplete_trajectories_are_refused_in_full_mode(
+    dataset_factory: Callable[..., Path], tmp_path: Path
+) -> None:
+    root = dataset_factory({"val_seen": [make_record(route_index="1_2", last_round_idx=2)]})
+    with pytest.raises(AvdnValidationError, match="missing round"):
+        convert_split(root, "val_seen", tmp_path, "andh-full")
+    report = convert_split(root, "val_seen", tmp_path, "andh-full", skip_invalid=True)
+    assert report.outcomes == [] and "missing round" in report.invalid[0].message
+
+
+def test_manifest_version_is_checked(tmp_path: Path) -> None:
+    path = tmp_path / MANIFEST_NAME
+    pq.write_table(pa.table({"episode_id": ["a"]}), path)
+    with pytest.raises(FormatVersionError, match="skyvln-eval convert"):
+        read_manifest(path)
+
+
+def test_options_are_part_of_the_skip_decision(
+    converted_sample: ConvertedSample, tmp_path: Path
+) -> None:
+    data_dir = converted_sample.data_dir
+    convert_split(data_dir, "val_seen", tmp_path, "andh")
+    report = convert_split(
+        data_dir, "val_seen", tmp_path, "andh", options=ConvertOptions(observations=False)
+    )
+    assert report.count("converted") == len(report.outcomes)
+    episode = load_split(data_dir, "val_seen").episodes("andh")[0]
+    log = read_log(report.out_dir / episode_file_name(episode.episode_id))
+    assert t.TOPIC_GT_OBSERVATION not in log.summary().topic_counts
+
+
+def test_manifest_check_catches_renamed_and_unlisted_files(
+    converted_sample: ConvertedSample, tmp_path: Path
+) -> None:
+    folder = tmp_path / "copy"
+    shutil.copytree(converted_sample.reports[("val_seen", "andh")].out_dir, folder)
+    assert check_manifest_folder(folder) == []
+    rows = read_manifest(folder / MANIFEST_NAME)
+    write_manifest(folder / MANIFEST_NAME, [replace(rows[0], episode_id="42__9_1"), *rows[2:]])
+    problems = [str(i) for i in check_manifest_folder(folder)]
+    assert problems == [
+        f"{folder / MANIFEST_NAME}, record 0 (episode 42__9_1), field 'file_name': "
+        f"file name {rows[0].file_name} is not 42__9_1.mcap",
+        f"{folder / rows[1].file_name}: not listed in {MANIFEST_NAME}",
+    ]

@@ -1,0 +1,73 @@
+"""`skyvln-eval convert` and `skyvln-eval validate` on MCAP files and folders."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from skyvln_eval.cli import app
+from skyvln_eval.converters.manifest import MANIFEST_NAME
+from tests.converters.conftest import ConvertedSample
+
+runner = CliRunner()
+
+
+def test_convert_then_validate(converted_sample: ConvertedSample, tmp_path: Path) -> None:
+    args = ["convert", "--data-dir", str(converted_sample.data_dir), "--split", "val_seen"]
+    args += ["--out", str(tmp_path), "--mode", "andh-full", "--workers", "2"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    n = len(converted_sample.episodes[("val_seen", "andh-full")])
+    assert f"{n} converted, 0 already converted (skipped), 0 failed" in result.output
+    again = runner.invoke(app, args)
+    assert f"0 converted, {n} already converted (skipped)" in again.output
+
+    folder = tmp_path / "val_seen" / "andh-full"
+    result = runner.invoke(app, ["validate", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    assert f"{n} MCAP file(s)" in result.output and "ok" in result.output
+
+    one = sorted(folder.glob("*.mcap"))[0]
+    result = runner.invoke(app, ["validate", str(one)])
+    assert result.exit_code == 0 and "1 MCAP file(s)" in result.output
+
+    # Damage one file and delete another: both are reported, by name, with exit 1.
+    data = bytearray(one.read_bytes())
+    data[len(data) // 2] ^= 0x10
+    one.write_bytes(bytes(data))
+    gone = sorted(folder.glob("*.mcap"))[1]
+    gone.unlink()
+    result = runner.invoke(app, ["validate", str(folder)])
+    assert result.exit_code == 1
+    assert f"{one}: damaged MCAP file" in result.output
+    assert "content differs from the manifest" in result.output
+    assert f"lists {gone.name}, which is missing" in result.output
+
+
+def test_validate_reports_logs_without_a_manifest_and_missing_files(tmp_path: Path) -> None:
+    (tmp_path / "logs").mkdir()
+    (tmp_path / "logs" / "a.mcap").write_bytes(b"\x89MCAP0\r\n")
+    result = runner.invoke(app, ["validate", str(tmp_path / "logs"), str(tmp_path / "none.mcap")])
+    assert result.exit_code == 1
+    assert f"no {MANIFEST_NAME}" in result.output
+    assert "truncated" in result.output
+    assert f"{tmp_path / 'none.mcap'}: file not found" in result.output
+
+
+def test_convert_rejects_an_unknown_mode(converted_sample: ConvertedSample, tmp_path: Path) -> None:
+    result = runner.invoke(
+        app,
+        [
+            "convert",
+            "--data-dir",
+            str(converted_sample.data_dir),
+            "--split",
+            "val_seen",
+            "--out",
+            str(tmp_path),
+            "--mode",
+            "full",
+        ],
+    )
+    assert result.exit_code != 0 and "--mode must be one of" in result.output

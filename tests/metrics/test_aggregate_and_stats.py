@@ -1,0 +1,118 @@
+"""Aggregation, completeness, bootstrap intervals, paired tests, and GT replay on the sample."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from skyvln_eval.avdn import load_split, replay_ground_truth
+from skyvln_eval.errors import IncompleteRunError, MetricInputError
+from skyvln_eval.metrics import (
+    EpisodeResult,
+    bootstrap_ci,
+    check_complete,
+    check_scores_complete,
+    compare_systems,
+    paired_comparison,
+    score_results,
+    summarise,
+)
+from tests.metrics.helpers import result, square
+
+
+def test_ground_truth_replay_on_the_sample_scores_sr_and_osr_100(sample_dir: Path) -> None:
+    results = []
+    for split in ("train", "val_seen", "val_unseen", "test_unseen"):
+        for ep in load_split(sample_dir, split).episodes("andh"):
+            georef = ep.georef
+            views = replay_ground_truth(
+                ep.gt_path_corners, georef.gps_botm_left, georef.gps_top_right
+            )
+            replay = EpisodeResult(
+                episode_id=ep.episode_id,
+                split=split,
+                mode="andh",
+                system="GT replay",
+                status="ok",
+                visited_views=views,
+                gt_path_corners=ep.gt_path_corners,
+            )
+            results.append(replay)
+    scores = score_results(results)
+    assert scores.success.eq(1.0).all() and scores.oracle_success.eq(1.0).all()
+    longer = scores.path_length_m > scores.d_net_m * (1 + 1e-9)
+    assert longer.any()
+    assert (scores.spl[longer] < 1.0).all()
+    np.testing.assert_allclose(scores.spl[~longer], 1.0)
+    summary = summarise(scores, ["success", "oracle_success", "spl"])
+    for split, group in summary.groupby("split"):
+        by_metric = group.set_index("metric")["mean"]
+        assert by_metric["success"] == 100.0 and by_metric["oracle_success"] == 100.0, split
+        assert by_metric["spl"] < 100.0, split
+
+
+def scores_of_two_systems() -> pd.DataFrame:
+    rng = np.random.default_rng(1)
+    results = []
+    for k in range(40):
+        g0, g1 = square(0, 0), square(100, 0)
+        good = square(100 + rng.normal(0, 5), rng.normal(0, 5))
+        bad = square(60 + rng.normal(0, 30), rng.normal(0, 30))
+        results.append(result([g0, good], [g0, g1], episode_id=f"e{k}", system="A"))
+        results.append(result([g0, bad], [g0, g1], episode_id=f"e{k}", system="B"))
+    return score_results(results)
+
+
+def test_summary_is_per_system_in_percent_with_seeded_intervals() -> None:
+    scores = scores_of_two_systems()
+    summary = summarise(scores, ["success", "ne_m"], n_resamples=500, seed=4)
+    again = summarise(scores, ["success", "ne_m"], n_resamples=500, seed=4)
+    pd.testing.assert_frame_equal(summary, again)
+    row = summary[(summary.system == "A") & (summary.metric == "success")].iloc[0]
+    assert row["mean"] == pytest.approx(scores[scores.system == "A"].success.mean() * 100)
+    assert row.unit == "%" and row.n == 40
+    assert row.ci_low <= row["mean"] <= row.ci_high
+    with pytest.raises(MetricInputError, match="no scores"):
+        summarise(scores.iloc[:0])
+
+
+def test_bootstrap_ci_rules() -> None:
+    assert bootstrap_ci([2.0, 2.0, 2.0], 100).low == 2.0
+    with pytest.raises(MetricInputError, match="no values"):
+        bootstrap_ci([])
+    with pytest.raises(MetricInputError, match="non-finite"):
+        bootstrap_ci([1.0, np.nan])
+    rng = np.random.default_rng(0)
+    values = (rng.random(4000) < 0.3).astype(float)
+    ci = bootstrap_ci(values, 2000, seed=5)
+    assert ci == bootstrap_ci(values, 2000, seed=5)
+    normal_half_width = 1.96 * np.sqrt(values.mean() * (1 - values.mean()) / len(values))
+    assert (ci.high - ci.low) / 2 == pytest.approx(normal_half_width, rel=0.1)
+
+
+def test_paired_test_finds_a_real_difference_and_not_a_null_one() -> None:
+    scores = scores_of_two_systems()
+    diff = compare_systems(scores, "A", "B", "success", "val_seen", n_resamples=2000)
+    assert diff.difference > 0 and diff.ci_low > 0 and diff.p_value < 0.01
+    same = paired_comparison(np.ones(30), np.ones(30), 500)
+    assert same.difference == 0.0 and same.p_value == 1.0
+    missing = scores[~((scores.system == "B") & (scores.episode_id == "e3"))]
+    with pytest.raises(MetricInputError, match=r"only 'A': \['e3'\]"):
+        compare_systems(missing, "A", "B", "success", "val_seen")
+
+
+def test_completeness_names_missing_and_unknown_episodes() -> None:
+    check_complete(["a", "b"], ["b", "a"])
+    with pytest.raises(
+        IncompleteRunError, match=r"1 missing episode\(s\): c; 1 episode\(s\) not in the split: z"
+    ):
+        check_complete(["a", "b", "z"], ["a", "b", "c"], "run X")
+    scores = scores_of_two_systems()
+    expected = [f"e{k}" for k in range(41)]
+    with pytest.raises(
+        IncompleteRunError, match="run A/val_seen/andh is incomplete: 1 missing episode\\(s\\): e40"
+    ):
+        check_scores_complete(scores, expected)

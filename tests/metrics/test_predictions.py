@@ -1,0 +1,146 @@
+"""Predictions made elsewhere: the official .npy (safely unpickled), JSON, ground truth."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import pickle
+from collections import defaultdict
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from skyvln_eval.avdn import hull_iou, point_in_view_strict
+from skyvln_eval.errors import IncompleteRunError, NoGroundTruthError, UnsafePickleError
+from skyvln_eval.metrics import (
+    ground_truth_episodes,
+    read_predictions,
+    results_from_predictions,
+    score_results,
+    summarise,
+    write_predictions_json,
+)
+from tests.conftest import FIXTURES, REPO, SHARED_FIXTURES, make_record
+
+FULL_ROLLOUTS = "avdn_test_unseen_official_rollouts.json"
+
+
+def load_rollouts() -> list[dict[str, Any]]:
+    """All 897 official rollouts from ../shared (beside a clone, or two levels up from a
+    worktree), else the project's 40-episode copy of them."""
+    for folder in (SHARED_FIXTURES, REPO.parents[1] / "shared" / "fixtures"):
+        if (folder / FULL_ROLLOUTS).is_file():
+            return json.loads((folder / FULL_ROLLOUTS).read_text())
+    return json.loads((FIXTURES / "avdn_official_rollouts_subset.json").read_text())
+
+
+def save_official_npy(path: Path, rollouts: list[dict[str, Any]]) -> None:
+    """Write rollouts as the official agent does: np.save of {instr_id: defaultdict}."""
+    results = {}
+    for ep in rollouts:
+        traj: defaultdict[str, Any] = defaultdict(list)
+        traj["instr_id"] = ep["instr_id"]
+        traj["num_dia"] = ep["num_dia"]
+        traj["path_corners"] = [
+            (np.array(corners), np.int64(heading) if k else int(heading))
+            for k, (corners, heading) in enumerate(
+                zip(ep["path_corners"], ep["path_headings"], strict=True)
+            )
+        ]
+        traj["gt_path_corners"] = [np.array(ep["start_view"])]
+        for action in ep["actions"]:
+            traj["actions"].append(
+                [np.array(action["waypoint"], np.float32), np.float32(action["altitude"])]
+            )
+        traj["progress"] = [float(p) for p in ep["progress"]]
+        results[ep["instr_id"]] = traj
+    np.save(path, results, allow_pickle=True)
+
+
+def test_official_rollouts_score_end_to_end_through_the_official_reader(tmp_path: Path) -> None:
+    rollouts = load_rollouts()
+    path = tmp_path / "output_test_result.npy"
+    save_official_npy(path, rollouts)
+    predictions = read_predictions(path)
+    assert len(predictions) == len(rollouts)
+    gt = {ep["instr_id"]: np.array([ep["start_view"]]) for ep in rollouts}  # start = own GT
+    results = results_from_predictions(predictions, gt, "official ET-HAA", "test_unseen")
+    scores = score_results(results)
+    # Independent per-episode check with the dense official functions.
+    for ep, row in zip(rollouts, scores.itertuples(), strict=True):
+        last, goal = np.array(ep["path_corners"][-1]), np.array(ep["start_view"])
+        iou = hull_iou(last, goal)
+        success = (
+            iou >= 0.4
+            and point_in_view_strict(goal.mean(0), last)
+            and point_in_view_strict(last.mean(0), goal)
+        )
+        assert row.success == float(success), ep["instr_id"]
+        assert row.final_iou == pytest.approx(iou, abs=1e-12)
+        assert row.n_views == len(ep["path_corners"])
+    # The start is visited and is the goal, so every episode is an oracle success; D_net = 0.
+    assert scores.oracle_success.eq(1.0).all()
+    assert scores.spl.eq(0.0).all()
+    summary = summarise(scores, ["success", "ne_m"]).set_index("metric")
+    assert 0 < summary.loc["success", "mean"] < 100
+    assert summary.loc["success", "n"] == len(rollouts)
+
+
+def test_a_malicious_pickle_is_refused_without_running(tmp_path: Path) -> None:
+    marker = tmp_path / "pwned"
+
+    class Evil:
+        def __reduce__(self) -> tuple:
+            return (os.system, (f"touch {marker}",))
+
+    class EvilEval:  # a builtin, but not one of the allowed constructors
+        def __reduce__(self) -> tuple:
+            return (eval, (f"open({str(marker)!r}, 'w')",))
+
+    for payload, name in ((Evil(), "system"), (EvilEval(), "builtins.eval")):
+        buf = io.BytesIO()
+        np.lib.format.write_array_header_1_0(
+            buf, {"descr": "|O", "fortran_order": False, "shape": ()}
+        )
+        pickle.dump({"1__1_1": {"path_corners": [payload]}}, buf, protocol=3)
+        path = tmp_path / "evil.npy"
+        path.write_bytes(buf.getvalue())  # the header writer includes the magic
+        with pytest.raises(UnsafePickleError, match=name):
+            read_predictions(path)
+        assert not marker.exists()
+
+
+def test_json_predictions_round_trip_and_completeness(tmp_path: Path) -> None:
+    rollouts = load_rollouts()[:5]
+    npy = tmp_path / "p.npy"
+    save_official_npy(npy, rollouts)
+    predictions = read_predictions(npy)
+    path = tmp_path / "p.json"
+    write_predictions_json(path, predictions)
+    back = read_predictions(path)
+    assert list(back) == list(predictions)
+    for key in back:
+        np.testing.assert_array_equal(back[key].path_corners, predictions[key].path_corners)
+    gt = {ep["instr_id"]: np.array([ep["start_view"]]) for ep in rollouts}
+    gt["9999__1_1"] = gt[rollouts[0]["instr_id"]]
+    del back[rollouts[1]["instr_id"]]
+    with pytest.raises(
+        IncompleteRunError, match=f"2 missing episode\\(s\\): {rollouts[1]['instr_id']}, 9999__1_1"
+    ):
+        results_from_predictions(back, gt, "x", "test_unseen")
+
+
+def test_real_test_unseen_without_ground_truth_cannot_be_scored(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    root = dataset_factory(
+        {"test_unseen": [make_record(n_views=1), make_record(route_index="1_1", n_views=1)]}
+    )
+    with pytest.raises(NoGroundTruthError, match="no ground truth for 2 episode"):
+        ground_truth_episodes(root, "test_unseen")
+    root = dataset_factory({"val_seen": [make_record()]})
+    assert [e.episode_id for e in ground_truth_episodes(root, "val_seen")] == ["1913__0_1"]

@@ -1,0 +1,92 @@
+"""EpisodeResult files: lossless round trips, version checks, located errors."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from skyvln_eval.errors import DataError, FormatVersionError, ResultRecordError
+from skyvln_eval.metrics import ControlSummary, LlmCall, read_results, write_results
+from tests.metrics.helpers import result, square
+
+
+def rich_results() -> list:
+    rng = np.random.default_rng(0)
+    control = ControlSummary(
+        controller="nmpc", scenario="dynamic", steps=120, duration_s=11.9, collision_steps=0,
+        min_clearance_m=1.25, constraint_violation_steps=0, solve_failures=1,
+        rmse_x_m=0.1, rmse_y_m=0.2, rmse_z_m=0.05, rmse_roll_rad=0.01, rmse_pitch_rad=0.02,
+        rmse_yaw_rad=0.03, solve_time_mean_ms=0.4, solve_time_p50_ms=0.35,
+        solve_time_p95_ms=0.9, solve_time_max_ms=2.5,
+    )  # fmt: skip
+    calls = (
+        LlmCall("subgoals", "openai", "gpt-4o", 812, 64, 0.0031, 1.7),
+        LlmCall("motion", "rule", "rule-v1", 0, 0, 0.0, 0.001, cached=True, error="timeout"),
+    )
+    views = np.stack([square(*rng.normal(0, 50, 2), 100) for _ in range(4)]) + rng.normal(
+        0, 1e-9, (4, 4, 2)
+    )
+    return [
+        result(views, views[[0, 3]], control=control, control_log="logs/a.parquet", llm_calls=calls,
+               extra={"seed": 3, "config": {"hsd": True}}),
+        result(np.zeros((0, 4, 2)), views[:1], status="failed", error="controller diverged",
+               episode_id="1913__1_2", system="w/o HSD"),
+    ]  # fmt: skip
+
+
+@pytest.mark.parametrize("suffix", [".jsonl", ".parquet"])
+def test_results_round_trip_bit_for_bit(tmp_path: Path, suffix: str) -> None:
+    results = rich_results()
+    path = tmp_path / f"run{suffix}"
+    write_results(path, results)
+    back = read_results(path)
+    assert back == results
+    assert back[0].visited_views.tobytes() == results[0].visited_views.tobytes()
+    first = path.read_bytes()
+    write_results(path, back)
+    assert path.read_bytes() == first  # byte-identical for identical input
+
+
+def test_version_and_format_are_checked(tmp_path: Path) -> None:
+    path = tmp_path / "run.jsonl"
+    write_results(path, rich_results())
+    lines = path.read_text().splitlines()
+    lines[0] = json.dumps({"format": "skyvln-eval.episode-results", "version": 99})
+    path.write_text("\n".join(lines))
+    with pytest.raises(FormatVersionError, match="99"):
+        read_results(path)
+    path.write_text("{}\n")
+    with pytest.raises(DataError, match="not an episode-results file"):
+        read_results(path)
+
+
+def test_bad_rows_are_located(tmp_path: Path) -> None:
+    path = tmp_path / "run.jsonl"
+    write_results(path, rich_results())
+    lines = path.read_text().splitlines()
+    row = json.loads(lines[2])
+    row["status"] = "crashed"
+    lines[2] = json.dumps(row)
+    path.write_text("\n".join(lines))
+    with pytest.raises(
+        ResultRecordError, match=r"run.jsonl, record 1 \(episode 1913__1_2\), field 'status'"
+    ):
+        read_results(path)
+    row["status"] = "failed"
+    row["llm_calls"] = [{"module": "motion", "backend": "x", "model": "y", "prompt_tokens": -1,
+                         "completion_tokens": 0, "cost_usd": 0.0, "latency_s": 0.0}]  # fmt: skip
+    lines[2] = json.dumps(row)
+    path.write_text("\n".join(lines))
+    with pytest.raises(ResultRecordError, match=r"llm_calls\.prompt_tokens"):
+        read_results(path)
+
+
+def test_duplicates_and_unknown_suffixes_are_refused(tmp_path: Path) -> None:
+    one = rich_results()[0]
+    with pytest.raises(ResultRecordError, match="duplicate"):
+        write_results(tmp_path / "x.jsonl", [one, one])
+    with pytest.raises(DataError, match="unknown results format"):
+        write_results(tmp_path / "x.csv", [one])

@@ -1,0 +1,116 @@
+"""Safety / control metrics on synthetic control logs, and LLM cost aggregation."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from skyvln_eval.errors import DataError
+from skyvln_eval.metrics import (
+    CONTROL_LOG_COLUMNS,
+    LlmCall,
+    control_metrics,
+    read_control_log,
+    score_results,
+    summarise,
+    summarise_control,
+    summarise_costs,
+)
+from tests.metrics.helpers import result, square
+
+
+def control_log(
+    controller: str = "nmpc", scenario: str = "static", steps: int = 50, offset_m: float = 0.0
+) -> pd.DataFrame:
+    """A hand-made log: reference along x at 1 m/s, flown ``offset_m`` to the side."""
+    t = np.arange(steps) * 0.1
+    zeros = np.zeros(steps)
+    return pd.DataFrame(
+        {
+            "controller": controller, "scenario": scenario, "t_s": t,
+            "x_m": t, "y_m": zeros + offset_m, "z_m": zeros + 10.0,
+            "vx_m_s": zeros + 1.0, "vy_m_s": zeros, "vz_m_s": zeros,
+            "roll_rad": zeros, "pitch_rad": zeros + 0.02, "yaw_rad": zeros + math.pi - 0.01,
+            "ref_x_m": t, "ref_y_m": zeros, "ref_z_m": zeros + 10.0,
+            "ref_yaw_rad": zeros - math.pi + 0.01,
+            "cmd_thrust_m_s2": zeros + 9.81, "cmd_roll_rad": zeros, "cmd_pitch_rad": zeros,
+            "solve_time_ms": np.linspace(0.2, 1.2, steps), "iterations": np.full(steps, 3),
+            "status": "ok", "solve_failed": np.arange(steps) == 7,
+            "min_clearance_m": np.full(steps, np.inf) if scenario == "static" else 5.0 - t,
+            "collision": (5.0 - t) < 0.5 if scenario == "dynamic" else np.zeros(steps, bool),
+            "constraint_violation": np.arange(steps) >= steps - 2,
+        }
+    )  # fmt: skip
+
+
+def test_control_summary_hand_computed() -> None:
+    summary = summarise_control(control_log(offset_m=0.3))
+    assert summary.steps == 50 and summary.duration_s == pytest.approx(4.9)
+    assert summary.rmse_x_m == 0.0 and summary.rmse_y_m == pytest.approx(0.3)
+    assert summary.rmse_pitch_rad == pytest.approx(0.02)
+    assert summary.rmse_yaw_rad == pytest.approx(0.02)  # wrapped across +-pi, not 2 pi - 0.02
+    assert summary.min_clearance_m is None  # no obstacles
+    assert summary.collision_steps == 0 and not summary.collided
+    assert summary.solve_failures == 1 and summary.constraint_violation_steps == 2
+    assert summary.solve_time_max_ms == pytest.approx(1.2)
+    assert summary.solve_time_p50_ms == pytest.approx(0.7)
+
+
+def test_control_metrics_per_controller_and_scenario(tmp_path: Path) -> None:
+    log = pd.concat([control_log("nmpc", "dynamic"), control_log("pid", "dynamic", offset_m=1.0)])
+    path = tmp_path / "log.parquet"
+    log.to_parquet(path)
+    table = control_metrics(read_control_log(path)).set_index("controller")
+    assert table.loc["nmpc", "min_clearance_m"] == pytest.approx(5.0 - 4.9)
+    assert table.loc["nmpc", "collision_steps"] == 4  # t = 4.6, 4.7, 4.8, 4.9 (5.0 - t < 0.5)
+    assert bool(table.loc["pid", "collided"])
+    assert table.loc["pid", "rmse_y_m"] == pytest.approx(1.0)
+    log.to_csv(tmp_path / "log.csv", index=False)
+    assert len(control_metrics(read_control_log(tmp_path / "log.csv"))) == 2
+
+
+def test_bad_control_logs_are_located() -> None:
+    with pytest.raises(DataError, match=r"missing column\(s\) \['collision'\]"):
+        control_metrics(control_log().drop(columns=["collision"]), "run.parquet")
+    bad = control_log()
+    bad.loc[3, "x_m"] = np.nan
+    with pytest.raises(DataError, match="row 3, column 'x_m': non-finite"):
+        control_metrics(bad)
+    assert set(CONTROL_LOG_COLUMNS) <= set(control_log().columns)
+
+
+def test_control_summaries_reach_the_scores_without_nan_in_averages() -> None:
+    g = [square(0, 0), square(50, 0)]
+    with_ctrl = result(g, g, control=summarise_control(control_log("nmpc", "dynamic")))
+    static = result(g, g, episode_id="b", control=summarise_control(control_log()))
+    plain = result(g, g, episode_id="c")
+    scores = score_results([with_ctrl, static, plain])
+    assert scores.has_control.tolist() == [True, True, False]
+    summary = summarise(scores, ["min_clearance_m", "collided", "success"]).set_index("metric")
+    assert summary.loc["min_clearance_m", "n"] == 1  # only the episode with obstacles
+    assert summary.loc["collided", "n"] == 2 and summary.loc["collided", "mean"] == 50.0
+    assert summary.loc["success", "n"] == 3
+
+
+def test_llm_costs_per_episode_and_module() -> None:
+    g = [square(0, 0), square(50, 0)]
+    calls = [
+        LlmCall("subgoals", "openai", "gpt-4o", 1000, 100, 0.01, 2.0),
+        LlmCall("motion", "openai", "gpt-4o", 500, 50, 0.005, 1.0),
+        LlmCall("motion", "openai", "gpt-4o", 500, 50, 0.0, 0.01, cached=True),
+        LlmCall("motion", "openai", "gpt-4o", 10, 0, 0.0, 30.0, error="timeout"),
+    ]
+    results = [result(g, g, llm_calls=calls), result(g, g, episode_id="b")]
+    scores = score_results(results)
+    assert scores.llm_calls.tolist() == [4.0, 0.0]
+    assert scores.llm_cost_usd[0] == pytest.approx(0.015)
+    assert scores.llm_cached_calls[0] == 1 and scores.llm_failed_calls[0] == 1
+    costs = summarise_costs(results).set_index("module")
+    assert costs.loc["motion", "llm_calls"] == 3 and costs.loc["all", "llm_calls"] == 4
+    assert costs.loc["motion", "llm_prompt_tokens_per_episode"] == pytest.approx(1010 / 2)
+    assert costs.loc["subgoals", "latency_per_call_s"] == pytest.approx(2.0)
+    assert costs.loc["all", "episodes"] == 2

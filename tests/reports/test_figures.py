@@ -1,0 +1,103 @@
+"""Figures render headless, say what they should, and are byte-identical for equal input."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from skyvln_eval.avdn import MapGeoref, view_from_pose
+from skyvln_eval.errors import DataError
+from skyvln_eval.metrics import MetricConventions, score_results
+from skyvln_eval.reports import (
+    control_figure,
+    ne_distribution_figure,
+    save_figure,
+    sr_vs_threshold_figure,
+    success_rate_curve,
+    trajectory_figure,
+)
+from skyvln_eval.worlds import WorldTile
+from tests.metrics.helpers import result, square
+from tests.metrics.test_safety_and_cost import control_log
+
+
+def two_controller_log() -> pd.DataFrame:
+    logs = [
+        control_log("nmpc", "static", offset_m=0.1),
+        control_log("pid", "static", offset_m=0.8),
+        control_log("nmpc", "dynamic", offset_m=0.2),
+        control_log("pid", "dynamic", offset_m=1.5),
+    ]
+    return pd.concat(logs, ignore_index=True)
+
+
+def test_control_figure_layout_lines_and_determinism(tmp_path: Path) -> None:
+    log = two_controller_log()
+    figure = control_figure(log, "dynamic")
+    axes = figure.get_axes()
+    assert len(axes) == 12
+    titles = [ax.get_title() for ax in axes]
+    assert titles[:3] == ["x position", "y position", "z position"]
+    assert titles[3:6] == ["x error", "y error", "z error"]
+    assert titles[6:9] == ["roll angle", "pitch angle", "yaw angle"]
+    labels = [line.get_label() for line in axes[0].get_lines()]
+    assert labels == ["reference", "nmpc", "pid"]  # shared reference drawn once
+    roll_labels = [line.get_label() for line in axes[6].get_lines()]
+    assert roll_labels == ["nmpc", "nmpc command", "pid", "pid command"]
+    y_error = axes[4].get_lines()
+    np.testing.assert_allclose(y_error[0].get_ydata(), 0.2)  # nmpc flies 0.2 m to the side
+    for fmt in ("png", "pdf", "svg"):
+        first = save_figure(control_figure(log, "static"), tmp_path / f"a.{fmt}").read_bytes()
+        again = save_figure(control_figure(log, "static"), tmp_path / f"b.{fmt}").read_bytes()
+        assert first == again, fmt
+    with pytest.raises(DataError, match="choose one"):
+        control_figure(log)
+
+
+def test_success_rate_curve_hand_computed() -> None:
+    ne = np.array([0.0, 5.0, 10.0, 20.0])
+    thresholds = np.array([0.0, 5.0, 15.0, 25.0])
+    np.testing.assert_array_equal(success_rate_curve(ne, thresholds, strict=True), [0, 25, 75, 100])
+    np.testing.assert_array_equal(
+        success_rate_curve(ne, thresholds, strict=False), [25, 50, 75, 100]
+    )
+
+
+def test_navigation_figures_render(tmp_path: Path) -> None:
+    g = [square(0, 0), square(100, 0)]
+    results = [
+        result([g[0], square(100 + k, 0)], g, episode_id=f"e{k}", system=s)
+        for k in range(5)
+        for s in ("A", "B")
+    ]
+    scores = score_results(results)
+    figure = sr_vs_threshold_figure(scores, MetricConventions(), max_threshold_m=10.0)
+    lines = figure.get_axes()[0].get_lines()
+    assert [line.get_label() for line in lines[:2]] == ["A (n=5)", "B (n=5)"]
+    ydata = np.asarray(lines[0].get_ydata())
+    assert ydata[0] == pytest.approx(0.0) and ydata[-1] == pytest.approx(100.0)  # NE = 0..4 m
+    assert ydata[np.searchsorted(np.linspace(0, 10, 401), 2.5)] == pytest.approx(60.0)
+    assert save_figure(figure, tmp_path / "sr.png").stat().st_size > 0
+    assert save_figure(ne_distribution_figure(scores), tmp_path / "ne.pdf").stat().st_size > 0
+
+
+def test_trajectory_over_a_map_tile(tmp_path: Path) -> None:
+    georef = MapGeoref((30.0, 40.0), (30.01, 40.01), 1e-5, 1e-5)
+    bgr = np.zeros((1000, 1000, 3), np.uint8)
+    bgr[:, :, 1] = 120
+    tile = WorldTile(map_name="1913", georef=georef, bgr=bgr)
+    gt = np.stack([view_from_pose((30.004 + 0.0004 * k, 40.005), 0.0, 100.0) for k in range(4)])
+    figure = trajectory_figure(tile, gt, gt + 0.0001, title="demo")
+    ax = figure.get_axes()[0]
+    assert ax.get_title() == "demo"
+    x0, x1 = ax.get_xlim()
+    centre_px = georef.gps_to_pixel_float(gt.mean(axis=1))
+    assert x0 < centre_px[:, 0].min() and centre_px[:, 0].max() < x1  # the views are in frame
+    a = save_figure(figure, tmp_path / "t1.png").read_bytes()
+    b = save_figure(
+        trajectory_figure(tile, gt, gt + 0.0001, title="demo"), tmp_path / "t2.png"
+    ).read_bytes()
+    assert a == b

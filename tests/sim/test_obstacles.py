@@ -1,0 +1,119 @@
+"""Obstacle motion, forecasts and seeded scenarios placed against a route."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from skyvln_eval.errors import ConfigError
+from skyvln_eval.frames import ViewPose
+from skyvln_eval.sim import (
+    ConstantVelocity,
+    ConstantVelocityPredictor,
+    DroneState,
+    ExactPredictor,
+    ObstacleScenario,
+    ScenarioSpec,
+    SphereObstacle,
+    SplinePath,
+    make_scenario,
+    segment_reference,
+)
+
+
+def route() -> tuple[np.ndarray, np.ndarray]:
+    reference = segment_reference(DroneState(0, 0, 10), ViewPose(30, 10, 12, 0.0), 5.0)
+    times = np.arange(5.0, reference.end_time_s, 0.1)
+    return times, reference.window(times).position_m
+
+
+def test_constant_velocity_motion_and_its_forecast_agree() -> None:
+    motion = ConstantVelocity((1.0, 2.0, 3.0), (0.5, 0.0, -0.1), start_time_s=2.0)
+    scenario = ObstacleScenario("one", (SphereObstacle(motion),))
+    times = 4.0 + 0.1 * np.arange(21)
+    forecast = ConstantVelocityPredictor().forecast(scenario, times)
+    exact = ExactPredictor().forecast(scenario, times)
+    assert np.allclose(forecast.positions_m, exact.positions_m)
+    assert np.allclose(forecast.positions_m[0, 0], [2.0, 2.0, 2.8])
+    assert forecast.keep_out_radius_m[0] == pytest.approx(0.7)
+
+
+def test_spline_path_passes_its_points_and_holds_outside_its_span() -> None:
+    path = SplinePath((0.0, 2.0, 4.0), ((0, 0, 0), (2, 1, 0), (4, 0, 1)))
+    at = path.position_m(np.array([-1.0, 0.0, 2.0, 4.0, 9.0]))
+    assert np.allclose(at, [[0, 0, 0], [0, 0, 0], [2, 1, 0], [4, 0, 1], [4, 0, 1]])
+    assert np.allclose(path.velocity_at(np.array([-1.0, 9.0])), 0.0)
+    assert np.linalg.norm(path.velocity_at(np.array([2.0]))) > 0.5
+
+
+def test_noisy_constant_velocity_forecast_is_seeded() -> None:
+    scenario = ObstacleScenario("one", (SphereObstacle(ConstantVelocity((0, 0, 0))),))
+    times = np.arange(5) * 0.1
+
+    def forecast(seed: int) -> np.ndarray:
+        predictor = ConstantVelocityPredictor(0.1, 0.1, seed=seed)
+        return predictor.forecast(scenario, times).positions_m
+
+    assert np.array_equal(forecast(1), forecast(1))
+    assert not np.array_equal(forecast(1), forecast(2))
+
+
+@pytest.mark.parametrize("kind", ["static", "crossing", "approaching", "spline"])
+def test_every_obstacle_meets_the_route_when_the_drone_passes(kind: str) -> None:
+    times, points = route()
+    spec = ScenarioSpec(kind=kind, n_obstacles=3, seed=7)  # type: ignore[arg-type]
+    scenario = make_scenario(spec, times, points)
+    assert len(scenario.obstacles) == 3
+    keep_out = spec.radius_m + spec.safety_radius_m
+    for i in range(3):
+        # At some time the obstacle is within a keep-out radius of where the drone should be.
+        track = scenario.trajectories_m(times)[i]
+        gaps = np.linalg.norm(track - points, axis=1)
+        assert gaps.min() < keep_out
+    assert make_scenario(spec, times, points) == scenario  # same seed, same scenario
+
+
+def test_obstacles_stay_off_the_waypoints() -> None:
+    times, points = route()
+    scenario = make_scenario(ScenarioSpec(kind="static", n_obstacles=4, seed=3), times, points)
+    for end in (points[0], points[-1]):
+        assert np.min(scenario.distances_m(end, 0.0)) > 2.0
+
+
+def test_static_obstacles_do_not_move_and_moving_ones_do() -> None:
+    times, points = route()
+    static = make_scenario(ScenarioSpec(kind="static"), times, points)
+    crossing = make_scenario(ScenarioSpec(kind="crossing"), times, points)
+    assert np.allclose(static.velocities_m_s(3.0), 0.0)
+    assert np.allclose(np.linalg.norm(crossing.velocities_m_s(3.0), axis=1), 0.5)
+
+
+def test_no_obstacles_scenario() -> None:
+    times, points = route()
+    scenario = make_scenario(ScenarioSpec(kind="none"), times, points)
+    assert scenario.obstacles == ()
+    assert ExactPredictor().forecast(scenario, times[:5]).count == 0
+
+
+@pytest.mark.parametrize(
+    ("make", "field"),
+    [
+        (lambda: ScenarioSpec(kind="meteor"), "kind"),  # type: ignore[arg-type]
+        (lambda: ScenarioSpec(n_obstacles=-1), "n_obstacles"),
+        (lambda: ScenarioSpec(radius_m=0.0), "radius_m"),
+        (
+            lambda: SphereObstacle(ConstantVelocity((0, 0, 0)), safety_radius_m=-1),
+            "safety_radius_m",
+        ),
+        (lambda: ConstantVelocity((0, 0)), "start_m"),  # type: ignore[arg-type]
+        (lambda: SplinePath((0.0, 0.0), ((0, 0, 0), (1, 1, 1))), "times_s"),
+    ],
+)
+def test_bad_obstacle_settings_name_the_field(make: object, field: str) -> None:
+    with pytest.raises(ConfigError, match=field):
+        make()  # type: ignore[operator]
+
+
+def test_a_route_that_does_not_move_is_refused() -> None:
+    with pytest.raises(ConfigError, match="length is zero"):
+        make_scenario(ScenarioSpec(), np.array([0.0, 1.0]), np.zeros((2, 3)))

@@ -1,0 +1,29 @@
+"""Atomic writes: whole files or nothing, normal permissions."""
+
+from __future__ import annotations
+
+import os
+import stat
+from pathlib import Path
+
+import pytest
+
+from skyvln_eval.fileio import atomic_write_bytes, atomic_write_json
+
+
+def test_written_files_get_normal_permissions(tmp_path: Path) -> None:
+    path = tmp_path / "a" / "b.json"
+    atomic_write_json(path, {"x": 1})
+    mask = os.umask(0)
+    os.umask(mask)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~mask
+    assert path.read_text() == '{"x": 1}\n'
+
+
+def test_a_failed_write_leaves_the_old_file_and_no_temporary(tmp_path: Path) -> None:
+    path = tmp_path / "keep.bin"
+    atomic_write_bytes(path, b"old")
+    with pytest.raises(TypeError):
+        atomic_write_bytes(path, "not bytes")  # type: ignore[arg-type]
+    assert path.read_bytes() == b"old"
+    assert [p.name for p in tmp_path.iterdir()] == ["keep.bin"]
