@@ -1,0 +1,1 @@
+"""Simulation: view rendering, quadrotor plant, obstacle scenarios."""
