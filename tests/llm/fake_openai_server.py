@@ -58,6 +58,11 @@ def truncated(task: str | None = None) -> Reply:
     return Reply("truncated", task=task)
 
 
+def rule(task: str | None = None) -> Reply:
+    """Answer as the rule backend would (what unmatched requests get anyway)."""
+    return Reply("rule", task=task)
+
+
 def refuse_schema(content: str) -> Reply:
     """HTTP 400 when the request carries ``response_format``, else ``content``."""
     return Reply("refuse_schema", content=content)

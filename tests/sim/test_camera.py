@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from skyvln_eval.avdn import MapGeoref, observe_view
+from skyvln_eval.avdn import observe_view
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.frames import ViewPose, latlng_to_enu, pose_to_view
 from skyvln_eval.sim.camera import (
@@ -19,38 +19,8 @@ from skyvln_eval.sim.camera import (
     pixel_rays,
     render_camera,
 )
-from skyvln_eval.worlds.tile import SemanticClass, WorldTile
-
-MPP = 0.5  # metres per pixel of the test maps
-SIZE = 1200  # pixels: a 600 m square map
-
-
-def _georef() -> MapGeoref:
-    ratio = MPP / 111_300.0
-    return MapGeoref((30.0, 40.0), (30.0 + SIZE * ratio, 40.0 + SIZE * ratio), ratio, ratio)
-
-
-def _textured(seed: int = 0) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    coarse = rng.integers(0, 255, size=(SIZE // 20, SIZE // 20, 3), dtype=np.uint8)
-    return np.repeat(np.repeat(coarse, 20, axis=0), 20, axis=1)
-
-
-def flat_world() -> WorldTile:
-    """An xView-like world: an image and nothing else."""
-    return WorldTile("flat", _georef(), _textured())
-
-
-def tower_world(height_m: float = 60.0) -> WorldTile:
-    """A world with one 40 m square tower (landmark 7) at the map centre."""
-    semantic = np.full((SIZE, SIZE), SemanticClass.GROUND, np.uint8)
-    instance = np.zeros((SIZE, SIZE), np.uint16)
-    heights = np.zeros((SIZE, SIZE), np.float32)
-    c, half = SIZE // 2, 40
-    semantic[c - half : c + half, c - half : c + half] = SemanticClass.BUILDING
-    instance[c - half : c + half, c - half : c + half] = 7
-    heights[c - half : c + half, c - half : c + half] = height_m
-    return WorldTile("tower", _georef(), _textured(1), semantic, instance, heights)
+from skyvln_eval.worlds.tile import SemanticClass
+from tests.toy_worlds import flat_world, tower_world
 
 
 def test_looking_straight_down_sees_the_official_view() -> None:
