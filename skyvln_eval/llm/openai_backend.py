@@ -1,6 +1,7 @@
 """Any OpenAI-compatible chat-completions server (OpenAI, vLLM, Ollama, llama.cpp).
 
-The official ``openai`` client is imported on first use, never at toolkit import. The API
+The official ``openai`` client (extra ``openai``) is imported on first use, never at
+toolkit import. The API
 key is read from the environment variable ``api_key_env`` when the client is made and
 handed to the client only: it is not stored on the backend, not part of its identity or
 of any cache key, and is scrubbed from every error message this module raises.
@@ -87,7 +88,7 @@ class OpenAIBackend(LLMBackend):
             if self._client is None:
                 try:
                     import openai
-                except ImportError as error:  # pragma: no cover - openai is a core dependency here
+                except ImportError as error:  # pragma: no cover - the test extra installs openai
                     raise MissingExtraError("the openai backend", "openai", str(error)) from error
                 secret = self._secret()
                 if secret is None and self.base_url == OPENAI_BASE_URL:
