@@ -16,12 +16,13 @@ right only, no distance, no sector, no candidate ranking.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Final, Literal
 
 import cv2
 
-from skyvln_eval.agent.calls import call_json
+from skyvln_eval.agent.calls import JsonCall, call_json
 from skyvln_eval.agent.lexicon import text_similarity
 from skyvln_eval.agent.parsing import load_json_object
 from skyvln_eval.agent.perception import Panorama, Sighting
@@ -248,7 +249,23 @@ class SpatialDescriptor:
             if goal.landmark is None:
                 continue
             candidates = self.propose(goal.landmark, panorama, heading_deg)
-            described = [self._describe(goal, c, panorama, by_id, result) for c in candidates]
+            # The (phrase, candidate) descriptions are independent: ask for them at once, up
+            # to the client's concurrency limit; results keep the candidates' order.
+            workers = min(self.client.max_concurrency, max(1, len(candidates)))
+            with ThreadPoolExecutor(max_workers=workers) as pool:
+                n = len(candidates)
+                calls = list(
+                    pool.map(self._describe, [goal] * n, candidates, [panorama] * n, [by_id] * n)
+                )
+            described = []
+            for candidate, call in zip(candidates, calls, strict=True):
+                result.records += call.records
+                result.exchanges += call.exchanges
+                if call.value is None:
+                    described.append(candidate)
+                else:
+                    text, match = call.value
+                    described.append(Candidate(candidate.entry, candidate.similarity, text, match))
             result.matches.append(
                 self._rank(goal, described, heading_deg, memory_notes, route_hint, result)
             )
@@ -260,8 +277,7 @@ class SpatialDescriptor:
         c: Candidate,
         panorama: Panorama,
         by_id: dict[str, Sighting],
-        result: HsdResult,
-    ) -> Candidate:
+    ) -> JsonCall[tuple[str, Match]]:
         data = {"phrase": goal.landmark, "goal": goal.to_dict(), "candidate": c.entry}
         prose = (
             f"Landmark phrase from the instruction: {goal.landmark!r}.\n"
@@ -277,13 +293,7 @@ class SpatialDescriptor:
             Message("system", HSD_SYSTEM),
             Message("user", prose + task_block("hsd_describe", data), images),
         ]
-        call = call_json(self.client, "hsd_describe", messages, self.config, _parse_description)
-        result.records += call.records
-        result.exchanges += call.exchanges
-        if call.value is None:
-            return c
-        description, match = call.value
-        return Candidate(c.entry, c.similarity, description, match)
+        return call_json(self.client, "hsd_describe", messages, self.config, _parse_description)
 
     def _rank(
         self,

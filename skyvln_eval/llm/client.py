@@ -13,7 +13,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from skyvln_eval.errors import ConfigError, LLMError, LLMTransientError
 from skyvln_eval.llm.base import LLMBackend
@@ -105,7 +105,7 @@ class LLMClient:
                 completion = self.backend.generate(messages, config)
             latency = time.perf_counter() - started
             if completion.latency_s <= 0.0:
-                completion = Completion(**{**completion.__dict__, "latency_s": latency})
+                completion = replace(completion, latency_s=latency)
             return completion
 
         def on_fault(error: LLMTransientError, latency_s: float) -> None:

@@ -158,3 +158,19 @@ def test_agent_configs_are_validated_with_the_field_named(tmp_path: Path) -> Non
     settings = agent.settings()
     assert settings["tbma"] is False and settings["perception"]["detector"]["miss_rate"] == 0.2
     assert "rule-based (not an LLM)" in settings["backend"]
+
+
+def test_importing_the_agent_imports_no_optional_heavy_dependency() -> None:
+    import subprocess
+    import sys
+
+    from tests.conftest import REPO
+
+    code = (
+        "import sys, skyvln_eval.agent, skyvln_eval.harness, skyvln_eval.sim.camera\n"
+        "print([m for m in ('openai', 'transformers', 'torch', 'ray') if m in sys.modules])"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO
+    )
+    assert out.stdout.strip() == "[]"
