@@ -41,6 +41,7 @@ class PerceptionConfig(BaseModel):
     include_below: bool = Field(default=True, description="also look straight down (the AVDN view)")
     image_px: int = Field(default=224, ge=32, le=1024)
     max_depth_m: float = Field(default=500.0, gt=0.0)
+    height_levels: int = Field(default=24, ge=2, le=512, description="camera ray-march levels")
     merge_radius_m: float = Field(default=20.0, gt=0.0, description="same landmark across views")
     track_radius_m: float = Field(default=25.0, gt=0.0, description="same landmark across steps")
 
@@ -233,8 +234,14 @@ class Perception:
         self.tracker = LandmarkTracker(config.track_radius_m)
 
     def camera_config(self) -> CameraConfig:
+        """The camera this agent looks through (it overrides the rig's)."""
         c = self.config
-        return CameraConfig(width_px=c.image_px, height_px=c.image_px, max_depth_m=c.max_depth_m)
+        return CameraConfig(
+            width_px=c.image_px,
+            height_px=c.image_px,
+            max_depth_m=c.max_depth_m,
+            height_levels=c.height_levels,
+        )
 
     def reset(self, world: WorldTile, seed: int) -> None:
         self.detector.reset(world, seed)
@@ -242,13 +249,14 @@ class Perception:
 
     def capture(self, rig: CameraRig, pose: ViewPose) -> list[CapturedView]:
         views = []
+        camera = self.camera_config()
         n = self.config.headings
         for k in range(n):
             heading = (pose.heading_deg + k * 360.0 / n) % 360.0
-            images = rig.capture(compass_to_enu_yaw_rad(heading), self.config.pitch_deg)
+            images = rig.capture(compass_to_enu_yaw_rad(heading), self.config.pitch_deg, camera)
             views.append(CapturedView(k, view_name(k, n), heading, self.config.pitch_deg, images))
         if self.config.include_below:
-            images = rig.capture(pose.yaw_rad, 90.0)
+            images = rig.capture(pose.yaw_rad, 90.0, camera)
             views.append(CapturedView(n, "below", pose.heading_deg, 90.0, images))
         return views
 

@@ -250,6 +250,9 @@ class CameraRig:
     def has_layers(self) -> bool:
         return self.world.has_layers
 
-    def capture(self, yaw_rad: float, pitch_deg: float) -> CameraImages:
+    def capture(
+        self, yaw_rad: float, pitch_deg: float, config: CameraConfig | None = None
+    ) -> CameraImages:
+        """The image after turning to ``yaw_rad``; ``config`` overrides the rig's optics."""
         pose = CameraPose(self.x_m, self.y_m, self.z_m, yaw_rad, pitch_deg)
-        return render_camera(self.world, pose, self.config)
+        return render_camera(self.world, pose, config or self.config)

@@ -29,6 +29,8 @@ def observe(detector: LayerDetector, at: ViewPose = CROSSING, **config: object) 
 
 
 def test_a_panorama_turns_through_the_headings_and_looks_down() -> None:
+    _, small = observe(LayerDetector(miss_rate=0.0, false_positive_rate=0.0), image_px=64)
+    assert all(v.images.rgb.shape == (64, 64, 3) for v in small.views)  # its own camera
     _, panorama = observe(LayerDetector(miss_rate=0.0, false_positive_rate=0.0))
     names = [(v.name, v.heading_deg, v.pitch_deg) for v in panorama.views]
     assert names == [
