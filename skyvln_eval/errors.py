@@ -187,3 +187,45 @@ class McapLogError(DataError):
 
 class SolverBuildError(SkyvlnError):
     """A controller's solver functions had to be compiled (``compile: always``) and could not be."""
+
+
+class ActionParseError(SkyvlnError):
+    """An agent's (LLM's) output is not one valid action of the closed vocabulary."""
+
+
+class LLMError(SkyvlnError):
+    """An LLM backend could not produce a completion."""
+
+
+class LLMTransientError(LLMError):
+    """A fault worth retrying: rate limit (429), server error (5xx), timeout, broken response.
+
+    ``retry_after_s`` is the server's Retry-After hint when it gave one.
+    """
+
+    def __init__(self, message: str, retry_after_s: float | None = None) -> None:
+        super().__init__(message)
+        self.retry_after_s = retry_after_s
+
+
+class CacheMissError(SkyvlnError):
+    """The ``replay`` backend was asked something its cache does not hold.
+
+    Not an :class:`LLMError`: agents survive backend faults, but a replay that misses is
+    no longer a replay, so it stops the run.
+    """
+
+
+class MissingExtraError(SkyvlnError):
+    """An optional feature needs a package extra or model weights that are not installed."""
+
+    def __init__(self, feature: str, extra: str, detail: str = "") -> None:
+        more = f" ({detail})" if detail else ""
+        super().__init__(
+            f"{feature} needs the optional '{extra}' dependencies{more}: "
+            f"pip install 'skyvln-eval[{extra}]'"
+        )
+
+
+class PerceptionError(SkyvlnError):
+    """The world or camera cannot give what a perception component needs."""

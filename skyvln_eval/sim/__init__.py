@@ -5,7 +5,9 @@
 - :mod:`.plant`: the RK4 plant with wind, sensor noise and the heading loop;
 - :mod:`.obstacles` and :mod:`.scenarios`: seeded spherical obstacles (static,
   constant-velocity, spline) placed against a route, and their forecast over a horizon;
-- :mod:`.reference`: a target pose to a time-parametrised reference at a cruise speed.
+- :mod:`.reference`: a target pose to a time-parametrised reference at a cruise speed;
+- :mod:`.camera`: the drone's front camera (RGB, depth, semantic, instance images over
+  the map's height field), imported on its own: ``from skyvln_eval.sim.camera import ...``.
 
 The controllers that fly this plant, and the closed loop, are in :mod:`skyvln_eval.control`.
 """

@@ -1,0 +1,185 @@
+"""Baselines: random, ground-truth replay, and a NavGPT-style LLM-only agent.
+
+* :class:`RandomAgent` draws a uniformly random action of the vocabulary each step
+  (STOP included), seeded by the agent seed and the episode id.
+* :class:`GroundTruthAgent` replays the ground-truth path: at each step the AVDN waypoint
+  from its current view to the next ground-truth view, then STOP. It reads the ground
+  truth on purpose; it bounds what the step and the metrics allow.
+* :class:`NavGPTAgent` is the LLM alone, as in NavGPT: one call per step with the whole
+  instruction, view-level descriptions of what each view shows (label, caption, left /
+  centre / right; no ids, distances or sectors), and the history of its own actions. No
+  sub-goal module, no HSD, no memory graph, no fly-to (nothing to name).
+"""
+
+from __future__ import annotations
+
+import random
+from typing import Any
+
+import numpy as np
+
+from skyvln_eval.agent.actions import (
+    Stop,
+    Waypoint,
+    action_from_dict,
+    action_record,
+    decision_json_schema,
+)
+from skyvln_eval.agent.base import Agent, Decision, Observation
+from skyvln_eval.agent.detectors import episode_seed
+from skyvln_eval.agent.hsd import coarse_position
+from skyvln_eval.agent.motion import SYSTEM_PROMPT, MotionGenerator, action_prompt
+from skyvln_eval.agent.odometry import Odometer, llm_agent_settings, pose_summary, roads_text
+from skyvln_eval.agent.perception import Panorama, Perception
+from skyvln_eval.avdn.records import Episode
+from skyvln_eval.avdn.step import action_between_views
+from skyvln_eval.errors import ActionParseError
+from skyvln_eval.llm.client import LLMClient
+from skyvln_eval.llm.config import LLMConfig
+from skyvln_eval.llm.simple import random_action
+from skyvln_eval.worlds.tile import WorldTile
+
+
+class RandomAgent(Agent):
+    name = "random"
+
+    def __init__(self, seed: int = 0) -> None:
+        self.seed = seed
+        self._rng = random.Random(seed)
+
+    def settings(self) -> dict[str, Any]:
+        return {"name": self.name, "seed": self.seed}
+
+    def reset(self, episode: Episode, world: WorldTile) -> None:
+        self._rng = random.Random(episode_seed(self.seed, episode.episode_id))
+
+    def act(self, observation: Observation) -> Decision:
+        action = action_from_dict(random_action(self._rng, {}), {})
+        return Decision("random action", action, {"action": action_record(action)})
+
+
+class GroundTruthAgent(Agent):
+    name = "ground_truth"
+
+    def settings(self) -> dict[str, Any]:
+        return {"name": self.name}
+
+    def reset(self, episode: Episode, world: WorldTile) -> None:
+        gt = episode.gt_path_corners
+        # ANDH-Full repeats each round's start view (the previous round's end): skip repeats.
+        keep = [0] + [
+            k for k in range(1, len(gt)) if not np.allclose(gt[k], gt[k - 1], rtol=0.0, atol=1e-9)
+        ]
+        self._targets = gt[keep][1:]
+        self._next = 0
+
+    def act(self, observation: Observation) -> Decision:
+        if self._next >= len(self._targets):
+            return Decision("at the end of the ground truth", Stop(), {"target_index": None})
+        official = action_between_views(observation.view_corners, self._targets[self._next])
+        self._next += 1
+        action = Waypoint(official.waypoint[0], official.waypoint[1], official.altitude)
+        return Decision(
+            f"towards ground-truth view {self._next}", action, {"target_index": self._next}
+        )
+
+
+class NavGPTAgent(Agent):
+    name = "navgpt"
+
+    def __init__(
+        self, client: LLMClient, perception: Perception, llm: LLMConfig, seed: int = 0
+    ) -> None:
+        self.client = client
+        self.perception = perception
+        self.llm = llm
+        self.seed = seed
+        self.motion = MotionGenerator(
+            client,
+            llm.generation(json_schema=decision_json_schema(), schema_name="decision"),
+            module="navgpt",
+        )
+
+    def settings(self) -> dict[str, Any]:
+        return llm_agent_settings(self.name, self.seed, self.client, self.llm, self.perception)
+
+    def reset(self, episode: Episode, world: WorldTile) -> None:
+        self._episode = episode
+        self._history: list[dict[str, Any]] = []
+        self._odometer = Odometer()
+        self.perception.reset(world, episode_seed(self.seed, episode.episode_id))
+
+    def act(self, observation: Observation) -> Decision:
+        if not hasattr(self, "_episode"):
+            raise ActionParseError("NavGPTAgent.act called before reset(episode, world)")
+        pose = observation.pose
+        if self._history:
+            self._history[-1]["feedback"] = observation.feedback
+        panorama = self.perception.observe(observation.camera, pose)
+        self._odometer.update(pose, panorama.road_bearings_deg)
+        views = self._views(panorama)
+        dialog = self._episode.dialog()
+        current = self._episode.first.round_index
+        instruction = " ".join(
+            t.text for t in dialog if t.round_index >= current and t.speaker == "commander"
+        )
+        state = {
+            "instruction": instruction,
+            "previous_rounds": [t.text for t in dialog if t.round_index < current],
+            "observation": views,
+            "history": self._history[-8:],
+            "pose": pose_summary(pose),
+            "odometry": self._odometer.to_dict(),
+            "actions_left": observation.actions_left,
+            "roads": {
+                "here": list(panorama.road_bearings_deg),
+                "at_start": list(self._odometer.start_roads or ()),
+            },
+        }
+        seen = "\n".join(
+            f"- {v['name']} (facing {v['heading_deg']:.0f} deg): "
+            + (
+                ", ".join(f"{o['caption'] or o['label']} ({o['position']})" for o in v["objects"])
+                or "nothing notable"
+            )
+            for v in views
+        )
+        user = (
+            f"## Instruction\n{instruction}\n## What you see\n{seen}\n"
+            f"{roads_text(panorama.road_bearings_deg, self._odometer.start_roads)}\n## History\n"
+            + (
+                "\n".join(f"- {h['action']} -> {h.get('feedback')}" for h in self._history[-8:])
+                or "(none)"
+            )
+            + "\n"
+            + action_prompt(observation.feedback, pose.edge_m / 2.0, observation.actions_left)
+        )
+        result = self.motion.decide(SYSTEM_PROMPT, user, "navgpt", state, {})
+        self._history.append({"action": action_record(result.action), "thought": result.thought})
+        trace = {
+            "observation": views,
+            "fallback": result.fallback,
+            "repaired": result.repaired,
+            "exchanges": result.exchanges,
+        }
+        return Decision(result.thought, result.action, trace, tuple(result.records))
+
+    @staticmethod
+    def _views(panorama: Panorama) -> list[dict[str, Any]]:
+        """What each view shows, as a captioner would say it: no ids, distances or sectors."""
+        return [
+            {
+                "name": v.name,
+                "heading_deg": round(v.heading_deg, 1),
+                "objects": [
+                    {
+                        "label": s.label,
+                        "caption": s.caption,
+                        "position": coarse_position(s.box_px, s.image_size_px),
+                    }
+                    for s in panorama.sightings
+                    if s.view_index == v.index
+                ],
+            }
+            for v in panorama.views
+        ]

@@ -1,0 +1,143 @@
+"""Typed agent configuration, loadable from YAML, and construction of agents by name.
+
+``AgentConfig(name="skyvln", hsd=False)`` is the w/o-HSD ablation, ``tbma=False`` the
+w/o-TBMA one; ``name="navgpt"``, ``"random"`` and ``"ground_truth"`` are the baselines.
+Every part is switchable here, and :meth:`Agent.settings` records the result in the run.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from skyvln_eval.agent.base import Agent
+from skyvln_eval.agent.detectors import Detector, create_detector
+from skyvln_eval.agent.perception import Perception, PerceptionConfig
+from skyvln_eval.errors import ConfigError, UnknownNameError
+from skyvln_eval.llm.client import LLMClient
+from skyvln_eval.llm.config import LLMConfig, build_client
+
+
+class DetectorConfig(BaseModel):
+    """Which detector and how imperfect (``layers``) or which weights (``grounding_dino``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str = "layers"
+    miss_rate: float = Field(default=0.1, ge=0.0, le=1.0)
+    false_positive_rate: float = Field(
+        default=0.03, ge=0.0, le=1.0, description="share of ordinary buildings taken for landmarks"
+    )
+    close_look_m: float = Field(
+        default=70.0, ge=0.0, description="phantoms are seen through closer"
+    )
+    min_pixels: int = Field(default=25, ge=1)
+    model: str | None = Field(
+        default=None, description="grounding_dino weights (name or local folder)"
+    )
+    box_threshold: float = Field(default=0.35, ge=0.0, le=1.0)
+
+    def build(self, seed: int) -> Detector:
+        if self.name == "layers":
+            return create_detector(
+                "layers",
+                miss_rate=self.miss_rate,
+                false_positive_rate=self.false_positive_rate,
+                close_look_m=self.close_look_m,
+                min_pixels=self.min_pixels,
+                seed=seed,
+            )
+        options: dict[str, Any] = {"box_threshold": self.box_threshold}
+        if self.model:
+            options["model"] = self.model
+        return create_detector(self.name, **options)
+
+
+class AgentConfig(BaseModel):
+    """One agent: its kind (``name``), ablation switches, perception, detector and LLM."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str = "skyvln"
+    hsd: bool = True
+    tbma: bool = True
+    top_k: int = Field(default=3, ge=1, le=10)
+    seed: int = 0
+    meet_radius_m: float = Field(default=40.0, gt=0.0)
+    perception: PerceptionConfig = PerceptionConfig()
+    detector: DetectorConfig = DetectorConfig()
+    llm: LLMConfig = LLMConfig()
+
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> AgentConfig:
+        """Read and validate a YAML agent config; errors name the file and the field."""
+        file = Path(path)
+        try:
+            data = yaml.safe_load(file.read_text(encoding="utf-8")) or {}
+        except (OSError, yaml.YAMLError) as error:
+            raise ConfigError(f"agent config {file}: {error}") from error
+        try:
+            return cls.model_validate(data)
+        except ValidationError as error:
+            problems = "; ".join(
+                f"{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in error.errors()
+            )
+            raise ConfigError(f"agent config {file}: {problems}") from None
+
+
+def _perception(config: AgentConfig) -> Perception:
+    return Perception(config.perception, config.detector.build(config.seed))
+
+
+def _skyvln(config: AgentConfig, client: LLMClient | None) -> Agent:
+    from skyvln_eval.agent.skyvln import SkyVLNAgent
+
+    return SkyVLNAgent(
+        client or build_client(config.llm),
+        _perception(config),
+        config.llm,
+        hsd=config.hsd,
+        tbma=config.tbma,
+        top_k=config.top_k,
+        seed=config.seed,
+        meet_radius_m=config.meet_radius_m,
+    )
+
+
+def _navgpt(config: AgentConfig, client: LLMClient | None) -> Agent:
+    from skyvln_eval.agent.baselines import NavGPTAgent
+
+    return NavGPTAgent(
+        client or build_client(config.llm), _perception(config), config.llm, seed=config.seed
+    )
+
+
+def _random(config: AgentConfig, client: LLMClient | None) -> Agent:
+    from skyvln_eval.agent.baselines import RandomAgent
+
+    return RandomAgent(seed=config.seed)
+
+
+def _ground_truth(config: AgentConfig, client: LLMClient | None) -> Agent:
+    from skyvln_eval.agent.baselines import GroundTruthAgent
+
+    return GroundTruthAgent()
+
+
+AGENTS: dict[str, Callable[[AgentConfig, LLMClient | None], Agent]] = {
+    "skyvln": _skyvln,
+    "navgpt": _navgpt,
+    "random": _random,
+    "ground_truth": _ground_truth,
+}
+
+
+def build_agent(config: AgentConfig, client: LLMClient | None = None) -> Agent:
+    """The agent ``config.name`` describes; ``client`` overrides the one ``config.llm`` builds."""
+    if config.name not in AGENTS:
+        raise UnknownNameError("agent", config.name, list(AGENTS))
+    return AGENTS[config.name](config, client)

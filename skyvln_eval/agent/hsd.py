@@ -1,0 +1,383 @@
+"""HSD, the high-resolution spatial descriptor, and its coarse ablation.
+
+Each view is split into 3 x 3 sectors, ``#0`` upper-left to ``#8`` lower-right. A
+landmark is described by its view, sector, estimated distance, compass bearing and size.
+For each landmark phrase of the instruction the top-K candidate sightings are proposed by
+a phrase-detection similarity (the paper's score matrix); the LLM writes a description of
+each (phrase, candidate) pair (module ``hsd_describe``), then ranks the candidates from
+those descriptions (module ``hsd_rank``). With TrackBack memory on, HSD asks it about the
+candidates and passes its notes to the ranking: they settle ties between candidates that
+describe equally well (``ambiguous``) and keep a rejected landmark from being chosen again.
+
+With HSD off, the descriptor is the paper's rudimentary one: the view and left / centre /
+right only, no distance, no sector, no candidate ranking.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any, Final, Literal
+
+import cv2
+
+from skyvln_eval.agent.calls import JsonCall, call_json
+from skyvln_eval.agent.lexicon import text_similarity
+from skyvln_eval.agent.parsing import load_json_object
+from skyvln_eval.agent.perception import Panorama, Sighting
+from skyvln_eval.agent.subgoals import SubGoal
+from skyvln_eval.errors import ActionParseError
+from skyvln_eval.llm.client import LLMClient
+from skyvln_eval.llm.taskdata import task_block
+from skyvln_eval.llm.types import GenerationConfig, ImagePart, LLMCallRecord, Message
+
+SECTOR_NAMES: Final = (
+    "upper-left",
+    "upper-centre",
+    "upper-right",
+    "middle-left",
+    "centre",
+    "middle-right",
+    "lower-left",
+    "lower-centre",
+    "lower-right",
+)
+MATCH_LEVELS: Final = ("strong", "partial", "weak", "none")
+Match = Literal["strong", "partial", "weak", "none", "unknown"]
+
+
+def sector_of(box_px: tuple[int, int, int, int], image_size_px: tuple[int, int]) -> int:
+    """Sector 0-8 (row-major from the upper left) of a box's centre; size is (width, height)."""
+    x0, y0, x1, y1 = box_px
+    width, height = image_size_px
+    col = min(2, max(0, int(3 * ((x0 + x1) / 2.0) / width)))
+    row = min(2, max(0, int(3 * ((y0 + y1) / 2.0) / height)))
+    return 3 * row + col
+
+
+def coarse_position(box_px: tuple[int, int, int, int], image_size_px: tuple[int, int]) -> str:
+    """``left``, ``centre`` or ``right``: the column of the box's centre only."""
+    return ("left", "centre", "right")[sector_of(box_px, image_size_px) % 3]
+
+
+def relative_bearing_deg(bearing_deg: float, heading_deg: float) -> float:
+    """Bearing relative to the heading, in (-180, 180] (positive = to the right)."""
+    return 180.0 - (180.0 - (bearing_deg - heading_deg)) % 360.0
+
+
+def fine_entry(s: Sighting, heading_deg: float) -> dict[str, Any]:
+    """A sighting as HSD gives it to the LLM."""
+    sector = sector_of(s.box_px, s.image_size_px)
+    return {
+        "id": s.landmark_id,
+        "label": s.label,
+        "caption": s.caption,
+        "view": s.view_name,
+        "view_heading_deg": s.view_heading_deg,
+        "sector": sector,
+        "sector_name": SECTOR_NAMES[sector],
+        "distance_m": round(s.distance_m, 1),
+        "bearing_deg": round(s.bearing_deg, 1),
+        "relative_bearing_deg": round(relative_bearing_deg(s.bearing_deg, heading_deg), 1),
+        "size_m": round(s.size_m, 1),
+        "clipped": s.clipped,
+        "score": s.score,
+    }
+
+
+def coarse_entry(s: Sighting) -> dict[str, Any]:
+    """A sighting as the coarse descriptor (HSD off) gives it: view and left/centre/right."""
+    return {
+        "id": s.landmark_id,
+        "label": s.label,
+        "view": s.view_name,
+        "position": coarse_position(s.box_px, s.image_size_px),
+        "score": s.score,
+    }
+
+
+def fine_text(e: Mapping[str, Any]) -> str:
+    return (
+        f"{e['id']} {e['label']} ({e['caption']}): view {e['view']} "
+        f"(facing {e['view_heading_deg']:.0f} deg), "
+        f"sector #{e['sector']} {e['sector_name']}, about {e['distance_m']:.0f} m away at bearing "
+        f"{e['bearing_deg']:.0f} deg ({e['relative_bearing_deg']:+.0f} deg from your heading), "
+        f"about {e['size_m']:.0f} m across"
+    )
+
+
+def coarse_text(e: Mapping[str, Any]) -> str:
+    return f"{e['id']} {e['label']}: view {e['view']}, {e['position']}"
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One candidate for a phrase: its HSD entry, proposal similarity, LLM description."""
+
+    entry: dict[str, Any]
+    similarity: float
+    description: str = ""
+    match: Match = "unknown"
+    memory_note: str | None = None
+
+
+@dataclass(frozen=True)
+class PhraseMatch:
+    """The ranked candidates for one landmark phrase and the chosen one (``best``, or None)."""
+
+    phrase: str
+    goal: dict[str, Any]
+    candidates: tuple[Candidate, ...]
+    best: str | None
+    confidence: float
+    asked_memory: bool = False
+    ambiguous: bool = False
+    error: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "best": self.best,
+            "confidence": round(self.confidence, 3),
+            "ranking": [c.entry["id"] for c in self.candidates],
+            "asked_memory": self.asked_memory,
+            "ambiguous": self.ambiguous,
+        }
+
+
+@dataclass
+class HsdResult:
+    matches: list[PhraseMatch] = field(default_factory=list)
+    records: list[LLMCallRecord] = field(default_factory=list)
+    exchanges: list[dict[str, Any]] = field(default_factory=list)
+
+
+def _parse_description(text: str) -> tuple[str, Match]:
+    data = load_json_object(text)
+    description, match = data.get("description"), data.get("match")
+    if not isinstance(description, str) or len(description) > 2000:
+        raise ActionParseError("'description' must be a string of at most 2000 characters")
+    if match not in MATCH_LEVELS:
+        raise ActionParseError(f"'match' must be one of {', '.join(MATCH_LEVELS)}")
+    return description, match
+
+
+def _rank_parser(ids: Sequence[str]) -> Callable[[str], tuple[list[str], str | None, float]]:
+    def parse(text: str) -> tuple[list[str], str | None, float]:
+        data = load_json_object(text)
+        ranking, best, confidence = data.get("ranking"), data.get("best"), data.get("confidence")
+        if (
+            not isinstance(ranking, list)
+            or any(r not in ids for r in ranking)
+            or len(set(ranking)) != len(ranking)
+        ):
+            raise ActionParseError(
+                f"'ranking' must list distinct candidate ids among {', '.join(ids)}"
+            )
+        if best is not None and best not in ids:
+            raise ActionParseError(f"'best' must be a candidate id or null, got {best!r}")
+        if (
+            isinstance(confidence, bool)
+            or not isinstance(confidence, int | float)
+            or not 0 <= confidence <= 1
+        ):
+            raise ActionParseError("'confidence' must be a number in [0, 1]")
+        return ranking, best, float(confidence)
+
+    return parse
+
+
+def _crop_png(panorama: Panorama, s: Sighting) -> ImagePart:
+    view = panorama.views[s.view_index]
+    x0, y0, x1, y1 = s.box_px
+    pad = 8
+    crop = view.images.rgb[max(0, y0 - pad) : y1 + pad, max(0, x0 - pad) : x1 + pad]
+    ok, buf = cv2.imencode(".png", crop[..., ::-1])
+    return ImagePart(buf.tobytes() if ok else b"")
+
+
+class SpatialDescriptor:
+    """HSD (``enabled``) or the coarse descriptor; see the module docstring."""
+
+    def __init__(
+        self, client: LLMClient, config: GenerationConfig, enabled: bool = True, top_k: int = 3
+    ) -> None:
+        self.client = client
+        self.config = config
+        self.enabled = enabled
+        self.top_k = top_k
+
+    def entries(self, panorama: Panorama, heading_deg: float) -> list[dict[str, Any]]:
+        if self.enabled:
+            return [fine_entry(s, heading_deg) for s in panorama.sightings]
+        return [coarse_entry(s) for s in panorama.sightings]
+
+    def text(self, entries: Sequence[Mapping[str, Any]]) -> str:
+        if not entries:
+            return "No landmark detected around you."
+        render = fine_text if self.enabled else coarse_text
+        return "\n".join(f"- {render(e)}" for e in entries)
+
+    def propose(self, phrase: str, panorama: Panorama, heading_deg: float) -> list[Candidate]:
+        """Top-K sightings for a phrase by text similarity times detection score."""
+        scored = []
+        for s in panorama.sightings:
+            similarity = text_similarity(phrase, s.label, s.caption) * (0.5 + 0.5 * s.score)
+            if similarity > 0.0:
+                scored.append(Candidate(fine_entry(s, heading_deg), round(similarity, 3)))
+        scored.sort(key=lambda c: (-c.similarity, c.entry["id"]))
+        return scored[: self.top_k]
+
+    def match(
+        self,
+        goals: Sequence[SubGoal],
+        panorama: Panorama,
+        heading_deg: float,
+        memory_notes: Callable[[Sequence[str], str], dict[str, str]] | None,
+        route_hint: Mapping[str, Any] | None = None,
+    ) -> HsdResult:
+        """Rank candidates for each goal's landmark phrase (HSD on only).
+
+        ``route_hint`` (``direction_deg``, ``remaining_m``) is the commander's heading and
+        the distance still to fly, which the ranking may weigh.
+        """
+        result = HsdResult()
+        if not self.enabled:
+            return result
+        by_id = panorama.by_id()
+        for goal in goals:
+            if goal.landmark is None:
+                continue
+            candidates = self.propose(goal.landmark, panorama, heading_deg)
+            # The (phrase, candidate) descriptions are independent: ask for them at once, up
+            # to the client's concurrency limit; results keep the candidates' order.
+            workers = min(self.client.max_concurrency, max(1, len(candidates)))
+            with ThreadPoolExecutor(max_workers=workers) as pool:
+                n = len(candidates)
+                calls = list(
+                    pool.map(self._describe, [goal] * n, candidates, [panorama] * n, [by_id] * n)
+                )
+            described = []
+            for candidate, call in zip(candidates, calls, strict=True):
+                result.records += call.records
+                result.exchanges += call.exchanges
+                if call.value is None:
+                    described.append(candidate)
+                else:
+                    text, match = call.value
+                    described.append(Candidate(candidate.entry, candidate.similarity, text, match))
+            result.matches.append(
+                self._rank(goal, described, heading_deg, memory_notes, route_hint, result)
+            )
+        return result
+
+    def _describe(
+        self,
+        goal: SubGoal,
+        c: Candidate,
+        panorama: Panorama,
+        by_id: dict[str, Sighting],
+    ) -> JsonCall[tuple[str, Match]]:
+        data = {"phrase": goal.landmark, "goal": goal.to_dict(), "candidate": c.entry}
+        prose = (
+            f"Landmark phrase from the instruction: {goal.landmark!r}.\n"
+            "Candidate seen by the drone: "
+            f"{fine_text(c.entry)}.\nDescribe how this candidate compares with the phrase (kind of "
+            "place, colours, shape, size, where it is) and say how well it matches. Answer as "
+            '{"description": "...", "match": "strong" | "partial" | "weak" | "none"}.\n'
+        )
+        images = (
+            (_crop_png(panorama, by_id[c.entry["id"]]),) if self.client.backend.takes_images else ()
+        )
+        messages = [
+            Message("system", HSD_SYSTEM),
+            Message("user", prose + task_block("hsd_describe", data), images),
+        ]
+        return call_json(self.client, "hsd_describe", messages, self.config, _parse_description)
+
+    def _rank(
+        self,
+        goal: SubGoal,
+        candidates: list[Candidate],
+        heading_deg: float,
+        memory_notes: Callable[[Sequence[str], str], dict[str, str]] | None,
+        route_hint: Mapping[str, Any] | None,
+        result: HsdResult,
+    ) -> PhraseMatch:
+        phrase = goal.landmark or ""
+        if not candidates:
+            return PhraseMatch(phrase, goal.to_dict(), (), None, 0.0)
+        levels = [MATCH_LEVELS.index(c.match) if c.match in MATCH_LEVELS else 4 for c in candidates]
+        ambiguous = sum(1 for level in levels if level == min(levels)) > 1
+        asked = memory_notes is not None
+        if memory_notes is not None:
+            # What the memory knows (rejected, already used, from an earlier round) settles
+            # ties and keeps known mistakes from being made twice.
+            notes = memory_notes([c.entry["id"] for c in candidates], phrase)
+            candidates = [
+                Candidate(c.entry, c.similarity, c.description, c.match, notes.get(c.entry["id"]))
+                for c in candidates
+            ]
+        listed = [
+            {
+                "id": c.entry["id"],
+                "description": c.description or fine_text(c.entry),
+                "match": c.match,
+                "distance_m": c.entry["distance_m"],
+                "bearing_deg": c.entry["bearing_deg"],
+                "memory_note": c.memory_note,
+            }
+            for c in candidates
+        ]
+        data = {
+            "phrase": phrase,
+            "goal": goal.to_dict(),
+            "heading_deg": round(heading_deg, 1),
+            "route_hint": dict(route_hint or {}),
+            "candidates": listed,
+        }
+        prose = (
+            f"Landmark phrase: {phrase!r} (sub-goal {goal.kind}). "
+            "Candidates and their descriptions:\n"
+            + "\n".join(
+                f"- {x['id']}: {x['description']} [match: {x['match']}]"
+                + (f" [memory: {x['memory_note']}]" if x["memory_note"] else "")
+                for x in listed
+            )
+            + "\nRank the candidates from most to least likely to be the landmark of the phrase, "
+            "taking the sub-goal's direction and distance into account. Answer as "
+            '{"ranking": [ids], "best": id or null if none fits, "confidence": 0..1}.\n'
+        )
+        messages = [
+            Message("system", HSD_SYSTEM),
+            Message("user", prose + task_block("hsd_rank", data)),
+        ]
+        ids = [c.entry["id"] for c in candidates]
+        call = call_json(self.client, "hsd_rank", messages, self.config, _rank_parser(ids))
+        result.records += call.records
+        result.exchanges += call.exchanges
+        if call.value is None:  # fall back to the proposal order, recorded
+            best = candidates[0].entry["id"] if candidates[0].similarity >= 0.5 else None
+            return PhraseMatch(
+                phrase,
+                goal.to_dict(),
+                tuple(candidates),
+                best,
+                candidates[0].similarity,
+                asked,
+                ambiguous,
+                call.error,
+            )
+        ranking, best, confidence = call.value
+        order = {cid: i for i, cid in enumerate(ranking)}
+        ranked = sorted(candidates, key=lambda c: order.get(c.entry["id"], len(order)))
+        return PhraseMatch(
+            phrase, goal.to_dict(), tuple(ranked), best, confidence, asked, ambiguous
+        )
+
+
+HSD_SYSTEM: Final = (
+    "You help a drone match landmark phrases from a navigation instruction with landmarks "
+    "its camera detected. Views are split into 3 x 3 sectors, #0 upper-left to #8 "
+    "lower-right. You answer with one JSON object only."
+)

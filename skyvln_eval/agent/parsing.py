@@ -1,0 +1,77 @@
+"""Strict parsing of LLM output: one JSON object, nothing else, never executed.
+
+The whole answer must be a single JSON object, optionally inside one Markdown code fence
+(```` ```json ... ``` ````), which many models add even when told not to. Prose around
+it, several objects, NaN / Infinity, duplicate keys or an answer longer than
+:data:`MAX_OUTPUT_CHARS` are rejected with an :class:`ActionParseError` that says why,
+which the motion generator sends back to the model once as its repair request.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import Mapping
+from typing import Any, Final
+
+from skyvln_eval.agent.actions import Action, action_from_dict
+from skyvln_eval.errors import ActionParseError
+
+MAX_OUTPUT_CHARS: Final = 20_000
+MAX_THOUGHT_CHARS: Final = 4_000
+_FENCE = re.compile(r"^```(?:json|JSON)?[ \t]*\n(.*)\n```$", re.DOTALL)
+
+
+def _no_constants(name: str) -> Any:
+    raise ActionParseError(f"JSON constant {name} is not allowed")
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise ActionParseError(f"duplicate key {key!r} in the JSON object")
+        out[key] = value
+    return out
+
+
+def load_json_object(text: str) -> dict[str, Any]:
+    """The single JSON object ``text`` consists of (fence allowed); raises otherwise."""
+    if len(text) > MAX_OUTPUT_CHARS:
+        raise ActionParseError(f"output is {len(text)} characters, more than {MAX_OUTPUT_CHARS}")
+    body = text.strip()
+    fenced = _FENCE.match(body)
+    if fenced:
+        body = fenced.group(1).strip()
+    if not body.startswith("{"):
+        preview = body[:60].replace("\n", " ")
+        raise ActionParseError(f"output is not a JSON object (it starts with {preview!r})")
+    try:
+        data = json.loads(body, parse_constant=_no_constants, object_pairs_hook=_unique_keys)
+    except json.JSONDecodeError as error:
+        raise ActionParseError(
+            f"output is not valid JSON ({error.msg} at character {error.pos})"
+        ) from None
+    if not isinstance(data, dict):
+        raise ActionParseError("output must be one JSON object")
+    return data
+
+
+def parse_decision(
+    text: str, landmark_offsets: Mapping[str, tuple[float, float]]
+) -> tuple[str, Action]:
+    """``{"thought": str, "action": {...}}`` -> (thought, validated action)."""
+    data = load_json_object(text)
+    unknown = sorted(set(data) - {"thought", "action"})
+    if unknown:
+        raise ActionParseError(
+            f"unexpected top-level field(s) {', '.join(unknown)}; only thought and action"
+        )
+    if "action" not in data:
+        raise ActionParseError("the JSON object has no 'action'")
+    thought = data.get("thought", "")
+    if not isinstance(thought, str):
+        raise ActionParseError("'thought' must be a string")
+    if len(thought) > MAX_THOUGHT_CHARS:
+        raise ActionParseError(f"'thought' is longer than {MAX_THOUGHT_CHARS} characters")
+    return thought, action_from_dict(data["action"], landmark_offsets)

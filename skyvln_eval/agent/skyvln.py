@@ -1,0 +1,293 @@
+"""The SkyVLN agent: perception, sub-goals, HSD, TrackBack memory and the motion generator.
+
+Per step: record the place in memory, look around (panorama + straight down), note the
+landmarks met, check whether the last fly-to found what it was after (:mod:`.pursuit`),
+rank candidates for the pending landmark phrases (HSD, with memory's notes), then let the
+motion generator choose one action. HSD off gives the coarse descriptor. TBMA off gives
+no memory at all: no landmark notes, no way back, and no knowledge of the path flown
+(where the start is, how far the drone has come) - that is the memory's to keep.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from skyvln_eval.agent.actions import Action, FlyTo, action_record, decision_json_schema
+from skyvln_eval.agent.base import Agent, Decision, Observation
+from skyvln_eval.agent.calls import call_json
+from skyvln_eval.agent.detectors import episode_seed
+from skyvln_eval.agent.hsd import HsdResult, PhraseMatch, SpatialDescriptor
+from skyvln_eval.agent.lexicon import COMPASS
+from skyvln_eval.agent.memory import TrackBackMemory
+from skyvln_eval.agent.motion import (
+    SYSTEM_PROMPT,
+    MotionGenerator,
+    action_prompt,
+    navigation_prompt,
+)
+from skyvln_eval.agent.odometry import Odometer, llm_agent_settings, pose_summary, roads_text
+from skyvln_eval.agent.perception import Panorama, Perception
+from skyvln_eval.agent.pursuit import Pursuit, Verdict, check_pursuit
+from skyvln_eval.agent.subgoals import (
+    SUBGOALS_SCHEMA,
+    SubGoalPlan,
+    parse_subgoals,
+    subgoal_messages,
+)
+from skyvln_eval.avdn.records import Episode
+from skyvln_eval.errors import ActionParseError
+from skyvln_eval.llm.client import LLMClient
+from skyvln_eval.llm.config import LLMConfig
+from skyvln_eval.llm.types import LLMCallRecord
+from skyvln_eval.worlds.tile import WorldTile
+
+STOP_KINDS = ("destination", "stop_at")
+
+
+@dataclass
+class _EpisodeState:
+    """Everything the agent carries from step to step of one episode."""
+
+    episode: Episode
+    plan: SubGoalPlan | None = None
+    odometer: Odometer = field(default_factory=Odometer)
+    last_action: dict[str, Any] | None = None
+    pursuit: Pursuit | None = None
+    done: set[int] = field(default_factory=set)
+
+
+class SkyVLNAgent(Agent):
+    """See the module docstring; build it from an :class:`~skyvln_eval.agent.config.AgentConfig`."""
+
+    name = "skyvln"
+
+    def __init__(
+        self,
+        client: LLMClient,
+        perception: Perception,
+        llm: LLMConfig,
+        hsd: bool = True,
+        tbma: bool = True,
+        top_k: int = 3,
+        seed: int = 0,
+        meet_radius_m: float = 40.0,
+    ) -> None:
+        self.client = client
+        self.perception = perception
+        self.llm = llm
+        self.hsd = hsd
+        self.tbma = tbma
+        self.seed = seed
+        self.descriptor = SpatialDescriptor(client, llm.generation(), enabled=hsd, top_k=top_k)
+        decision = llm.generation(json_schema=decision_json_schema(), schema_name="decision")
+        self.motion = MotionGenerator(client, decision)
+        self.memory = TrackBackMemory(meet_radius_m) if tbma else None
+        self._state: _EpisodeState | None = None
+
+    def settings(self) -> dict[str, Any]:
+        return llm_agent_settings(
+            self.name,
+            self.seed,
+            self.client,
+            self.llm,
+            self.perception,
+            hsd=self.hsd,
+            tbma=self.tbma,
+            top_k=self.descriptor.top_k,
+        )
+
+    def reset(self, episode: Episode, world: WorldTile) -> None:
+        self._state = _EpisodeState(episode)
+        self.perception.reset(world, episode_seed(self.seed, episode.episode_id))
+        if self.memory is not None:
+            self.memory.reset(())
+
+    def act(self, observation: Observation) -> Decision:
+        st = self._state
+        if st is None:
+            raise ActionParseError("SkyVLNAgent.act called before reset(episode, world)")
+        records: list[LLMCallRecord] = []
+        exchanges: list[dict[str, Any]] = []
+        if st.plan is None:
+            st.plan = self._extract_subgoals(st.episode, records, exchanges)
+            if self.memory is not None:
+                self.memory.reset(st.plan.context_landmarks)
+        pose = observation.pose
+        place = None
+        if self.memory is not None:
+            instruction = st.episode.first.instructions
+            place = self.memory.add_place(observation.step_index, pose, instruction, st.last_action)
+        panorama = self.perception.observe(observation.camera, pose, st.plan.landmark_phrases)
+        st.odometer.update(pose, panorama.road_bearings_deg)
+        met = []
+        if self.memory is not None:
+            met = self.memory.meet(observation.step_index, pose, panorama.sightings)
+        verdict = Verdict()
+        if st.pursuit is not None:
+            verdict = check_pursuit(
+                st.pursuit, panorama, pose, self.memory, self.client, self.llm.generation()
+            )
+            st.pursuit = None
+        hsd = self._match(st, panorama, observation)
+        self._update_done(st, hsd.matches, met)
+        records += verdict.records + hsd.records
+        exchanges += verdict.exchanges + hsd.exchanges
+        entries = self.descriptor.entries(panorama, pose.heading_deg)
+        state = self._navigation_state(st, observation, entries, hsd, verdict, panorama)
+        # What is seen now is where it is now; memory adds only what is out of sight.
+        offsets = self.memory.offsets(pose) if self.memory is not None else {}
+        offsets.update({s.landmark_id: (s.east_m, s.north_m) for s in panorama.sightings})
+        result = self.motion.decide(
+            SYSTEM_PROMPT,
+            self._prompt(st, observation, entries, panorama, verdict),
+            "motion",
+            state,
+            offsets,
+        )
+        records += result.records
+        exchanges += result.exchanges
+        st.pursuit = self._pursuit_of(st, result.action, hsd.matches, place, panorama)
+        st.last_action = action_record(result.action)
+        trace = {
+            "subgoals": [g.to_dict() for g in st.plan.subgoals],
+            "done_subgoals": sorted(st.done),
+            "sightings": entries,
+            "roads_deg": list(panorama.road_bearings_deg),
+            "hsd_matches": state["matches"],
+            "memory": None if self.memory is None else self.memory.snapshot(),
+            "way_back": None if verdict.way_back is None else verdict.way_back.to_dict(),
+            "clarification_question": verdict.question,
+            "repaired": result.repaired,
+            "fallback": result.fallback,
+            "exchanges": exchanges,
+        }
+        return Decision(result.thought, result.action, trace, tuple(records))
+
+    # -- parts ---------------------------------------------------------------------------
+    def _extract_subgoals(
+        self, episode: Episode, records: list[LLMCallRecord], exchanges: list[dict[str, Any]]
+    ) -> SubGoalPlan:
+        messages = subgoal_messages(episode.dialog(), episode.first.round_index)
+        config = self.llm.generation(json_schema=SUBGOALS_SCHEMA, schema_name="subgoals")
+        call = call_json(self.client, "subgoals", messages, config, parse_subgoals)
+        records += call.records
+        exchanges += call.exchanges
+        return call.value if call.value is not None else SubGoalPlan(())
+
+    def _match(self, st: _EpisodeState, panorama: Panorama, observation: Observation) -> HsdResult:
+        """HSD on the pending landmark phrases, with the commander's direction and distance."""
+        goals = st.plan.subgoals if st.plan is not None else ()
+        pending = [g for i, g in enumerate(goals) if i not in st.done and g.landmark]
+        direction = next(
+            (COMPASS[g.direction] for g in goals if g.kind == "head" and g.direction in COMPASS),
+            None,
+        )
+        distance = next((g.distance_m for g in goals if g.distance_m), None)
+        flown = st.odometer.travelled_m if self.memory is not None else 0.0  # no memory, no path
+        hint = {
+            "direction_deg": direction,
+            "remaining_m": None if distance is None else max(0.0, distance - flown),
+        }
+        notes = None if self.memory is None else self.memory.notes
+        heading = observation.pose.heading_deg
+        return self.descriptor.match(pending, panorama, heading, notes, hint)
+
+    @staticmethod
+    def _update_done(st: _EpisodeState, matches: list[PhraseMatch], met: list[str]) -> None:
+        """A landmark to pass is done once memory has met the landmark HSD matched to it."""
+        best = {m.phrase: m.best for m in matches}
+        for i, goal in enumerate(st.plan.subgoals if st.plan is not None else ()):
+            if goal.kind == "pass" and goal.landmark in best and best[goal.landmark] in met:
+                st.done.add(i)
+
+    def _pursuit_of(
+        self,
+        st: _EpisodeState,
+        action: Action,
+        matches: list[PhraseMatch],
+        place: str | None,
+        panorama: Panorama,
+    ) -> Pursuit | None:
+        """The fly-to to check next step, if it goes to a landmark taken for a stop goal."""
+        by_id = panorama.by_id()
+        if not isinstance(action, FlyTo) or action.landmark not in by_id or st.plan is None:
+            return None
+        stops = sorted(g.landmark for g in st.plan.subgoals if g.kind in STOP_KINDS and g.landmark)
+        target = by_id[action.landmark]
+        for m in matches:
+            if m.phrase in stops and m.best == action.landmark:
+                return Pursuit(target, m.phrase, place)
+        if not self.hsd and stops:  # coarse: no ranking says which phrase it is for
+            return Pursuit(target, stops[0], place)
+        return None
+
+    def _prompt(
+        self,
+        st: _EpisodeState,
+        observation: Observation,
+        entries: list[dict[str, Any]],
+        panorama: Panorama,
+        verdict: Verdict,
+    ) -> str:
+        """Action prompt and navigation prompt (descriptor, memory, sub-goal progress)."""
+        pose = observation.pose
+        remembered = st.odometer.start_roads if self.memory is not None else None
+        landmarks = self.descriptor.text(entries)
+        landmarks += "\n" + roads_text(panorama.road_bearings_deg, remembered)
+        memory = None
+        if self.memory is not None:
+            memory = self.memory.prompt_text(pose, verdict.way_back)
+        goals = st.plan.subgoals if st.plan is not None else ()
+        lines = [
+            f"{i + 1}. {g.kind} "
+            + ", ".join(f"{k}={v}" for k, v in g.to_dict().items() if k != "kind")
+            + (" [done]" if i in st.done else "")
+            for i, g in enumerate(goals)
+        ] or ["(no sub-goals)"]
+        if self.memory is not None:  # the path flown is the memory's to tell
+            lines.append(st.odometer.text())
+        return action_prompt(observation.feedback, pose.edge_m / 2.0, observation.actions_left) + (
+            navigation_prompt(landmarks, memory, "\n".join(lines))
+        )
+
+    def _navigation_state(
+        self,
+        st: _EpisodeState,
+        observation: Observation,
+        entries: list[dict[str, Any]],
+        hsd: HsdResult,
+        verdict: Verdict,
+        panorama: Panorama,
+    ) -> dict[str, Any]:
+        """The TASK DATA of the motion prompt."""
+        pose = observation.pose
+        memory = None
+        if self.memory is not None:
+            memory = {
+                "notes": self.memory.notes([e["id"] for e in entries]),
+                "way_back": None if verdict.way_back is None else verdict.way_back.to_dict(),
+                "clue": self.memory.clue(pose),
+            }
+        goals = st.plan.subgoals if st.plan is not None else ()
+        return {
+            "step": observation.step_index,
+            "actions_left": observation.actions_left,
+            "pose": pose_summary(pose),
+            # The path flown is TrackBack memory's: without it the agent knows none of it.
+            "odometry": None if self.memory is None else st.odometer.to_dict(),
+            "feedback": observation.feedback,
+            "last_action": st.last_action,
+            "subgoals": [
+                {**g.to_dict(), "status": "done" if i in st.done else "pending"}
+                for i, g in enumerate(goals)
+            ],
+            "descriptor": "fine" if self.hsd else "coarse",
+            "landmarks": entries,
+            "matches": {m.phrase: m.to_dict() for m in hsd.matches},
+            "memory": memory,
+            "roads": {
+                "here": list(panorama.road_bearings_deg),
+                "at_start": None if self.memory is None else list(st.odometer.start_roads or ()),
+            },
+        }

@@ -1,0 +1,216 @@
+"""Sub-goal extraction: the LLM turns the dialog into ordered sub-goals and landmark phrases.
+
+The paper's ``L = LLM(T, prompt)``: the current round's instruction (with the follower's
+question, if any) and the earlier rounds (``pre_dialogs``) go in; an ordered list of
+sub-goals comes out, each a motion (head towards a compass point, turn, stop after a
+distance) or a landmark phrase (pass it, stop at it, it is the destination). Landmarks
+named only in earlier rounds come back as ``context_landmarks``: the agent starts where
+those rounds ended, so TrackBack memory can recognise them near the start.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from typing import Any, Final, Literal
+
+from skyvln_eval.agent.parsing import load_json_object
+from skyvln_eval.avdn.records import DialogTurn
+from skyvln_eval.errors import ActionParseError
+from skyvln_eval.llm.taskdata import task_block
+from skyvln_eval.llm.types import Message
+
+#: Fields of one sub-goal in the LLM's JSON (``null`` where they do not apply).
+SUBGOAL_FIELDS: Final = ("kind", "landmark", "name", "direction", "side", "distance_m", "ordinal")
+SubGoalKind = Literal["head", "turn", "pass", "stop_after", "stop_at", "destination"]
+SUBGOAL_KINDS: Final = ("head", "turn", "pass", "stop_after", "stop_at", "destination")
+DIRECTIONS: Final = (
+    "north",
+    "northeast",
+    "east",
+    "southeast",
+    "south",
+    "southwest",
+    "west",
+    "northwest",
+    "left",
+    "right",
+    "ahead",
+)
+
+
+@dataclass(frozen=True)
+class SubGoal:
+    """One step of the instruction.
+
+    ``direction`` is a compass point (``head``) or left / right (``turn``); ``side`` where
+    a landmark to ``pass`` should be; ``distance_m`` how far (``stop_after``, or the
+    distance given for a landmark); ``ordinal`` which intersection a ``turn`` is at.
+    """
+
+    kind: SubGoalKind
+    landmark: str | None = None
+    name: str | None = None
+    direction: str | None = None
+    side: str | None = None
+    distance_m: float | None = None
+    ordinal: int | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: v for k, v in asdict(self).items() if v is not None}
+
+
+@dataclass(frozen=True)
+class SubGoalPlan:
+    """Sub-goals in order, and landmark phrases of earlier rounds (context)."""
+
+    subgoals: tuple[SubGoal, ...]
+    context_landmarks: tuple[str, ...] = ()
+
+    @property
+    def landmark_phrases(self) -> list[str]:
+        """The paper's ordered set L of landmark phrases."""
+        return [g.landmark for g in self.subgoals if g.landmark]
+
+
+SUBGOALS_SCHEMA: Final[dict[str, Any]] = {
+    "type": "object",
+    "additionalProperties": False,
+    "required": ["subgoals", "context_landmarks"],
+    "properties": {
+        "subgoals": {
+            "type": "array",
+            "items": {
+                "type": "object",
+                "additionalProperties": False,
+                "required": list(SUBGOAL_FIELDS),
+                "properties": {
+                    "kind": {"type": "string", "enum": list(SUBGOAL_KINDS)},
+                    "landmark": {"type": ["string", "null"]},
+                    "name": {"type": ["string", "null"]},
+                    "direction": {"type": ["string", "null"]},
+                    "side": {"type": ["string", "null"]},
+                    "distance_m": {"type": ["number", "null"]},
+                    "ordinal": {"type": ["integer", "null"]},
+                },
+            },
+        },
+        "context_landmarks": {"type": "array", "items": {"type": "string"}},
+    },
+}
+
+SUBGOALS_SYSTEM: Final = (
+    "You read navigation dialogs between a drone pilot (follower) and a commander who sees "
+    "the map. You split the current instruction into ordered sub-goals and extract every "
+    "landmark phrase exactly as written. You answer with one JSON object only."
+)
+
+
+def subgoal_messages(turns: Sequence[DialogTurn], current_round: int) -> list[Message]:
+    """The prompt: earlier rounds as context, the current round to decompose."""
+    previous = [f"{t.speaker}: {t.text}" for t in turns if t.round_index < current_round]
+    current = [t for t in turns if t.round_index >= current_round]
+    question = " ".join(t.text for t in current if t.speaker == "follower") or None
+    instruction = " ".join(t.text for t in current if t.speaker == "commander")
+    prose = (
+        "Decompose the commander's current instruction into sub-goals, in order.\n"
+        "Kinds: head (fly towards a compass point: direction), turn (direction left/right, "
+        "ordinal of the intersection or the landmark it is at), pass (a landmark to pass, "
+        "side left/right/ahead), stop_after (distance_m), stop_at (a landmark to stop at), "
+        "destination (the landmark that is the destination; its name if given, and "
+        "distance_m if the commander says how far). Copy landmark phrases word for word. "
+        "List landmarks mentioned only in earlier rounds as context_landmarks.\n"
+        f"Earlier rounds:\n{chr(10).join(previous) or '(none)'}\n"
+        f"Follower's question: {question or '(none)'}\n"
+        f"Commander's current instruction: {instruction}\n"
+        'Answer as {"subgoals": [{"kind": ..., "landmark": ..., "name": ..., "direction": ..., '
+        '"side": ..., "distance_m": ..., "ordinal": ...}], "context_landmarks": [...]} with '
+        "null for fields that do not apply.\n"
+    )
+    data = {"previous_rounds": previous, "question": question, "instruction": instruction}
+    return [
+        Message("system", SUBGOALS_SYSTEM),
+        Message("user", prose + task_block("subgoals", data)),
+    ]
+
+
+def _optional_str(item: dict[str, Any], key: str, where: str) -> str | None:
+    value = item.get(key)
+    if value is None:
+        return None
+    if not isinstance(value, str) or len(value) > 300:
+        raise ActionParseError(f"{where}.{key} must be a string of at most 300 characters")
+    return value.strip() or None
+
+
+def parse_subgoals(text: str) -> SubGoalPlan:
+    """Validate the LLM's sub-goal JSON; :class:`ActionParseError` says what is wrong."""
+    data = load_json_object(text)
+    items = data.get("subgoals")
+    if not isinstance(items, list) or len(items) > 20:
+        raise ActionParseError("'subgoals' must be a list of at most 20 items")
+    goals = []
+    for i, item in enumerate(items):
+        where = f"subgoals[{i}]"
+        if not isinstance(item, dict):
+            raise ActionParseError(f"{where} must be an object")
+        unknown = set(item) - set(SUBGOAL_FIELDS)
+        if unknown:
+            raise ActionParseError(f"{where} has unknown field(s) {', '.join(sorted(unknown))}")
+        kind = item.get("kind")
+        if kind not in SUBGOAL_KINDS:
+            raise ActionParseError(
+                f"{where}.kind {kind!r} is not one of {', '.join(SUBGOAL_KINDS)}"
+            )
+        direction = _optional_str(item, "direction", where)
+        if direction is not None and direction.lower() not in DIRECTIONS:
+            raise ActionParseError(
+                f"{where}.direction {direction!r} is not a compass point, left, right or ahead"
+            )
+        distance = item.get("distance_m")
+        if distance is not None and (
+            isinstance(distance, bool)
+            or not isinstance(distance, int | float)
+            or not math.isfinite(distance)
+            or not 0 < distance <= 5000
+        ):
+            raise ActionParseError(
+                f"{where}.distance_m must be a number in (0, 5000], got {distance!r}"
+            )
+        ordinal = item.get("ordinal")
+        if ordinal is not None and (
+            isinstance(ordinal, bool) or not isinstance(ordinal, int) or not 1 <= ordinal <= 10
+        ):
+            raise ActionParseError(
+                f"{where}.ordinal must be an integer in [1, 10], got {ordinal!r}"
+            )
+        landmark = _optional_str(item, "landmark", where)
+        if kind in ("pass", "stop_at", "destination") and landmark is None:
+            raise ActionParseError(f"{where} of kind {kind} needs a landmark phrase")
+        side = _optional_str(item, "side", where)
+        goals.append(
+            SubGoal(
+                kind=kind,
+                landmark=landmark,
+                name=_optional_str(item, "name", where),
+                direction=None if direction is None else direction.lower(),
+                side=None if side is None else side.lower(),
+                distance_m=None if distance is None else float(distance),
+                ordinal=ordinal,
+            )
+        )
+    context = data.get("context_landmarks", [])
+    if not isinstance(context, list) or not all(isinstance(c, str) for c in context):
+        raise ActionParseError("'context_landmarks' must be a list of strings")
+    return SubGoalPlan(tuple(goals), tuple(c.strip() for c in context[:20] if c.strip()))
+
+
+def plan_to_json(plan: SubGoalPlan) -> str:
+    return json.dumps(
+        {
+            "subgoals": [g.to_dict() for g in plan.subgoals],
+            "context_landmarks": list(plan.context_landmarks),
+        }
+    )

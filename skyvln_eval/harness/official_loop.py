@@ -1,0 +1,141 @@
+"""The minimal official-mode loop: an agent flies one episode with the official AVDN step.
+
+As in AVDN: the episode has at most ``max_steps`` views, the start view included; the
+agent's STOP ends it; every other action becomes an official action
+(:func:`~skyvln_eval.agent.mapping.to_official_action`) applied by
+:func:`~skyvln_eval.avdn.official_step_detailed` inside the map bounds (a step that
+would leave the map is cancelled or cut short, as officially, and the agent is told).
+The view budget running out ends it too. An agent error the user can cause
+(:class:`~skyvln_eval.errors.SkyvlnError`) ends the episode with what was flown so far.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skyvln_eval.agent.actions import Action, Stop, action_record
+from skyvln_eval.agent.base import Agent, Observation
+from skyvln_eval.agent.mapping import to_official_action
+from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN, SUCCESS_IOU
+from skyvln_eval.avdn.geometry import hull_iou, point_in_view_strict, view_centre
+from skyvln_eval.avdn.records import Episode
+from skyvln_eval.avdn.step import OfficialAction, official_step_detailed
+from skyvln_eval.errors import ConfigError, SkyvlnError
+from skyvln_eval.frames import view_to_pose
+from skyvln_eval.llm.types import LLMCallRecord
+from skyvln_eval.sim.camera import CameraConfig, CameraRig
+from skyvln_eval.worlds.tile import WorldTile
+
+StopReason = Literal["stop", "max_steps", "error"]
+
+
+@dataclass(eq=False)
+class OfficialRollout:
+    """What happened in one episode: views (start included), headings, actions, calls, traces."""
+
+    episode_id: str
+    views: list[NDArray[np.float64]]
+    headings_deg: list[int]
+    actions: list[Action] = field(default_factory=list)
+    official_actions: list[OfficialAction] = field(default_factory=list)
+    step_outcomes: list[str] = field(default_factory=list)
+    thoughts: list[str] = field(default_factory=list)
+    traces: list[dict[str, Any]] = field(default_factory=list)
+    llm_calls: list[LLMCallRecord] = field(default_factory=list)
+    stop_reason: StopReason = "max_steps"
+    error: str | None = None
+
+    @property
+    def final_view(self) -> NDArray[np.float64]:
+        return self.views[-1]
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able form (traces included)."""
+        return {
+            "episode_id": self.episode_id,
+            "views": [v.tolist() for v in self.views],
+            "headings_deg": list(self.headings_deg),
+            "actions": [action_record(a) for a in self.actions],
+            "official_actions": [
+                {"waypoint": list(a.waypoint), "altitude": a.altitude}
+                for a in self.official_actions
+            ],
+            "step_outcomes": list(self.step_outcomes),
+            "thoughts": list(self.thoughts),
+            "stop_reason": self.stop_reason,
+            "error": self.error,
+            "llm_calls": [c.to_dict() for c in self.llm_calls],
+            "traces": self.traces,
+        }
+
+
+def official_success(final_view: NDArray[np.float64], gt_end_view: NDArray[np.float64]) -> bool:
+    """AVDN success: hull-IoU >= 0.4 and each view's centre strictly inside the other.
+
+    Kept here as one small helper until the metrics package provides the official one.
+    """
+    return bool(
+        hull_iou(final_view, gt_end_view) >= SUCCESS_IOU
+        and point_in_view_strict(view_centre(gt_end_view), final_view)
+        and point_in_view_strict(view_centre(final_view), gt_end_view)
+    )
+
+
+def _feedback(action: Action, outcome: str, turn_deg: int) -> str:
+    what = action_record(action)
+    if outcome == "full":
+        return f"done: {what} (turned {turn_deg} deg)"
+    if outcome == "cancelled":
+        return f"not done: {what} would have left the map; nothing changed"
+    if outcome == "zoom_only":
+        return f"partly done: {what} changed height but turning would have left the map"
+    return f"partly done: {what} turned but moving would have left the map"
+
+
+def run_official_episode(
+    agent: Agent,
+    episode: Episode,
+    world: WorldTile,
+    max_steps: int = DEFAULT_MAX_ACTION_LEN,
+    camera: CameraConfig | None = None,
+) -> OfficialRollout:
+    """Fly ``episode`` with ``agent`` in official mode; see the module docstring."""
+    if max_steps < 1:
+        raise ConfigError(f"max_steps must be >= 1 (views, start included), got {max_steps}")
+    georef = episode.georef
+    bounds = (georef.gps_botm_left, georef.gps_top_right)
+    view = np.asarray(episode.start_view, dtype=np.float64)
+    rollout = OfficialRollout(episode.episode_id, [view], [episode.start_heading_deg])
+    agent.reset(episode, world)
+    feedback = None
+    while len(rollout.views) < max_steps:
+        pose = view_to_pose(view, georef)
+        rig = CameraRig(world, pose.x_m, pose.y_m, pose.z_m, camera or CameraConfig())
+        observation = Observation(
+            len(rollout.views) - 1, max_steps, pose, view, georef, rig, feedback
+        )
+        try:
+            decision = agent.act(observation)
+        except SkyvlnError as error:
+            rollout.stop_reason, rollout.error = "error", f"{type(error).__name__}: {error}"
+            break
+        rollout.thoughts.append(decision.thought)
+        rollout.traces.append(decision.trace)
+        rollout.llm_calls.extend(decision.llm_calls)
+        rollout.actions.append(decision.action)
+        if isinstance(decision.action, Stop):
+            rollout.stop_reason = "stop"
+            break
+        official = to_official_action(decision.action, view)
+        result = official_step_detailed(view, official.waypoint, official.altitude, *bounds)
+        rollout.official_actions.append(official)
+        rollout.step_outcomes.append(result.outcome)
+        feedback = _feedback(decision.action, result.outcome, result.turn_deg)
+        view = result.corners
+        rollout.views.append(view)
+        rollout.headings_deg.append(result.heading_deg)
+    return rollout

@@ -1,0 +1,107 @@
+"""Price table of LLM calls (``configs/llm/prices.yaml``) and the cost of one call."""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Final
+
+import yaml
+
+from skyvln_eval.errors import ConfigError, FormatVersionError
+
+log = logging.getLogger(__name__)
+
+PRICES_FORMAT: Final = "skyvln-eval/llm-prices"
+PRICES_VERSION: Final = 1
+#: The table shipped with the repository; ``$SKYVLN_EVAL_PRICES`` points elsewhere.
+DEFAULT_PRICES_PATH: Final = Path(__file__).resolve().parents[2] / "configs" / "llm" / "prices.yaml"
+
+
+@dataclass(frozen=True)
+class Price:
+    """US dollars per million prompt (input) and completion (output) tokens."""
+
+    input_usd_per_mtok: float
+    output_usd_per_mtok: float
+
+    def cost_usd(self, prompt_tokens: int, completion_tokens: int) -> float:
+        return (
+            prompt_tokens * self.input_usd_per_mtok + completion_tokens * self.output_usd_per_mtok
+        ) / 1e6
+
+
+@dataclass(frozen=True)
+class PriceTable:
+    """Prices by ``"<backend>:<model>"``; ``as_of`` says when they were checked."""
+
+    prices: Mapping[str, Price] = field(default_factory=dict)
+    as_of: str = ""
+    _warned: set[str] = field(default_factory=set, compare=False, repr=False)
+
+    def cost_usd(
+        self, backend: str, model: str, prompt_tokens: int, completion_tokens: int
+    ) -> float | None:
+        """Cost of one call, or ``None`` when the model is not in the table (logged once)."""
+        spec = f"{backend}:{model}"
+        price = self.prices.get(spec)
+        if price is None:
+            if spec not in self._warned:
+                self._warned.add(spec)
+                log.warning(
+                    "no price for %s in the price table: its cost_usd is recorded as unknown", spec
+                )
+            return None
+        return price.cost_usd(prompt_tokens, completion_tokens)
+
+
+def _number(value: Any, where: str) -> float:
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | float)
+        or not math.isfinite(value)
+        or value < 0
+    ):
+        raise ConfigError(f"{where} must be a non-negative number, got {value!r}")
+    return float(value)
+
+
+def load_prices(path: str | Path | None = None) -> PriceTable:
+    """Read a price table: ``path``, else ``$SKYVLN_EVAL_PRICES``, else the shipped one.
+
+    An absent default table gives an empty one (every cost unknown); a named file that is
+    missing or malformed raises :class:`ConfigError` naming the file and field.
+    """
+    chosen = path or os.environ.get("SKYVLN_EVAL_PRICES")
+    file = Path(chosen) if chosen else DEFAULT_PRICES_PATH
+    if not file.is_file():
+        if chosen:
+            raise ConfigError(f"price table {file} not found")
+        log.warning("price table %s not found: every cost_usd is recorded as unknown", file)
+        return PriceTable()
+    try:
+        data = yaml.safe_load(file.read_text(encoding="utf-8"))
+    except yaml.YAMLError as error:
+        raise ConfigError(f"price table {file} is not valid YAML: {error}") from error
+    if not isinstance(data, dict) or data.get("format") != PRICES_FORMAT:
+        raise ConfigError(f"price table {file}: 'format' must be {PRICES_FORMAT!r}")
+    if data.get("version") != PRICES_VERSION:
+        raise FormatVersionError(
+            str(file), data.get("version"), PRICES_VERSION, "Update the file's layout."
+        )
+    table = data.get("usd_per_million_tokens")
+    if not isinstance(table, dict):
+        raise ConfigError(f"price table {file}: 'usd_per_million_tokens' must be a mapping")
+    prices = {}
+    for spec, entry in table.items():
+        where = f"price table {file}, usd_per_million_tokens.{spec}"
+        if not isinstance(entry, dict) or set(entry) != {"input", "output"}:
+            raise ConfigError(f"{where} must have exactly 'input' and 'output'")
+        prices[str(spec)] = Price(
+            _number(entry["input"], f"{where}.input"), _number(entry["output"], f"{where}.output")
+        )
+    return PriceTable(prices=prices, as_of=str(data.get("as_of", "")))

@@ -1,0 +1,77 @@
+"""The ``rule`` backend: a deterministic offline stand-in for an LLM. It is not an LLM.
+
+It reads only the TASK DATA block of the agent's prompts (:mod:`skyvln_eval.llm.taskdata`)
+and answers each task in the JSON an LLM is asked for, so the whole SkyVLN pipeline runs
+and navigates sensibly without a network: sub-goals from clause patterns
+(:mod:`.instructions`), HSD descriptions and rankings from attribute comparison
+(:mod:`.matching`), motions from landmarks, headings and distances (:mod:`.navigation`).
+Tables label it ``rule-based (not an LLM)`` (its ``kind`` is ``"rule"``).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from typing import Any
+
+from skyvln_eval.errors import LLMError
+from skyvln_eval.llm.base import LLMBackend
+from skyvln_eval.llm.rule.instructions import landmark_phrases, parse_instruction
+from skyvln_eval.llm.rule.matching import describe, rank
+from skyvln_eval.llm.rule.navigation import decide_motion, decide_navgpt
+from skyvln_eval.llm.taskdata import read_task_block
+from skyvln_eval.llm.types import Completion, GenerationConfig, Message
+
+RULE_MODEL = "rule-v1"
+
+
+def _subgoals(data: dict[str, Any]) -> dict[str, Any]:
+    context: list[str] = []
+    for text in data.get("previous_rounds", []):
+        context += landmark_phrases(text)
+    return {
+        "subgoals": parse_instruction(data.get("instruction") or ""),
+        "context_landmarks": context,
+    }
+
+
+def _clarify(data: dict[str, Any]) -> dict[str, Any]:
+    reason = data.get("reason", "I am not sure where I am")
+    goal = data.get("goal")
+    about = f" Is {goal!r} somewhere else?" if goal else ""
+    return {"question": f"I went back because {reason}.{about} Which way should I go?"}
+
+
+class RuleBackend(LLMBackend):
+    """See the module docstring."""
+
+    name = "rule"
+    kind = "rule"
+
+    def __init__(self, model: str | None = None) -> None:
+        if model not in (None, RULE_MODEL):
+            raise LLMError(f"the rule backend has one version, {RULE_MODEL!r}; got {model!r}")
+        self.model = RULE_MODEL
+
+    def generate(self, messages: Sequence[Message], config: GenerationConfig) -> Completion:
+        data = read_task_block(messages)
+        handlers = {
+            "subgoals": _subgoals,
+            "hsd_describe": describe,
+            "hsd_rank": rank,
+            "motion": decide_motion,
+            "navgpt": decide_navgpt,
+            "clarify": _clarify,
+        }
+        task = data["task"]
+        if task not in handlers:
+            raise LLMError(f"the rule backend has no answer for task {task!r}")
+        text = json.dumps(handlers[task](data))
+        prompt_chars = sum(len(m.text) for m in messages)
+        return Completion(
+            text=text,
+            backend=self.name,
+            model=self.model,
+            prompt_tokens=max(1, prompt_chars // 4),
+            completion_tokens=max(1, len(text) // 4),
+        )

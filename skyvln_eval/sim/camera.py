@@ -1,0 +1,258 @@
+"""The drone's front camera: a pinhole camera over the world's height field.
+
+The camera is fixed to the body: it pitches down between 0 (horizon ahead) and 90
+degrees (straight down) but cannot yaw, so to look around the drone turns (the yaw given
+to :func:`render_camera` is the body's). It gives an RGB image, a depth image and, on
+synthetic tiles, semantic and landmark-instance images. On xView maps (image only) the
+ground is flat, so depth comes from the altitude alone.
+
+Rays are marched down through a fixed number of height levels over the height layer, so
+roofs occlude what is behind them; every image is one ``cv2.remap`` of a world layer.
+Frames: ENU metres from the map's south-west corner (:mod:`skyvln_eval.frames`); image
+``u`` to the right, ``v`` down, pixel centres at ``+0.5``; depth is *planar* (distance
+along the optical axis), so a pixel's point is ``camera + depth * ray(u, v)``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Final
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from skyvln_eval.avdn.constants import METERS_PER_DEGREE
+from skyvln_eval.errors import ConfigError
+from skyvln_eval.worlds.tile import WorldTile
+
+#: Semantic value of pixels that see the sky or lie outside the map.
+SEMANTIC_NONE: Final = 255
+SKY_BGR: Final = (235, 206, 135)
+
+FloatImage = NDArray[np.float32]
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """Image size and optics; ``fov_deg`` is the horizontal field of view.
+
+    ``max_depth_m`` is the depth sensor's range (farther pixels get ``inf`` depth but are
+    still seen in RGB); ``height_levels`` the number of height levels rays are marched
+    through. Between two levels a ray moves ``level spacing / tan(depression)`` metres
+    sideways, so at grazing angles a building narrower than that can be missed (its roof
+    is still seen from steeper rays): raise the levels for low pitches and tall
+    buildings, at the cost of one image lookup per level. Rays that go up see the sky:
+    walls above the drone's height are not drawn.
+    """
+
+    width_px: int = 224
+    height_px: int = 224
+    fov_deg: float = 90.0
+    max_depth_m: float = 500.0
+    height_levels: int = 24
+
+    def __post_init__(self) -> None:
+        if self.width_px < 8 or self.height_px < 8:
+            raise ConfigError(
+                f"camera image must be at least 8 x 8 px, got {self.width_px} x {self.height_px}"
+            )
+        if not 10.0 <= self.fov_deg <= 150.0:
+            raise ConfigError(f"camera fov_deg must be in [10, 150], got {self.fov_deg}")
+        if self.height_levels < 2:
+            raise ConfigError(f"camera height_levels must be >= 2, got {self.height_levels}")
+
+    @property
+    def focal_px(self) -> float:
+        return (self.width_px / 2.0) / math.tan(math.radians(self.fov_deg) / 2.0)
+
+
+@dataclass(frozen=True)
+class CameraPose:
+    """Camera position (ENU m, z above ground), body yaw (ENU rad) and pitch down (deg)."""
+
+    x_m: float
+    y_m: float
+    z_m: float
+    yaw_rad: float
+    pitch_deg: float
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.pitch_deg <= 90.0:
+            raise ConfigError(f"camera pitch_deg must be in [0, 90] (down), got {self.pitch_deg}")
+        if self.z_m <= 0.0:
+            raise ConfigError(f"camera height z_m must be above ground, got {self.z_m}")
+
+
+def camera_basis(pose: CameraPose) -> tuple[NDArray[np.float64], ...]:
+    """Unit vectors (ENU) of the optical axis, image right and image up."""
+    yaw, pitch = pose.yaw_rad, math.radians(pose.pitch_deg)
+    forward = np.array(
+        [math.cos(yaw) * math.cos(pitch), math.sin(yaw) * math.cos(pitch), -math.sin(pitch)]
+    )
+    right = np.array([math.sin(yaw), -math.cos(yaw), 0.0])
+    up = np.array(
+        [math.cos(yaw) * math.sin(pitch), math.sin(yaw) * math.sin(pitch), math.cos(pitch)]
+    )
+    return forward, right, up
+
+
+def pixel_rays(
+    pose: CameraPose, config: CameraConfig, u: NDArray[Any], v: NDArray[Any]
+) -> NDArray[np.float64]:
+    """Ray directions (ENU, ``(..., 3)``) through image points ``(u, v)``, unit planar depth."""
+    forward, right, up = camera_basis(pose)
+    f = config.focal_px
+    a = (np.asarray(u, dtype=np.float64) - config.width_px / 2.0) / f
+    b = (np.asarray(v, dtype=np.float64) - config.height_px / 2.0) / f
+    return forward + a[..., None] * right - b[..., None] * up
+
+
+@dataclass(frozen=True, eq=False)
+class CameraImages:
+    """One capture: RGB ``(H, W, 3)`` uint8, planar depth (m, float32, ``inf`` = no return),
+    semantic uint8 (:data:`SEMANTIC_NONE` = sky / off-map) and instance uint16 (0 = none),
+    the last two ``None`` on maps without layers."""
+
+    pose: CameraPose
+    config: CameraConfig
+    rgb: NDArray[np.uint8]
+    depth_m: FloatImage
+    semantic: NDArray[np.uint8] | None
+    instance: NDArray[np.uint16] | None
+
+    def points_enu(self, u: NDArray[Any], v: NDArray[Any]) -> NDArray[np.float64]:
+        """ENU points seen at pixel centres ``(u, v)`` (integer pixel indices), from depth."""
+        ui = np.asarray(u, dtype=np.int64)
+        vi = np.asarray(v, dtype=np.int64)
+        rays = pixel_rays(self.pose, self.config, ui + 0.5, vi + 0.5)
+        origin = np.array([self.pose.x_m, self.pose.y_m, self.pose.z_m])
+        return origin + self.depth_m[vi, ui][..., None].astype(np.float64) * rays
+
+
+def enu_to_map_px(
+    world: WorldTile, x_m: FloatImage, y_m: FloatImage
+) -> tuple[FloatImage, FloatImage]:
+    """ENU metres to sub-pixel coordinates of the resized map grid (pixel centres at integers)."""
+    mpp = world.georef.lat_ratio * METERS_PER_DEGREE
+    (lat0, _), (lat1, _) = world.georef.gps_botm_left, world.georef.gps_top_right
+    top_m = (lat1 - lat0) * METERS_PER_DEGREE
+    return (x_m / mpp).astype(np.float32), ((top_m - y_m) / mpp).astype(np.float32)
+
+
+def _sample(
+    layer: NDArray[Any], px: FloatImage, py: FloatImage, nearest: bool, fill: float
+) -> NDArray[Any]:
+    out: NDArray[Any] = cv2.remap(
+        np.asarray(layer),
+        px,
+        py,
+        interpolation=cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=fill,
+    )
+    return out
+
+
+def _march(
+    world: WorldTile, origin: NDArray[np.float64], rays: NDArray[np.float64], levels: int
+) -> FloatImage:
+    """Planar depth of the first surface each downward ray meets (``inf`` for rays that go up)."""
+    dz = rays[..., 2]
+    down = dz < -1e-9
+    safe_dz = np.where(down, dz, -1.0)
+    ground_t = (0.0 - origin[2]) / safe_dz
+    if world.height_m is None or float(world.height_m.max()) <= 0.0:
+        return np.where(down, ground_t, np.inf).astype(np.float32)
+    top = min(float(world.height_m.max()), origin[2] - 1e-3)
+    hit_t = ground_t.copy()
+    found = ~down
+    previous: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+    for z_level in np.linspace(top, 0.0, levels):
+        t = (z_level - origin[2]) / safe_dz
+        px, py = enu_to_map_px(
+            world,
+            (origin[0] + t * rays[..., 0]).astype(np.float32),
+            (origin[1] + t * rays[..., 1]).astype(np.float32),
+        )
+        gap = _sample(world.height_m, px, py, nearest=False, fill=0.0).astype(np.float64) - z_level
+        new = ~found & (gap >= 0.0)
+        if previous is None:
+            hit_t = np.where(new, t, hit_t)
+        else:
+            # The ray crossed the surface between the previous level (gap < 0) and this one.
+            previous_t, previous_gap = previous
+            fraction = np.clip(previous_gap / np.minimum(previous_gap - gap, -1e-9), 0.0, 1.0)
+            hit_t = np.where(new, previous_t + fraction * (t - previous_t), hit_t)
+        found |= new
+        previous = (t, gap)
+        if found.all():
+            break
+    return np.where(down, hit_t, np.inf).astype(np.float32)
+
+
+def render_camera(
+    world: WorldTile, pose: CameraPose, config: CameraConfig | None = None
+) -> CameraImages:
+    """What the front camera sees from ``pose`` over ``world``."""
+    config = config or CameraConfig()
+    v, u = np.mgrid[0 : config.height_px, 0 : config.width_px].astype(np.float64) + 0.5
+    rays = pixel_rays(pose, config, u, v)
+    origin = np.array([pose.x_m, pose.y_m, pose.z_m])
+    depth = _march(world, origin, rays, config.height_levels)
+    sky = ~np.isfinite(depth)
+    # Look the hit up one map pixel further along the ray: a wall is met on the edge of its
+    # footprint, and the nearest pixel there may be the ground in front of it.
+    horizontal = np.maximum(np.hypot(rays[..., 0], rays[..., 1]), 1e-6)
+    nudge = np.minimum(world.metres_per_pixel / horizontal, 2.0)
+    t = np.where(sky, 0.0, depth + nudge)
+    px, py = enu_to_map_px(
+        world,
+        (origin[0] + t * rays[..., 0]).astype(np.float32),
+        (origin[1] + t * rays[..., 1]).astype(np.float32),
+    )
+    px[sky] = -1e6  # off the map: sampled as the border value
+    bgr = _sample(world.bgr, px, py, nearest=False, fill=0.0)
+    bgr[sky] = SKY_BGR
+    semantic = instance = None
+    if world.semantic is not None:
+        semantic = _sample(world.semantic, px, py, nearest=True, fill=float(SEMANTIC_NONE))
+    if world.instance is not None:
+        instance = _sample(world.instance, px, py, nearest=True, fill=0.0)
+    depth = np.where(depth > config.max_depth_m, np.inf, depth).astype(np.float32)
+    return CameraImages(
+        pose=pose,
+        config=config,
+        rgb=np.ascontiguousarray(bgr[..., ::-1]),
+        depth_m=depth,
+        semantic=None if semantic is None else semantic.astype(np.uint8),
+        instance=None if instance is None else instance.astype(np.uint16),
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class CameraRig:
+    """The camera on a drone hovering at one position: it turns the body to look around.
+
+    ``capture(yaw_rad, pitch_deg)`` is what the front camera sees after turning in place
+    to ENU yaw ``yaw_rad`` with the camera pitched down ``pitch_deg``; the drone's
+    position does not change, so an agent may capture any number of headings per step.
+    """
+
+    world: WorldTile
+    x_m: float
+    y_m: float
+    z_m: float
+    config: CameraConfig = CameraConfig()
+
+    @property
+    def has_layers(self) -> bool:
+        return self.world.has_layers
+
+    def capture(
+        self, yaw_rad: float, pitch_deg: float, config: CameraConfig | None = None
+    ) -> CameraImages:
+        """The image after turning to ``yaw_rad``; ``config`` overrides the rig's optics."""
+        pose = CameraPose(self.x_m, self.y_m, self.z_m, yaw_rad, pitch_deg)
+        return render_camera(self.world, pose, config or self.config)

@@ -1,0 +1,176 @@
+"""The SkyVLN agent and baselines end to end on a toy town: ablations, backtracking, configs."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from skyvln_eval.agent import AgentConfig, Detection, Detector, FlyTo, Stop, build_agent
+from skyvln_eval.agent.perception import Perception, PerceptionConfig
+from skyvln_eval.agent.skyvln import SkyVLNAgent
+from skyvln_eval.errors import ConfigError, UnknownNameError
+from skyvln_eval.harness import OfficialRollout, official_success, run_official_episode
+from skyvln_eval.llm import LLMClient, LLMConfig, create_backend, read_task_block
+from skyvln_eval.llm.types import Message
+from skyvln_eval.sim.camera import CameraImages
+from skyvln_eval.worlds.tile import SemanticClass, WorldTile
+from tests.toy_worlds import town_episode, town_world
+
+RED = "Go north. The destination is a small restaurant with a red roof."
+PERFECT = {"detector": {"miss_rate": 0.0, "false_positive_rate": 0.0}}
+
+
+def run(config: AgentConfig, instruction: str = RED, max_steps: int = 10) -> OfficialRollout:
+    episode = town_episode(instruction)
+    return run_official_episode(build_agent(config), episode, town_world(), max_steps=max_steps)
+
+
+def motion_states(rollout: OfficialRollout) -> list[dict[str, object]]:
+    states = []
+    for trace in rollout.traces:
+        for exchange in trace["exchanges"]:
+            if exchange["module"] == "motion":
+                messages = [Message(p["role"], p["text"]) for p in exchange["prompt"]]
+                states.append(read_task_block(messages))
+    return states
+
+
+def test_the_full_agent_finds_the_described_landmark_and_stops_over_it() -> None:
+    rollout = run(AgentConfig.model_validate(PERFECT))
+    assert official_success(rollout.final_view, town_episode(RED).gt_end_view)
+    assert rollout.stop_reason == "stop" and isinstance(rollout.actions[0], FlyTo)
+    modules = {r.module for r in rollout.llm_calls}
+    assert {"subgoals", "hsd_describe", "hsd_rank", "motion"} <= modules
+    assert all(r.backend == "rule" and r.cost_usd == 0.0 for r in rollout.llm_calls)
+    match = rollout.traces[0]["hsd_matches"]["a small restaurant with a red roof"]
+    first = {s["id"]: s for s in rollout.traces[0]["sightings"]}[match["best"]]
+    assert first["caption"] == "a small restaurant with a red roof" and "sector" in first
+
+
+def test_without_hsd_the_descriptor_is_coarse_and_nothing_is_ranked() -> None:
+    rollout = run(AgentConfig.model_validate({**PERFECT, "hsd": False}))
+    assert not {"hsd_describe", "hsd_rank"} & {r.module for r in rollout.llm_calls}
+    state = motion_states(rollout)[0]
+    assert state["descriptor"] == "coarse" and state["matches"] == {}
+    landmarks = state["landmarks"]
+    assert isinstance(landmarks, list) and landmarks
+    assert all(set(e) == {"id", "label", "view", "position", "score"} for e in landmarks)
+
+
+def test_without_tbma_there_is_no_memory_of_the_path() -> None:
+    rollout = run(AgentConfig.model_validate({**PERFECT, "tbma": False}))
+    assert all(t["memory"] is None for t in rollout.traces)
+    state = motion_states(rollout)[0]
+    assert state["memory"] is None and state["odometry"] is None
+    with_memory = motion_states(run(AgentConfig.model_validate(PERFECT)))[0]
+    assert with_memory["odometry"] is not None and with_memory["memory"] is not None
+
+
+class OneFakeRestaurant(Detector):
+    """Sees only the ordinary red house at (230, 230) and takes it for a red restaurant,
+    except from closer than 70 m, where the mistake shows."""
+
+    name = "fake"
+
+    def reset(self, world: WorldTile, seed: int) -> None:
+        pass
+
+    def detect(self, images: CameraImages, phrases: Sequence[str] = ()) -> list[Detection]:
+        assert images.semantic is not None and images.instance is not None
+        v, u = np.nonzero((images.semantic == SemanticClass.BUILDING) & (images.instance == 0))
+        points = images.points_enu(u, v)
+        near = np.hypot(points[:, 0] - 230.0, points[:, 1] - 230.0) < 12.0
+        if near.sum() < 10 or float(np.median(images.depth_m[v[near], u[near]])) < 70.0:
+            return []
+        mask = np.zeros(images.depth_m.shape, bool)
+        mask[v[near], u[near]] = True
+        rows, cols = np.nonzero(mask)
+        box = (int(cols.min()), int(rows.min()), int(cols.max()) + 1, int(rows.max()) + 1)
+        return [Detection("restaurant", box, 0.8, "a small restaurant with a red roof", mask)]
+
+
+def fooled_agent(tbma: bool) -> SkyVLNAgent:
+    config = LLMConfig()
+    perception = Perception(PerceptionConfig(), OneFakeRestaurant())
+    return SkyVLNAgent(LLMClient(create_backend("rule")), perception, config, tbma=tbma)
+
+
+def test_tbma_backtracks_when_the_landmark_is_not_there_and_asks_a_question() -> None:
+    episode = town_episode(RED)
+    rollout = run_official_episode(fooled_agent(tbma=True), episode, town_world())
+    wrong = next(i for i, t in enumerate(rollout.traces) if t["way_back"])
+    way_back = rollout.traces[wrong]["way_back"]
+    assert "was not there when I arrived" in way_back["reason"]
+    assert way_back["target"].startswith("P") and way_back["path"][-1] == way_back["target"]
+    assert "clarify" in {r.module for r in rollout.llm_calls}
+    assert rollout.traces[wrong]["clarification_question"].endswith("?")
+    back = rollout.actions[wrong]
+    assert isinstance(back, FlyTo) and back.landmark == way_back["target"]
+    # The memory keeps the mistake: the fake restaurant is never flown to again.
+    fake = rollout.actions[0]
+    assert isinstance(fake, FlyTo)
+    later = [a for a in rollout.actions[wrong + 1 :] if isinstance(a, FlyTo)]
+    assert all(a.landmark != fake.landmark for a in later)
+
+
+def test_without_tbma_the_agent_falls_for_the_same_mistake_again() -> None:
+    rollout = run_official_episode(fooled_agent(tbma=False), town_episode(RED), town_world())
+    targets = [a.landmark for a in rollout.actions if isinstance(a, FlyTo)]
+    assert not any(t["way_back"] for t in rollout.traces)
+    assert (
+        len(targets) >= 3 and len(set(targets)) == 1
+    )  # back to the phantom each time it reappears
+
+
+def test_baselines_are_built_by_name() -> None:
+    episode = town_episode(RED)
+    gt = run_official_episode(build_agent(AgentConfig(name="ground_truth")), episode, town_world())
+    assert official_success(gt.final_view, episode.gt_end_view) and isinstance(gt.actions[-1], Stop)
+    random = run_official_episode(
+        build_agent(AgentConfig(name="random", seed=3)), episode, town_world()
+    )
+    again = run_official_episode(
+        build_agent(AgentConfig(name="random", seed=3)), episode, town_world()
+    )
+    assert [a.type for a in random.actions] == [a.type for a in again.actions]  # seeded
+    navgpt = run(AgentConfig.model_validate({**PERFECT, "name": "navgpt"}))
+    assert {r.module for r in navgpt.llm_calls} == {"navgpt"}
+    assert not any(isinstance(a, FlyTo) for a in navgpt.actions)  # nothing to name
+
+
+def test_agent_configs_are_validated_with_the_field_named(tmp_path: Path) -> None:
+    with pytest.raises(UnknownNameError, match="Did you mean 'skyvln'"):
+        build_agent(AgentConfig(name="skyvn"))
+    bad = tmp_path / "agent.yaml"
+    bad.write_text("name: skyvln\nhsd: false\nperception:\n  headings: 0\n")
+    with pytest.raises(ConfigError, match=r"agent.yaml: perception\.headings"):
+        AgentConfig.from_yaml(bad)
+    bad.write_text("name: skyvln\nllm:\n  backend: rule\n  api_key: secret\n")
+    with pytest.raises(ConfigError, match=r"llm\.api_key"):
+        AgentConfig.from_yaml(bad)
+    good = tmp_path / "good.yaml"
+    good.write_text("name: skyvln\ntbma: false\ndetector:\n  miss_rate: 0.2\n")
+    config = AgentConfig.from_yaml(good)
+    agent = build_agent(config)
+    settings = agent.settings()
+    assert settings["tbma"] is False and settings["perception"]["detector"]["miss_rate"] == 0.2
+    assert "rule-based (not an LLM)" in settings["backend"]
+
+
+def test_importing_the_agent_imports_no_optional_heavy_dependency() -> None:
+    import subprocess
+    import sys
+
+    from tests.conftest import REPO
+
+    code = (
+        "import sys, skyvln_eval.agent, skyvln_eval.harness, skyvln_eval.sim.camera\n"
+        "print([m for m in ('openai', 'transformers', 'torch', 'ray') if m in sys.modules])"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO
+    )
+    assert out.stdout.strip() == "[]"

@@ -1,0 +1,172 @@
+"""HSD: sectors of known boxes, descriptors, candidate ranking, asking TrackBack memory."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from skyvln_eval.agent.hsd import (
+    SECTOR_NAMES,
+    SpatialDescriptor,
+    coarse_position,
+    fine_entry,
+    relative_bearing_deg,
+    sector_of,
+)
+from skyvln_eval.agent.perception import Panorama, Sighting
+from skyvln_eval.agent.subgoals import SubGoal
+from skyvln_eval.llm import GenerationConfig, LLMClient, create_backend
+from skyvln_eval.llm.simple import ScriptedBackend
+
+SIZE = (224, 224)
+
+
+@pytest.mark.parametrize(
+    ("box", "sector"),
+    [
+        ((0, 0, 30, 30), 0),
+        ((100, 10, 124, 40), 1),
+        ((200, 0, 224, 20), 2),
+        ((10, 100, 40, 124), 3),
+        ((100, 100, 124, 124), 4),
+        ((180, 90, 224, 130), 5),
+        ((0, 200, 20, 224), 6),
+        ((100, 190, 124, 224), 7),
+        ((200, 200, 224, 224), 8),
+        ((0, 0, 224, 224), 4),  # a box filling the view is centred
+        ((138, 0, 158, 10), 1),  # centre x = 148 < 2 * 224 / 3 = 149.3: the middle column
+        ((140, 0, 160, 10), 2),  # centre x = 150: the right column
+    ],
+)
+def test_sectors_of_known_boxes(box: tuple[int, int, int, int], sector: int) -> None:
+    assert sector_of(box, SIZE) == sector
+
+
+def test_coarse_positions_and_names() -> None:
+    assert SECTOR_NAMES[0] == "upper-left" and SECTOR_NAMES[8] == "lower-right"
+    assert coarse_position((0, 200, 20, 224), SIZE) == "left"
+    assert coarse_position((100, 0, 124, 20), SIZE) == "centre"
+    assert coarse_position((200, 100, 224, 124), SIZE) == "right"
+    assert relative_bearing_deg(10.0, 350.0) == pytest.approx(20.0)
+    assert relative_bearing_deg(350.0, 10.0) == pytest.approx(-20.0)
+
+
+def sighting(
+    lid: str,
+    label: str,
+    caption: str,
+    east: float,
+    north: float,
+    box=(100, 100, 124, 124),
+    score=0.9,
+) -> Sighting:
+    import math
+
+    bearing = math.degrees(math.atan2(east, north)) % 360.0
+    return Sighting(
+        landmark_id=lid, label=label, caption=caption, score=score, view_index=0, view_name="front",
+        view_heading_deg=0.0, box_px=box, image_size_px=SIZE, x_m=500 + east, y_m=500 + north,
+        east_m=east, north_m=north, distance_m=math.hypot(east, north), bearing_deg=bearing,
+        size_m=20.0,
+    )  # fmt: skip
+
+
+PANORAMA = Panorama(
+    views=(),
+    sightings=(
+        sighting(
+            "L1",
+            "restaurant",
+            "a small restaurant with a black roof",
+            0.0,
+            120.0,
+            box=(10, 10, 40, 40),
+        ),
+        sighting(
+            "L2",
+            "restaurant",
+            "a small restaurant with a red roof",
+            80.0,
+            60.0,
+            box=(180, 150, 220, 200),
+        ),
+        sighting("L3", "church", "a church with a cross-shaped red roof", -60.0, -10.0, score=0.8),
+    ),
+)
+
+
+def test_fine_entries_carry_sector_distance_and_bearing_and_coarse_ones_do_not() -> None:
+    entry = fine_entry(PANORAMA.sightings[1], heading_deg=30.0)
+    assert entry["sector"] == 8 and entry["sector_name"] == "lower-right"
+    assert entry["distance_m"] == pytest.approx(100.0)
+    assert entry["bearing_deg"] == pytest.approx(53.1, abs=0.1)
+    assert entry["relative_bearing_deg"] == pytest.approx(23.1, abs=0.1)
+    coarse = SpatialDescriptor(LLMClient(ScriptedBackend()), GenerationConfig(), enabled=False)
+    [first, *_] = coarse.entries(PANORAMA, 30.0)
+    assert first == {
+        "id": "L1",
+        "label": "restaurant",
+        "view": "front",
+        "position": "left",
+        "score": 0.9,
+    }
+    assert "sector" not in coarse.text(coarse.entries(PANORAMA, 30.0))
+
+
+def test_hsd_describes_each_candidate_then_ranks_them() -> None:
+    client = LLMClient(create_backend("rule"))
+    hsd = SpatialDescriptor(client, GenerationConfig(), enabled=True, top_k=3)
+    goal = SubGoal("destination", landmark="a small restaurant with a red roof")
+    result = hsd.match([goal], PANORAMA, 0.0, memory_notes=None)
+    [match] = result.matches
+    assert match.best == "L2" and match.confidence >= 0.5
+    assert [c.entry["id"] for c in match.candidates][:2] == ["L2", "L1"]
+    described = {c.entry["id"]: c.match for c in match.candidates}
+    assert described["L2"] == "strong" and described["L1"] == "weak"  # the roof colour differs
+    modules = [r.module for r in result.records]
+    assert modules.count("hsd_describe") == len(match.candidates) and modules[-1] == "hsd_rank"
+
+
+def test_hsd_asks_memory_when_candidates_tie_and_the_memory_decides() -> None:
+    twins = Panorama(
+        views=(),
+        sightings=(
+            sighting("L1", "church", "a church with a cross-shaped red roof", 0.0, 20.0),
+            sighting("L2", "church", "a church with a cross-shaped red roof", 0.0, 150.0),
+        ),
+    )
+    asked: list[list[str]] = []
+
+    def notes(ids: list[str], phrase: str) -> dict[str, str]:
+        asked.append(list(ids))
+        return {"L1": "recognised at the start from an earlier round, so already reached"}
+
+    hsd = SpatialDescriptor(LLMClient(create_backend("rule")), GenerationConfig(), enabled=True)
+    goal = SubGoal("destination", landmark="a church with a cross-shaped red roof")
+    [match] = hsd.match([goal], twins, 0.0, memory_notes=notes).matches
+    assert asked == [["L1", "L2"]] and match.asked_memory and match.ambiguous
+    assert match.best == "L2"
+    [alone] = hsd.match([goal], twins, 0.0, memory_notes=None).matches
+    assert not alone.asked_memory
+
+
+def test_an_unusable_ranking_falls_back_to_the_proposal_order_and_is_recorded() -> None:
+    describe = json.dumps({"description": "looks right", "match": "strong"})
+    script = [describe, describe, describe, "I think L2 is best!"]
+    hsd = SpatialDescriptor(LLMClient(ScriptedBackend(script)), GenerationConfig(), enabled=True)
+    goal = SubGoal("destination", landmark="a small restaurant with a red roof")
+    result = hsd.match([goal], PANORAMA, 0.0, memory_notes=None)
+    [match] = result.matches
+    assert match.error is not None and "not a JSON object" in match.error
+    assert match.best == match.candidates[0].entry["id"] == "L2"
+    assert result.records[-1].error is not None and result.records[-1].error.startswith(
+        "invalid output"
+    )
+
+
+def test_hsd_off_makes_no_calls() -> None:
+    backend = ScriptedBackend()
+    hsd = SpatialDescriptor(LLMClient(backend), GenerationConfig(), enabled=False)
+    result = hsd.match([SubGoal("destination", landmark="a church")], PANORAMA, 0.0, None)
+    assert result.matches == [] and result.records == [] and backend.calls == []

@@ -1,0 +1,144 @@
+"""Perception: panorama, the layer detector's imperfections, localisation, merging, roads."""
+
+from __future__ import annotations
+
+import math
+import sys
+import types
+
+import numpy as np
+import pytest
+
+from skyvln_eval.agent import LayerDetector, Perception, PerceptionConfig, create_detector
+from skyvln_eval.agent.detectors import Detection, colour_name
+from skyvln_eval.agent.perception import LandmarkTracker, road_bearings
+from skyvln_eval.errors import MissingExtraError, PerceptionError, UnknownNameError
+from skyvln_eval.frames import ViewPose
+from skyvln_eval.sim.camera import CameraRig
+from skyvln_eval.worlds.tile import SemanticClass
+from tests.toy_worlds import flat_world, town_world
+
+CROSSING = ViewPose(300.0, 300.0, 60.0, math.pi / 2)  # above the crossing, heading north
+
+
+def observe(detector: LayerDetector, at: ViewPose = CROSSING, **config: object) -> object:
+    world = town_world()
+    perception = Perception(PerceptionConfig(**config), detector)  # type: ignore[arg-type]
+    perception.reset(world, seed=1)
+    return perception, perception.observe(CameraRig(world, at.x_m, at.y_m, at.z_m), at)
+
+
+def test_a_panorama_turns_through_the_headings_and_looks_down() -> None:
+    _, small = observe(LayerDetector(miss_rate=0.0, false_positive_rate=0.0), image_px=64)
+    assert all(v.images.rgb.shape == (64, 64, 3) for v in small.views)  # its own camera
+    _, panorama = observe(LayerDetector(miss_rate=0.0, false_positive_rate=0.0))
+    names = [(v.name, v.heading_deg, v.pitch_deg) for v in panorama.views]
+    assert names == [
+        ("front", 0.0, 60.0),
+        ("right", 90.0, 60.0),
+        ("back", 180.0, 60.0),
+        ("left", 270.0, 60.0),
+        ("below", 0.0, 90.0),
+    ]
+
+
+def test_landmarks_are_placed_on_the_ground_once_each_from_their_best_view() -> None:
+    _, panorama = observe(LayerDetector(miss_rate=0.0, false_positive_rate=0.0))
+    by_caption = {s.caption: s for s in panorama.sightings}
+    assert len(panorama.sightings) == 3  # each seen in several views, kept once
+    red = by_caption["a small restaurant with a red roof"]
+    assert red.label == "restaurant"
+    # Seen from the side, its wall facing the drone counts too: a few metres of bias.
+    assert (red.x_m, red.y_m) == pytest.approx((325.0, 420.0), abs=10.0)
+    assert red.distance_m == pytest.approx(math.hypot(red.east_m, red.north_m))
+    assert red.distance_m == pytest.approx(math.hypot(25, 120), abs=10.0)
+    assert red.bearing_deg == pytest.approx(math.degrees(math.atan2(25, 120)), abs=2.0)
+    assert red.size_m == pytest.approx(20.0, abs=4.0)
+    assert red.view_name == "front"
+    church = by_caption["a church with a cross-shaped red roof"]
+    assert church.view_name == "left" and church.label == "church"
+
+
+def test_a_certain_miss_rate_hides_every_landmark() -> None:
+    _, panorama = observe(LayerDetector(miss_rate=1.0, false_positive_rate=0.0))
+    assert panorama.sightings == ()
+
+
+def test_phantoms_are_consistent_and_vanish_from_close_by() -> None:
+    detector = LayerDetector(miss_rate=0.0, false_positive_rate=1.0, close_look_m=70.0)
+    _, far = observe(detector)
+    phantoms = [s for s in far.sightings if "small" not in s.caption and "cross" not in s.caption]
+    assert len(phantoms) == 1
+    phantom = phantoms[0]
+    assert phantom.caption == f"a {phantom.label} with a red roof"  # captioned from its pixels
+    assert phantom.label not in ("bridge", "park", "roundabout")
+    assert (phantom.x_m, phantom.y_m) == pytest.approx((230.0, 230.0), abs=4.0)
+    # Right above it at 40 m, the detector sees that it is an ordinary house.
+    _, close = observe(detector, at=ViewPose(230.0, 230.0, 40.0, math.pi / 2))
+    assert all(s.caption != phantom.caption for s in close.sightings)
+
+
+def test_ids_stay_with_their_landmark_from_step_to_step() -> None:
+    perception, first = observe(LayerDetector(miss_rate=0.0, false_positive_rate=0.0))
+    world = town_world()
+    moved = ViewPose(300.0, 360.0, 60.0, math.pi / 2)
+    second = perception.observe(CameraRig(world, moved.x_m, moved.y_m, moved.z_m), moved)
+    ids_before = {s.caption: s.landmark_id for s in first.sightings}
+    ids_after = {s.caption: s.landmark_id for s in second.sightings}
+    assert ids_after == ids_before
+    tracker = LandmarkTracker(radius_m=25.0)
+    assert tracker.assign("mall", 0, 0, 150.0, set()) == "L1"
+    assert tracker.assign("mall", 60, 0, 150.0, set()) == "L1"  # big: its centre wanders
+    assert tracker.assign("mall", 60, 0, 150.0, {"L1"}) == "L2"
+
+
+def test_roads_leaving_from_below_are_found() -> None:
+    _, panorama = observe(LayerDetector(miss_rate=0.0, false_positive_rate=0.0))
+    assert panorama.road_bearings_deg == pytest.approx((0.0, 90.0, 180.0, 270.0), abs=4.0)
+    semantic = np.full((64, 64), SemanticClass.GRASS, np.uint8)
+    semantic[:, 28:36] = SemanticClass.ROAD  # straight ahead and behind
+    assert road_bearings(semantic, heading_deg=45.0) == pytest.approx([45.0, 225.0], abs=4.0)
+
+
+def test_the_layer_detector_needs_layers() -> None:
+    with pytest.raises(PerceptionError, match="grounding_dino"):
+        LayerDetector().reset(flat_world(), seed=0)
+    with pytest.raises(UnknownNameError, match="Did you mean 'layers'"):
+        create_detector("layer")
+
+
+def test_colour_names_follow_the_majority_of_pixels() -> None:
+    pixels = np.array([[200, 40, 40]] * 8 + [[30, 30, 30]] * 3)
+    assert colour_name(pixels) == "red"
+
+
+def test_grounding_dino_without_the_vision_extra_says_how_to_install_it(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setitem(sys.modules, "transformers", None)  # import fails as when not installed
+    monkeypatch.setitem(sys.modules, "torch", None)
+    with pytest.raises(MissingExtraError, match=r"pip install 'skyvln-eval\[vision\]'"):
+        create_detector("grounding_dino")
+
+
+def test_grounding_dino_without_weights_says_they_are_missing(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    def no_weights(name: str, local_files_only: bool = False) -> object:
+        raise OSError(f"{name} is not in the local cache and local_files_only is set")
+
+    loader = types.SimpleNamespace(from_pretrained=no_weights)
+    fake = types.ModuleType("transformers")
+    fake.AutoProcessor = loader  # type: ignore[attr-defined]
+    fake.AutoModelForZeroShotObjectDetection = loader  # type: ignore[attr-defined]
+    monkeypatch.setitem(sys.modules, "transformers", fake)
+    monkeypatch.setitem(sys.modules, "torch", types.ModuleType("torch"))
+    with pytest.raises(MissingExtraError, match="weights for 'IDEA-Research/grounding-dino-tiny'"):
+        create_detector("grounding_dino")
+
+
+def test_a_detection_keeps_its_mask_and_box() -> None:
+    mask = np.zeros((8, 8), bool)
+    mask[2:4, 3:6] = True
+    detection = Detection("church", (3, 2, 6, 4), 0.8, "a church", mask)
+    assert detection.mask is not None and detection.mask.sum() == 6

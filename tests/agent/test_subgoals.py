@@ -1,0 +1,122 @@
+"""Sub-goal extraction: the rule backend's reading of instructions and strict parsing."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from skyvln_eval.agent.subgoals import SubGoal, parse_subgoals, subgoal_messages
+from skyvln_eval.avdn import parse_utterances
+from skyvln_eval.errors import ActionParseError
+from skyvln_eval.llm import GenerationConfig, create_backend, read_task_block
+from skyvln_eval.llm.rule.instructions import parse_instruction
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        (
+            "Go south, you will pass a bridge that carries Bridge Street over the river on your "
+            "left. Fly about 100 meters and wait there.",
+            [
+                {"kind": "head", "direction": "south"},
+                {
+                    "kind": "pass",
+                    "landmark": "a bridge that carries bridge street over the river",
+                    "side": "left",
+                },
+                {"kind": "stop_after", "distance_m": 100.0},
+            ],
+        ),
+        (
+            "Head northeast along the road, turn left at the second intersection. "
+            "Stop when you reach the gas station.",
+            [
+                {"kind": "head", "direction": "northeast"},
+                {"kind": "turn", "direction": "left", "ordinal": 2},
+                {"kind": "stop_at", "landmark": "the gas station"},
+            ],
+        ),
+        (
+            "Good, move towards the south. After about 200 meters you will see a small restaurant "
+            "with a black roof (Golden Wok restaurant); that is your destination.",
+            [
+                {"kind": "head", "direction": "south"},
+                {
+                    "kind": "destination",
+                    "landmark": "a small restaurant with a black roof",
+                    "name": "golden wok restaurant",
+                    "distance_m": 200.0,
+                },
+            ],
+        ),
+        (
+            "At the roundabout take the right, stop over a church with a cross-shaped red roof "
+            "and a bell tower, that is the destination.",
+            [
+                {"kind": "turn", "direction": "right", "landmark": "roundabout"},
+                {
+                    "kind": "destination",
+                    "landmark": "a church with a cross-shaped red roof and a bell tower",
+                },
+            ],
+        ),
+        ("Yes, keep going. No idea what else to say", []),
+    ],
+)
+def test_the_rule_backend_reads_instructions_into_subgoals(
+    text: str, expected: list[dict[str, object]]
+) -> None:
+    assert parse_instruction(text) == expected
+
+
+def test_the_prompt_carries_earlier_rounds_and_the_current_one() -> None:
+    turns = parse_utterances("[INS] Go west. Stop when you reach the church.", 1)
+    turns += parse_utterances("[QUE] Where now? [INS] Go north. The destination is a red hotel.", 2)
+    messages = subgoal_messages(turns, current_round=2)
+    data = read_task_block(messages)
+    assert data["task"] == "subgoals" and data["question"] == "Where now?"
+    assert data["instruction"] == "Go north. The destination is a red hotel."
+    assert data["previous_rounds"] == ["commander: Go west. Stop when you reach the church."]
+    answer = create_backend("rule").generate(messages, GenerationConfig()).text
+    plan = parse_subgoals(answer)
+    assert plan.subgoals == (
+        SubGoal("head", direction="north"),
+        SubGoal("destination", landmark="a red hotel"),
+    )
+    assert plan.landmark_phrases == ["a red hotel"]
+    assert plan.context_landmarks == ("the church",)
+
+
+@pytest.mark.parametrize(
+    ("payload", "reason"),
+    [
+        ({"subgoals": [{"kind": "fly_away"}]}, "kind 'fly_away' is not one of"),
+        ({"subgoals": [{"kind": "destination"}]}, "needs a landmark phrase"),
+        ({"subgoals": [{"kind": "head", "direction": "up"}]}, "not a compass point"),
+        ({"subgoals": [{"kind": "stop_after", "distance_m": 1e7}]}, "distance_m must be"),
+        ({"subgoals": [{"kind": "turn", "direction": "left", "ordinal": 0}]}, "ordinal must be"),
+        ({"subgoals": [{"kind": "head", "direction": "north", "cmd": "rm"}]}, "unknown field"),
+        ({"subgoals": "go north"}, "must be a list"),
+    ],
+)
+def test_invalid_subgoals_are_rejected_with_a_reason(
+    payload: dict[str, object], reason: str
+) -> None:
+    with pytest.raises(ActionParseError, match=reason):
+        parse_subgoals(json.dumps(payload))
+
+
+def test_structured_output_nulls_are_accepted() -> None:
+    item = {
+        "kind": "stop_after",
+        "landmark": None,
+        "name": None,
+        "direction": None,
+        "side": None,
+        "distance_m": 150,
+        "ordinal": None,
+    }
+    plan = parse_subgoals(json.dumps({"subgoals": [item], "context_landmarks": []}))
+    assert plan.subgoals == (SubGoal("stop_after", distance_m=150.0),)

@@ -1,0 +1,106 @@
+"""The official-mode loop: AVDN's view budget, STOP, the official step, errors, success."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from skyvln_eval.agent import (
+    Action,
+    Agent,
+    AgentConfig,
+    Decision,
+    Move,
+    Observation,
+    Stop,
+    build_agent,
+)
+from skyvln_eval.avdn import load_split
+from skyvln_eval.errors import ConfigError, PerceptionError
+from skyvln_eval.harness import official_success, run_official_episode
+from skyvln_eval.worlds import load_world
+from tests.toy_worlds import town_episode, town_world
+
+
+class Scripted(Agent):
+    """Takes the given actions in order, then keeps taking the last one."""
+
+    def __init__(self, *actions: Action) -> None:
+        self.actions = list(actions)
+        self.observations: list[Observation] = []
+
+    def act(self, observation: Observation) -> Decision:
+        self.observations.append(observation)
+        action = self.actions.pop(0) if len(self.actions) > 1 else self.actions[0]
+        return Decision("scripted", action)
+
+
+def test_the_budget_counts_views_with_the_start_included() -> None:
+    agent = Scripted(Move("forward", 10.0))
+    rollout = run_official_episode(agent, town_episode("go"), town_world(), max_steps=4)
+    assert len(rollout.views) == 4 and len(rollout.actions) == 3
+    assert rollout.stop_reason == "max_steps" and rollout.step_outcomes == ["full"] * 3
+    assert [o.step_index for o in agent.observations] == [0, 1, 2]
+    assert [o.actions_left for o in agent.observations] == [3, 2, 1]
+    with pytest.raises(ConfigError, match="max_steps"):
+        run_official_episode(agent, town_episode("go"), town_world(), max_steps=0)
+
+
+def test_stop_ends_the_episode_where_it_is() -> None:
+    rollout = run_official_episode(Scripted(Stop()), town_episode("go"), town_world())
+    assert rollout.stop_reason == "stop" and len(rollout.views) == 1
+    assert rollout.headings_deg == [0] and rollout.official_actions == []
+
+
+def test_each_action_moves_the_view_by_the_official_step_and_the_agent_is_told() -> None:
+    agent = Scripted(Move("forward", 40.0), Move("right", 20.0), Stop())
+    rollout = run_official_episode(agent, town_episode("go"), town_world())
+    assert rollout.headings_deg == [0, 0, 90]
+    moved = np.linalg.norm(rollout.views[1].mean(axis=0) - rollout.views[0].mean(axis=0)) * 111_300
+    assert moved == pytest.approx(40.0, abs=0.01)
+    assert agent.observations[1].feedback is not None and agent.observations[1].feedback.startswith(
+        "done"
+    )
+    assert rollout.official_actions[1].waypoint == pytest.approx((20.0 / 60.0, 0.0))
+
+
+def test_a_step_that_would_leave_the_map_is_cut_short_and_reported() -> None:
+    agent = Scripted(Move("forward", 60.0))
+    rollout = run_official_episode(agent, town_episode("go"), town_world(), max_steps=10)
+    assert "rotate_only" in rollout.step_outcomes  # the map is 600 m: the north edge stops it
+    last_full = rollout.step_outcomes.index("rotate_only")
+    assert "moving would have left the map" in (agent.observations[last_full + 1].feedback or "")
+
+
+def test_an_agent_error_ends_the_episode_with_what_was_flown() -> None:
+    class Broken(Scripted):
+        def act(self, observation: Observation) -> Decision:
+            if observation.step_index == 1:
+                raise PerceptionError("the camera fell off")
+            return super().act(observation)
+
+    rollout = run_official_episode(Broken(Move("forward", 30.0)), town_episode("go"), town_world())
+    assert rollout.stop_reason == "error" and "camera fell off" in (rollout.error or "")
+    assert len(rollout.views) == 2
+
+
+def test_on_the_sample_the_rule_agent_beats_random_and_ground_truth_replay_succeeds(
+    sample_dir: Path,
+) -> None:
+    episodes = load_split(sample_dir, "val_seen").episodes("andh")[:8]
+    agents = {
+        "skyvln": build_agent(AgentConfig()),
+        "random": build_agent(AgentConfig(name="random")),
+        "ground_truth": build_agent(AgentConfig(name="ground_truth")),
+    }
+    wins = dict.fromkeys(agents, 0)
+    for episode in episodes:
+        world = load_world(sample_dir, episode.map_name, episode.georef)
+        for name, agent in agents.items():
+            rollout = run_official_episode(agent, episode, world)
+            assert len(rollout.views) <= 10
+            wins[name] += official_success(rollout.final_view, episode.gt_end_view)
+    assert wins["ground_truth"] == len(episodes)
+    assert wins["skyvln"] >= len(episodes) // 2 > wins["random"]

@@ -1,0 +1,193 @@
+"""A real HTTP server on 127.0.0.1 speaking the chat-completions protocol, with scripted faults.
+
+Each request to ``POST /v1/chat/completions`` takes the next :class:`Reply` of the script:
+an answer, an HTTP error status (with headers, e.g. Retry-After), a hang longer than the
+client's timeout, a malformed JSON body, or a body cut short. A reply with a ``task`` waits
+for a request whose TASK DATA block has that task; requests it does not match, and all
+requests once the script is used up, are answered as the offline ``rule`` backend would,
+so a whole agent can run against the server. Every request is kept in ``requests``
+(parsed JSON body, headers and task) for the test to inspect.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import threading
+import time
+from dataclasses import dataclass, field
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from typing import Any, Literal
+
+from skyvln_eval.errors import LLMError
+from skyvln_eval.llm.rule import RuleBackend
+from skyvln_eval.llm.taskdata import read_task_block
+from skyvln_eval.llm.types import GenerationConfig, Message
+
+ReplyKind = Literal["answer", "status", "hang", "malformed", "truncated", "refuse_schema", "rule"]
+
+
+@dataclass(frozen=True)
+class Reply:
+    kind: ReplyKind
+    content: str = ""
+    status: int = 200
+    headers: dict[str, str] = field(default_factory=dict)
+    seconds: float = 0.0
+    task: str | None = None
+
+
+def answer(content: str, task: str | None = None) -> Reply:
+    return Reply("answer", content=content, task=task)
+
+
+def status(code: int, task: str | None = None, **headers: str) -> Reply:
+    fixed = {k.replace("_", "-"): v for k, v in headers.items()}
+    return Reply("status", status=code, headers=fixed, task=task)
+
+
+def hang(seconds: float, task: str | None = None) -> Reply:
+    return Reply("hang", seconds=seconds, task=task)
+
+
+def malformed(task: str | None = None) -> Reply:
+    return Reply("malformed", task=task)
+
+
+def truncated(task: str | None = None) -> Reply:
+    return Reply("truncated", task=task)
+
+
+def rule(task: str | None = None) -> Reply:
+    """Answer as the rule backend would (what unmatched requests get anyway)."""
+    return Reply("rule", task=task)
+
+
+def refuse_schema(content: str) -> Reply:
+    """HTTP 400 when the request carries ``response_format``, else ``content``."""
+    return Reply("refuse_schema", content=content)
+
+
+def _messages(body: dict[str, Any]) -> list[Message]:
+    out = []
+    for m in body.get("messages", []):
+        content = m.get("content")
+        if isinstance(content, list):
+            content = " ".join(p.get("text", "") for p in content if p.get("type") == "text")
+        out.append(Message(m["role"], str(content)))
+    return out
+
+
+def _task_of(messages: list[Message]) -> str | None:
+    try:
+        return str(read_task_block(messages)["task"])
+    except LLMError:
+        return None
+
+
+def _completion_body(content: str, model: str) -> bytes:
+    body = {
+        "id": "chatcmpl-fake",
+        "object": "chat.completion",
+        "created": 0,
+        "model": model,
+        "choices": [
+            {
+                "index": 0,
+                "message": {"role": "assistant", "content": content},
+                "finish_reason": "stop",
+            }
+        ],
+        "usage": {"prompt_tokens": 100, "completion_tokens": 20, "total_tokens": 120},
+    }
+    return json.dumps(body).encode()
+
+
+class FakeOpenAIServer:
+    """Start with ``with FakeOpenAIServer(script) as server:``; ``server.base_url`` ends in /v1."""
+
+    def __init__(self, script: list[Reply], error_message: str = "injected") -> None:
+        self.script = list(script)
+        self.requests: list[dict[str, Any]] = []
+        self._lock = threading.Lock()
+        outer = self
+
+        class Handler(BaseHTTPRequestHandler):
+            protocol_version = "HTTP/1.1"
+
+            def log_message(self, format: str, *args: Any) -> None:  # keep test output quiet
+                pass
+
+            def _send(self, code: int, body: bytes, headers: dict[str, str] | None = None) -> None:
+                self.send_response(code)
+                self.send_header("Content-Type", "application/json")
+                self.send_header("Content-Length", str(len(body)))
+                for key, value in (headers or {}).items():
+                    self.send_header(key, value)
+                self.end_headers()
+                self.wfile.write(body)
+
+            def _error(self, code: int, headers: dict[str, str] | None = None) -> None:
+                error = {"error": {"message": f"{error_message} HTTP {code}", "type": "test"}}
+                self._send(code, json.dumps(error).encode(), headers)
+
+            def do_POST(self) -> None:
+                length = int(self.headers.get("Content-Length", "0"))
+                body = json.loads(self.rfile.read(length) or b"{}")
+                task = _task_of(_messages(body))
+                with outer._lock:
+                    outer.requests.append(
+                        {"body": body, "headers": dict(self.headers), "task": task}
+                    )
+                    head = outer.script[0] if outer.script else None
+                    if head is not None and head.task in (None, task):
+                        reply = outer.script.pop(0)
+                    else:
+                        reply = Reply("rule")
+                model = str(body.get("model", "fake"))
+                if reply.kind == "rule":
+                    text = RuleBackend().generate(_messages(body), GenerationConfig()).text
+                    self._send(200, _completion_body(text, model))
+                elif reply.kind == "answer":
+                    self._send(200, _completion_body(reply.content, model))
+                elif reply.kind == "refuse_schema":
+                    if "response_format" in body:
+                        self._error(400)
+                    else:
+                        self._send(200, _completion_body(reply.content, model))
+                elif reply.kind == "status":
+                    self._error(reply.status, reply.headers)
+                elif reply.kind == "hang":
+                    time.sleep(reply.seconds)
+                    with contextlib.suppress(OSError):  # the client has gone
+                        self._send(200, _completion_body("too late", model))
+                elif reply.kind == "malformed":
+                    self._send(200, b'{"id": "chatcmpl-fake", "choices": [{"index": 0, "mess')
+                elif reply.kind == "truncated":
+                    full = _completion_body("cut short", model)
+                    self.send_response(200)
+                    self.send_header("Content-Type", "application/json")
+                    self.send_header("Content-Length", str(len(full)))
+                    self.end_headers()
+                    self.wfile.write(full[: len(full) // 3])
+                    self.wfile.flush()
+                    self.close_connection = True
+                    self.connection.shutdown(2)
+
+        self._server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self._server.daemon_threads = True
+        self._thread = threading.Thread(target=self._server.serve_forever, daemon=True)
+
+    @property
+    def base_url(self) -> str:
+        host, port = self._server.server_address[:2]
+        return f"http://{host}:{port}/v1"
+
+    def __enter__(self) -> FakeOpenAIServer:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._server.shutdown()
+        self._server.server_close()
+        self._thread.join(timeout=5)

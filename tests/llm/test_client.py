@@ -1,0 +1,136 @@
+"""Registry, retries, concurrency limit, prices and per-call accounting."""
+
+from __future__ import annotations
+
+import random
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import pytest
+
+from skyvln_eval.errors import ConfigError, LLMTransientError, UnknownNameError
+from skyvln_eval.llm import (
+    Completion,
+    GenerationConfig,
+    LLMBackend,
+    LLMClient,
+    Message,
+    RetryPolicy,
+    create_backend,
+    load_prices,
+    register_backend,
+)
+from skyvln_eval.llm.simple import ScriptedBackend
+from tests.conftest import REPO
+
+PROMPT = [Message("user", "hi")]
+
+
+def test_unknown_backends_get_a_did_you_mean() -> None:
+    with pytest.raises(UnknownNameError, match="Did you mean 'openai'"):
+        create_backend("opneai:gpt-4o")
+
+
+def test_importing_the_llm_package_does_not_import_openai() -> None:
+    code = "import sys, skyvln_eval.llm, skyvln_eval.llm.rule; print('openai' in sys.modules)"
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO
+    )
+    assert out.stdout.strip() == "False"
+
+
+def test_a_registered_backend_is_created_like_the_built_in_ones() -> None:
+    class Echo(LLMBackend):
+        name = "echo"
+        kind = "scripted"
+
+        def __init__(self, model: str | None = None) -> None:
+            self.model = model or "plain"
+
+        def generate(self, messages: Sequence[Message], config: GenerationConfig) -> Completion:
+            return Completion(messages[-1].text, self.name, self.model)
+
+    register_backend("echo", Echo)
+    backend = create_backend("echo:loud")
+    assert backend.model == "loud" and backend.generate(PROMPT, GenerationConfig()).text == "hi"
+
+
+def test_backoff_grows_exponentially_with_bounded_jitter() -> None:
+    policy = RetryPolicy(initial_delay_s=1.0, multiplier=2.0, max_delay_s=5.0, jitter=0.25)
+    rng = random.Random(0)
+    fault = LLMTransientError("server error")
+    delays = [policy.delay_s(k, fault, rng) for k in range(5)]
+    for k, delay in enumerate(delays):
+        base = min(2.0**k, 5.0)
+        assert base <= delay <= base * 1.25
+    assert policy.delay_s(0, LLMTransientError("429", retry_after_s=3.0), rng) == 3.0
+    assert policy.delay_s(0, LLMTransientError("429", retry_after_s=999.0), rng) == 60.0
+
+
+def test_the_concurrency_limit_holds_across_threads() -> None:
+    running = 0
+    peak = 0
+    lock = threading.Lock()
+
+    def slow(messages: Sequence[Message]) -> str:
+        nonlocal running, peak
+        with lock:
+            running += 1
+            peak = max(peak, running)
+        time.sleep(0.05)
+        with lock:
+            running -= 1
+        return "ok"
+
+    client = LLMClient(ScriptedBackend([slow] * 8), max_concurrency=2)
+    threads = [
+        threading.Thread(target=client.call, args=("m", PROMPT, GenerationConfig()))
+        for _ in range(8)
+    ]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert peak == 2
+
+
+def test_costs_come_from_the_price_table(tmp_path: Path) -> None:
+    prices = load_prices()  # the shipped table
+    assert prices.cost_usd("openai", "gpt-4o", 1_000_000, 0) == pytest.approx(2.5)
+    assert prices.cost_usd("openai", "not-listed", 10, 10) is None
+    table = tmp_path / "prices.yaml"
+    table.write_text(
+        "format: skyvln-eval/llm-prices\nversion: 1\nusd_per_million_tokens:\n"
+        "  scripted:m: {input: 1.0, output: 2.0}\n"
+    )
+    client = LLMClient(ScriptedBackend(["x" * 40], model="m"), prices=load_prices(table))
+    record = client.call("motion", [Message("user", "y" * 400)], GenerationConfig()).records[0]
+    assert (record.prompt_tokens, record.completion_tokens) == (100, 10)
+    assert record.cost_usd == 0.0  # scripted, random and rule backends never cost money
+    bad = tmp_path / "bad.yaml"
+    header = "format: skyvln-eval/llm-prices\nversion: 1\nusd_per_million_tokens:\n"
+    bad.write_text(header + "  a:b: {input: -1, output: 2}\n")
+    with pytest.raises(ConfigError, match=r"a:b\.input"):
+        load_prices(bad)
+
+
+def test_call_records_have_exactly_the_agreed_fields() -> None:
+    record = (
+        LLMClient(ScriptedBackend(["x"])).call("hsd_rank", PROMPT, GenerationConfig()).records[0]
+    )
+    assert list(record.to_dict()) == [
+        "module",
+        "backend",
+        "model",
+        "prompt_tokens",
+        "completion_tokens",
+        "cost_usd",
+        "latency_s",
+        "cached",
+        "error",
+    ]
+    assert record.module == "hsd_rank" and record.error is None and record.cached is False

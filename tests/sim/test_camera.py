@@ -1,0 +1,102 @@
+"""The front camera: geometry against the official view, depth, layers, occlusion, turning."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from skyvln_eval.avdn import observe_view
+from skyvln_eval.errors import ConfigError
+from skyvln_eval.frames import ViewPose, latlng_to_enu, pose_to_view
+from skyvln_eval.sim.camera import (
+    SEMANTIC_NONE,
+    SKY_BGR,
+    CameraConfig,
+    CameraPose,
+    CameraRig,
+    pixel_rays,
+    render_camera,
+)
+from skyvln_eval.worlds.tile import SemanticClass
+from tests.toy_worlds import flat_world, tower_world
+
+
+def test_looking_straight_down_sees_the_official_view() -> None:
+    world = flat_world()
+    pose = ViewPose(300.0, 300.0, 60.0, math.radians(30.0))
+    view = pose_to_view(pose, world.georef)
+    camera = CameraPose(pose.x_m, pose.y_m, pose.z_m, pose.yaw_rad, 90.0)
+    config = CameraConfig()
+    # The ray through the image's top-left corner hits the view's front-left corner.
+    ray = pixel_rays(camera, config, np.array(0.0), np.array(0.0))
+    hit = np.array([pose.x_m, pose.y_m]) + ray[:2] * pose.z_m / -ray[2]
+    assert np.allclose(hit, latlng_to_enu(view[0], world.georef), atol=1e-6)
+    images = render_camera(world, camera, config)
+    official = observe_view(world.bgr, view, world.georef)[..., ::-1]
+    correlation = np.corrcoef(images.rgb.ravel().astype(float), official.ravel().astype(float))[
+        0, 1
+    ]
+    assert correlation > 0.9
+    assert images.semantic is None and images.instance is None  # an image-only map
+
+
+def test_depth_on_flat_ground_comes_from_the_altitude() -> None:
+    world = flat_world()
+    down = render_camera(world, CameraPose(300.0, 300.0, 80.0, 0.0, 90.0))
+    assert np.allclose(down.depth_m, 80.0, atol=1e-3)
+    pitched = render_camera(world, CameraPose(300.0, 300.0, 80.0, 0.0, 60.0))
+    centre = pitched.depth_m[112, 112]  # pixel centre just below the optical axis
+    assert centre == pytest.approx(80.0 / math.sin(math.radians(60.0)), rel=0.02)
+    point = pitched.points_enu(np.array([112]), np.array([112]))[0]
+    assert point[2] == pytest.approx(0.0, abs=0.05)
+
+
+def test_rays_above_the_horizon_see_sky_and_get_no_depth() -> None:
+    images = render_camera(tower_world(), CameraPose(300.0, 100.0, 50.0, 0.0, 0.0))
+    top = images.depth_m[:50]
+    assert np.isinf(top).all()
+    assert tuple(int(c) for c in images.rgb[10, 10][::-1]) == SKY_BGR
+    assert images.semantic is not None and (images.semantic[:50] == SEMANTIC_NONE).all()
+
+
+def test_a_roof_is_closer_than_the_ground_and_carries_its_landmark_id() -> None:
+    world = tower_world(height_m=60.0)
+    images = render_camera(world, CameraPose(300.0, 300.0, 100.0, 0.0, 90.0))
+    assert images.instance is not None and images.semantic is not None
+    assert images.instance[112, 112] == 7
+    assert images.semantic[112, 112] == SemanticClass.BUILDING
+    assert images.depth_m[112, 112] == pytest.approx(40.0, abs=0.5)
+    assert images.depth_m[2, 2] == pytest.approx(100.0, abs=0.5)
+
+
+def test_a_tall_building_hides_the_ground_behind_it() -> None:
+    world = tower_world(height_m=120.0)
+    # 150 m south of the tower looking north and a little down: the tower fills the middle.
+    # Grazing rays need fine height levels to meet a wall (see CameraConfig.height_levels).
+    config = CameraConfig(height_levels=240)
+    images = render_camera(world, CameraPose(300.0, 150.0, 60.0, math.pi / 2, 20.0), config)
+    assert images.instance is not None
+    column = images.instance[:, 112]
+    assert (column == 7).sum() > 20
+    # The pixel that sees the tower would otherwise reach the ground far beyond it.
+    v = int(np.nonzero(column == 7)[0].min())
+    assert images.depth_m[v, 112] < 160.0
+
+
+def test_turning_in_place_rotates_the_view() -> None:
+    rig = CameraRig(flat_world(), 300.0, 300.0, 60.0, CameraConfig(width_px=64, height_px=64))
+    north = rig.capture(math.pi / 2, 90.0)
+    east = rig.capture(0.0, 90.0)
+    # Heading east, north is on the left: the north-up image turned clockwise by 90 degrees.
+    assert np.abs(np.rot90(north.rgb, k=1).astype(int) - east.rgb.astype(int)).mean() < 8.0
+
+
+def test_bad_camera_settings_are_rejected() -> None:
+    with pytest.raises(ConfigError, match="pitch_deg"):
+        CameraPose(0.0, 0.0, 50.0, 0.0, 120.0)
+    with pytest.raises(ConfigError, match="above ground"):
+        CameraPose(0.0, 0.0, -1.0, 0.0, 90.0)
+    with pytest.raises(ConfigError, match="fov_deg"):
+        CameraConfig(fov_deg=200.0)
