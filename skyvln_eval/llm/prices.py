@@ -19,7 +19,9 @@ log = logging.getLogger(__name__)
 PRICES_FORMAT: Final = "skyvln-eval/llm-prices"
 PRICES_VERSION: Final = 1
 #: The table shipped with the repository; ``$SKYVLN_EVAL_PRICES`` points elsewhere.
-DEFAULT_PRICES_PATH: Final = Path(__file__).resolve().parents[2] / "configs" / "llm" / "prices.yaml"
+#: Shipped inside the package (``skyvln_eval/configs``, also reachable as ``configs/`` in
+#: a checkout), so an installed toolkit prices calls too.
+DEFAULT_PRICES_PATH: Final = Path(__file__).resolve().parents[1] / "configs" / "llm" / "prices.yaml"
 
 
 @dataclass(frozen=True)
