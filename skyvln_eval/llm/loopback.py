@@ -107,7 +107,7 @@ def _completion_body(content: str, model: str) -> bytes:
 
 
 class LoopbackOpenAIServer:
-    """Start with ``with LoopbackOpenAIServer(script) as server:``; ``server.base_url`` ends in /v1."""
+    """``with LoopbackOpenAIServer(script) as server:``; ``server.base_url`` ends in /v1."""
 
     def __init__(
         self,
@@ -193,7 +193,8 @@ class LoopbackOpenAIServer:
     @property
     def base_url(self) -> str:
         host, port = self._server.server_address[:2]
-        return f"http://{host}:{port}/v1"
+        host_text = host.decode() if isinstance(host, bytes) else str(host)
+        return f"http://{host_text}:{port}/v1"
 
     def __enter__(self) -> LoopbackOpenAIServer:
         self._thread.start()
