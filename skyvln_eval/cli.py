@@ -326,6 +326,18 @@ def reproduce(
         raise typer.Exit(1)
 
 
+def _register_report_commands() -> None:
+    # Implementations live in skyvln_eval.reports.commands; they import heavy modules lazily.
+    from skyvln_eval.reports.commands import plot_app, score, table
+
+    app.command()(score)
+    app.command()(table)
+    app.add_typer(plot_app, name="plot")
+
+
+_register_report_commands()
+
+
 def main() -> None:
     """Entry point of the console script."""
     try:
