@@ -43,8 +43,8 @@ class DynamicsSettings(_Strict):
 
     controller: str = "nmpc"
     controller_settings: dict[str, Any] = Field(default_factory=dict)
-    cruise_speed_m_s: float = Field(default=10.0, gt=0.0)
-    max_acceleration_m_s2: float = Field(default=3.0, gt=0.0)
+    cruise_speed_m_s: float = Field(default=12.0, gt=0.0)
+    max_acceleration_m_s2: float = Field(default=3.5, gt=0.0)
     yaw_rate_max_rad_s: float = Field(default=1.0, gt=0.0)
     arrival_tolerance_m: float = Field(default=2.0, gt=0.0)
     arrival_speed_m_s: float = Field(default=1.0, gt=0.0)

@@ -37,13 +37,15 @@ class Price:
         ) / 1e6
 
 
+_WARNED_UNPRICED: set[str] = set()
+
+
 @dataclass(frozen=True)
 class PriceTable:
     """Prices by ``"<backend>:<model>"``; ``as_of`` says when they were checked."""
 
     prices: Mapping[str, Price] = field(default_factory=dict)
     as_of: str = ""
-    _warned: set[str] = field(default_factory=set, compare=False, repr=False)
 
     def cost_usd(
         self, backend: str, model: str, prompt_tokens: int, completion_tokens: int
@@ -52,8 +54,8 @@ class PriceTable:
         spec = f"{backend}:{model}"
         price = self.prices.get(spec)
         if price is None:
-            if spec not in self._warned:
-                self._warned.add(spec)
+            if spec not in _WARNED_UNPRICED:  # once per process: agents are built per episode
+                _WARNED_UNPRICED.add(spec)
                 log.warning(
                     "no price for %s in the price table: its cost_usd is recorded as unknown", spec
                 )
