@@ -8,7 +8,6 @@ clear message and exit with status 2; validation problems exit with status 1.
 from __future__ import annotations
 
 import sys
-from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -256,33 +255,75 @@ def convert(
         raise typer.Exit(1)
 
 
+@app.command("run")
+def run_(
+    config: Annotated[
+        Path, typer.Argument(help="Run config (YAML), e.g. configs/runs/full-nmpc.yaml")
+    ],
+    out: Annotated[
+        Path | None, typer.Option(help="Run directory (default: runs/<config name>)")
+    ] = None,
+    workers: Annotated[
+        int | None, typer.Option(min=1, help="Parallel episodes (overrides the config)")
+    ] = None,
+    executor: Annotated[
+        str | None, typer.Option(help="serial, processes, threads or ray (overrides the config)")
+    ] = None,
+    ray_address: Annotated[
+        str | None, typer.Option(help="Ray cluster address (default: a local Ray)")
+    ] = None,
+    retry_failed: Annotated[
+        bool, typer.Option(help="Run episodes that failed before again")
+    ] = False,
+) -> None:
+    """Run an agent configuration over its episodes; resumes where a previous run stopped."""
+    from skyvln_eval.harness.commands import run_command
+
+    report = run_command(config, out, workers, executor, ray_address, retry_failed)
+    if report.missing:
+        raise typer.Exit(1)
+
+
 @app.command()
 def reproduce(
+    plan: Annotated[str, typer.Option(help="Plan name (default) or plan YAML file")] = "default",
     out: Annotated[Path, typer.Option(help="Folder for everything reproduce writes")] = Path(
         "reproduce-output"
     ),
+    workers: Annotated[int, typer.Option(min=1, help="Parallel episodes")] = 2,
+    executor: Annotated[str, typer.Option(help="processes, threads, serial or ray")] = "processes",
     data_dir: Annotated[
         Path | None,
-        typer.Option(
-            help="AVDN-format dataset (default: the bundled sample, generated on first use)"
-        ),
+        typer.Option(help="AVDN-format dataset (default: the plan's, the bundled sample)"),
+    ] = None,
+    limit: Annotated[
+        int | None, typer.Option(min=1, help="Episodes per split (a quick look)")
     ] = None,
 ) -> None:
-    """Run the main job on the bundled sample: generate, load and validate it, and summarise it."""
-    if data_dir is None:
-        data_dir = _build_dataset("sample", None, False, 1)
-    console.print(f"dataset: {data_dir}")
-    summaries = _summarise(data_dir, skip_invalid=False)
-    console.print(_split_table(summaries))
-    out.mkdir(parents=True, exist_ok=True)
-    from skyvln_eval.fileio import atomic_write_json
+    """The main job: the paper's Table I and II, control figures and a summary, on the sample."""
+    from skyvln_eval.harness.plan import load_plan
+    from skyvln_eval.harness.progress import RichRunProgress
+    from skyvln_eval.harness.reproduce import reproduce as run_plan
 
-    atomic_write_json(
-        out / "dataset_summary.json",
-        {"data_dir": str(data_dir), "splits": [asdict(s) for s in summaries]},
-        indent=1,
+    chosen = load_plan(plan, limit=limit)
+    if data_dir is None and chosen.data == "sample":
+        _build_dataset("sample", None, False, 1)  # with a progress bar on first use
+    report = run_plan(
+        chosen,
+        out,
+        workers,
+        executor,  # type: ignore[arg-type]
+        str(data_dir) if data_dir else None,
+        RichRunProgress(err_console),
     )
-    console.print(f"wrote {out / 'dataset_summary.json'}")
+    for name in ("table1.md", "table2.md"):
+        console.print(report.files[name].read_text(encoding="utf-8"))
+    for run in report.reports:
+        for (split, episode), message in run.failed.items():
+            _echo_problem(f"{run.system}: failed {split}/{episode}: {message}")
+    console.print(f"wrote {report.files['SUMMARY.md']} ({report.wall_s:.0f} s)")
+    if not report.complete:
+        raise typer.Exit(1)
 
 
 def _register_report_commands() -> None:

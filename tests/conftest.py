@@ -91,6 +91,13 @@ def dataset_factory(tmp_path: Path) -> Callable[..., Path]:
     return factory
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _hermetic_cache(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """Everything the toolkit caches (datasets, episode logs, compiled solvers) goes to a
+    temporary folder, unless SKYVLN_EVAL_CACHE names one to reuse between test runs."""
+    os.environ.setdefault("SKYVLN_EVAL_CACHE", str(tmp_path_factory.mktemp("skyvln-cache")))
+
+
 @pytest.fixture(scope="session")
 def sample_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The bundled synthetic sample, built once per session (or reused from the cache).

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Callable
 from pathlib import Path
@@ -50,17 +49,3 @@ def test_summary_skip_invalid_reports_what_it_skipped(dataset_factory: Callable[
     assert result.exit_code == 0, result.output
     assert "skipped: " in result.output and "field 'angle'" in result.output
     assert "skipped 1 invalid record(s), loaded 1" in result.output
-
-
-def test_reproduce_on_the_sample_writes_a_summary(sample_dir: Path, tmp_path: Path) -> None:
-    out = tmp_path / "out"
-    result = runner.invoke(app, ["reproduce", "--data-dir", str(sample_dir), "--out", str(out)])
-    assert result.exit_code == 0, result.output
-    summary = json.loads((out / "dataset_summary.json").read_text())
-    assert [s["split"] for s in summary["splits"]] == [
-        "train",
-        "val_seen",
-        "val_unseen",
-        "test_unseen",
-    ]
-    assert all(s["gt_replay_min_iou"] > 1 - 1e-9 for s in summary["splits"])

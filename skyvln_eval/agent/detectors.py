@@ -13,10 +13,11 @@ detects in the RGB image from text phrases instead.
 
 from __future__ import annotations
 
+import weakref
 import zlib
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Final
 
 import cv2
@@ -85,6 +86,50 @@ def _box_of(mask: NDArray[np.bool_]) -> Box:
     return int(cols.min()), int(rows.min()), int(cols.max()) + 1, int(rows.max()) + 1
 
 
+@dataclass
+class _PlainBuildings:
+    """The ordinary (unnamed) buildings of a map: connected components, boxes, roof colours.
+
+    They depend on the map only, so they are computed once per world and shared by every
+    detector (agents are built per episode); roof colours are named on first use, from the
+    building's own pixels (the same pixels as a whole-map mask would select).
+    """
+
+    components: NDArray[np.int32]
+    boxes: NDArray[np.int32]  # per component: x, y, width, height, area (row 0: background)
+    colours: dict[int, str] = field(default_factory=dict)
+
+    @property
+    def count(self) -> int:
+        return len(self.boxes) - 1
+
+    def colour(self, world: WorldTile, component: int) -> str:
+        if component not in self.colours:
+            x, y, w, h = (int(v) for v in self.boxes[component][:4])
+            inside = self.components[y : y + h, x : x + w] == component
+            pixels = world.bgr[y : y + h, x : x + w][inside]
+            self.colours[component] = colour_name(pixels[..., ::-1])
+        return self.colours[component]
+
+
+_PLAIN_BUILDINGS: weakref.WeakKeyDictionary[WorldTile, _PlainBuildings] = (
+    weakref.WeakKeyDictionary()
+)
+
+
+def _plain_buildings(world: WorldTile) -> _PlainBuildings:
+    if world not in _PLAIN_BUILDINGS:
+        semantic, instance = world.semantic, world.instance
+        if semantic is None or instance is None:
+            raise PerceptionError(f"map {world.map_name} has no semantic / instance layers")
+        plain = ((semantic == SemanticClass.BUILDING) & (instance == 0)).astype(np.uint8)
+        _, components, stats, _ = cv2.connectedComponentsWithStats(plain, connectivity=4)
+        _PLAIN_BUILDINGS[world] = _PlainBuildings(
+            components.astype(np.int32), stats.astype(np.int32)
+        )
+    return _PLAIN_BUILDINGS[world]
+
+
 @dataclass(frozen=True)
 class _Phantom:
     """An ordinary building the detector takes for a landmark, whenever it sees it from afar."""
@@ -149,15 +194,10 @@ class LayerDetector(Detector):
                 "(pip install 'skyvln-eval[vision]')"
             )
         self._rng = np.random.default_rng([self.seed, seed])
-        if self._world is not world:  # components depend on the map only
-            plain = ((world.semantic == SemanticClass.BUILDING) & (world.instance == 0)).astype(
-                np.uint8
-            )
-            _, components = cv2.connectedComponents(plain, connectivity=4)
-            self._components = components.astype(np.int32)
-            self._world = world
-        assert self._components is not None
-        count = int(self._components.max())
+        buildings = _plain_buildings(world)
+        self._components = buildings.components
+        self._world = world
+        count = buildings.count
         chosen = np.nonzero(self._rng.random(count) < self.false_positive_rate)[0] + 1
         # Buildings pass for buildings: a phantom is never a bridge, park or roundabout.
         labels = [
@@ -166,7 +206,7 @@ class LayerDetector(Detector):
         self._phantoms = {}
         for component in chosen.tolist():
             label = labels[int(self._rng.integers(len(labels)))]
-            colour = colour_name(world.bgr[self._components == component][..., ::-1])
+            colour = buildings.colour(world, component)
             score = float(self._rng.uniform(0.35, 0.7))
             self._phantoms[component] = _Phantom(label, f"a {label} with a {colour} roof", score)
 

@@ -13,6 +13,7 @@ obstacles over the controller's horizon, take the reference window, call
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -54,14 +55,22 @@ class ArrivalCriteria:
 
 @dataclass(frozen=True)
 class SegmentResult:
-    """One flown segment: where it ended, whether it arrived, and its per-step log."""
+    """One flown segment: where it ended, whether it arrived, and its per-step log.
+
+    The log is built on first use (a replay harness flying many segments only needs the
+    whole flight's log, :meth:`Flight.log`).
+    """
 
     final_state: DroneState
     t_end_s: float
     reached: bool
-    log: pd.DataFrame
+    rows: list[dict[str, Any]] = field(repr=False)
     failed_steps: int
     collided: bool
+
+    @functools.cached_property
+    def log(self) -> pd.DataFrame:
+        return log_frame(self.rows)
 
 
 @dataclass
@@ -163,14 +172,13 @@ class Flight:
         else:
             reached = done is None or bool(done(self.state, self.t_s))
         rows = self._rows[first_row:]
-        frame = log_frame(rows)
         return SegmentResult(
             final_state=self.state,
             t_end_s=self.t_s,
             reached=reached,
-            log=frame,
-            failed_steps=int(frame["solve_failed"].sum()),
-            collided=bool(frame["collision"].any()),
+            rows=rows,
+            failed_steps=sum(bool(row["solve_failed"]) for row in rows),
+            collided=any(bool(row["collision"]) for row in rows),
         )
 
     def log(self) -> pd.DataFrame:

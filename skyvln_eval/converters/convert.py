@@ -181,7 +181,7 @@ def _dialog_by_view(episode: Episode) -> dict[int, list[DialogTurn]]:
     return by_view
 
 
-def _write_static(
+def write_static_content(
     episode: Episode,
     world: WorldTile | None,
     poses: Sequence[ViewPose],
@@ -237,7 +237,7 @@ def convert_episode(
     georef = episode.georef
     views = episode.gt_path_corners
     poses = [view_to_pose(corners, georef) for corners in views]
-    _write_static(episode, world, poses, writer, options)
+    write_static_content(episode, world, poses, writer, options)
     dialog = _dialog_by_view(episode)
     centres = view_centre(views)
     turn_index = 0
@@ -260,11 +260,11 @@ def convert_episode(
             msg = fx.compressed_image(t_ns, t.CAMERA_FRAME, data, options.image_format)
             writer.write(t.TOPIC_GT_OBSERVATION, t.COMPRESSED_IMAGE, msg, t_ns)
         for turn in dialog.get(k, []):
-            _write_turn(writer, episode.episode_id, turn, turn_index, t_ns)
+            write_dialog_turn(writer, episode.episode_id, turn, turn_index, t_ns)
             turn_index += 1
 
 
-def _write_turn(
+def write_dialog_turn(
     writer: McapLogWriter, episode_id: str, turn: DialogTurn, index: int, t_ns: int
 ) -> None:
     message = {

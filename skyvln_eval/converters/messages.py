@@ -93,10 +93,24 @@ def line(points_xyz: Iterable[Sequence[float]], rgba: Rgba, loop: bool, width_px
     }
 
 
+def sphere(centre_xyz: Sequence[float], diameter_m: float, rgba: Rgba) -> Json:
+    """A sphere primitive of ``diameter_m`` centred at ``centre_xyz`` in its entity frame."""
+    return {
+        "pose": {"position": vector3(*centre_xyz), "orientation": IDENTITY_QUATERNION},
+        "size": vector3(diameter_m, diameter_m, diameter_m),
+        "color": color(rgba),
+    }
+
+
 def scene_update(
-    t_ns: int, frame_id: str, entity_id: str, lines: Sequence[Json], metadata: dict[str, str]
+    t_ns: int,
+    frame_id: str,
+    entity_id: str,
+    lines: Sequence[Json],
+    metadata: dict[str, str],
+    spheres: Sequence[Json] = (),
 ) -> Json:
-    """One entity of line primitives, shown forever (lifetime 0) until replaced."""
+    """One entity of line (and sphere) primitives, shown forever (lifetime 0) until replaced."""
     entity = {
         "timestamp": timestamp(t_ns),
         "frame_id": frame_id,
@@ -106,7 +120,7 @@ def scene_update(
         "metadata": [{"key": k, "value": v} for k, v in metadata.items()],
         "arrows": [],
         "cubes": [],
-        "spheres": [],
+        "spheres": list(spheres),
         "cylinders": [],
         "lines": list(lines),
         "triangles": [],

@@ -24,6 +24,10 @@ from typing import Any, Final
 EPISODE_FORMAT: Final = "skyvln_eval.episode_log"
 EPISODE_FORMAT_VERSION: Final = 1
 
+#: Version of the run log layout (episode content plus the run's topics). Checked on read.
+RUN_FORMAT: Final = "skyvln_eval.run_log"
+RUN_FORMAT_VERSION: Final = 1
+
 #: MCAP header strings: fixed, so identical inputs give byte-identical files.
 MCAP_PROFILE: Final = ""
 MCAP_LIBRARY: Final = "skyvln-eval"
@@ -40,6 +44,7 @@ SCHEMA_VERSION_KEY: Final = "schema_version"
 # Metadata record names and keys.
 EPISODE_METADATA: Final = "skyvln_eval.episode"
 CONVERSION_METADATA: Final = "skyvln_eval.conversion"
+RUN_METADATA: Final = "skyvln_eval.run"
 
 # Frames. ``map`` is the ENU frame of skyvln_eval.frames (x east, y north, metres from the
 # map's south-west corner); ``drone`` is the body (x forward, y left, z up); ``camera`` is
@@ -58,6 +63,9 @@ POSE_IN_FRAME: Final = "foxglove.PoseInFrame"
 POSES_IN_FRAME: Final = "foxglove.PosesInFrame"
 SCENE_UPDATE: Final = "foxglove.SceneUpdate"
 DIALOG_TURN: Final = "skyvln_eval.DialogTurn"
+AGENT_STEP: Final = "skyvln_eval.AgentStep"
+LLM_EXCHANGE: Final = "skyvln_eval.LLMExchange"
+CONTROL_STEP: Final = "skyvln_eval.ControlStep"
 
 # Episode topics: static content (log time 0) ...
 TOPIC_MAP_TILE: Final = "/map/tile"
@@ -72,6 +80,17 @@ TOPIC_GPS: Final = "/drone/gps"
 TOPIC_GT_OBSERVATION: Final = "/camera/gt_observation"
 TOPIC_DIALOG: Final = "/dialog/turns"
 TOPIC_DIALOG_LOG: Final = "/dialog/log"
+# Run logs (replay harness): the episode's static content and dialog, then on the run's
+# simulated clock ...
+TOPIC_RUN_VIEWS: Final = "/run/views"  # visited view squares, one entity per view
+TOPIC_RUN_PATH: Final = "/run/path"  # the flown (or stepped) path so far
+TOPIC_OBSERVATION: Final = "/camera/observation"  # what the agent saw below it at each decision
+TOPIC_AGENT_STEP: Final = "/agent/step"
+TOPIC_AGENT_LOG: Final = "/agent/log"  # thought and action as text, for the Log panel
+TOPIC_AGENT_TARGET: Final = "/agent/target"  # target pose of each action (dynamics mode)
+TOPIC_LLM_EXCHANGE: Final = "/llm/exchange"
+TOPIC_CONTROL_STEP: Final = "/control/step"
+TOPIC_OBSTACLES: Final = "/sim/obstacles"  # obstacle spheres, sampled along the flight
 
 
 @dataclass(frozen=True)
@@ -101,6 +120,9 @@ SCHEMAS: Final[dict[str, SchemaSpec]] = {
         SchemaSpec(POSES_IN_FRAME, "foxglove/foxglove.PosesInFrame.json"),
         SchemaSpec(SCENE_UPDATE, "foxglove/foxglove.SceneUpdate.json"),
         SchemaSpec(DIALOG_TURN, "skyvln_eval/skyvln_eval.DialogTurn.json", version=1),
+        SchemaSpec(AGENT_STEP, "skyvln_eval/skyvln_eval.AgentStep.json", version=1),
+        SchemaSpec(LLM_EXCHANGE, "skyvln_eval/skyvln_eval.LLMExchange.json", version=1),
+        SchemaSpec(CONTROL_STEP, "skyvln_eval/skyvln_eval.ControlStep.json", version=1),
     )
 }
 
@@ -117,6 +139,15 @@ TOPICS: Final[dict[str, str]] = {
     TOPIC_GT_OBSERVATION: COMPRESSED_IMAGE,
     TOPIC_DIALOG: DIALOG_TURN,
     TOPIC_DIALOG_LOG: LOG,
+    TOPIC_RUN_VIEWS: SCENE_UPDATE,
+    TOPIC_RUN_PATH: POSES_IN_FRAME,
+    TOPIC_OBSERVATION: COMPRESSED_IMAGE,
+    TOPIC_AGENT_STEP: AGENT_STEP,
+    TOPIC_AGENT_LOG: LOG,
+    TOPIC_AGENT_TARGET: POSE_IN_FRAME,
+    TOPIC_LLM_EXCHANGE: LLM_EXCHANGE,
+    TOPIC_CONTROL_STEP: CONTROL_STEP,
+    TOPIC_OBSTACLES: SCENE_UPDATE,
 }
 
 

@@ -20,13 +20,14 @@ from numpy.typing import NDArray
 from skyvln_eval.agent.actions import Action, Stop, action_record
 from skyvln_eval.agent.base import Agent, Observation
 from skyvln_eval.agent.mapping import to_official_action
-from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN, SUCCESS_IOU
-from skyvln_eval.avdn.geometry import hull_iou, point_in_view_strict, view_centre
+from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN
+from skyvln_eval.avdn.geometry import hull_iou
 from skyvln_eval.avdn.records import Episode
 from skyvln_eval.avdn.step import OfficialAction, official_step_detailed
 from skyvln_eval.errors import ConfigError, SkyvlnError
 from skyvln_eval.frames import view_to_pose
 from skyvln_eval.llm.types import LLMCallRecord
+from skyvln_eval.metrics.official import official_success as metrics_official_success
 from skyvln_eval.sim.camera import CameraConfig, CameraRig
 from skyvln_eval.worlds.tile import WorldTile
 
@@ -44,6 +45,7 @@ class OfficialRollout:
     official_actions: list[OfficialAction] = field(default_factory=list)
     step_outcomes: list[str] = field(default_factory=list)
     thoughts: list[str] = field(default_factory=list)
+    feedbacks: list[str | None] = field(default_factory=list)
     traces: list[dict[str, Any]] = field(default_factory=list)
     llm_calls: list[LLMCallRecord] = field(default_factory=list)
     stop_reason: StopReason = "max_steps"
@@ -74,15 +76,11 @@ class OfficialRollout:
 
 
 def official_success(final_view: NDArray[np.float64], gt_end_view: NDArray[np.float64]) -> bool:
-    """AVDN success: hull-IoU >= 0.4 and each view's centre strictly inside the other.
-
-    Kept here as one small helper until the metrics package provides the official one.
-    """
-    return bool(
-        hull_iou(final_view, gt_end_view) >= SUCCESS_IOU
-        and point_in_view_strict(view_centre(gt_end_view), final_view)
-        and point_in_view_strict(view_centre(final_view), gt_end_view)
-    )
+    """AVDN success of one final view (the metrics package's test, for one episode)."""
+    final = np.asarray(final_view, dtype=np.float64)[None]
+    gt_end = np.asarray(gt_end_view, dtype=np.float64)[None]
+    iou = np.atleast_1d(hull_iou(final, gt_end))
+    return bool(metrics_official_success(final, gt_end, iou)[0])
 
 
 def _feedback(action: Action, outcome: str, turn_deg: int) -> str:
@@ -124,6 +122,7 @@ def run_official_episode(
             rollout.stop_reason, rollout.error = "error", f"{type(error).__name__}: {error}"
             break
         rollout.thoughts.append(decision.thought)
+        rollout.feedbacks.append(feedback)
         rollout.traces.append(decision.trace)
         rollout.llm_calls.extend(decision.llm_calls)
         rollout.actions.append(decision.action)

@@ -19,7 +19,9 @@ log = logging.getLogger(__name__)
 PRICES_FORMAT: Final = "skyvln-eval/llm-prices"
 PRICES_VERSION: Final = 1
 #: The table shipped with the repository; ``$SKYVLN_EVAL_PRICES`` points elsewhere.
-DEFAULT_PRICES_PATH: Final = Path(__file__).resolve().parents[2] / "configs" / "llm" / "prices.yaml"
+#: Shipped inside the package (``skyvln_eval/configs``, also reachable as ``configs/`` in
+#: a checkout), so an installed toolkit prices calls too.
+DEFAULT_PRICES_PATH: Final = Path(__file__).resolve().parents[1] / "configs" / "llm" / "prices.yaml"
 
 
 @dataclass(frozen=True)
@@ -35,13 +37,15 @@ class Price:
         ) / 1e6
 
 
+_WARNED_UNPRICED: set[str] = set()
+
+
 @dataclass(frozen=True)
 class PriceTable:
     """Prices by ``"<backend>:<model>"``; ``as_of`` says when they were checked."""
 
     prices: Mapping[str, Price] = field(default_factory=dict)
     as_of: str = ""
-    _warned: set[str] = field(default_factory=set, compare=False, repr=False)
 
     def cost_usd(
         self, backend: str, model: str, prompt_tokens: int, completion_tokens: int
@@ -50,8 +54,8 @@ class PriceTable:
         spec = f"{backend}:{model}"
         price = self.prices.get(spec)
         if price is None:
-            if spec not in self._warned:
-                self._warned.add(spec)
+            if spec not in _WARNED_UNPRICED:  # once per process: agents are built per episode
+                _WARNED_UNPRICED.add(spec)
                 log.warning(
                     "no price for %s in the price table: its cost_usd is recorded as unknown", spec
                 )

@@ -2,7 +2,9 @@
 
 Inputs are the :class:`~skyvln_eval.metrics.records.LlmCall` records of each
 :class:`~skyvln_eval.metrics.records.EpisodeResult`. Per-episode totals are columns of
-the scores frame; :func:`module_costs` gives one row per (episode, module) and
+the scores frame (``llm_cost_usd`` sums the priced calls; ``llm_unpriced_calls`` counts
+calls whose model has no price, so a missing price is visible, not free);
+:func:`module_costs` gives one row per (episode, module) and
 :func:`summarise_costs` aggregates either over episodes. An episode without calls (a
 rule-free baseline, a failed start) has zero cost, never a missing value.
 """
@@ -23,6 +25,7 @@ COST_COLUMNS: dict[str, str] = {
     "llm_prompt_tokens": "tokens",
     "llm_completion_tokens": "tokens",
     "llm_cost_usd": "USD",
+    "llm_unpriced_calls": "calls",
     "llm_latency_s": "s",
 }
 
@@ -35,7 +38,8 @@ def call_totals(calls: Sequence[LlmCall]) -> dict[str, float]:
         "llm_failed_calls": float(sum(c.error is not None for c in calls)),
         "llm_prompt_tokens": float(sum(c.prompt_tokens for c in calls)),
         "llm_completion_tokens": float(sum(c.completion_tokens for c in calls)),
-        "llm_cost_usd": float(sum(c.cost_usd for c in calls)),
+        "llm_cost_usd": float(sum(c.cost_usd for c in calls if c.cost_usd is not None)),
+        "llm_unpriced_calls": float(sum(c.cost_usd is None for c in calls)),
         "llm_latency_s": float(sum(c.latency_s for c in calls)),
     }
 

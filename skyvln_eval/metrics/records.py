@@ -73,8 +73,10 @@ class LlmCall:
 
     ``module`` is the agent part that called (``"subgoals"``, ``"hsd_describe"``,
     ``"hsd_rank"``, ``"motion"``, ``"clarify"``, ...); ``cost_usd`` and ``latency_s`` are
-    what the call cost and took (0 for a cache hit's cost is the caller's choice);
-    ``error`` is the error message when the call failed.
+    what the call cost and took (0 for a cache hit's cost is the caller's choice;
+    ``cost_usd`` is ``None`` when the price table has no entry for the model, so an
+    unknown price is never reported as free); ``error`` is the error message when the call
+    failed.
     """
 
     module: str
@@ -82,7 +84,7 @@ class LlmCall:
     model: str
     prompt_tokens: int
     completion_tokens: int
-    cost_usd: float
+    cost_usd: float | None
     latency_s: float
     cached: bool = False
     error: str | None = None
@@ -96,6 +98,8 @@ class LlmCall:
                 )
         for name in ("cost_usd", "latency_s"):
             value = getattr(self, name)
+            if value is None and name == "cost_usd":
+                continue
             if (
                 isinstance(value, bool)
                 or not isinstance(value, int | float)

@@ -16,6 +16,7 @@ along the optical axis), so a pixel's point is ``camera + depth * ray(u, v)``.
 from __future__ import annotations
 
 import math
+import weakref
 from dataclasses import dataclass
 from typing import Any, Final
 
@@ -155,28 +156,51 @@ def _sample(
     return out
 
 
+_MAX_HEIGHTS: weakref.WeakKeyDictionary[WorldTile, float] = weakref.WeakKeyDictionary()
+
+
+def _max_height_m(world: WorldTile) -> float:
+    """The tallest point of the map (0 without a height layer), computed once per world."""
+    if world not in _MAX_HEIGHTS:
+        _MAX_HEIGHTS[world] = 0.0 if world.height_m is None else float(world.height_m.max())
+    return _MAX_HEIGHTS[world]
+
+
 def _march(
     world: WorldTile, origin: NDArray[np.float64], rays: NDArray[np.float64], levels: int
 ) -> FloatImage:
-    """Planar depth of the first surface each downward ray meets (``inf`` for rays that go up)."""
+    """Planar depth of the first surface each downward ray meets (``inf`` for rays that go up).
+
+    The ray is sampled where it crosses ``levels`` heights from the map's top down to the
+    ground; a hit is interpolated between the last level above the surface and the first
+    below it. Along a ray, map pixel coordinates are linear in the level's height, so each
+    level costs two multiply-adds and one height lookup.
+    """
     dz = rays[..., 2]
     down = dz < -1e-9
     safe_dz = np.where(down, dz, -1.0)
     ground_t = (0.0 - origin[2]) / safe_dz
-    if world.height_m is None or float(world.height_m.max()) <= 0.0:
+    max_height = _max_height_m(world)
+    if world.height_m is None or max_height <= 0.0:
         return np.where(down, ground_t, np.inf).astype(np.float32)
-    top = min(float(world.height_m.max()), origin[2] - 1e-3)
-    hit_t = ground_t.copy()
+    top = min(max_height, origin[2] - 1e-3)
+    mpp = world.georef.lat_ratio * METERS_PER_DEGREE
+    (lat0, _), (lat1, _) = world.georef.gps_botm_left, world.georef.gps_top_right
+    top_m = (lat1 - lat0) * METERS_PER_DEGREE
+    # At height z, with k = z - origin_z: t = k / dz, px = x0 + k * sx, py = y0 - k * sy.
+    inv_dz = (1.0 / safe_dz).astype(np.float32)
+    sx = (rays[..., 0] / safe_dz / mpp).astype(np.float32)
+    sy = (rays[..., 1] / safe_dz / mpp).astype(np.float32)
+    x0, y0 = np.float32(origin[0] / mpp), np.float32((top_m - origin[1]) / mpp)
+    hit_t = ground_t.astype(np.float32)
     found = ~down
-    previous: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+    previous: tuple[NDArray[np.float32], NDArray[np.float32]] | None = None
     for z_level in np.linspace(top, 0.0, levels):
-        t = (z_level - origin[2]) / safe_dz
-        px, py = enu_to_map_px(
-            world,
-            (origin[0] + t * rays[..., 0]).astype(np.float32),
-            (origin[1] + t * rays[..., 1]).astype(np.float32),
-        )
-        gap = _sample(world.height_m, px, py, nearest=False, fill=0.0).astype(np.float64) - z_level
+        k = np.float32(z_level - origin[2])
+        t = k * inv_dz
+        px = x0 + k * sx
+        py = y0 - k * sy
+        gap = _sample(world.height_m, px, py, nearest=False, fill=0.0) - np.float32(z_level)
         new = ~found & (gap >= 0.0)
         if previous is None:
             hit_t = np.where(new, t, hit_t)

@@ -13,8 +13,8 @@ from skyvln_eval.agent import AgentConfig, Stop, build_agent
 from skyvln_eval.fileio import atomic_write_json
 from skyvln_eval.harness import run_official_episode
 from skyvln_eval.llm import LLMConfig, RetryConfig
-from tests.llm.fake_openai_server import (
-    FakeOpenAIServer,
+from skyvln_eval.llm.loopback import (
+    LoopbackOpenAIServer,
     answer,
     hang,
     malformed,
@@ -51,7 +51,7 @@ def test_the_agent_survives_every_fault_with_retries_repair_and_fallback(tmp_pat
         answer("Let me think about it.", task="motion"),  # step 1: prose twice -> fallback
         answer("Still thinking!", task="motion"),
     ]
-    with FakeOpenAIServer(script) as server:
+    with LoopbackOpenAIServer(script) as server:
         rollout = run_official_episode(
             build_agent(openai_agent(server.base_url, tmp_path)), town_episode(RED), town_world()
         )
@@ -94,7 +94,7 @@ def test_the_api_key_appears_in_no_file_the_toolkit_writes(
     try:
         # The server echoes the key in an error, as real services do with a wrong key.
         script = [status(401), answer("not json at all", task="motion")]
-        with FakeOpenAIServer(
+        with LoopbackOpenAIServer(
             script, error_message=f"Incorrect API key provided: {sentinel}."
         ) as server:
             agent = build_agent(openai_agent(server.base_url, tmp_path))

@@ -21,8 +21,8 @@ from skyvln_eval.llm import (
     cache_key,
     create_backend,
 )
+from skyvln_eval.llm.loopback import LoopbackOpenAIServer, answer
 from skyvln_eval.llm.simple import ScriptedBackend
-from tests.llm.fake_openai_server import FakeOpenAIServer, answer
 
 PROMPT = [Message("user", "Which way?")]
 CONFIG = GenerationConfig(timeout_s=2.0)
@@ -83,7 +83,7 @@ def test_replay_with_an_empty_cache_fails_clearly(tmp_path: Path) -> None:
 
 def test_replay_answers_what_the_real_backend_answered(tmp_path: Path) -> None:
     path = str(tmp_path / "c.sqlite")
-    with FakeOpenAIServer([answer('{"go": "north"}')]) as server:
+    with LoopbackOpenAIServer([answer('{"go": "north"}')]) as server:
         live = build_client(
             LLMConfig(backend="openai:m", base_url=server.base_url, cache_path=path)
         )

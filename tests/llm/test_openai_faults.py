@@ -8,8 +8,8 @@ import pytest
 
 from skyvln_eval.errors import LLMError
 from skyvln_eval.llm import GenerationConfig, LLMClient, Message, RetryPolicy, create_backend
-from tests.llm.fake_openai_server import (
-    FakeOpenAIServer,
+from skyvln_eval.llm.loopback import (
+    LoopbackOpenAIServer,
     answer,
     hang,
     malformed,
@@ -23,7 +23,7 @@ CONFIG = GenerationConfig(timeout_s=0.5)
 HELLO = [Message("system", "You answer in JSON."), Message("user", "Say hello.")]
 
 
-def _client(server: FakeOpenAIServer, delays: list[float], **options: object) -> LLMClient:
+def _client(server: LoopbackOpenAIServer, delays: list[float], **options: object) -> LLMClient:
     backend = create_backend("openai:fake-model", base_url=server.base_url, **options)
     return LLMClient(backend, retry=FAST_RETRY, sleep=delays.append)
 
@@ -39,7 +39,7 @@ def test_every_transport_fault_is_retried_recorded_and_survived() -> None:
         answer('{"greeting": "hello"}'),
     ]
     delays: list[float] = []
-    with FakeOpenAIServer(script) as server:
+    with LoopbackOpenAIServer(script) as server:
         result = _client(server, delays).call("motion", HELLO, CONFIG)
         sent = len(server.requests)
     assert result.completion is not None and json.loads(result.completion.text) == {
@@ -62,7 +62,7 @@ def test_every_transport_fault_is_retried_recorded_and_survived() -> None:
 
 def test_the_client_gives_up_after_the_last_attempt_and_says_why() -> None:
     delays: list[float] = []
-    with FakeOpenAIServer([status(500)] * 8) as server:
+    with LoopbackOpenAIServer([status(500)] * 8) as server:
         result = _client(server, delays).call("subgoals", HELLO, CONFIG)
     assert result.completion is None
     assert result.error is not None and "gave up after 8 attempt(s)" in result.error
@@ -70,7 +70,7 @@ def test_the_client_gives_up_after_the_last_attempt_and_says_why() -> None:
 
 
 def test_a_client_error_is_not_retried() -> None:
-    with FakeOpenAIServer([status(401)]) as server:
+    with LoopbackOpenAIServer([status(401)]) as server:
         result = _client(server, []).call("motion", HELLO, CONFIG)
         assert len(server.requests) == 1
     assert result.completion is None and "HTTP 401" in (result.error or "")
@@ -80,7 +80,7 @@ def test_structured_output_is_requested_and_dropped_when_the_server_refuses_it()
     schema = {"type": "object", "properties": {"greeting": {"type": "string"}}}
     config = GenerationConfig(timeout_s=2.0, json_schema=schema, schema_name="greeting")
     script = [answer("{}"), refuse_schema("{}"), answer('{"greeting": "hi"}'), answer("{}")]
-    with FakeOpenAIServer(script) as server:
+    with LoopbackOpenAIServer(script) as server:
         client = _client(server, [])
         first = client.call("motion", HELLO, config)
         second = client.call("motion", [*HELLO, Message("user", "again")], config)
@@ -101,7 +101,7 @@ def test_images_go_as_data_urls_only_to_models_that_take_them() -> None:
 
     image = ImagePart(b"\x89PNG fake bytes")
     messages = [Message("user", "What is this?", (image,))]
-    with FakeOpenAIServer([answer("a"), answer("b")]) as server:
+    with LoopbackOpenAIServer([answer("a"), answer("b")]) as server:
         _client(server, [], takes_images=True).call("hsd_describe", messages, CONFIG)
         _client(server, [], takes_images=False).call("hsd_describe", messages, CONFIG)
         with_images, without = (r["body"]["messages"][0]["content"] for r in server.requests)

@@ -1,4 +1,7 @@
-"""A real HTTP server on 127.0.0.1 speaking the chat-completions protocol, with scripted faults.
+"""A loopback HTTP server speaking the OpenAI chat-completions protocol, with scripted faults.
+
+For tests, benchmarks and offline demonstrations of the ``openai`` backend: it runs on
+127.0.0.1 and needs no key.
 
 Each request to ``POST /v1/chat/completions`` takes the next :class:`Reply` of the script:
 an answer, an HTTP error status (with headers, e.g. Retry-After), a hang longer than the
@@ -103,11 +106,18 @@ def _completion_body(content: str, model: str) -> bytes:
     return json.dumps(body).encode()
 
 
-class FakeOpenAIServer:
-    """Start with ``with FakeOpenAIServer(script) as server:``; ``server.base_url`` ends in /v1."""
+class LoopbackOpenAIServer:
+    """``with LoopbackOpenAIServer(script) as server:``; ``server.base_url`` ends in /v1."""
 
-    def __init__(self, script: list[Reply], error_message: str = "injected") -> None:
-        self.script = list(script)
+    def __init__(
+        self,
+        script: list[Reply] | None = None,
+        error_message: str = "injected",
+        latency_s: float = 0.0,
+    ) -> None:
+        """``latency_s`` delays every answer, as a remote model's response time would."""
+        self.script = list(script or [])
+        self.latency_s = latency_s
         self.requests: list[dict[str, Any]] = []
         self._lock = threading.Lock()
         outer = self
@@ -145,8 +155,13 @@ class FakeOpenAIServer:
                     else:
                         reply = Reply("rule")
                 model = str(body.get("model", "fake"))
+                if outer.latency_s:
+                    time.sleep(outer.latency_s)
                 if reply.kind == "rule":
-                    text = RuleBackend().generate(_messages(body), GenerationConfig()).text
+                    try:
+                        text = RuleBackend().generate(_messages(body), GenerationConfig()).text
+                    except LLMError:  # a prompt without TASK DATA: answer it plainly
+                        text = "Hello from the loopback server."
                     self._send(200, _completion_body(text, model))
                 elif reply.kind == "answer":
                     self._send(200, _completion_body(reply.content, model))
@@ -181,9 +196,10 @@ class FakeOpenAIServer:
     @property
     def base_url(self) -> str:
         host, port = self._server.server_address[:2]
-        return f"http://{host}:{port}/v1"
+        host_text = host.decode() if isinstance(host, bytes) else str(host)
+        return f"http://{host_text}:{port}/v1"
 
-    def __enter__(self) -> FakeOpenAIServer:
+    def __enter__(self) -> LoopbackOpenAIServer:
         self._thread.start()
         return self
 

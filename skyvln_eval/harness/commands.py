@@ -1,0 +1,59 @@
+"""The ``run`` and ``reproduce`` commands (the CLI registers them; the work is here)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from skyvln_eval.harness.config import load_run_config
+from skyvln_eval.harness.executors import make_executor
+from skyvln_eval.harness.progress import RichRunProgress
+from skyvln_eval.harness.run import RunReport, run
+
+
+def describe_report(report: RunReport) -> list[str]:
+    """Human-readable lines of a completeness report (notes, failures, missing episodes)."""
+    lines = [*report.notes]
+    lines.append(
+        f"{report.system}: {len(report.expected)} episode(s), {report.already_done} already done, "
+        f"{report.ran_now} run now in {report.wall_s:.1f} s"
+        + (
+            f" ({report.simulated_s / report.wall_s:.0f}x real time)"
+            if report.wall_s and report.simulated_s
+            else ""
+        )
+    )
+    for (split, episode_id), message in report.failed.items():
+        lines.append(f"failed: {split}/{episode_id}: {message}")
+    if report.missing:
+        shown = ", ".join(f"{s}/{e}" for s, e in report.missing[:20])
+        lines.append(f"missing {len(report.missing)} episode(s): {shown}")
+    return lines
+
+
+def run_command(
+    config_path: Path,
+    out: Path | None,
+    workers: int | None,
+    executor: str | None,
+    ray_address: str | None,
+    retry_failed: bool,
+) -> RunReport:
+    config = load_run_config(
+        config_path, workers=workers, executor=executor, ray_address=ray_address
+    )
+    run_dir = out or Path("runs") / config_path.stem
+    report = run(
+        config,
+        run_dir,
+        executor=make_executor(config.executor, config.workers, config.ray_address),
+        progress=RichRunProgress(),
+        retry_failed=retry_failed,
+    )
+    for line in describe_report(report):
+        typer.echo(line, err=line.startswith(("failed", "missing", "dropped")))
+    typer.echo(
+        f"results: {run_dir / 'results.jsonl'}  (skyvln-eval score {run_dir / 'results.jsonl'})"
+    )
+    return report

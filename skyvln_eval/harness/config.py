@@ -1,0 +1,141 @@
+"""One typed configuration per run, loaded from YAML and validated with errors naming the field.
+
+A run is one system (agent parts, LLM backend, execution mode, controller, obstacle
+scenario) on one dataset's splits. ``configs/runs/*.yaml`` holds examples; the reproduce
+plan (:mod:`.plan`) lists several of them. The resolved configuration is written into
+the run directory, so every table row can be traced to the settings that made it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from skyvln_eval.agent.config import AgentConfig
+from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN, SPLITS, EpisodeMode, Split
+from skyvln_eval.errors import ConfigError
+from skyvln_eval.harness.executors import ExecutorKind
+from skyvln_eval.sim.scenarios import ScenarioKind
+
+ExecutionMode = Literal["official", "dynamics"]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class ObstacleSettings(_Strict):
+    """Obstacles met on every flown segment (dynamics mode), placed against its reference."""
+
+    kind: ScenarioKind = "crossing"
+    n_obstacles: int = Field(default=2, ge=0, le=8)
+    radius_m: float = Field(default=1.0, gt=0.0, description="r_obs: another drone, a bird flock")
+    safety_radius_m: float = Field(default=0.5, ge=0.0, description="r_s added by the controller")
+    obstacle_speed_m_s: float = Field(default=1.0, gt=0.0)
+
+
+class DynamicsSettings(_Strict):
+    """How actions are flown in dynamics mode: controller, reference, arrival, obstacles."""
+
+    controller: str = "nmpc"
+    controller_settings: dict[str, Any] = Field(default_factory=dict)
+    cruise_speed_m_s: float = Field(default=12.0, gt=0.0)
+    max_acceleration_m_s2: float = Field(default=3.5, gt=0.0)
+    yaw_rate_max_rad_s: float = Field(default=1.0, gt=0.0)
+    arrival_tolerance_m: float = Field(default=2.0, gt=0.0)
+    arrival_speed_m_s: float = Field(default=1.0, gt=0.0)
+    arrival_yaw_rad: float = Field(default=0.2, gt=0.0)
+    max_segment_time_s: float = Field(default=90.0, gt=0.0, description="per action, simulated")
+    obstacles: ObstacleSettings = ObstacleSettings()
+    end_on_collision: bool = Field(
+        default=True, description="a collision ends the episode where it happened (a crash)"
+    )
+
+
+class RunConfig(_Strict):
+    """One run: a system on some splits of a dataset.
+
+    ``system`` labels the run's rows in tables. ``data`` is ``"sample"`` (the bundled
+    synthetic sample, built on first use), ``"full"`` (the AVDN-sized synthetic set) or a
+    path to an AVDN-format dataset. ``episodes`` restricts the run to these episode ids;
+    ``limit`` to the first N episodes of each split (file order).
+    """
+
+    system: str = Field(min_length=1)
+    data: str = "sample"
+    splits: tuple[Split, ...] = ("val_seen", "val_unseen", "test_unseen")
+    episode_mode: EpisodeMode = "andh"
+    episodes: tuple[str, ...] | None = None
+    limit: int | None = Field(default=None, ge=1)
+    mode: ExecutionMode = "official"
+    agent: AgentConfig = AgentConfig()
+    dynamics: DynamicsSettings = DynamicsSettings()
+    max_action_len: int = Field(default=DEFAULT_MAX_ACTION_LEN, ge=1, le=100)
+    seed: int = 0
+    workers: int = Field(default=2, ge=1, le=256)
+    executor: ExecutorKind = "processes"
+    ray_address: str | None = None
+    write_logs: bool = Field(default=True, description="one run MCAP per episode")
+    observations_in_logs: bool = Field(default=True, description="camera images in the run MCAPs")
+
+    @field_validator("splits")
+    @classmethod
+    def _known_splits(cls, splits: tuple[str, ...]) -> tuple[str, ...]:
+        if not splits:
+            raise ValueError("at least one split is needed")
+        if len(set(splits)) != len(splits):
+            raise ValueError("a split is listed twice")
+        return splits
+
+    def digest(self) -> str:
+        """A short hash of the settings that decide the results (not workers or executor)."""
+        relevant = self.model_dump(
+            mode="json", exclude={"workers", "executor", "ray_address", "write_logs"}
+        )
+        text = yaml.safe_dump(relevant, sort_keys=True)
+        return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+    def to_yaml(self) -> str:
+        return yaml.safe_dump(self.model_dump(mode="json"), sort_keys=False, allow_unicode=True)
+
+
+def _problems(error: ValidationError) -> str:
+    return "; ".join(
+        f"{'.'.join(str(p) for p in e['loc']) or '(top level)'}: {e['msg']}" for e in error.errors()
+    )
+
+
+def run_config_from_mapping(data: Any, source: str) -> RunConfig:
+    """Validate a mapping as a run config; errors name ``source`` and the field path."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: a run config must be a mapping, got {type(data).__name__}")
+    try:
+        return RunConfig.model_validate(data)
+    except ValidationError as error:
+        raise ConfigError(f"{source}: {_problems(error)}") from None
+
+
+def load_run_config(path: str | Path, **overrides: Any) -> RunConfig:
+    """Read a YAML run config; ``overrides`` (e.g. ``workers=4``) replace top-level fields."""
+    file = Path(path)
+    try:
+        data = yaml.safe_load(file.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError) as error:
+        raise ConfigError(f"run config {file}: {error}") from error
+    data = dict(data or {}) | {k: v for k, v in overrides.items() if v is not None}
+    return run_config_from_mapping(data, f"run config {file}")
+
+
+__all__ = [
+    "SPLITS",
+    "DynamicsSettings",
+    "ExecutionMode",
+    "ObstacleSettings",
+    "RunConfig",
+    "load_run_config",
+    "run_config_from_mapping",
+]

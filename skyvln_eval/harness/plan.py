@@ -1,0 +1,197 @@
+"""Reproduce plans: which systems fill the paper's Table I and Table II, and how to run them.
+
+A plan (YAML, ``configs/reproduce/default.yaml``) names Table I's systems (agent parts,
+execution mode, controller) over its splits, Table II's LLM backends on one split, the
+control figures and the trajectory figures. :func:`planned_runs` turns it into one
+:class:`RunConfig` per (system, split), each with its own resumable run directory; a run
+whose settings equal another's (a Table II row that is a Table I system) is run once and
+shown under both labels.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from skyvln_eval.agent.config import AgentConfig
+from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN, EpisodeMode, Split
+from skyvln_eval.configs import config_path
+from skyvln_eval.errors import ConfigError
+from skyvln_eval.harness.config import DynamicsSettings, ExecutionMode, RunConfig
+from skyvln_eval.harness.executors import ExecutorKind
+
+DEFAULT_PLAN = "default"
+TableName = Literal["table1", "table2"]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class PlanSystem(_Strict):
+    """One system: its label, execution mode, controller and agent settings."""
+
+    label: str = Field(min_length=1)
+    mode: ExecutionMode = "dynamics"
+    controller: str = "nmpc"
+    agent: dict[str, Any] = Field(default_factory=dict)
+
+
+class Table1Plan(_Strict):
+    splits: tuple[Split, ...] = ("val_seen", "val_unseen", "test_unseen")
+    systems: tuple[PlanSystem, ...]
+
+
+class BackendPlan(_Strict):
+    label: str = Field(min_length=1)
+    llm: dict[str, Any]
+
+
+class Table2Plan(_Strict):
+    split: Split = "test_unseen"
+    system: PlanSystem
+    backends: tuple[BackendPlan, ...]
+    environment_variable: str | None = "SKYVLN_EVAL_BACKENDS"
+
+
+class ControlFiguresPlan(_Strict):
+    controllers: tuple[str, ...] = ("pid", "nmpc")
+    cases: tuple[str, ...] = ("static", "dynamic")
+
+
+class ReproducePlan(_Strict):
+    """Everything ``skyvln-eval reproduce`` runs and writes."""
+
+    name: str = "default"
+    data: str = "sample"
+    episode_mode: EpisodeMode = "andh"
+    seed: int = 0
+    max_action_len: int = Field(default=DEFAULT_MAX_ACTION_LEN, ge=1)
+    limit: int | None = Field(default=None, ge=1, description="episodes per split (quick plans)")
+    resamples: int = Field(default=1000, ge=0)
+    dynamics: DynamicsSettings = DynamicsSettings()
+    table1: Table1Plan
+    table2: Table2Plan
+    control_figures: ControlFiguresPlan = ControlFiguresPlan()
+    trajectory_figures: int = Field(default=2, ge=0)
+
+
+def load_plan(name_or_path: str | Path = DEFAULT_PLAN, **overrides: Any) -> ReproducePlan:
+    """A shipped plan by name (``default``) or a plan file; errors name the file and field."""
+    path = Path(name_or_path)
+    if not path.suffix:
+        path = config_path("reproduce", f"{name_or_path}.yaml")
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError) as error:
+        raise ConfigError(f"reproduce plan {path}: {error}") from error
+    data = dict(data or {}) | {k: v for k, v in overrides.items() if v is not None}
+    try:
+        return ReproducePlan.model_validate(data)
+    except ValidationError as error:
+        problems = "; ".join(
+            f"{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in error.errors()
+        )
+        raise ConfigError(f"reproduce plan {path}: {problems}") from None
+
+
+_ENDPOINT = re.compile(r"(openai:[^@\s]+)(?:@(\S+))?")
+
+
+def environment_backends(variable: str | None) -> list[BackendPlan]:
+    """Backends named in an environment variable: ``openai:<model>[@<base_url>],...``."""
+    value = os.environ.get(variable, "") if variable else ""
+    backends = []
+    for entry in (e.strip() for e in value.split(",")):
+        if not entry:
+            continue
+        match = _ENDPOINT.fullmatch(entry)
+        if match is None:
+            raise ConfigError(
+                f"${variable}: {entry!r} is not 'openai:<model>' or 'openai:<model>@<base_url>'"
+            )
+        backend, base_url = match.group(1), match.group(2)
+        label = backend.split(":", 1)[1] + (f" @ {base_url}" if base_url else "")
+        backends.append(BackendPlan(label=label, llm={"backend": backend, "base_url": base_url}))
+    return backends
+
+
+def slug(text: str) -> str:
+    """A file-system-safe name for a label (``"w/o HSD"`` -> ``"w-o-hsd"``)."""
+    return re.sub(r"[^a-z0-9]+", "-", text.lower()).strip("-") or "system"
+
+
+@dataclass(frozen=True)
+class PlannedRun:
+    """One run of the plan and the table rows it fills (``labels``)."""
+
+    config: RunConfig
+    run_dir: Path
+    rows: tuple[tuple[TableName, str], ...]
+
+
+def _agent(system: PlanSystem, llm: dict[str, Any] | None = None) -> AgentConfig:
+    data = dict(system.agent)
+    if llm is not None:
+        data["llm"] = {**dict(data.get("llm") or {}), **llm}
+    try:
+        return AgentConfig.model_validate(data)
+    except ValidationError as error:
+        raise ConfigError(f"system {system.label!r}: agent settings: {error}") from None
+
+
+def planned_runs(
+    plan: ReproducePlan,
+    out_dir: Path,
+    workers: int,
+    executor: ExecutorKind,
+    data: str | None = None,
+) -> list[PlannedRun]:
+    """One run per (system, split), deduplicated by settings (labels excluded)."""
+    wanted: list[tuple[TableName, str, PlanSystem, AgentConfig, Split, Path]] = []
+    for system in plan.table1.systems:
+        for split in plan.table1.splits:
+            run_dir = out_dir / "runs" / slug(system.label) / split
+            wanted.append(("table1", system.label, system, _agent(system), split, run_dir))
+    for backend in (*plan.table2.backends, *environment_backends(plan.table2.environment_variable)):
+        run_dir = out_dir / "runs" / "backends" / slug(backend.label) / plan.table2.split
+        agent = _agent(plan.table2.system, backend.llm)
+        wanted.append(
+            ("table2", backend.label, plan.table2.system, agent, plan.table2.split, run_dir)
+        )
+    runs: dict[str, PlannedRun] = {}
+    for table, label, system, agent, split, run_dir in wanted:
+        config = RunConfig(
+            system=label,
+            data=data or plan.data,
+            splits=(split,),
+            episode_mode=plan.episode_mode,
+            limit=plan.limit,
+            mode=system.mode,
+            agent=agent,
+            dynamics=plan.dynamics.model_copy(update={"controller": system.controller}),
+            max_action_len=plan.max_action_len,
+            seed=plan.seed,
+            workers=workers,
+            executor=executor,
+        )
+        key = results_digest(config)
+        if key in runs:
+            existing = runs[key]
+            runs[key] = PlannedRun(
+                existing.config, existing.run_dir, (*existing.rows, (table, label))
+            )
+        else:
+            runs[key] = PlannedRun(config, run_dir, ((table, label),))
+    return list(runs.values())
+
+
+def results_digest(config: RunConfig) -> str:
+    """The settings that decide a run's results, without its label."""
+    return config.model_copy(update={"system": "-"}).digest()

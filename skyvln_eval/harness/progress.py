@@ -1,0 +1,67 @@
+"""A progress bar for runs: episodes done, ETA, running success rate and LLM cost so far."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TaskID,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+
+from skyvln_eval.harness.run import Progress as RunProgress
+from skyvln_eval.harness.run import RunReport
+from skyvln_eval.metrics.records import EpisodeResult
+
+
+class RichRunProgress(RunProgress):
+    """Shows one bar per run; the rest of the console keeps working (transient bars)."""
+
+    def __init__(self, console: Console | None = None) -> None:
+        self.console = console or Console(stderr=True)
+        self._bar: Progress | None = None
+        self._task: TaskID | None = None
+        self.successes = 0
+        self.finished = 0
+        self.failed = 0
+        self.cost_usd = 0.0
+
+    def _stats(self) -> str:
+        rate = 100.0 * self.successes / self.finished if self.finished else 0.0
+        failed = f", {self.failed} failed" if self.failed else ""
+        return f"SR {rate:5.1f}% | LLM ${self.cost_usd:.4f}{failed}"
+
+    def start(self, description: str, total: int, already_done: int) -> None:
+        self._bar = Progress(
+            TextColumn("[bold]{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            TextColumn("ETA"),
+            TimeRemainingColumn(),
+            TextColumn("{task.fields[stats]}"),
+            console=self.console,
+            transient=False,
+        )
+        self._bar.start()
+        self._task = self._bar.add_task(
+            description, total=total, completed=already_done, stats=self._stats()
+        )
+
+    def episode_done(self, result: EpisodeResult, success: bool) -> None:
+        self.finished += 1
+        self.successes += int(success)
+        self.failed += int(result.status == "failed")
+        self.cost_usd += sum(c.cost_usd or 0.0 for c in result.llm_calls)
+        if self._bar is not None and self._task is not None:
+            self._bar.update(self._task, advance=1, stats=self._stats())
+
+    def finish(self, reports: Sequence[RunReport]) -> None:
+        if self._bar is not None:
+            self._bar.stop()

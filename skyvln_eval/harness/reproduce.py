@@ -1,0 +1,265 @@
+"""``skyvln-eval reproduce``: run a plan and regenerate the paper's tables and figures.
+
+Writes under the output directory:
+
+- ``runs/``: one resumable run directory per (system, split) (results, run MCAPs, control logs);
+- ``scores/scores.csv`` and ``scores/summary.csv``: every episode's scores and the means
+  with bootstrap 95% intervals, under the stated metric conventions;
+- ``tables/table1.{md,tex,csv}``, ``tables/table2.{md,tex,csv}`` (and ``*_ci.md`` with
+  intervals), ``tables/control.md`` (safety and control of the flown systems) and
+  ``tables/cost.md`` (LLM calls, tokens, cost and latency per backend);
+- ``figures/``: the control figures of the static and dynamic obstacle cases, SR vs the
+  success threshold, the NE distribution and trajectories over their maps;
+- ``dataset_summary.json`` and ``SUMMARY.md``, which links everything.
+
+Interrupted, it resumes: finished episodes are not run again.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pandas as pd
+
+from skyvln_eval.avdn.constants import SPLITS, annotation_file_name
+from skyvln_eval.avdn.loader import load_split
+from skyvln_eval.avdn.summary import SplitSummary, summarise_split
+from skyvln_eval.fileio import atomic_write_json, atomic_write_text
+from skyvln_eval.harness.executors import ExecutorKind, make_executor
+from skyvln_eval.harness.plan import PlannedRun, ReproducePlan, planned_runs
+from skyvln_eval.harness.run import Progress, RunReport, execute_jobs, prepare_job, resolve_data_dir
+from skyvln_eval.metrics import MetricConventions, score_results, summarise
+from skyvln_eval.metrics.records import EpisodeResult
+from skyvln_eval.metrics.scores_io import write_scores
+from skyvln_eval.reports import TABLE_I, TABLE_II, build_table, to_csv, to_latex, to_markdown
+
+TABLE_METRICS = ("success", "oracle_success", "spl", "gp_m", "ne_m", "path_length_m")
+CONTROL_METRICS = (
+    "collided",
+    "min_clearance_m",
+    "solve_failures",
+    "rmse_x_m",
+    "rmse_y_m",
+    "rmse_z_m",
+    "solve_time_p50_ms",
+    "solve_time_max_ms",
+)
+COST_METRICS = (
+    "llm_calls",
+    "llm_prompt_tokens",
+    "llm_completion_tokens",
+    "llm_cost_usd",
+    "llm_latency_s",
+)
+
+
+@dataclass
+class ReproduceReport:
+    out_dir: Path
+    reports: list[RunReport]
+    files: dict[str, Path] = field(default_factory=dict)
+    wall_s: float = 0.0
+
+    @property
+    def complete(self) -> bool:
+        return all(r.complete for r in self.reports)
+
+
+def _labelled(
+    planned: PlannedRun, results: Sequence[EpisodeResult], table: str
+) -> list[EpisodeResult]:
+    labels = [label for t, label in planned.rows if t == table]
+    return [dataclasses.replace(r, system=label) for label in labels for r in results]
+
+
+def _write_tables(
+    summary: pd.DataFrame,
+    plan: ReproducePlan,
+    table2_rows: list[str],
+    conventions: MetricConventions,
+    tables_dir: Path,
+) -> dict[str, Path]:
+    files: dict[str, Path] = {}
+    table1_rows = [s.label for s in plan.table1.systems]
+    for name, spec, rows in (("table1", TABLE_I, table1_rows), ("table2", TABLE_II, table2_rows)):
+        table = build_table(summary, spec, conventions, rows=rows)
+        for suffix, render in (("md", to_markdown), ("tex", to_latex), ("csv", to_csv)):
+            path = tables_dir / f"{name}.{suffix}"
+            atomic_write_text(path, render(table))
+            files[f"{name}.{suffix}"] = path
+        if "ci_low" in summary.columns:
+            path = tables_dir / f"{name}_ci.md"
+            atomic_write_text(
+                path, to_markdown(build_table(summary, spec, conventions, rows=rows, show_ci=True))
+            )
+            files[f"{name}_ci.md"] = path
+    return files
+
+
+def _metric_table(
+    scores: pd.DataFrame, systems: Sequence[str], metrics: Sequence[str], title: str
+) -> str:
+    present = [m for m in metrics if m in scores.columns]
+    sel = scores[scores["system"].isin(systems)]
+    lines = [
+        f"### {title}",
+        "",
+        "| system | episodes | " + " | ".join(present) + " |",
+        "|---|---|" + "---|" * len(present),
+    ]
+    for system in systems:
+        group = sel[sel["system"] == system]
+        if group.empty:
+            continue
+        cells = []
+        for metric in present:
+            values = group[metric].dropna()
+            cells.append(f"{values.mean():.3f}" if len(values) else "-")
+        lines.append(f"| {system} | {len(group)} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _control_figures(plan: ReproducePlan, out_dir: Path) -> dict[str, Path]:
+    from skyvln_eval.control import record_paper_runs
+    from skyvln_eval.metrics import read_control_log
+    from skyvln_eval.reports import control_figure, save_figure
+
+    spec = plan.control_figures
+    paths = record_paper_runs(out_dir / "control_runs", spec.controllers, spec.cases, plan.seed)
+    files: dict[str, Path] = {}
+    for case in spec.cases:
+        frames = [read_control_log(p) for (_, c), p in paths.items() if c == case]
+        log = pd.concat(frames, ignore_index=True)
+        figure = control_figure(log, title=f"6-DOF curves and errors, {case} obstacle case")
+        for suffix in ("png", "pdf"):
+            files[f"control_{case}.{suffix}"] = save_figure(
+                figure, out_dir / "figures" / f"control_{case}.{suffix}"
+            )
+    return files
+
+
+def _navigation_figures(
+    scores: pd.DataFrame, systems: Sequence[str], conventions: MetricConventions, figures_dir: Path
+) -> dict[str, Path]:
+    from skyvln_eval.reports import ne_distribution_figure, save_figure, sr_vs_threshold_figure
+
+    present = [s for s in systems if s in set(scores["system"])]
+    return {
+        "sr_vs_threshold.png": save_figure(
+            sr_vs_threshold_figure(scores, conventions, present),
+            figures_dir / "sr_vs_threshold.png",
+        ),
+        "ne_distribution.png": save_figure(
+            ne_distribution_figure(scores, present), figures_dir / "ne_distribution.png"
+        ),
+    }
+
+
+def _trajectory_figures(
+    results: Sequence[EpisodeResult], data_dir: Path, count: int, figures_dir: Path
+) -> dict[str, Path]:
+    from skyvln_eval.reports import save_figure, trajectory_figure
+    from skyvln_eval.worlds.loading import load_world
+
+    files: dict[str, Path] = {}
+    chosen = [r for r in results if r.status == "ok" and len(r.visited_views)][:count]
+    for result in chosen:
+        split = load_split(data_dir, result.split)
+        record = next(r for r in split.records if r.episode_id == result.episode_id)
+        world = load_world(data_dir, record.map_name, record.georef)
+        figure = trajectory_figure(
+            world,
+            result.gt_path_corners,
+            result.visited_views,
+            title=f"{result.system}: {result.split} {result.episode_id}",
+        )
+        name = f"trajectory_{result.episode_id}.png"
+        files[name] = save_figure(figure, figures_dir / name)
+    return files
+
+
+def _dataset_summary(data_dir: Path) -> list[SplitSummary]:
+    return [
+        summarise_split(load_split(data_dir, split))
+        for split in SPLITS
+        if (data_dir / "annotations" / annotation_file_name(split)).is_file()
+    ]
+
+
+def reproduce(
+    plan: ReproducePlan,
+    out_dir: str | Path,
+    workers: int = 2,
+    executor: ExecutorKind = "processes",
+    data: str | None = None,
+    progress: Progress | None = None,
+) -> ReproduceReport:
+    """Run every planned system, then write scores, tables, figures and the summary."""
+    out_dir = Path(out_dir)
+    started = time.perf_counter()
+    data_dir = resolve_data_dir(data or plan.data)
+    datasets = _dataset_summary(data_dir)
+    atomic_write_json(
+        out_dir / "dataset_summary.json",
+        {"data_dir": str(data_dir), "splits": [dataclasses.asdict(s) for s in datasets]},
+        indent=1,
+    )
+    runs = planned_runs(plan, out_dir, workers, executor, str(data_dir))
+    jobs = [prepare_job(r.config, r.run_dir) for r in runs]
+    reports = execute_jobs(
+        jobs, make_executor(executor, workers), progress, f"reproduce ({plan.name})"
+    )
+    report = ReproduceReport(out_dir, reports)
+    results: list[EpisodeResult] = []
+    table2_rows: list[str] = []
+    for planned, job in zip(runs, jobs, strict=True):
+        stored = job.store.results()
+        results += _labelled(planned, stored, "table1") + _labelled(planned, stored, "table2")
+        table2_rows += [label for table, label in planned.rows if table == "table2"]
+    conventions = MetricConventions()
+    scores = score_results(results, conventions)
+    summary = summarise(
+        scores,
+        [m for m in (*TABLE_METRICS, *CONTROL_METRICS, *COST_METRICS) if m in scores],
+        plan.resamples,
+        seed=plan.seed,
+    )
+    write_scores(out_dir / "scores" / "scores.csv", scores, conventions)
+    atomic_write_text(
+        out_dir / "scores" / "summary.csv",
+        f"# conventions: {conventions.to_json()}\n"
+        + summary.to_csv(index=False, lineterminator="\n"),
+    )
+    report.files |= {
+        "scores.csv": out_dir / "scores" / "scores.csv",
+        "summary.csv": out_dir / "scores" / "summary.csv",
+    }
+    tables_dir = out_dir / "tables"
+    report.files |= _write_tables(summary, plan, table2_rows, conventions, tables_dir)
+    table1_rows = [s.label for s in plan.table1.systems]
+    flown = [s.label for s in plan.table1.systems if s.mode == "dynamics"]
+    atomic_write_text(
+        tables_dir / "control.md",
+        _metric_table(scores, flown, CONTROL_METRICS, "Safety and control (flown systems)"),
+    )
+    atomic_write_text(
+        tables_dir / "cost.md",
+        _metric_table(
+            scores, table2_rows, COST_METRICS, f"LLM cost per episode ({plan.table2.split})"
+        ),
+    )
+    report.files |= {"control.md": tables_dir / "control.md", "cost.md": tables_dir / "cost.md"}
+    figures_dir = out_dir / "figures"
+    report.files |= _control_figures(plan, out_dir)
+    report.files |= _navigation_figures(scores, table1_rows, conventions, figures_dir)
+    full = [r for r in results if r.system == table1_rows[-1] and r.split == plan.table2.split]
+    report.files |= _trajectory_figures(full, data_dir, plan.trajectory_figures, figures_dir)
+    report.wall_s = time.perf_counter() - started
+    from skyvln_eval.harness.summary_page import write_summary_page
+
+    report.files["SUMMARY.md"] = write_summary_page(report, plan, datasets, conventions, scores)
+    return report

@@ -1,0 +1,289 @@
+"""Run a configuration over its episodes: resumably, on any executor, with progress.
+
+A run directory holds:
+
+- ``config.yaml``: the resolved :class:`RunConfig` (a directory never mixes two configs);
+- ``versions.json``: toolkit and library versions, git revision (:mod:`.provenance`);
+- ``results.jsonl``: one :class:`EpisodeResult` per episode, appended as episodes finish
+  (:mod:`.store`), so ``skyvln-eval score`` works on it directly;
+- ``logs/<split>/<episode_id>.mcap``: the run MCAP of each episode;
+- ``control/<split>/<episode_id>.parquet``: the control log of each episode (dynamics);
+- ``run.json``: the last completeness report (done, failed, missing episodes).
+
+Episodes are read from episode MCAPs, converted once from the dataset into the cache
+(:func:`episode_logs`). Running again after a crash or ``kill -9`` runs only the episodes
+that have no row; the result rows (and so the scores) are those of an uninterrupted run.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from skyvln_eval.converters.batch import convert_split
+from skyvln_eval.converters.convert import ConvertOptions
+from skyvln_eval.converters.reader import read_episode
+from skyvln_eval.errors import ConfigError
+from skyvln_eval.fileio import atomic_write_json, atomic_write_text
+from skyvln_eval.harness.config import RunConfig, run_config_from_mapping
+from skyvln_eval.harness.executors import Executor, make_executor
+from skyvln_eval.harness.official_loop import official_success
+from skyvln_eval.harness.provenance import provenance
+from skyvln_eval.harness.runner import EpisodeTask, run_episode_task
+from skyvln_eval.harness.store import ResultStore, RowKey, key_of
+from skyvln_eval.metrics.records import EpisodeResult
+from skyvln_eval.paths import cache_root
+
+CONFIG_FILE = "config.yaml"
+VERSIONS_FILE = "versions.json"
+REPORT_FILE = "run.json"
+#: Episode logs for the harness carry no images: it needs the episode, not its pictures.
+EPISODE_LOG_OPTIONS = ConvertOptions(observations=False, map_tile_max_side_px=0)
+
+
+def resolve_data_dir(data: str) -> Path:
+    """``"sample"`` / ``"full"`` (synthetic, built on first use) or an AVDN-format folder."""
+    if data in ("sample", "full"):
+        from skyvln_eval.worlds.sample import ensure_dataset
+
+        return ensure_dataset(data)
+    path = Path(data).expanduser()
+    if not (path / "annotations").is_dir():
+        raise ConfigError(f"data {data!r} is neither 'sample', 'full' nor an AVDN-format folder")
+    return path.resolve()
+
+
+def episode_logs_root(data_dir: Path) -> Path:
+    digest = hashlib.sha256(str(data_dir.resolve()).encode()).hexdigest()[:12]
+    return cache_root() / "episode-logs" / digest
+
+
+def episode_logs(config: RunConfig, data_dir: Path) -> dict[RowKey, Path]:
+    """The episode MCAP of every episode the run covers, in run order (converted if needed)."""
+    out: dict[RowKey, Path] = {}
+    wanted = set(config.episodes) if config.episodes is not None else None
+    for split in config.splits:
+        report = convert_split(
+            data_dir,
+            split,
+            episode_logs_root(data_dir),
+            config.episode_mode,
+            options=EPISODE_LOG_OPTIONS,
+        )
+        rows = [r for r in report.rows if wanted is None or r.episode_id in wanted]
+        if config.limit is not None:
+            rows = rows[: config.limit]
+        for row in rows:
+            out[(split, row.episode_id)] = report.out_dir / row.file_name
+    if wanted is not None:
+        unknown = wanted - {episode_id for _, episode_id in out}
+        if unknown:
+            shown = ", ".join(sorted(unknown)[:10])
+            raise ConfigError(f"episodes not found in {', '.join(config.splits)}: {shown}")
+    return out
+
+
+def prepare_run_dir(config: RunConfig, run_dir: Path) -> None:
+    """Create the run directory, or check that it holds a run of this same configuration."""
+    path = run_dir / CONFIG_FILE
+    if path.exists():
+        import yaml
+
+        existing = run_config_from_mapping(yaml.safe_load(path.read_text()), str(path))
+        if existing.digest() != config.digest():
+            raise ConfigError(
+                f"{run_dir} holds a run of another configuration ({existing.system!r}, "
+                f"{existing.digest()}); resume it with that config or use a new run directory"
+            )
+    run_dir.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(path, config.to_yaml())
+    atomic_write_json(run_dir / VERSIONS_FILE, provenance(), indent=1)
+
+
+@dataclass
+class RunReport:
+    """What a run covers and what happened: done, failed and missing episodes."""
+
+    run_dir: Path
+    system: str
+    expected: list[RowKey]
+    ran_now: int = 0
+    already_done: int = 0
+    failed: dict[RowKey, str] = field(default_factory=dict)
+    missing: list[RowKey] = field(default_factory=list)
+    wall_s: float = 0.0
+    simulated_s: float = 0.0
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def complete(self) -> bool:
+        return not self.missing
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "system": self.system,
+            "expected": len(self.expected),
+            "ran_now": self.ran_now,
+            "already_done": self.already_done,
+            "failed": {f"{s}/{e}": msg for (s, e), msg in self.failed.items()},
+            "missing": [f"{s}/{e}" for s, e in self.missing],
+            "wall_s": round(self.wall_s, 3),
+            "simulated_s": round(self.simulated_s, 3),
+            "notes": self.notes,
+        }
+
+
+class Progress:
+    """Receives run events; the CLI shows a progress bar, tests collect them."""
+
+    def start(self, description: str, total: int, already_done: int) -> None: ...
+
+    def episode_done(self, result: EpisodeResult, success: bool) -> None: ...
+
+    def finish(self, reports: Sequence[RunReport]) -> None: ...
+
+
+def _success(result: EpisodeResult) -> bool:
+    if result.status != "ok" or len(result.visited_views) == 0 or len(result.gt_path_corners) < 2:
+        return False
+    return official_success(result.visited_views[-1], result.gt_path_corners[-1])
+
+
+def _crash_result(config: RunConfig, task: EpisodeTask, error: BaseException) -> EpisodeResult:
+    # The worker died (or Ray lost it) before returning: record the episode as failed,
+    # with its ground truth so that the failure counts in every score.
+    episode = read_episode(task.episode_log)
+    return EpisodeResult(
+        episode_id=task.episode_id,
+        split=task.split,
+        mode=config.episode_mode,
+        system=config.system,
+        status="failed",
+        visited_views=np.zeros((0, 4, 2)),
+        gt_path_corners=episode.gt_path_corners,
+        error=f"worker crashed: {type(error).__name__}: {error}",
+        extra={"config_digest": config.digest(), "execution_mode": config.mode},
+    )
+
+
+@dataclass
+class RunJob:
+    """One run prepared for execution: its store, its report and the episodes still to run."""
+
+    config: RunConfig
+    run_dir: Path
+    store: ResultStore
+    report: RunReport
+    tasks: list[EpisodeTask]
+
+
+def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = False) -> RunJob:
+    """Convert the run's episodes if needed, check the run directory, find what is left."""
+    run_dir = Path(run_dir)
+    data_dir = resolve_data_dir(config.data)
+    logs = episode_logs(config, data_dir)
+    prepare_run_dir(config, run_dir)
+    store = ResultStore(run_dir)
+    report = RunReport(run_dir, config.system, list(logs), notes=store.recovery.messages())
+    todo = store.missing(logs, retry_failed=retry_failed)
+    report.already_done = len(logs) - len(todo)
+    config_json = config.model_dump_json()
+    tasks = [
+        EpisodeTask(
+            config_json,
+            str(data_dir),
+            str(run_dir),
+            split,
+            episode_id,
+            str(logs[(split, episode_id)]),
+        )
+        for split, episode_id in todo
+    ]
+    return RunJob(config, run_dir, store, report, tasks)
+
+
+def _finish(job: RunJob, wall_s: float) -> None:
+    report = job.report
+    report.wall_s = wall_s
+    results = {key_of(r): r for r in job.store.results()}
+    report.missing = [key for key in report.expected if key not in results]
+    report.failed = {
+        key: (results[key].error or "").splitlines()[0]
+        for key in report.expected
+        if key in results and results[key].status == "failed"
+    }
+    report.simulated_s = sum(
+        float(results[k].extra.get("simulated_s", 0.0)) for k in report.expected if k in results
+    )
+    atomic_write_json(job.run_dir / REPORT_FILE, report.to_json(), indent=1)
+
+
+def execute_jobs(
+    jobs: Sequence[RunJob],
+    executor: Executor,
+    progress: Progress | None = None,
+    description: str = "episodes",
+    task_function: Callable[[EpisodeTask], EpisodeResult] = run_episode_task,
+) -> list[RunReport]:
+    """Run every job's remaining episodes in one executor pass; rows go to each job's store.
+
+    Tasks are grouped by map (then run, then episode) so that each worker's world cache
+    serves many episodes in a row.
+    """
+    progress = progress or Progress()
+    by_dir = {str(job.run_dir): job for job in jobs}
+    tasks = sorted(
+        (task for job in jobs for task in job.tasks),
+        key=lambda t: (t.episode_id.split("__")[0], t.run_dir, t.split, t.episode_id),
+    )
+    total = sum(len(job.report.expected) for job in jobs)
+    progress.start(description, total, total - len(tasks))
+    started = time.perf_counter()
+    for task, outcome in executor.map_unordered(task_function, tasks):
+        job = by_dir[task.run_dir]
+        result = (
+            outcome
+            if isinstance(outcome, EpisodeResult)
+            else _crash_result(job.config, task, outcome)
+        )
+        job.store.append(result)
+        job.report.ran_now += 1
+        progress.episode_done(result, _success(result))
+    wall_s = time.perf_counter() - started
+    for job in jobs:
+        _finish(job, wall_s)
+    reports = [job.report for job in jobs]
+    progress.finish(reports)
+    return reports
+
+
+def run(
+    config: RunConfig,
+    run_dir: str | Path,
+    executor: Executor | None = None,
+    progress: Progress | None = None,
+    retry_failed: bool = False,
+    task_function: Callable[[EpisodeTask], EpisodeResult] = run_episode_task,
+) -> RunReport:
+    """Run ``config`` into ``run_dir``, skipping episodes already recorded there."""
+    job = prepare_job(config, run_dir, retry_failed)
+    executor = executor or make_executor(config.executor, config.workers, config.ray_address)
+    return execute_jobs([job], executor, progress, config.system, task_function)[0]
+
+
+def run_results(run_dir: str | Path, keys: Sequence[RowKey] | None = None) -> list[EpisodeResult]:
+    """The results of a run directory (all, or ``keys`` in that order)."""
+    store = ResultStore(run_dir)
+    if keys is None:
+        return store.results()
+    return [r for key in keys if (r := store.get(key)) is not None]
+
+
+def read_report(run_dir: str | Path) -> dict[str, object]:
+    return json.loads((Path(run_dir) / REPORT_FILE).read_text())

@@ -1,0 +1,305 @@
+"""Run MCAPs: one log per (run, episode), Foxglove-ready, with everything the run did.
+
+A run log holds the episode itself (its metadata, so :func:`read_episode` works on it;
+GT path, GT views, destination, attention and map tile at time 0; the dialog at time 0,
+since the agent is given it at the start) and then, on the run's clock (simulated
+seconds; one second per step in official mode):
+
+- ``/tf`` and ``/run/path``: where the drone was, ``/run/views``: every visited view;
+- ``/camera/observation``: the view below the drone at each decision (224 x 224, JPEG);
+- ``/agent/step`` (:data:`AGENT_STEP`): thought, action, feedback and the decision's
+  trace (sub-goals, detections with HSD sectors, HSD matches, the TrackBack memory graph),
+  ``/agent/log``: the same as text, ``/agent/target``: each action's target pose;
+- ``/llm/exchange``: every prompt and response;
+- dynamics mode: ``/control/step`` per control step (state, reference, command, solve
+  statistics, clearance) and ``/sim/obstacles`` (the spheres, every half second).
+
+Messages are collected with their times and written in time order (static content
+first); the writer renames the file into place only when it is complete.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+
+from skyvln_eval.agent.actions import Action, action_record
+from skyvln_eval.avdn.imagery import observe_view
+from skyvln_eval.avdn.records import Episode
+from skyvln_eval.converters import messages as fx
+from skyvln_eval.converters import topics as t
+from skyvln_eval.converters.convert import (
+    DEFAULT_OPTIONS,
+    ConvertOptions,
+    encode_image,
+    episode_metadata,
+    write_dialog_turn,
+    write_static_content,
+)
+from skyvln_eval.converters.writer import McapLogWriter
+from skyvln_eval.frames import ViewPose, latlng_to_enu, view_to_pose
+from skyvln_eval.sim.obstacles import ObstacleScenario
+from skyvln_eval.worlds.tile import WorldTile
+
+NS = 1_000_000_000
+VISITED_RGBA = (0.1, 0.6, 1.0, 1.0)
+OBSTACLE_RGBA = (1.0, 0.3, 0.1, 0.6)
+OBSTACLE_SAMPLE_S = 0.5
+
+
+@dataclass
+class Step:
+    """One decision of the agent as the run log needs it."""
+
+    t_s: float
+    step_index: int
+    view: NDArray[np.float64]
+    thought: str
+    action: Action
+    feedback: str | None
+    trace: Mapping[str, Any]
+    target: ViewPose | None = None
+
+
+@dataclass
+class RunLogContent:
+    """Everything a run log shows, from either execution mode."""
+
+    run_metadata: dict[str, str]
+    steps: list[Step]
+    views: list[NDArray[np.float64]]
+    view_times_s: list[float]
+    control_log: pd.DataFrame | None = None
+    obstacle_segments: list[tuple[float, float, ObstacleScenario]] = field(default_factory=list)
+
+
+def _ns(t_s: float) -> int:
+    return max(0, round(t_s * NS))
+
+
+class _Messages:
+    """Messages collected with (time, order) and written sorted by both."""
+
+    def __init__(self) -> None:
+        self.items: list[tuple[int, int, str, str, Any]] = []
+
+    def add(self, t_ns: int, topic: str, message: Any) -> None:
+        self.items.append((t_ns, len(self.items), topic, t.TOPICS[topic], message))
+
+    def write(self, writer: McapLogWriter) -> None:
+        for t_ns, _, topic, schema, message in sorted(self.items, key=lambda m: (m[0], m[1])):
+            writer.write(topic, schema, message, t_ns)
+
+
+def _drone_tf(t_ns: int, pose: ViewPose) -> Any:
+    return fx.frame_transform(
+        t_ns,
+        t.MAP_FRAME,
+        t.DRONE_FRAME,
+        fx.vector3(pose.x_m, pose.y_m, pose.z_m),
+        fx.yaw_quaternion(pose.yaw_rad),
+    )
+
+
+def _view_loop(view: NDArray[np.float64], episode: Episode) -> list[list[float]]:
+    xy = latlng_to_enu(view, episode.georef)
+    return [[float(x), float(y), 0.0] for x, y in xy]
+
+
+def _trace_without_exchanges(trace: Mapping[str, Any]) -> dict[str, Any]:
+    return json.loads(json.dumps({k: v for k, v in trace.items() if k != "exchanges"}, default=str))
+
+
+def _agent_messages(
+    out: _Messages,
+    episode: Episode,
+    world: WorldTile | None,
+    steps: Sequence[Step],
+    options: ConvertOptions,
+    observations: bool,
+) -> None:
+    for step in steps:
+        t_ns = _ns(step.t_s)
+        pose = view_to_pose(step.view, episode.georef)
+        out.add(t_ns, t.TOPIC_TF, _drone_tf(t_ns, pose))
+        if world is not None and observations:
+            image = encode_image(
+                observe_view(world.bgr, step.view, episode.georef),
+                options.image_format,
+                options.jpeg_quality,
+            )
+            out.add(
+                t_ns,
+                t.TOPIC_OBSERVATION,
+                fx.compressed_image(t_ns, t.CAMERA_FRAME, image, options.image_format),
+            )
+        record = action_record(step.action)
+        out.add(
+            t_ns,
+            t.TOPIC_AGENT_STEP,
+            {
+                "timestamp": fx.timestamp(t_ns),
+                "episode_id": episode.episode_id,
+                "step_index": step.step_index,
+                "thought": step.thought,
+                "action": record,
+                "feedback": step.feedback,
+                "trace": _trace_without_exchanges(step.trace),
+            },
+        )
+        out.add(
+            t_ns,
+            t.TOPIC_AGENT_LOG,
+            fx.log(t_ns, "agent", f"step {step.step_index}: {json.dumps(record)} | {step.thought}"),
+        )
+        for exchange in step.trace.get("exchanges", []) or []:
+            prompt = [
+                {
+                    "role": str(m.get("role", "")),
+                    "text": str(m.get("text", "")),
+                    "images": len(m.get("images") or []),
+                }
+                for m in exchange.get("prompt", [])
+            ]
+            out.add(
+                t_ns,
+                t.TOPIC_LLM_EXCHANGE,
+                {
+                    "timestamp": fx.timestamp(t_ns),
+                    "episode_id": episode.episode_id,
+                    "step_index": step.step_index,
+                    "module": str(exchange.get("module", "")),
+                    "prompt": prompt,
+                    "response": exchange.get("response"),
+                    "error": exchange.get("error"),
+                },
+            )
+        if step.target is not None:
+            target = fx.pose(step.target.x_m, step.target.y_m, step.target.z_m, step.target.yaw_rad)
+            out.add(t_ns, t.TOPIC_AGENT_TARGET, fx.pose_in_frame(t_ns, t.MAP_FRAME, target))
+
+
+def _path_messages(out: _Messages, episode: Episode, content: RunLogContent) -> None:
+    poses: list[Any] = []
+    for k, (view, t_s) in enumerate(zip(content.views, content.view_times_s, strict=True)):
+        t_ns = _ns(t_s)
+        pose = view_to_pose(view, episode.georef)
+        poses.append(fx.pose(pose.x_m, pose.y_m, pose.z_m, pose.yaw_rad))
+        out.add(t_ns, t.TOPIC_RUN_PATH, fx.poses_in_frame(t_ns, t.MAP_FRAME, list(poses)))
+        square = fx.line(_view_loop(view, episode), VISITED_RGBA, True, 2.0)
+        out.add(
+            t_ns,
+            t.TOPIC_RUN_VIEWS,
+            fx.scene_update(
+                t_ns, t.MAP_FRAME, f"visited_view_{k}", [square], {"episode_id": episode.episode_id}
+            ),
+        )
+
+
+def _finite_or_none(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
+
+
+def _control_messages(out: _Messages, log: pd.DataFrame) -> None:
+    columns = {name: log[name].to_numpy() for name in log.columns}
+    for i in range(len(log)):
+        t_ns = _ns(float(columns["t_s"][i]))
+        pose = ViewPose(
+            float(columns["x_m"][i]),
+            float(columns["y_m"][i]),
+            float(columns["z_m"][i]),
+            float(columns["yaw_rad"][i]),
+        )
+        out.add(t_ns, t.TOPIC_TF, _drone_tf(t_ns, pose))
+        out.add(
+            t_ns,
+            t.TOPIC_CONTROL_STEP,
+            {
+                "timestamp": fx.timestamp(t_ns),
+                "controller": str(columns["controller"][i]),
+                "position_m": [pose.x_m, pose.y_m, pose.z_m],
+                "velocity_m_s": [float(columns[c][i]) for c in ("vx_m_s", "vy_m_s", "vz_m_s")],
+                "attitude_rad": [
+                    float(columns[c][i]) for c in ("roll_rad", "pitch_rad", "yaw_rad")
+                ],
+                "reference_position_m": [
+                    float(columns[c][i]) for c in ("ref_x_m", "ref_y_m", "ref_z_m")
+                ],
+                "reference_yaw_rad": float(columns["ref_yaw_rad"][i]),
+                "command": {
+                    "thrust_m_s2": float(columns["cmd_thrust_m_s2"][i]),
+                    "roll_rad": float(columns["cmd_roll_rad"][i]),
+                    "pitch_rad": float(columns["cmd_pitch_rad"][i]),
+                },
+                "solve_time_ms": float(columns["solve_time_ms"][i]),
+                "iterations": int(columns["iterations"][i]),
+                "status": str(columns["status"][i]),
+                "solve_failed": bool(columns["solve_failed"][i]),
+                "min_clearance_m": _finite_or_none(float(columns["min_clearance_m"][i])),
+                "collision": bool(columns["collision"][i]),
+                "constraint_violation": bool(columns["constraint_violation"][i]),
+            },
+        )
+
+
+def _obstacle_messages(
+    out: _Messages, segments: Sequence[tuple[float, float, ObstacleScenario]]
+) -> None:
+    for start_s, end_s, scenario in segments:
+        if not scenario.obstacles:
+            continue
+        times = np.arange(start_s, end_s + 1e-9, OBSTACLE_SAMPLE_S)
+        tracks = [ob.motion.position_m(times) for ob in scenario.obstacles]
+        for i, t_s in enumerate(times):
+            t_ns = _ns(float(t_s))
+            spheres = [
+                fx.sphere(track[i].tolist(), 2.0 * ob.radius_m, OBSTACLE_RGBA)
+                for track, ob in zip(tracks, scenario.obstacles, strict=True)
+            ]
+            out.add(
+                t_ns,
+                t.TOPIC_OBSTACLES,
+                fx.scene_update(
+                    t_ns, t.MAP_FRAME, "obstacles", [], {"scenario": scenario.name}, spheres
+                ),
+            )
+
+
+def write_run_log(
+    path: str | Path,
+    episode: Episode,
+    world: WorldTile | None,
+    content: RunLogContent,
+    observations: bool = True,
+    options: ConvertOptions = DEFAULT_OPTIONS,
+) -> None:
+    """Write one run log (see the module docstring) to ``path``, atomically."""
+    with McapLogWriter(path) as writer:
+        writer.add_metadata(t.EPISODE_METADATA, episode_metadata(episode, options))
+        writer.add_metadata(
+            t.RUN_METADATA,
+            {
+                "format": t.RUN_FORMAT,
+                "version": str(t.RUN_FORMAT_VERSION),
+                **content.run_metadata,
+            },
+        )
+        poses = [view_to_pose(corners, episode.georef) for corners in episode.gt_path_corners]
+        write_static_content(episode, world if observations else None, poses, writer, options)
+        for index, turn in enumerate(episode.dialog()):
+            write_dialog_turn(writer, episode.episode_id, turn, index, 0)
+        out = _Messages()
+        _agent_messages(out, episode, world, content.steps, options, observations)
+        _path_messages(out, episode, content)
+        if content.control_log is not None and len(content.control_log):
+            _control_messages(out, content.control_log)
+        _obstacle_messages(out, content.obstacle_segments)
+        out.write(writer)

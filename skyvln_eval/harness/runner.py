@@ -1,0 +1,251 @@
+"""Run one episode of a run: the task every executor runs, in whatever process it lands.
+
+:func:`run_episode_task` loads the episode from its episode MCAP, the world of its map,
+builds the agent (seeded by the episode, so results depend neither on the order nor on the
+worker count), flies the episode in the run's mode, writes the run MCAP (and, with
+dynamics, the control log) and returns the episode's :class:`EpisodeResult`. Anything the
+episode raises marks it ``failed`` with its traceback; the run carries on.
+
+Worlds and controllers are cached per process: loading a map or building a solver once
+serves every episode on it.
+"""
+
+from __future__ import annotations
+
+import functools
+import traceback
+from collections import OrderedDict
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from skyvln_eval.agent.base import Agent
+from skyvln_eval.agent.config import build_agent
+from skyvln_eval.avdn.imagery import MapGeoref
+from skyvln_eval.avdn.records import Episode
+from skyvln_eval.control import Controller, make_controller, save_flight_log
+from skyvln_eval.converters.reader import read_episode
+from skyvln_eval.harness.config import RunConfig
+from skyvln_eval.harness.dynamics_loop import DynamicsRollout, derived_seed, run_dynamics_episode
+from skyvln_eval.harness.official_loop import OfficialRollout, run_official_episode
+from skyvln_eval.harness.run_log import RunLogContent, Step, write_run_log
+from skyvln_eval.llm.types import LLMCallRecord
+from skyvln_eval.metrics.records import EpisodeResult, LlmCall
+from skyvln_eval.metrics.safety import summarise_control
+from skyvln_eval.worlds.loading import load_world
+from skyvln_eval.worlds.tile import WorldTile
+
+LOGS_DIR = "logs"
+CONTROL_DIR = "control"
+_WORLD_CACHE_SIZE = 3
+
+
+@dataclass(frozen=True)
+class EpisodeTask:
+    """Everything a worker needs for one episode (small and picklable)."""
+
+    config_json: str
+    data_dir: str
+    run_dir: str
+    split: str
+    episode_id: str
+    episode_log: str
+
+
+@functools.lru_cache(maxsize=4)
+def _config(config_json: str) -> RunConfig:
+    return RunConfig.model_validate_json(config_json)
+
+
+_worlds: OrderedDict[tuple[str, str], WorldTile] = OrderedDict()
+
+
+def _world(data_dir: str, map_name: str, georef: MapGeoref) -> WorldTile:
+    key = (data_dir, map_name)
+    if key in _worlds:
+        _worlds.move_to_end(key)
+        return _worlds[key]
+    world = load_world(data_dir, map_name, georef)
+    _worlds[key] = world
+    while len(_worlds) > _WORLD_CACHE_SIZE:
+        _worlds.popitem(last=False)
+    return world
+
+
+@functools.lru_cache(maxsize=4)
+def _controller(name: str, settings_json: str) -> Controller:
+    import json
+
+    return make_controller(name, json.loads(settings_json))
+
+
+def episode_seed(config: RunConfig, split: str, episode_id: str) -> int:
+    return derived_seed(config.seed, split, episode_id)
+
+
+def log_path(run_dir: str | Path, split: str, episode_id: str) -> Path:
+    return Path(run_dir) / LOGS_DIR / split / f"{episode_id}.mcap"
+
+
+def control_log_name(split: str, episode_id: str) -> str:
+    """Where an episode's control log lives, relative to the run directory."""
+    return f"{CONTROL_DIR}/{split}/{episode_id}.parquet"
+
+
+def _llm_call(record: LLMCallRecord) -> LlmCall:
+    return LlmCall(
+        module=record.module,
+        backend=record.backend,
+        model=record.model,
+        prompt_tokens=record.prompt_tokens,
+        completion_tokens=record.completion_tokens,
+        cost_usd=record.cost_usd,
+        latency_s=record.latency_s,
+        cached=record.cached,
+        error=record.error,
+    )
+
+
+def _steps(rollout: OfficialRollout | DynamicsRollout, times_s: list[float]) -> list[Step]:
+    targets = getattr(rollout, "targets", [])
+    return [
+        Step(
+            t_s=times_s[k],
+            step_index=k,
+            view=rollout.views[min(k, len(rollout.views) - 1)],
+            thought=rollout.thoughts[k],
+            action=action,
+            feedback=rollout.feedbacks[k],
+            trace=rollout.traces[k],
+            target=targets[k] if k < len(targets) else None,
+        )
+        for k, action in enumerate(rollout.actions)
+    ]
+
+
+def _official(
+    agent: Agent, episode: Episode, world: WorldTile, config: RunConfig
+) -> tuple[OfficialRollout, RunLogContent, dict[str, Any]]:
+    rollout = run_official_episode(agent, episode, world, config.max_action_len)
+    times = [float(k) for k in range(len(rollout.views))]  # one second per official step
+    content = RunLogContent({}, _steps(rollout, times), rollout.views, times)
+    extra = {
+        "step_outcomes": list(rollout.step_outcomes),
+        "simulated_s": float(len(rollout.views) - 1),
+    }
+    return rollout, content, extra
+
+
+def _dynamics(
+    agent: Agent, episode: Episode, world: WorldTile, config: RunConfig, seed: int
+) -> tuple[DynamicsRollout, RunLogContent, dict[str, Any]]:
+    settings = config.dynamics
+    controller = _controller(settings.controller, _json(settings.controller_settings))
+    rollout = run_dynamics_episode(
+        agent, episode, world, controller, settings, seed, config.max_action_len
+    )
+    view_times = [0.0, *rollout.segment_end_times_s][: len(rollout.views)]
+    content = RunLogContent(
+        {},
+        _steps(rollout, rollout.decision_times_s),
+        rollout.views,
+        view_times,
+        rollout.control_log,
+        rollout.obstacle_segments,
+    )
+    extra: dict[str, Any] = {
+        "simulated_s": rollout.simulated_s,
+        "segments_reached": [bool(r) for r in rollout.reached],
+    }
+    return rollout, content, extra
+
+
+def _json(value: Any) -> str:
+    import json
+
+    return json.dumps(value, sort_keys=True)
+
+
+def run_episode_task(task: EpisodeTask) -> EpisodeResult:
+    """Run one episode; never raises for the episode's own failures (see the module docstring)."""
+    config = _config(task.config_json)
+    episode: Episode | None = None
+    try:
+        episode = read_episode(task.episode_log)
+        if episode.episode_id != task.episode_id or episode.split != task.split:
+            raise ValueError(
+                f"{task.episode_log} holds {episode.split}/{episode.episode_id}, "
+                f"expected {task.split}/{task.episode_id}"
+            )
+        world = _world(task.data_dir, episode.map_name, episode.georef)
+        seed = episode_seed(config, task.split, task.episode_id)
+        agent = build_agent(config.agent.model_copy(update={"seed": seed}))
+        control = control_log = None
+        rollout: OfficialRollout | DynamicsRollout
+        if config.mode == "official":
+            rollout, content, extra = _official(agent, episode, world, config)
+        else:
+            flown, content, extra = _dynamics(agent, episode, world, config, seed)
+            rollout = flown
+            if len(flown.control_log):
+                control_log = control_log_name(task.split, task.episode_id)
+                save_flight_log(
+                    flown.control_log.assign(episode_id=task.episode_id),
+                    Path(task.run_dir) / control_log,
+                    {"controller": config.dynamics.controller},
+                )
+                control = summarise_control(flown.control_log, control_log)
+        extra |= {
+            "stop_reason": rollout.stop_reason,
+            "actions": len(rollout.actions),
+            "seed": seed,
+            "config_digest": config.digest(),
+            "execution_mode": config.mode,
+        }
+        if config.write_logs:
+            content.run_metadata = {
+                "system": config.system,
+                "split": task.split,
+                "execution_mode": config.mode,
+                "config": config.to_yaml(),
+                "config_digest": config.digest(),
+                "seed": str(seed),
+                "stop_reason": rollout.stop_reason,
+                "error": rollout.error or "",
+            }
+            write_run_log(
+                log_path(task.run_dir, task.split, task.episode_id),
+                episode,
+                world,
+                content,
+                config.observations_in_logs,
+            )
+        return EpisodeResult(
+            episode_id=task.episode_id,
+            split=task.split,
+            mode=config.episode_mode,
+            system=config.system,
+            status="ok",
+            visited_views=np.stack(rollout.views),
+            gt_path_corners=episode.gt_path_corners,
+            error=rollout.error,
+            control=control,
+            control_log=control_log,
+            llm_calls=tuple(_llm_call(c) for c in rollout.llm_calls),
+            extra=extra,
+        )
+    except Exception as exc:  # the episode failed: record it and let the run go on
+        gt = episode.gt_path_corners if episode is not None else np.zeros((1, 4, 2))
+        return EpisodeResult(
+            episode_id=task.episode_id,
+            split=task.split,
+            mode=config.episode_mode,
+            system=config.system,
+            status="failed",
+            visited_views=np.zeros((0, 4, 2)),
+            gt_path_corners=gt,
+            error=f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}",
+            extra={"config_digest": config.digest(), "execution_mode": config.mode},
+        )

@@ -1,0 +1,146 @@
+"""Reproduce: a small plan writes both tables, the figures and a summary, and resumes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from skyvln_eval.cli import app
+from skyvln_eval.errors import ConfigError
+from skyvln_eval.harness.plan import environment_backends, load_plan, planned_runs, slug
+from skyvln_eval.harness.reproduce import reproduce
+
+TINY_PLAN = {
+    "name": "tiny",
+    "limit": 1,
+    "resamples": 50,
+    "dynamics": {"controller_settings": {"compile": "never"}},
+    "table1": {
+        "splits": ["val_unseen", "test_unseen"],
+        "systems": [
+            {"label": "NavGPT-style", "mode": "official", "agent": {"name": "navgpt"}},
+            {
+                "label": "Full",
+                "mode": "dynamics",
+                "controller": "nmpc",
+                "agent": {"name": "skyvln"},
+            },
+        ],
+    },
+    "table2": {
+        "split": "test_unseen",
+        "system": {
+            "label": "Full",
+            "mode": "dynamics",
+            "controller": "nmpc",
+            "agent": {"name": "skyvln"},
+        },
+        "backends": [
+            {"label": "rule-based (not an LLM)", "llm": {"backend": "rule"}},
+            {"label": "random (not an LLM)", "llm": {"backend": "random"}},
+        ],
+        "environment_variable": None,
+    },
+    "control_figures": {"controllers": ["pid"], "cases": ["static"]},
+    "trajectory_figures": 1,
+}
+
+
+def write_plan(path: Path, data: str) -> Path:
+    path.write_text(yaml.safe_dump(TINY_PLAN | {"data": data}))
+    return path
+
+
+def test_a_small_plan_writes_tables_figures_and_summary_and_resumes(
+    tmp_path: Path, sample_dir: Path
+) -> None:
+    plan = load_plan(write_plan(tmp_path / "tiny.yaml", str(sample_dir)))
+    runs = planned_runs(plan, tmp_path / "out", 1, "serial")
+    # The rule-backend row of Table II is the Full system of Table I: one run, two rows.
+    assert len(runs) == 5
+    assert any(len(r.rows) == 2 for r in runs)
+    report = reproduce(plan, tmp_path / "out", workers=1, executor="serial")
+    assert report.complete
+    for name in (
+        "table1.md",
+        "table1.tex",
+        "table1.csv",
+        "table2.md",
+        "table2.tex",
+        "table1_ci.md",
+        "control.md",
+        "cost.md",
+        "control_static.png",
+        "sr_vs_threshold.png",
+        "ne_distribution.png",
+        "SUMMARY.md",
+        "scores.csv",
+        "summary.csv",
+    ):
+        assert report.files[name].is_file(), name
+    table1 = report.files["table1.md"].read_text()
+    assert "NavGPT-style" in table1 and "Full" in table1 and "Unseen Testing" in table1
+    table2 = report.files["table2.md"].read_text()
+    assert "rule-based (not an LLM)" in table2 and "random (not an LLM)" in table2
+    assert "\\toprule" in report.files["table1.tex"].read_text()
+    assert any(name.startswith("trajectory_") for name in report.files)
+    summary = report.files["SUMMARY.md"].read_text()
+    assert "Table I" in summary and "Table II" in summary and "control_static.png" in summary
+    assert "not an LLM" in summary
+
+    again = reproduce(plan, tmp_path / "out", workers=1, executor="serial")
+    assert all(r.ran_now == 0 for r in again.reports)
+    assert again.files["table1.md"].read_text() == table1  # same results, same table
+
+
+def test_reproduce_command_on_a_small_plan(tmp_path: Path, sample_dir: Path) -> None:
+    plan = write_plan(tmp_path / "tiny.yaml", str(sample_dir))
+    result = CliRunner().invoke(
+        app,
+        [
+            "reproduce",
+            "--plan",
+            str(plan),
+            "--out",
+            str(tmp_path / "cli"),
+            "--workers",
+            "1",
+            "--executor",
+            "serial",
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    assert "NavGPT-style" in result.output and (tmp_path / "cli" / "SUMMARY.md").is_file()
+
+
+def test_the_default_plan_has_the_papers_rows() -> None:
+    plan = load_plan("default")
+    assert [s.label for s in plan.table1.systems] == [
+        "Random",
+        "NavGPT-style",
+        "w PID",
+        "w MPC",
+        "w NMPC",
+        "w/o HSD",
+        "w/o TMA",
+        "Full",
+    ]
+    assert plan.table1.splits == ("val_seen", "val_unseen", "test_unseen")
+    labels = [b.label for b in plan.table2.backends]
+    assert labels == ["rule-based (not an LLM)", "random (not an LLM)"]
+
+
+def test_endpoints_from_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(
+        "SKYVLN_TEST_BACKENDS", "openai:gpt-4o, openai:llama3@http://127.0.0.1:11434/v1"
+    )
+    backends = environment_backends("SKYVLN_TEST_BACKENDS")
+    assert [b.llm["backend"] for b in backends] == ["openai:gpt-4o", "openai:llama3"]
+    assert backends[1].llm["base_url"] == "http://127.0.0.1:11434/v1"
+    monkeypatch.setenv("SKYVLN_TEST_BACKENDS", "gpt-4o")
+    with pytest.raises(ConfigError, match="SKYVLN_TEST_BACKENDS"):
+        environment_backends("SKYVLN_TEST_BACKENDS")
+    assert slug("w/o HSD") == "w-o-hsd"

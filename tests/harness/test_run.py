@@ -1,0 +1,270 @@
+"""Runs: results and run MCAPs, resume, worker-count independence, faults, Ray."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from skyvln_eval.avdn import load_split
+from skyvln_eval.converters import topics as t
+from skyvln_eval.converters.reader import read_episode, read_log
+from skyvln_eval.converters.validate import check_log
+from skyvln_eval.errors import ConfigError
+from skyvln_eval.harness import RunConfig, load_run_config, make_executor, run
+from skyvln_eval.harness.store import RESULTS_FILE
+from skyvln_eval.metrics import EpisodeResult, MetricConventions, read_results, score_results
+from skyvln_eval.metrics.results_io import result_to_json_dict
+from tests.conftest import REPO
+
+MakeConfig = Callable[..., RunConfig]
+TIMING_FIELDS = (
+    "latency_s",
+    "solve_time_mean_ms",
+    "solve_time_p50_ms",
+    "solve_time_p95_ms",
+    "solve_time_max_ms",
+)
+
+
+def comparable(result: EpisodeResult) -> dict[str, Any]:
+    """A result without the fields that measure wall-clock time (latency, solve times)."""
+
+    def strip(value: Any) -> Any:
+        if isinstance(value, dict):
+            return {k: strip(v) for k, v in value.items() if k not in TIMING_FIELDS}
+        if isinstance(value, list):
+            return [strip(v) for v in value]
+        return value
+
+    return strip(result_to_json_dict(result))
+
+
+def scores_of(results: list[EpisodeResult]) -> dict[str, tuple[float, float, float]]:
+    scores = score_results(results, MetricConventions())
+    return {
+        row.episode_id: (row.success, row.spl, row.ne_m) for row in scores.itertuples(index=False)
+    }
+
+
+def test_official_run_writes_results_and_run_logs_then_resumes_nothing(
+    tmp_path: Path, small_config: MakeConfig, sample_dir: Path
+) -> None:
+    config = small_config(splits=("val_seen", "val_unseen"))
+    run_dir = tmp_path / "run"
+    report = run(config, run_dir)
+    assert report.complete and report.ran_now == 4 and not report.failed
+    results = read_results(run_dir / RESULTS_FILE)
+    assert [r.split for r in results].count("val_seen") == 2
+    assert all(
+        r.status == "ok" and r.system == "test system" and len(r.visited_views) >= 1
+        for r in results
+    )
+    assert all(r.extra["execution_mode"] == "official" and r.llm_calls for r in results)
+    for name in ("config.yaml", "versions.json", "run.json"):
+        assert (run_dir / name).is_file()
+
+    episodes = {e.episode_id: e for e in load_split(sample_dir, "val_unseen").episodes()}
+    result = next(r for r in results if r.split == "val_unseen")
+    log_path = run_dir / "logs" / "val_unseen" / f"{result.episode_id}.mcap"
+    assert read_episode(log_path) == episodes[result.episode_id]  # the run log holds the episode
+    check = check_log(log_path)
+    assert not check.issues, check.issues  # every message valid against its channel's schema
+    log = read_log(log_path)
+    steps = [m.decode() for m in log.topic(t.TOPIC_AGENT_STEP)]
+    assert len(steps) == int(result.extra["actions"])
+    assert steps[0]["trace"]["subgoals"]
+    assert log.topic(t.TOPIC_LLM_EXCHANGE) and log.topic(t.TOPIC_RUN_VIEWS)
+    assert log.metadata[t.RUN_METADATA]["system"] == "test system"
+
+    again = run(config, run_dir)
+    assert again.ran_now == 0 and again.already_done == 4
+    assert len(read_results(run_dir / RESULTS_FILE)) == 4
+    with pytest.raises(ConfigError, match="another configuration"):
+        run(small_config(splits=("val_seen", "val_unseen"), max_action_len=3), run_dir)
+
+
+def test_dynamics_run_flies_with_a_controller_and_logs_it(
+    tmp_path: Path, small_config: MakeConfig
+) -> None:
+    config = small_config(mode="dynamics", limit=1, dynamics={"controller": "nmpc"})
+    run_dir = tmp_path / "dyn"
+    report = run(config, run_dir)
+    assert report.complete and not report.failed
+    (result,) = read_results(run_dir / RESULTS_FILE)
+    assert result.control is not None and result.control.steps > 50
+    assert result.control.controller == "nmpc" and result.control.scenario == "crossing"
+    assert result.control_log is not None and (run_dir / result.control_log).is_file()
+    assert result.extra["simulated_s"] > 5.0
+    log = read_log(run_dir / "logs" / "val_unseen" / f"{result.episode_id}.mcap")
+    assert len(log.topic(t.TOPIC_CONTROL_STEP)) == result.control.steps
+    assert log.topic(t.TOPIC_OBSTACLES) and log.topic(t.TOPIC_AGENT_TARGET)
+    assert not check_log(run_dir / "logs" / "val_unseen" / f"{result.episode_id}.mcap").issues
+
+
+@pytest.mark.parametrize("mode", ["official", "dynamics"])
+def test_one_and_two_workers_give_identical_results(
+    tmp_path: Path, small_config: MakeConfig, mode: str
+) -> None:
+    serial = run(
+        small_config(mode=mode, limit=2, splits=("val_unseen", "test_unseen")), tmp_path / "one"
+    )
+    config = small_config(
+        mode=mode, limit=2, splits=("val_unseen", "test_unseen"), workers=2, executor="processes"
+    )
+    parallel = run(config, tmp_path / "two")
+    assert serial.complete and parallel.complete
+    one = sorted(read_results(tmp_path / "one" / RESULTS_FILE), key=lambda r: r.key)
+    two = sorted(read_results(tmp_path / "two" / RESULTS_FILE), key=lambda r: r.key)
+    assert [comparable(r) for r in one] == [comparable(r) for r in two]
+    assert scores_of(one) == scores_of(two)
+
+
+def test_a_run_killed_with_sigkill_resumes_to_the_same_rows_and_scores(
+    tmp_path: Path, small_config: MakeConfig
+) -> None:
+    config = small_config(limit=5, splits=("val_seen", "val_unseen"))
+    config_file = tmp_path / "run.yaml"
+    config_file.write_text(yaml.safe_dump(config.model_dump(mode="json")))
+    command = [
+        sys.executable,
+        "-m",
+        "skyvln_eval.cli",
+        "run",
+        str(config_file),
+        "--out",
+        str(tmp_path / "killed"),
+    ]
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    process = subprocess.Popen(
+        command,
+        cwd=REPO,
+        env=env,
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    results_file = tmp_path / "killed" / RESULTS_FILE
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        if results_file.exists() and results_file.read_bytes().count(b"\n") >= 4:  # header + 3 rows
+            break
+        time.sleep(0.05)
+    os.killpg(process.pid, signal.SIGKILL)
+    process.wait()
+    rows_at_kill = results_file.read_bytes().count(b"\n") - 1
+    assert 3 <= rows_at_kill < 10, "the run must be killed midway"
+    finished = subprocess.run(
+        command, cwd=REPO, env=env, capture_output=True, text=True, timeout=300
+    )
+    assert finished.returncode == 0, finished.stdout + finished.stderr
+    assert f"{rows_at_kill} already done" in finished.stdout
+
+    run(config, tmp_path / "uninterrupted")
+    resumed = read_results(results_file)
+    reference = read_results(tmp_path / "uninterrupted" / RESULTS_FILE)
+    assert len({r.key for r in resumed}) == len(resumed) == 10  # none missing, none twice
+    by_key = {r.key: r for r in reference}
+    assert all(comparable(r) == comparable(by_key[r.key]) for r in resumed)
+    assert scores_of(resumed) == scores_of(reference)
+
+
+def test_an_agent_that_raises_marks_its_episode_failed_and_the_run_goes_on(
+    tmp_path: Path, small_config: MakeConfig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from skyvln_eval.harness import runner
+
+    real_build = runner.build_agent
+    victim: list[str] = []
+
+    def build(config: Any, *args: Any) -> Any:
+        agent = real_build(config, *args)
+        act = agent.act
+
+        def act_or_raise(observation: Any) -> Any:
+            if agent._episode_id_for_test == victim[0]:  # type: ignore[attr-defined]
+                raise RuntimeError("agent exploded")
+            return act(observation)
+
+        reset = agent.reset
+
+        def reset_and_remember(episode: Any, world: Any) -> None:
+            agent._episode_id_for_test = episode.episode_id  # type: ignore[attr-defined]
+            reset(episode, world)
+
+        agent.act, agent.reset = act_or_raise, reset_and_remember  # type: ignore[method-assign]
+        return agent
+
+    monkeypatch.setattr(runner, "build_agent", build)
+    config = small_config(limit=3)
+    victim.append(load_split(config.data, "val_unseen").records[1].episode_id)
+    report = run(config, tmp_path / "run")
+    assert report.complete
+    assert list(report.failed) == [("val_unseen", victim[0])]
+    assert "RuntimeError: agent exploded" in report.failed[("val_unseen", victim[0])]
+    results = {r.episode_id: r for r in read_results(tmp_path / "run" / RESULTS_FILE)}
+    assert results[victim[0]].status == "failed" and "Traceback" in (results[victim[0]].error or "")
+    assert sum(r.status == "ok" for r in results.values()) == 2
+    scores = score_results(list(results.values()), MetricConventions()).set_index("episode_id")
+    assert scores.loc[victim[0], "success"] == 0.0  # a failure counts, it is not dropped
+
+
+def test_an_llm_server_that_fails_leaves_a_completed_run_with_the_faults_recorded(
+    tmp_path: Path, small_config: MakeConfig
+) -> None:
+    from skyvln_eval.llm.loopback import LoopbackOpenAIServer, status
+
+    with LoopbackOpenAIServer([status(500) for _ in range(400)]) as server:
+        llm = {
+            "backend": "openai:broken-model",
+            "base_url": server.base_url,
+            "api_key_env": "SKYVLN_TEST_KEY",
+            "retry": {"max_attempts": 2, "initial_delay_s": 0.0},
+        }
+        os.environ["SKYVLN_TEST_KEY"] = "sk-test"
+        config = small_config(limit=2, agent={"name": "skyvln", "llm": llm})
+        report = run(config, tmp_path / "run")
+    assert report.complete and not report.missing
+    results = read_results(tmp_path / "run" / RESULTS_FILE)
+    assert len(results) == 2
+    for result in results:
+        errors = [c.error for c in result.llm_calls if c.error]
+        assert errors or result.status == "failed", "every fault must be recorded"
+        assert all("500" in e or "Internal" in e or "error" in e.lower() for e in errors)
+
+
+def test_ray_executor_matches_the_local_one(tmp_path: Path, small_config: MakeConfig) -> None:
+    pytest.importorskip(
+        "ray", reason="the ray extra is not installed: pip install 'skyvln-eval[ray]'"
+    )
+    local = run(small_config(limit=2), tmp_path / "local")
+    remote = run(small_config(limit=2), tmp_path / "ray", executor=make_executor("ray", 2))
+    assert local.complete and remote.complete and not remote.failed
+    assert scores_of(read_results(tmp_path / "ray" / RESULTS_FILE)) == scores_of(
+        read_results(tmp_path / "local" / RESULTS_FILE)
+    )
+
+
+def test_run_configs_are_validated_with_the_field_named(tmp_path: Path) -> None:
+    path = tmp_path / "bad.yaml"
+    path.write_text("system: x\nmode: flying\nagent: {hsd: maybe}\n")
+    with pytest.raises(ConfigError) as info:
+        load_run_config(path)
+    assert (
+        "mode" in str(info.value)
+        and "agent.hsd" in str(info.value)
+        and "bad.yaml" in str(info.value)
+    )
+    path.write_text("system: x\nworkerz: 3\n")
+    with pytest.raises(ConfigError, match="workerz"):
+        load_run_config(path)
+    for shipped in sorted((REPO / "skyvln_eval" / "configs" / "runs").glob("*.yaml")):
+        assert load_run_config(shipped).system
