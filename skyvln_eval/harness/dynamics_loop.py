@@ -14,11 +14,9 @@ from __future__ import annotations
 import hashlib
 import math
 from dataclasses import dataclass, field
-from typing import Any, Literal
 
 import numpy as np
 import pandas as pd
-from numpy.typing import NDArray
 
 from skyvln_eval.agent.actions import Action, Stop, action_record
 from skyvln_eval.agent.base import Agent, Observation
@@ -29,7 +27,7 @@ from skyvln_eval.control import ArrivalCriteria, Controller, Flight
 from skyvln_eval.errors import ConfigError, SkyvlnError
 from skyvln_eval.frames import ViewPose, enu_yaw_to_compass_deg, pose_to_view, view_to_pose
 from skyvln_eval.harness.config import DynamicsSettings
-from skyvln_eval.llm.types import LLMCallRecord
+from skyvln_eval.harness.rollout import Rollout
 from skyvln_eval.sim.camera import CameraConfig, CameraRig
 from skyvln_eval.sim.obstacles import ObstacleScenario
 from skyvln_eval.sim.quadrotor import DroneState
@@ -37,7 +35,6 @@ from skyvln_eval.sim.reference import ReferenceConfig
 from skyvln_eval.sim.scenarios import ScenarioSpec, make_scenario
 from skyvln_eval.worlds.tile import WorldTile
 
-DynamicsStopReason = Literal["stop", "max_steps", "error", "collision"]
 #: A segment shorter than this gets no obstacles (they are placed where the drone cruises).
 MIN_ROUTE_FOR_OBSTACLES_M = 5.0
 
@@ -49,30 +46,17 @@ def derived_seed(*parts: object) -> int:
 
 
 @dataclass(eq=False)
-class DynamicsRollout:
-    """One flown episode: views, headings, actions and targets, agent traces, the control log."""
+class DynamicsRollout(Rollout):
+    """A flown episode: the :class:`Rollout` plus each action's target pose, when it was
+    decided and where its segment ended, the obstacles of each segment and the control log."""
 
-    episode_id: str
-    views: list[NDArray[np.float64]]
-    headings_deg: list[int]
-    actions: list[Action] = field(default_factory=list)
     targets: list[ViewPose] = field(default_factory=list)
     segment_end_times_s: list[float] = field(default_factory=list)
     reached: list[bool] = field(default_factory=list)
-    thoughts: list[str] = field(default_factory=list)
-    feedbacks: list[str | None] = field(default_factory=list)
-    traces: list[dict[str, Any]] = field(default_factory=list)
-    llm_calls: list[LLMCallRecord] = field(default_factory=list)
     decision_times_s: list[float] = field(default_factory=list)
     control_log: pd.DataFrame = field(default_factory=pd.DataFrame)
     obstacle_segments: list[tuple[float, float, ObstacleScenario]] = field(default_factory=list)
-    stop_reason: DynamicsStopReason = "max_steps"
-    error: str | None = None
     simulated_s: float = 0.0
-
-    @property
-    def final_view(self) -> NDArray[np.float64]:
-        return self.views[-1]
 
 
 def _inside_map(target: ViewPose, width_m: float, height_m: float) -> ViewPose:
@@ -143,11 +127,7 @@ def run_dynamics_episode(
         except SkyvlnError as error:
             rollout.stop_reason, rollout.error = "error", f"{type(error).__name__}: {error}"
             break
-        rollout.thoughts.append(decision.thought)
-        rollout.feedbacks.append(feedback)
-        rollout.traces.append(decision.trace)
-        rollout.llm_calls.extend(decision.llm_calls)
-        rollout.actions.append(decision.action)
+        rollout.record(decision, feedback)
         if isinstance(decision.action, Stop):
             rollout.stop_reason = "stop"
             break

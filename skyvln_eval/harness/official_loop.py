@@ -12,7 +12,7 @@ The view budget running out ends it too. An agent error the user can cause
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -26,34 +26,19 @@ from skyvln_eval.avdn.records import Episode
 from skyvln_eval.avdn.step import OfficialAction, official_step_detailed
 from skyvln_eval.errors import ConfigError, SkyvlnError
 from skyvln_eval.frames import view_to_pose
-from skyvln_eval.llm.types import LLMCallRecord
+from skyvln_eval.harness.rollout import Rollout
 from skyvln_eval.metrics.official import official_success as metrics_official_success
 from skyvln_eval.sim.camera import CameraConfig, CameraRig
 from skyvln_eval.worlds.tile import WorldTile
 
-StopReason = Literal["stop", "max_steps", "error"]
-
 
 @dataclass(eq=False)
-class OfficialRollout:
-    """What happened in one episode: views (start included), headings, actions, calls, traces."""
+class OfficialRollout(Rollout):
+    """An episode in official mode: the :class:`Rollout` plus each step's official action
+    and outcome (``full``, or cut short by the map border)."""
 
-    episode_id: str
-    views: list[NDArray[np.float64]]
-    headings_deg: list[int]
-    actions: list[Action] = field(default_factory=list)
     official_actions: list[OfficialAction] = field(default_factory=list)
     step_outcomes: list[str] = field(default_factory=list)
-    thoughts: list[str] = field(default_factory=list)
-    feedbacks: list[str | None] = field(default_factory=list)
-    traces: list[dict[str, Any]] = field(default_factory=list)
-    llm_calls: list[LLMCallRecord] = field(default_factory=list)
-    stop_reason: StopReason = "max_steps"
-    error: str | None = None
-
-    @property
-    def final_view(self) -> NDArray[np.float64]:
-        return self.views[-1]
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able form (traces included)."""
@@ -121,11 +106,7 @@ def run_official_episode(
         except SkyvlnError as error:
             rollout.stop_reason, rollout.error = "error", f"{type(error).__name__}: {error}"
             break
-        rollout.thoughts.append(decision.thought)
-        rollout.feedbacks.append(feedback)
-        rollout.traces.append(decision.trace)
-        rollout.llm_calls.extend(decision.llm_calls)
-        rollout.actions.append(decision.action)
+        rollout.record(decision, feedback)
         if isinstance(decision.action, Stop):
             rollout.stop_reason = "stop"
             break

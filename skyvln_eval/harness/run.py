@@ -24,8 +24,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
 from skyvln_eval.converters.batch import convert_split
 from skyvln_eval.converters.convert import ConvertOptions
 from skyvln_eval.converters.reader import read_episode
@@ -35,7 +33,7 @@ from skyvln_eval.harness.config import RunConfig, run_config_from_mapping
 from skyvln_eval.harness.executors import Executor, make_executor
 from skyvln_eval.harness.official_loop import official_success
 from skyvln_eval.harness.provenance import provenance
-from skyvln_eval.harness.runner import EpisodeTask, run_episode_task
+from skyvln_eval.harness.runner import EpisodeTask, failed_result, run_episode_task
 from skyvln_eval.harness.store import ResultStore, RowKey, key_of
 from skyvln_eval.metrics.records import EpisodeResult
 from skyvln_eval.paths import cache_root
@@ -156,20 +154,9 @@ def _success(result: EpisodeResult) -> bool:
 
 
 def _crash_result(config: RunConfig, task: EpisodeTask, error: BaseException) -> EpisodeResult:
-    # The worker died (or Ray lost it) before returning: record the episode as failed,
-    # with its ground truth so that the failure counts in every score.
-    episode = read_episode(task.episode_log)
-    return EpisodeResult(
-        episode_id=task.episode_id,
-        split=task.split,
-        mode=config.episode_mode,
-        system=config.system,
-        status="failed",
-        visited_views=np.zeros((0, 4, 2)),
-        gt_path_corners=episode.gt_path_corners,
-        error=f"worker crashed: {type(error).__name__}: {error}",
-        extra={"config_digest": config.digest(), "execution_mode": config.mode},
-    )
+    # The worker died (or Ray lost it) before returning a row: record the episode as failed.
+    message = f"worker crashed: {type(error).__name__}: {error}"
+    return failed_result(config, task, read_episode(task.episode_log), message)
 
 
 @dataclass

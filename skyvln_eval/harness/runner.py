@@ -237,15 +237,24 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
             extra=extra,
         )
     except Exception as exc:  # the episode failed: record it and let the run go on
-        gt = episode.gt_path_corners if episode is not None else np.zeros((1, 4, 2))
-        return EpisodeResult(
-            episode_id=task.episode_id,
-            split=task.split,
-            mode=config.episode_mode,
-            system=config.system,
-            status="failed",
-            visited_views=np.zeros((0, 4, 2)),
-            gt_path_corners=gt,
-            error=f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}",
-            extra={"config_digest": config.digest(), "execution_mode": config.mode},
-        )
+        episode = episode or read_episode(task.episode_log)
+        error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
+        return failed_result(config, task, episode, error)
+
+
+def failed_result(
+    config: RunConfig, task: EpisodeTask, episode: Episode, error: str
+) -> EpisodeResult:
+    """The row of an episode that failed: no views, its ground truth (so that it counts in
+    every score as a failure, never dropped) and the error with its traceback."""
+    return EpisodeResult(
+        episode_id=task.episode_id,
+        split=task.split,
+        mode=config.episode_mode,
+        system=config.system,
+        status="failed",
+        visited_views=np.zeros((0, 4, 2)),
+        gt_path_corners=episode.gt_path_corners,
+        error=error,
+        extra={"config_digest": config.digest(), "execution_mode": config.mode},
+    )

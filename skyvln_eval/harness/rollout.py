@@ -1,0 +1,45 @@
+"""What an agent did in one episode, whichever the execution mode."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skyvln_eval.agent.actions import Action
+from skyvln_eval.agent.base import Decision
+from skyvln_eval.llm.types import LLMCallRecord
+
+
+@dataclass(eq=False)
+class Rollout:
+    """Views (start included) and headings, and per decision: action, thought, the feedback
+    the agent was given, its trace and its LLM calls. ``stop_reason`` says how it ended:
+    ``stop`` (the agent's STOP), ``max_steps`` (the view budget), ``error`` (an agent error
+    the user can cause; ``error`` holds it) or, flown, ``collision``.
+    """
+
+    episode_id: str
+    views: list[NDArray[np.float64]]
+    headings_deg: list[int]
+    actions: list[Action] = field(default_factory=list)
+    thoughts: list[str] = field(default_factory=list)
+    feedbacks: list[str | None] = field(default_factory=list)
+    traces: list[dict[str, Any]] = field(default_factory=list)
+    llm_calls: list[LLMCallRecord] = field(default_factory=list)
+    stop_reason: str = "max_steps"
+    error: str | None = None
+
+    @property
+    def final_view(self) -> NDArray[np.float64]:
+        return self.views[-1]
+
+    def record(self, decision: Decision, feedback: str | None) -> None:
+        """Keep one decision and the feedback that preceded it."""
+        self.thoughts.append(decision.thought)
+        self.feedbacks.append(feedback)
+        self.traces.append(decision.trace)
+        self.llm_calls.extend(decision.llm_calls)
+        self.actions.append(decision.action)
