@@ -18,13 +18,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from skyvln_eval.agent.actions import Action, Stop, action_record
+from skyvln_eval.agent.actions import Action, action_record
 from skyvln_eval.agent.base import Agent, Observation
 from skyvln_eval.agent.mapping import to_target_pose
 from skyvln_eval.avdn.constants import METERS_PER_DEGREE
 from skyvln_eval.avdn.records import Episode
 from skyvln_eval.control import ArrivalCriteria, Controller, Flight
-from skyvln_eval.errors import ConfigError, SkyvlnError
+from skyvln_eval.errors import ConfigError
 from skyvln_eval.frames import ViewPose, enu_yaw_to_compass_deg, pose_to_view, view_to_pose
 from skyvln_eval.harness.config import DynamicsSettings
 from skyvln_eval.harness.rollout import Rollout
@@ -122,16 +122,10 @@ def run_dynamics_episode(
             len(rollout.views) - 1, max_steps, pose, view, georef, rig, feedback
         )
         rollout.decision_times_s.append(flight.t_s)
-        try:
-            decision = agent.act(observation)
-        except SkyvlnError as error:
-            rollout.stop_reason, rollout.error = "error", f"{type(error).__name__}: {error}"
+        action = rollout.decide(agent, observation)
+        if action is None:
             break
-        rollout.record(decision, feedback)
-        if isinstance(decision.action, Stop):
-            rollout.stop_reason = "stop"
-            break
-        target = _inside_map(to_target_pose(decision.action, pose), width_m, height_m)
+        target = _inside_map(to_target_pose(action, pose), width_m, height_m)
         reference = flight.segment_reference(target)
         if obstacles.kind != "none" and obstacles.n_obstacles > 0:
             times = np.arange(flight.t_s, reference.end_time_s + flight.dt_s, flight.dt_s)
@@ -162,7 +156,7 @@ def run_dynamics_episode(
         view = pose_to_view(ViewPose(pose.x_m, pose.y_m, max(pose.z_m, 1.0), pose.yaw_rad), georef)
         rollout.views.append(view)
         rollout.headings_deg.append(round(float(enu_yaw_to_compass_deg(pose.yaw_rad))) % 360)
-        feedback = _feedback(decision.action, segment.reached, segment.collided)
+        feedback = _feedback(action, segment.reached, segment.collided)
         if segment.collided and settings.end_on_collision:
             rollout.stop_reason = "collision"
             break

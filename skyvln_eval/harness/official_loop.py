@@ -17,14 +17,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from skyvln_eval.agent.actions import Action, Stop, action_record
+from skyvln_eval.agent.actions import Action, action_record
 from skyvln_eval.agent.base import Agent, Observation
 from skyvln_eval.agent.mapping import to_official_action
 from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN
 from skyvln_eval.avdn.geometry import hull_iou
 from skyvln_eval.avdn.records import Episode
 from skyvln_eval.avdn.step import OfficialAction, official_step_detailed
-from skyvln_eval.errors import ConfigError, SkyvlnError
+from skyvln_eval.errors import ConfigError
 from skyvln_eval.frames import view_to_pose
 from skyvln_eval.harness.rollout import Rollout
 from skyvln_eval.metrics.official import official_success as metrics_official_success
@@ -101,20 +101,14 @@ def run_official_episode(
         observation = Observation(
             len(rollout.views) - 1, max_steps, pose, view, georef, rig, feedback
         )
-        try:
-            decision = agent.act(observation)
-        except SkyvlnError as error:
-            rollout.stop_reason, rollout.error = "error", f"{type(error).__name__}: {error}"
+        action = rollout.decide(agent, observation)
+        if action is None:
             break
-        rollout.record(decision, feedback)
-        if isinstance(decision.action, Stop):
-            rollout.stop_reason = "stop"
-            break
-        official = to_official_action(decision.action, view)
+        official = to_official_action(action, view)
         result = official_step_detailed(view, official.waypoint, official.altitude, *bounds)
         rollout.official_actions.append(official)
         rollout.step_outcomes.append(result.outcome)
-        feedback = _feedback(decision.action, result.outcome, result.turn_deg)
+        feedback = _feedback(action, result.outcome, result.turn_deg)
         view = result.corners
         rollout.views.append(view)
         rollout.headings_deg.append(result.heading_deg)

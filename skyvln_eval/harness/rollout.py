@@ -8,8 +8,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from skyvln_eval.agent.actions import Action
-from skyvln_eval.agent.base import Decision
+from skyvln_eval.agent.actions import Action, Stop
+from skyvln_eval.agent.base import Agent, Decision, Observation
+from skyvln_eval.errors import SkyvlnError
 from skyvln_eval.llm.types import LLMCallRecord
 
 
@@ -43,3 +44,20 @@ class Rollout:
         self.traces.append(decision.trace)
         self.llm_calls.extend(decision.llm_calls)
         self.actions.append(decision.action)
+
+    def decide(self, agent: Agent, observation: Observation) -> Action | None:
+        """Ask the agent, keep its decision, and return the action to carry out.
+
+        ``None`` ends the episode: the agent said STOP, or raised an error the user can
+        cause (kept in ``error``; any other exception propagates and fails the episode).
+        """
+        try:
+            decision = agent.act(observation)
+        except SkyvlnError as error:
+            self.stop_reason, self.error = "error", f"{type(error).__name__}: {error}"
+            return None
+        self.record(decision, observation.feedback)
+        if isinstance(decision.action, Stop):
+            self.stop_reason = "stop"
+            return None
+        return decision.action
