@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 
 class SkyvlnError(Exception):
@@ -106,6 +107,13 @@ class FormatVersionError(SkyvlnError):
 
 class ConfigError(SkyvlnError):
     """A configuration value or command-line option is invalid."""
+
+
+def describe_validation_error(error: Any) -> str:
+    """A pydantic ``ValidationError`` as ``"field.path: message; ..."`` (for ConfigError texts)."""
+    return "; ".join(
+        f"{'.'.join(str(p) for p in e['loc']) or '(top level)'}: {e['msg']}" for e in error.errors()
+    )
 
 
 class UnknownNameError(ConfigError):

@@ -17,7 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from skyvln_eval.agent.base import Agent
 from skyvln_eval.agent.detectors import Detector, create_detector
 from skyvln_eval.agent.perception import Perception, PerceptionConfig
-from skyvln_eval.errors import ConfigError, UnknownNameError
+from skyvln_eval.errors import ConfigError, UnknownNameError, describe_validation_error
 from skyvln_eval.llm.client import LLMClient
 from skyvln_eval.llm.config import LLMConfig, build_client
 
@@ -83,10 +83,7 @@ class AgentConfig(BaseModel):
         try:
             return cls.model_validate(data)
         except ValidationError as error:
-            problems = "; ".join(
-                f"{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in error.errors()
-            )
-            raise ConfigError(f"agent config {file}: {problems}") from None
+            raise ConfigError(f"agent config {file}: {describe_validation_error(error)}") from None
 
 
 def _perception(config: AgentConfig) -> Perception:

@@ -16,8 +16,8 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from skyvln_eval.agent.config import AgentConfig
-from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN, SPLITS, EpisodeMode, Split
-from skyvln_eval.errors import ConfigError
+from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN, EpisodeMode, Split
+from skyvln_eval.errors import ConfigError, describe_validation_error
 from skyvln_eval.harness.executors import ExecutorKind
 from skyvln_eval.sim.scenarios import ScenarioKind
 
@@ -103,12 +103,6 @@ class RunConfig(_Strict):
         return yaml.safe_dump(self.model_dump(mode="json"), sort_keys=False, allow_unicode=True)
 
 
-def _problems(error: ValidationError) -> str:
-    return "; ".join(
-        f"{'.'.join(str(p) for p in e['loc']) or '(top level)'}: {e['msg']}" for e in error.errors()
-    )
-
-
 def run_config_from_mapping(data: Any, source: str) -> RunConfig:
     """Validate a mapping as a run config; errors name ``source`` and the field path."""
     if not isinstance(data, dict):
@@ -116,7 +110,7 @@ def run_config_from_mapping(data: Any, source: str) -> RunConfig:
     try:
         return RunConfig.model_validate(data)
     except ValidationError as error:
-        raise ConfigError(f"{source}: {_problems(error)}") from None
+        raise ConfigError(f"{source}: {describe_validation_error(error)}") from None
 
 
 def load_run_config(path: str | Path, **overrides: Any) -> RunConfig:
@@ -131,7 +125,6 @@ def load_run_config(path: str | Path, **overrides: Any) -> RunConfig:
 
 
 __all__ = [
-    "SPLITS",
     "DynamicsSettings",
     "ExecutionMode",
     "ObstacleSettings",

@@ -22,7 +22,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from skyvln_eval.agent.config import AgentConfig
 from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN, EpisodeMode, Split
 from skyvln_eval.configs import config_path
-from skyvln_eval.errors import ConfigError
+from skyvln_eval.errors import ConfigError, describe_validation_error
 from skyvln_eval.harness.config import DynamicsSettings, ExecutionMode, RunConfig
 from skyvln_eval.harness.executors import ExecutorKind
 
@@ -95,10 +95,7 @@ def load_plan(name_or_path: str | Path = DEFAULT_PLAN, **overrides: Any) -> Repr
     try:
         return ReproducePlan.model_validate(data)
     except ValidationError as error:
-        problems = "; ".join(
-            f"{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in error.errors()
-        )
-        raise ConfigError(f"reproduce plan {path}: {problems}") from None
+        raise ConfigError(f"reproduce plan {path}: {describe_validation_error(error)}") from None
 
 
 _ENDPOINT = re.compile(r"(openai:[^@\s]+)(?:@(\S+))?")
@@ -143,7 +140,9 @@ def _agent(system: PlanSystem, llm: dict[str, Any] | None = None) -> AgentConfig
     try:
         return AgentConfig.model_validate(data)
     except ValidationError as error:
-        raise ConfigError(f"system {system.label!r}: agent settings: {error}") from None
+        raise ConfigError(
+            f"system {system.label!r}: agent settings: {describe_validation_error(error)}"
+        ) from None
 
 
 def planned_runs(

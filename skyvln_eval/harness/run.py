@@ -18,7 +18,6 @@ that have no row; the result rows (and so the scores) are those of an uninterrup
 from __future__ import annotations
 
 import hashlib
-import json
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -270,7 +269,3 @@ def run_results(run_dir: str | Path, keys: Sequence[RowKey] | None = None) -> li
     if keys is None:
         return store.results()
     return [r for key in keys if (r := store.get(key)) is not None]
-
-
-def read_report(run_dir: str | Path) -> dict[str, object]:
-    return json.loads((Path(run_dir) / REPORT_FILE).read_text())

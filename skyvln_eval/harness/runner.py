@@ -13,6 +13,7 @@ serves every episode on it.
 from __future__ import annotations
 
 import functools
+import json
 import traceback
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -76,8 +77,6 @@ def _world(data_dir: str, map_name: str, georef: MapGeoref) -> WorldTile:
 
 @functools.lru_cache(maxsize=4)
 def _controller(name: str, settings_json: str) -> Controller:
-    import json
-
     return make_controller(name, json.loads(settings_json))
 
 
@@ -142,7 +141,9 @@ def _dynamics(
     agent: Agent, episode: Episode, world: WorldTile, config: RunConfig, seed: int
 ) -> tuple[DynamicsRollout, RunLogContent, dict[str, Any]]:
     settings = config.dynamics
-    controller = _controller(settings.controller, _json(settings.controller_settings))
+    controller = _controller(
+        settings.controller, json.dumps(settings.controller_settings, sort_keys=True)
+    )
     rollout = run_dynamics_episode(
         agent, episode, world, controller, settings, seed, config.max_action_len
     )
@@ -160,12 +161,6 @@ def _dynamics(
         "segments_reached": [bool(r) for r in rollout.reached],
     }
     return rollout, content, extra
-
-
-def _json(value: Any) -> str:
-    import json
-
-    return json.dumps(value, sort_keys=True)
 
 
 def run_episode_task(task: EpisodeTask) -> EpisodeResult:

@@ -218,7 +218,7 @@ def test_an_agent_that_raises_marks_its_episode_failed_and_the_run_goes_on(
 
 
 def test_an_llm_server_that_fails_leaves_a_completed_run_with_the_faults_recorded(
-    tmp_path: Path, small_config: MakeConfig
+    tmp_path: Path, small_config: MakeConfig, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     from skyvln_eval.llm.loopback import LoopbackOpenAIServer, status
 
@@ -229,7 +229,7 @@ def test_an_llm_server_that_fails_leaves_a_completed_run_with_the_faults_recorde
             "api_key_env": "SKYVLN_TEST_KEY",
             "retry": {"max_attempts": 2, "initial_delay_s": 0.0},
         }
-        os.environ["SKYVLN_TEST_KEY"] = "sk-test"
+        monkeypatch.setenv("SKYVLN_TEST_KEY", "sk-test")
         config = small_config(limit=2, agent={"name": "skyvln", "llm": llm})
         report = run(config, tmp_path / "run")
     assert report.complete and not report.missing
