@@ -122,7 +122,10 @@ def hull_iou(a: ArrayLike, b: ArrayLike) -> Any:
     poly_b = shapely.convex_hull(_polygons(b_arr))
     inter = shapely.area(shapely.intersection(poly_a, poly_b))
     both = np.concatenate([a_arr, b_arr], axis=-2)
-    hull = shapely.area(shapely.convex_hull(shapely.multipoints(both.reshape(-1, 8, 2))))
+    # The hull of the 8 corners, built from a ring through them: GEOS hulls the
+    # coordinates whatever the geometry type, and a ring is ~10x cheaper to make than a
+    # multipoint (bit-identical areas).
+    hull = shapely.area(shapely.convex_hull(shapely.linearrings(both.reshape(-1, 8, 2))))
     hull = np.asarray(hull).reshape(both.shape[:-2])
     with np.errstate(divide="ignore", invalid="ignore"):
         iou = np.where(hull > 0, np.asarray(inter) / hull, 0.0)

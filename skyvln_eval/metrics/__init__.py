@@ -23,7 +23,7 @@ from skyvln_eval.metrics.aggregate import (
 )
 from skyvln_eval.metrics.conventions import METRICS_VERSION, MetricConventions
 from skyvln_eval.metrics.cost import COST_COLUMNS, episode_costs, module_costs, summarise_costs
-from skyvln_eval.metrics.official import OFFICIAL_COLUMNS, official_metrics, sparse_hull_iou
+from skyvln_eval.metrics.official import OFFICIAL_COLUMNS, official_metrics
 from skyvln_eval.metrics.predictions import (
     Prediction,
     ground_truth_episodes,
@@ -64,6 +64,7 @@ from skyvln_eval.metrics.stats import (
     bootstrap_means,
     paired_comparison,
 )
+from skyvln_eval.metrics.view_overlap import sparse_hull_iou
 
 __all__ = [
     "CONTROL_LOG_COLUMNS",

@@ -29,15 +29,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyvln_eval.avdn.constants import SUCCESS_IOU
-from skyvln_eval.avdn.geometry import degrees_to_metres, distance_m, hull_iou, point_in_view_strict
+from skyvln_eval.avdn.geometry import degrees_to_metres, distance_m, point_in_view_strict
 from skyvln_eval.metrics.batch import ViewBatch, path_lengths
+from skyvln_eval.metrics.view_overlap import sparse_hull_iou
 
 FloatArray = NDArray[np.float64]
 
 #: SPL's floor on the denominator, metres (official).
 SPL_MIN_DENOMINATOR_M = 0.01
-
-_IOU_BLOCK = 8192
 
 #: Columns :func:`official_metrics` returns, with their units.
 OFFICIAL_COLUMNS: dict[str, str] = {
@@ -52,80 +51,6 @@ OFFICIAL_COLUMNS: dict[str, str] = {
     "gt_length_m": "m",
     "d_net_m": "m",
 }
-
-
-def _circumradius(views: FloatArray) -> FloatArray:
-    centre = views.mean(axis=-2, keepdims=True)
-    return np.asarray(np.linalg.norm(views - centre, axis=-1).max(axis=-1))
-
-
-def _hull_area_of_quads(views: FloatArray) -> FloatArray:
-    """Area of the convex hull of each view's 4 corners (any corner order)."""
-    # Relative to the centre: absolute degrees (~30, 40) would cancel away the area.
-    local = views - views.mean(axis=-2, keepdims=True)
-
-    def shoelace(*idx: int) -> FloatArray:
-        x, y = local[..., idx, 0], local[..., idx, 1]
-        return np.abs((x * np.roll(y, -1, axis=-1) - np.roll(x, -1, axis=-1) * y).sum(axis=-1)) / 2
-
-    # The hull is the largest of the three cyclic quads and the four triangles.
-    candidates = [shoelace(0, 1, 2, 3), shoelace(0, 2, 1, 3), shoelace(0, 1, 3, 2)]
-    candidates += [shoelace(0, 1, 2), shoelace(0, 1, 3), shoelace(0, 2, 3), shoelace(1, 2, 3)]
-    return np.asarray(np.max(candidates, axis=0))
-
-
-def _lens_area(r1: FloatArray, r2: FloatArray, d: FloatArray) -> FloatArray:
-    """Area shared by two discs of radii ``r1``, ``r2`` whose centres are ``d`` apart."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a1 = np.arccos(np.clip((d**2 + r1**2 - r2**2) / (2 * d * r1), -1, 1))
-        a2 = np.arccos(np.clip((d**2 + r2**2 - r1**2) / (2 * d * r2), -1, 1))
-        k = (-d + r1 + r2) * (d + r1 - r2) * (d - r1 + r2) * (d + r1 + r2)
-        lens = r1**2 * a1 + r2**2 * a2 - 0.5 * np.sqrt(np.maximum(k, 0.0))
-    lens = np.where(d <= np.abs(r1 - r2), np.pi * np.minimum(r1, r2) ** 2, lens)
-    return np.where(d >= r1 + r2, 0.0, np.nan_to_num(lens))
-
-
-def hull_iou_upper_bound(a: FloatArray, b: FloatArray) -> FloatArray:
-    """An upper bound of the official hull-IoU of paired views, without shapely.
-
-    The intersection lies in both views and in the lens of their circumscribed discs,
-    so it is at most I = min(area A, area B, lens); the hull holds the union, so it is at
-    least A + B - I. Hence hull-IoU <= I / (A + B - I). Used to skip exact IoUs that
-    cannot pass a threshold; never to report a value.
-    """
-    area_a, area_b = _hull_area_of_quads(a), _hull_area_of_quads(b)
-    gap = np.linalg.norm(a.mean(axis=-2) - b.mean(axis=-2), axis=-1)
-    lens = _lens_area(_circumradius(a), _circumradius(b), gap)
-    inter = np.minimum(np.minimum(area_a, area_b), lens)
-    union = area_a + area_b - inter
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(union > 0, inter / union, 0.0)
-
-
-def sparse_hull_iou(a: FloatArray, b: FloatArray, needed_above: float | None = None) -> FloatArray:
-    """Official hull-IoU of paired views ``(M, 4, 2)``, with shapely only where needed.
-
-    Views whose circumscribed circles do not overlap share no area: their hull-IoU is
-    exactly 0 and shapely is skipped. With ``needed_above``, pairs whose
-    :func:`hull_iou_upper_bound` shows they cannot exceed it are skipped too and
-    reported as 0 (use this only when the caller compares with that threshold).
-    """
-    out = np.zeros(len(a))
-    if len(a) == 0:
-        return out
-    gap = np.linalg.norm(a.mean(axis=-2) - b.mean(axis=-2), axis=-1)
-    reach = (_circumradius(a) + _circumradius(b)) * (1.0 + 1e-9)
-    keep = gap < reach
-    if needed_above is not None:
-        # A relative margin keeps float error in the bound on the safe side.
-        keep &= hull_iou_upper_bound(a, b) * (1.0 + 1e-6) > needed_above
-    candidates = np.flatnonzero(keep)
-    # Blocks of a few thousand pairs: shapely's vectorised calls slow down per pair on
-    # very large arrays (measured ~1.5x at 60,000 pairs).
-    for start in range(0, len(candidates), _IOU_BLOCK):
-        block = candidates[start : start + _IOU_BLOCK]
-        out[block] = hull_iou(a[block], b[block])
-    return out
 
 
 def official_success(
@@ -170,6 +95,9 @@ def official_metrics(
     mask = visited.mask
     earlier = mask.copy()
     earlier[rows, last_k] = False
+    # Where the final view already exceeds the threshold, oracle success is settled and
+    # the earlier views need no IoU at all.
+    earlier[final_iou > SUCCESS_IOU] = False
     flat_e, flat_k = np.nonzero(earlier)
     pair_iou = sparse_hull_iou(visited.views[flat_e, flat_k], g_last[flat_e], SUCCESS_IOU)
     best_earlier = np.zeros(n)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import shapely
 
-from skyvln_eval.avdn import hull_iou
+from skyvln_eval.avdn import METERS_PER_DEGREE, hull_iou, view_from_pose
 from skyvln_eval.errors import MetricInputError, ResultRecordError
 from skyvln_eval.metrics import MetricConventions, score_results, sparse_hull_iou
 from skyvln_eval.metrics.official import official_success
@@ -47,7 +47,46 @@ def test_sparse_hull_iou_matches_dense_and_is_zero_for_far_views() -> None:
     b = np.stack([square(*rng.uniform(-80, 80, 2), rng.uniform(40, 120)) for _ in range(300)])
     dense = hull_iou(a, b)
     assert (dense == 0).any() and (dense > 0).any()
-    np.testing.assert_array_equal(sparse_hull_iou(a, b), dense)
+    sparse = sparse_hull_iou(a, b)
+    np.testing.assert_array_equal(sparse == 0, dense == 0)
+    np.testing.assert_allclose(sparse, dense, rtol=0, atol=1e-12)
+
+
+def turned(north_m: float, east_m: float, edge_m: float, heading_deg: float) -> np.ndarray:
+    """A view centred ``north_m`` / ``east_m`` from (LAT0, LNG0) facing ``heading_deg``."""
+    centre = [LAT0 + north_m / METERS_PER_DEGREE, LNG0 + east_m / METERS_PER_DEGREE]
+    return view_from_pose(centre, heading_deg, edge_m)
+
+
+def test_the_numpy_intersection_agrees_with_shapely_on_touching_nested_and_turned_views() -> None:
+    # Pairs where corners sit exactly on edges and edges overlap: the cases where a
+    # rounding slip would drop a vertex of the intersection.
+    cases = []
+    for heading in (0.0, 10.0, 45.0, 133.7):
+        a = turned(0, 0, 100, heading)
+        for dx, dy, turn, edge in [
+            (0, 0, 0, 100),  # identical
+            (100, 0, 0, 100),  # sharing an edge: IoU 0
+            (50, 0, 0, 100),  # half overlap
+            (0, 0, 45, 100),  # turned by 45 degrees about the same centre
+            (25, 25, 0, 50),  # nested, touching two edges
+            (100, 100, 0, 100),  # touching at a corner
+            (30, 0, 0, 40),  # nested, touching one edge
+        ]:
+            h = math.radians(heading)
+            b = turned(dx * math.cos(h) - dy * math.sin(h), dx * math.sin(h) + dy * math.cos(h),
+                       edge, heading + turn)  # fmt: skip
+            cases.append((a, b))
+    a, b = np.stack([c[0] for c in cases]), np.stack([c[1] for c in cases])
+    np.testing.assert_allclose(sparse_hull_iou(a, b), hull_iou(a, b), rtol=0, atol=1e-12)
+
+
+def test_iou_values_at_the_threshold_or_from_odd_corner_orders_are_the_official_ones() -> None:
+    p, g = iou_exactly_04()
+    bowtie = p[[1, 0, 3, 2]]  # not a convex quad in corner order: shapely decides
+    got = sparse_hull_iou(np.stack([p, bowtie]), np.stack([g, g]))
+    assert got[0] == 0.4  # exactly, so success (>= 0.4) and oracle (> 0.4) are official
+    assert got[1] == hull_iou(bowtie, g)
 
 
 def iou_exactly_04() -> tuple[np.ndarray, np.ndarray]:
@@ -170,7 +209,7 @@ def test_an_ok_episode_needs_its_start_view_and_scoring_needs_input() -> None:
 
 
 def test_the_iou_upper_bound_holds_and_oracle_success_matches_a_dense_computation() -> None:
-    from skyvln_eval.metrics.official import hull_iou_upper_bound
+    from skyvln_eval.metrics.view_overlap import hull_iou_upper_bound
 
     rng = np.random.default_rng(11)
     a = np.stack([square(*rng.uniform(-60, 60, 2), rng.uniform(40, 200)) for _ in range(400)])

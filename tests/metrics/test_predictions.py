@@ -80,7 +80,9 @@ def test_official_rollouts_score_end_to_end_through_the_official_reader(tmp_path
             and point_in_view_strict(last.mean(0), goal)
         )
         assert row.success == float(success), ep["instr_id"]
-        assert row.final_iou == pytest.approx(iou, abs=1e-12)
+        # The scorer works relative to the view (shapely on absolute degrees near 46 N
+        # rounds at ~4e-12 here); decisions near the 0.4 threshold use shapely itself.
+        assert row.final_iou == pytest.approx(iou, abs=1e-11)
         assert row.n_views == len(ep["path_corners"])
     # The start is visited and is the goal, so every episode is an oracle success; D_net = 0.
     assert scores.oracle_success.eq(1.0).all()
