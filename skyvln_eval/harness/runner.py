@@ -60,6 +60,13 @@ def _config(config_json: str) -> RunConfig:
     return RunConfig.model_validate_json(config_json)
 
 
+@functools.lru_cache(maxsize=4)
+def _config_texts(config_json: str) -> tuple[str, str]:
+    """The config's digest and YAML, made once per run rather than per episode."""
+    config = _config(config_json)
+    return config.digest(), config.to_yaml()
+
+
 _worlds: OrderedDict[tuple[str, str], WorldTile] = OrderedDict()
 
 
@@ -166,6 +173,7 @@ def _dynamics(
 def run_episode_task(task: EpisodeTask) -> EpisodeResult:
     """Run one episode; never raises for the episode's own failures (see the module docstring)."""
     config = _config(task.config_json)
+    digest, config_yaml = _config_texts(task.config_json)
     episode: Episode | None = None
     try:
         episode = read_episode(task.episode_log)
@@ -196,7 +204,7 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
             "stop_reason": rollout.stop_reason,
             "actions": len(rollout.actions),
             "seed": seed,
-            "config_digest": config.digest(),
+            "config_digest": digest,
             "execution_mode": config.mode,
         }
         if config.write_logs:
@@ -204,8 +212,8 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
                 "system": config.system,
                 "split": task.split,
                 "execution_mode": config.mode,
-                "config": config.to_yaml(),
-                "config_digest": config.digest(),
+                "config": config_yaml,
+                "config_digest": digest,
                 "seed": str(seed),
                 "stop_reason": rollout.stop_reason,
                 "error": rollout.error or "",
@@ -251,5 +259,5 @@ def failed_result(
         visited_views=np.zeros((0, 4, 2)),
         gt_path_corners=episode.gt_path_corners,
         error=error,
-        extra={"config_digest": config.digest(), "execution_mode": config.mode},
+        extra={"config_digest": _config_texts(task.config_json)[0], "execution_mode": config.mode},
     )

@@ -124,6 +124,10 @@ class LoopbackOpenAIServer:
 
         class Handler(BaseHTTPRequestHandler):
             protocol_version = "HTTP/1.1"
+            # Headers and body go out in two writes; with Nagle's algorithm on, the body
+            # then waits for the client's delayed ACK (~40 ms a reply on Linux), which real
+            # servers (uvicorn, llama.cpp) avoid by setting TCP_NODELAY as this does.
+            disable_nagle_algorithm = True
 
             def log_message(self, format: str, *args: Any) -> None:  # keep test output quiet
                 pass

@@ -192,27 +192,32 @@ def _march(
     sx = (rays[..., 0] / safe_dz / mpp).astype(np.float32)
     sy = (rays[..., 1] / safe_dz / mpp).astype(np.float32)
     x0, y0 = np.float32(origin[0] / mpp), np.float32((top_m - origin[1]) / mpp)
-    hit_t = ground_t.astype(np.float32)
-    found = ~down
-    previous: tuple[NDArray[np.float32], NDArray[np.float32]] | None = None
+    hit_t = ground_t.astype(np.float32).ravel()
+    found = (~down).ravel()
+    flat_inv_dz = inv_dz.ravel()
+    previous: tuple[np.float32, NDArray[np.float32]] | None = None
     for z_level in np.linspace(top, 0.0, levels):
         k = np.float32(z_level - origin[2])
-        t = k * inv_dz
-        px = x0 + k * sx
-        py = y0 - k * sy
-        gap = _sample(world.height_m, px, py, nearest=False, fill=0.0) - np.float32(z_level)
-        new = ~found & (gap >= 0.0)
-        if previous is None:
-            hit_t = np.where(new, t, hit_t)
-        else:
-            # The ray crossed the surface between the previous level (gap < 0) and this one.
-            previous_t, previous_gap = previous
-            fraction = np.clip(previous_gap / np.minimum(previous_gap - gap, -1e-9), 0.0, 1.0)
-            hit_t = np.where(new, previous_t + fraction * (t - previous_t), hit_t)
-        found |= new
-        previous = (t, gap)
-        if found.all():
-            break
+        gap = _sample(world.height_m, x0 + k * sx, y0 - k * sy, nearest=False, fill=0.0)
+        gap = (gap - np.float32(z_level)).ravel()
+        # Only the rays that meet the surface at this level are worked on.
+        new = np.flatnonzero((gap >= 0.0) & ~found)
+        if len(new):
+            t = k * flat_inv_dz[new]
+            if previous is None:
+                hit_t[new] = t
+            else:
+                # The ray crossed the surface between the previous level (gap < 0) and this.
+                previous_k, previous_gap = previous
+                previous_t = previous_k * flat_inv_dz[new]
+                before, after = previous_gap[new], gap[new]
+                fraction = np.clip(before / np.minimum(before - after, -1e-9), 0.0, 1.0)
+                hit_t[new] = previous_t + fraction * (t - previous_t)
+            found[new] = True
+            if found.all():
+                break
+        previous = (k, gap)
+    hit_t = hit_t.reshape(dz.shape)
     return np.where(down, hit_t, np.inf).astype(np.float32)
 
 

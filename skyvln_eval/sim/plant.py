@@ -76,6 +76,11 @@ class PlantConfig:
             )
 
 
+def _axpy(x: list[float], a: float, y: list[float]) -> list[float]:
+    """``x + a * y`` element-wise, on plain floats."""
+    return [xi + a * yi for xi, yi in zip(x, y, strict=True)]
+
+
 class Plant:
     """The true drone. ``step`` advances it by one control step; ``measure`` reads its sensors."""
 
@@ -111,16 +116,22 @@ class Plant:
             min(max(roll_ref_rad, -limits.tilt_ref_max_rad), limits.tilt_ref_max_rad),
             min(max(pitch_ref_rad, -limits.tilt_ref_max_rad), limits.tilt_ref_max_rad),
         )
-        wind = self.wind_m_s
+        wind = [float(w) for w in self.wind_m_s]
         h = dt_s / self.config.substeps
+        # Plain floats: for 9 numbers, Python arithmetic is several times faster than
+        # numpy's per-call overhead, and the operations (and so the results) are the same.
+        x = [float(v) for v in self._x]
         for _ in range(self.config.substeps):
-            x = self._x
             k1 = self._rhs(x, u, wind, yaw_ref_rad)
-            k2 = self._rhs(x + h / 2 * k1, u, wind, yaw_ref_rad)
-            k3 = self._rhs(x + h / 2 * k2, u, wind, yaw_ref_rad)
-            k4 = self._rhs(x + h * k3, u, wind, yaw_ref_rad)
-            self._x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        self._x[NX] = wrap_angle_rad(float(self._x[NX]))
+            k2 = self._rhs(_axpy(x, h / 2, k1), u, wind, yaw_ref_rad)
+            k3 = self._rhs(_axpy(x, h / 2, k2), u, wind, yaw_ref_rad)
+            k4 = self._rhs(_axpy(x, h, k3), u, wind, yaw_ref_rad)
+            slope = [
+                b1 + 2 * b2 + 2 * b3 + b4 for b1, b2, b3, b4 in zip(k1, k2, k3, k4, strict=True)
+            ]
+            x = _axpy(x, h / 6, slope)
+        x[NX] = wrap_angle_rad(x[NX])
+        self._x = np.array(x)
         self._advance_gust(dt_s)
         return self.state
 
@@ -136,17 +147,13 @@ class Plant:
         return DroneState.from_model_vector(x[:NX], wrap_angle_rad(float(x[NX])))
 
     def _rhs(
-        self,
-        x: NDArray[np.float64],
-        u: tuple[float, float, float],
-        wind: NDArray[np.float64],
-        yaw_ref: float,
-    ) -> NDArray[np.float64]:
+        self, x: list[float], u: tuple[float, float, float], wind: list[float], yaw_ref: float
+    ) -> list[float]:
         params = self.config.params
-        derivative = model_rhs([float(v) for v in x], u, params, [float(w) for w in wind])
-        yaw_rate = wrap_angle_rad(yaw_ref - float(x[NX])) / params.yaw_time_constant_s
+        derivative = model_rhs(x, u, params, wind)
+        yaw_rate = wrap_angle_rad(yaw_ref - x[NX]) / params.yaw_time_constant_s
         yaw_rate = min(max(yaw_rate, -params.yaw_rate_max_rad_s), params.yaw_rate_max_rad_s)
-        return np.array([*derivative, yaw_rate])
+        return [*derivative, yaw_rate]
 
     def _advance_gust(self, dt_s: float) -> None:
         wind = self.config.wind
