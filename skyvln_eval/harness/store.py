@@ -123,8 +123,9 @@ class ResultStore:
         return self._rows.get(key)
 
     def results(self) -> list[EpisodeResult]:
-        """The latest result of every episode, in the order episodes were first recorded."""
-        return list(self._rows.values())
+        """The latest result of every episode, by (split, episode id): the file holds them
+        in the order they finished, which depends on the workers."""
+        return [self._rows[key] for key in sorted(self._rows)]
 
     def append(self, result: EpisodeResult) -> None:
         """Record one episode durably: a single write of whole lines, flushed and fsynced."""

@@ -89,12 +89,15 @@ def summarise(
 
     Every metric of a group is resampled with the same ``seed``, so metrics defined on
     the same episodes share their resamples (their intervals agree with each other).
+    Episodes are taken in episode-id order, so the result does not depend on the order of
+    the rows (a parallel run records episodes in the order they finish).
     """
     if scores.empty:
         raise MetricInputError("no scores to summarise")
     metrics = list(metrics or [m for m in METRIC_UNITS if m in scores.columns])
     rows = []
-    for key, group in scores.groupby(GROUP_KEYS, sort=True):
+    for key, unordered in scores.groupby(GROUP_KEYS, sort=True):
+        group = unordered.sort_values("episode_id", kind="stable")
         for metric in metrics:
             column = group[metric]
             present = column.notna().to_numpy()
@@ -153,7 +156,8 @@ def compare_systems(
         sel = scores[(scores.system == system) & (scores.split == split) & (scores["mode"] == mode)]
         if sel.empty:
             raise MetricInputError(f"no scores for system {system!r} on {split}/{mode}")
-        return sel.set_index("episode_id")[metric].astype(np.float64)
+        # Episode order fixes the bootstrap's resamples: sorted, so input order never matters.
+        return sel.set_index("episode_id")[metric].astype(np.float64).sort_index()
 
     a, b = values(system_a), values(system_b)
     only_a, only_b = sorted(set(a.index) - set(b.index)), sorted(set(b.index) - set(a.index))

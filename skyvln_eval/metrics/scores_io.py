@@ -6,9 +6,11 @@ The first two lines are comments::
     # conventions: {"distance":"2d",...}
 
 then a CSV header and one row per episode (the frame of
-:func:`~skyvln_eval.metrics.scoring.score_results`). Floats are written with Python's
-shortest round-trip repr, so reading gives back the same values; empty cells are
-"not applicable" (e.g. control metrics of an episode without dynamics).
+:func:`~skyvln_eval.metrics.scoring.score_results`), sorted by system, split, mode and
+episode id so that the file does not depend on the order results were recorded in.
+Floats are written with Python's shortest round-trip repr, so reading gives back the
+same values; empty cells are "not applicable" (e.g. control metrics of an episode
+without dynamics).
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ import pandas as pd
 from skyvln_eval.errors import DataError, FormatVersionError
 from skyvln_eval.fileio import atomic_write_text
 from skyvln_eval.metrics.conventions import MetricConventions
-from skyvln_eval.metrics.scoring import CONTROL_COLUMNS
+from skyvln_eval.metrics.scoring import CONTROL_COLUMNS, KEY_COLUMNS
 
 SCORES_FORMAT = "skyvln-eval.scores"
 SCORES_VERSION = 1
@@ -32,7 +34,8 @@ SCORES_VERSION = 1
 def scores_to_csv_text(scores: pd.DataFrame, conventions: MetricConventions) -> str:
     buffer = io.StringIO()
     buffer.write(f"# {SCORES_FORMAT} v{SCORES_VERSION}\n# conventions: {conventions.to_json()}\n")
-    scores.to_csv(buffer, index=False, lineterminator="\n")
+    ordered = scores.sort_values(list(KEY_COLUMNS), kind="stable")
+    ordered.to_csv(buffer, index=False, lineterminator="\n")
     return buffer.getvalue()
 
 

@@ -31,13 +31,15 @@ def result(i: int, status: str = "ok") -> EpisodeResult:
 
 def test_rows_survive_reopening_and_are_a_results_file(tmp_path: Path) -> None:
     store = ResultStore(tmp_path)
-    for i in range(3):
+    for i in (2, 0, 1):  # in the order they finished
         store.append(result(i))
     again = ResultStore(tmp_path)
+    # Handed back by key, whatever order the workers finished in.
     assert [r.episode_id for r in again.results()] == ["9101__0_1", "9101__1_1", "9101__2_1"]
+    assert [r.episode_id for r in store.results()] == ["9101__0_1", "9101__1_1", "9101__2_1"]
     assert again.results()[1] == result(1)
     assert again.recovery.messages() == []
-    assert read_results(tmp_path / RESULTS_FILE) == [result(i) for i in range(3)]
+    assert read_results(tmp_path / RESULTS_FILE) == [result(i) for i in (2, 0, 1)]
 
 
 def test_a_partial_last_line_is_dropped_and_reported(tmp_path: Path) -> None:

@@ -79,6 +79,21 @@ def test_summary_is_per_system_in_percent_with_seeded_intervals() -> None:
         summarise(scores.iloc[:0])
 
 
+def test_intervals_and_paired_tests_do_not_depend_on_row_order() -> None:
+    # A parallel run records episodes in the order they finish: the numbers must not care.
+    scores = scores_of_two_systems()
+    shuffled = scores.sample(frac=1.0, random_state=7)
+    assert not shuffled.episode_id.equals(scores.episode_id)
+    pd.testing.assert_frame_equal(
+        summarise(scores, ["success", "ne_m"], n_resamples=300),
+        summarise(shuffled, ["success", "ne_m"], n_resamples=300),
+    )
+    pd.testing.assert_series_equal(
+        compare_systems(scores, "A", "B", "ne_m", "val_seen", n_resamples=300),
+        compare_systems(shuffled, "A", "B", "ne_m", "val_seen", n_resamples=300),
+    )
+
+
 def test_bootstrap_ci_rules() -> None:
     assert bootstrap_ci([2.0, 2.0, 2.0], 100).low == 2.0
     with pytest.raises(MetricInputError, match="no values"):
@@ -116,3 +131,15 @@ def test_completeness_names_missing_and_unknown_episodes() -> None:
         IncompleteRunError, match="run A/val_seen/andh is incomplete: 1 missing episode\\(s\\): e40"
     ):
         check_scores_complete(scores, expected)
+
+
+def test_a_scores_file_is_the_same_whatever_order_the_rows_came_in(tmp_path: Path) -> None:
+    from skyvln_eval.metrics import MetricConventions
+    from skyvln_eval.metrics.scores_io import read_scores, write_scores
+
+    scores = scores_of_two_systems()
+    write_scores(tmp_path / "a.csv", scores, MetricConventions())
+    write_scores(tmp_path / "b.csv", scores.sample(frac=1.0, random_state=3), MetricConventions())
+    assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
+    back, _ = read_scores(tmp_path / "a.csv")
+    assert list(back.system) == sorted(scores.system)  # sorted by system, then episode
