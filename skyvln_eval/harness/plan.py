@@ -40,6 +40,11 @@ class PlanSystem(_Strict):
     label: str = Field(min_length=1)
     mode: ExecutionMode = "dynamics"
     controller: str = "nmpc"
+    controller_settings: dict[str, Any] = Field(
+        default_factory=dict,
+        description="this system's controller settings over the plan's, e.g. "
+        "{max_obstacles: 0} for an MPC that ignores obstacles",
+    )
     agent: dict[str, Any] = Field(default_factory=dict)
 
 
@@ -174,7 +179,15 @@ def planned_runs(
             limit=plan.limit,
             mode=system.mode,
             agent=agent,
-            dynamics=plan.dynamics.model_copy(update={"controller": system.controller}),
+            dynamics=plan.dynamics.model_copy(
+                update={
+                    "controller": system.controller,
+                    "controller_settings": {
+                        **plan.dynamics.controller_settings,
+                        **system.controller_settings,
+                    },
+                }
+            ),
             max_action_len=plan.max_action_len,
             seed=plan.seed,
             workers=workers,

@@ -133,6 +133,23 @@ def test_the_default_plan_has_the_papers_rows() -> None:
     assert labels == ["rule-based (not an LLM)", "random (not an LLM)"]
 
 
+def test_a_system_can_override_its_controller_settings(tmp_path: Path) -> None:
+    plan = load_plan("default")
+    systems = list(plan.table1.systems)
+    mpc = next(k for k, s in enumerate(systems) if s.label == "w MPC")
+    blind = systems[mpc].model_copy(
+        update={"label": "w MPC, no obstacles", "controller_settings": {"max_obstacles": 0}}
+    )
+    plan = plan.model_copy(
+        update={"table1": plan.table1.model_copy(update={"systems": (*systems, blind)})}
+    )
+    runs = {r.rows[0][1]: r.config for r in planned_runs(plan, tmp_path, 1, "processes")}
+    assert runs["w MPC, no obstacles"].dynamics.controller_settings == {"max_obstacles": 0}
+    assert runs["w MPC"].dynamics.controller_settings == {}
+    # Different settings are different runs, never merged into one.
+    assert runs["w MPC, no obstacles"].digest() != runs["w MPC"].digest()
+
+
 def test_endpoints_from_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv(
         "SKYVLN_TEST_BACKENDS", "openai:gpt-4o, openai:llama3@http://127.0.0.1:11434/v1"
