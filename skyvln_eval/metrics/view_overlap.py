@@ -40,6 +40,12 @@ _BLOCK = 8192
 _EDGE_TOLERANCE = 1e-12
 
 
+def _signed_areas(polygons: FloatArray) -> FloatArray:
+    """Shoelace area of each polygon ``(..., K, 2)``: positive when counter-clockwise."""
+    x, y = polygons[..., 0], polygons[..., 1]
+    return np.asarray((x * np.roll(y, -1, axis=-1) - np.roll(x, -1, axis=-1) * y).sum(-1) / 2)
+
+
 def circumradius(views: FloatArray) -> FloatArray:
     """Distance from each view's centre to its farthest corner."""
     centre = views.mean(axis=-2, keepdims=True)
@@ -52,8 +58,7 @@ def hull_area_of_quads(views: FloatArray) -> FloatArray:
     local = views - views.mean(axis=-2, keepdims=True)
 
     def shoelace(*idx: int) -> FloatArray:
-        x, y = local[..., idx, 0], local[..., idx, 1]
-        return np.abs((x * np.roll(y, -1, axis=-1) - np.roll(x, -1, axis=-1) * y).sum(axis=-1)) / 2
+        return np.abs(_signed_areas(local[..., idx, :]))
 
     # The hull is the largest of the three cyclic quads and the four triangles.
     candidates = [shoelace(0, 1, 2, 3), shoelace(0, 2, 1, 3), shoelace(0, 1, 3, 2)]
@@ -91,11 +96,6 @@ def hull_iou_upper_bound(a: FloatArray, b: FloatArray) -> FloatArray:
 
 def _cross(ax: FloatArray, ay: FloatArray, bx: FloatArray, by: FloatArray) -> FloatArray:
     return np.asarray(ax * by - ay * bx)
-
-
-def _signed_areas(quads: FloatArray) -> FloatArray:
-    x, y = quads[..., 0], quads[..., 1]
-    return np.asarray((x * np.roll(y, -1, axis=-1) - np.roll(x, -1, axis=-1) * y).sum(-1) / 2)
 
 
 def _strictly_convex(quads: FloatArray) -> NDArray[np.bool_]:
@@ -148,8 +148,7 @@ def convex_intersection_area(a: FloatArray, b: FloatArray) -> FloatArray:
     # Invalid points sorted to the end repeat the first valid one: their edges add 0.
     slots = np.arange(points.shape[1])[None, :]
     ring = np.where((slots < count[:, None])[..., None], ring, ring[:, :1, :])
-    x, y = ring[..., 0], ring[..., 1]
-    area = np.abs((x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y).sum(axis=1)) / 2
+    area = np.abs(_signed_areas(ring))
     return np.asarray(np.where(count >= 3, area, 0.0))
 
 

@@ -104,10 +104,17 @@ def pixel_rays(
     pose: CameraPose, config: CameraConfig, u: NDArray[Any], v: NDArray[Any]
 ) -> NDArray[np.float64]:
     """Ray directions (ENU, ``(..., 3)``) through image points ``(u, v)``, unit planar depth."""
+    return _rays(pose, *_plane_coordinates(config, u, v))
+
+
+def _plane_coordinates(
+    config: CameraConfig, u: NDArray[Any], v: NDArray[Any]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Image point ``(u, v)`` as offsets right (``a``) and down (``b``) at unit depth."""
     f = config.focal_px
     a = (np.asarray(u, dtype=np.float64) - config.width_px / 2.0) / f
     b = (np.asarray(v, dtype=np.float64) - config.height_px / 2.0) / f
-    return _rays(pose, a, b)
+    return a, b
 
 
 def _rays(pose: CameraPose, a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -123,9 +130,7 @@ def _rays(pose: CameraPose, a: NDArray[np.float64], b: NDArray[np.float64]) -> N
 def _image_plane(config: CameraConfig) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The ``a``, ``b`` of :func:`pixel_rays` at every pixel centre: fixed per camera."""
     v, u = np.mgrid[0 : config.height_px, 0 : config.width_px].astype(np.float64) + 0.5
-    f = config.focal_px
-    a = (u - config.width_px / 2.0) / f
-    b = (v - config.height_px / 2.0) / f
+    a, b = _plane_coordinates(config, u, v)
     a.flags.writeable = b.flags.writeable = False
     return a, b
 
