@@ -1,0 +1,23 @@
+"""The real local LLM server (llama.cpp + Gemma 3 270M) for the tests that need a real model."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import pytest
+
+from skyvln_eval.llm.local_server import find_local_llama, local_llama_server
+
+
+@pytest.fixture(scope="session")
+def local_llm_url() -> Iterator[str]:
+    """The ``/v1`` base URL of a llama.cpp server on 127.0.0.1, started once per session.
+
+    Skipped, with what is missing, when llama-cpp-python or the GGUF package is not
+    installed (the ``local-llm`` extra, or ``$SKYVLN_EVAL_LLAMA_PYTHON``).
+    """
+    llama = find_local_llama()
+    if isinstance(llama, str):
+        pytest.skip(f"no real local LLM: {llama}")
+    with local_llama_server(llama) as base_url:
+        yield base_url
