@@ -34,6 +34,10 @@ console = Console(width=None if sys.stdout.isatty() else 110)
 err_console = Console(stderr=True, width=None if sys.stderr.isatty() else 110)
 
 DATASET_SIZES = ("sample", "full")
+FAIL_ON_ERROR_HELP = (
+    "Largest share of episodes (0-1) that may end in error (no usable LLM answer, or the "
+    "episode raised) before the command fails; 0: any error fails, 1: never"
+)
 
 
 def _echo_problem(text: str, colour: str = "red") -> None:
@@ -273,14 +277,23 @@ def run_(
         str | None, typer.Option(help="Ray cluster address (default: a local Ray)")
     ] = None,
     retry_failed: Annotated[
-        bool, typer.Option(help="Run episodes that failed before again")
+        bool, typer.Option(help="Run episodes that ended in error before again")
     ] = False,
+    fail_on_error: Annotated[float, typer.Option(min=0.0, max=1.0, help=FAIL_ON_ERROR_HELP)] = 0.0,
 ) -> None:
-    """Run an agent configuration over its episodes; resumes where a previous run stopped."""
+    """Run an agent configuration over its episodes; resumes where a previous run stopped.
+
+    Exits 1 when episodes are missing, the run stopped early, or more than
+    --fail-on-error of its episodes ended in error.
+    """
     from skyvln_eval.harness.commands import run_command
+    from skyvln_eval.harness.run import error_verdict
 
     report = run_command(config, out, workers, executor, ray_address, retry_failed)
-    if report.missing:
+    verdict = error_verdict([report], fail_on_error)
+    if verdict:
+        _echo_problem(verdict)
+    if report.missing or verdict:
         raise typer.Exit(1)
 
 
@@ -299,11 +312,17 @@ def reproduce(
     limit: Annotated[
         int | None, typer.Option(min=1, help="Episodes per split (a quick look)")
     ] = None,
+    fail_on_error: Annotated[float, typer.Option(min=0.0, max=1.0, help=FAIL_ON_ERROR_HELP)] = 0.0,
 ) -> None:
-    """The main job: the paper's Table I and II, control figures and a summary, on the sample."""
+    """The main job: the paper's Table I and II, control figures and a summary, on the sample.
+
+    Exits 1 when a run is incomplete, stopped early, or has more than --fail-on-error of
+    its episodes in error (the tables are written either way, with the error rates).
+    """
     from skyvln_eval.harness.plan import load_plan
     from skyvln_eval.harness.progress import RichRunProgress
     from skyvln_eval.harness.reproduce import reproduce as run_plan
+    from skyvln_eval.harness.run import error_verdict
 
     chosen = load_plan(plan, limit=limit)
     if data_dir is None and chosen.data == "sample":
@@ -318,11 +337,11 @@ def reproduce(
     )
     for name in ("table1.md", "table2.md"):
         console.print(report.files[name].read_text(encoding="utf-8"))
-    for run in report.reports:
-        for (split, episode), message in run.failed.items():
-            _echo_problem(f"{run.system}: failed {split}/{episode}: {message}")
     console.print(f"wrote {report.files['SUMMARY.md']} ({report.wall_s:.0f} s)")
-    if not report.complete:
+    verdict = error_verdict(report.reports, fail_on_error)
+    if verdict:
+        _echo_problem(verdict)
+    if not report.complete or verdict:
         raise typer.Exit(1)
 
 

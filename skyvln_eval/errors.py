@@ -216,6 +216,18 @@ class LLMTransientError(LLMError):
         self.retry_after_s = retry_after_s
 
 
+class LLMContextOverflowError(LLMError):
+    """The request is longer than the model's context window: sending it again is useless."""
+
+
+class LLMAuthError(LLMError):
+    """The server refused the credentials (HTTP 401 / 403): no later call can succeed.
+
+    Not recorded as an episode's failure and carried on: it stops the run, naming the
+    backend and the environment variable the key is read from (never the key).
+    """
+
+
 class CacheMissError(SkyvlnError):
     """The ``replay`` backend was asked something its cache does not hold.
 

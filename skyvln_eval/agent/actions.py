@@ -118,77 +118,148 @@ class Stop:
 
 Action = Move | Turn | Climb | FlyTo | Waypoint | Stop
 
-#: Fields each action type takes in JSON (required, optional).
-ACTION_FIELDS: Final[dict[str, tuple[tuple[str, ...], tuple[str, ...]]]] = {
-    "move_forward": (("distance_m",), ()),
-    "move_left": (("distance_m",), ()),
-    "move_right": (("distance_m",), ()),
-    "turn": (("degrees",), ()),
-    "ascend": (("distance_m",), ()),
-    "descend": (("distance_m",), ()),
-    "fly_to": (("landmark",), ("height_m",)),
-    "waypoint": (("x", "y", "altitude"), ()),
-    "stop": ((), ()),
+
+@dataclass(frozen=True)
+class FieldSpec:
+    """One field of an action in JSON: its type, its range (numbers), whether required.
+
+    The JSON schema sent to the model and the parser are both derived from these specs
+    (:data:`ACTION_SPECS`), so a decoder constrained by the schema can only produce what
+    the parser accepts, and the parser's reasons name what the schema says.
+    """
+
+    name: str
+    kind: Literal["number", "string"]
+    low: float = 0.0
+    high: float = 0.0
+    required: bool = True
+    description: str = ""
+
+    def schema(self) -> dict[str, Any]:
+        if self.kind == "string":
+            out: dict[str, Any] = {"type": "string", "maxLength": MAX_ID_CHARS}
+        else:
+            out = {"type": "number", "minimum": self.low, "maximum": self.high}
+        if not self.required:  # strict structured output wants every field: null = absent
+            out["type"] = [out["type"], "null"]
+        return out | ({"description": self.description} if self.description else {})
+
+
+#: Longest landmark id an action may name (ids are short: ``L12``, ``P3``).
+MAX_ID_CHARS: Final = 40
+
+
+def _distance(high: float, what: str) -> FieldSpec:
+    return FieldSpec("distance_m", "number", 0.0, high, description=what)
+
+
+#: Every action type and its fields, in the order the model is asked to write them.
+ACTION_SPECS: Final[dict[str, tuple[FieldSpec, ...]]] = {
+    "move_forward": (_distance(MAX_MOVE_M, "metres"),),
+    "move_left": (_distance(MAX_MOVE_M, "metres"),),
+    "move_right": (_distance(MAX_MOVE_M, "metres"),),
+    "turn": (FieldSpec("degrees", "number", -180.0, 180.0, description="positive = right"),),
+    "ascend": (_distance(MAX_CLIMB_M, "metres of height"),),
+    "descend": (_distance(MAX_CLIMB_M, "metres of height"),),
+    "fly_to": (
+        FieldSpec("landmark", "string", description="a landmark or memory id, e.g. L3"),
+        FieldSpec("height_m", "number", MIN_HEIGHT_M, MAX_HEIGHT_M, required=False),
+    ),
+    "waypoint": (
+        FieldSpec("x", "number", -1.0, 1.0, description="half view edges, right"),
+        FieldSpec("y", "number", -1.0, 1.0, description="half view edges, forward"),
+        FieldSpec("altitude", "number", 0.0, 1.0, description="view edge 40 + 360 x altitude m"),
+    ),
+    "stop": (),
 }
-ACTION_TYPES: Final = tuple(ACTION_FIELDS)
+ACTION_TYPES: Final = tuple(ACTION_SPECS)
+#: Fields each action type takes in JSON (required, optional), from :data:`ACTION_SPECS`.
+ACTION_FIELDS: Final[dict[str, tuple[tuple[str, ...], tuple[str, ...]]]] = {
+    kind: (
+        tuple(f.name for f in specs if f.required),
+        tuple(f.name for f in specs if not f.required),
+    )
+    for kind, specs in ACTION_SPECS.items()
+}
 
 
-def _number(data: Mapping[str, Any], key: str, low: float, high: float) -> float:
-    value = data[key]
+def _number(value: Any, spec: FieldSpec) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ActionParseError(f"field '{key}' must be a number, got {type(value).__name__}")
-    number = float(value)
-    if not math.isfinite(number):
-        raise ActionParseError(f"field '{key}' must be finite, got {value!r}")
-    if not low <= number <= high:
+        raise ActionParseError(f"field '{spec.name}' must be a number, got {type(value).__name__}")
+    try:
+        number = float(value)
+    except OverflowError:  # an integer of hundreds of digits
         raise ActionParseError(
-            f"field '{key}' = {number:g} is outside the allowed [{low:g}, {high:g}]"
+            f"field '{spec.name}' is far outside the allowed [{spec.low:g}, {spec.high:g}]"
+        ) from None
+    if not math.isfinite(number):
+        raise ActionParseError(f"field '{spec.name}' must be finite, got {value!r}")
+    if not spec.low <= number <= spec.high:
+        raise ActionParseError(
+            f"field '{spec.name}' = {number:g} is outside the allowed [{spec.low:g}, {spec.high:g}]"
         )
     return number
+
+
+def _fields(kind: str, data: Mapping[str, Any]) -> dict[str, Any]:
+    """The action's fields checked against its specs (absent optional fields are None)."""
+    specs = ACTION_SPECS[kind]
+    known = {spec.name for spec in specs}
+    unknown = sorted(set(data) - {"type"} - known)
+    if unknown:
+        takes = ", ".join(sorted(known)) or "no fields"
+        raise ActionParseError(
+            f"action '{kind}' does not take field(s) {', '.join(unknown)} (it takes {takes})"
+        )
+    missing = [spec.name for spec in specs if spec.required and spec.name not in data]
+    if missing:
+        raise ActionParseError(f"action '{kind}' needs field(s) {', '.join(missing)}")
+    out: dict[str, Any] = {}
+    for spec in specs:
+        value = data.get(spec.name)
+        if value is None:
+            out[spec.name] = None
+        elif spec.kind == "number":
+            out[spec.name] = _number(value, spec)
+        elif not isinstance(value, str) or not value or len(value) > MAX_ID_CHARS:
+            raise ActionParseError(
+                f"field '{spec.name}' must be a non-empty string of at most {MAX_ID_CHARS} "
+                "characters"
+            )
+        else:
+            out[spec.name] = value
+    return out
 
 
 def action_from_dict(data: Any, landmark_offsets: Mapping[str, tuple[float, float]]) -> Action:
     """Validate one JSON action and build it; raises :class:`ActionParseError` saying why not.
 
     ``landmark_offsets`` maps the landmark ids the agent may fly to (detected now or kept
-    in memory) to their ``(east_m, north_m)`` displacement from the drone.
+    in memory) to their ``(east_m, north_m)`` displacement from the drone. A field set to
+    ``null`` counts as absent (strict structured output writes optional fields as null).
     """
     if not isinstance(data, Mapping):
         raise ActionParseError(f"'action' must be a JSON object, got {type(data).__name__}")
-    # Structured output fills the fields an action does not use with null: drop them.
     data = {key: value for key, value in data.items() if value is not None}
     kind = data.get("type")
-    if not isinstance(kind, str) or kind not in ACTION_FIELDS:
+    if not isinstance(kind, str) or kind not in ACTION_SPECS:
         raise ActionParseError(f"unknown action type {kind!r}; allowed: {', '.join(ACTION_TYPES)}")
-    required, optional = ACTION_FIELDS[kind]
-    unknown = sorted(set(data) - {"type", *required, *optional})
-    if unknown:
-        raise ActionParseError(f"action '{kind}' does not take field(s) {', '.join(unknown)}")
-    missing = [key for key in required if key not in data]
-    if missing:
-        raise ActionParseError(f"action '{kind}' needs field(s) {', '.join(missing)}")
+    f = _fields(kind, data)
     if kind.startswith("move_"):
-        return Move(kind.removeprefix("move_"), _number(data, "distance_m", 0.0, MAX_MOVE_M))  # type: ignore[arg-type]
+        return Move(kind.removeprefix("move_"), f["distance_m"])  # type: ignore[arg-type]
     if kind == "turn":
-        return Turn(_number(data, "degrees", -180.0, 180.0))
+        return Turn(f["degrees"])
     if kind in ("ascend", "descend"):
-        distance = _number(data, "distance_m", 0.0, MAX_CLIMB_M)
-        return Climb(distance if kind == "ascend" else -distance)
+        return Climb(f["distance_m"] if kind == "ascend" else -f["distance_m"])
     if kind == "fly_to":
-        landmark = data["landmark"]
-        if not isinstance(landmark, str) or landmark not in landmark_offsets:
+        landmark = f["landmark"]
+        if landmark not in landmark_offsets:
             known = ", ".join(sorted(landmark_offsets)) or "none"
             raise ActionParseError(f"fly_to names landmark {landmark!r}, not a known one ({known})")
-        height = data.get("height_m")
-        height_m = None if height is None else _number(data, "height_m", MIN_HEIGHT_M, MAX_HEIGHT_M)
         east, north = landmark_offsets[landmark]
-        return FlyTo(landmark, float(east), float(north), height_m)
+        return FlyTo(landmark, float(east), float(north), f["height_m"])
     if kind == "waypoint":
-        return Waypoint(
-            _number(data, "x", -1.0, 1.0),
-            _number(data, "y", -1.0, 1.0),
-            _number(data, "altitude", 0.0, 1.0),
-        )
+        return Waypoint(f["x"], f["y"], f["altitude"])
     return Stop()
 
 
@@ -218,42 +289,41 @@ def action_record(action: Action) -> dict[str, Any]:
     return out
 
 
-def decision_json_schema() -> dict[str, Any]:
-    """JSON schema of the motion generator's output, sent as ``response_format`` where supported.
+def action_json_schema() -> dict[str, Any]:
+    """The schema of one action: one object per action type (a discriminated union on
+    ``type``), each with exactly its fields and their ranges, from :data:`ACTION_SPECS`."""
+    variants = []
+    for kind, specs in ACTION_SPECS.items():
+        properties: dict[str, Any] = {"type": {"type": "string", "enum": [kind]}}
+        properties |= {spec.name: spec.schema() for spec in specs}
+        variants.append(
+            {
+                "type": "object",
+                "properties": properties,
+                "required": list(properties),
+                "additionalProperties": False,
+            }
+        )
+    return {"anyOf": variants}
 
-    A flat object keeps it within the subset strict structured output accepts: every
-    field present, unused ones ``null``; :func:`action_from_dict` then checks the ranges.
+
+#: Longest ``thought`` the schema allows: bounds what a constrained decoder writes before
+#: the action, so a talkative model cannot spend the whole budget on it.
+MAX_SCHEMA_THOUGHT_CHARS: Final = 400
+
+
+def decision_json_schema() -> dict[str, Any]:
+    """JSON schema of the motion generator's output, sent as structured output.
+
+    ``{"thought": str, "action": <one action type with its fields>}``; every field that
+    the parser accepts and nothing else (see :func:`action_json_schema`).
     """
-    number_or_null = {"type": ["number", "null"]}
     return {
         "type": "object",
-        "additionalProperties": False,
-        "required": ["thought", "action"],
         "properties": {
-            "thought": {"type": "string"},
-            "action": {
-                "type": "object",
-                "additionalProperties": False,
-                "required": [
-                    "type",
-                    "distance_m",
-                    "degrees",
-                    "landmark",
-                    "height_m",
-                    "x",
-                    "y",
-                    "altitude",
-                ],
-                "properties": {
-                    "type": {"type": "string", "enum": list(ACTION_TYPES)},
-                    "distance_m": number_or_null,
-                    "degrees": number_or_null,
-                    "landmark": {"type": ["string", "null"]},
-                    "height_m": number_or_null,
-                    "x": number_or_null,
-                    "y": number_or_null,
-                    "altitude": number_or_null,
-                },
-            },
+            "thought": {"type": "string", "maxLength": MAX_SCHEMA_THOUGHT_CHARS},
+            "action": action_json_schema(),
         },
+        "required": ["thought", "action"],
+        "additionalProperties": False,
     }

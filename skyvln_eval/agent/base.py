@@ -18,7 +18,7 @@ from skyvln_eval.agent.actions import Action
 from skyvln_eval.avdn.imagery import MapGeoref
 from skyvln_eval.avdn.records import Episode
 from skyvln_eval.frames import ViewPose
-from skyvln_eval.llm.types import LLMCallRecord
+from skyvln_eval.llm_records import LlmCall, ModuleFailure
 from skyvln_eval.sim.camera import CameraRig
 from skyvln_eval.worlds.tile import WorldTile
 
@@ -48,12 +48,19 @@ class Observation:
 
 @dataclass(frozen=True)
 class Decision:
-    """The agent's thought, its action, a JSON-able trace of how it got there, its LLM calls."""
+    """The agent's thought, its action, a JSON-able trace of how it got there, its LLM
+    calls, and the modules whose answers it could not use (``failures``; a failure of the
+    action module means ``action`` is the safe fallback)."""
 
     thought: str
     action: Action
     trace: dict[str, Any] = field(default_factory=dict)
-    llm_calls: tuple[LLMCallRecord, ...] = ()
+    llm_calls: tuple[LlmCall, ...] = ()
+    failures: tuple[ModuleFailure, ...] = ()
+
+    @property
+    def fallback_action(self) -> bool:
+        return any(f.action_fallback for f in self.failures)
 
 
 class Agent(ABC):

@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+import json
 import random
 from typing import Any
 
@@ -28,9 +29,17 @@ from skyvln_eval.agent.actions import (
 from skyvln_eval.agent.base import Agent, Decision, Observation
 from skyvln_eval.agent.detectors import episode_seed
 from skyvln_eval.agent.hsd import coarse_position
-from skyvln_eval.agent.motion import SYSTEM_PROMPT, MotionGenerator, action_prompt
+from skyvln_eval.agent.images import panorama_images
+from skyvln_eval.agent.motion import (
+    SYSTEM_PROMPT,
+    MotionGenerator,
+    action_prompt,
+    commander_prompt,
+    pose_prompt,
+)
 from skyvln_eval.agent.odometry import Odometer, llm_agent_settings, pose_summary, roads_text
 from skyvln_eval.agent.perception import Panorama, Perception
+from skyvln_eval.agent.subgoals import DialogText
 from skyvln_eval.avdn.records import Episode
 from skyvln_eval.avdn.step import action_between_views
 from skyvln_eval.errors import ActionParseError
@@ -96,7 +105,8 @@ class NavGPTAgent(Agent):
         self.seed = seed
         self.motion = MotionGenerator(
             client,
-            llm.generation(json_schema=decision_json_schema(), schema_name="decision"),
+            llm.generation("navgpt", json_schema=decision_json_schema(), schema_name="decision"),
+            llm.repair_policy(),
             module="navgpt",
         )
 
@@ -105,6 +115,7 @@ class NavGPTAgent(Agent):
 
     def reset(self, episode: Episode, world: WorldTile) -> None:
         self._episode = episode
+        self._dialog = DialogText.of(episode.dialog(), episode.first.round_index)
         self._history: list[dict[str, Any]] = []
         self._odometer = Odometer()
         self.perception.reset(world, episode_seed(self.seed, episode.episode_id))
@@ -118,19 +129,14 @@ class NavGPTAgent(Agent):
         panorama = self.perception.observe(observation.camera, pose)
         self._odometer.update(pose, panorama.road_bearings_deg)
         views = self._views(panorama)
-        dialog = self._episode.dialog()
-        current = self._episode.first.round_index
-        instruction = " ".join(
-            t.text for t in dialog if t.round_index >= current and t.speaker == "commander"
-        )
         state = {
-            "instruction": instruction,
-            "previous_rounds": [t.text for t in dialog if t.round_index < current],
+            "dialog": self._dialog.to_dict(),
             "observation": views,
             "history": self._history[-8:],
             "pose": pose_summary(pose),
             "odometry": self._odometer.to_dict(),
             "actions_left": observation.actions_left,
+            "feedback": observation.feedback,
             "roads": {
                 "here": list(panorama.road_bearings_deg),
                 "at_start": list(self._odometer.start_roads or ()),
@@ -144,17 +150,23 @@ class NavGPTAgent(Agent):
             )
             for v in views
         )
+        history = "\n".join(
+            f"- {json.dumps(h['action'])}: {h['thought']} -> {h.get('feedback')}"
+            for h in self._history[-8:]
+        )
         user = (
-            f"## Instruction\n{instruction}\n## What you see\n{seen}\n"
-            f"{roads_text(panorama.road_bearings_deg, self._odometer.start_roads)}\n## History\n"
-            + (
-                "\n".join(f"- {h['action']} -> {h.get('feedback')}" for h in self._history[-8:])
-                or "(none)"
-            )
-            + "\n"
+            commander_prompt(self._dialog)
+            + pose_prompt(pose)
+            + f"## What you see\n{seen}\n"
+            + f"{roads_text(panorama.road_bearings_deg, self._odometer.start_roads)}\n"
+            + f"{self._odometer.text()}\n"
+            + f"## History\n{history or '(none)'}\n"
             + action_prompt(observation.feedback, pose.edge_m / 2.0, observation.actions_left)
         )
-        result = self.motion.decide(SYSTEM_PROMPT, user, "navgpt", state, {})
+        images = []
+        if self.client.backend.takes_images:
+            images = panorama_images(panorama, self.llm.image_max_side_px)
+        result = self.motion.decide(SYSTEM_PROMPT, user, state, {}, images)
         self._history.append({"action": action_record(result.action), "thought": result.thought})
         trace = {
             "observation": views,
@@ -162,7 +174,8 @@ class NavGPTAgent(Agent):
             "repaired": result.repaired,
             "exchanges": result.exchanges,
         }
-        return Decision(result.thought, result.action, trace, tuple(result.records))
+        failures = (result.failure,) if result.failure is not None else ()
+        return Decision(result.thought, result.action, trace, tuple(result.records), failures)
 
     @staticmethod
     def _views(panorama: Panorama) -> list[dict[str, Any]]:

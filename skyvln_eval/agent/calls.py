@@ -1,27 +1,45 @@
-"""LLM calls whose answer must be JSON: parse, record failures, and repair once on request.
+"""LLM calls whose answer must be JSON: parse, record failures, and repair.
 
-Every call the agent makes goes through :func:`call_json`. Its records (one per attempt,
-see :class:`~skyvln_eval.llm.client.LLMClient`) get the parse error of an unusable answer
-in their ``error`` field, and the exchange (prompt text, answer, error) is kept for the
-run log. With ``repair=True`` an unusable answer is sent back once with the reason and a
-request for JSON only, under the module name ``<module>_repair``.
+Every call the agent makes goes through :func:`call_json`. An answer the parser rejects,
+or one cut off at its token budget (``finish_reason == "length"``), is an ``invalid``
+attempt: its record says why, and the call is asked again (``repair``): the invalid
+answer and the parser's reason go back to the model, at the repair temperature (higher
+than the first try's, so the same answer is not simply repeated) and, for a cut-off
+answer, with a larger budget. The exchange of every request (prompt, answer, error, the
+records of its attempts with tokens, latency, decoding settings and finish reason) is
+kept for the run log.
+
+When no answer could be used, the result says so (``value is None`` with ``error``) and
+the calling module records what it does instead as a
+:class:`~skyvln_eval.llm_records.ModuleFailure`: never an empty result passed off as an
+answer.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Generic, TypeVar
+from typing import Any, Final, Generic, TypeVar
 
 from skyvln_eval.errors import ActionParseError
 from skyvln_eval.llm.client import LLMClient
-from skyvln_eval.llm.types import GenerationConfig, LLMCallRecord, Message
+from skyvln_eval.llm.config import RepairPolicy
+from skyvln_eval.llm.types import GenerationConfig, Message
+from skyvln_eval.llm_records import LlmCall, ModuleFailure
 
 T = TypeVar("T")
 
-REPAIR_REQUEST = (
+NO_REPAIR: Final = RepairPolicy(repairs=0)
+MAX_BUDGET_TOKENS: Final = 32768
+
+REPAIR_REQUEST: Final = (
     "Your previous answer could not be used: {reason}. Answer again with exactly one JSON "
     "object in the required format and nothing else: no prose, no code."
+)
+CUT_OFF_REQUEST: Final = (
+    "Your previous answer was cut off after {tokens} tokens, before it was complete. Answer "
+    "again, more briefly, with exactly one complete JSON object in the required format."
 )
 
 
@@ -31,44 +49,54 @@ class JsonCall(Generic[T]):
 
     value: T | None
     text: str | None
-    records: list[LLMCallRecord] = field(default_factory=list)
+    records: list[LlmCall] = field(default_factory=list)
     exchanges: list[dict[str, Any]] = field(default_factory=list)
     error: str | None = None
-    repaired: bool = False
+    repairs: int = 0
+
+    @property
+    def repaired(self) -> bool:
+        return self.repairs > 0
+
+    def failure(self, module: str, substitute: str) -> ModuleFailure | None:
+        """The module failure to record when this call gave nothing usable (else None)."""
+        if self.value is not None:
+            return None
+        return ModuleFailure(
+            step_index=-1, module=module, reason=self.error or "no answer", substitute=substitute
+        )
 
 
-def _exchange(
-    module: str, messages: Sequence[Message], text: str | None, error: str | None
-) -> dict[str, Any]:
-    return {
-        "module": module,
-        "prompt": [{"role": m.role, "text": m.text, "images": len(m.images)} for m in messages],
-        "response": text,
-        "error": error,
-    }
-
-
-def _one(
-    client: LLMClient,
+def exchange(
     module: str,
     messages: Sequence[Message],
     config: GenerationConfig,
-    parse: Callable[[str], T],
-) -> JsonCall[T]:
-    result = client.call(module, messages, config)
-    records = list(result.records)
-    if result.completion is None:
-        return JsonCall(
-            None, None, records, [_exchange(module, messages, None, result.error)], result.error
-        )
-    text = result.completion.text
-    try:
-        value = parse(text)
-    except ActionParseError as error:
-        reason = str(error)
-        records[-1] = replace(records[-1], error=f"invalid output: {reason}")
-        return JsonCall(None, text, records, [_exchange(module, messages, text, reason)], reason)
-    return JsonCall(value, text, records, [_exchange(module, messages, text, None)])
+    text: str | None,
+    error: str | None,
+    records: Sequence[LlmCall],
+) -> dict[str, Any]:
+    """One request as the run log keeps it: prompt, answer, error, decoding, attempts."""
+    return {
+        "module": module,
+        "prompt": [
+            {"role": m.role, "text": m.text, "images": [i.label for i in m.images]}
+            for m in messages
+        ],
+        "response": text,
+        "error": error,
+        "decoding": {
+            "temperature": config.temperature,
+            "top_p": config.top_p,
+            "max_tokens": config.max_tokens,
+            "seed": config.seed,
+            "schema": config.schema_name if config.json_schema is not None else None,
+        },
+        "calls": [r.to_json_dict() for r in records],
+    }
+
+
+def _invalid(records: list[LlmCall], reason: str) -> None:
+    records[-1] = replace(records[-1], outcome="invalid", error=f"invalid output: {reason}")
 
 
 def call_json(
@@ -77,21 +105,50 @@ def call_json(
     messages: Sequence[Message],
     config: GenerationConfig,
     parse: Callable[[str], T],
-    repair: bool = False,
+    repair: RepairPolicy = NO_REPAIR,
 ) -> JsonCall[T]:
-    """Call, parse with ``parse`` (which raises :class:`ActionParseError`), repair once if asked."""
-    first = _one(client, module, messages, config, parse)
-    if first.value is not None or not repair or first.text is None:
-        return first
-    follow_up = [
-        *messages,
-        Message("assistant", first.text),
-        Message("user", REPAIR_REQUEST.format(reason=first.error)),
-    ]
-    second = _one(client, f"{module}_repair", follow_up, config, parse)
-    second.records = first.records + second.records
-    second.exchanges = first.exchanges + second.exchanges
-    second.repaired = True
-    if second.value is None:
-        second.error = f"first answer: {first.error}; repair: {second.error}"
-    return second
+    """Call, parse with ``parse`` (which raises :class:`ActionParseError`), repair as asked."""
+    out: JsonCall[T] = JsonCall(None, None)
+    asked, current = list(messages), config
+    for index in range(repair.repairs + 1):
+        result = client.call(module, asked, current, repair=index > 0)
+        records = list(result.records)
+        completion = result.completion
+        if completion is None:  # no answer after retries: nothing to repair
+            out.error = result.error or "no answer"
+            out.records += records
+            out.exchanges.append(exchange(module, asked, current, None, out.error, records))
+            return out
+        text = completion.text
+        if completion.finish_reason == "length":
+            reason = (
+                f"the answer was cut off at max_tokens={current.max_tokens} "
+                "(finish_reason 'length')"
+            )
+            follow_up = CUT_OFF_REQUEST.format(tokens=current.max_tokens)
+            budget = min(MAX_BUDGET_TOKENS, math.ceil(current.max_tokens * repair.budget_factor))
+        else:
+            try:
+                out.value = parse(text)
+            except ActionParseError as error:
+                reason = str(error)
+                follow_up = REPAIR_REQUEST.format(reason=reason)
+                budget = current.max_tokens
+            else:
+                out.text, out.error = text, None
+                out.records += records
+                out.exchanges.append(exchange(module, asked, current, text, None, records))
+                return out
+        _invalid(records, reason)
+        out.text, out.error = text, reason
+        out.records += records
+        out.exchanges.append(exchange(module, asked, current, text, reason, records))
+        if index < repair.repairs:
+            out.repairs += 1
+            asked = [*asked, Message("assistant", text), Message("user", follow_up)]
+            current = replace(
+                current, temperature=max(current.temperature, repair.temperature), max_tokens=budget
+            )
+    if out.repairs:
+        out.error = f"no usable answer after {out.repairs} repair(s); last: {out.error}"
+    return out

@@ -125,6 +125,9 @@ def _ground_truth(config: AgentConfig, client: LLMClient | None) -> Agent:
     return GroundTruthAgent()
 
 
+#: Agents whose modules call an LLM backend (the others never do).
+LLM_AGENTS = frozenset({"skyvln", "navgpt"})
+
 AGENTS: dict[str, Callable[[AgentConfig, LLMClient | None], Agent]] = {
     "skyvln": _skyvln,
     "navgpt": _navgpt,

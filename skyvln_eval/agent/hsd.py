@@ -29,8 +29,10 @@ from skyvln_eval.agent.perception import Panorama, Sighting
 from skyvln_eval.agent.subgoals import SubGoal
 from skyvln_eval.errors import ActionParseError
 from skyvln_eval.llm.client import LLMClient
-from skyvln_eval.llm.taskdata import task_block
-from skyvln_eval.llm.types import GenerationConfig, ImagePart, LLMCallRecord, Message
+from skyvln_eval.llm.config import LLMConfig
+from skyvln_eval.llm.taskdata import task_message
+from skyvln_eval.llm.types import ImagePart, Message
+from skyvln_eval.llm_records import LlmCall, ModuleFailure
 
 SECTOR_NAMES: Final = (
     "upper-left",
@@ -104,11 +106,27 @@ def fine_text(e: Mapping[str, Any]) -> str:
         f"sector #{e['sector']} {e['sector_name']}, about {e['distance_m']:.0f} m away at bearing "
         f"{e['bearing_deg']:.0f} deg ({e['relative_bearing_deg']:+.0f} deg from your heading), "
         f"about {e['size_m']:.0f} m across"
+        + (", partly outside the view" if e["clipped"] else "")
+        + f", detection score {e['score']:.2f}"
     )
 
 
 def coarse_text(e: Mapping[str, Any]) -> str:
-    return f"{e['id']} {e['label']}: view {e['view']}, {e['position']}"
+    return f"{e['id']} {e['label']}: view {e['view']}, {e['position']}, score {e['score']:.2f}"
+
+
+def matches_text(matches: Sequence[PhraseMatch]) -> str:
+    """HSD's ranking of the candidates for each landmark phrase, for the motion prompt."""
+    lines = ["Candidates for the instruction's landmarks (HSD):"]
+    for m in matches:
+        notes = [f"ranked {', '.join(c.entry['id'] for c in m.candidates) or 'none'}"]
+        notes += ["memory consulted"] if m.asked_memory else []
+        notes += ["ambiguous"] if m.ambiguous else []
+        best = m.best or "none fits"
+        lines.append(
+            f"- {m.phrase!r}: best {best} (confidence {m.confidence:.2f}; {'; '.join(notes)})"
+        )
+    return "\n".join(lines)
 
 
 @dataclass(frozen=True)
@@ -148,15 +166,42 @@ class PhraseMatch:
 @dataclass
 class HsdResult:
     matches: list[PhraseMatch] = field(default_factory=list)
-    records: list[LLMCallRecord] = field(default_factory=list)
+    records: list[LlmCall] = field(default_factory=list)
     exchanges: list[dict[str, Any]] = field(default_factory=list)
+    failures: list[ModuleFailure] = field(default_factory=list)
+
+
+MAX_DESCRIPTION_CHARS: Final = 2000
+#: Answer schemas; the parsers below accept exactly what they allow (ids are checked
+#: against the candidates of the call).
+DESCRIPTION_SCHEMA: Final[dict[str, Any]] = {
+    "type": "object",
+    "properties": {
+        "description": {"type": "string", "maxLength": 400},
+        "match": {"type": "string", "enum": list(MATCH_LEVELS)},
+    },
+    "required": ["description", "match"],
+    "additionalProperties": False,
+}
+RANK_SCHEMA: Final[dict[str, Any]] = {
+    "type": "object",
+    "properties": {
+        "ranking": {"type": "array", "items": {"type": "string", "maxLength": 40}},
+        "best": {"anyOf": [{"type": "string", "maxLength": 40}, {"type": "null"}]},
+        "confidence": {"type": "number", "minimum": 0, "maximum": 1},
+    },
+    "required": ["ranking", "best", "confidence"],
+    "additionalProperties": False,
+}
 
 
 def _parse_description(text: str) -> tuple[str, Match]:
     data = load_json_object(text)
     description, match = data.get("description"), data.get("match")
-    if not isinstance(description, str) or len(description) > 2000:
-        raise ActionParseError("'description' must be a string of at most 2000 characters")
+    if not isinstance(description, str) or len(description) > MAX_DESCRIPTION_CHARS:
+        raise ActionParseError(
+            f"'description' must be a string of at most {MAX_DESCRIPTION_CHARS} characters"
+        )
     if match not in MATCH_LEVELS:
         raise ActionParseError(f"'match' must be one of {', '.join(MATCH_LEVELS)}")
     return description, match
@@ -193,17 +238,25 @@ def _crop_png(panorama: Panorama, s: Sighting) -> ImagePart:
     pad = 8
     crop = view.images.rgb[max(0, y0 - pad) : y1 + pad, max(0, x0 - pad) : x1 + pad]
     ok, buf = cv2.imencode(".png", crop[..., ::-1])
-    return ImagePart(buf.tobytes() if ok else b"")
+    return ImagePart(buf.tobytes() if ok else b"", label=f"{s.landmark_id} in view {view.name}")
 
 
 class SpatialDescriptor:
     """HSD (``enabled``) or the coarse descriptor; see the module docstring."""
 
     def __init__(
-        self, client: LLMClient, config: GenerationConfig, enabled: bool = True, top_k: int = 3
+        self,
+        client: LLMClient,
+        llm: LLMConfig,
+        enabled: bool = True,
+        top_k: int = 3,
     ) -> None:
         self.client = client
-        self.config = config
+        self.describe_config = llm.generation(
+            "hsd_describe", json_schema=DESCRIPTION_SCHEMA, schema_name="description"
+        )
+        self.rank_config = llm.generation("hsd_rank", json_schema=RANK_SCHEMA, schema_name="rank")
+        self.repair = llm.repair_policy()
         self.enabled = enabled
         self.top_k = top_k
 
@@ -261,7 +314,9 @@ class SpatialDescriptor:
             for candidate, call in zip(candidates, calls, strict=True):
                 result.records += call.records
                 result.exchanges += call.exchanges
-                if call.value is None:
+                failure = call.failure("hsd_describe", "ranked without a description")
+                if failure is not None or call.value is None:
+                    result.failures += [failure] if failure is not None else []
                     described.append(candidate)
                 else:
                     text, match = call.value
@@ -291,9 +346,16 @@ class SpatialDescriptor:
         )
         messages = [
             Message("system", HSD_SYSTEM),
-            Message("user", prose + task_block("hsd_describe", data), images),
+            task_message(prose, "hsd_describe", data, images),
         ]
-        return call_json(self.client, "hsd_describe", messages, self.config, _parse_description)
+        return call_json(
+            self.client,
+            "hsd_describe",
+            messages,
+            self.describe_config,
+            _parse_description,
+            self.repair,
+        )
 
     def _rank(
         self,
@@ -348,15 +410,16 @@ class SpatialDescriptor:
             "taking the sub-goal's direction and distance into account. Answer as "
             '{"ranking": [ids], "best": id or null if none fits, "confidence": 0..1}.\n'
         )
-        messages = [
-            Message("system", HSD_SYSTEM),
-            Message("user", prose + task_block("hsd_rank", data)),
-        ]
+        messages = [Message("system", HSD_SYSTEM), task_message(prose, "hsd_rank", data)]
         ids = [c.entry["id"] for c in candidates]
-        call = call_json(self.client, "hsd_rank", messages, self.config, _rank_parser(ids))
+        call = call_json(
+            self.client, "hsd_rank", messages, self.rank_config, _rank_parser(ids), self.repair
+        )
         result.records += call.records
         result.exchanges += call.exchanges
-        if call.value is None:  # fall back to the proposal order, recorded
+        failure = call.failure("hsd_rank", "proposal order")
+        if failure is not None or call.value is None:  # fall back to the proposal order
+            result.failures += [failure] if failure is not None else []
             best = candidates[0].entry["id"] if candidates[0].similarity >= 0.5 else None
             return PhraseMatch(
                 phrase,

@@ -3,13 +3,16 @@
 * System prompt: the embodiment (a drone, its camera, what its views mean, how it is judged).
 * Action prompt: feedback on the last action, the possible actions with their limits at
   the current height, and the output format.
-* Navigation prompt: the spatial descriptor's text (HSD or coarse), TrackBack memory's
-  clues, and the sub-goals with their progress; then the TASK DATA block.
+* Navigation prompt: the commander's words (earlier rounds and the current instruction),
+  the drone's pose, the spatial descriptor's text (HSD or coarse), TrackBack memory's
+  clues, and the sub-goals with their progress. The same content goes with the request
+  as task data for the offline stand-ins (:mod:`skyvln_eval.llm.taskdata`), never as a
+  second copy in the text.
 
 The answer must be ``{"thought": ..., "action": {...}}`` (see :mod:`.parsing`). An
-unusable answer is sent back once for repair; if the repair fails too, or the backend
-gives up, the safe fallback action (STOP: hover and end the episode where it is) is taken
-and the reason recorded in the trace.
+unusable answer is sent back for repair (:mod:`.calls`); if no answer can be used, the
+safe fallback action (STOP: hover and end the episode where it is) is taken and recorded
+as the motion module's failure.
 """
 
 from __future__ import annotations
@@ -29,9 +32,13 @@ from skyvln_eval.agent.actions import (
 )
 from skyvln_eval.agent.calls import call_json
 from skyvln_eval.agent.parsing import parse_decision
+from skyvln_eval.agent.subgoals import DialogText
+from skyvln_eval.frames import ViewPose
 from skyvln_eval.llm.client import LLMClient
-from skyvln_eval.llm.taskdata import task_block
-from skyvln_eval.llm.types import GenerationConfig, ImagePart, LLMCallRecord, Message
+from skyvln_eval.llm.config import RepairPolicy
+from skyvln_eval.llm.taskdata import task_message
+from skyvln_eval.llm.types import GenerationConfig, ImagePart, Message
+from skyvln_eval.llm_records import LlmCall, ModuleFailure
 
 SYSTEM_PROMPT: Final = (
     "You are the pilot of a quadrotor drone flying over a city, following a commander's "
@@ -80,50 +87,69 @@ def navigation_prompt(descriptor_text: str, memory_text: str | None, progress_te
     )
 
 
+def commander_prompt(dialog: DialogText) -> str:
+    """The commander's words: earlier rounds, the latest question, the current instruction."""
+    return f"## Dialog with the commander\n{dialog.prose()}"
+
+
+def pose_prompt(pose: ViewPose) -> str:
+    """Where the drone is pointing, how high it is and what its view covers."""
+    return (
+        f"## Your drone\nHeading {pose.heading_deg:.0f} deg, height {pose.z_m:.1f} m: your "
+        f"view below is a {pose.edge_m:.0f} m square.\n"
+    )
+
+
 @dataclass
 class MotionResult:
     thought: str
     action: Action
-    records: list[LLMCallRecord] = field(default_factory=list)
+    records: list[LlmCall] = field(default_factory=list)
     exchanges: list[dict[str, Any]] = field(default_factory=list)
     repaired: bool = False
-    fallback: str | None = None
+    failure: ModuleFailure | None = None
+
+    @property
+    def fallback(self) -> str | None:
+        return None if self.failure is None else self.failure.reason
 
 
 class MotionGenerator:
-    """Builds the three prompts, calls the LLM, parses strictly, repairs once, falls back."""
+    """Sends the prompts, calls the LLM, parses strictly, repairs, falls back to STOP."""
 
-    def __init__(self, client: LLMClient, config: GenerationConfig, module: str = "motion") -> None:
+    def __init__(
+        self,
+        client: LLMClient,
+        config: GenerationConfig,
+        repair: RepairPolicy,
+        module: str = "motion",
+    ) -> None:
         self.client = client
         self.config = config
+        self.repair = repair
         self.module = module
 
     def decide(
         self,
         system: str,
         user: str,
-        task: str,
         state: dict[str, Any],
         landmark_offsets: Mapping[str, tuple[float, float]],
         images: Sequence[ImagePart] = (),
     ) -> MotionResult:
-        messages = [
-            Message("system", system),
-            Message(
-                "user",
-                user + task_block(task, state),
-                tuple(images) if self.client.backend.takes_images else (),
-            ),
-        ]
+        """One decision: ``user`` is the prompt text, ``state`` the same as task data."""
+        sent = tuple(images) if self.client.backend.takes_images else ()
+        messages = [Message("system", system), task_message(user, self.module, state, sent)]
         call = call_json(
             self.client,
             self.module,
             messages,
             self.config,
             lambda text: parse_decision(text, landmark_offsets),
-            repair=True,
+            repair=self.repair,
         )
-        if call.value is None:
+        failure = call.failure(self.module, "stop action")
+        if failure is not None or call.value is None:
             reason = call.error or "no answer"
             return MotionResult(
                 thought=f"fallback: {reason}",
@@ -131,7 +157,7 @@ class MotionGenerator:
                 records=call.records,
                 exchanges=call.exchanges,
                 repaired=call.repaired,
-                fallback=reason,
+                failure=failure,
             )
         thought, action = call.value
         return MotionResult(thought, action, call.records, call.exchanges, call.repaired)

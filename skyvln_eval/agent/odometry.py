@@ -51,8 +51,13 @@ class Odometer:
         data = self.to_dict()
         if not data:
             return "Nothing flown yet."
-        start = math.hypot(data["start_east_m"], data["start_north_m"])
-        return f"Flown {self.travelled_m:.0f} m; the start is {start:.0f} m away."
+        east, north = data["start_east_m"], data["start_north_m"]
+        start = math.hypot(east, north)
+        bearing = math.degrees(math.atan2(east, north)) % 360.0
+        return (
+            f"Flown {self.travelled_m:.0f} m; the start is {start:.0f} m away at bearing "
+            f"{bearing:.0f} deg (you faced {data['start_heading_deg']:.0f} deg there)."
+        )
 
 
 def pose_summary(pose: ViewPose) -> dict[str, float]:

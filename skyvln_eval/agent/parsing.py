@@ -47,11 +47,17 @@ def load_json_object(text: str) -> dict[str, Any]:
         preview = body[:60].replace("\n", " ")
         raise ActionParseError(f"output is not a JSON object (it starts with {preview!r})")
     try:
-        data = json.loads(body, parse_constant=_no_constants, object_pairs_hook=_unique_keys)
+        # strict=False: a raw newline inside a string (grammar-constrained decoders write
+        # them) is harmless and accepted; everything else must be JSON.
+        data = json.loads(
+            body, strict=False, parse_constant=_no_constants, object_pairs_hook=_unique_keys
+        )
     except json.JSONDecodeError as error:
         raise ActionParseError(
             f"output is not valid JSON ({error.msg} at character {error.pos})"
         ) from None
+    except (ValueError, RecursionError) as error:  # e.g. an integer of thousands of digits
+        raise ActionParseError(f"output is not usable JSON ({error})") from None
     if not isinstance(data, dict):
         raise ActionParseError("output must be one JSON object")
     return data

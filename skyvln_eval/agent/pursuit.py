@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Final
 
 from skyvln_eval.agent.calls import call_json
 from skyvln_eval.agent.memory import TrackBackMemory, WayBack
@@ -21,8 +21,10 @@ from skyvln_eval.agent.perception import Panorama, Sighting
 from skyvln_eval.errors import ActionParseError
 from skyvln_eval.frames import ViewPose
 from skyvln_eval.llm.client import LLMClient
-from skyvln_eval.llm.taskdata import task_block
-from skyvln_eval.llm.types import GenerationConfig, LLMCallRecord, Message
+from skyvln_eval.llm.config import LLMConfig
+from skyvln_eval.llm.taskdata import task_message
+from skyvln_eval.llm.types import Message
+from skyvln_eval.llm_records import LlmCall, ModuleFailure
 
 
 @dataclass(frozen=True)
@@ -54,8 +56,17 @@ class Verdict:
 
     way_back: WayBack | None = None
     question: str | None = None
-    records: list[LLMCallRecord] = field(default_factory=list)
+    records: list[LlmCall] = field(default_factory=list)
     exchanges: list[dict[str, Any]] = field(default_factory=list)
+    failures: list[ModuleFailure] = field(default_factory=list)
+
+
+QUESTION_SCHEMA: Final[dict[str, Any]] = {
+    "type": "object",
+    "properties": {"question": {"type": "string", "minLength": 1, "maxLength": 500}},
+    "required": ["question"],
+    "additionalProperties": False,
+}
 
 
 def _parse_question(text: str) -> str:
@@ -72,7 +83,7 @@ def check_pursuit(
     pose: ViewPose,
     memory: TrackBackMemory | None,
     client: LLMClient,
-    config: GenerationConfig,
+    llm: LLMConfig,
 ) -> Verdict:
     """Judge a finished fly-to (see the module docstring)."""
     if not pursuit.arrived(pose) or memory is None:
@@ -91,9 +102,9 @@ def check_pursuit(
         f"You went wrong: {reason}. Your memory: {data['memory']} Formulate one short "
         'clarification question for the commander. Answer as {"question": "..."}.\n'
     )
-    messages = [
-        Message("system", SYSTEM_PROMPT),
-        Message("user", prose + task_block("clarify", data)),
-    ]
-    call = call_json(client, "clarify", messages, config, _parse_question)
-    return Verdict(way_back, call.value, call.records, call.exchanges)
+    messages = [Message("system", SYSTEM_PROMPT), task_message(prose, "clarify", data)]
+    config = llm.generation("clarify", json_schema=QUESTION_SCHEMA, schema_name="question")
+    call = call_json(client, "clarify", messages, config, _parse_question, llm.repair_policy())
+    failure = call.failure("clarify", "no question asked")
+    failures = [failure] if failure is not None else []
+    return Verdict(way_back, call.value, call.records, call.exchanges, failures)

@@ -17,20 +17,24 @@ from skyvln_eval.agent.actions import Action, FlyTo, action_record, decision_jso
 from skyvln_eval.agent.base import Agent, Decision, Observation
 from skyvln_eval.agent.calls import call_json
 from skyvln_eval.agent.detectors import episode_seed
-from skyvln_eval.agent.hsd import HsdResult, PhraseMatch, SpatialDescriptor
+from skyvln_eval.agent.hsd import HsdResult, PhraseMatch, SpatialDescriptor, matches_text
+from skyvln_eval.agent.images import panorama_images
 from skyvln_eval.agent.lexicon import COMPASS
 from skyvln_eval.agent.memory import TrackBackMemory
 from skyvln_eval.agent.motion import (
     SYSTEM_PROMPT,
     MotionGenerator,
     action_prompt,
+    commander_prompt,
     navigation_prompt,
+    pose_prompt,
 )
 from skyvln_eval.agent.odometry import Odometer, llm_agent_settings, pose_summary, roads_text
 from skyvln_eval.agent.perception import Panorama, Perception
 from skyvln_eval.agent.pursuit import Pursuit, Verdict, check_pursuit
 from skyvln_eval.agent.subgoals import (
     SUBGOALS_SCHEMA,
+    DialogText,
     SubGoalPlan,
     parse_subgoals,
     subgoal_messages,
@@ -39,7 +43,7 @@ from skyvln_eval.avdn.records import Episode
 from skyvln_eval.errors import ActionParseError
 from skyvln_eval.llm.client import LLMClient
 from skyvln_eval.llm.config import LLMConfig
-from skyvln_eval.llm.types import LLMCallRecord
+from skyvln_eval.llm_records import LlmCall, ModuleFailure
 from skyvln_eval.worlds.tile import WorldTile
 
 STOP_KINDS = ("destination", "stop_at")
@@ -50,6 +54,7 @@ class _EpisodeState:
     """Everything the agent carries from step to step of one episode."""
 
     episode: Episode
+    dialog: DialogText
     plan: SubGoalPlan | None = None
     odometer: Odometer = field(default_factory=Odometer)
     last_action: dict[str, Any] | None = None
@@ -79,9 +84,11 @@ class SkyVLNAgent(Agent):
         self.hsd = hsd
         self.tbma = tbma
         self.seed = seed
-        self.descriptor = SpatialDescriptor(client, llm.generation(), enabled=hsd, top_k=top_k)
-        decision = llm.generation(json_schema=decision_json_schema(), schema_name="decision")
-        self.motion = MotionGenerator(client, decision)
+        self.descriptor = SpatialDescriptor(client, llm, enabled=hsd, top_k=top_k)
+        decision = llm.generation(
+            "motion", json_schema=decision_json_schema(), schema_name="decision"
+        )
+        self.motion = MotionGenerator(client, decision, llm.repair_policy())
         self.memory = TrackBackMemory(meet_radius_m) if tbma else None
         self._state: _EpisodeState | None = None
 
@@ -98,7 +105,9 @@ class SkyVLNAgent(Agent):
         )
 
     def reset(self, episode: Episode, world: WorldTile) -> None:
-        self._state = _EpisodeState(episode)
+        self._state = _EpisodeState(
+            episode, DialogText.of(episode.dialog(), episode.first.round_index)
+        )
         self.perception.reset(world, episode_seed(self.seed, episode.episode_id))
         if self.memory is not None:
             self.memory.reset(())
@@ -107,10 +116,11 @@ class SkyVLNAgent(Agent):
         st = self._state
         if st is None:
             raise ActionParseError("SkyVLNAgent.act called before reset(episode, world)")
-        records: list[LLMCallRecord] = []
+        records: list[LlmCall] = []
         exchanges: list[dict[str, Any]] = []
+        failures: list[ModuleFailure] = []
         if st.plan is None:
-            st.plan = self._extract_subgoals(st.episode, records, exchanges)
+            st.plan = self._extract_subgoals(st.dialog, records, exchanges, failures)
             if self.memory is not None:
                 self.memory.reset(st.plan.context_landmarks)
         pose = observation.pose
@@ -125,28 +135,31 @@ class SkyVLNAgent(Agent):
             met = self.memory.meet(observation.step_index, pose, panorama.sightings)
         verdict = Verdict()
         if st.pursuit is not None:
-            verdict = check_pursuit(
-                st.pursuit, panorama, pose, self.memory, self.client, self.llm.generation()
-            )
+            verdict = check_pursuit(st.pursuit, panorama, pose, self.memory, self.client, self.llm)
             st.pursuit = None
         hsd = self._match(st, panorama, observation)
         self._update_done(st, hsd.matches, met)
         records += verdict.records + hsd.records
         exchanges += verdict.exchanges + hsd.exchanges
+        failures += verdict.failures + hsd.failures
         entries = self.descriptor.entries(panorama, pose.heading_deg)
         state = self._navigation_state(st, observation, entries, hsd, verdict, panorama)
         # What is seen now is where it is now; memory adds only what is out of sight.
         offsets = self.memory.offsets(pose) if self.memory is not None else {}
         offsets.update({s.landmark_id: (s.east_m, s.north_m) for s in panorama.sightings})
+        images = []
+        if self.client.backend.takes_images:
+            images = panorama_images(panorama, self.llm.image_max_side_px)
         result = self.motion.decide(
             SYSTEM_PROMPT,
-            self._prompt(st, observation, entries, panorama, verdict),
-            "motion",
+            self._prompt(st, observation, entries, panorama, verdict, hsd),
             state,
             offsets,
+            images,
         )
         records += result.records
         exchanges += result.exchanges
+        failures += [result.failure] if result.failure is not None else []
         st.pursuit = self._pursuit_of(st, result.action, hsd.matches, place, panorama)
         st.last_action = action_record(result.action)
         trace = {
@@ -160,20 +173,40 @@ class SkyVLNAgent(Agent):
             "clarification_question": verdict.question,
             "repaired": result.repaired,
             "fallback": result.fallback,
+            "failures": [f.to_json_dict() for f in failures],
             "exchanges": exchanges,
         }
-        return Decision(result.thought, result.action, trace, tuple(records))
+        return Decision(result.thought, result.action, trace, tuple(records), tuple(failures))
 
     # -- parts ---------------------------------------------------------------------------
     def _extract_subgoals(
-        self, episode: Episode, records: list[LLMCallRecord], exchanges: list[dict[str, Any]]
+        self,
+        dialog: DialogText,
+        records: list[LlmCall],
+        exchanges: list[dict[str, Any]],
+        failures: list[ModuleFailure],
     ) -> SubGoalPlan:
-        messages = subgoal_messages(episode.dialog(), episode.first.round_index)
-        config = self.llm.generation(json_schema=SUBGOALS_SCHEMA, schema_name="subgoals")
-        call = call_json(self.client, "subgoals", messages, config, parse_subgoals)
+        """The sub-goals of the dialog; when none could be extracted, the failure is
+        recorded and the agent goes on from the commander's words alone (they are in
+        every motion prompt)."""
+        config = self.llm.generation(
+            "subgoals", json_schema=SUBGOALS_SCHEMA, schema_name="subgoals"
+        )
+        call = call_json(
+            self.client,
+            "subgoals",
+            subgoal_messages(dialog),
+            config,
+            parse_subgoals,
+            self.llm.repair_policy(),
+        )
         records += call.records
         exchanges += call.exchanges
-        return call.value if call.value is not None else SubGoalPlan(())
+        failure = call.failure("subgoals", "no sub-goals (the instruction alone)")
+        if failure is not None or call.value is None:
+            failures += [failure] if failure is not None else []
+            return SubGoalPlan(())
+        return call.value
 
     def _match(self, st: _EpisodeState, panorama: Panorama, observation: Observation) -> HsdResult:
         """HSD on the pending landmark phrases, with the commander's direction and distance."""
@@ -229,11 +262,15 @@ class SkyVLNAgent(Agent):
         entries: list[dict[str, Any]],
         panorama: Panorama,
         verdict: Verdict,
+        hsd: HsdResult,
     ) -> str:
-        """Action prompt and navigation prompt (descriptor, memory, sub-goal progress)."""
+        """Dialog, pose, action prompt and navigation prompt (descriptor, HSD's matches,
+        memory, sub-goal progress): everything of the task data, said once."""
         pose = observation.pose
         remembered = st.odometer.start_roads if self.memory is not None else None
         landmarks = self.descriptor.text(entries)
+        if hsd.matches:
+            landmarks += "\n" + matches_text(hsd.matches)
         landmarks += "\n" + roads_text(panorama.road_bearings_deg, remembered)
         memory = None
         if self.memory is not None:
@@ -244,11 +281,14 @@ class SkyVLNAgent(Agent):
             + ", ".join(f"{k}={v}" for k, v in g.to_dict().items() if k != "kind")
             + (" [done]" if i in st.done else "")
             for i, g in enumerate(goals)
-        ] or ["(no sub-goals)"]
+        ] or ["(no sub-goals: follow the commander's instruction above)"]
         if self.memory is not None:  # the path flown is the memory's to tell
             lines.append(st.odometer.text())
-        return action_prompt(observation.feedback, pose.edge_m / 2.0, observation.actions_left) + (
-            navigation_prompt(landmarks, memory, "\n".join(lines))
+        return (
+            commander_prompt(st.dialog)
+            + pose_prompt(pose)
+            + action_prompt(observation.feedback, pose.edge_m / 2.0, observation.actions_left)
+            + navigation_prompt(landmarks, memory, "\n".join(lines))
         )
 
     def _navigation_state(
@@ -271,6 +311,7 @@ class SkyVLNAgent(Agent):
             }
         goals = st.plan.subgoals if st.plan is not None else ()
         return {
+            "dialog": st.dialog.to_dict(),
             "step": observation.step_index,
             "actions_left": observation.actions_left,
             "pose": pose_summary(pose),

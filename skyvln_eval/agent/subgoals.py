@@ -11,7 +11,6 @@ those rounds ended, so TrackBack memory can recognise them near the start.
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Any, Final, Literal
@@ -19,7 +18,7 @@ from typing import Any, Final, Literal
 from skyvln_eval.agent.parsing import load_json_object
 from skyvln_eval.avdn.records import DialogTurn
 from skyvln_eval.errors import ActionParseError
-from skyvln_eval.llm.taskdata import task_block
+from skyvln_eval.llm.taskdata import task_message
 from skyvln_eval.llm.types import Message
 
 #: Fields of one sub-goal in the LLM's JSON (``null`` where they do not apply).
@@ -75,6 +74,20 @@ class SubGoalPlan:
         return [g.landmark for g in self.subgoals if g.landmark]
 
 
+MAX_SUBGOALS: Final = 20
+MAX_PHRASE_CHARS: Final = 300
+SIDES: Final = ("left", "right", "ahead")
+
+
+def _nullable(schema: dict[str, Any]) -> dict[str, Any]:
+    # anyOf rather than a type list: grammar converters drop enums and lengths of the latter.
+    return {"anyOf": [schema, {"type": "null"}]}
+
+
+_PHRASE: Final = {"type": "string", "maxLength": MAX_PHRASE_CHARS}
+
+#: The sub-goal answer's schema; :func:`parse_subgoals` accepts exactly what it allows
+#: (and rejects a landmark-less pass / stop_at / destination with a reason to repair).
 SUBGOALS_SCHEMA: Final[dict[str, Any]] = {
     "type": "object",
     "additionalProperties": False,
@@ -82,22 +95,25 @@ SUBGOALS_SCHEMA: Final[dict[str, Any]] = {
     "properties": {
         "subgoals": {
             "type": "array",
+            "maxItems": MAX_SUBGOALS,
             "items": {
                 "type": "object",
                 "additionalProperties": False,
                 "required": list(SUBGOAL_FIELDS),
                 "properties": {
                     "kind": {"type": "string", "enum": list(SUBGOAL_KINDS)},
-                    "landmark": {"type": ["string", "null"]},
-                    "name": {"type": ["string", "null"]},
-                    "direction": {"type": ["string", "null"]},
-                    "side": {"type": ["string", "null"]},
-                    "distance_m": {"type": ["number", "null"]},
-                    "ordinal": {"type": ["integer", "null"]},
+                    "landmark": _nullable(_PHRASE),
+                    "name": _nullable(_PHRASE),
+                    "direction": _nullable({"type": "string", "enum": list(DIRECTIONS)}),
+                    "side": _nullable({"type": "string", "enum": list(SIDES)}),
+                    "distance_m": _nullable(
+                        {"type": "number", "exclusiveMinimum": 0, "maximum": 5000}
+                    ),
+                    "ordinal": _nullable({"type": "integer", "minimum": 1, "maximum": 10}),
                 },
             },
         },
-        "context_landmarks": {"type": "array", "items": {"type": "string"}},
+        "context_landmarks": {"type": "array", "maxItems": MAX_SUBGOALS, "items": _PHRASE},
     },
 }
 
@@ -108,12 +124,40 @@ SUBGOALS_SYSTEM: Final = (
 )
 
 
-def subgoal_messages(turns: Sequence[DialogTurn], current_round: int) -> list[Message]:
+@dataclass(frozen=True)
+class DialogText:
+    """The dialog as prompts show it: earlier rounds, the follower's latest question and the
+    commander's current instruction."""
+
+    previous: tuple[str, ...]
+    question: str | None
+    instruction: str
+
+    @classmethod
+    def of(cls, turns: Sequence[DialogTurn], current_round: int) -> DialogText:
+        previous = tuple(f"{t.speaker}: {t.text}" for t in turns if t.round_index < current_round)
+        current = [t for t in turns if t.round_index >= current_round]
+        question = " ".join(t.text for t in current if t.speaker == "follower") or None
+        instruction = " ".join(t.text for t in current if t.speaker == "commander")
+        return cls(previous, question, instruction)
+
+    def prose(self) -> str:
+        return (
+            f"Earlier rounds:\n{chr(10).join(self.previous) or '(none)'}\n"
+            f"Follower's question: {self.question or '(none)'}\n"
+            f"Commander's current instruction: {self.instruction}\n"
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "previous_rounds": list(self.previous),
+            "question": self.question,
+            "instruction": self.instruction,
+        }
+
+
+def subgoal_messages(dialog: DialogText) -> list[Message]:
     """The prompt: earlier rounds as context, the current round to decompose."""
-    previous = [f"{t.speaker}: {t.text}" for t in turns if t.round_index < current_round]
-    current = [t for t in turns if t.round_index >= current_round]
-    question = " ".join(t.text for t in current if t.speaker == "follower") or None
-    instruction = " ".join(t.text for t in current if t.speaker == "commander")
     prose = (
         "Decompose the commander's current instruction into sub-goals, in order.\n"
         "Kinds: head (fly towards a compass point: direction), turn (direction left/right, "
@@ -122,17 +166,14 @@ def subgoal_messages(turns: Sequence[DialogTurn], current_round: int) -> list[Me
         "destination (the landmark that is the destination; its name if given, and "
         "distance_m if the commander says how far). Copy landmark phrases word for word. "
         "List landmarks mentioned only in earlier rounds as context_landmarks.\n"
-        f"Earlier rounds:\n{chr(10).join(previous) or '(none)'}\n"
-        f"Follower's question: {question or '(none)'}\n"
-        f"Commander's current instruction: {instruction}\n"
-        'Answer as {"subgoals": [{"kind": ..., "landmark": ..., "name": ..., "direction": ..., '
+        + dialog.prose()
+        + 'Answer as {"subgoals": [{"kind": ..., "landmark": ..., "name": ..., "direction": ..., '
         '"side": ..., "distance_m": ..., "ordinal": ...}], "context_landmarks": [...]} with '
         "null for fields that do not apply.\n"
     )
-    data = {"previous_rounds": previous, "question": question, "instruction": instruction}
     return [
         Message("system", SUBGOALS_SYSTEM),
-        Message("user", prose + task_block("subgoals", data)),
+        task_message(prose, "subgoals", dialog.to_dict()),
     ]
 
 
@@ -140,8 +181,10 @@ def _optional_str(item: dict[str, Any], key: str, where: str) -> str | None:
     value = item.get(key)
     if value is None:
         return None
-    if not isinstance(value, str) or len(value) > 300:
-        raise ActionParseError(f"{where}.{key} must be a string of at most 300 characters")
+    if not isinstance(value, str) or len(value) > MAX_PHRASE_CHARS:
+        raise ActionParseError(
+            f"{where}.{key} must be a string of at most {MAX_PHRASE_CHARS} characters"
+        )
     return value.strip() or None
 
 
@@ -149,8 +192,8 @@ def parse_subgoals(text: str) -> SubGoalPlan:
     """Validate the LLM's sub-goal JSON; :class:`ActionParseError` says what is wrong."""
     data = load_json_object(text)
     items = data.get("subgoals")
-    if not isinstance(items, list) or len(items) > 20:
-        raise ActionParseError("'subgoals' must be a list of at most 20 items")
+    if not isinstance(items, list) or len(items) > MAX_SUBGOALS:
+        raise ActionParseError(f"'subgoals' must be a list of at most {MAX_SUBGOALS} items")
     goals = []
     for i, item in enumerate(items):
         where = f"subgoals[{i}]"
@@ -173,8 +216,7 @@ def parse_subgoals(text: str) -> SubGoalPlan:
         if distance is not None and (
             isinstance(distance, bool)
             or not isinstance(distance, int | float)
-            or not math.isfinite(distance)
-            or not 0 < distance <= 5000
+            or not 0 < distance <= 5000  # before any float(): NaN fails it, huge ints too
         ):
             raise ActionParseError(
                 f"{where}.distance_m must be a number in (0, 5000], got {distance!r}"
@@ -190,6 +232,8 @@ def parse_subgoals(text: str) -> SubGoalPlan:
         if kind in ("pass", "stop_at", "destination") and landmark is None:
             raise ActionParseError(f"{where} of kind {kind} needs a landmark phrase")
         side = _optional_str(item, "side", where)
+        if side is not None and side.lower() not in SIDES:
+            raise ActionParseError(f"{where}.side {side!r} is not one of {', '.join(SIDES)}")
         goals.append(
             SubGoal(
                 kind=kind,
@@ -204,7 +248,12 @@ def parse_subgoals(text: str) -> SubGoalPlan:
     context = data.get("context_landmarks", [])
     if not isinstance(context, list) or not all(isinstance(c, str) for c in context):
         raise ActionParseError("'context_landmarks' must be a list of strings")
-    return SubGoalPlan(tuple(goals), tuple(c.strip() for c in context[:20] if c.strip()))
+    if len(context) > MAX_SUBGOALS or any(len(c) > MAX_PHRASE_CHARS for c in context):
+        raise ActionParseError(
+            f"'context_landmarks' must hold at most {MAX_SUBGOALS} phrases of at most "
+            f"{MAX_PHRASE_CHARS} characters"
+        )
+    return SubGoalPlan(tuple(goals), tuple(c.strip() for c in context if c.strip()))
 
 
 def plan_to_json(plan: SubGoalPlan) -> str:

@@ -15,17 +15,21 @@ from skyvln_eval.harness.run import RunReport, run
 def describe_report(report: RunReport) -> list[str]:
     """Human-readable lines of a completeness report (notes, failures, missing episodes)."""
     lines = [*report.notes]
+    statuses = ", ".join(f"{n} {status}" for status, n in sorted(report.statuses.items()))
     lines.append(
-        f"{report.system}: {len(report.expected)} episode(s), {report.already_done} already done, "
-        f"{report.ran_now} run now in {report.wall_s:.1f} s"
+        f"{report.system}: {len(report.expected)} episode(s) ({statuses or 'none recorded'}), "
+        f"{report.already_done} already done, {report.ran_now} run now in {report.wall_s:.1f} s"
         + (
             f" ({report.simulated_s / report.wall_s:.0f}x real time)"
             if report.wall_s and report.simulated_s
             else ""
         )
     )
-    for (split, episode_id), message in report.failed.items():
-        lines.append(f"failed: {split}/{episode_id}: {message}")
+    if report.structured_output:
+        levels = ", ".join(f"{m}: {level}" for m, level in report.structured_output.items())
+        lines.append(f"structured output: {levels}")
+    for (split, episode_id), message in report.errors.items():
+        lines.append(f"error: {split}/{episode_id}: {message}")
     if report.missing:
         shown = ", ".join(f"{s}/{e}" for s, e in report.missing[:20])
         lines.append(f"missing {len(report.missing)} episode(s): {shown}")
@@ -52,7 +56,7 @@ def run_command(
         retry_failed=retry_failed,
     )
     for line in describe_report(report):
-        typer.echo(line, err=line.startswith(("failed", "missing", "dropped")))
+        typer.echo(line, err=line.startswith(("error", "missing", "dropped")))
     typer.echo(
         f"results: {run_dir / 'results.jsonl'}  (skyvln-eval score {run_dir / 'results.jsonl'})"
     )

@@ -55,7 +55,8 @@ class OfficialRollout(Rollout):
             "thoughts": list(self.thoughts),
             "stop_reason": self.stop_reason,
             "error": self.error,
-            "llm_calls": [c.to_dict() for c in self.llm_calls],
+            "llm_calls": [c.to_json_dict() for c in self.llm_calls],
+            "module_failures": [f.to_json_dict() for f in self.failures],
             "traces": self.traces,
         }
 

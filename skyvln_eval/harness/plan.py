@@ -10,7 +10,6 @@ shown under both labels.
 
 from __future__ import annotations
 
-import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +24,8 @@ from skyvln_eval.configs import config_path
 from skyvln_eval.errors import ConfigError, describe_validation_error
 from skyvln_eval.harness.config import DynamicsSettings, ExecutionMode, RunConfig
 from skyvln_eval.harness.executors import ExecutorKind
+from skyvln_eval.llm.backends_file import backends_file_from_env
+from skyvln_eval.llm.backends_file import environment_backends as _environment_backends
 
 DEFAULT_PLAN = "default"
 TableName = Literal["table1", "table2"]
@@ -59,10 +60,14 @@ class BackendPlan(_Strict):
 
 
 class Table2Plan(_Strict):
+    """Table II: one system with each backend (listed, and named in the environment
+    variable; ``backends_file`` resolves names there, as ``$SKYVLN_EVAL_BACKENDS_FILE``)."""
+
     split: Split = "test_unseen"
     system: PlanSystem
     backends: tuple[BackendPlan, ...]
     environment_variable: str | None = "SKYVLN_EVAL_BACKENDS"
+    backends_file: str | None = None
 
 
 class ControlFiguresPlan(_Strict):
@@ -103,25 +108,16 @@ def load_plan(name_or_path: str | Path = DEFAULT_PLAN, **overrides: Any) -> Repr
         raise ConfigError(f"reproduce plan {path}: {describe_validation_error(error)}") from None
 
 
-_ENDPOINT = re.compile(r"(openai:[^@\s]+)(?:@(\S+))?")
-
-
-def environment_backends(variable: str | None) -> list[BackendPlan]:
-    """Backends named in an environment variable: ``openai:<model>[@<base_url>],...``."""
-    value = os.environ.get(variable, "") if variable else ""
-    backends = []
-    for entry in (e.strip() for e in value.split(",")):
-        if not entry:
-            continue
-        match = _ENDPOINT.fullmatch(entry)
-        if match is None:
-            raise ConfigError(
-                f"${variable}: {entry!r} is not 'openai:<model>' or 'openai:<model>@<base_url>'"
-            )
-        backend, base_url = match.group(1), match.group(2)
-        label = backend.split(":", 1)[1] + (f" @ {base_url}" if base_url else "")
-        backends.append(BackendPlan(label=label, llm={"backend": backend, "base_url": base_url}))
-    return backends
+def environment_backends(
+    variable: str | None, backends_file: str | None = None
+) -> list[BackendPlan]:
+    """Backends named in an environment variable (``openai:<model>[@<base_url>]`` or the
+    name of an entry of the backends file), each with its full configuration."""
+    resolved = _environment_backends(variable, backends_file_from_env(backends_file))
+    return [
+        BackendPlan(label=label, llm=config.model_dump(exclude_defaults=True))
+        for label, config in resolved
+    ]
 
 
 def slug(text: str) -> str:
@@ -163,9 +159,17 @@ def planned_runs(
         for split in plan.table1.splits:
             run_dir = out_dir / "runs" / slug(system.label) / split
             wanted.append(("table1", system.label, system, _agent(system), split, run_dir))
-    for backend in (*plan.table2.backends, *environment_backends(plan.table2.environment_variable)):
+    from_environment = environment_backends(
+        plan.table2.environment_variable, plan.table2.backends_file
+    )
+    for backend in (*plan.table2.backends, *from_environment):
         run_dir = out_dir / "runs" / "backends" / slug(backend.label) / plan.table2.split
-        agent = _agent(plan.table2.system, backend.llm)
+        llm = dict(backend.llm)
+        if str(llm.get("backend", "")).startswith("openai:") and not llm.get("cache_path"):
+            # A remote model's answers are kept, so a resumed or repeated run does not pay
+            # for them again (the cache key starts with the model and server).
+            llm["cache_path"] = str(out_dir / "llm-cache.sqlite")
+        agent = _agent(plan.table2.system, llm)
         wanted.append(
             ("table2", backend.label, plan.table2.system, agent, plan.table2.split, run_dir)
         )

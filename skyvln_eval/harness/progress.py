@@ -29,13 +29,17 @@ class RichRunProgress(RunProgress):
         self._task: TaskID | None = None
         self.successes = 0
         self.finished = 0
-        self.failed = 0
-        self.cost_usd = 0.0
+        self.errors = 0
+        self.degraded = 0
+        self.cost_usd: float | None = 0.0
 
     def _stats(self) -> str:
         rate = 100.0 * self.successes / self.finished if self.finished else 0.0
-        failed = f", {self.failed} failed" if self.failed else ""
-        return f"SR {rate:5.1f}% | LLM ${self.cost_usd:.4f}{failed}"
+        cost = "n/a" if self.cost_usd is None else f"${self.cost_usd:.4f}"
+        health = (f", {self.errors} error" if self.errors else "") + (
+            f", {self.degraded} degraded" if self.degraded else ""
+        )
+        return f"SR {rate:5.1f}% | LLM {cost}{health}"
 
     def start(self, description: str, total: int, already_done: int) -> None:
         self._bar = Progress(
@@ -57,8 +61,11 @@ class RichRunProgress(RunProgress):
     def episode_done(self, result: EpisodeResult, success: bool) -> None:
         self.finished += 1
         self.successes += int(success)
-        self.failed += int(result.status == "failed")
-        self.cost_usd += sum(c.cost_usd or 0.0 for c in result.llm_calls)
+        self.errors += int(result.status == "error")
+        self.degraded += int(result.status == "degraded")
+        costs = [c.cost_usd for c in result.llm_calls]
+        if self.cost_usd is not None:  # once unknown, the total stays unknown
+            self.cost_usd = None if None in costs else self.cost_usd + sum(costs)  # type: ignore[arg-type]
         if self._bar is not None and self._task is not None:
             self._bar.update(self._task, advance=1, stats=self._stats())
 

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from skyvln_eval.agent.config import LLM_AGENTS, AgentConfig
 from skyvln_eval.avdn.constants import SPLITS, annotation_file_name
 from skyvln_eval.avdn.loader import load_split
 from skyvln_eval.avdn.summary import SplitSummary, summarise_split
@@ -33,11 +34,20 @@ from skyvln_eval.harness.executors import ExecutorKind, make_executor
 from skyvln_eval.harness.plan import PlannedRun, ReproducePlan, planned_runs
 from skyvln_eval.harness.run import Progress, RunReport, execute_jobs, prepare_job, resolve_data_dir
 from skyvln_eval.metrics import MetricConventions, score_results, summarise
+from skyvln_eval.metrics.cost import UNKNOWN_IF_ANY_UNKNOWN
 from skyvln_eval.metrics.records import EpisodeResult
 from skyvln_eval.metrics.scores_io import write_scores
 from skyvln_eval.reports import TABLE_I, TABLE_II, build_table, to_csv, to_latex, to_markdown
 
 TABLE_METRICS = ("success", "oracle_success", "spl", "gp_m", "ne_m", "path_length_m")
+HEALTH_METRICS = (
+    "status_ok",
+    "status_degraded",
+    "status_error",
+    "fallback_rate",
+    "llm_call_failure_rate",
+    "wall_s",
+)
 CONTROL_METRICS = (
     "collided",
     "min_clearance_m",
@@ -50,11 +60,41 @@ CONTROL_METRICS = (
 )
 COST_METRICS = (
     "llm_calls",
+    "llm_failed_calls",
+    "llm_parse_failures",
+    "llm_repairs",
+    "fallback_decisions",
     "llm_prompt_tokens",
     "llm_completion_tokens",
     "llm_cost_usd",
     "llm_latency_s",
+    "wall_s",
 )
+#: Table I row markers for systems whose LLM modules are answered by a stand-in.
+STAND_IN_MARKERS = {
+    "rule": ("†", "† LLM modules answered by the rule-based stand-in (not an LLM)."),
+    "random": ("‡", "‡ LLM modules answered at random (not an LLM)."),
+    "scripted": ("§", "§ LLM modules answered by a script (a test double)."),
+}
+
+
+def table1_label(label: str, agent: AgentConfig) -> tuple[str, str | None]:
+    """A Table I row label that says what answered the agent's LLM calls, and its footnote.
+
+    Agents without LLM modules keep their label; stand-ins get a marker whose footnote says
+    so; a real model is named (``Full (openai:gpt-4o)``) unless the label already names it.
+    """
+    if agent.name not in LLM_AGENTS:
+        return label, None
+    backend = agent.llm.backend
+    kind = backend.partition(":")[0]
+    if kind in STAND_IN_MARKERS:
+        marker, note = STAND_IN_MARKERS[kind]
+        return f"{label} {marker}", note
+    model = backend.partition(":")[2]
+    if model.split(":")[-1] in label:
+        return label, None
+    return f"{label} ({backend})", None
 
 
 @dataclass
@@ -73,31 +113,49 @@ def _labelled(
     planned: PlannedRun, results: Sequence[EpisodeResult], table: str
 ) -> list[EpisodeResult]:
     labels = [label for t, label in planned.rows if t == table]
+    if table == "table1":
+        labels = [table1_label(label, planned.config.agent)[0] for label in labels]
     return [dataclasses.replace(r, system=label) for label in labels for r in results]
 
 
 def _write_tables(
     summary: pd.DataFrame,
     plan: ReproducePlan,
+    table1: tuple[list[str], list[str]],
     table2_rows: list[str],
     conventions: MetricConventions,
     tables_dir: Path,
 ) -> dict[str, Path]:
     files: dict[str, Path] = {}
-    table1_rows = [s.label for s in plan.table1.systems]
-    for name, spec, rows in (("table1", TABLE_I, table1_rows), ("table2", TABLE_II, table2_rows)):
-        table = build_table(summary, spec, conventions, rows=rows)
+    table1_rows, table1_notes = table1
+    for name, spec, rows, notes in (
+        ("table1", TABLE_I, table1_rows, table1_notes),
+        ("table2", TABLE_II, table2_rows, []),
+    ):
+        table = build_table(summary, spec, conventions, rows=rows, notes=notes)
         for suffix, render in (("md", to_markdown), ("tex", to_latex), ("csv", to_csv)):
             path = tables_dir / f"{name}.{suffix}"
             atomic_write_text(path, render(table))
             files[f"{name}.{suffix}"] = path
         if "ci_low" in summary.columns:
             path = tables_dir / f"{name}_ci.md"
-            atomic_write_text(
-                path, to_markdown(build_table(summary, spec, conventions, rows=rows, show_ci=True))
-            )
+            with_ci = build_table(summary, spec, conventions, rows=rows, show_ci=True, notes=notes)
+            atomic_write_text(path, to_markdown(with_ci))
             files[f"{name}_ci.md"] = path
     return files
+
+
+def _table1_rows(runs: Sequence[PlannedRun], plan: ReproducePlan) -> tuple[list[str], list[str]]:
+    """Table I's row labels (with stand-in markers) in plan order, and their footnotes."""
+    agents = {
+        label: planned.config.agent
+        for planned in runs
+        for table, label in planned.rows
+        if table == "table1"
+    }
+    labelled = [table1_label(s.label, agents[s.label]) for s in plan.table1.systems]
+    notes = list(dict.fromkeys(note for _, note in labelled if note))
+    return [label for label, _ in labelled], notes
 
 
 def _metric_table(
@@ -105,6 +163,7 @@ def _metric_table(
 ) -> str:
     present = [m for m in metrics if m in scores.columns]
     sel = scores[scores["system"].isin(systems)]
+    unknown_if_any = UNKNOWN_IF_ANY_UNKNOWN
     lines = [
         f"### {title}",
         "",
@@ -118,7 +177,10 @@ def _metric_table(
         cells = []
         for metric in present:
             values = group[metric].dropna()
-            cells.append(f"{values.mean():.3f}" if len(values) else "-")
+            if metric in unknown_if_any and len(values) < len(group):
+                cells.append("n/a")  # some episode's value is unknown: so is the mean
+            else:
+                cells.append(f"{values.mean():.3f}" if len(values) else "-")
         lines.append(f"| {system} | {len(group)} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
@@ -222,12 +284,8 @@ def reproduce(
         table2_rows += [label for table, label in planned.rows if table == "table2"]
     conventions = MetricConventions()
     scores = score_results(results, conventions)
-    summary = summarise(
-        scores,
-        [m for m in (*TABLE_METRICS, *CONTROL_METRICS, *COST_METRICS) if m in scores],
-        plan.resamples,
-        seed=plan.seed,
-    )
+    metrics = dict.fromkeys((*TABLE_METRICS, *HEALTH_METRICS, *CONTROL_METRICS, *COST_METRICS))
+    summary = summarise(scores, [m for m in metrics if m in scores], plan.resamples, seed=plan.seed)
     write_scores(out_dir / "scores" / "scores.csv", scores, conventions)
     atomic_write_text(
         out_dir / "scores" / "summary.csv",
@@ -239,9 +297,14 @@ def reproduce(
         "summary.csv": out_dir / "scores" / "summary.csv",
     }
     tables_dir = out_dir / "tables"
-    report.files |= _write_tables(summary, plan, table2_rows, conventions, tables_dir)
-    table1_rows = [s.label for s in plan.table1.systems]
-    flown = [s.label for s in plan.table1.systems if s.mode == "dynamics"]
+    table1 = _table1_rows(runs, plan)
+    report.files |= _write_tables(summary, plan, table1, table2_rows, conventions, tables_dir)
+    table1_rows = table1[0]
+    flown = [
+        label
+        for label, system in zip(table1_rows, plan.table1.systems, strict=True)
+        if system.mode == "dynamics"
+    ]
     atomic_write_text(
         tables_dir / "control.md",
         _metric_table(scores, flown, CONTROL_METRICS, "Safety and control (flown systems)"),

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -10,8 +10,8 @@ from numpy.typing import NDArray
 
 from skyvln_eval.agent.actions import Action, Stop
 from skyvln_eval.agent.base import Agent, Decision, Observation
-from skyvln_eval.errors import SkyvlnError
-from skyvln_eval.llm.types import LLMCallRecord
+from skyvln_eval.errors import CacheMissError, LLMAuthError, SkyvlnError
+from skyvln_eval.llm_records import LlmCall, ModuleFailure
 
 
 @dataclass(eq=False)
@@ -29,7 +29,8 @@ class Rollout:
     thoughts: list[str] = field(default_factory=list)
     feedbacks: list[str | None] = field(default_factory=list)
     traces: list[dict[str, Any]] = field(default_factory=list)
-    llm_calls: list[LLMCallRecord] = field(default_factory=list)
+    llm_calls: list[LlmCall] = field(default_factory=list)
+    failures: list[ModuleFailure] = field(default_factory=list)
     stop_reason: str = "max_steps"
     error: str | None = None
 
@@ -39,6 +40,8 @@ class Rollout:
 
     def record(self, decision: Decision, feedback: str | None) -> None:
         """Keep one decision and the feedback that preceded it."""
+        step = len(self.actions)
+        self.failures += [replace(f, step_index=step) for f in decision.failures]
         self.thoughts.append(decision.thought)
         self.feedbacks.append(feedback)
         self.traces.append(decision.trace)
@@ -50,9 +53,12 @@ class Rollout:
 
         ``None`` ends the episode: the agent said STOP, or raised an error the user can
         cause (kept in ``error``; any other exception propagates and fails the episode).
+        Refused credentials and a replay's cache miss propagate: no episode can go on.
         """
         try:
             decision = agent.act(observation)
+        except (LLMAuthError, CacheMissError):
+            raise
         except SkyvlnError as error:
             self.stop_reason, self.error = "error", f"{type(error).__name__}: {error}"
             return None

@@ -8,7 +8,8 @@ A run directory holds:
   (:mod:`.store`), so ``skyvln-eval score`` works on it directly;
 - ``logs/<split>/<episode_id>.mcap``: the run MCAP of each episode;
 - ``control/<split>/<episode_id>.parquet``: the control log of each episode (dynamics);
-- ``run.json``: the last completeness report (done, failed, missing episodes).
+- ``run.json``: the last report: episodes by status, errors, missing episodes, and the
+  structured-output level negotiated with each LLM endpoint.
 
 Episodes are read from episode MCAPs, converted once from the dataset into the cache
 (:func:`episode_logs`). Running again after a crash or ``kill -9`` runs only the episodes
@@ -19,7 +20,7 @@ from __future__ import annotations
 
 import hashlib
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -105,22 +106,48 @@ def prepare_run_dir(config: RunConfig, run_dir: Path) -> None:
 
 @dataclass
 class RunReport:
-    """What a run covers and what happened: done, failed and missing episodes."""
+    """What a run covers and what happened: episodes by status, errors, missing episodes.
+
+    ``statuses`` counts the latest row of every expected episode by status (``ok``,
+    ``degraded``, ``error``); ``errors`` holds the first line of each error episode's error.
+    ``stopped`` says why the run stopped before its end (e.g. refused credentials).
+    """
 
     run_dir: Path
     system: str
     expected: list[RowKey]
     ran_now: int = 0
     already_done: int = 0
-    failed: dict[RowKey, str] = field(default_factory=dict)
+    statuses: dict[str, int] = field(default_factory=dict)
+    errors: dict[RowKey, str] = field(default_factory=dict)
     missing: list[RowKey] = field(default_factory=list)
     wall_s: float = 0.0
     simulated_s: float = 0.0
     notes: list[str] = field(default_factory=list)
+    structured_output: dict[str, str] = field(default_factory=dict)
+    stopped: str | None = None
 
     @property
     def complete(self) -> bool:
         return not self.missing
+
+    @property
+    def recorded(self) -> int:
+        return sum(self.statuses.values())
+
+    @property
+    def error_share(self) -> float:
+        """Share of recorded episodes whose status is ``error`` (0 when none is recorded)."""
+        return len(self.errors) / self.recorded if self.recorded else 0.0
+
+    def error_kinds(self) -> dict[str, tuple[int, str]]:
+        """Errors grouped by kind (the text before the first colon): count and first text."""
+        kinds: dict[str, tuple[int, str]] = {}
+        for text in self.errors.values():
+            kind = text.split(":", 1)[0][:80] or "error"
+            count, first = kinds.get(kind, (0, text))
+            kinds[kind] = (count + 1, first)
+        return kinds
 
     def to_json(self) -> dict[str, object]:
         return {
@@ -128,12 +155,45 @@ class RunReport:
             "expected": len(self.expected),
             "ran_now": self.ran_now,
             "already_done": self.already_done,
-            "failed": {f"{s}/{e}": msg for (s, e), msg in self.failed.items()},
+            "statuses": dict(sorted(self.statuses.items())),
+            "errors": {f"{s}/{e}": msg for (s, e), msg in self.errors.items()},
             "missing": [f"{s}/{e}" for s, e in self.missing],
             "wall_s": round(self.wall_s, 3),
             "simulated_s": round(self.simulated_s, 3),
+            "structured_output": self.structured_output,
+            "stopped": self.stopped,
             "notes": self.notes,
         }
+
+
+def structured_levels(results: Iterable[EpisodeResult]) -> dict[str, str]:
+    """Per model, the structured-output levels its answered calls used (negotiated with the
+    server, or pinned), e.g. ``{"openai:gemma-3-270m": "json_object_schema"}``."""
+    levels: dict[str, set[str]] = {}
+    for result in results:
+        for call in result.llm_calls:
+            if call.outcome != "failed" and call.structured_output is not None:
+                levels.setdefault(f"{call.backend}:{call.model}", set()).add(call.structured_output)
+    return {model: ", ".join(sorted(found)) for model, found in sorted(levels.items())}
+
+
+def error_verdict(reports: Sequence[RunReport], fail_on_error: float) -> str | None:
+    """Why the runs fail (``None`` if they pass): a share of ``error`` episodes above
+    ``fail_on_error`` (a fraction; 0 means any error fails, as inspect_ai's default), or a
+    run stopped early. Says how many and why (the first error text of each kind)."""
+    lines = []
+    for report in reports:
+        if report.stopped:
+            lines.append(f"{report.system}: the run stopped early: {report.stopped}")
+        if report.errors and report.error_share > fail_on_error:
+            lines.append(
+                f"{report.system}: {len(report.errors)} of {report.recorded} episode(s) ended "
+                f"in error ({100 * report.error_share:.0f}%, more than the allowed "
+                f"{100 * fail_on_error:.0f}%; --fail-on-error sets it)"
+            )
+            for kind, (count, first) in report.error_kinds().items():
+                lines.append(f"  {count} x {kind}: {first}")
+    return "\n".join(lines) or None
 
 
 class Progress:
@@ -147,7 +207,7 @@ class Progress:
 
 
 def _success(result: EpisodeResult) -> bool:
-    if result.status != "ok" or len(result.visited_views) == 0 or len(result.gt_path_corners) < 2:
+    if len(result.visited_views) == 0 or len(result.gt_path_corners) < 2:
         return False
     return official_success(result.visited_views[-1], result.gt_path_corners[-1])
 
@@ -199,14 +259,20 @@ def _finish(job: RunJob, wall_s: float) -> None:
     report.wall_s = wall_s
     results = {key_of(r): r for r in job.store.results()}
     report.missing = [key for key in report.expected if key not in results]
-    report.failed = {
-        key: (results[key].error or "").splitlines()[0]
+    report.statuses = {}
+    for key in report.expected:
+        if key in results:
+            status = results[key].status
+            report.statuses[status] = report.statuses.get(status, 0) + 1
+    report.errors = {
+        key: (results[key].error or "error").splitlines()[0]
         for key in report.expected
-        if key in results and results[key].status == "failed"
+        if key in results and results[key].status == "error"
     }
     report.simulated_s = sum(
         float(results[k].extra.get("simulated_s", 0.0)) for k in report.expected if k in results
     )
+    report.structured_output = structured_levels(results.values())
     atomic_write_json(job.run_dir / REPORT_FILE, report.to_json(), indent=1)
 
 
@@ -241,6 +307,9 @@ def execute_jobs(
         job.store.append(result)
         job.report.ran_now += 1
         progress.episode_done(result, _success(result))
+        if "fatal" in result.extra:  # e.g. refused credentials: no later episode can succeed
+            job.report.stopped = str(result.extra["fatal"])
+            break
     wall_s = time.perf_counter() - started
     for job in jobs:
         _finish(job, wall_s)

@@ -10,7 +10,9 @@ seconds; one second per step in official mode):
 - ``/agent/step`` (:data:`AGENT_STEP`): thought, action, feedback and the decision's
   trace (sub-goals, detections with HSD sectors, HSD matches, the TrackBack memory graph),
   ``/agent/log``: the same as text, ``/agent/target``: each action's target pose;
-- ``/llm/exchange``: every prompt and response;
+- ``/llm/exchange``: every request to the LLM: prompt (and which images went with it),
+  response, decoding settings, and each attempt with its outcome, tokens, cost, latency,
+  finish reason and error;
 - dynamics mode: ``/control/step`` per control step (state, reference, command, solve
   statistics, clearance) and ``/sim/obstacles`` (the spheres, every half second).
 
@@ -161,14 +163,6 @@ def _agent_messages(
             fx.log(t_ns, "agent", f"step {step.step_index}: {json.dumps(record)} | {step.thought}"),
         )
         for exchange in step.trace.get("exchanges", []) or []:
-            prompt = [
-                {
-                    "role": str(m.get("role", "")),
-                    "text": str(m.get("text", "")),
-                    "images": len(m.get("images") or []),
-                }
-                for m in exchange.get("prompt", [])
-            ]
             out.add(
                 t_ns,
                 t.TOPIC_LLM_EXCHANGE,
@@ -176,10 +170,7 @@ def _agent_messages(
                     "timestamp": fx.timestamp(t_ns),
                     "episode_id": episode.episode_id,
                     "step_index": step.step_index,
-                    "module": str(exchange.get("module", "")),
-                    "prompt": prompt,
-                    "response": exchange.get("response"),
-                    "error": exchange.get("error"),
+                    **exchange,
                 },
             )
         if step.target is not None:

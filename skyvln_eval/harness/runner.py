@@ -3,8 +3,10 @@
 :func:`run_episode_task` loads the episode from its episode MCAP, the world of its map,
 builds the agent (seeded by the episode, so results depend neither on the order nor on the
 worker count), flies the episode in the run's mode, writes the run MCAP (and, with
-dynamics, the control log) and returns the episode's :class:`EpisodeResult`. Anything the
-episode raises marks it ``failed`` with its traceback; the run carries on.
+dynamics, the control log) and returns the episode's :class:`EpisodeResult` with its
+status (``ok``, ``degraded`` or ``error``: :func:`~skyvln_eval.metrics.records.judge_status`)
+and wall time. Anything the episode raises makes it ``error`` with its traceback; the run
+carries on, unless the error says no episode can succeed (refused credentials).
 
 Worlds and controllers are cached per process: loading a map or building a solver once
 serves every episode on it.
@@ -14,6 +16,7 @@ from __future__ import annotations
 
 import functools
 import json
+import time
 import traceback
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -28,12 +31,12 @@ from skyvln_eval.avdn.imagery import MapGeoref
 from skyvln_eval.avdn.records import Episode
 from skyvln_eval.control import Controller, make_controller, save_flight_log
 from skyvln_eval.converters.reader import read_episode
+from skyvln_eval.errors import CacheMissError, LLMAuthError
 from skyvln_eval.harness.config import RunConfig
 from skyvln_eval.harness.dynamics_loop import DynamicsRollout, derived_seed, run_dynamics_episode
 from skyvln_eval.harness.official_loop import OfficialRollout, run_official_episode
 from skyvln_eval.harness.run_log import RunLogContent, Step, write_run_log
-from skyvln_eval.llm.types import LLMCallRecord
-from skyvln_eval.metrics.records import EpisodeResult, LlmCall
+from skyvln_eval.metrics.records import EpisodeResult, judge_status
 from skyvln_eval.metrics.safety import summarise_control
 from skyvln_eval.worlds.loading import load_world
 from skyvln_eval.worlds.tile import WorldTile
@@ -100,20 +103,6 @@ def control_log_name(split: str, episode_id: str) -> str:
     return f"{CONTROL_DIR}/{split}/{episode_id}.parquet"
 
 
-def _llm_call(record: LLMCallRecord) -> LlmCall:
-    return LlmCall(
-        module=record.module,
-        backend=record.backend,
-        model=record.model,
-        prompt_tokens=record.prompt_tokens,
-        completion_tokens=record.completion_tokens,
-        cost_usd=record.cost_usd,
-        latency_s=record.latency_s,
-        cached=record.cached,
-        error=record.error,
-    )
-
-
 def _steps(rollout: OfficialRollout | DynamicsRollout, times_s: list[float]) -> list[Step]:
     targets = getattr(rollout, "targets", [])
     return [
@@ -175,6 +164,7 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
     config = _config(task.config_json)
     digest, config_yaml = _config_texts(task.config_json)
     episode: Episode | None = None
+    started = time.perf_counter()
     try:
         episode = read_episode(task.episode_log)
         if episode.episode_id != task.episode_id or episode.split != task.split:
@@ -200,6 +190,7 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
                     {"controller": config.dynamics.controller},
                 )
                 control = summarise_control(flown.control_log, control_log)
+        status, error = judge_status(rollout.llm_calls, rollout.failures, rollout.error)
         extra |= {
             "stop_reason": rollout.stop_reason,
             "actions": len(rollout.actions),
@@ -216,7 +207,8 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
                 "config_digest": digest,
                 "seed": str(seed),
                 "stop_reason": rollout.stop_reason,
-                "error": rollout.error or "",
+                "status": status,
+                "error": error or "",
             }
             write_run_log(
                 log_path(task.run_dir, task.split, task.episode_id),
@@ -230,34 +222,52 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
             split=task.split,
             mode=config.episode_mode,
             system=config.system,
-            status="ok",
+            status=status,
             visited_views=np.stack(rollout.views),
             gt_path_corners=episode.gt_path_corners,
-            error=rollout.error,
+            error=error,
             control=control,
             control_log=control_log,
-            llm_calls=tuple(_llm_call(c) for c in rollout.llm_calls),
-            extra=extra,
+            llm_calls=tuple(rollout.llm_calls),
+            decisions=len(rollout.actions),
+            module_failures=tuple(rollout.failures),
+            extra=extra | {"wall_s": round(time.perf_counter() - started, 6)},
         )
     except Exception as exc:  # the episode failed: record it and let the run go on
         episode = episode or read_episode(task.episode_log)
         error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
-        return failed_result(config, task, episode, error)
+        fatal = str(exc) if isinstance(exc, LLMAuthError | CacheMissError) else None
+        return failed_result(config, task, episode, error, time.perf_counter() - started, fatal)
 
 
 def failed_result(
-    config: RunConfig, task: EpisodeTask, episode: Episode, error: str
+    config: RunConfig,
+    task: EpisodeTask,
+    episode: Episode,
+    error: str,
+    wall_s: float | None = None,
+    fatal: str | None = None,
 ) -> EpisodeResult:
-    """The row of an episode that failed: no views, its ground truth (so that it counts in
-    every score as a failure, never dropped) and the error with its traceback."""
+    """The row of an episode that raised: no views, its ground truth (so that it counts in
+    every score as a failure, never dropped) and the error with its traceback. ``fatal``
+    says why no further episode can succeed either (refused credentials, a replay's cache
+    miss): the run stops."""
+    extra: dict[str, Any] = {
+        "config_digest": _config_texts(task.config_json)[0],
+        "execution_mode": config.mode,
+    }
+    if wall_s is not None:
+        extra["wall_s"] = round(wall_s, 6)
+    if fatal is not None:
+        extra["fatal"] = fatal
     return EpisodeResult(
         episode_id=task.episode_id,
         split=task.split,
         mode=config.episode_mode,
         system=config.system,
-        status="failed",
+        status="error",
         visited_views=np.zeros((0, 4, 2)),
         gt_path_corners=episode.gt_path_corners,
         error=error,
-        extra={"config_digest": _config_texts(task.config_json)[0], "execution_mode": config.mode},
+        extra=extra,
     )

@@ -139,10 +139,10 @@ class ResultStore:
         self._rows[key_of(result)] = result
 
     def missing(self, keys: Iterable[RowKey], retry_failed: bool = False) -> list[RowKey]:
-        """Keys without a row (or, with ``retry_failed``, whose row is a failure), in order."""
+        """Keys without a row (or, with ``retry_failed``, whose row is an error), in order."""
         out = []
         for key in keys:
             row = self._rows.get(key)
-            if row is None or (retry_failed and row.status == "failed"):
+            if row is None or (retry_failed and row.status == "error"):
                 out.append(key)
         return out

@@ -42,26 +42,43 @@ def _datasets(datasets: Sequence[SplitSummary]) -> list[str]:
 
 def _runs(report: ReproduceReport) -> list[str]:
     lines = [
-        "| system | split | episodes | run now | already done | failed | missing | simulated s |",
-        "|---|---|---|---|---|---|---|---|",
+        "| system | split | episodes | ok | degraded | error | missing | run now | simulated s "
+        "| structured output |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in report.reports:
         splits = sorted({split for split, _ in r.expected})
-        counts = f"{len(r.expected)} | {r.ran_now} | {r.already_done} | {len(r.failed)}"
+        counts = " | ".join(str(r.statuses.get(s, 0)) for s in ("ok", "degraded", "error"))
+        levels = "; ".join(f"{m}: {lvl}" for m, lvl in r.structured_output.items()) or "-"
         lines.append(
-            f"| {r.system} | {', '.join(splits)} | {counts} | {len(r.missing)} "
-            f"| {r.simulated_s:.0f} |"
+            f"| {r.system} | {', '.join(splits)} | {len(r.expected)} | {counts} "
+            f"| {len(r.missing)} | {r.ran_now} | {r.simulated_s:.0f} | {levels} |"
         )
-    problems = [
-        f"- {r.system}: failed {split}/{episode}: {message}"
-        for r in report.reports
-        for (split, episode), message in r.failed.items()
-    ] + [
-        f"- {r.system}: missing {split}/{episode}"
-        for r in report.reports
-        for split, episode in r.missing
-    ]
+    problems = (
+        [
+            f"- {r.system}: error {split}/{episode}: {message}"
+            for r in report.reports
+            for (split, episode), message in r.errors.items()
+        ]
+        + [
+            f"- {r.system}: missing {split}/{episode}"
+            for r in report.reports
+            for split, episode in r.missing
+        ]
+        + [f"- {r.system}: stopped early: {r.stopped}" for r in report.reports if r.stopped]
+    )
     return lines + (["", *problems] if problems else [])
+
+
+def _status_line(report: ReproduceReport) -> str:
+    totals = {s: sum(r.statuses.get(s, 0) for r in report.reports) for s in ("ok", "degraded")}
+    errors = sum(len(r.errors) for r in report.reports)
+    missing = sum(len(r.missing) for r in report.reports)
+    return (
+        f"Episodes: {totals['ok']} ok, {totals['degraded']} degraded (a fallback action or a "
+        f"module's answer unusable), {errors} error (no usable LLM answer, or raised), "
+        f"{missing} missing."
+    )
 
 
 def write_summary_page(
@@ -76,8 +93,9 @@ def write_summary_page(
     simulated = sum(r.simulated_s for r in report.reports)
     status = "complete" if report.complete else "INCOMPLETE: see the runs below"
     rule_note = (
-        "Rows marked *not an LLM* use offline stand-ins (the rule-based backend reads the "
-        "prompts' structured data; the random backend answers at random): they measure the "
+        "Rows marked *not an LLM* (and Table I rows marked with a dagger) use offline "
+        "stand-ins: the rule-based backend reads the requests' task data (the prompt's content "
+        "as data) with a vocabulary, the random backend answers at random. They measure the "
         "pipeline, not a language model."
     )
     text = "\n".join(
@@ -87,6 +105,8 @@ def write_summary_page(
             f"Status: {status}. {int(scores.shape[0])} scored episode rows; episodes ran in "
             f"{wall:.0f} s of wall time for {simulated:.0f} s of simulated flight; "
             f"everything took {report.wall_s:.0f} s.",
+            "",
+            _status_line(report),
             "",
             f"Metric conventions: {conventions.describe()}",
             "",

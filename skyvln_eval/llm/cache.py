@@ -28,7 +28,7 @@ from skyvln_eval.llm.types import Completion, GenerationConfig, Message
 log = logging.getLogger(__name__)
 
 CACHE_FORMAT: Final = "skyvln-eval/llm-cache"
-CACHE_VERSION: Final = 1
+CACHE_VERSION: Final = 2
 _FIELDS: Final = (
     "text",
     "backend",
@@ -37,7 +37,7 @@ _FIELDS: Final = (
     "completion_tokens",
     "latency_s",
     "finish_reason",
-    "structured",
+    "structured_output",
 )
 
 

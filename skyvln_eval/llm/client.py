@@ -2,10 +2,15 @@
 
 :class:`LLMClient` wraps one backend. Each :meth:`LLMClient.call` is made for a named
 agent module and returns the completion (or ``None`` when the backend gave up) with one
-:class:`LLMCallRecord` per attempt: a retried 429 leaves a record with its error, the
-successful attempt one with tokens, cost and latency. Cached answers are recorded with the
-original call's tokens, cost and latency and ``cached=True``, so a run replayed from the
-cache reproduces its cost table exactly while saying it paid nothing again.
+:class:`~skyvln_eval.llm_records.LlmCall` per attempt: a retried 429 leaves a ``failed``
+record with its error, the answered attempt one with tokens, cost, latency, the decoding
+settings sent and the structured-output level used. Latency is the backend's time only;
+the wait for a free slot under ``max_concurrency`` is recorded apart (``queue_s``).
+
+Cached answers are recorded with the original call's tokens, cost and latency and
+``cached=True``, so a run replayed from the cache reproduces its cost table exactly while
+saying it paid nothing again. Cost is ``None`` (unknown) when the model has no price or
+the server reported no tokens; only the offline stand-ins cost a known 0.
 """
 
 from __future__ import annotations
@@ -15,12 +20,13 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
-from skyvln_eval.errors import ConfigError, LLMError, LLMTransientError
+from skyvln_eval.errors import ConfigError, LLMAuthError, LLMError, LLMTransientError
 from skyvln_eval.llm.base import LLMBackend
 from skyvln_eval.llm.cache import ResponseCache, cache_key
 from skyvln_eval.llm.prices import PriceTable
 from skyvln_eval.llm.retry import RetryPolicy, call_with_retries
-from skyvln_eval.llm.types import Completion, GenerationConfig, LLMCallRecord, Message
+from skyvln_eval.llm.types import Completion, GenerationConfig, Message
+from skyvln_eval.llm_records import LlmCall
 
 #: Backends whose calls cost nothing whatever the price table says.
 FREE_KINDS = frozenset({"rule", "random", "scripted"})
@@ -31,7 +37,7 @@ class CallResult:
     """A completion (``None`` if every attempt failed), the records of every attempt, the error."""
 
     completion: Completion | None
-    records: tuple[LLMCallRecord, ...]
+    records: tuple[LlmCall, ...]
     error: str | None = None
 
     @property
@@ -57,72 +63,113 @@ class LLMClient:
             raise ConfigError("the replay backend answers only from a cache: set a cache path")
         self._slots = threading.BoundedSemaphore(self.max_concurrency)
 
-    def _cost(self, backend: str, model: str, completion: Completion) -> float | None:
+    def _cost(self, completion: Completion) -> float | None:
         if self.backend.kind in FREE_KINDS:
             return 0.0
+        if completion.prompt_tokens is None or completion.completion_tokens is None:
+            return None  # the server did not say how many tokens it billed
+        identity = self.backend.identity()
         return self.prices.cost_usd(
-            backend, model, completion.prompt_tokens, completion.completion_tokens
+            str(identity["backend"]),
+            str(identity["model"]),
+            completion.prompt_tokens,
+            completion.completion_tokens,
         )
 
-    def _record(
-        self, module: str, completion: Completion | None, latency_s: float, error: str | None
-    ) -> LLMCallRecord:
+    def _base(self, module: str, config: GenerationConfig, repair: bool) -> LlmCall:
         identity = self.backend.identity()
-        backend, model = str(identity["backend"]), str(identity["model"])
-        if completion is None:
-            return LLMCallRecord(module, backend, model, 0, 0, 0.0, latency_s, False, error)
-        return LLMCallRecord(
+        return LlmCall(
             module=module,
-            backend=backend,
-            model=model,
+            backend=str(identity["backend"]),
+            model=str(identity["model"]) or "-",
+            repair=repair,
+            temperature=config.temperature,
+            max_tokens=config.max_tokens,
+        )
+
+    def answered(
+        self, base: LlmCall, completion: Completion, attempt: int, queue_s: float
+    ) -> LlmCall:
+        """The record of an attempt that got ``completion``."""
+        return replace(
+            base,
+            attempt=attempt,
             prompt_tokens=completion.prompt_tokens,
             completion_tokens=completion.completion_tokens,
-            cost_usd=self._cost(backend, model, completion),
+            cost_usd=self._cost(completion),
             latency_s=completion.latency_s,
+            queue_s=queue_s,
             cached=completion.cached,
-            error=error,
+            finish_reason=completion.finish_reason,
+            structured_output=completion.structured_output,
         )
 
     def call(
-        self, module: str, messages: Sequence[Message], config: GenerationConfig
+        self,
+        module: str,
+        messages: Sequence[Message],
+        config: GenerationConfig,
+        repair: bool = False,
     ) -> CallResult:
-        """One logical call for agent module ``module``.
+        """One logical call for agent module ``module`` (``repair``: it asks again after an
+        unusable answer).
 
         Never raises for backend faults (they are returned and recorded), except
-        :class:`~skyvln_eval.errors.CacheMissError` from ``replay``, which must stop a run.
+        :class:`~skyvln_eval.errors.CacheMissError` from ``replay``, which must stop a run,
+        and :class:`~skyvln_eval.errors.LLMAuthError`: with credentials refused, no call
+        can succeed.
         """
+        base = self._base(module, config, repair)
         key = None
         if self.cache is not None:
             key = cache_key(self.backend.identity(), messages, config)
             hit = self.cache.get(key)
             if hit is not None:
-                return CallResult(hit, (self._record(module, hit, hit.latency_s, None),))
-        records: list[LLMCallRecord] = []
+                return CallResult(hit, (self.answered(base, hit, 1, 0.0),))
+        records: list[LlmCall] = []
+        queue_s = [0.0]
 
         def attempt() -> Completion:
+            waited = time.perf_counter()
             with self._slots:
                 started = time.perf_counter()
+                queue_s[0] = started - waited
                 completion = self.backend.generate(messages, config)
             latency = time.perf_counter() - started
             if completion.latency_s <= 0.0:
                 completion = replace(completion, latency_s=latency)
             return completion
 
-        def on_fault(error: LLMTransientError, latency_s: float) -> None:
-            records.append(
-                self._record(module, None, latency_s, f"{type(error).__name__}: {error}")
+        def failed(error: LLMError, latency_s: float, final: bool) -> LlmCall:
+            # What a failed attempt cost is unknown (a server may bill a request it did not
+            # finish answering), except for the offline stand-ins, which cost nothing.
+            return replace(
+                base,
+                cost_usd=0.0 if self.backend.kind in FREE_KINDS else None,
+                outcome="failed",
+                error=f"{type(error).__name__}: {error}",
+                attempt=len(records) + 1,
+                final=final,
+                latency_s=max(0.0, latency_s - queue_s[0]),
+                queue_s=queue_s[0],
             )
+
+        def on_fault(error: LLMTransientError, latency_s: float) -> None:
+            records.append(failed(error, latency_s, final=False))
 
         try:
             completion = call_with_retries(attempt, self.retry, on_fault, sleep=self.sleep)
+        except LLMAuthError:
+            raise
         except LLMTransientError as error:
+            records[-1] = replace(records[-1], final=True)  # the last attempt ends the call
             return CallResult(
                 None, tuple(records), f"gave up after {len(records)} attempt(s): {error}"
             )
         except LLMError as error:
-            records.append(self._record(module, None, 0.0, f"{type(error).__name__}: {error}"))
+            records.append(failed(error, 0.0, final=True))
             return CallResult(None, tuple(records), str(error))
-        records.append(self._record(module, completion, completion.latency_s, None))
+        records.append(self.answered(base, completion, len(records) + 1, queue_s[0]))
         if self.cache is not None and key is not None:
             self.cache.put(key, completion)
         return CallResult(completion, tuple(records))

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from skyvln_eval.llm.cache import ResponseCache
 from skyvln_eval.llm.client import LLMClient
+from skyvln_eval.llm.negotiation import StructuredSetting
 from skyvln_eval.llm.prices import load_prices
 from skyvln_eval.llm.registry import create_backend
 from skyvln_eval.llm.retry import RetryPolicy
@@ -29,12 +31,37 @@ class RetryConfig(BaseModel):
         return RetryPolicy(**self.model_dump(), seed=seed)
 
 
+@dataclass(frozen=True)
+class RepairPolicy:
+    """How unusable answers are asked for again: how often, how hot, with what budget."""
+
+    repairs: int = 1
+    temperature: float = 0.7
+    budget_factor: float = 2.0
+
+
+#: Default ``max_tokens`` per agent module: the sub-goal list of a long dialog needs more
+#: room than a one-word match level.
+DEFAULT_BUDGETS: dict[str, int] = {
+    "subgoals": 1024,
+    "hsd_describe": 256,
+    "hsd_rank": 256,
+    "motion": 512,
+    "navgpt": 512,
+    "clarify": 192,
+}
+
+
 class LLMConfig(BaseModel):
     """Which backend (``"rule"``, ``"openai:gpt-4o"``, ``"replay:openai:gpt-4o"``, ...), its
-    server and decoding settings, retries, concurrency, cache and price table.
+    server and decoding settings, retries, repair, concurrency, cache and price table.
 
     The API key is never part of the configuration: ``api_key_env`` names the environment
-    variable it is read from.
+    variable it is read from. ``max_tokens`` is the budget of a call; ``budgets`` gives
+    agent modules their own (e.g. ``{subgoals: 1024}``). An unusable answer is asked for
+    again ``repairs`` times, at ``repair_temperature`` (above the first try's, so that the
+    same mistake is not simply repeated) and, when the answer was cut off at the budget,
+    with ``repair_budget_factor`` times the budget.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -43,10 +70,18 @@ class LLMConfig(BaseModel):
     base_url: str | None = None
     api_key_env: str = "OPENAI_API_KEY"
     takes_images: bool = False
-    structured_output: Literal["auto", "on", "off"] = "auto"
+    image_max_side_px: int = Field(default=512, ge=32, le=4096)
+    structured_output: StructuredSetting = "auto"
+    send_task_data: bool = Field(
+        default=False, description="test servers only: add each request's task data to its body"
+    )
     temperature: float = Field(default=0.0, ge=0.0, le=2.0)
     top_p: float = Field(default=1.0, gt=0.0, le=1.0)
     max_tokens: int = Field(default=512, ge=16, le=32768)
+    budgets: dict[str, int] = Field(default_factory=lambda: dict(DEFAULT_BUDGETS))
+    repairs: int = Field(default=1, ge=0, le=5)
+    repair_temperature: float = Field(default=0.7, ge=0.0, le=2.0)
+    repair_budget_factor: float = Field(default=2.0, ge=1.0, le=16.0)
     seed: int | None = 0
     timeout_s: float = Field(default=60.0, gt=0.0)
     max_concurrency: int = Field(default=4, ge=1, le=256)
@@ -54,16 +89,28 @@ class LLMConfig(BaseModel):
     cache_path: str | None = None
     prices_path: str | None = None
 
-    def generation(self, **overrides: Any) -> GenerationConfig:
-        """Decoding settings for one kind of call (``json_schema`` etc. as overrides)."""
-        return GenerationConfig(
-            temperature=self.temperature,
-            top_p=self.top_p,
-            max_tokens=self.max_tokens,
-            seed=self.seed,
-            timeout_s=self.timeout_s,
-            **overrides,
-        )
+    @field_validator("budgets")
+    @classmethod
+    def _budgets_in_range(cls, budgets: dict[str, int]) -> dict[str, int]:
+        for module, tokens in budgets.items():
+            if not 16 <= tokens <= 32768:
+                raise ValueError(f"budget of {module!r} must be in [16, 32768], got {tokens}")
+        return budgets
+
+    def generation(self, module: str | None = None, **overrides: Any) -> GenerationConfig:
+        """Decoding settings for ``module``'s calls (``json_schema`` etc. as overrides)."""
+        budget = self.budgets.get(module, self.max_tokens) if module else self.max_tokens
+        settings: dict[str, Any] = {
+            "temperature": self.temperature,
+            "top_p": self.top_p,
+            "max_tokens": budget,
+            "seed": self.seed,
+            "timeout_s": self.timeout_s,
+        }
+        return GenerationConfig(**(settings | overrides))
+
+    def repair_policy(self) -> RepairPolicy:
+        return RepairPolicy(self.repairs, self.repair_temperature, self.repair_budget_factor)
 
     def backend_options(self) -> dict[str, Any]:
         name = self.backend.partition(":")[0]
@@ -73,6 +120,7 @@ class LLMConfig(BaseModel):
                 "api_key_env": self.api_key_env,
                 "takes_images": self.takes_images,
                 "structured_output": self.structured_output,
+                "send_task_data": self.send_task_data,
             }
         if name == "replay":
             return {"base_url": self.base_url}

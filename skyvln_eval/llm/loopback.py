@@ -6,10 +6,17 @@ For tests, benchmarks and offline demonstrations of the ``openai`` backend: it r
 Each request to ``POST /v1/chat/completions`` takes the next :class:`Reply` of the script:
 an answer, an HTTP error status (with headers, e.g. Retry-After), a hang longer than the
 client's timeout, a malformed JSON body, or a body cut short. A reply with a ``task`` waits
-for a request whose TASK DATA block has that task; requests it does not match, and all
-requests once the script is used up, are answered as the offline ``rule`` backend would,
-so a whole agent can run against the server. Every request is kept in ``requests``
-(parsed JSON body, headers and task) for the test to inspect.
+for a request of that task; requests it does not match, and all requests once the script
+is used up, are answered as the offline ``rule`` backend would, so a whole agent can run
+against the server. The server knows a request's task only from its task data, which the
+``openai`` backend sends to test servers only when told to (``send_task_data``); a request
+without task data gets a plain text answer. Every request is kept in ``requests`` (parsed
+JSON body, headers and task) for the test to inspect.
+
+``structured`` makes the server treat ``response_format`` as real servers do: ``"all"``
+accepts every form, ``"llama_cpp"`` answers the ``json_schema`` form with HTTP 500 naming
+``response_format`` (as llama.cpp's server does) and accepts ``json_object``, ``"none"``
+refuses any ``response_format`` with HTTP 400.
 """
 
 from __future__ import annotations
@@ -22,12 +29,12 @@ from dataclasses import dataclass, field
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any, Literal
 
-from skyvln_eval.errors import LLMError
+from skyvln_eval.llm.openai_backend import TASK_DATA_FIELD
 from skyvln_eval.llm.rule import RuleBackend
-from skyvln_eval.llm.taskdata import read_task_block
 from skyvln_eval.llm.types import GenerationConfig, Message
 
 ReplyKind = Literal["answer", "status", "hang", "malformed", "truncated", "refuse_schema", "rule"]
+StructuredMimic = Literal["all", "llama_cpp", "none"]
 
 
 @dataclass(frozen=True)
@@ -38,15 +45,18 @@ class Reply:
     headers: dict[str, str] = field(default_factory=dict)
     seconds: float = 0.0
     task: str | None = None
+    finish_reason: str = "stop"
 
 
-def answer(content: str, task: str | None = None) -> Reply:
-    return Reply("answer", content=content, task=task)
+def answer(content: str, task: str | None = None, finish_reason: str = "stop") -> Reply:
+    """An answer; ``finish_reason="length"`` says it was cut off at ``max_tokens``."""
+    return Reply("answer", content=content, task=task, finish_reason=finish_reason)
 
 
-def status(code: int, task: str | None = None, **headers: str) -> Reply:
+def status(code: int, task: str | None = None, message: str = "", **headers: str) -> Reply:
+    """An HTTP error; ``message`` is the error body's message (default: the server's)."""
     fixed = {k.replace("_", "-"): v for k, v in headers.items()}
-    return Reply("status", status=code, headers=fixed, task=task)
+    return Reply("status", content=message, status=code, headers=fixed, task=task)
 
 
 def hang(seconds: float, task: str | None = None) -> Reply:
@@ -71,24 +81,24 @@ def refuse_schema(content: str) -> Reply:
     return Reply("refuse_schema", content=content)
 
 
-def _messages(body: dict[str, Any]) -> list[Message]:
-    out = []
-    for m in body.get("messages", []):
-        content = m.get("content")
-        if isinstance(content, list):
-            content = " ".join(p.get("text", "") for p in content if p.get("type") == "text")
-        out.append(Message(m["role"], str(content)))
-    return out
+def _task_data(body: dict[str, Any]) -> dict[str, Any] | None:
+    data = body.get(TASK_DATA_FIELD)
+    return data if isinstance(data, dict) and "task" in data else None
 
 
-def _task_of(messages: list[Message]) -> str | None:
-    try:
-        return str(read_task_block(messages)["task"])
-    except LLMError:
+def _format_refusal(body: dict[str, Any], structured: StructuredMimic) -> tuple[int, str] | None:
+    """The (status, message) a real server of that kind gives the request's format, if any."""
+    fmt = body.get("response_format")
+    if fmt is None or structured == "all":
         return None
+    if structured == "none":
+        return 400, "response_format is not supported by this server"
+    if fmt.get("type") == "json_schema":  # llama.cpp's server
+        return 500, "Internal error: response_format type json_schema is not supported"
+    return None
 
 
-def _completion_body(content: str, model: str) -> bytes:
+def _completion_body(content: str, model: str, finish_reason: str = "stop") -> bytes:
     body = {
         "id": "chatcmpl-fake",
         "object": "chat.completion",
@@ -98,7 +108,7 @@ def _completion_body(content: str, model: str) -> bytes:
             {
                 "index": 0,
                 "message": {"role": "assistant", "content": content},
-                "finish_reason": "stop",
+                "finish_reason": finish_reason,
             }
         ],
         "usage": {"prompt_tokens": 100, "completion_tokens": 20, "total_tokens": 120},
@@ -114,10 +124,12 @@ class LoopbackOpenAIServer:
         script: list[Reply] | None = None,
         error_message: str = "injected",
         latency_s: float = 0.0,
+        structured: StructuredMimic = "all",
     ) -> None:
         """``latency_s`` delays every answer, as a remote model's response time would."""
         self.script = list(script or [])
         self.latency_s = latency_s
+        self.structured = structured
         self.requests: list[dict[str, Any]] = []
         self._lock = threading.Lock()
         outer = self
@@ -141,14 +153,18 @@ class LoopbackOpenAIServer:
                 self.end_headers()
                 self.wfile.write(body)
 
-            def _error(self, code: int, headers: dict[str, str] | None = None) -> None:
-                error = {"error": {"message": f"{error_message} HTTP {code}", "type": "test"}}
+            def _error(
+                self, code: int, headers: dict[str, str] | None = None, message: str = ""
+            ) -> None:
+                text = message or f"{error_message} HTTP {code}"
+                error = {"error": {"message": text, "type": "test"}}
                 self._send(code, json.dumps(error).encode(), headers)
 
             def do_POST(self) -> None:
                 length = int(self.headers.get("Content-Length", "0"))
                 body = json.loads(self.rfile.read(length) or b"{}")
-                task = _task_of(_messages(body))
+                data = _task_data(body)
+                task = None if data is None else str(data["task"])
                 with outer._lock:
                     outer.requests.append(
                         {"body": body, "headers": dict(self.headers), "task": task}
@@ -161,21 +177,25 @@ class LoopbackOpenAIServer:
                 model = str(body.get("model", "fake"))
                 if outer.latency_s:
                     time.sleep(outer.latency_s)
-                if reply.kind == "rule":
-                    try:
-                        text = RuleBackend().generate(_messages(body), GenerationConfig()).text
-                    except LLMError:  # a prompt without TASK DATA: answer it plainly
+                refusal = _format_refusal(body, outer.structured)
+                if refusal is not None and reply.kind in ("rule", "answer"):
+                    self._error(refusal[0], message=refusal[1])
+                elif reply.kind == "rule":
+                    if data is None:  # nothing to answer from: a plain answer
                         text = "Hello from the loopback server."
+                    else:
+                        request = [Message("user", "", task_data=data)]
+                        text = RuleBackend().generate(request, GenerationConfig()).text
                     self._send(200, _completion_body(text, model))
                 elif reply.kind == "answer":
-                    self._send(200, _completion_body(reply.content, model))
+                    self._send(200, _completion_body(reply.content, model, reply.finish_reason))
                 elif reply.kind == "refuse_schema":
                     if "response_format" in body:
                         self._error(400)
                     else:
                         self._send(200, _completion_body(reply.content, model))
                 elif reply.kind == "status":
-                    self._error(reply.status, reply.headers)
+                    self._error(reply.status, reply.headers, reply.content)
                 elif reply.kind == "hang":
                     time.sleep(reply.seconds)
                     with contextlib.suppress(OSError):  # the client has gone

@@ -1,37 +1,71 @@
 """Any OpenAI-compatible chat-completions server (OpenAI, vLLM, Ollama, llama.cpp).
 
 The official ``openai`` client (extra ``openai``) is imported on first use, never at
-toolkit import. The API
-key is read from the environment variable ``api_key_env`` when the client is made and
-handed to the client only: it is not stored on the backend, not part of its identity or
-of any cache key, and is scrubbed from every error message this module raises.
+toolkit import. The API key is read from the environment variable ``api_key_env`` when
+the client is made and handed to the client only: it is not stored on the backend, not
+part of its identity or of any cache key, and is scrubbed from every error message this
+module raises.
 
-Images go as data URLs when the backend is told the model takes them (``takes_images``).
-When a call asks for a JSON schema, it is sent as ``response_format`` (structured output);
-a server that rejects it with HTTP 400 is remembered and prompted plainly from then on
-(``structured_output="auto"``). The client's own retries are off (``max_retries=0``):
-:class:`~skyvln_eval.llm.client.LLMClient` retries, so that every fault is recorded.
+Structured output is negotiated per endpoint (:mod:`.negotiation`): a call that asks for
+a JSON schema is sent at the most constrained level the server is not known to refuse
+(``json_schema`` strict, then ``json_object`` with the schema, plain ``json_object``,
+then none: the prompt asks for JSON and the parser checks it). A refusal (HTTP 400, or a
+5xx whose body names the response format, the schema or a grammar) moves one level down
+at once; the level that answers is remembered for the endpoint for the rest of the
+process and recorded with every call. ``structured_output`` pins a level instead.
+
+Errors are told apart by what the server says: 401 / 403 (:class:`LLMAuthError`), a
+context overflow (:class:`LLMContextOverflowError`, not retried), 429 and 5xx
+(transient, retried by the client), other 4xx (refused). The client's own retries are off
+(``max_retries=0``): :class:`~skyvln_eval.llm.client.LLMClient` retries, so that every
+fault is recorded.
 """
 
 from __future__ import annotations
 
 import base64
+import contextlib
 import json
 import logging
 import os
+import re
 import threading
 import time
 from collections.abc import Sequence
-from typing import Any, Final, Literal
+from typing import Any, Final
 
-from skyvln_eval.errors import ConfigError, LLMError, LLMTransientError, MissingExtraError
+from skyvln_eval.errors import (
+    ConfigError,
+    LLMAuthError,
+    LLMContextOverflowError,
+    LLMError,
+    LLMTransientError,
+    MissingExtraError,
+)
 from skyvln_eval.llm.base import LLMBackend
-from skyvln_eval.llm.types import Completion, GenerationConfig, Message
+from skyvln_eval.llm.negotiation import (
+    STRUCTURED_SETTINGS,
+    StructuredSetting,
+    negotiated_level,
+    next_level,
+    remember_level,
+    response_format,
+)
+from skyvln_eval.llm.types import Completion, GenerationConfig, Message, StructuredLevel
 
 log = logging.getLogger(__name__)
 
 OPENAI_BASE_URL: Final = "https://api.openai.com/v1"
-StructuredMode = Literal["auto", "on", "off"]
+#: Words in an error body that say the request is longer than the model's context.
+_CONTEXT_OVERFLOW = re.compile(
+    r"context length|context window|maximum context|context_length_exceeded|too many tokens"
+    r"|prompt is too long|exceeds? the (?:model'?s? )?(?:maximum )?context|n_ctx",
+    re.IGNORECASE,
+)
+#: Words in an error body that say the server cannot do the requested response format.
+_FORMAT_WORDS = re.compile(r"response_format|json_schema|schema|grammar", re.IGNORECASE)
+#: Where the loopback test server finds the task data of a request (only when asked for).
+TASK_DATA_FIELD: Final = "skyvln_task_data"
 
 
 def _retry_after_s(headers: Any) -> float | None:
@@ -42,8 +76,30 @@ def _retry_after_s(headers: Any) -> float | None:
         return None
 
 
+def _body_text(error: Any) -> str:
+    """What the server said: the parsed error message and the raw body, as one string."""
+    parts = [str(getattr(error, "message", "") or "")]
+    response = getattr(error, "response", None)
+    with contextlib.suppress(Exception):  # a streamed or closed body: the message is all
+        parts.append(response.text if response is not None else "")
+    return " ".join(p for p in parts if p)
+
+
+class _FormatRefused(Exception):
+    """The server cannot do the response format of this request (the body says why)."""
+
+    def __init__(self, status: int, body: str) -> None:
+        super().__init__(f"HTTP {status}: {body[:300]}")
+
+
 class OpenAIBackend(LLMBackend):
-    """Chat completions over the OpenAI protocol; see the module docstring."""
+    """Chat completions over the OpenAI protocol; see the module docstring.
+
+    ``send_task_data`` adds each request's task data (see :mod:`.taskdata`) to the body
+    as ``skyvln_task_data``, for test servers that stand in for a model (the loopback
+    server answers from it as the rule backend would). Off by default: real servers
+    never receive it, and OpenAI refuses unknown fields.
+    """
 
     name = "openai"
     kind = "llm"
@@ -54,27 +110,40 @@ class OpenAIBackend(LLMBackend):
         base_url: str | None = None,
         api_key_env: str = "OPENAI_API_KEY",
         takes_images: bool = False,
-        structured_output: StructuredMode = "auto",
+        structured_output: StructuredSetting = "auto",
+        send_task_data: bool = False,
     ) -> None:
         if not model:
             raise ConfigError(
                 "the openai backend needs a model: 'openai:<model>', e.g. 'openai:gpt-4o'"
             )
-        if structured_output not in ("auto", "on", "off"):
+        if structured_output not in STRUCTURED_SETTINGS:
             raise ConfigError(
-                f"structured_output must be auto, on or off, got {structured_output!r}"
+                f"structured_output must be one of {', '.join(STRUCTURED_SETTINGS)}, "
+                f"got {structured_output!r}"
             )
         self.model = model
         self.base_url = (base_url or OPENAI_BASE_URL).rstrip("/")
         self.api_key_env = api_key_env
         self.takes_images = takes_images
         self.structured_output = structured_output
-        self._schema_refused = False
+        self.send_task_data = send_task_data
         self._client: Any = None
         self._lock = threading.Lock()
 
     def identity(self) -> dict[str, Any]:
         return {"backend": self.name, "model": self.model, "base_url": self.base_url}
+
+    @property
+    def endpoint(self) -> str:
+        """``openai:<model>@<base_url>``: how messages and provenance name the endpoint."""
+        return f"openai:{self.model}@{self.base_url}"
+
+    def structured_level(self) -> StructuredLevel:
+        """The level the next schema-constrained call starts at."""
+        if self.structured_output != "auto":
+            return self.structured_output
+        return negotiated_level(self.endpoint) or "json_schema"
 
     def _secret(self) -> str | None:
         return os.environ.get(self.api_key_env) or None
@@ -92,8 +161,9 @@ class OpenAIBackend(LLMBackend):
                     raise MissingExtraError("the openai backend", "openai", str(error)) from error
                 secret = self._secret()
                 if secret is None and self.base_url == OPENAI_BASE_URL:
-                    raise LLMError(
-                        f"set the environment variable {self.api_key_env} to call {self.base_url}"
+                    raise LLMAuthError(
+                        f"{self.endpoint}: set the environment variable {self.api_key_env} "
+                        "to the API key"
                     )
                 # Local servers usually accept any key; the client insists on one.
                 self._client = openai.OpenAI(
@@ -115,13 +185,7 @@ class OpenAIBackend(LLMBackend):
                 out.append({"role": message.role, "content": message.text})
         return out
 
-    def _wants_schema(self, config: GenerationConfig) -> bool:
-        if config.json_schema is None or self.structured_output == "off":
-            return False
-        return not (self.structured_output == "auto" and self._schema_refused)
-
-    def generate(self, messages: Sequence[Message], config: GenerationConfig) -> Completion:
-        client = self._get_client()
+    def _request(self, messages: Sequence[Message], config: GenerationConfig) -> dict[str, Any]:
         kwargs: dict[str, Any] = {
             "model": self.model,
             "messages": self._payload(messages),
@@ -134,30 +198,57 @@ class OpenAIBackend(LLMBackend):
             kwargs["seed"] = config.seed
         if config.stop:
             kwargs["stop"] = list(config.stop)
-        structured = self._wants_schema(config)
-        if structured:
-            kwargs["response_format"] = {
-                "type": "json_schema",
-                "json_schema": {
-                    "name": config.schema_name,
-                    "schema": config.json_schema,
-                    "strict": True,
-                },
-            }
+        if self.send_task_data:
+            data = next((m.task_data for m in reversed(messages) if m.task_data), None)
+            if data is not None:
+                kwargs["extra_body"] = {TASK_DATA_FIELD: data}
+        return kwargs
+
+    def generate(self, messages: Sequence[Message], config: GenerationConfig) -> Completion:
+        client = self._get_client()
+        kwargs = self._request(messages, config)
+        level: StructuredLevel | None = None
+        if config.json_schema is not None:
+            level = self.structured_level()
         started = time.perf_counter()
-        try:
-            response = self._create(client, kwargs)
-        except _SchemaRefused:
-            self._schema_refused = True
-            log.warning(
-                "%s refused response_format (structured output): prompting plainly from now on",
-                self.base_url,
-            )
-            kwargs.pop("response_format")
-            structured = False
-            response = self._create(client, kwargs)
+        while True:
+            request = dict(kwargs)
+            if level is not None:
+                fmt = response_format(level, config.json_schema or {}, config.schema_name)
+                if fmt is not None:
+                    request["response_format"] = fmt
+            try:
+                response = self._create(client, request)
+                break
+            except _FormatRefused as refusal:
+                level = self._step_down(level, refusal)
+        if level is not None and self.structured_output == "auto":
+            remember_level(self.endpoint, level)
         latency = time.perf_counter() - started
-        return self._completion(response, latency, structured)
+        return self._completion(response, latency, level)
+
+    def _step_down(self, level: StructuredLevel | None, refusal: _FormatRefused) -> StructuredLevel:
+        if level is None:  # pragma: no cover - no format was sent, so none can be refused
+            raise LLMError(self._scrub(f"{self.endpoint}: request refused ({refusal})"))
+        if self.structured_output != "auto":
+            raise LLMError(
+                self._scrub(
+                    f"{self.endpoint} refused structured output level {level!r}, pinned by "
+                    f"structured_output in the backend config ({refusal}); use 'auto' to "
+                    "negotiate a level the server accepts"
+                )
+            )
+        lower = next_level(level)
+        if lower is None:  # pragma: no cover - the last level sends no format
+            raise LLMError(self._scrub(f"{self.endpoint}: request refused ({refusal})"))
+        log.warning(
+            "%s refused structured output level %s (%s); trying %s",
+            self.endpoint,
+            level,
+            self._scrub(str(refusal)),
+            lower,
+        )
+        return lower
 
     def _create(self, client: Any, kwargs: dict[str, Any]) -> Any:
         import openai
@@ -166,7 +257,8 @@ class OpenAIBackend(LLMBackend):
             return client.chat.completions.create(**kwargs)
         except openai.RateLimitError as error:
             raise LLMTransientError(
-                "rate limited (HTTP 429)", _retry_after_s(error.response.headers)
+                f"rate limited (HTTP 429): {self._scrub(_body_text(error))[:200]}",
+                _retry_after_s(error.response.headers),
             ) from None
         except openai.APITimeoutError:
             raise LLMTransientError(f"no answer within {kwargs['timeout']} s (timeout)") from None
@@ -175,44 +267,54 @@ class OpenAIBackend(LLMBackend):
                 self._scrub(f"connection failed or body cut short: {error}")
             ) from None
         except openai.APIStatusError as error:
-            status = error.status_code
-            if status >= 500:
-                raise LLMTransientError(
-                    f"server error (HTTP {status})", _retry_after_s(error.response.headers)
-                ) from None
-            if status == 400 and "response_format" in kwargs and self.structured_output == "auto":
-                raise _SchemaRefused() from None
-            raise LLMError(
-                self._scrub(f"request refused (HTTP {status}): {error.message}")
-            ) from None
+            raise self._status_error(error, "response_format" in kwargs) from None
         except (openai.APIResponseValidationError, json.JSONDecodeError, ValueError) as error:
             raise LLMTransientError(
                 self._scrub(f"malformed response: {type(error).__name__}")
             ) from None
 
-    def _completion(self, response: Any, latency_s: float, structured: bool) -> Completion:
+    def _status_error(self, error: Any, has_format: bool) -> Exception:
+        status = int(error.status_code)
+        body = self._scrub(_body_text(error))
+        excerpt = body[:300]
+        if status in (401, 403):
+            return LLMAuthError(
+                f"{self.endpoint} refused the credentials (HTTP {status}: {excerpt}); check "
+                f"the API key in the environment variable {self.api_key_env}"
+            )
+        if _CONTEXT_OVERFLOW.search(body) and status < 500:
+            return LLMContextOverflowError(
+                f"the prompt does not fit the model's context (HTTP {status}: {excerpt})"
+            )
+        if has_format and (status == 400 or (status >= 500 and _FORMAT_WORDS.search(body))):
+            return _FormatRefused(status, body)
+        if status >= 500:
+            return LLMTransientError(
+                f"server error (HTTP {status}: {excerpt})", _retry_after_s(error.response.headers)
+            )
+        return LLMError(f"request refused (HTTP {status}: {excerpt})")
+
+    def _completion(
+        self, response: Any, latency_s: float, level: StructuredLevel | None
+    ) -> Completion:
         try:
             choice = response.choices[0]
             text = choice.message.content or ""
-            usage = response.usage
-            prompt_tokens = int(getattr(usage, "prompt_tokens", 0) or 0)
-            completion_tokens = int(getattr(usage, "completion_tokens", 0) or 0)
             finish = str(choice.finish_reason or "stop")
         except (AttributeError, IndexError, TypeError) as error:
             raise LLMTransientError(
                 f"malformed response: no choices ({type(error).__name__})"
             ) from None
+        usage = getattr(response, "usage", None)
+        prompt_tokens = getattr(usage, "prompt_tokens", None) if usage is not None else None
+        completion_tokens = getattr(usage, "completion_tokens", None) if usage is not None else None
         return Completion(
             text=text,
             backend=self.name,
             model=self.model,
-            prompt_tokens=prompt_tokens,
-            completion_tokens=completion_tokens,
+            prompt_tokens=None if prompt_tokens is None else int(prompt_tokens),
+            completion_tokens=None if completion_tokens is None else int(completion_tokens),
             latency_s=latency_s,
             finish_reason=finish,
-            structured=structured,
+            structured_output=level,
         )
-
-
-class _SchemaRefused(Exception):
-    """The server answered HTTP 400 to a request carrying ``response_format``."""

@@ -10,7 +10,7 @@ from typing import Any
 
 from skyvln_eval.errors import CacheMissError, ConfigError, LLMError
 from skyvln_eval.llm.base import LLMBackend
-from skyvln_eval.llm.taskdata import read_task_block
+from skyvln_eval.llm.taskdata import read_task_data
 from skyvln_eval.llm.types import Completion, GenerationConfig, Message
 
 ScriptItem = str | Exception | Callable[[Sequence[Message]], str]
@@ -69,7 +69,7 @@ class RandomBackend(LLMBackend):
         self.model = model or "uniform"
 
     def generate(self, messages: Sequence[Message], config: GenerationConfig) -> Completion:
-        data = read_task_block(messages)
+        data = read_task_data(messages)
         seed = zlib.crc32(json.dumps(data, sort_keys=True).encode()) ^ (config.seed or 0)
         rng = random.Random(seed)
         task = data["task"]

@@ -1,53 +1,45 @@
-"""The machine-readable part of every agent prompt: one fenced JSON block with a ``task``.
+"""The machine-readable side of every agent prompt: one ``task_data`` dict per request.
 
-Each prompt the agent sends ends with a block like::
+Each request the agent sends carries, besides its text, the same content as data::
 
-    TASK DATA (JSON):
-    ```json
-    {"task": "motion", "version": 1, ...}
-    ```
+    {"task": "motion", "version": 2, ...}
 
-An LLM reads it along with the prose; the offline ``rule`` and ``random`` backends read
-only it. Keeping one writer and one reader here means the two cannot drift apart.
+on its last user message (:attr:`~skyvln_eval.llm.types.Message.task_data`). A model
+server never receives it: models read the text. The offline ``rule`` and ``random``
+backends read only the data. The prompt writers render every field they put in the data
+into the text as well, so a stand-in knows nothing a model is not told. Keeping one
+writer and one reader here means the two sides cannot drift apart.
 """
 
 from __future__ import annotations
 
-import json
-import re
 from collections.abc import Sequence
 from typing import Any, Final
 
 from skyvln_eval.errors import LLMError
-from skyvln_eval.llm.types import Message
+from skyvln_eval.llm.types import ImagePart, Message
 
-TASK_DATA_VERSION: Final = 1
-HEADER: Final = "TASK DATA (JSON):"
-_BLOCK = re.compile(r"```json\s*\n(.*?)\n```", re.DOTALL)
+TASK_DATA_VERSION: Final = 2
 
 
-def task_block(task: str, data: dict[str, Any]) -> str:
-    """The fenced block for ``task`` carrying ``data`` (keys ``task`` and ``version`` are added)."""
-    body = {"task": task, "version": TASK_DATA_VERSION, **data}
-    return f"{HEADER}\n```json\n{json.dumps(body, ensure_ascii=False, allow_nan=False)}\n```"
+def task_message(
+    text: str, task: str, data: dict[str, Any], images: Sequence[ImagePart] = ()
+) -> Message:
+    """A user message for ``task``: ``text`` for models, ``data`` for offline stand-ins."""
+    payload = {"task": task, "version": TASK_DATA_VERSION, **data}
+    return Message("user", text, tuple(images), task_data=payload)
 
 
-def read_task_block(messages: Sequence[Message]) -> dict[str, Any]:
-    """The task block of the latest user message that has one (a repair request has none,
-    so the block of the question being repaired is found); :class:`LLMError` without any."""
+def read_task_data(messages: Sequence[Message]) -> dict[str, Any]:
+    """The task data of the latest user message that has some (a repair request has none,
+    so the data of the question being repaired is found); :class:`LLMError` without any."""
     for message in reversed(messages):
-        if message.role != "user":
+        if message.role != "user" or message.task_data is None:
             continue
-        for raw in reversed(_BLOCK.findall(message.text)):
-            try:
-                data = json.loads(raw)
-            except json.JSONDecodeError:
-                continue
-            if isinstance(data, dict) and "task" in data:
-                if data.get("version") != TASK_DATA_VERSION:
-                    raise LLMError(
-                        f"task data version {data.get('version')!r}, this backend reads "
-                        f"{TASK_DATA_VERSION}"
-                    )
-                return data
-    raise LLMError("the prompt has no TASK DATA block: offline backends read only that block")
+        data = message.task_data
+        if data.get("version") != TASK_DATA_VERSION:
+            raise LLMError(
+                f"task data version {data.get('version')!r}, this backend reads {TASK_DATA_VERSION}"
+            )
+        return dict(data)
+    raise LLMError("the request carries no task data: offline backends read only that")

@@ -1,20 +1,25 @@
-"""Typed data crossing the LLM boundary: messages, decoding settings, completions, call records."""
+"""Typed data crossing the LLM boundary: messages, decoding settings, completions.
+
+The record of each call is :class:`skyvln_eval.llm_records.LlmCall`.
+"""
 
 from __future__ import annotations
 
 import hashlib
+import json
 from dataclasses import asdict, dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 Role = Literal["system", "user", "assistant"]
 
 
 @dataclass(frozen=True)
 class ImagePart:
-    """An image sent with a message: encoded bytes (PNG or JPEG) and their MIME type."""
+    """An image sent with a message: encoded bytes (PNG or JPEG), MIME type and a label."""
 
     data: bytes = field(repr=False)
     mime_type: Literal["image/png", "image/jpeg"] = "image/png"
+    label: str = field(default="", compare=False)  # what it shows, for logs ("view front")
 
     @property
     def sha256(self) -> str:
@@ -23,15 +28,30 @@ class ImagePart:
 
 @dataclass(frozen=True)
 class Message:
-    """One chat message: text plus any images (images only where the model takes them)."""
+    """One chat message: text plus any images (images only where the model takes them).
+
+    ``task_data`` is the same content as the text in machine-readable form (see
+    :mod:`skyvln_eval.llm.taskdata`), for the offline stand-ins that do not read prose
+    (``rule``, ``random``). It is never sent to a model server: a model reads the text,
+    which says everything the data holds, once.
+    """
 
     role: Role
     text: str
     images: tuple[ImagePart, ...] = ()
+    task_data: dict[str, Any] | None = field(default=None, compare=False, hash=False)
 
     def fingerprint(self) -> dict[str, Any]:
-        """The message as cache-key material: text verbatim, images by content hash."""
-        return {"role": self.role, "text": self.text, "images": [i.sha256 for i in self.images]}
+        """The message as cache-key material: text verbatim, images and task data by hash."""
+        out: dict[str, Any] = {
+            "role": self.role,
+            "text": self.text,
+            "images": [i.sha256 for i in self.images],
+        }
+        if self.task_data is not None:
+            canonical = json.dumps(self.task_data, sort_keys=True, ensure_ascii=False)
+            out["task_data"] = hashlib.sha256(canonical.encode("utf-8")).hexdigest()
+        return out
 
 
 @dataclass(frozen=True)
@@ -60,40 +80,29 @@ class GenerationConfig:
         return out
 
 
+#: Levels of structured output, most to least constrained: the OpenAI ``json_schema``
+#: response format (strict), ``json_object`` with the schema attached (llama.cpp and
+#: others constrain decoding by it), plain ``json_object``, and no response format at all
+#: (the prompt asks for JSON and the parser checks it).
+StructuredLevel = Literal["json_schema", "json_object_schema", "json_object", "prompt"]
+STRUCTURED_LEVELS: tuple[StructuredLevel, ...] = get_args(StructuredLevel)
+
+
 @dataclass(frozen=True)
 class Completion:
-    """A backend's answer to one call, with its usage and timing."""
+    """A backend's answer to one call, with its usage and timing.
+
+    Token counts are ``None`` when the server did not report them. ``structured_output``
+    is the level of structured output the request used (``None``: the call asked for
+    free text).
+    """
 
     text: str
     backend: str
     model: str
-    prompt_tokens: int = 0
-    completion_tokens: int = 0
+    prompt_tokens: int | None = None
+    completion_tokens: int | None = None
     latency_s: float = 0.0
     finish_reason: str = "stop"
     cached: bool = False
-    structured: bool = False  # the server honoured the requested JSON schema
-
-
-@dataclass(frozen=True)
-class LLMCallRecord:
-    """What one LLM call (or one failed attempt) cost, for accounting per agent module.
-
-    ``module`` names the agent part that made the call (``subgoals``, ``hsd_describe``,
-    ``hsd_rank``, ``motion``, ``motion_repair``, ``clarify``, ``navgpt``); ``cost_usd`` is
-    ``None`` when the price table has no entry for the model; ``error`` says what went
-    wrong (a transport fault that was retried, or output the agent could not use).
-    """
-
-    module: str
-    backend: str
-    model: str
-    prompt_tokens: int
-    completion_tokens: int
-    cost_usd: float | None
-    latency_s: float
-    cached: bool
-    error: str | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+    structured_output: StructuredLevel | None = None

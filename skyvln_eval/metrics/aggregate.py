@@ -3,18 +3,23 @@
 The summary is a long table, one row per (system, split, mode, metric): ``n`` episodes,
 ``mean`` (rates in percent, lengths in metres) and, when asked, a seeded bootstrap
 interval. Rules: a group with no value for a metric (e.g. no control summary) has no
-row for it; NaN / inf never reach a mean (they raise); a run that misses episodes of its
-split fails :func:`check_complete` with the missing ids.
+row for it; NaN / inf never reach a mean (they raise); a metric that can be unknown
+(cost, tokens: :data:`~skyvln_eval.metrics.cost.UNKNOWN_IF_ANY_UNKNOWN`) has a NaN mean,
+shown as "n/a", when any episode's value is unknown; other missing values (a rate with
+nothing to rate) are left out. A run that misses episodes of its split fails
+:func:`check_complete` with the missing ids.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Sequence
 
 import numpy as np
 import pandas as pd
 
 from skyvln_eval.errors import IncompleteRunError, MetricInputError
+from skyvln_eval.metrics.cost import UNKNOWN_IF_ANY_UNKNOWN
 from skyvln_eval.metrics.scoring import METRIC_UNITS
 from skyvln_eval.metrics.stats import bootstrap_means, finite_values, paired_comparison
 
@@ -33,6 +38,11 @@ PERCENT_METRICS = frozenset(
         "sdtw",
         "cls",
         "collided",
+        "status_ok",
+        "status_degraded",
+        "status_error",
+        "llm_call_failure_rate",
+        "fallback_rate",
     }
 )
 
@@ -51,6 +61,12 @@ DISPLAY_NAMES: dict[str, str] = {
     "ndtw": "nDTW",
     "sdtw": "SDTW",
     "cls": "CLS",
+    "fallback_rate": "fallback",
+    "llm_call_failure_rate": "call fail",
+    "llm_cost_usd": "cost",
+    "llm_latency_s": "LLM time",
+    "status_error": "error",
+    "status_degraded": "degraded",
 }
 
 #: Metrics where lower is better (tables mark the best accordingly).
@@ -70,6 +86,10 @@ LOWER_IS_BETTER = frozenset(
         "solve_time_p95_ms",
         "llm_cost_usd",
         "llm_latency_s",
+        "status_error",
+        "status_degraded",
+        "llm_call_failure_rate",
+        "fallback_rate",
     }
 )
 
@@ -103,9 +123,16 @@ def summarise(
             present = column.notna().to_numpy()
             if not present.any():
                 continue
+            row = dict(zip(GROUP_KEYS, key, strict=True))
+            if metric in UNKNOWN_IF_ANY_UNKNOWN and not present.all():
+                # A mean over the known part would pass for the whole: it is unknown.
+                row.update(metric=metric, unit=unit_of(metric), n=len(column), mean=math.nan)
+                if n_resamples:
+                    row.update(ci_low=math.nan, ci_high=math.nan, confidence=confidence)
+                rows.append(row)
+                continue
             scale = 100.0 if metric in PERCENT_METRICS else 1.0
             values = finite_values(column[present].to_numpy(np.float64), f"{key} {metric}") * scale
-            row = dict(zip(GROUP_KEYS, key, strict=True))
             row.update(
                 metric=metric, unit=unit_of(metric), n=len(values), mean=float(values.mean())
             )

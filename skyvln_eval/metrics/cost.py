@@ -1,65 +1,104 @@
-"""Cost metrics: LLM calls, tokens, money and latency per episode and per agent module.
+"""LLM use per episode and per agent module: calls, failures, fallbacks, tokens, cost, time.
 
-Inputs are the :class:`~skyvln_eval.metrics.records.LlmCall` records of each
-:class:`~skyvln_eval.metrics.records.EpisodeResult`. Per-episode totals are columns of
-the scores frame (``llm_cost_usd`` sums the priced calls; ``llm_unpriced_calls`` counts
-calls whose model has no price, so a missing price is visible, not free);
-:func:`module_costs` gives one row per (episode, module) and
-:func:`summarise_costs` aggregates either over episodes. An episode without calls (a
-rule-free baseline, a failed start) has zero cost, never a missing value.
+Inputs are the :class:`~skyvln_eval.llm_records.LlmCall` and
+:class:`~skyvln_eval.llm_records.ModuleFailure` records of each
+:class:`~skyvln_eval.metrics.records.EpisodeResult`. Per-episode values are columns of the
+scores frame (:data:`COST_COLUMNS`); :func:`module_costs` gives one row per (episode,
+module) and :func:`summarise_costs` aggregates either over episodes.
+
+Unknown stays unknown: an episode's cost (and token count) is NaN when any of its calls
+had no price or no token count, and every mean over such an episode is NaN too, shown as
+"n/a" (:data:`UNKNOWN_IF_ANY_UNKNOWN`). An episode without calls costs a known 0.
+Rates (call failure rate, fallback rate) are NaN for an episode with nothing to rate (no
+call, no decision) and left out of their means.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import pandas as pd
 
+from skyvln_eval.llm_records import ModuleFailure
 from skyvln_eval.metrics.records import EpisodeResult, LlmCall
 
-#: Per-episode cost columns and their units.
+#: Per-episode LLM columns and their units.
 COST_COLUMNS: dict[str, str] = {
     "llm_calls": "calls",
-    "llm_cached_calls": "calls",
     "llm_failed_calls": "calls",
+    "llm_call_failure_rate": "fraction",
+    "llm_parse_failures": "answers",
+    "llm_repairs": "calls",
+    "llm_cached_calls": "calls",
     "llm_prompt_tokens": "tokens",
     "llm_completion_tokens": "tokens",
     "llm_cost_usd": "USD",
     "llm_unpriced_calls": "calls",
     "llm_latency_s": "s",
+    "llm_queue_s": "s",
+    "decisions": "decisions",
+    "fallback_decisions": "decisions",
+    "fallback_rate": "fraction",
+    "module_failures": "failures",
 }
+#: Columns whose mean is unknown (NaN, "n/a") as soon as one episode's value is.
+UNKNOWN_IF_ANY_UNKNOWN = frozenset({"llm_cost_usd", "llm_prompt_tokens", "llm_completion_tokens"})
 
 
-def call_totals(calls: Sequence[LlmCall]) -> dict[str, float]:
-    """Totals over some calls, keyed as :data:`COST_COLUMNS`."""
+def _sum_known(values: Sequence[float | int | None]) -> float:
+    """The sum, or NaN if any value is unknown."""
+    return math.nan if any(v is None for v in values) else float(sum(v for v in values if v))
+
+
+def call_totals(
+    calls: Sequence[LlmCall], failures: Sequence[ModuleFailure] = (), decisions: int = 0
+) -> dict[str, float]:
+    """Totals over some calls (and the decisions they served), keyed as :data:`COST_COLUMNS`."""
+    finals = [c for c in calls if c.final]
+    failed = sum(c.outcome == "failed" for c in finals)
+    fallback_steps = {f.step_index for f in failures if f.action_fallback}
     return {
-        "llm_calls": float(len(calls)),
-        "llm_cached_calls": float(sum(c.cached for c in calls)),
-        "llm_failed_calls": float(sum(c.error is not None for c in calls)),
-        "llm_prompt_tokens": float(sum(c.prompt_tokens for c in calls)),
-        "llm_completion_tokens": float(sum(c.completion_tokens for c in calls)),
-        "llm_cost_usd": float(sum(c.cost_usd for c in calls if c.cost_usd is not None)),
+        "llm_calls": float(len(finals)),
+        "llm_failed_calls": float(failed),
+        "llm_call_failure_rate": failed / len(finals) if finals else math.nan,
+        "llm_parse_failures": float(sum(c.outcome == "invalid" for c in calls)),
+        "llm_repairs": float(sum(c.repair for c in finals)),
+        "llm_cached_calls": float(sum(c.cached for c in finals)),
+        "llm_prompt_tokens": _sum_known([c.prompt_tokens for c in calls if c.outcome != "failed"]),
+        "llm_completion_tokens": _sum_known(
+            [c.completion_tokens for c in calls if c.outcome != "failed"]
+        ),
+        "llm_cost_usd": _sum_known([c.cost_usd for c in calls]),
         "llm_unpriced_calls": float(sum(c.cost_usd is None for c in calls)),
         "llm_latency_s": float(sum(c.latency_s for c in calls)),
+        "llm_queue_s": float(sum(c.queue_s for c in calls)),
+        "decisions": float(decisions),
+        "fallback_decisions": float(len(fallback_steps)),
+        "fallback_rate": len(fallback_steps) / decisions if decisions else math.nan,
+        "module_failures": float(len(failures)),
     }
 
 
 def episode_costs(results: Sequence[EpisodeResult]) -> pd.DataFrame:
-    """One row per result with its LLM totals (zeros when it made no call)."""
-    zeros = call_totals(())
-    rows = [call_totals(r.llm_calls) if r.llm_calls else zeros for r in results]
+    """One row per result with its LLM totals (zeros and known costs when it made no call)."""
+    rows = [call_totals(r.llm_calls, r.module_failures, r.decisions) for r in results]
     return pd.DataFrame(rows, columns=list(COST_COLUMNS))
 
 
 def module_costs(results: Sequence[EpisodeResult]) -> pd.DataFrame:
-    """One row per (result, agent module that called), with that module's totals."""
+    """One row per (result, agent module that called or failed), with that module's totals."""
     rows = []
     for r in results:
-        by_module: dict[str, list[LlmCall]] = {}
+        calls: dict[str, list[LlmCall]] = {}
+        failures: dict[str, list[ModuleFailure]] = {}
         for call in r.llm_calls:
-            by_module.setdefault(call.module, []).append(call)
-        for module in sorted(by_module):
-            models = sorted({f"{c.backend}:{c.model}" for c in by_module[module]})
+            calls.setdefault(call.module, []).append(call)
+        for failure in r.module_failures:
+            failures.setdefault(failure.module, []).append(failure)
+        for module in sorted(set(calls) | set(failures)):
+            models = sorted({f"{c.backend}:{c.model}" for c in calls.get(module, [])})
+            totals = call_totals(calls.get(module, []), failures.get(module, []))
             rows.append(
                 {
                     "system": r.system,
@@ -68,19 +107,24 @@ def module_costs(results: Sequence[EpisodeResult]) -> pd.DataFrame:
                     "episode_id": r.episode_id,
                     "module": module,
                     "models": ",".join(models),
-                    **call_totals(by_module[module]),
+                    **totals,
                 }
             )
     columns = ["system", "split", "mode", "episode_id", "module", "models", *COST_COLUMNS]
     return pd.DataFrame(rows, columns=columns)
 
 
+_SUMMED = [
+    c for c in COST_COLUMNS if c not in ("llm_call_failure_rate", "fallback_rate", "decisions")
+]
+
+
 def summarise_costs(results: Sequence[EpisodeResult]) -> pd.DataFrame:
-    """Per (system, split, module): totals, per-episode means and mean latency per call.
+    """Per (system, split, module): totals, per-episode means and latency per call.
 
     Per-episode means divide by every episode of the group, including those in which the
     module made no call, so modules compare on the same footing. Module ``"all"`` sums
-    every module.
+    every module. A total with an unknown part is unknown (NaN), never a partial sum.
     """
     per_module = module_costs(results)
     episodes = pd.DataFrame(
@@ -88,18 +132,21 @@ def summarise_costs(results: Sequence[EpisodeResult]) -> pd.DataFrame:
         columns=["system", "split", "mode"],
     )
     if per_module.empty:
-        return pd.DataFrame(
-            columns=["system", "split", "mode", "module", "episodes", *COST_COLUMNS]
-        )
+        return pd.DataFrame(columns=["system", "split", "mode", "module", "episodes", *_SUMMED])
     totals = per_module.copy()
     totals["module"] = "all"
     both = pd.concat([per_module, totals], ignore_index=True)
     keys = ["system", "split", "mode", "module"]
-    summed = both.groupby(keys, sort=True)[list(COST_COLUMNS)].sum().reset_index()
+    summed = (
+        both.groupby(keys, sort=True)[_SUMMED]
+        .agg(lambda column: column.sum(skipna=False))
+        .reset_index()
+    )
     counts = episodes.value_counts(["system", "split", "mode"]).rename("episodes").reset_index()
     out = summed.merge(counts, on=["system", "split", "mode"], how="left")
-    for column in COST_COLUMNS:
+    for column in _SUMMED:
         out[f"{column}_per_episode"] = out[column] / out["episodes"]
     calls = out["llm_calls"].where(out["llm_calls"] > 0)
     out["latency_per_call_s"] = (out["llm_latency_s"] / calls).fillna(0.0)
+    out["call_failure_rate"] = (out["llm_failed_calls"] / calls).fillna(0.0)
     return out

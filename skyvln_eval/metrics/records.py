@@ -15,7 +15,7 @@ The file formats are in :mod:`skyvln_eval.metrics.results_io`.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any, Literal, get_args
 
@@ -24,11 +24,29 @@ from numpy.typing import ArrayLike, NDArray
 
 from skyvln_eval.avdn.constants import EPISODE_MODES, EpisodeMode
 from skyvln_eval.errors import ResultRecordError, ValidationIssue
+from skyvln_eval.llm_records import LlmCall, ModuleFailure, module_usage
 
-ResultStatus = Literal["ok", "failed"]
-#: ``ok``: the agent stopped or hit the step cap; ``failed``: the episode crashed (the
-#: harness, the agent or the controller raised); a failed episode never counts as success.
+ResultStatus = Literal["ok", "degraded", "error"]
+#: ``ok``: the agent flew the episode with every answer it asked for; ``degraded``: it
+#: flew it, but some decision used a fallback action or some module's answer could not be
+#: used; ``error``: the episode raised (harness, agent or controller), or no LLM call of it
+#: gave a usable answer. The rates of each are reported; an ``error`` episode never counts
+#: as a success (its distances still describe whatever it flew).
 RESULT_STATUSES: tuple[ResultStatus, ...] = get_args(ResultStatus)
+
+
+def judge_status(
+    calls: Sequence[LlmCall], failures: Sequence[ModuleFailure], agent_error: str | None
+) -> tuple[ResultStatus, str | None]:
+    """An episode's status and, for ``error``, why (the first error text)."""
+    if agent_error is not None:
+        return "error", agent_error
+    if calls and not any(c.outcome == "ok" for c in calls):
+        first = next((c.error for c in calls if c.error), "no answer")
+        return "error", f"no LLM call of the episode gave a usable answer; first error: {first}"
+    if failures:
+        return "degraded", None
+    return "ok", None
 
 
 def _issue(message: str, field_name: str, episode_id: str | None) -> ResultRecordError:
@@ -65,55 +83,6 @@ def as_views(
         )
     arr.setflags(write=False)
     return arr
-
-
-@dataclass(frozen=True)
-class LlmCall:
-    """One LLM call made by an agent module during an episode.
-
-    ``module`` is the agent part that called (``"subgoals"``, ``"hsd_describe"``,
-    ``"hsd_rank"``, ``"motion"``, ``"clarify"``, ...); ``cost_usd`` and ``latency_s`` are
-    what the call cost and took (0 for a cache hit's cost is the caller's choice;
-    ``cost_usd`` is ``None`` when the price table has no entry for the model, so an
-    unknown price is never reported as free); ``error`` is the error message when the call
-    failed.
-    """
-
-    module: str
-    backend: str
-    model: str
-    prompt_tokens: int
-    completion_tokens: int
-    cost_usd: float | None
-    latency_s: float
-    cached: bool = False
-    error: str | None = None
-
-    def __post_init__(self) -> None:
-        for name in ("prompt_tokens", "completion_tokens"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-                raise _issue(
-                    f"must be a non-negative integer, got {value!r}", f"llm_calls.{name}", None
-                )
-        for name in ("cost_usd", "latency_s"):
-            value = getattr(self, name)
-            if value is None and name == "cost_usd":
-                continue
-            if (
-                isinstance(value, bool)
-                or not isinstance(value, int | float)
-                or not math.isfinite(value)
-                or value < 0
-            ):
-                raise _issue(
-                    f"must be a finite non-negative number, got {value!r}",
-                    f"llm_calls.{name}",
-                    None,
-                )
-
-    def to_json_dict(self) -> dict[str, Any]:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
 @dataclass(frozen=True)
@@ -178,7 +147,9 @@ class EpisodeResult:
       ``"rule-based backend"``); rows are labelled by it.
     - ``control_log``: where the episode's control log (parquet) lives, relative to the
       results file, so the safety metrics can be recomputed; ``control`` its summary.
-    - ``extra``: JSON-able extra facts (seeds, config hashes), kept verbatim.
+    - ``decisions``: how many decisions the agent made; ``module_failures``: the modules
+      whose answers could not be used, per decision (see :func:`judge_status`).
+    - ``extra``: JSON-able extra facts (seeds, config hashes, wall time), kept verbatim.
     """
 
     episode_id: str
@@ -192,7 +163,19 @@ class EpisodeResult:
     control: ControlSummary | None = None
     control_log: str | None = None
     llm_calls: tuple[LlmCall, ...] = ()
+    decisions: int = 0
+    module_failures: tuple[ModuleFailure, ...] = ()
     extra: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def fallback_decisions(self) -> int:
+        """Decisions whose action was the safe fallback (the action module failed)."""
+        return len({f.step_index for f in self.module_failures if f.action_fallback})
+
+    def llm_modules(self) -> dict[str, dict[str, Any]]:
+        """Per agent module: calls, failed calls, parse failures, repairs, fallbacks, tokens
+        and LLM seconds (:func:`~skyvln_eval.llm_records.module_usage`)."""
+        return module_usage(self.llm_calls, self.module_failures)
 
     def __post_init__(self) -> None:
         eid = self.episode_id if isinstance(self.episode_id, str) else None
@@ -210,15 +193,31 @@ class EpisodeResult:
         object.__setattr__(
             self, "gt_path_corners", as_views(self.gt_path_corners, "gt_path_corners", eid, 1)
         )
-        if len(self.visited_views) == 0 and self.status == "ok":
+        if len(self.visited_views) == 0 and self.status != "error":
             raise _issue(
-                "an 'ok' episode must include at least its start view", "visited_views", eid
+                f"a {self.status!r} episode must include at least its start view",
+                "visited_views",
+                eid,
             )
+        if self.status == "error" and not self.error:
+            raise _issue("an 'error' episode must say what went wrong", "error", eid)
+        if isinstance(self.decisions, bool) or not isinstance(self.decisions, int):
+            raise _issue(f"must be an integer, got {self.decisions!r}", "decisions", eid)
+        if self.decisions < 0:
+            raise _issue(f"must be >= 0, got {self.decisions}", "decisions", eid)
         object.__setattr__(self, "llm_calls", tuple(self.llm_calls))
+        object.__setattr__(self, "module_failures", tuple(self.module_failures))
         for call in self.llm_calls:
             if not isinstance(call, LlmCall):
                 raise _issue(
                     f"expected LlmCall records, got {type(call).__name__}", "llm_calls", eid
+                )
+        for failure in self.module_failures:
+            if not isinstance(failure, ModuleFailure):
+                raise _issue(
+                    f"expected ModuleFailure records, got {type(failure).__name__}",
+                    "module_failures",
+                    eid,
                 )
 
     @property
@@ -240,6 +239,8 @@ class EpisodeResult:
             and self.control == other.control
             and self.control_log == other.control_log
             and self.llm_calls == other.llm_calls
+            and self.decisions == other.decisions
+            and self.module_failures == other.module_failures
             and dict(self.extra) == dict(other.extra)
         )
 

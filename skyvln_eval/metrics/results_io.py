@@ -8,31 +8,38 @@ result::
      "system": "SkyVLN full", "status": "ok", "error": null,
      "visited_views": [[[lat, lng] x 4], ...], "gt_path_corners": [[[lat, lng] x 4], ...],
      "control": null | {ControlSummary fields}, "control_log": null | "logs/x.parquet",
-     "llm_calls": [{LlmCall fields}, ...], "extra": {}}
+     "llm_calls": [{LlmCall fields}, ...], "decisions": 9,
+     "module_failures": [{ModuleFailure fields}, ...],
+     "llm_modules": {module: {calls, failed_calls, ...}}, "extra": {}}
+
+``llm_modules`` is derived from ``llm_calls`` and ``module_failures`` and written for
+readers of the file only.
 
 Floats are written with Python's shortest round-trip repr, so reading gives back the
 same bits. Parquet (``.parquet``) holds the same rows, views as nested float64 lists and
-``control`` / ``llm_calls`` / ``extra`` as JSON text; the format and version are in the
-file's schema metadata. Both readers check the version and name the file, row and field
-of any problem. Writers write to a temporary name and rename.
+``control`` / ``llm_calls`` / ``module_failures`` / ``extra`` as JSON text; the format and
+version are in the file's schema metadata. Both readers check the version and name the
+file, row and field of any problem. Writers write to a temporary name and rename.
 """
 
 from __future__ import annotations
 
 import io
 import json
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
 from skyvln_eval.errors import DataError, FormatVersionError, ResultRecordError, ValidationIssue
 from skyvln_eval.fileio import atomic_write_bytes
-from skyvln_eval.metrics.records import ControlSummary, EpisodeResult, LlmCall
+from skyvln_eval.llm_records import LlmCall, ModuleFailure
+from skyvln_eval.metrics.records import ControlSummary, EpisodeResult
 
+T = TypeVar("T")
 RESULTS_FORMAT = "skyvln-eval.episode-results"
-RESULTS_VERSION = 1
+RESULTS_VERSION = 2
 _FIELDS = (
     "episode_id",
     "split",
@@ -45,8 +52,13 @@ _FIELDS = (
     "control",
     "control_log",
     "llm_calls",
+    "decisions",
+    "module_failures",
     "extra",
 )
+#: Written for readers of the file (jq, pandas), derived from the rows' own records and
+#: not read back: per agent module, calls, failures, repairs, fallbacks, tokens, LLM time.
+_DERIVED = ("llm_modules",)
 _UPGRADE_HINT = "Rewrite the results with this toolkit version (rerun or convert the run)."
 
 
@@ -64,6 +76,9 @@ def result_to_json_dict(result: EpisodeResult) -> dict[str, Any]:
         "control": None if result.control is None else result.control.to_json_dict(),
         "control_log": result.control_log,
         "llm_calls": [c.to_json_dict() for c in result.llm_calls],
+        "decisions": result.decisions,
+        "module_failures": [f.to_json_dict() for f in result.module_failures],
+        "llm_modules": result.llm_modules(),
         "extra": dict(result.extra),
     }
 
@@ -74,6 +89,25 @@ def _where(
     return ResultRecordError(ValidationIssue(file, message, row, episode_id, field))
 
 
+def _records(items: Any, name: str, parse: Callable[[Any], T]) -> tuple[T, ...]:
+    """Each item parsed; a bad one's error names ``name[index].field``."""
+    if not isinstance(items, list):
+        raise ResultRecordError(ValidationIssue("<json>", "must be a list", field=name))
+    out = []
+    for index, item in enumerate(items):
+        try:
+            out.append(parse(item))
+        except ResultRecordError as error:
+            where = f"{name}[{index}]" + (f".{error.issue.field}" if error.issue.field else "")
+            issue = ValidationIssue("<json>", error.issue.message, field=where)
+            raise ResultRecordError(issue) from None
+        except TypeError as error:  # a missing or misspelt key
+            raise ResultRecordError(
+                ValidationIssue("<json>", str(error), field=f"{name}[{index}]")
+            ) from None
+    return tuple(out)
+
+
 def result_from_json_dict(data: Any, file: str = "<json>", row: int = 0) -> EpisodeResult:
     """Parse one row; errors name ``file``, ``row``, the episode and the field."""
     if not isinstance(data, dict):
@@ -82,12 +116,15 @@ def result_from_json_dict(data: Any, file: str = "<json>", row: int = 0) -> Epis
     missing = [k for k in _FIELDS if k not in data]
     if missing:
         raise _where(file, row, eid, missing[0], f"missing required key(s) {missing}")
-    unknown = sorted(set(data) - set(_FIELDS))
+    unknown = sorted(set(data) - set(_FIELDS) - set(_DERIVED))
     if unknown:
         raise _where(file, row, eid, unknown[0], f"unknown key(s) {unknown}")
     try:
         control = None if data["control"] is None else ControlSummary(**data["control"])
-        calls = tuple(LlmCall(**c) for c in data["llm_calls"])
+        calls = _records(data["llm_calls"], "llm_calls", LlmCall.from_json_dict)
+        failures = _records(
+            data["module_failures"], "module_failures", ModuleFailure.from_json_dict
+        )
         if not isinstance(data["extra"], dict):
             raise _where(file, row, eid, "extra", "must be a JSON object")
         return EpisodeResult(
@@ -104,6 +141,8 @@ def result_from_json_dict(data: Any, file: str = "<json>", row: int = 0) -> Epis
             control=control,
             control_log=data["control_log"],
             llm_calls=calls,
+            decisions=data["decisions"],
+            module_failures=failures,
             extra=data["extra"],
         )
     except ResultRecordError as exc:
@@ -195,6 +234,11 @@ def _parquet_table(results: Sequence[EpisodeResult]) -> Any:
         "llm_calls": pa.array(
             [json.dumps([c.to_json_dict() for c in r.llm_calls]) for r in results], pa.string()
         ),
+        "decisions": pa.array([r.decisions for r in results], pa.int64()),
+        "module_failures": pa.array(
+            [json.dumps([f.to_json_dict() for f in r.module_failures]) for r in results],
+            pa.string(),
+        ),
         "extra": pa.array(
             [json.dumps(dict(r.extra), sort_keys=True) for r in results], pa.string()
         ),
@@ -231,7 +275,7 @@ def results_from_parquet_bytes(data: bytes, file: str = "<parquet>") -> list[Epi
         raise FormatVersionError(file, version, RESULTS_VERSION, _UPGRADE_HINT)
     results = []
     for row, rec in enumerate(table.to_pylist()):
-        for key in ("control", "llm_calls", "extra"):
+        for key in ("control", "llm_calls", "module_failures", "extra"):
             rec[key] = None if rec[key] is None else json.loads(rec[key])
         results.append(result_from_json_dict(rec, file, row))
     check_unique(results, file)

@@ -19,7 +19,7 @@ from skyvln_eval.metrics.conventions import MetricConventions
 from skyvln_eval.metrics.cost import COST_COLUMNS, episode_costs
 from skyvln_eval.metrics.official import OFFICIAL_COLUMNS, official_metrics
 from skyvln_eval.metrics.r2r import R2R_COLUMNS, r2r_metrics
-from skyvln_eval.metrics.records import EpisodeResult
+from skyvln_eval.metrics.records import RESULT_STATUSES, EpisodeResult
 from skyvln_eval.metrics.results_io import check_unique
 
 KEY_COLUMNS = ("system", "split", "mode", "episode_id")
@@ -41,12 +41,20 @@ CONTROL_COLUMNS: dict[str, str] = {
     "solve_time_p95_ms": "ms",
 }
 
+#: Share of episodes of each status (0/1 per episode; percent when summarised), and the
+#: episode's wall time.
+STATUS_COLUMNS: dict[str, str] = {
+    **{f"status_{status}": "0/1" for status in RESULT_STATUSES},
+    "wall_s": "s",
+}
+
 #: Every metric column of the scores frame with its unit.
 METRIC_UNITS: dict[str, str] = {
     **OFFICIAL_COLUMNS,
     **R2R_COLUMNS,
     **COST_COLUMNS,
     **CONTROL_COLUMNS,
+    **STATUS_COLUMNS,
 }
 
 
@@ -66,7 +74,9 @@ def score_results(
     visited = pack_views(
         [r.visited_views for r in results], stand_ins=[r.gt_path_corners[0] for r in results]
     )
-    ok = np.array([r.status == "ok" for r in results]) & ~visited.empty
+    # An 'error' episode never succeeds, whatever it flew (its distances still describe
+    # its path); a 'degraded' one is scored on its views like an 'ok' one.
+    ok = np.array([r.status != "error" for r in results]) & ~visited.empty
     frame = pd.DataFrame(
         {
             "system": [r.system for r in results],
@@ -82,6 +92,11 @@ def score_results(
     metrics.update(r2r_metrics(visited, gt, ok, conventions))
     for name, values in metrics.items():
         frame[name] = values
+    for status in RESULT_STATUSES:  # rates of each status, reported like any metric
+        frame[f"status_{status}"] = [float(r.status == status) for r in results]
+    frame["wall_s"] = pd.array(
+        [r.extra.get("wall_s") for r in results], dtype="Float64"
+    )  # episode wall time, where the run recorded it
     frame = pd.concat([frame, episode_costs(results)], axis=1)
     frame["has_control"] = [r.control is not None for r in results]
     with_control = [k for k, r in enumerate(results) if r.control is not None]

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -30,7 +31,8 @@ from skyvln_eval.metrics.conventions import MetricConventions
 
 @dataclass(frozen=True)
 class TableSpec:
-    """Shape of a table: column groups ``(split, title)`` and metrics ``(key, label)``."""
+    """Shape of a table: column groups ``(split, title)`` and metrics ``(key, label)``;
+    ``digits`` overrides the table's number of decimals for some metrics."""
 
     name: str
     row_header: str
@@ -38,6 +40,10 @@ class TableSpec:
     metrics: tuple[tuple[str, str], ...]
     caption: str
     label: str
+    digits: tuple[tuple[str, int], ...] = ()
+
+    def digits_of(self, metric: str, default: int) -> int:
+        return dict(self.digits).get(metric, default)
 
 
 TABLE_I = TableSpec(
@@ -56,9 +62,23 @@ TABLE_II = TableSpec(
     name="table2",
     row_header="LLM",
     groups=(("test_unseen", "Unseen Testing"),),
-    metrics=(("spl", "SPL/%"), ("success", "SR/%"), ("ne_m", "NE/m")),
-    caption="Ablation over LLM backends.",
+    metrics=(
+        ("spl", "SPL/%"),
+        ("success", "SR/%"),
+        ("ne_m", "NE/m"),
+        ("fallback_rate", "Fallback/%"),
+        ("llm_call_failure_rate", "Call fail/%"),
+        ("status_error", "Error/%"),
+        ("llm_cost_usd", "Cost/$"),
+        ("llm_latency_s", "LLM s"),
+    ),
+    caption=(
+        "Ablation over LLM backends. Fallback: decisions that used the fallback action; "
+        "Call fail: LLM calls with no answer after retries; Error: episodes with no usable "
+        "LLM answer or that raised; Cost and LLM s: per episode (n/a: unknown)."
+    ),
     label="tab:results_backends",
+    digits=(("llm_cost_usd", 4),),
 )
 TABLES = {spec.name: spec for spec in (TABLE_I, TABLE_II)}
 
@@ -81,14 +101,18 @@ class Table:
     conventions: MetricConventions
     digits: int
     show_ci: bool
+    notes: tuple[str, ...] = ()
 
     @property
     def columns(self) -> list[tuple[str, str]]:
         return [(split, metric) for split, _ in self.spec.groups for metric, _ in self.spec.metrics]
 
+    def digits_of(self, column: tuple[str, str]) -> int:
+        return self.spec.digits_of(column[1], self.digits)
+
 
 def _ranks(values: dict[str, float], lower_is_better: bool, digits: int) -> dict[str, int]:
-    shown = {row: round(v, digits) for row, v in values.items()}
+    shown = {row: round(v, digits) for row, v in values.items() if not math.isnan(v)}
     distinct = sorted(set(shown.values()), reverse=not lower_is_better)
     ranks = {}
     for row, v in shown.items():
@@ -106,8 +130,10 @@ def build_table(
     mode: str = "andh",
     digits: int = 2,
     show_ci: bool = False,
+    notes: Sequence[str] = (),
 ) -> Table:
-    """Arrange a summary into ``spec``'s shape. ``rows``: systems in order (default: all)."""
+    """Arrange a summary into ``spec``'s shape. ``rows``: systems in order (default: all);
+    ``notes``: footnotes every rendering carries (e.g. what a row marker means)."""
     sel = summary[summary["mode"] == mode]
     if sel.empty:
         raise MetricInputError(f"the summary has no {mode!r} episodes")
@@ -128,7 +154,7 @@ def build_table(
                 key = (row, split, metric)
                 present[row] = index.loc[key] if key in index.index else None
             means = {r: float(v["mean"]) for r, v in present.items() if v is not None}
-            ranks = _ranks(means, metric in LOWER_IS_BETTER, digits)
+            ranks = _ranks(means, metric in LOWER_IS_BETTER, spec.digits_of(metric, digits))
             for row, v in present.items():
                 if v is None:
                     cells[row][(split, metric)] = None
@@ -136,12 +162,14 @@ def build_table(
                 low = float(v["ci_low"]) if show_ci else None
                 high = float(v["ci_high"]) if show_ci else None
                 cells[row][(split, metric)] = Cell(float(v["mean"]), low, high, ranks.get(row))
-    return Table(spec, row_names, cells, conventions, digits, show_ci)
+    return Table(spec, row_names, cells, conventions, digits, show_ci, tuple(notes))
 
 
 def _number(cell: Cell | None, digits: int, with_ci: bool) -> str:
     if cell is None:
         return "-"
+    if math.isnan(cell.mean):
+        return "n/a"  # unknown (e.g. a cost without a price), never shown as a number
     text = f"{cell.mean:.{digits}f}"
     if with_ci and cell.ci_low is not None:
         text += f" [{cell.ci_low:.{digits}f}, {cell.ci_high:.{digits}f}]"
@@ -167,7 +195,7 @@ def to_markdown(table: Table) -> str:
         out = [row.replace("|", "\\|")]
         for column in table.columns:
             cell = table.cells[row][column]
-            text = _number(cell, table.digits, table.show_ci)
+            text = _number(cell, table.digits_of(column), table.show_ci)
             if cell is not None and cell.rank == 1:
                 text = f"**{text}**"
             elif cell is not None and cell.rank == 2:
@@ -177,7 +205,9 @@ def to_markdown(table: Table) -> str:
     ci = " Brackets: 95% bootstrap CI." if table.show_ci else ""
     lines += [
         "",
-        f"Best in bold, second underlined.{ci} Conventions: {table.conventions.describe()}.",
+        f"{spec.caption} Best in bold, second underlined.{ci} "
+        f"Conventions: {table.conventions.describe()}.",
+        *(["", *table.notes] if table.notes else []),
     ]
     return "\n".join(lines) + "\n"
 
@@ -201,7 +231,7 @@ def to_latex(table: Table) -> str:
         r"% needs \usepackage{booktabs} and \usepackage{multirow}",
         r"\begin{table}[t]",
         r"\centering",
-        f"\\caption{{{latex_escape(spec.caption)}}}",
+        f"\\caption{{{latex_escape(' '.join((spec.caption, *table.notes)))}}}",
         f"\\label{{{spec.label}}}",
         r"\begin{tabular}{l " + " ".join(["c" * n_metrics] * len(spec.groups)) + "}",
         r"\toprule",
@@ -227,13 +257,14 @@ def to_latex(table: Table) -> str:
         out = [latex_escape(row)]
         for column in table.columns:
             cell = table.cells[row][column]
-            text = _number(cell, table.digits, False)
+            digits = table.digits_of(column)
+            text = _number(cell, digits, False)
             if cell is not None and cell.rank == 1:
                 text = f"\\textbf{{{text}}}"
             elif cell is not None and cell.rank == 2:
                 text = f"\\underline{{{text}}}"
             if table.show_ci and cell is not None and cell.ci_low is not None:
-                low, high = f"{cell.ci_low:.{table.digits}f}", f"{cell.ci_high:.{table.digits}f}"
+                low, high = f"{cell.ci_low:.{digits}f}", f"{cell.ci_high:.{digits}f}"
                 text += f"\\,{{\\scriptsize[{low}, {high}]}}"
             out.append(text)
         lines.append(" & ".join(out) + r" \\")
@@ -245,6 +276,8 @@ def to_csv(table: Table) -> str:
     """One line per system: mean (and CI bounds) per split and metric; conventions first."""
     buffer = io.StringIO()
     buffer.write(f"# conventions: {table.conventions.to_json()}\n")
+    for note in table.notes:
+        buffer.write(f"# note: {note}\n")
     writer = csv.writer(buffer, lineterminator="\n")
     header = [table.spec.row_header]
     for split, metric in table.columns:
@@ -256,7 +289,10 @@ def to_csv(table: Table) -> str:
         out: list[str] = [row]
         for column in table.columns:
             cell = table.cells[row][column]
-            out.append("" if cell is None else repr(cell.mean))
+            if cell is None:
+                out.append("")
+            else:  # unknown means (pandas reads "n/a" back as NaN)
+                out.append("n/a" if math.isnan(cell.mean) else repr(cell.mean))
             if table.show_ci:
                 out += ["", ""] if cell is None else [repr(cell.ci_low), repr(cell.ci_high)]
         writer.writerow(out)

@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 
 import jsonschema
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from skyvln_eval.agent import (
     Climb,
@@ -19,6 +22,7 @@ from skyvln_eval.agent import (
     decision_json_schema,
     parse_decision,
 )
+from skyvln_eval.agent.actions import ACTION_SPECS, FieldSpec
 from skyvln_eval.errors import ActionParseError
 
 LANDMARKS = {"L3": (30.0, -40.0)}
@@ -116,21 +120,72 @@ def test_hostile_output_is_rejected_never_executed(text: str, reason: str) -> No
         parse_decision(text, LANDMARKS)
 
 
-def test_the_decision_schema_is_valid_and_matches_the_parser() -> None:
+def _instance(kind: str, value_of: Callable[[FieldSpec], object]) -> dict[str, object]:
+    return {"type": kind, **{spec.name: value_of(spec) for spec in ACTION_SPECS[kind]}}
+
+
+def _agree(validator: jsonschema.Draft202012Validator, action: dict[str, object]) -> bool:
+    """Whether schema and parser give the same verdict on ``action``; returns the verdict."""
+    text = decision(action)
+    by_schema = validator.is_valid(json.loads(text))
+    try:
+        parse_decision(text, LANDMARKS)
+        by_parser = True
+    except ActionParseError:
+        by_parser = False
+    assert by_schema == by_parser, (action, by_schema, by_parser)
+    return by_parser
+
+
+def _in_range(spec: FieldSpec, where: float) -> object:
+    if spec.kind == "string":
+        return "L3"
+    return spec.low + where * (spec.high - spec.low)
+
+
+def test_the_decision_schema_is_a_union_with_exactly_each_actions_fields() -> None:
     schema = decision_json_schema()
     jsonschema.Draft202012Validator.check_schema(schema)
-    full = {
-        "thought": "t",
-        "action": {
-            "type": "move_forward",
-            "distance_m": 30,
-            "degrees": None,
-            "landmark": None,
-            "height_m": None,
-            "x": None,
-            "y": None,
-            "altitude": None,
-        },
-    }
-    jsonschema.validate(full, schema)
-    assert parse_decision(json.dumps(full), {})[1] == Move("forward", 30.0)
+    variants = schema["properties"]["action"]["anyOf"]
+    assert [v["properties"]["type"]["enum"] for v in variants] == [[k] for k in ACTION_SPECS]
+    for variant, (kind, specs) in zip(variants, ACTION_SPECS.items(), strict=True):
+        assert set(variant["properties"]) == {"type", *(spec.name for spec in specs)}, kind
+        assert variant["additionalProperties"] is False
+
+
+@settings(max_examples=60, deadline=None)
+@given(where=st.floats(0.0, 1.0), kind=st.sampled_from(list(ACTION_SPECS)))
+def test_whatever_the_schema_allows_the_parser_accepts(where: float, kind: str) -> None:
+    validator = jsonschema.Draft202012Validator(decision_json_schema())
+    assert _agree(validator, _instance(kind, lambda spec: _in_range(spec, where)))
+
+
+def test_what_the_schema_refuses_the_parser_refuses_with_a_reason() -> None:
+    validator = jsonschema.Draft202012Validator(decision_json_schema())
+    for kind, specs in ACTION_SPECS.items():
+        valid = _instance(kind, lambda spec: _in_range(spec, 0.5))
+        for spec in specs:
+            if spec.kind == "number":  # just outside the range, on both sides
+                for outside in (spec.low - 1.0, spec.high + 1.0, 10**400):
+                    assert not _agree(validator, {**valid, spec.name: outside})
+            if spec.required:  # a required field missing
+                assert not _agree(validator, {k: v for k, v in valid.items() if k != spec.name})
+        others = {spec.name for specs_ in ACTION_SPECS.values() for spec in specs_}
+        for name in sorted(others - {spec.name for spec in specs}):  # another action's field
+            assert not _agree(validator, {**valid, name: 1.0})
+        assert not _agree(validator, {**valid, "code": "import os"})
+
+
+def test_an_absurd_number_from_a_real_model_is_refused_with_a_reason_not_a_crash() -> None:
+    # What Gemma 3 270M wrote under a grammar (see shared/REAL_LLM.md), and worse.
+    for text in (
+        decision({"type": "move_forward", "distance_m": 2e15}),
+        '{"thought": "x", "action": {"type": "turn", "degrees": ' + "9" * 400 + "}}",
+        '{"thought": "x", "action": {"type": "turn", "degrees": ' + "9" * 5000 + "}}",
+        '{"thought": "x", "action": {"type": "turn", "degrees": 1e999}}',
+    ):
+        with pytest.raises(ActionParseError, match=r"outside|finite|usable"):
+            parse_decision(text, LANDMARKS)
+    # A raw newline inside the thought is harmless and accepted.
+    raw = '{"thought": "line one\nline two", "action": {"type": "stop"}}'
+    assert parse_decision(raw, LANDMARKS)[1] == Stop()

@@ -13,8 +13,9 @@ from skyvln_eval.agent.perception import Perception, PerceptionConfig
 from skyvln_eval.agent.skyvln import SkyVLNAgent
 from skyvln_eval.errors import ConfigError, UnknownNameError
 from skyvln_eval.harness import OfficialRollout, official_success, run_official_episode
-from skyvln_eval.llm import LLMClient, LLMConfig, create_backend, read_task_block
-from skyvln_eval.llm.types import Message
+from skyvln_eval.llm import GenerationConfig, LLMClient, LLMConfig, create_backend, read_task_data
+from skyvln_eval.llm.rule import RuleBackend
+from skyvln_eval.llm.types import Completion, Message
 from skyvln_eval.sim.camera import CameraImages
 from skyvln_eval.worlds.tile import SemanticClass, WorldTile
 from tests.toy_worlds import town_episode, town_world
@@ -23,19 +24,33 @@ RED = "Go north. The destination is a small restaurant with a red roof."
 PERFECT = {"detector": {"miss_rate": 0.0, "false_positive_rate": 0.0}}
 
 
-def run(config: AgentConfig, instruction: str = RED, max_steps: int = 10) -> OfficialRollout:
+class RecordingRule(RuleBackend):
+    """The rule backend, keeping the task data of every request and the text sent."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.requests: list[tuple[dict[str, object], list[Message]]] = []
+
+    def generate(self, messages: Sequence[Message], config: GenerationConfig) -> Completion:
+        self.requests.append((read_task_data(messages), list(messages)))
+        return super().generate(messages, config)
+
+
+def run(
+    config: AgentConfig,
+    instruction: str = RED,
+    max_steps: int = 10,
+    backend: RuleBackend | None = None,
+) -> OfficialRollout:
     episode = town_episode(instruction)
-    return run_official_episode(build_agent(config), episode, town_world(), max_steps=max_steps)
+    agent = build_agent(config, LLMClient(backend or RuleBackend()))
+    return run_official_episode(agent, episode, town_world(), max_steps=max_steps)
 
 
-def motion_states(rollout: OfficialRollout) -> list[dict[str, object]]:
-    states = []
-    for trace in rollout.traces:
-        for exchange in trace["exchanges"]:
-            if exchange["module"] == "motion":
-                messages = [Message(p["role"], p["text"]) for p in exchange["prompt"]]
-                states.append(read_task_block(messages))
-    return states
+def motion_states(config: AgentConfig) -> list[dict[str, object]]:
+    backend = RecordingRule()
+    run(config, backend=backend)
+    return [data for data, _ in backend.requests if data["task"] == "motion"]
 
 
 def test_the_full_agent_finds_the_described_landmark_and_stops_over_it() -> None:
@@ -53,7 +68,7 @@ def test_the_full_agent_finds_the_described_landmark_and_stops_over_it() -> None
 def test_without_hsd_the_descriptor_is_coarse_and_nothing_is_ranked() -> None:
     rollout = run(AgentConfig.model_validate({**PERFECT, "hsd": False}))
     assert not {"hsd_describe", "hsd_rank"} & {r.module for r in rollout.llm_calls}
-    state = motion_states(rollout)[0]
+    state = motion_states(AgentConfig.model_validate({**PERFECT, "hsd": False}))[0]
     assert state["descriptor"] == "coarse" and state["matches"] == {}
     landmarks = state["landmarks"]
     assert isinstance(landmarks, list) and landmarks
@@ -63,9 +78,9 @@ def test_without_hsd_the_descriptor_is_coarse_and_nothing_is_ranked() -> None:
 def test_without_tbma_there_is_no_memory_of_the_path() -> None:
     rollout = run(AgentConfig.model_validate({**PERFECT, "tbma": False}))
     assert all(t["memory"] is None for t in rollout.traces)
-    state = motion_states(rollout)[0]
+    state = motion_states(AgentConfig.model_validate({**PERFECT, "tbma": False}))[0]
     assert state["memory"] is None and state["odometry"] is None
-    with_memory = motion_states(run(AgentConfig.model_validate(PERFECT)))[0]
+    with_memory = motion_states(AgentConfig.model_validate(PERFECT))[0]
     assert with_memory["odometry"] is not None and with_memory["memory"] is not None
 
 

@@ -16,7 +16,7 @@ from skyvln_eval.agent.hsd import (
 )
 from skyvln_eval.agent.perception import Panorama, Sighting
 from skyvln_eval.agent.subgoals import SubGoal
-from skyvln_eval.llm import GenerationConfig, LLMClient, create_backend
+from skyvln_eval.llm import LLMClient, LLMConfig, create_backend
 from skyvln_eval.llm.simple import ScriptedBackend
 
 SIZE = (224, 224)
@@ -102,7 +102,7 @@ def test_fine_entries_carry_sector_distance_and_bearing_and_coarse_ones_do_not()
     assert entry["distance_m"] == pytest.approx(100.0)
     assert entry["bearing_deg"] == pytest.approx(53.1, abs=0.1)
     assert entry["relative_bearing_deg"] == pytest.approx(23.1, abs=0.1)
-    coarse = SpatialDescriptor(LLMClient(ScriptedBackend()), GenerationConfig(), enabled=False)
+    coarse = SpatialDescriptor(LLMClient(ScriptedBackend()), LLMConfig(), enabled=False)
     [first, *_] = coarse.entries(PANORAMA, 30.0)
     assert first == {
         "id": "L1",
@@ -116,7 +116,7 @@ def test_fine_entries_carry_sector_distance_and_bearing_and_coarse_ones_do_not()
 
 def test_hsd_describes_each_candidate_then_ranks_them() -> None:
     client = LLMClient(create_backend("rule"))
-    hsd = SpatialDescriptor(client, GenerationConfig(), enabled=True, top_k=3)
+    hsd = SpatialDescriptor(client, LLMConfig(), enabled=True, top_k=3)
     goal = SubGoal("destination", landmark="a small restaurant with a red roof")
     result = hsd.match([goal], PANORAMA, 0.0, memory_notes=None)
     [match] = result.matches
@@ -142,7 +142,7 @@ def test_hsd_asks_memory_when_candidates_tie_and_the_memory_decides() -> None:
         asked.append(list(ids))
         return {"L1": "recognised at the start from an earlier round, so already reached"}
 
-    hsd = SpatialDescriptor(LLMClient(create_backend("rule")), GenerationConfig(), enabled=True)
+    hsd = SpatialDescriptor(LLMClient(create_backend("rule")), LLMConfig(), enabled=True)
     goal = SubGoal("destination", landmark="a church with a cross-shaped red roof")
     [match] = hsd.match([goal], twins, 0.0, memory_notes=notes).matches
     assert asked == [["L1", "L2"]] and match.asked_memory and match.ambiguous
@@ -153,8 +153,8 @@ def test_hsd_asks_memory_when_candidates_tie_and_the_memory_decides() -> None:
 
 def test_an_unusable_ranking_falls_back_to_the_proposal_order_and_is_recorded() -> None:
     describe = json.dumps({"description": "looks right", "match": "strong"})
-    script = [describe, describe, describe, "I think L2 is best!"]
-    hsd = SpatialDescriptor(LLMClient(ScriptedBackend(script)), GenerationConfig(), enabled=True)
+    script = [describe, describe, describe, "I think L2 is best!", "Really, L2."]
+    hsd = SpatialDescriptor(LLMClient(ScriptedBackend(script)), LLMConfig(), enabled=True)
     goal = SubGoal("destination", landmark="a small restaurant with a red roof")
     result = hsd.match([goal], PANORAMA, 0.0, memory_notes=None)
     [match] = result.matches
@@ -163,10 +163,13 @@ def test_an_unusable_ranking_falls_back_to_the_proposal_order_and_is_recorded() 
     assert result.records[-1].error is not None and result.records[-1].error.startswith(
         "invalid output"
     )
+    assert [r.repair for r in result.records[-2:]] == [False, True]  # asked again once
+    [failure] = result.failures  # and the fallback is on record
+    assert failure.module == "hsd_rank" and failure.substitute == "proposal order"
 
 
 def test_hsd_off_makes_no_calls() -> None:
     backend = ScriptedBackend()
-    hsd = SpatialDescriptor(LLMClient(backend), GenerationConfig(), enabled=False)
+    hsd = SpatialDescriptor(LLMClient(backend), LLMConfig(), enabled=False)
     result = hsd.match([SubGoal("destination", landmark="a church")], PANORAMA, 0.0, None)
     assert result.matches == [] and result.records == [] and backend.calls == []

@@ -6,10 +6,10 @@ import json
 
 import pytest
 
-from skyvln_eval.agent.subgoals import SubGoal, parse_subgoals, subgoal_messages
+from skyvln_eval.agent.subgoals import DialogText, SubGoal, parse_subgoals, subgoal_messages
 from skyvln_eval.avdn import parse_utterances
 from skyvln_eval.errors import ActionParseError
-from skyvln_eval.llm import GenerationConfig, create_backend, read_task_block
+from skyvln_eval.llm import GenerationConfig, create_backend, read_task_data
 from skyvln_eval.llm.rule.instructions import parse_instruction
 
 
@@ -74,8 +74,10 @@ def test_the_rule_backend_reads_instructions_into_subgoals(
 def test_the_prompt_carries_earlier_rounds_and_the_current_one() -> None:
     turns = parse_utterances("[INS] Go west. Stop when you reach the church.", 1)
     turns += parse_utterances("[QUE] Where now? [INS] Go north. The destination is a red hotel.", 2)
-    messages = subgoal_messages(turns, current_round=2)
-    data = read_task_block(messages)
+    messages = subgoal_messages(DialogText.of(turns, current_round=2))
+    data = read_task_data(messages)
+    text = messages[-1].text  # the model reads the same, once, in prose
+    assert "Where now?" in text and "Go west. Stop when you reach the church." in text
     assert data["task"] == "subgoals" and data["question"] == "Where now?"
     assert data["instruction"] == "Go north. The destination is a red hotel."
     assert data["previous_rounds"] == ["commander: Go west. Stop when you reach the church."]

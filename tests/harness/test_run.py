@@ -20,6 +20,7 @@ from skyvln_eval.converters.reader import read_episode, read_log
 from skyvln_eval.converters.validate import check_log
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.harness import RunConfig, load_run_config, make_executor, run
+from skyvln_eval.harness.run import error_verdict
 from skyvln_eval.harness.store import RESULTS_FILE
 from skyvln_eval.metrics import EpisodeResult, MetricConventions, read_results, score_results
 from skyvln_eval.metrics.results_io import result_to_json_dict
@@ -28,6 +29,9 @@ from tests.conftest import REPO
 MakeConfig = Callable[..., RunConfig]
 TIMING_FIELDS = (
     "latency_s",
+    "queue_s",
+    "wall_s",
+    "llm_s",
     "solve_time_mean_ms",
     "solve_time_p50_ms",
     "solve_time_p95_ms",
@@ -61,7 +65,7 @@ def test_official_run_writes_results_and_run_logs_then_resumes_nothing(
     config = small_config(splits=("val_seen", "val_unseen"))
     run_dir = tmp_path / "run"
     report = run(config, run_dir)
-    assert report.complete and report.ran_now == 4 and not report.failed
+    assert report.complete and report.ran_now == 4 and not report.errors
     results = read_results(run_dir / RESULTS_FILE)
     assert [r.split for r in results].count("val_seen") == 2
     assert all(
@@ -98,7 +102,7 @@ def test_dynamics_run_flies_with_a_controller_and_logs_it(
     config = small_config(mode="dynamics", limit=1, dynamics={"controller": "nmpc"})
     run_dir = tmp_path / "dyn"
     report = run(config, run_dir)
-    assert report.complete and not report.failed
+    assert report.complete and not report.errors
     (result,) = read_results(run_dir / RESULTS_FILE)
     assert result.control is not None and result.control.steps > 50
     assert result.control.controller == "nmpc" and result.control.scenario == "crossing"
@@ -177,7 +181,7 @@ def test_a_run_killed_with_sigkill_resumes_to_the_same_rows_and_scores(
     assert scores_of(resumed) == scores_of(reference)
 
 
-def test_an_agent_that_raises_marks_its_episode_failed_and_the_run_goes_on(
+def test_an_agent_that_raises_marks_its_episode_error_and_the_run_goes_on(
     tmp_path: Path, small_config: MakeConfig, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     from skyvln_eval.harness import runner
@@ -208,16 +212,16 @@ def test_an_agent_that_raises_marks_its_episode_failed_and_the_run_goes_on(
     victim.append(load_split(config.data, "val_unseen").records[1].episode_id)
     report = run(config, tmp_path / "run")
     assert report.complete
-    assert list(report.failed) == [("val_unseen", victim[0])]
-    assert "RuntimeError: agent exploded" in report.failed[("val_unseen", victim[0])]
+    assert list(report.errors) == [("val_unseen", victim[0])]
+    assert "RuntimeError: agent exploded" in report.errors[("val_unseen", victim[0])]
     results = {r.episode_id: r for r in read_results(tmp_path / "run" / RESULTS_FILE)}
-    assert results[victim[0]].status == "failed" and "Traceback" in (results[victim[0]].error or "")
+    assert results[victim[0]].status == "error" and "Traceback" in (results[victim[0]].error or "")
     assert sum(r.status == "ok" for r in results.values()) == 2
     scores = score_results(list(results.values()), MetricConventions()).set_index("episode_id")
     assert scores.loc[victim[0], "success"] == 0.0  # a failure counts, it is not dropped
 
 
-def test_an_llm_server_that_fails_leaves_a_completed_run_with_the_faults_recorded(
+def test_an_llm_server_that_fails_leaves_error_episodes_with_the_faults_recorded(
     tmp_path: Path, small_config: MakeConfig, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     from skyvln_eval.llm.loopback import LoopbackOpenAIServer, status
@@ -237,8 +241,15 @@ def test_an_llm_server_that_fails_leaves_a_completed_run_with_the_faults_recorde
     assert len(results) == 2
     for result in results:
         errors = [c.error for c in result.llm_calls if c.error]
-        assert errors or result.status == "failed", "every fault must be recorded"
-        assert all("500" in e or "Internal" in e or "error" in e.lower() for e in errors)
+        assert errors and all("HTTP 500" in e for e in errors), "every fault must be recorded"
+        # No call was answered: the episode is an error, not a result that looks normal.
+        assert result.status == "error" and "no LLM call" in (result.error or "")
+        assert result.fallback_decisions == result.decisions >= 1
+    assert report.statuses == {"error": 2} and len(report.errors) == 2
+    verdict = error_verdict([report], fail_on_error=0.0)
+    assert verdict is not None and "2 of 2 episode(s) ended in error" in verdict
+    assert "HTTP 500" in verdict  # the first error text of its kind
+    assert error_verdict([report], fail_on_error=1.0) is None
 
 
 def test_ray_executor_matches_the_local_one(tmp_path: Path, small_config: MakeConfig) -> None:
@@ -247,7 +258,7 @@ def test_ray_executor_matches_the_local_one(tmp_path: Path, small_config: MakeCo
     )
     local = run(small_config(limit=2), tmp_path / "local")
     remote = run(small_config(limit=2), tmp_path / "ray", executor=make_executor("ray", 2))
-    assert local.complete and remote.complete and not remote.failed
+    assert local.complete and remote.complete and not remote.errors
     assert scores_of(read_results(tmp_path / "ray" / RESULTS_FILE)) == scores_of(
         read_results(tmp_path / "local" / RESULTS_FILE)
     )

@@ -62,7 +62,7 @@ def test_a_partial_last_line_is_dropped_and_reported(tmp_path: Path) -> None:
 
 def test_failed_rows_count_as_done_unless_retried_and_are_compacted(tmp_path: Path) -> None:
     store = ResultStore(tmp_path)
-    store.append(result(0, "failed"))
+    store.append(result(0, "error"))
     key = ("val_seen", "9101__0_1")
     assert store.missing([key]) == []
     assert store.missing([key], retry_failed=True) == [key]

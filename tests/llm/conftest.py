@@ -7,6 +7,15 @@ from collections.abc import Iterator
 import pytest
 
 from skyvln_eval.llm.local_server import find_local_llama, local_llama_server
+from skyvln_eval.llm.negotiation import forget_levels
+
+
+@pytest.fixture(autouse=True)
+def _fresh_negotiation() -> Iterator[None]:
+    """Each test negotiates structured output afresh (the levels are per process)."""
+    forget_levels()
+    yield
+    forget_levels()
 
 
 @pytest.fixture(scope="session")

@@ -25,6 +25,7 @@ from skyvln_eval.llm import (
     register_backend,
 )
 from skyvln_eval.llm.simple import ScriptedBackend
+from skyvln_eval.llm_records import LlmCall
 from tests.conftest import REPO
 
 PROMPT = [Message("user", "hi")]
@@ -119,18 +120,61 @@ def test_costs_come_from_the_price_table(tmp_path: Path) -> None:
 
 
 def test_call_records_have_exactly_the_agreed_fields() -> None:
-    record = (
-        LLMClient(ScriptedBackend(["x"])).call("hsd_rank", PROMPT, GenerationConfig()).records[0]
-    )
-    assert list(record.to_dict()) == [
+    config = GenerationConfig(temperature=0.3, max_tokens=77)
+    record = LLMClient(ScriptedBackend(["x"])).call("hsd_rank", PROMPT, config).records[0]
+    assert list(record.to_json_dict()) == [
         "module",
         "backend",
         "model",
+        "outcome",
+        "error",
+        "attempt",
+        "final",
+        "repair",
         "prompt_tokens",
         "completion_tokens",
         "cost_usd",
         "latency_s",
+        "queue_s",
         "cached",
-        "error",
+        "finish_reason",
+        "temperature",
+        "max_tokens",
+        "structured_output",
     ]
     assert record.module == "hsd_rank" and record.error is None and record.cached is False
+    assert (record.outcome, record.attempt, record.final) == ("ok", 1, True)
+    assert (record.temperature, record.max_tokens, record.finish_reason) == (0.3, 77, "stop")
+    assert LlmCall.from_json_dict(record.to_json_dict()) == record
+
+
+def test_every_attempt_is_numbered_and_only_the_last_ends_the_call() -> None:
+    script: list[object] = [LLMTransientError("HTTP 500"), LLMTransientError("HTTP 502"), "x"]
+    client = LLMClient(
+        ScriptedBackend(script),  # type: ignore[arg-type]
+        retry=RetryPolicy(initial_delay_s=0.0, jitter=0.0),
+        sleep=lambda _: None,
+    )
+    records = client.call("motion", PROMPT, GenerationConfig()).records
+    assert [(r.attempt, r.final, r.outcome) for r in records] == [
+        (1, False, "failed"),
+        (2, False, "failed"),
+        (3, True, "ok"),
+    ]
+    assert records[0].cost_usd == 0.0  # a scripted backend costs nothing, failed or not
+
+
+def test_a_failed_attempt_of_a_real_backend_has_unknown_cost_not_zero() -> None:
+    class Down(LLMBackend):
+        name = "down"
+        kind = "llm"
+        model = "m"
+
+        def generate(self, messages: Sequence[Message], config: GenerationConfig) -> Completion:
+            raise LLMTransientError("HTTP 503")
+
+    client = LLMClient(Down(), retry=RetryPolicy(max_attempts=2, initial_delay_s=0.0))
+    result = client.call("motion", PROMPT, GenerationConfig())
+    assert result.completion is None and [r.final for r in result.records] == [False, True]
+    assert all(r.cost_usd is None and r.outcome == "failed" for r in result.records)
+    assert all(r.prompt_tokens is None for r in result.records)

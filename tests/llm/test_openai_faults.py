@@ -6,14 +6,13 @@ import json
 
 import pytest
 
-from skyvln_eval.errors import LLMError
+from skyvln_eval.errors import LLMAuthError, LLMError
 from skyvln_eval.llm import GenerationConfig, LLMClient, Message, RetryPolicy, create_backend
 from skyvln_eval.llm.loopback import (
     LoopbackOpenAIServer,
     answer,
     hang,
     malformed,
-    refuse_schema,
     status,
     truncated,
 )
@@ -70,30 +69,77 @@ def test_the_client_gives_up_after_the_last_attempt_and_says_why() -> None:
 
 
 def test_a_client_error_is_not_retried() -> None:
-    with LoopbackOpenAIServer([status(401)]) as server:
+    with LoopbackOpenAIServer([status(404)]) as server:
         result = _client(server, []).call("motion", HELLO, CONFIG)
         assert len(server.requests) == 1
-    assert result.completion is None and "HTTP 401" in (result.error or "")
+    assert result.completion is None and "HTTP 404" in (result.error or "")
+    assert [r.outcome for r in result.records] == ["failed"]
 
 
-def test_structured_output_is_requested_and_dropped_when_the_server_refuses_it() -> None:
+def test_refused_credentials_stop_at_once_naming_the_key_variable() -> None:
+    with LoopbackOpenAIServer([status(401)]) as server:
+        with pytest.raises(LLMAuthError, match="MY_KEY_VAR") as refused:
+            _client(server, [], api_key_env="MY_KEY_VAR").call("motion", HELLO, CONFIG)
+        assert len(server.requests) == 1
+    assert "HTTP 401" in str(refused.value)
+
+
+def test_a_context_overflow_is_its_own_failure_and_keeps_structured_output() -> None:
     schema = {"type": "object", "properties": {"greeting": {"type": "string"}}}
     config = GenerationConfig(timeout_s=2.0, json_schema=schema, schema_name="greeting")
-    script = [answer("{}"), refuse_schema("{}"), answer('{"greeting": "hi"}'), answer("{}")]
-    with LoopbackOpenAIServer(script) as server:
+    overflow = "This model's maximum context length is 8192 tokens; you requested 9000."
+    with LoopbackOpenAIServer([status(400, message=overflow), answer("{}")]) as server:
         client = _client(server, [])
-        first = client.call("motion", HELLO, config)
-        second = client.call("motion", [*HELLO, Message("user", "again")], config)
-        third = client.call("motion", [*HELLO, Message("user", "once more")], config)
+        result = client.call("motion", HELLO, config)
+        again = client.call("motion", [*HELLO, Message("user", "short")], config)
         bodies = [r["body"] for r in server.requests]
-    assert first.completion is not None and first.completion.structured
-    sent = bodies[0]["response_format"]
-    assert sent["type"] == "json_schema" and sent["json_schema"]["schema"] == schema
-    # The refusal (HTTP 400) is answered by asking again without response_format ...
-    assert "response_format" in bodies[1] and "response_format" not in bodies[2]
-    assert second.completion is not None and not second.completion.structured
-    # ... and remembered: plain prompting from then on.
-    assert "response_format" not in bodies[3] and third.completion is not None
+    assert len(bodies) == 2  # not retried unchanged, not taken for a format refusal
+    assert result.completion is None and "context" in (result.error or "")
+    assert "LLMContextOverflowError" in (result.records[0].error or "")
+    assert bodies[1]["response_format"]["type"] == "json_schema"
+    assert again.completion is not None and again.completion.structured_output == "json_schema"
+
+
+SCHEMA = {"type": "object", "properties": {"greeting": {"type": "string", "maxLength": 20}}}
+STRUCTURED = GenerationConfig(timeout_s=2.0, json_schema=SCHEMA, schema_name="greeting")
+
+
+def test_structured_output_is_negotiated_down_to_what_a_llama_cpp_server_takes() -> None:
+    with LoopbackOpenAIServer([answer("{}")] * 3, structured="llama_cpp") as server:
+        client = _client(server, [])
+        first = client.call("motion", HELLO, STRUCTURED)
+        second = client.call("motion", [*HELLO, Message("user", "again")], STRUCTURED)
+        formats = [r["body"].get("response_format") for r in server.requests]
+    # json_schema (strict) answered with HTTP 500 naming response_format: one level down,
+    # at once (not retried as a server fault), with the schema attached ...
+    assert formats[0]["type"] == "json_schema" and formats[0]["json_schema"]["strict"] is True
+    assert "maxLength" not in json.dumps(formats[0])  # strict mode takes no string lengths
+    assert formats[1] == {"type": "json_object", "schema": SCHEMA}
+    assert first.completion is not None
+    assert first.completion.structured_output == "json_object_schema"
+    assert [r.outcome for r in first.records] == ["ok"]  # negotiation is not a failure
+    # ... and remembered for the endpoint: the next call starts there.
+    assert formats[2] == {"type": "json_object", "schema": SCHEMA} and len(formats) == 3
+    assert second.records[0].structured_output == "json_object_schema"
+
+
+def test_a_server_without_any_response_format_is_prompted_plainly() -> None:
+    with LoopbackOpenAIServer([answer("{}")], structured="none") as server:
+        result = _client(server, []).call("motion", HELLO, STRUCTURED)
+        formats = [r["body"].get("response_format") for r in server.requests]
+    assert [f and f["type"] for f in formats] == ["json_schema", "json_object", "json_object", None]
+    assert result.completion is not None and result.completion.structured_output == "prompt"
+
+
+def test_a_pinned_level_is_used_as_is_and_a_refusal_says_so() -> None:
+    with LoopbackOpenAIServer([answer("{}")] * 2, structured="llama_cpp") as server:
+        pinned = _client(server, [], structured_output="json_object_schema")
+        assert pinned.call("motion", HELLO, STRUCTURED).completion is not None
+        strict = _client(server, [], structured_output="json_schema")
+        result = strict.call("motion", HELLO, STRUCTURED)
+        formats = [r["body"]["response_format"]["type"] for r in server.requests]
+    assert formats == ["json_object", "json_schema"]
+    assert result.completion is None and "pinned" in (result.error or "")
 
 
 def test_images_go_as_data_urls_only_to_models_that_take_them() -> None:

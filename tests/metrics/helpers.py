@@ -35,6 +35,8 @@ def result(
     **kwargs: Any,
 ) -> EpisodeResult:
     views = np.asarray(visited, dtype=np.float64).reshape(-1, 4, 2)
+    if status == "error":
+        kwargs.setdefault("error", "test error")
     return EpisodeResult(
         episode_id=episode_id,
         split=split,

@@ -165,7 +165,7 @@ def test_spl_denominator_floor_and_never_above_one() -> None:
 
 def test_empty_failed_path_stays_at_the_start_and_never_succeeds() -> None:
     g0, g1 = square(0, 0), square(100, 0)
-    scores = score_results([result(np.zeros((0, 4, 2)), [g0, g1], status="failed", error="boom")])
+    scores = score_results([result(np.zeros((0, 4, 2)), [g0, g1], status="error", error="boom")])
     row = scores.iloc[0]
     assert row.n_views == 0
     assert (row.success, row.oracle_success, row.spl) == (0.0, 0.0, 0.0)
@@ -177,7 +177,7 @@ def test_empty_failed_path_stays_at_the_start_and_never_succeeds() -> None:
 
 def test_failed_episode_at_the_goal_is_not_a_success() -> None:
     g0, g1 = square(0, 0), square(100, 0)
-    scores = score_results([result([g0, g1], [g0, g1], status="failed")])
+    scores = score_results([result([g0, g1], [g0, g1], status="error")])
     assert scores.success[0] == 0.0 and scores.oracle_success[0] == 0.0 and scores.spl[0] == 0.0
     assert scores.ne_m[0] == pytest.approx(0.0, abs=1e-9)  # distances still describe the path
 

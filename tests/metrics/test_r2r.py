@@ -132,7 +132,7 @@ view = st.builds(
         st.tuples(
             st.lists(view, min_size=0, max_size=6),
             st.lists(view, min_size=1, max_size=6),
-            st.sampled_from(["ok", "failed"]),
+            st.sampled_from(["ok", "error"]),
             st.booleans(),
         ),
         min_size=1,
@@ -145,7 +145,7 @@ def test_every_metric_is_finite_and_spl_never_exceeds_one(episodes: list) -> Non
         if repeat_start and visited:
             visited = [gt[0], *visited]
         if not visited:
-            status = "failed"
+            status = "error"
         v = np.stack(visited) if visited else np.zeros((0, 4, 2))
         results.append(result(v, np.stack(gt), status=status, episode_id=f"e{k}"))
     for conventions in (

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from skyvln_eval.errors import DataError, FormatVersionError, ResultRecordError
+from skyvln_eval.llm_records import ModuleFailure
 from skyvln_eval.metrics import ControlSummary, LlmCall, read_results, write_results
 from tests.metrics.helpers import result, square
 
@@ -23,16 +24,53 @@ def rich_results() -> list:
         solve_time_p95_ms=0.9, solve_time_max_ms=2.5,
     )  # fmt: skip
     calls = (
-        LlmCall("subgoals", "openai", "gpt-4o", 812, 64, 0.0031, 1.7),
-        LlmCall("motion", "rule", "rule-v1", 0, 0, 0.0, 0.001, cached=True, error="timeout"),
+        LlmCall(
+            module="subgoals",
+            backend="openai",
+            model="gpt-4o",
+            prompt_tokens=812,
+            completion_tokens=64,
+            cost_usd=0.0031,
+            latency_s=1.7,
+            temperature=0.0,
+            max_tokens=1024,
+            finish_reason="stop",
+            structured_output="json_schema",
+        ),
+        LlmCall(
+            module="motion",
+            backend="rule",
+            model="rule-v1",
+            outcome="failed",
+            error="timeout",
+            attempt=2,
+            final=False,
+            latency_s=0.001,
+            queue_s=0.25,
+        ),
+        LlmCall(
+            module="motion",
+            backend="rule",
+            model="rule-v1",
+            outcome="invalid",
+            error="invalid output: not JSON",
+            repair=True,
+            prompt_tokens=3,
+            completion_tokens=None,
+            cached=True,
+        ),
+    )
+    failures = (
+        ModuleFailure(step_index=2, module="motion", reason="no JSON", substitute="stop action"),
     )
     views = np.stack([square(*rng.normal(0, 50, 2), 100) for _ in range(4)]) + rng.normal(
         0, 1e-9, (4, 4, 2)
     )
     return [
         result(views, views[[0, 3]], control=control, control_log="logs/a.parquet", llm_calls=calls,
+               decisions=3, module_failures=failures, status="degraded",
                extra={"seed": 3, "config": {"hsd": True}}),
-        result(np.zeros((0, 4, 2)), views[:1], status="failed", error="controller diverged",
+        result(np.zeros((0, 4, 2)), views[:1], status="error", error="controller diverged",
                episode_id="1913__1_2", system="w/o HSD"),
     ]  # fmt: skip
 
@@ -75,12 +113,12 @@ def test_bad_rows_are_located(tmp_path: Path) -> None:
         ResultRecordError, match=r"run.jsonl, record 1 \(episode 1913__1_2\), field 'status'"
     ):
         read_results(path)
-    row["status"] = "failed"
+    row["status"] = "error"
     row["llm_calls"] = [{"module": "motion", "backend": "x", "model": "y", "prompt_tokens": -1,
                          "completion_tokens": 0, "cost_usd": 0.0, "latency_s": 0.0}]  # fmt: skip
     lines[2] = json.dumps(row)
     path.write_text("\n".join(lines))
-    with pytest.raises(ResultRecordError, match=r"llm_calls\.prompt_tokens"):
+    with pytest.raises(ResultRecordError, match=r"llm_calls\[0\]\.prompt_tokens"):
         read_results(path)
 
 

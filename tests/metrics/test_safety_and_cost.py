@@ -96,21 +96,27 @@ def test_control_summaries_reach_the_scores_without_nan_in_averages() -> None:
     assert summary.loc["success", "n"] == 3
 
 
+def _call(module: str, **fields: object) -> LlmCall:
+    return LlmCall(module=module, backend="openai", model="gpt-4o", **fields)  # type: ignore[arg-type]
+
+
 def test_llm_costs_per_episode_and_module() -> None:
     g = [square(0, 0), square(50, 0)]
     calls = [
-        LlmCall("subgoals", "openai", "gpt-4o", 1000, 100, 0.01, 2.0),
-        LlmCall("motion", "openai", "gpt-4o", 500, 50, 0.005, 1.0),
-        LlmCall("motion", "openai", "gpt-4o", 500, 50, 0.0, 0.01, cached=True),
-        LlmCall("motion", "openai", "gpt-4o", 10, 0, 0.0, 30.0, error="timeout"),
+        _call("subgoals", prompt_tokens=1000, completion_tokens=100, cost_usd=0.01, latency_s=2.0),
+        _call("motion", prompt_tokens=500, completion_tokens=50, cost_usd=0.005, latency_s=1.0),
+        _call("motion", prompt_tokens=500, completion_tokens=50, cost_usd=0.0, cached=True),
+        _call("motion", outcome="failed", error="timeout", latency_s=30.0, cost_usd=0.0),
     ]
     results = [result(g, g, llm_calls=calls), result(g, g, episode_id="b")]
     scores = score_results(results)
     assert scores.llm_calls.tolist() == [4.0, 0.0]
     assert scores.llm_cost_usd[0] == pytest.approx(0.015)
     assert scores.llm_cached_calls[0] == 1 and scores.llm_failed_calls[0] == 1
+    assert scores.llm_call_failure_rate[0] == pytest.approx(0.25)
+    assert np.isnan(scores.llm_call_failure_rate[1])  # no call: nothing to rate
     costs = summarise_costs(results).set_index("module")
     assert costs.loc["motion", "llm_calls"] == 3 and costs.loc["all", "llm_calls"] == 4
-    assert costs.loc["motion", "llm_prompt_tokens_per_episode"] == pytest.approx(1010 / 2)
+    assert costs.loc["motion", "llm_prompt_tokens_per_episode"] == pytest.approx(1000 / 2)
     assert costs.loc["subgoals", "latency_per_call_s"] == pytest.approx(2.0)
     assert costs.loc["all", "episodes"] == 2

@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 
 from skyvln_eval.cli import app
 from skyvln_eval.errors import IncompleteRunError, NoGroundTruthError
-from skyvln_eval.metrics import Prediction, write_predictions_json, write_results
+from skyvln_eval.metrics import RESULTS_VERSION, Prediction, write_predictions_json, write_results
 from skyvln_eval.metrics.scores_io import read_scores
 from tests.conftest import make_record
 from tests.metrics.helpers import result, square
@@ -155,4 +155,4 @@ def test_score_refuses_an_incomplete_run(
     expected = "run agent/val_seen/andh is incomplete: 1 missing episode(s): 1913__7_1"
     assert expected in str(failed.exception)
     assert not (tmp_path / "o" / "scores.csv").exists()  # nothing written for a partial run
-    assert json.loads(run.read_text().splitlines()[0])["version"] == 1
+    assert json.loads(run.read_text().splitlines()[0])["version"] == RESULTS_VERSION

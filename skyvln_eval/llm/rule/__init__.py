@@ -1,6 +1,6 @@
 """The ``rule`` backend: a deterministic offline stand-in for an LLM. It is not an LLM.
 
-It reads only the TASK DATA block of the agent's prompts (:mod:`skyvln_eval.llm.taskdata`)
+It reads only the task data of the agent's requests (:mod:`skyvln_eval.llm.taskdata`)
 and answers each task in the JSON an LLM is asked for, so the whole SkyVLN pipeline runs
 and navigates sensibly without a network: sub-goals from clause patterns
 (:mod:`.instructions`), HSD descriptions and rankings from attribute comparison
@@ -19,7 +19,7 @@ from skyvln_eval.llm.base import LLMBackend
 from skyvln_eval.llm.rule.instructions import landmark_phrases, parse_instruction
 from skyvln_eval.llm.rule.matching import describe, rank
 from skyvln_eval.llm.rule.navigation import decide_motion, decide_navgpt
-from skyvln_eval.llm.taskdata import read_task_block
+from skyvln_eval.llm.taskdata import read_task_data
 from skyvln_eval.llm.types import Completion, GenerationConfig, Message
 
 RULE_MODEL = "rule-v1"
@@ -54,7 +54,7 @@ class RuleBackend(LLMBackend):
         self.model = RULE_MODEL
 
     def generate(self, messages: Sequence[Message], config: GenerationConfig) -> Completion:
-        data = read_task_block(messages)
+        data = read_task_data(messages)
         handlers = {
             "subgoals": _subgoals,
             "hsd_describe": describe,
@@ -67,6 +67,7 @@ class RuleBackend(LLMBackend):
         if task not in handlers:
             raise LLMError(f"the rule backend has no answer for task {task!r}")
         text = json.dumps(handlers[task](data))
+        # Not a model: no tokenizer. Four characters a token, as the offline estimate.
         prompt_chars = sum(len(m.text) for m in messages)
         return Completion(
             text=text,

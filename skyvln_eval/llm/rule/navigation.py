@@ -242,7 +242,7 @@ def decide_motion(state: dict[str, Any]) -> dict[str, Any]:
 def decide_navgpt(state: dict[str, Any]) -> dict[str, Any]:
     """A decision for the NavGPT-style task: instruction, view-level observations, history."""
     pose = state["pose"]
-    goals = parse_instruction(state["instruction"])
+    goals = parse_instruction(state["dialog"]["instruction"])
     goal = next((g for g in goals if g["kind"] in ("destination", "stop_at")), None)
     if goal is not None:
         seen = [
