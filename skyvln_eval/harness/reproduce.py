@@ -36,7 +36,7 @@ from skyvln_eval.harness.run import Progress, RunReport, execute_jobs, prepare_j
 from skyvln_eval.metrics import MetricConventions, score_results, summarise
 from skyvln_eval.metrics.cost import UNKNOWN_IF_ANY_UNKNOWN
 from skyvln_eval.metrics.records import EpisodeResult
-from skyvln_eval.metrics.scores_io import write_scores
+from skyvln_eval.metrics.scores_io import summary_csv_text, write_scores
 from skyvln_eval.reports import TABLE_I, TABLE_II, build_table, to_csv, to_latex, to_markdown
 
 TABLE_METRICS = ("success", "oracle_success", "spl", "gp_m", "ne_m", "path_length_m")
@@ -191,6 +191,8 @@ def _control_figures(plan: ReproducePlan, out_dir: Path) -> dict[str, Path]:
     from skyvln_eval.reports import control_figure, save_figure
 
     spec = plan.control_figures
+    if not spec.controllers or not spec.cases:  # a plan may leave the control figures out
+        return {}
     paths = record_paper_runs(out_dir / "control_runs", spec.controllers, spec.cases, plan.seed)
     files: dict[str, Path] = {}
     for case in spec.cases:
@@ -287,11 +289,7 @@ def reproduce(
     metrics = dict.fromkeys((*TABLE_METRICS, *HEALTH_METRICS, *CONTROL_METRICS, *COST_METRICS))
     summary = summarise(scores, [m for m in metrics if m in scores], plan.resamples, seed=plan.seed)
     write_scores(out_dir / "scores" / "scores.csv", scores, conventions)
-    atomic_write_text(
-        out_dir / "scores" / "summary.csv",
-        f"# conventions: {conventions.to_json()}\n"
-        + summary.to_csv(index=False, lineterminator="\n"),
-    )
+    atomic_write_text(out_dir / "scores" / "summary.csv", summary_csv_text(summary, conventions))
     report.files |= {
         "scores.csv": out_dir / "scores" / "scores.csv",
         "summary.csv": out_dir / "scores" / "summary.csv",

@@ -121,8 +121,6 @@ def summarise(
         for metric in metrics:
             column = group[metric]
             present = column.notna().to_numpy()
-            if not present.any():
-                continue
             row = dict(zip(GROUP_KEYS, key, strict=True))
             if metric in UNKNOWN_IF_ANY_UNKNOWN and not present.all():
                 # A mean over the known part would pass for the whole: it is unknown.
@@ -130,6 +128,8 @@ def summarise(
                 if n_resamples:
                     row.update(ci_low=math.nan, ci_high=math.nan, confidence=confidence)
                 rows.append(row)
+                continue
+            if not present.any():
                 continue
             scale = 100.0 if metric in PERCENT_METRICS else 1.0
             values = finite_values(column[present].to_numpy(np.float64), f"{key} {metric}") * scale

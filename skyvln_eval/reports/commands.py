@@ -7,8 +7,9 @@ writes files atomically; heavy imports happen inside the commands so ``skyvln-ev
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
@@ -23,7 +24,16 @@ plot_app = typer.Typer(
 )
 
 SUMMARY_METRICS = ("success", "oracle_success", "spl", "gp_m", "oracle_gp_m", "ne_m",
-                   "path_length_m", "r2r_sr", "r2r_spl", "ndtw", "sdtw", "cls")  # fmt: skip
+                   "path_length_m", "r2r_sr", "r2r_spl", "ndtw", "sdtw", "cls",
+                   "status_error", "status_degraded", "fallback_rate", "llm_call_failure_rate",
+                   "llm_cost_usd", "llm_latency_s")  # fmt: skip
+
+
+def _cell(by_metric: Any, metric: str) -> str:
+    if metric not in by_metric.index:
+        return "-"
+    mean = float(by_metric.loc[metric, "mean"])
+    return "n/a" if math.isnan(mean) else f"{mean:.2f}"
 
 
 def _mode(mode: str) -> EpisodeMode:
@@ -124,7 +134,7 @@ def score(
         score_results,
         summarise,
     )
-    from skyvln_eval.metrics.scores_io import write_scores
+    from skyvln_eval.metrics.scores_io import summary_csv_text, write_scores
 
     conventions = _conventions(threshold_m, distance, non_strict, legacy_gp)
     loaded = _load_results(results, data_dir, split, mode, system)
@@ -137,18 +147,14 @@ def score(
     summary = summarise(scores, [m for m in SUMMARY_METRICS if m in scores], resamples, seed=seed)
     out.mkdir(parents=True, exist_ok=True)
     write_scores(out / "scores.csv", scores, conventions)
-    atomic_write_text(
-        out / "summary.csv",
-        f"# conventions: {conventions.to_json()}\n"
-        + summary.to_csv(index=False, lineterminator="\n"),
-    )
+    atomic_write_text(out / "summary.csv", summary_csv_text(summary, conventions))
     table = Table(title="scores", caption=conventions.describe())
     shown = [m for m in SUMMARY_METRICS if m in set(summary.metric)]
     for column in ("system", "split", "n", *shown):
         table.add_column(column, justify="left" if column in ("system", "split") else "right")
     for (sys_name, split_name, _), group in summary.groupby(["system", "split", "mode"], sort=True):
         by_metric = group.set_index("metric")
-        cells = [f"{by_metric.loc[m, 'mean']:.2f}" if m in by_metric.index else "-" for m in shown]
+        cells = [_cell(by_metric, m) for m in shown]
         table.add_row(str(sys_name), str(split_name), str(int(group.n.max())), *cells)
     console = Console(width=160)
     console.print(table)

@@ -12,6 +12,7 @@ from skyvln_eval.cli import app
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.harness.plan import environment_backends, load_plan, planned_runs, slug
 from skyvln_eval.harness.reproduce import reproduce
+from skyvln_eval.llm import LLMConfig
 
 TINY_PLAN = {
     "name": "tiny",
@@ -161,3 +162,57 @@ def test_endpoints_from_the_environment(monkeypatch: pytest.MonkeyPatch) -> None
     with pytest.raises(ConfigError, match="SKYVLN_TEST_BACKENDS"):
         environment_backends("SKYVLN_TEST_BACKENDS")
     assert slug("w/o HSD") == "w-o-hsd"
+
+
+def test_every_way_of_naming_a_backend_gives_its_full_configuration(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    backends = tmp_path / "backends.yaml"
+    backends.write_text(
+        yaml.safe_dump(
+            {
+                "format": "skyvln-eval/llm-backends",
+                "version": 1,
+                "defaults": {"timeout_s": 120.0, "max_concurrency": 8, "api_key_env": "MY_KEY"},
+                "backends": {
+                    "local-gemma": {
+                        "backend": "openai:gemma-3-270m",
+                        "base_url": "http://127.0.0.1:8765/v1",
+                        "structured_output": "json_object_schema",
+                        "takes_images": True,
+                    }
+                },
+            }
+        )
+    )
+    monkeypatch.setenv("SKYVLN_EVAL_BACKENDS_FILE", str(backends))
+    monkeypatch.setenv("SKYVLN_TEST_BACKENDS", "local-gemma, openai:gpt-4o-mini")
+    named, spec = environment_backends("SKYVLN_TEST_BACKENDS")
+    assert named.label == "local-gemma" and spec.label == "gpt-4o-mini"
+    gemma = LLMConfig.model_validate(named.llm)
+    assert (gemma.structured_output, gemma.takes_images) == ("json_object_schema", True)
+    mini = LLMConfig.model_validate(spec.llm)  # a bare spec gets the file's defaults
+    assert (mini.timeout_s, mini.max_concurrency, mini.api_key_env) == (120.0, 8, "MY_KEY")
+    assert (gemma.timeout_s, gemma.max_concurrency) == (120.0, 8)
+    # In a plan, a remote model gets a response cache beside the outputs.
+    plan = load_plan("default").model_copy()
+    plan = plan.model_copy(
+        update={
+            "table2": plan.table2.model_copy(
+                update={"environment_variable": "SKYVLN_TEST_BACKENDS"}
+            )
+        }
+    )
+    runs = {
+        label: r.config for r in planned_runs(plan, tmp_path, 1, "threads") for _, label in r.rows
+    }
+    assert runs["local-gemma"].agent.llm.cache_path == str(tmp_path / "llm-cache.sqlite")
+    assert runs["local-gemma"].agent.llm.base_url == "http://127.0.0.1:8765/v1"
+    monkeypatch.setenv("SKYVLN_TEST_BACKENDS", "local-gema")
+    with pytest.raises(ConfigError, match="Did you mean 'local-gemma'"):
+        environment_backends("SKYVLN_TEST_BACKENDS")
+    backends.write_text(
+        "format: skyvln-eval/llm-backends\nversion: 1\nbackends: {x: {tmeout_s: 1}}\n"
+    )
+    with pytest.raises(ConfigError, match=r"backends\.yaml: x: tmeout_s"):
+        environment_backends("SKYVLN_TEST_BACKENDS")

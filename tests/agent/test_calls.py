@@ -1,0 +1,115 @@
+"""Repair that can succeed: the reason and the answer go back, hotter, with more room when
+the answer was cut off; a module that still gets nothing usable is a recorded failure."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from skyvln_eval.agent import AgentConfig, build_agent
+from skyvln_eval.agent.calls import call_json
+from skyvln_eval.agent.subgoals import SUBGOALS_SCHEMA, parse_subgoals
+from skyvln_eval.converters import topics as t
+from skyvln_eval.converters.reader import read_log
+from skyvln_eval.converters.validate import check_log
+from skyvln_eval.harness import RunConfig, run, run_official_episode
+from skyvln_eval.llm import LLMConfig, Message, RetryConfig, build_client
+from skyvln_eval.llm.loopback import LoopbackOpenAIServer, answer, rule
+from tests.toy_worlds import town_episode, town_world
+
+RED = "Go north. The destination is a small restaurant with a red roof."
+GOOD = json.dumps({"subgoals": [{"kind": "head", "direction": "north"}], "context_landmarks": []})
+
+
+def _llm(base_url: str, **extra: object) -> LLMConfig:
+    return LLMConfig(
+        backend="openai:fake-model",
+        base_url=base_url,
+        timeout_s=5.0,
+        retry=RetryConfig(max_attempts=2, initial_delay_s=0.0),
+        send_task_data=True,
+        **extra,  # type: ignore[arg-type]
+    )
+
+
+def test_a_cut_off_answer_is_asked_again_with_a_larger_budget() -> None:
+    script = [answer('{"subgoals": [{"kind": "he', finish_reason="length"), answer(GOOD)]
+    with LoopbackOpenAIServer(script) as server:
+        llm = _llm(server.base_url, budgets={"subgoals": 100}, repair_temperature=0.9)
+        config = llm.generation("subgoals", json_schema=SUBGOALS_SCHEMA, schema_name="subgoals")
+        call = call_json(
+            build_client(llm),
+            "subgoals",
+            [Message("user", "Decompose: go north.")],
+            config,
+            parse_subgoals,
+            llm.repair_policy(),
+        )
+        bodies = [r["body"] for r in server.requests]
+    assert call.value is not None and call.repaired
+    assert [(b["max_tokens"], b["temperature"]) for b in bodies] == [(100, 0.0), (200, 0.9)]
+    assert "cut off after 100 tokens" in bodies[1]["messages"][-1]["content"]
+    first, second = call.records
+    assert (first.outcome, first.finish_reason) == ("invalid", "length")
+    assert "cut off at max_tokens=100" in (first.error or "")
+    assert (second.outcome, second.repair, second.max_tokens) == ("ok", True, 200)
+
+
+def test_sub_goals_that_stay_unusable_are_a_recorded_failure_not_an_empty_plan() -> None:
+    cut = answer('{"subgoals": [', task="subgoals", finish_reason="length")
+    with LoopbackOpenAIServer([cut, cut]) as server:
+        config = AgentConfig(llm=_llm(server.base_url))
+        rollout = run_official_episode(build_agent(config), town_episode(RED), town_world())
+    subgoals = [c for c in rollout.llm_calls if c.module == "subgoals"]
+    assert [c.outcome for c in subgoals] == ["invalid", "invalid"]
+    [failure] = [f for f in rollout.failures if f.module == "subgoals"]
+    assert failure.step_index == 0 and "cut off" in failure.reason
+    assert failure.substitute.startswith("no sub-goals")
+    assert rollout.traces[0]["failures"][0]["module"] == "subgoals"
+    # The agent goes on from the commander's words, which every motion prompt carries.
+    motion = next(e for e in rollout.traces[0]["exchanges"] if e["module"] == "motion")
+    assert RED in motion["prompt"][-1]["text"]
+
+
+def test_budgets_come_from_the_config_per_module() -> None:
+    llm = LLMConfig(max_tokens=300, budgets={"subgoals": 2000})
+    assert llm.generation("subgoals").max_tokens == 2000
+    assert llm.generation("hsd_rank").max_tokens == 300  # not listed: the default budget
+    with pytest.raises(ValueError, match="budget of 'motion'"):
+        LLMConfig(budgets={"motion": 5})
+
+
+def test_the_run_log_records_every_attempt_with_tokens_latency_and_decoding(
+    tmp_path: Path, sample_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("SKYVLN_TEST_KEY", "sk-test")
+    script = [answer("not JSON", task="navgpt"), rule(task="navgpt")]
+    with LoopbackOpenAIServer(script) as server:
+        llm = _llm(server.base_url, api_key_env="SKYVLN_TEST_KEY").model_dump()
+        config = RunConfig(
+            system="exchange",
+            data=str(sample_dir),
+            splits=("val_unseen",),
+            limit=1,
+            executor="serial",
+            agent={"name": "navgpt", "llm": llm},  # type: ignore[arg-type]
+        )
+        report = run(config, tmp_path / "run")
+    [log_path] = (tmp_path / "run" / "logs").rglob("*.mcap")
+    check = check_log(log_path)
+    assert not check.issues, check.issues  # every exchange valid against its schema (v2)
+    exchanges = [m.decode() for m in read_log(log_path).topic(t.TOPIC_LLM_EXCHANGE)]
+    first, repair = exchanges[0], exchanges[1]
+    assert first["error"] is not None and first["calls"][0]["outcome"] == "invalid"
+    assert repair["calls"][0]["repair"] is True and repair["error"] is None
+    assert repair["decoding"]["temperature"] > first["decoding"]["temperature"]
+    for exchange in exchanges:
+        assert exchange["decoding"]["schema"] == "decision"
+        [call] = exchange["calls"]
+        assert call["prompt_tokens"] == 100 and call["completion_tokens"] == 20  # as served
+        assert call["latency_s"] > 0 and call["finish_reason"] == "stop"
+        assert call["attempt"] == 1 and call["structured_output"] == "json_schema"
+        assert call["cost_usd"] is None  # the fake model has no price: unknown, not 0
+    assert report.statuses == {"ok": 1}
