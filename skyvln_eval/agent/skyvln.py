@@ -300,7 +300,7 @@ class SkyVLNAgent(Agent):
         verdict: Verdict,
         panorama: Panorama,
     ) -> dict[str, Any]:
-        """The TASK DATA of the motion prompt."""
+        """The task data of the motion request: what the prompt text says, as data."""
         pose = observation.pose
         memory = None
         if self.memory is not None:

@@ -8,7 +8,9 @@ an answer, an HTTP error status (with headers, e.g. Retry-After), a hang longer 
 client's timeout, a malformed JSON body, or a body cut short. A reply with a ``task`` waits
 for a request of that task; requests it does not match, and all requests once the script
 is used up, are answered as the offline ``rule`` backend would, so a whole agent can run
-against the server. The server knows a request's task only from its task data, which the
+against the server. Images in a request are decoded as a real server would (``images`` of
+each kept request: MIME type, size, pixel shape or the decoding error). The server knows
+a request's task only from its task data, which the
 ``openai`` backend sends to test servers only when told to (``send_task_data``); a request
 without task data gets a plain text answer. Every request is kept in ``requests`` (parsed
 JSON body, headers and task) for the test to inspect.
@@ -21,6 +23,8 @@ refuses any ``response_format`` with HTTP 400.
 
 from __future__ import annotations
 
+import base64
+import binascii
 import contextlib
 import json
 import threading
@@ -28,6 +32,9 @@ import time
 from dataclasses import dataclass, field
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any, Literal
+
+import cv2
+import numpy as np
 
 from skyvln_eval.llm.openai_backend import TASK_DATA_FIELD
 from skyvln_eval.llm.rule import RuleBackend
@@ -79,6 +86,30 @@ def rule(task: str | None = None) -> Reply:
 def refuse_schema(content: str) -> Reply:
     """HTTP 400 when the request carries ``response_format``, else ``content``."""
     return Reply("refuse_schema", content=content)
+
+
+def _images(body: dict[str, Any]) -> list[dict[str, Any]]:
+    """Every image of the request, decoded as a real server would have to: its MIME type,
+    byte size and pixel shape, or the reason it could not be decoded."""
+    out = []
+    for message in body.get("messages", []):
+        content = message.get("content")
+        for part in content if isinstance(content, list) else []:
+            if part.get("type") != "image_url":
+                continue
+            url = str(part.get("image_url", {}).get("url", ""))
+            head, _, data = url.partition(",")
+            info: dict[str, Any] = {"mime_type": head.removeprefix("data:").split(";")[0]}
+            try:
+                raw = base64.b64decode(data, validate=True)
+                pixels = cv2.imdecode(np.frombuffer(raw, np.uint8), cv2.IMREAD_COLOR)
+                info["bytes"] = len(raw)
+                info["shape"] = None if pixels is None else list(pixels.shape)
+                info["error"] = None if pixels is not None else "not a decodable image"
+            except (ValueError, binascii.Error) as error:
+                info["error"] = f"not base64: {error}"
+            out.append(info)
+    return out
 
 
 def _task_data(body: dict[str, Any]) -> dict[str, Any] | None:
@@ -167,7 +198,12 @@ class LoopbackOpenAIServer:
                 task = None if data is None else str(data["task"])
                 with outer._lock:
                     outer.requests.append(
-                        {"body": body, "headers": dict(self.headers), "task": task}
+                        {
+                            "body": body,
+                            "headers": dict(self.headers),
+                            "task": task,
+                            "images": _images(body),
+                        }
                     )
                     head = outer.script[0] if outer.script else None
                     if head is not None and head.task in (None, task):

@@ -113,3 +113,25 @@ def test_the_run_log_records_every_attempt_with_tokens_latency_and_decoding(
         assert call["attempt"] == 1 and call["structured_output"] == "json_schema"
         assert call["cost_usd"] is None  # the fake model has no price: unknown, not 0
     assert report.statuses == {"ok": 1}
+
+
+def test_a_model_that_takes_images_gets_the_views_as_jpeg_and_the_log_names_them() -> None:
+    with LoopbackOpenAIServer() as server:
+        llm = _llm(server.base_url, takes_images=True, image_max_side_px=64)
+        agent = build_agent(AgentConfig(name="navgpt", llm=llm))
+        rollout = run_official_episode(agent, town_episode(RED), town_world(), max_steps=2)
+        requests = server.requests
+    [request] = [r for r in requests if r["task"] == "navgpt"]
+    images = request["images"]
+    assert len(images) == 5  # four views around and one straight down
+    for image in images:  # each decodable by the server, and within the size cap
+        assert image["error"] is None and image["mime_type"] == "image/jpeg"
+        assert max(image["shape"][:2]) <= 64
+    sent = rollout.traces[0]["exchanges"][0]["prompt"][-1]["images"]
+    assert len(sent) == 5 and all(label.startswith("view ") for label in sent)
+    assert any("below" in label for label in sent)
+    # A model that does not take images gets none (and none are even encoded).
+    with LoopbackOpenAIServer() as server:
+        agent = build_agent(AgentConfig(name="navgpt", llm=_llm(server.base_url)))
+        run_official_episode(agent, town_episode(RED), town_world(), max_steps=2)
+        assert all(r["images"] == [] for r in server.requests)
