@@ -40,6 +40,7 @@ MAP_VIEWS: Final = "map/views"  # one child per decision: map/views/<k>
 MAP_FINAL_VIEW: Final = "map/final_view"
 
 WORLD: Final = "world"
+WORLD_MAP: Final = "world/map"
 WORLD_DRONE: Final = "world/drone"
 WORLD_TRAJECTORY: Final = "world/trajectory"
 WORLD_GT_ROUTE: Final = "world/gt_route"

@@ -1,17 +1,15 @@
 """Build the Rerun recording of one episode from its run MCAP, streaming.
 
-:func:`write_recording` opens the log (:class:`~.logs.RunLogStream`), logs the static
-content (map tile, ground truth, goal) as timeless data, then every message in log-time
-order on the ``decision`` and ``sim_time`` timelines, and writes an ``.rrd`` file under a
-temporary name renamed into place when complete. The log is the only source: nothing is
+:func:`write_recording` opens the log (:class:`~.logs.RunLogStream`), then logs every
+message in log-time order: static topics as timeless data (:mod:`.static_content`), the
+rest on the ``decision`` and ``sim_time`` timelines. It writes an ``.rrd`` file under a
+temporary name, renamed into place when complete. The log is the only source: nothing is
 recomputed from the dataset or the harness. Entity paths are in :mod:`.entities`.
 """
 
 from __future__ import annotations
 
-import bisect
 import os
-from collections import Counter
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,15 +21,16 @@ import yaml
 
 from skyvln_eval.converters import topics as t
 from skyvln_eval.viewer import entities as e
-from skyvln_eval.viewer import scene, text
-from skyvln_eval.viewer.blueprint import episode_blueprint
+from skyvln_eval.viewer import scene, static_content, text
+from skyvln_eval.viewer.blueprint import Focus, episode_blueprint
+from skyvln_eval.viewer.canvas import Canvas
 from skyvln_eval.viewer.deps import rerun_sdk
 from skyvln_eval.viewer.logs import EpisodeLogRef, RunLogStream
 from skyvln_eval.viewer.signals import ControlSignals
 
 Json = Mapping[str, Any]
-#: Topics whose first decision marks the decision clock: agent steps (run logs), else GT
-#: views (episode logs, one GPS fix per view).
+#: Topics whose message times are the decisions: agent steps (run logs), else one GPS fix
+#: per ground-truth view (episode logs).
 _CLOCK_TOPICS = (t.TOPIC_AGENT_STEP, t.TOPIC_GPS)
 _DEFAULT_IMAGE_PX = 224
 
@@ -63,38 +62,33 @@ def _image_px(run: Mapping[str, str]) -> tuple[int, int]:
     return size, size
 
 
-class _Recorder:
-    """Logs one episode's messages into an open recording stream (one handler per topic)."""
+def _decision_times(log: RunLogStream) -> list[int]:
+    for topic in _CLOCK_TOPICS:
+        if log.topic_counts.get(topic):
+            return sorted({t_ns for _, t_ns, _ in log.messages([topic])})
+    return [0]
 
-    def __init__(self, rr: ModuleType, rec: Any, log: RunLogStream) -> None:
-        self.rr, self.rec, self.log = rr, rec, log
-        episode = log.episode()
-        self.episode = episode
-        self.frame = e.MapFrame(episode.georef)
-        self.rows: Counter[str] = Counter()
+
+class _Recorder:
+    """Logs one episode's time-ordered messages onto a canvas (one handler per topic)."""
+
+    def __init__(self, canvas: Canvas, image_px: tuple[int, int]) -> None:
+        self.canvas = canvas
+        self.rr: ModuleType = canvas.rr
+        self.image_px = image_px
         self.flight = scene.Flight()
         self.signals = ControlSignals()
-        self.decision_times = self._decision_times()
-        self.image_px = _image_px(log.run_metadata)
         self.dialog: list[Json] = []
         self.modules: list[str] = []
         self.detection_views: list[str] = []
         self.last_view: tuple[scene.Strip, int] | None = None
         self.views_seen = 0
-        self.t_ns = 0
-        self.decision = 0
         self.handlers: dict[str, Callable[[Json], None]] = {
-            t.TOPIC_MAP_TILE: self._map_tile,
-            t.TOPIC_GT_PATH: self._gt_path,
-            t.TOPIC_GT_VIEWS: self._gt_views,
-            t.TOPIC_DESTINATION: self._goal,
-            t.TOPIC_ATTENTION: self._attention,
-            t.TOPIC_START_POSE: self._start,
             t.TOPIC_TF: self._tf,
-            t.TOPIC_RUN_PATH: self._path,
+            t.TOPIC_RUN_PATH: lambda _: self._flight_so_far(),
             t.TOPIC_RUN_VIEWS: self._view,
-            t.TOPIC_OBSERVATION: self._observation(e.CAMERA_OBSERVATION),
-            t.TOPIC_GT_OBSERVATION: self._observation(f"{e.CAMERA}/gt_observation"),
+            t.TOPIC_OBSERVATION: self._image(e.CAMERA_OBSERVATION),
+            t.TOPIC_GT_OBSERVATION: self._image(f"{e.CAMERA}/gt_observation"),
             t.TOPIC_AGENT_STEP: self._agent_step,
             t.TOPIC_AGENT_LOG: self._agent_log,
             t.TOPIC_AGENT_TARGET: self._target,
@@ -104,126 +98,34 @@ class _Recorder:
             t.TOPIC_DIALOG: self._dialog,
         }
 
-    # -- plumbing ----------------------------------------------------------------------
-    def _decision_times(self) -> list[int]:
-        for topic in _CLOCK_TOPICS:
-            if self.log.topic_counts.get(topic):
-                return sorted({t_ns for _, t_ns, _ in self.log.messages([topic])})
-        return [0]
+    def on(self, topic: str, t_ns: int, message: Json) -> None:
+        if (static := static_content.HANDLERS.get(topic)) is not None:
+            static(self.canvas, message)
+        elif (handler := self.handlers.get(topic)) is not None:
+            self.canvas.at(t_ns)
+            handler(message)
 
-    def put(self, path: str, archetype: Any, static: bool = False) -> None:
-        self.rec.log(path, archetype, static=static)
-        self.rows[path] += 1
-
-    def _at(self, t_ns: int) -> None:
-        self.t_ns = t_ns
-        self.decision = max(0, bisect.bisect_right(self.decision_times, t_ns) - 1)
-        self.rec.set_time(e.DECISION_TIMELINE, sequence=self.decision)
-        self.rec.set_time(e.SIM_TIMELINE, duration=np.timedelta64(t_ns, "ns"))
-
-    def run(self) -> None:
-        self._episode_info()
-        for topic, t_ns, message in self.log.messages():
-            handler = self.handlers.get(topic)
-            if handler is not None:
-                self._at(t_ns)
-                handler(message)
-        self._finish()
-
-    def _strips2d(self, strips: list[scene.Strip], width_pt: float = 1.5) -> Any:
-        rr = self.rr
-        return rr.LineStrips2D(
-            [self.frame.pixels(s.points) for s in strips],
-            colors=[s.rgba for s in strips],
-            radii=rr.Radius.ui_points(width_pt),
-        )
-
-    def _strips3d(self, strips: list[scene.Strip], width_pt: float = 1.5) -> Any:
-        rr = self.rr
-        return rr.LineStrips3D(
-            [s.points for s in strips],
-            colors=[s.rgba for s in strips],
-            radii=rr.Radius.ui_points(width_pt),
-        )
-
-    # -- static content ------------------------------------------------------------------
-    def _episode_info(self) -> None:
-        run = self.log.run_metadata
-        lines = [f"# {self.episode.split} {self.episode.episode_id}", ""]
-        lines += [f"- map: {self.episode.map_name}", f"- log: {self.log.path}"]
-        for key in ("system", "execution_mode", "stop_reason", "error", "config_digest"):
-            if run.get(key):
-                lines.append(f"- {key.replace('_', ' ')}: {run[key]}")
-        if run.get("config"):
-            lines += ["", "## Run configuration", "", text.fenced(run["config"].rstrip())]
-        doc = self.rr.TextDocument("\n".join(lines) + "\n", media_type=self.rr.MediaType.MARKDOWN)
-        self.put(e.EPISODE_INFO, doc, static=True)
-
-    def _map_tile(self, message: Json) -> None:
-        rr = self.rr
-        data, media_type = scene.image_bytes(message)
-        self.put(e.MAP_TILE, rr.EncodedImage(contents=data, media_type=media_type), static=True)
-        # The tile is a downsampled copy: scale it up onto the map's own pixel grid.
-        width, height = scene.image_size(data)
-        if width and height:
-            map_w, map_h = self.frame.size_px
-            self.rec.log(
-                e.MAP_TILE, rr.Transform3D(scale=[map_w / width, map_h / height, 1.0]), static=True
-            )
-
-    def _gt_path(self, message: Json) -> None:
-        points = scene.pose_positions(message)
-        strip = [scene.Strip(points, scene.GT_RGBA, False)]
-        self.put(e.MAP_GT_ROUTE, self._strips2d(strip, 2.5), static=True)
-        self.put(e.WORLD_GT_ROUTE, self._strips3d(strip, 2.5), static=True)
-
-    def _gt_views(self, message: Json) -> None:
-        self.put(
-            e.MAP_GT_VIEWS, self._strips2d(scene.scene_strips(message, scene.GT_RGBA)), static=True
-        )
-
-    def _goal(self, message: Json) -> None:
-        strips = scene.scene_strips(message)
-        self.put(e.MAP_GOAL, self._strips2d(strips, 3.0), static=True)
-        self.put(e.WORLD_GOAL, self._strips3d(strips, 3.0), static=True)
-
-    def _attention(self, message: Json) -> None:
-        self.put(e.MAP_ATTENTION, self._strips2d(scene.scene_strips(message)), static=True)
-
-    def _start(self, message: Json) -> None:
-        position = scene.xyz(message.get("pose", {}).get("position", {}))
-        points = self.rr.Points2D(
-            [self.frame.pixels(position)],
-            labels=["start"],
-            colors=[scene.GT_RGBA],
-            radii=self.rr.Radius.ui_points(5.0),
-        )
-        self.put(e.MAP_START, points, static=True)
-
-    # -- time series ---------------------------------------------------------------------
     def _tf(self, message: Json) -> None:
         if message.get("child_frame_id") != t.DRONE_FRAME:
             return  # the fixed drone -> camera mounting
-        rr = self.rr
+        rr, canvas = self.rr, self.canvas
         position = scene.xyz(message.get("translation", {}))
         rotation = rr.Quaternion(xyzw=scene.quaternion_xyzw(message.get("rotation", {})))
-        self.put(e.WORLD_DRONE, rr.Transform3D(translation=position, quaternion=rotation))
+        canvas.put(e.WORLD_DRONE, rr.Transform3D(translation=position, quaternion=rotation))
         dot = rr.Points2D(
-            [self.frame.pixels(position)], colors=[scene.DRONE_RGBA], radii=rr.Radius.ui_points(4.0)
+            np.asarray([canvas.frame.pixels(position)]),
+            colors=[scene.DRONE_RGBA],
+            radii=rr.Radius.ui_points(4.0),
         )
-        self.put(e.MAP_DRONE, dot)
+        canvas.put(e.MAP_DRONE, dot)
         self.flight.add(position)
 
-    def _path(self, _message: Json) -> None:
-        self._log_flight()
-
-    def _log_flight(self) -> None:
+    def _flight_so_far(self) -> None:
         points = self.flight.array()
-        if len(points) < 1:
-            return
-        strip = [scene.Strip(points, scene.FLOWN_RGBA, False)]
-        self.put(e.MAP_PATH, self._strips2d(strip, 2.0))
-        self.put(e.WORLD_TRAJECTORY, self._strips3d(strip, 2.0))
+        if len(points):
+            strip = [scene.Strip(points, scene.FLOWN_RGBA, False)]
+            self.canvas.put(e.MAP_PATH, self.canvas.strips2d(strip, 2.0))
+            self.canvas.put(e.WORLD_TRAJECTORY, self.canvas.strips3d(strip, 2.0))
 
     def _view(self, message: Json) -> None:
         strips = [
@@ -231,56 +133,45 @@ class _Recorder:
         ]
         if not strips:
             return
-        # Views are logged in visiting order, as the log numbers them (visited_view_<k>).
-        index = self.views_seen
-        self.views_seen += 1
-        self.put(f"{e.MAP_VIEWS}/{index}", self._strips2d(strips))
-        self.put(f"{e.WORLD_VIEWS}/{index}", self._strips3d(strips))
-        self.last_view = (strips[0], self.t_ns)
+        # Views come in visiting order, as the log numbers them (visited_view_<k>).
+        index, self.views_seen = self.views_seen, self.views_seen + 1
+        self.canvas.put(f"{e.MAP_VIEWS}/{index}", self.canvas.strips2d(strips))
+        self.canvas.put(f"{e.WORLD_VIEWS}/{index}", self.canvas.strips3d(strips))
+        self.last_view = (strips[0], self.canvas.t_ns)
 
-    def _observation(self, path: str) -> Callable[[Json], None]:
+    def _image(self, path: str) -> Callable[[Json], None]:
         def log_image(message: Json) -> None:
-            data, media_type = scene.image_bytes(message)
-            self.put(path, self.rr.EncodedImage(contents=data, media_type=media_type))
+            data, media_type = scene.image_bytes(message)  # passed on encoded
+            self.canvas.put(path, self.rr.EncodedImage(contents=data, media_type=media_type))
 
         return log_image
 
     def _agent_step(self, step: Json) -> None:
-        rr = self.rr
-        markdown = rr.MediaType.MARKDOWN
-        t_s = self.t_ns / 1e9
-        self.put(e.AGENT_STEP, rr.TextDocument(text.step_document(step, t_s), media_type=markdown))
-        self.put(e.AGENT_HSD, rr.TextDocument(text.hsd_document(step), media_type=markdown))
-        self.put(e.AGENT_MEMORY, rr.TextDocument(text.memory_document(step), media_type=markdown))
+        canvas = self.canvas
+        canvas.markdown(e.AGENT_STEP, text.step_document(step, canvas.t_ns / 1e9))
+        canvas.markdown(e.AGENT_HSD, text.hsd_document(step))
+        canvas.markdown(e.AGENT_MEMORY, text.memory_document(step))
         sightings = (step.get("trace") or {}).get("sightings") or []
         found = scene.detections_by_view(sightings, self.image_px)
+        rr = self.rr
         for view in found:
             if view not in self.detection_views:
                 self.detection_views.append(view)
-                grid = rr.LineStrips2D(
-                    scene.frame_and_grid(*self.image_px), colors=[(120, 120, 120, 255)]
-                )
-                self.rec.log(self._detections_path(view) + "/sectors", grid, static=True)
-        for view in self.detection_views:
+                grid = scene.frame_and_grid(*self.image_px)
+                sectors = rr.LineStrips2D(grid, colors=[(120, 120, 120, 255)])
+                canvas.rec.log(f"{detections_path(view)}/sectors", sectors, static=True)
+        for view in self.detection_views:  # every view each decision: old boxes disappear
             boxes = found.get(view, scene.Detections([], []))
-            self.put(
-                self._detections_path(view),
-                rr.Boxes2D(
-                    array=np.asarray(boxes.boxes, np.float64).reshape(-1, 4),
-                    array_format=rr.Box2DFormat.XYXY,
-                    labels=boxes.labels,
-                ),
+            array = np.asarray(boxes.boxes, np.float64).reshape(-1, 4)
+            fmt = rr.Box2DFormat.XYXY
+            canvas.put(
+                detections_path(view),
+                rr.Boxes2D(array=array, array_format=fmt, labels=boxes.labels),
             )
 
-    @staticmethod
-    def _detections_path(view: str) -> str:
-        # "below" is the view under the drone: its boxes go over the observation image.
-        if view == "below":
-            return f"{e.CAMERA_OBSERVATION}/detections"
-        return f"{e.CAMERA_DETECTIONS}/{view.replace(' ', '_').replace('+', '')}"
-
     def _agent_log(self, message: Json) -> None:
-        self.put(e.AGENT_LOG, self.rr.TextLog(str(message.get("message", "")), level="INFO"))
+        line = self.rr.TextLog(str(message.get("message", "")), level="INFO")
+        self.canvas.put(e.AGENT_LOG, line)
 
     def _target(self, message: Json) -> None:
         position = scene.xyz(message.get("pose", {}).get("position", {}))
@@ -290,26 +181,24 @@ class _Recorder:
             radii=self.rr.Radius.ui_points(6.0),
             labels=["target"],
         )
-        self.put(e.WORLD_TARGET, target)
+        self.canvas.put(e.WORLD_TARGET, target)
 
     def _exchange(self, exchange: Json) -> None:
-        rr = self.rr
         module = str(exchange.get("module") or "unknown").replace("/", "_")
         if module not in self.modules:
             self.modules.append(module)
         level = "ERROR" if exchange.get("error") else "INFO"
-        self.put(e.LLM_LOG, rr.TextLog(text.exchange_line(exchange), level=level))
-        doc = rr.TextDocument(text.exchange_document(exchange), media_type=rr.MediaType.MARKDOWN)
-        self.put(f"{e.LLM}/{module}", doc)
+        self.canvas.put(e.LLM_LOG, self.rr.TextLog(text.exchange_line(exchange), level=level))
+        self.canvas.markdown(f"{e.LLM}/{module}", text.exchange_document(exchange))
 
     def _control(self, step: Json) -> None:
-        self.signals.add(step, self.t_ns, self.decision)
+        self.signals.add(step, self.canvas.t_ns, self.canvas.decision)
         reference = step.get("reference_position_m")
         if isinstance(reference, list) and len(reference) == 3:
             point = self.rr.Points3D(
                 [reference], colors=[scene.REFERENCE_RGBA], radii=self.rr.Radius.ui_points(3.0)
             )
-            self.put(e.WORLD_REFERENCE, point)
+            self.canvas.put(e.WORLD_REFERENCE, point)
 
     def _obstacles(self, message: Json) -> None:
         spheres = scene.scene_spheres(message)
@@ -319,35 +208,26 @@ class _Recorder:
             colors=spheres.colours,
             fill_mode="solid",
         )
-        self.put(e.WORLD_OBSTACLES, ellipsoids)
+        self.canvas.put(e.WORLD_OBSTACLES, ellipsoids)
 
     def _dialog(self, turn: Json) -> None:
         self.dialog.append(turn)
-        self.put(e.DIALOG, self.rr.TextLog(text.dialog_line(turn), level="INFO"))
+        self.canvas.put(e.DIALOG, self.rr.TextLog(text.dialog_line(turn), level="INFO"))
 
-    # -- the end -------------------------------------------------------------------------
-    def _finish(self) -> None:
-        rr = self.rr
-        self._at(self.t_ns)
-        self._log_flight()
+    def finish(self) -> None:
+        """The whole flight, the final view, the dialog and the control signals."""
+        canvas, rr = self.canvas, self.rr
+        self._flight_so_far()
         if self.last_view is not None:
             strip, t_ns = self.last_view
-            self._at(t_ns)
+            canvas.at(t_ns)
             final = [scene.Strip(strip.points, scene.FINAL_VIEW_RGBA, strip.loop)]
-            self.put(e.MAP_FINAL_VIEW, self._strips2d(final, 3.0))
+            canvas.put(e.MAP_FINAL_VIEW, canvas.strips2d(final, 3.0))
         if self.dialog:
-            doc = rr.TextDocument(
-                text.dialog_document(self.dialog), media_type=rr.MediaType.MARKDOWN
-            )
-            self.put(f"{e.DIALOG}/all", doc, static=True)
-        self.rec.log(
-            f"{e.WORLD_DRONE}/body",
-            rr.Boxes3D(half_sizes=[[2.0, 1.5, 0.4]], colors=[scene.DRONE_RGBA]),
-            static=True,
-        )
-        self.rec.log(f"{e.WORLD_DRONE}/body", rr.TransformAxes3D(axis_length=6.0), static=True)
+            canvas.markdown(f"{e.DIALOG}/all", text.dialog_document(self.dialog), static=True)
+        static_content.drone_body(canvas)
         for name, samples in self.signals.series.items():
-            self.rec.send_columns(
+            canvas.rec.send_columns(
                 f"{e.CONTROL}/{name}",
                 indexes=[
                     rr.TimeColumn(
@@ -357,7 +237,37 @@ class _Recorder:
                 ],
                 columns=rr.Scalars.columns(scalars=samples.values),
             )
-            self.rows[f"{e.CONTROL}/{name}"] += len(samples.values)
+            canvas.rows[f"{e.CONTROL}/{name}"] += len(samples.values)
+
+    def focus(self) -> Focus | None:
+        """Where the 3-D view should look: the flight, from behind its start and above."""
+        points = self.flight.array()
+        if not len(points):
+            return None
+        centre = points.mean(axis=0)
+        reach = max(80.0, float(np.ptp(points[:, :2], axis=0).max()))
+        eye = centre + np.array([-0.5, -1.0, 0.9]) * reach
+        return Focus(eye.tolist(), centre.tolist())
+
+
+def detections_path(view: str) -> str:
+    """Boxes of a panorama view; the view straight down goes over the observation image."""
+    if view == "below":
+        return f"{e.CAMERA_OBSERVATION}/detections"
+    return f"{e.CAMERA_DETECTIONS}/{view.replace(' ', '_').replace('+', '')}"
+
+
+def _record(rr: ModuleType, rec: Any, log: RunLogStream, ref: EpisodeLogRef) -> _Recorder:
+    episode = log.episode()
+    canvas = Canvas(rr, rec, e.MapFrame(episode.georef), _decision_times(log))
+    static_content.episode_card(canvas, episode, log.run_metadata, log.path)
+    recorder = _Recorder(canvas, _image_px(log.run_metadata))
+    for topic, t_ns, message in log.messages():
+        recorder.on(topic, t_ns, message)
+    recorder.finish()
+    blueprint = episode_blueprint(rr, recorder.modules, recorder.detection_views, recorder.focus())
+    rec.send_blueprint(blueprint)
+    return recorder
 
 
 def write_recording(ref: EpisodeLogRef, out: str | Path) -> RecordingSummary:
@@ -373,9 +283,7 @@ def write_recording(ref: EpisodeLogRef, out: str | Path) -> RecordingSummary:
             rec.save(tmp)
             system = log.run_metadata.get("system", "episode log")
             rec.send_recording_name(f"{system}: {ref.split}/{ref.episode_id}")
-            recorder = _Recorder(rr, rec, log)
-            recorder.run()
-            rec.send_blueprint(episode_blueprint(rr, recorder.modules, recorder.detection_views))
+            recorder = _record(rr, rec, log, ref)
             rec.flush()
             rec.disconnect()  # writes the footer: the file is complete only after this
             tmp.replace(out)
@@ -383,4 +291,5 @@ def write_recording(ref: EpisodeLogRef, out: str | Path) -> RecordingSummary:
             rec.disconnect()
             tmp.unlink(missing_ok=True)
             raise
-    return RecordingSummary(out, ref, rec_id, len(recorder.decision_times), dict(recorder.rows))
+    canvas = recorder.canvas
+    return RecordingSummary(out, ref, rec_id, len(canvas.decision_times_ns), dict(canvas.rows))

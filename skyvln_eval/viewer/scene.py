@@ -97,12 +97,10 @@ def image_bytes(message: Json) -> tuple[bytes, str]:
     return data, "image/png" if image_format == "png" else "image/jpeg"
 
 
-def image_size(data: bytes) -> tuple[int, int]:
-    """Width and height of an encoded image (decodes it: used for the small map tile only)."""
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        return 0, 0
-    return int(image.shape[1]), int(image.shape[0])
+def decode_rgb(data: bytes) -> NDArray[np.uint8] | None:
+    """An encoded image as RGB pixels, or None if it cannot be decoded."""
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    return None if image is None else np.ascontiguousarray(image[:, :, ::-1])
 
 
 @dataclass
