@@ -326,6 +326,36 @@ def reproduce(
         raise typer.Exit(1)
 
 
+@app.command()
+def view(
+    target: Annotated[
+        Path,
+        typer.Argument(help="A run directory (skyvln-eval run --out), one run MCAP, or an .rrd"),
+    ],
+    episode: Annotated[
+        list[str] | None,
+        typer.Option("--episode", "-e", help="Episode ID or SPLIT/ID; repeat it (default: all)"),
+    ] = None,
+    save: Annotated[
+        Path | None,
+        typer.Option(help="Write FILE.rrd (several episodes: one recording each) or a folder"),
+    ] = None,
+    serve: Annotated[
+        bool, typer.Option(help="Serve the web viewer on 127.0.0.1 (the default without --save)")
+    ] = False,
+    port: Annotated[int, typer.Option(min=0, max=65535, help="Web viewer port")] = 9090,
+) -> None:
+    """See episodes in the Rerun web viewer: map, 3-D flight, camera, texts, control plots.
+
+    One recording per episode, built from its run MCAP only. Needs `pip install
+    'skyvln-eval[viewer]'`. Rerun's usage analytics are off for what this starts (if you
+    start `rerun` yourself, `rerun analytics disable` turns them off).
+    """
+    from skyvln_eval.viewer.commands import run_view
+
+    run_view(target, episode or [], save, serve, port)
+
+
 def _register_report_commands() -> None:
     # Implementations live in skyvln_eval.reports.commands; they import heavy modules lazily.
     from skyvln_eval.reports.commands import plot_app, score, table
