@@ -299,13 +299,17 @@ def reproduce(
     limit: Annotated[
         int | None, typer.Option(min=1, help="Episodes per split (a quick look)")
     ] = None,
+    recordings: Annotated[
+        bool,
+        typer.Option(help="Save a few episodes per system as Rerun recordings (viewer extra)"),
+    ] = True,
 ) -> None:
     """The main job: the paper's Table I and II, control figures and a summary, on the sample."""
     from skyvln_eval.harness.plan import load_plan
     from skyvln_eval.harness.progress import RichRunProgress
     from skyvln_eval.harness.reproduce import reproduce as run_plan
 
-    chosen = load_plan(plan, limit=limit)
+    chosen = load_plan(plan, limit=limit, recordings=None if recordings else 0)
     if data_dir is None and chosen.data == "sample":
         _build_dataset("sample", None, False, 1)  # with a progress bar on first use
     report = run_plan(
