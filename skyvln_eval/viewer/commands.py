@@ -93,9 +93,9 @@ def _save(refs: Sequence[EpisodeLogRef], save: Path, work: Path) -> list[Path]:
 
 def _serve(paths: Sequence[Path], port: int) -> None:
     with serve_recordings(paths, port=port) as viewer:
-        typer.echo(f"Rerun web viewer (local only, analytics off): {viewer.url}")
-        typer.echo("Open it in a browser; Ctrl-C stops the server.")
-        try:
+        try:  # from the first line on: a Ctrl-C at any moment stops the server cleanly
+            typer.echo(f"Rerun web viewer (local only, analytics off): {viewer.url}")
+            typer.echo("Open it in a browser; Ctrl-C stops the server.")
             while viewer.process.poll() is None:
                 time.sleep(0.5)
         except KeyboardInterrupt:

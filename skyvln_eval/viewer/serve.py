@@ -154,10 +154,32 @@ class ServedViewer:
                 self.process.kill()
                 self.process.wait(timeout=10)
         self._log_file.close()
+        shutil.rmtree(self.log_path.parent, ignore_errors=True)
 
     def log_tail(self, lines: int = 20) -> str:
         text = self.log_path.read_text(encoding="utf-8", errors="replace")
         return "\n".join(text.splitlines()[-lines:])
+
+
+def _start_proxy(
+    process: subprocess.Popen[bytes], port: int, page_port: int, grpc_port: int, log_path: Path
+) -> ThreadingHTTPServer:
+    """Wait for the executable's two servers, then listen on ``port`` in front of the page."""
+    deadline = time.monotonic() + _STARTUP_S
+    if not all(_wait_for_port(p, process, deadline) for p in (grpc_port, page_port)):
+        tail = log_path.read_text(encoding="utf-8", errors="replace")[-2000:]
+        raise ViewerServeError(f"the rerun web viewer did not start:\n{tail}")
+    handler = type(
+        "ProxyHandler",
+        (_ProxyHandler,),
+        {"upstream_port": page_port, "policy": content_security_policy(grpc_port)},
+    )
+    try:
+        proxy = ThreadingHTTPServer((HOST, port), handler)
+    except OSError as error:
+        raise ViewerServeError(f"cannot listen on {HOST}:{port}: {error.strerror}") from error
+    proxy.daemon_threads = True
+    return proxy
 
 
 def serve_recordings(
@@ -194,26 +216,15 @@ def serve_recordings(
         stderr=subprocess.STDOUT,
         env=rerun_environment(),
     )
-    deadline = time.monotonic() + _STARTUP_S
-    if not all(_wait_for_port(p, process, deadline) for p in (grpc_port, page_port)):
-        process.kill()
-        process.wait(timeout=10)
-        log_file.close()
-        tail = log_path.read_text(encoding="utf-8", errors="replace")[-2000:]
-        raise ViewerServeError(f"the rerun web viewer did not start:\n{tail}")
-    handler = type(
-        "ProxyHandler",
-        (_ProxyHandler,),
-        {"upstream_port": page_port, "policy": content_security_policy(grpc_port)},
-    )
     try:
-        proxy = ThreadingHTTPServer((HOST, port), handler)
-    except OSError as error:
-        process.terminate()
-        process.wait(timeout=10)
+        proxy = _start_proxy(process, port, page_port, grpc_port, log_path)
+    except BaseException:
+        # Never leave the executable running (it is in its own session: no Ctrl-C reaches it).
+        if process.poll() is None:
+            process.kill()
+            process.wait(timeout=10)
         log_file.close()
-        raise ViewerServeError(f"cannot listen on {HOST}:{port}: {error.strerror}") from error
-    proxy.daemon_threads = True
+        raise
     thread = threading.Thread(target=proxy.serve_forever, name="viewer-proxy", daemon=True)
     thread.start()
     bound = int(proxy.server_address[1])

@@ -68,6 +68,32 @@ def test_the_served_viewer_listens_on_the_loopback_only_with_a_policy(
     assert process.poll() is not None  # closing stopped the rerun process it started
 
 
+def test_a_taken_port_is_a_clear_error_and_leaves_no_process(
+    flown_run: Path, rerun_cli: Path, tmp_path: Path
+) -> None:
+    import socket
+
+    import psutil
+
+    from skyvln_eval.viewer import write_recording
+    from skyvln_eval.viewer.serve import ViewerServeError, serve_recordings
+
+    (ref,) = find_episode_logs(flown_run)
+    summary = write_recording(ref, tmp_path / "episode.rrd")
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        with pytest.raises(ViewerServeError, match=f"cannot listen on 127.0.0.1:{port}"):
+            serve_recordings([summary.path], port=port)
+    rerun_children = [
+        c
+        for c in psutil.Process().children(recursive=True)
+        if c.name() == rerun_cli.name and c.status() != psutil.STATUS_ZOMBIE
+    ]
+    assert not rerun_children
+
+
 def test_view_saves_one_episode_and_names_unknown_ones(flown_run: Path, tmp_path: Path) -> None:
     pytest.importorskip("rerun", reason="rerun-sdk is not installed (pip install '.[viewer]')")
     (ref,) = find_episode_logs(flown_run)
