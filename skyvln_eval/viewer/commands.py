@@ -64,7 +64,7 @@ def merge_recordings(paths: Sequence[Path], out: Path) -> None:
     tmp.replace(out)
 
 
-def describe(summary: RecordingSummary) -> str:
+def describe(summary: RecordingSummary, show_path: bool = True) -> str:
     rows = summary.rows
     parts = [
         f"{summary.decisions} decision(s)",
@@ -73,7 +73,8 @@ def describe(summary: RecordingSummary) -> str:
         f"{rows.get('world/drone', 0)} pose(s)",
         f"{rows.get('world/obstacles', 0)} obstacle sample(s)",
     ]
-    return f"{summary.episode.key}: {', '.join(parts)} -> {summary.path}"
+    where = f" -> {summary.path}" if show_path else ""
+    return f"{summary.episode.key}: {', '.join(parts)}{where}"
 
 
 def _save(refs: Sequence[EpisodeLogRef], save: Path, work: Path) -> list[Path]:
@@ -82,7 +83,7 @@ def _save(refs: Sequence[EpisodeLogRef], save: Path, work: Path) -> list[Path]:
             summary = write_recording(refs[0], save)
             typer.echo(describe(summary))
             return [save]
-        built = build_recordings(refs, work, lambda s: typer.echo(describe(s)))
+        built = build_recordings(refs, work, lambda s: typer.echo(describe(s, False)))
         save.parent.mkdir(parents=True, exist_ok=True)
         merge_recordings([s.path for s in built], save)
         typer.echo(f"saved {len(built)} recording(s) in {save}")
@@ -125,7 +126,7 @@ def run_view(
         if save is not None:
             paths = _save(refs, save, Path(work))
         else:
-            built = build_recordings(refs, Path(work), lambda s: typer.echo(describe(s)))
+            built = build_recordings(refs, Path(work), lambda s: typer.echo(describe(s, False)))
             paths = [s.path for s in built]
         if save is None or serve:
             if len(paths) > MANY_RECORDINGS:

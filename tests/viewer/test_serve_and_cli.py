@@ -146,3 +146,45 @@ def test_view_serves_until_interrupted(flown_run: Path, rerun_cli: Path, tmp_pat
             process.wait(timeout=10)
     assert process.returncode == 0
     assert "stopped" in out
+
+
+def test_several_episodes_saved_as_one_file_keep_one_recording_each(
+    flown_run: Path, rerun_cli: Path, tmp_path: Path
+) -> None:
+    (ref,) = find_episode_logs(flown_run)
+    for split in ("val_seen", "test_unseen"):  # the same log under two splits: two episodes
+        copy = tmp_path / "run" / "logs" / split / ref.path.name
+        copy.parent.mkdir(parents=True)
+        copy.write_bytes(ref.path.read_bytes())
+    out = tmp_path / "both.rrd"
+    result = subprocess.run(
+        _cli("view", str(tmp_path / "run"), "--save", str(out)),
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=120,
+        check=False,
+    )
+    assert result.returncode == 0, result.stderr
+    assert "saved 2 recording(s)" in result.stdout
+    printed = subprocess.run(
+        [str(rerun_cli), "rrd", "print", str(out)],
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=rerun_environment(),
+        check=True,
+    ).stdout
+    for split in ("val_seen", "test_unseen"):
+        assert f'"{split}/{ref.episode_id}@' in printed
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+    refused = subprocess.run(
+        _cli("view", str(out), "--save", str(tmp_path / "again.rrd")),
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=120,
+        check=False,
+    )
+    assert refused.returncode == 2 and "already a recording" in refused.stderr
