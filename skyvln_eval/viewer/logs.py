@@ -67,7 +67,11 @@ def find_episode_logs(target: str | Path, episodes: Sequence[str] = ()) -> list[
     if target.is_file():
         if target.suffix != ".mcap":
             raise ConfigError(f"{target}: not a run directory or an .mcap run log")
-        return [_ref(target)]
+        with RunLogStream(target) as log:  # a lone file: its split and id from its metadata
+            meta = log.metadata.get(t.EPISODE_METADATA, {})
+        return [
+            EpisodeLogRef(target, meta.get("split") or "-", meta.get("episode_id") or target.stem)
+        ]
     logs = target / LOGS_DIR
     if not logs.is_dir():
         raise ConfigError(
