@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import re
-import subprocess
 from collections import Counter
 from pathlib import Path
 
@@ -14,21 +13,9 @@ from skyvln_eval.converters.reader import episode_from_log, read_log
 from skyvln_eval.frames import latlng_to_enu
 from skyvln_eval.viewer import entities as e
 from skyvln_eval.viewer.logs import find_episode_logs
-from skyvln_eval.viewer.privacy import rerun_environment
+from tests.viewer.tools import rerun_tool
 
 _CHUNK = re.compile(r"^Chunk\(\S+\) with (\d+) rows \(.*?\) - (\S+) - ")
-
-
-def rerun_tool(cli: Path, *args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [str(cli), *args],
-        stdin=subprocess.DEVNULL,
-        capture_output=True,
-        text=True,
-        timeout=120,
-        env=rerun_environment(),
-        check=False,
-    )
 
 
 def rows_by_entity(printed: str) -> Counter[str]:

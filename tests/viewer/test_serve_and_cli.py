@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import signal
 import subprocess
-import sys
 import time
 import urllib.request
 from pathlib import Path
@@ -15,23 +14,13 @@ import pytest
 from skyvln_eval.viewer.logs import find_episode_logs
 from skyvln_eval.viewer.privacy import rerun_environment
 from tests.conftest import REPO
-
-
-def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-m", "skyvln_eval.cli", *args]
+from tests.viewer.tools import rerun_tool, run_skyvln_eval, skyvln_eval_command
 
 
 def test_rerun_processes_run_with_analytics_off(rerun_cli: Path) -> None:
-    env = rerun_environment()
-    result = subprocess.run(
-        [str(rerun_cli), "analytics", "config"],
-        stdin=subprocess.DEVNULL,
-        capture_output=True,
-        text=True,
-        timeout=60,
-        env=env,
-        check=True,
-    )
+    env = rerun_environment()  # what the toolkit gives every rerun process it starts
+    result = rerun_tool(rerun_cli, "analytics", "config")
+    assert result.returncode == 0, result.stderr
     config = json.loads(result.stdout)
     assert config["analytics_enabled"] is False
     assert config["config_file_path"].startswith(env["XDG_CONFIG_HOME"])
@@ -98,32 +87,20 @@ def test_view_saves_one_episode_and_names_unknown_ones(flown_run: Path, tmp_path
     pytest.importorskip("rerun", reason="rerun-sdk is not installed (pip install '.[viewer]')")
     (ref,) = find_episode_logs(flown_run)
     out = tmp_path / "one.rrd"
-    result = subprocess.run(
-        _cli("view", str(flown_run), "--episode", ref.episode_id, "--save", str(out)),
-        capture_output=True,
-        text=True,
-        cwd=REPO,
-        timeout=120,
-        check=False,
+    result = run_skyvln_eval(
+        "view", str(flown_run), "--episode", ref.episode_id, "--save", str(out)
     )
     assert result.returncode == 0, result.stderr
     assert out.is_file() and out.stat().st_size > 10_000
     assert f"{ref.key}: " in result.stdout and "decision(s)" in result.stdout
-    bad = subprocess.run(
-        _cli("view", str(flown_run), "--episode", "nope", "--save", str(out)),
-        capture_output=True,
-        text=True,
-        cwd=REPO,
-        timeout=120,
-        check=False,
-    )
+    bad = run_skyvln_eval("view", str(flown_run), "--episode", "nope", "--save", str(out))
     assert bad.returncode == 2
     assert "no run MCAP for episode 'nope'" in bad.stderr
 
 
 def test_view_serves_until_interrupted(flown_run: Path, rerun_cli: Path, tmp_path: Path) -> None:
     (ref,) = find_episode_logs(flown_run)
-    command = _cli("view", str(flown_run), "--episode", ref.key, "--port", "0")
+    command = skyvln_eval_command("view", str(flown_run), "--episode", ref.key, "--port", "0")
     process = subprocess.Popen(
         command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO
     )
@@ -157,34 +134,12 @@ def test_several_episodes_saved_as_one_file_keep_one_recording_each(
         copy.parent.mkdir(parents=True)
         copy.write_bytes(ref.path.read_bytes())
     out = tmp_path / "both.rrd"
-    result = subprocess.run(
-        _cli("view", str(tmp_path / "run"), "--save", str(out)),
-        capture_output=True,
-        text=True,
-        cwd=REPO,
-        timeout=120,
-        check=False,
-    )
+    result = run_skyvln_eval("view", str(tmp_path / "run"), "--save", str(out))
     assert result.returncode == 0, result.stderr
     assert "saved 2 recording(s)" in result.stdout
-    printed = subprocess.run(
-        [str(rerun_cli), "rrd", "print", str(out)],
-        stdin=subprocess.DEVNULL,
-        capture_output=True,
-        text=True,
-        timeout=120,
-        env=rerun_environment(),
-        check=True,
-    ).stdout
+    printed = rerun_tool(rerun_cli, "rrd", "print", str(out)).stdout
     for split in ("val_seen", "test_unseen"):
         assert f'"{split}/{ref.episode_id}@' in printed
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
-    refused = subprocess.run(
-        _cli("view", str(out), "--save", str(tmp_path / "again.rrd")),
-        capture_output=True,
-        text=True,
-        cwd=REPO,
-        timeout=120,
-        check=False,
-    )
+    refused = run_skyvln_eval("view", str(out), "--save", str(tmp_path / "again.rrd"))
     assert refused.returncode == 2 and "already a recording" in refused.stderr
