@@ -90,6 +90,9 @@ class ReproducePlan(_Strict):
     table2: Table2Plan
     control_figures: ControlFiguresPlan = ControlFiguresPlan()
     trajectory_figures: int = Field(default=2, ge=0)
+    recordings: int = Field(
+        default=2, ge=0, description="example episodes per system saved as Rerun recordings"
+    )
 
 
 def load_plan(name_or_path: str | Path = DEFAULT_PLAN, **overrides: Any) -> ReproducePlan:

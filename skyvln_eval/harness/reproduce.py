@@ -32,7 +32,14 @@ from skyvln_eval.avdn.summary import SplitSummary, summarise_split
 from skyvln_eval.fileio import atomic_write_json, atomic_write_text
 from skyvln_eval.harness.executors import ExecutorKind, make_executor
 from skyvln_eval.harness.plan import PlannedRun, ReproducePlan, planned_runs
-from skyvln_eval.harness.run import Progress, RunReport, execute_jobs, prepare_job, resolve_data_dir
+from skyvln_eval.harness.run import (
+    Progress,
+    RunJob,
+    RunReport,
+    execute_jobs,
+    prepare_job,
+    resolve_data_dir,
+)
 from skyvln_eval.metrics import MetricConventions, score_results, summarise
 from skyvln_eval.metrics.cost import UNKNOWN_IF_ANY_UNKNOWN
 from skyvln_eval.metrics.records import EpisodeResult
@@ -103,6 +110,7 @@ class ReproduceReport:
     reports: list[RunReport]
     files: dict[str, Path] = field(default_factory=dict)
     wall_s: float = 0.0
+    notes: list[str] = field(default_factory=list)
 
     @property
     def complete(self) -> bool:
@@ -246,6 +254,23 @@ def _trajectory_figures(
     return files
 
 
+def _recordings(
+    plan: ReproducePlan, runs: Sequence[PlannedRun], jobs: Sequence[RunJob], out_dir: Path
+) -> tuple[dict[str, Path], list[str]]:
+    """The first ``plan.recordings`` finished episodes of each system as Rerun recordings."""
+    if plan.recordings == 0:
+        return {}, []
+    from skyvln_eval.viewer.examples import write_examples
+
+    chosen: dict[str, tuple[Path, list[tuple[str, str]]]] = {}
+    for planned, job in zip(runs, jobs, strict=True):
+        label = planned.rows[0][1]
+        if label not in chosen:  # a system's first run (its first split) is enough
+            done = sorted((r.split, r.episode_id) for r in job.store.results() if r.status == "ok")
+            chosen[label] = (planned.run_dir, done[: plan.recordings])
+    return write_examples(chosen, out_dir / "recordings")
+
+
 def _dataset_summary(data_dir: Path) -> list[SplitSummary]:
     return [
         summarise_split(load_split(data_dir, split))
@@ -319,6 +344,8 @@ def reproduce(
     report.files |= _navigation_figures(scores, table1_rows, conventions, figures_dir)
     full = [r for r in results if r.system == table1_rows[-1] and r.split == plan.table2.split]
     report.files |= _trajectory_figures(full, data_dir, plan.trajectory_figures, figures_dir)
+    recordings, report.notes = _recordings(plan, runs, jobs, out_dir)
+    report.files |= recordings
     report.wall_s = time.perf_counter() - started
     from skyvln_eval.harness.summary_page import write_summary_page
 
