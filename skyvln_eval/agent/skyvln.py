@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from skyvln_eval.agent.actions import Action, FlyTo, action_record, decision_json_schema
-from skyvln_eval.agent.base import Agent, Decision, Observation
+from skyvln_eval.agent.base import Agent, Decision, EpisodeBrief, Observation
 from skyvln_eval.agent.calls import call_json
 from skyvln_eval.agent.detectors import episode_seed
 from skyvln_eval.agent.hsd import HsdResult, PhraseMatch, SpatialDescriptor, matches_text
@@ -39,12 +39,10 @@ from skyvln_eval.agent.subgoals import (
     parse_subgoals,
     subgoal_messages,
 )
-from skyvln_eval.avdn.records import Episode
 from skyvln_eval.errors import ActionParseError
 from skyvln_eval.llm.client import LLMClient
 from skyvln_eval.llm.config import LLMConfig
 from skyvln_eval.llm_records import LlmCall, ModuleFailure
-from skyvln_eval.worlds.tile import WorldTile
 
 STOP_KINDS = ("destination", "stop_at")
 
@@ -53,7 +51,7 @@ STOP_KINDS = ("destination", "stop_at")
 class _EpisodeState:
     """Everything the agent carries from step to step of one episode."""
 
-    episode: Episode
+    brief: EpisodeBrief
     dialog: DialogText
     plan: SubGoalPlan | None = None
     odometer: Odometer = field(default_factory=Odometer)
@@ -104,18 +102,16 @@ class SkyVLNAgent(Agent):
             top_k=self.descriptor.top_k,
         )
 
-    def reset(self, episode: Episode, world: WorldTile) -> None:
-        self._state = _EpisodeState(
-            episode, DialogText.of(episode.dialog(), episode.first.round_index)
-        )
-        self.perception.reset(world, episode_seed(self.seed, episode.episode_id))
+    def reset(self, brief: EpisodeBrief) -> None:
+        self._state = _EpisodeState(brief, DialogText.of(brief.dialog, brief.current_round))
+        self.perception.reset(episode_seed(self.seed, brief.episode_id))
         if self.memory is not None:
             self.memory.reset(())
 
     def act(self, observation: Observation) -> Decision:
         st = self._state
         if st is None:
-            raise ActionParseError("SkyVLNAgent.act called before reset(episode, world)")
+            raise ActionParseError("SkyVLNAgent.act called before reset(brief)")
         records: list[LlmCall] = []
         exchanges: list[dict[str, Any]] = []
         failures: list[ModuleFailure] = []
@@ -126,9 +122,9 @@ class SkyVLNAgent(Agent):
         pose = observation.pose
         place = None
         if self.memory is not None:
-            instruction = st.episode.first.instructions
+            instruction = st.brief.instruction
             place = self.memory.add_place(observation.step_index, pose, instruction, st.last_action)
-        panorama = self.perception.observe(observation.camera, pose, st.plan.landmark_phrases)
+        panorama = self.perception.observe(observation.sensors, pose, st.plan.landmark_phrases)
         st.odometer.update(pose, panorama.road_bearings_deg)
         met = []
         if self.memory is not None:

@@ -19,6 +19,7 @@ from skyvln_eval.agent.config import AgentConfig
 from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN, EpisodeMode, Split
 from skyvln_eval.errors import ConfigError, describe_validation_error
 from skyvln_eval.harness.executors import ExecutorKind
+from skyvln_eval.sensing import SensorConfig
 from skyvln_eval.sim.scenarios import ScenarioKind
 
 ExecutionMode = Literal["official", "dynamics"]
@@ -73,6 +74,7 @@ class RunConfig(_Strict):
     limit: int | None = Field(default=None, ge=1)
     mode: ExecutionMode = "official"
     agent: AgentConfig = AgentConfig()
+    sensors: SensorConfig = SensorConfig()
     dynamics: DynamicsSettings = DynamicsSettings()
     max_action_len: int = Field(default=DEFAULT_MAX_ACTION_LEN, ge=1, le=100)
     seed: int = 0

@@ -9,9 +9,28 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyvln_eval.agent.actions import Action, Stop
-from skyvln_eval.agent.base import Agent, Decision, Observation
+from skyvln_eval.agent.base import Agent, Decision, EpisodeBrief, Observation
+from skyvln_eval.avdn.records import Episode
 from skyvln_eval.errors import CacheMissError, LLMAuthError, SkyvlnError
+from skyvln_eval.frames import view_to_pose
 from skyvln_eval.llm_records import LlmCall, ModuleFailure
+
+
+def episode_brief(episode: Episode, max_steps: int) -> EpisodeBrief:
+    """What the agent is told of ``episode``: the dialog so far, where it starts, the map's
+    georeference and the step budget. Not the goal, the route or the world."""
+    georef = episode.georef
+    start = np.asarray(episode.start_view, dtype=np.float64)
+    return EpisodeBrief(
+        episode_id=episode.episode_id,
+        map_name=episode.map_name,
+        dialog=tuple(episode.dialog()),
+        current_round=episode.first.round_index,
+        start_pose=view_to_pose(start, georef),
+        start_view=start,
+        georef=georef,
+        max_steps=max_steps,
+    )
 
 
 @dataclass(eq=False)

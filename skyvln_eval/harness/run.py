@@ -32,6 +32,7 @@ from skyvln_eval.fileio import atomic_write_json, atomic_write_text
 from skyvln_eval.harness.config import RunConfig, run_config_from_mapping
 from skyvln_eval.harness.executors import Executor, make_executor
 from skyvln_eval.harness.official_loop import official_success
+from skyvln_eval.harness.preflight import preflight
 from skyvln_eval.harness.provenance import provenance
 from skyvln_eval.harness.runner import EpisodeTask, failed_result, run_episode_task
 from skyvln_eval.harness.store import ResultStore, RowKey, key_of
@@ -234,6 +235,7 @@ def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = Fal
     run_dir = Path(run_dir)
     data_dir = resolve_data_dir(config.data)
     logs = episode_logs(config, data_dir)
+    preflight(config, data_dir, (episode_id.rsplit("__", 1)[0] for _, episode_id in logs))
     prepare_run_dir(config, run_dir)
     store = ResultStore(run_dir)
     report = RunReport(run_dir, config.system, list(logs), notes=store.recovery.messages())

@@ -35,6 +35,7 @@ from skyvln_eval.errors import CacheMissError, LLMAuthError
 from skyvln_eval.harness.config import RunConfig
 from skyvln_eval.harness.dynamics_loop import DynamicsRollout, derived_seed, run_dynamics_episode
 from skyvln_eval.harness.official_loop import OfficialRollout, run_official_episode
+from skyvln_eval.harness.oracle import ground_truth_oracle
 from skyvln_eval.harness.run_log import RunLogContent, Step, write_run_log
 from skyvln_eval.metrics.records import EpisodeResult, judge_status
 from skyvln_eval.metrics.safety import summarise_control
@@ -90,6 +91,14 @@ def _controller(name: str, settings_json: str) -> Controller:
     return make_controller(name, json.loads(settings_json))
 
 
+def _agent(config: RunConfig, episode: Episode, seed: int) -> Agent:
+    """The run's agent for ``episode``; the ground-truth replay is an oracle the harness
+    builds from the episode (no agent is given the route)."""
+    if config.agent.name == "ground_truth":
+        return ground_truth_oracle(episode)
+    return build_agent(config.agent.model_copy(update={"seed": seed}))
+
+
 def episode_seed(config: RunConfig, split: str, episode_id: str) -> int:
     return derived_seed(config.seed, split, episode_id)
 
@@ -123,7 +132,7 @@ def _steps(rollout: OfficialRollout | DynamicsRollout, times_s: list[float]) -> 
 def _official(
     agent: Agent, episode: Episode, world: WorldTile, config: RunConfig
 ) -> tuple[OfficialRollout, RunLogContent, dict[str, Any]]:
-    rollout = run_official_episode(agent, episode, world, config.max_action_len)
+    rollout = run_official_episode(agent, episode, world, config.max_action_len, config.sensors)
     times = [float(k) for k in range(len(rollout.views))]  # one second per official step
     content = RunLogContent({}, _steps(rollout, times), rollout.views, times)
     extra = {
@@ -141,7 +150,7 @@ def _dynamics(
         settings.controller, json.dumps(settings.controller_settings, sort_keys=True)
     )
     rollout = run_dynamics_episode(
-        agent, episode, world, controller, settings, seed, config.max_action_len
+        agent, episode, world, controller, settings, seed, config.max_action_len, config.sensors
     )
     view_times = [0.0, *rollout.segment_end_times_s][: len(rollout.views)]
     content = RunLogContent(
@@ -174,7 +183,7 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
             )
         world = _world(task.data_dir, episode.map_name, episode.georef)
         seed = episode_seed(config, task.split, task.episode_id)
-        agent = build_agent(config.agent.model_copy(update={"seed": seed}))
+        agent = _agent(config, episode, seed)
         control = control_log = None
         rollout: OfficialRollout | DynamicsRollout
         if config.mode == "official":

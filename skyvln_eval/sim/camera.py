@@ -16,9 +16,8 @@ along the optical axis), so a pixel's point is ``camera + depth * ray(u, v)``.
 from __future__ import annotations
 
 import functools
-import math
 import weakref
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Final
 
 import cv2
@@ -26,95 +25,32 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyvln_eval.avdn.constants import METERS_PER_DEGREE
-from skyvln_eval.errors import ConfigError
+from skyvln_eval.sensing import (
+    SEMANTIC_NONE,
+    CameraConfig,
+    CameraImages,
+    CameraPose,
+    camera_basis,
+    pixel_rays,
+    plane_coordinates,
+)
 from skyvln_eval.worlds.tile import WorldTile
 
-#: Semantic value of pixels that see the sky or lie outside the map.
-SEMANTIC_NONE: Final = 255
+__all__ = [
+    "SEMANTIC_NONE",
+    "CameraConfig",
+    "CameraImages",
+    "CameraPose",
+    "CameraRig",
+    "camera_basis",
+    "enu_to_map_px",
+    "pixel_rays",
+    "render_camera",
+]
+
 SKY_BGR: Final = (235, 206, 135)
 
 FloatImage = NDArray[np.float32]
-
-
-@dataclass(frozen=True)
-class CameraConfig:
-    """Image size and optics; ``fov_deg`` is the horizontal field of view.
-
-    ``max_depth_m`` is the depth sensor's range (farther pixels get ``inf`` depth but are
-    still seen in RGB); ``height_levels`` the number of height levels rays are marched
-    through. Between two levels a ray moves ``level spacing / tan(depression)`` metres
-    sideways, so at grazing angles a building narrower than that can be missed (its roof
-    is still seen from steeper rays): raise the levels for low pitches and tall
-    buildings, at the cost of one image lookup per level. Rays that go up see the sky:
-    walls above the drone's height are not drawn.
-    """
-
-    width_px: int = 224
-    height_px: int = 224
-    fov_deg: float = 90.0
-    max_depth_m: float = 500.0
-    height_levels: int = 24
-
-    def __post_init__(self) -> None:
-        if self.width_px < 8 or self.height_px < 8:
-            raise ConfigError(
-                f"camera image must be at least 8 x 8 px, got {self.width_px} x {self.height_px}"
-            )
-        if not 10.0 <= self.fov_deg <= 150.0:
-            raise ConfigError(f"camera fov_deg must be in [10, 150], got {self.fov_deg}")
-        if self.height_levels < 2:
-            raise ConfigError(f"camera height_levels must be >= 2, got {self.height_levels}")
-
-    @property
-    def focal_px(self) -> float:
-        return (self.width_px / 2.0) / math.tan(math.radians(self.fov_deg) / 2.0)
-
-
-@dataclass(frozen=True)
-class CameraPose:
-    """Camera position (ENU m, z above ground), body yaw (ENU rad) and pitch down (deg)."""
-
-    x_m: float
-    y_m: float
-    z_m: float
-    yaw_rad: float
-    pitch_deg: float
-
-    def __post_init__(self) -> None:
-        if not 0.0 <= self.pitch_deg <= 90.0:
-            raise ConfigError(f"camera pitch_deg must be in [0, 90] (down), got {self.pitch_deg}")
-        if self.z_m <= 0.0:
-            raise ConfigError(f"camera height z_m must be above ground, got {self.z_m}")
-
-
-def camera_basis(pose: CameraPose) -> tuple[NDArray[np.float64], ...]:
-    """Unit vectors (ENU) of the optical axis, image right and image up."""
-    yaw, pitch = pose.yaw_rad, math.radians(pose.pitch_deg)
-    forward = np.array(
-        [math.cos(yaw) * math.cos(pitch), math.sin(yaw) * math.cos(pitch), -math.sin(pitch)]
-    )
-    right = np.array([math.sin(yaw), -math.cos(yaw), 0.0])
-    up = np.array(
-        [math.cos(yaw) * math.sin(pitch), math.sin(yaw) * math.sin(pitch), math.cos(pitch)]
-    )
-    return forward, right, up
-
-
-def pixel_rays(
-    pose: CameraPose, config: CameraConfig, u: NDArray[Any], v: NDArray[Any]
-) -> NDArray[np.float64]:
-    """Ray directions (ENU, ``(..., 3)``) through image points ``(u, v)``, unit planar depth."""
-    return _rays(pose, *_plane_coordinates(config, u, v))
-
-
-def _plane_coordinates(
-    config: CameraConfig, u: NDArray[Any], v: NDArray[Any]
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Image point ``(u, v)`` as offsets right (``a``) and down (``b``) at unit depth."""
-    f = config.focal_px
-    a = (np.asarray(u, dtype=np.float64) - config.width_px / 2.0) / f
-    b = (np.asarray(v, dtype=np.float64) - config.height_px / 2.0) / f
-    return a, b
 
 
 def _rays(pose: CameraPose, a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -130,31 +66,9 @@ def _rays(pose: CameraPose, a: NDArray[np.float64], b: NDArray[np.float64]) -> N
 def _image_plane(config: CameraConfig) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The ``a``, ``b`` of :func:`pixel_rays` at every pixel centre: fixed per camera."""
     v, u = np.mgrid[0 : config.height_px, 0 : config.width_px].astype(np.float64) + 0.5
-    a, b = _plane_coordinates(config, u, v)
+    a, b = plane_coordinates(config, u, v)
     a.flags.writeable = b.flags.writeable = False
     return a, b
-
-
-@dataclass(frozen=True, eq=False)
-class CameraImages:
-    """One capture: RGB ``(H, W, 3)`` uint8, planar depth (m, float32, ``inf`` = no return),
-    semantic uint8 (:data:`SEMANTIC_NONE` = sky / off-map) and instance uint16 (0 = none),
-    the last two ``None`` on maps without layers."""
-
-    pose: CameraPose
-    config: CameraConfig
-    rgb: NDArray[np.uint8]
-    depth_m: FloatImage
-    semantic: NDArray[np.uint8] | None
-    instance: NDArray[np.uint16] | None
-
-    def points_enu(self, u: NDArray[Any], v: NDArray[Any]) -> NDArray[np.float64]:
-        """ENU points seen at pixel centres ``(u, v)`` (integer pixel indices), from depth."""
-        ui = np.asarray(u, dtype=np.int64)
-        vi = np.asarray(v, dtype=np.int64)
-        rays = pixel_rays(self.pose, self.config, ui + 0.5, vi + 0.5)
-        origin = np.array([self.pose.x_m, self.pose.y_m, self.pose.z_m])
-        return origin + self.depth_m[vi, ui][..., None].astype(np.float64) * rays
 
 
 def enu_to_map_px(
@@ -297,7 +211,7 @@ class CameraRig:
     x_m: float
     y_m: float
     z_m: float
-    config: CameraConfig = CameraConfig()
+    config: CameraConfig = field(default_factory=CameraConfig)
 
     @property
     def has_layers(self) -> bool:

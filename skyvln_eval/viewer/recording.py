@@ -56,7 +56,7 @@ def _image_px(run: Mapping[str, str]) -> tuple[int, int]:
     """The agent's camera image size (for HSD sector boxes), from the run's resolved config."""
     try:
         config = yaml.safe_load(run.get("config", "")) or {}
-        size = int(config["agent"]["perception"]["image_px"])
+        size = int(config["sensors"]["image_px"])
     except (yaml.YAMLError, KeyError, TypeError, ValueError):
         size = _DEFAULT_IMAGE_PX
     return size, size
