@@ -47,7 +47,7 @@ __all__ = [
     "ensure_sample",
     "held_out_families",
     "load_dialogs",
-    "rephrase_records",
     "render_trajectory",
+    "rephrase_records",
     "seen_families",
 ]
