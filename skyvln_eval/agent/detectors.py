@@ -24,9 +24,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from skyvln_eval.agent.lexicon import CATEGORY_LABELS
 from skyvln_eval.errors import ConfigError, PerceptionError, UnknownNameError
 from skyvln_eval.sim.camera import CameraImages, enu_to_map_px
+from skyvln_eval.vocabulary import CATEGORY_LABELS
 from skyvln_eval.worlds.tile import SemanticClass, WorldTile
 
 Box = tuple[int, int, int, int]  # x0, y0, x1, y1 in pixels, x1 / y1 exclusive

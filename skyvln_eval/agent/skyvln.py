@@ -19,7 +19,6 @@ from skyvln_eval.agent.calls import call_json
 from skyvln_eval.agent.detectors import episode_seed
 from skyvln_eval.agent.hsd import HsdResult, PhraseMatch, SpatialDescriptor, matches_text
 from skyvln_eval.agent.images import panorama_images
-from skyvln_eval.agent.lexicon import COMPASS
 from skyvln_eval.agent.memory import TrackBackMemory
 from skyvln_eval.agent.motion import (
     SYSTEM_PROMPT,
@@ -44,6 +43,7 @@ from skyvln_eval.errors import ActionParseError
 from skyvln_eval.llm.client import LLMClient
 from skyvln_eval.llm.config import LLMConfig
 from skyvln_eval.llm_records import LlmCall, ModuleFailure
+from skyvln_eval.vocabulary import COMPASS
 from skyvln_eval.worlds.tile import WorldTile
 
 STOP_KINDS = ("destination", "stop_at")
