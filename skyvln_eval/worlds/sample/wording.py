@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+# The generator spells numbers with its own lists, not the vocabulary's: the reader of
+# the text and its writer share no code, so neither can lean on the other's choices.
 _ONES = [
     "zero",
     "one",
