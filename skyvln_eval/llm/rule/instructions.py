@@ -55,6 +55,10 @@ class _Sentence:
         self.clause_of[id(goal)] = clause
         return goal
 
+    def drop(self, goal: Goal) -> None:
+        """Remove this very goal (an equal one elsewhere stays)."""
+        del self.goals[next(i for i, g in enumerate(self.goals) if g is goal)]
+
     def read(self, k: int, r: ClauseReading) -> None:
         for point in r.headings:
             last = self.goals[-1] if self.goals else {}
@@ -66,7 +70,7 @@ class _Sentence:
             if said:
                 turn.update(said)
             elif self.junction_waiting is not None:  # "At the second crossing, bear left"
-                self.goals.remove(self.junction_waiting)
+                self.drop(self.junction_waiting)
                 turn.update({f: v for f, v in self.junction_waiting.items() if f != "kind"})
                 self.junction_waiting = None
             else:
@@ -125,7 +129,7 @@ class _Sentence:
                     g.pop("ordinal", None)
                     g["kind"] = _ROLELESS
                 else:
-                    self.goals.remove(g)
+                    self.drop(g)
         own = self.own()
         for side in self.free_sides:
             open_ = [g for g in own if g["kind"] in ("pass", _ROLELESS) and "side" not in g]
