@@ -44,7 +44,9 @@ _CATEGORY_WORDS = sorted(
     ((tuple(p.split()), c) for c, phrases in CATEGORY_PHRASES.items() for p in phrases),
     key=lambda item: -len(item[0]),
 )
-_CUE_STARTS = frozenset(c[0] for c in (*STOP_CUES, *DESTINATION_CUES) if c[0] not in ("get",))
+# First words of stop and destination cues end a description ("a red church where you
+# stop"); "get" is left out, too common a word to end one.
+_CUE_STARTS = frozenset(c[0] for c in (*STOP_CUES, *DESTINATION_CUES) if c[0] != "get")
 _LEFT_STOPS = PREPOSITIONS | PRONOUNS | TURN_VERBS | MOTION_VERBS | DESCRIPTION_ENDS | _CUE_STARTS
 _TRAILING = PREPOSITIONS | DETERMINERS | frozenset({"and", "or", "it", "straight", "dead", "just"})
 _BEFORE_A_TURN = TURN_VERBS | MOTION_VERBS | frozenset({"a", "the", "hard", "sharp", "slight"})
@@ -52,18 +54,21 @@ _BEFORE_A_TURN = TURN_VERBS | MOTION_VERBS | frozenset({"a", "the", "hard", "sha
 
 @dataclass
 class Mention:
-    """A landmark mentioned in a clause: its phrase as written (lower case), its category,
-    where it is in the clause (word indexes) and its proper name if one follows it."""
+    """A landmark mentioned in a clause: its phrase as written (lower case), its category
+    and where it is in the clause (word indexes, end excluded)."""
 
     phrase: str
     category: str
     start: int
     end: int
-    name: str | None = None
 
 
 @dataclass
 class ClauseReading:
+    """What a clause says: headings (and denied ones), a turn or a side, a junction and its
+    ordinal, landmarks and proper names, a distance, and whether it speaks of stopping,
+    of the destination or of passing, or denies something."""
+
     headings: list[str] = field(default_factory=list)
     denied: list[str] = field(default_factory=list)
     turn: str | None = None
