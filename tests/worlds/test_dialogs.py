@@ -162,3 +162,16 @@ def test_the_commander_answers_a_clarification_question_from_route_facts() -> No
     for text in texts:
         assert "an oval stadium" in text
         assert re.search(r"300|three hundred|0\.3", text), text
+
+
+def test_dialogs_file_version_is_checked_on_read(sample_dir: Path, tmp_path: Path) -> None:
+    import json
+
+    from skyvln_eval.errors import DataError, FormatVersionError
+
+    with pytest.raises(DataError, match="only the synthetic datasets have one"):
+        load_dialogs(tmp_path)
+    data = json.loads((sample_dir / "DIALOGS.json").read_text())
+    (tmp_path / "DIALOGS.json").write_text(json.dumps({**data, "version": 1}))
+    with pytest.raises(FormatVersionError, match="Regenerate the dataset"):
+        load_dialogs(tmp_path)
