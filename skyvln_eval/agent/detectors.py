@@ -27,9 +27,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from skyvln_eval.agent.lexicon import CATEGORY_LABELS
 from skyvln_eval.errors import ConfigError, PerceptionError, UnknownNameError
 from skyvln_eval.sensing import CameraImages, SemanticClass, SensorKind
+from skyvln_eval.vocabulary import CATEGORY_LABELS
 
 Box = tuple[int, int, int, int]  # x0, y0, x1, y1 in pixels, x1 / y1 exclusive
 

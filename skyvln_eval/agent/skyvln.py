@@ -20,7 +20,6 @@ from skyvln_eval.agent.clarify import Clarification, ask_commander
 from skyvln_eval.agent.detectors import episode_seed
 from skyvln_eval.agent.hsd import HsdResult, PhraseMatch, SpatialDescriptor, matches_text
 from skyvln_eval.agent.images import panorama_images
-from skyvln_eval.agent.lexicon import COMPASS
 from skyvln_eval.agent.memory import TrackBackMemory
 from skyvln_eval.agent.motion import (
     SYSTEM_PROMPT,
@@ -46,6 +45,7 @@ from skyvln_eval.frames import ViewPose
 from skyvln_eval.llm.client import LLMClient
 from skyvln_eval.llm.config import LLMConfig
 from skyvln_eval.llm_records import LlmCall, ModuleFailure
+from skyvln_eval.vocabulary import COMPASS
 
 STOP_KINDS = ("destination", "stop_at")
 
