@@ -39,6 +39,13 @@ class ObstacleSettings(_Strict):
     obstacle_speed_m_s: float = Field(default=1.0, gt=0.0)
 
 
+class CommanderSettings(_Strict):
+    """The simulated commander that answers the agent's clarification questions from the
+    ground truth (:mod:`skyvln_eval.harness.commander`); ``max_questions: 0`` turns it off."""
+
+    max_questions: int = Field(default=2, ge=0, le=20, description="answers per episode")
+
+
 class DynamicsSettings(_Strict):
     """How actions are flown in dynamics mode: controller, reference, arrival, obstacles."""
 
@@ -75,6 +82,7 @@ class RunConfig(_Strict):
     mode: ExecutionMode = "official"
     agent: AgentConfig = AgentConfig()
     sensors: SensorConfig = SensorConfig()
+    commander: CommanderSettings = CommanderSettings()
     dynamics: DynamicsSettings = DynamicsSettings()
     max_action_len: int = Field(default=DEFAULT_MAX_ACTION_LEN, ge=1, le=100)
     seed: int = 0
@@ -127,6 +135,7 @@ def load_run_config(path: str | Path, **overrides: Any) -> RunConfig:
 
 
 __all__ = [
+    "CommanderSettings",
     "DynamicsSettings",
     "ExecutionMode",
     "ObstacleSettings",

@@ -15,6 +15,7 @@ import hashlib
 import json
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -28,8 +29,11 @@ from skyvln_eval.control import ArrivalCriteria, Controller, Flight
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.frames import ViewPose, enu_yaw_to_compass_deg, pose_to_view, view_to_pose
 from skyvln_eval.harness.config import DynamicsSettings
-from skyvln_eval.harness.rollout import Rollout, episode_brief
+from skyvln_eval.harness.rollout import Rollout, answer_pending, episode_brief
 from skyvln_eval.sensing import SensorConfig
+
+if TYPE_CHECKING:
+    from skyvln_eval.harness.commander import SimulatedCommander
 from skyvln_eval.sim.obstacles import ObstacleScenario
 from skyvln_eval.sim.quadrotor import DroneState
 from skyvln_eval.sim.reference import ReferenceConfig
@@ -88,6 +92,7 @@ def run_dynamics_episode(
     seed: int,
     max_steps: int,
     sensors: SensorConfig | None = None,
+    commander: SimulatedCommander | None = None,
 ) -> DynamicsRollout:
     """Fly ``episode`` with ``agent`` and ``controller``; see the module docstring.
 
@@ -125,8 +130,15 @@ def run_dynamics_episode(
     feedback: str | None = None
     while len(rollout.views) < max_steps:
         sensors_here = SimulatedSensors(world, pose.x_m, pose.y_m, pose.z_m, sensor_config)
+        new_dialog = answer_pending(rollout, commander, view)
         observation = Observation(
-            len(rollout.views) - 1, max_steps, pose, view, sensors_here.handle(), feedback
+            len(rollout.views) - 1,
+            max_steps,
+            pose,
+            view,
+            sensors_here.handle(),
+            feedback,
+            new_dialog,
         )
         rollout.decision_times_s.append(flight.t_s)
         action = rollout.decide(agent, observation)

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -27,9 +27,12 @@ from skyvln_eval.avdn.records import Episode
 from skyvln_eval.avdn.step import OfficialAction, official_step_detailed
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.frames import view_to_pose
-from skyvln_eval.harness.rollout import Rollout, episode_brief
+from skyvln_eval.harness.rollout import Rollout, answer_pending, episode_brief
 from skyvln_eval.metrics.official import official_success as metrics_official_success
 from skyvln_eval.sensing import SensorConfig
+
+if TYPE_CHECKING:
+    from skyvln_eval.harness.commander import SimulatedCommander
 from skyvln_eval.sim.sensors import SimulatedSensors
 from skyvln_eval.worlds.tile import WorldTile
 
@@ -88,6 +91,7 @@ def run_official_episode(
     world: WorldTile,
     max_steps: int = DEFAULT_MAX_ACTION_LEN,
     sensors: SensorConfig | None = None,
+    commander: SimulatedCommander | None = None,
 ) -> OfficialRollout:
     """Fly ``episode`` with ``agent`` in official mode; see the module docstring.
 
@@ -106,8 +110,15 @@ def run_official_episode(
     while len(rollout.views) < max_steps:
         pose = view_to_pose(view, georef)
         sensors_here = SimulatedSensors(world, pose.x_m, pose.y_m, pose.z_m, sensor_config)
+        new_dialog = answer_pending(rollout, commander, view)
         observation = Observation(
-            len(rollout.views) - 1, max_steps, pose, view, sensors_here.handle(), feedback
+            len(rollout.views) - 1,
+            max_steps,
+            pose,
+            view,
+            sensors_here.handle(),
+            feedback,
+            new_dialog,
         )
         action = rollout.decide(agent, observation)
         if action is None:

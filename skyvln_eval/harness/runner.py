@@ -26,12 +26,13 @@ from typing import Any
 import numpy as np
 
 from skyvln_eval.agent.base import Agent
-from skyvln_eval.agent.config import build_agent
+from skyvln_eval.agent.config import LLM_AGENTS, build_agent
 from skyvln_eval.avdn.imagery import MapGeoref
 from skyvln_eval.avdn.records import Episode
 from skyvln_eval.control import Controller, make_controller, save_flight_log
 from skyvln_eval.converters.reader import read_episode
 from skyvln_eval.errors import CacheMissError, LLMAuthError
+from skyvln_eval.harness.commander import SimulatedCommander
 from skyvln_eval.harness.config import RunConfig
 from skyvln_eval.harness.dynamics_loop import DynamicsRollout, derived_seed, run_dynamics_episode
 from skyvln_eval.harness.official_loop import OfficialRollout, run_official_episode
@@ -129,10 +130,19 @@ def _steps(rollout: OfficialRollout | DynamicsRollout, times_s: list[float]) -> 
     ]
 
 
+def _commander(config: RunConfig, episode: Episode, world: WorldTile, seed: int) -> Any:
+    if config.commander.max_questions == 0 or config.agent.name not in LLM_AGENTS:
+        return None
+    return SimulatedCommander(episode, world, config.commander.max_questions, seed)
+
+
 def _official(
-    agent: Agent, episode: Episode, world: WorldTile, config: RunConfig
+    agent: Agent, episode: Episode, world: WorldTile, config: RunConfig, seed: int
 ) -> tuple[OfficialRollout, RunLogContent, dict[str, Any]]:
-    rollout = run_official_episode(agent, episode, world, config.max_action_len, config.sensors)
+    commander = _commander(config, episode, world, seed)
+    rollout = run_official_episode(
+        agent, episode, world, config.max_action_len, config.sensors, commander
+    )
     times = [float(k) for k in range(len(rollout.views))]  # one second per official step
     content = RunLogContent({}, _steps(rollout, times), rollout.views, times)
     extra = {
@@ -150,7 +160,15 @@ def _dynamics(
         settings.controller, json.dumps(settings.controller_settings, sort_keys=True)
     )
     rollout = run_dynamics_episode(
-        agent, episode, world, controller, settings, seed, config.max_action_len, config.sensors
+        agent,
+        episode,
+        world,
+        controller,
+        settings,
+        seed,
+        config.max_action_len,
+        config.sensors,
+        _commander(config, episode, world, seed),
     )
     view_times = [0.0, *rollout.segment_end_times_s][: len(rollout.views)]
     content = RunLogContent(
@@ -187,7 +205,7 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
         control = control_log = None
         rollout: OfficialRollout | DynamicsRollout
         if config.mode == "official":
-            rollout, content, extra = _official(agent, episode, world, config)
+            rollout, content, extra = _official(agent, episode, world, config, seed)
         else:
             flown, content, extra = _dynamics(agent, episode, world, config, seed)
             rollout = flown
@@ -206,6 +224,7 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
             "seed": seed,
             "config_digest": digest,
             "execution_mode": config.mode,
+            "questions": rollout.questions,
         }
         if config.write_logs:
             content.run_metadata = {
