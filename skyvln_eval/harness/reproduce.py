@@ -85,6 +85,17 @@ STAND_IN_MARKERS = {
 }
 
 
+def setting_note(plan: ReproducePlan) -> str:
+    """What the agents could sense and ask, for the tables' captions."""
+    asks = plan.commander.max_questions
+    commander = (
+        f"a simulated commander answers up to {asks} clarification question(s) per episode"
+        if asks
+        else "no commander answers questions"
+    )
+    return f"Sensors: {plan.sensors.describe()}; {commander}."
+
+
 def table1_label(label: str, agent: AgentConfig) -> tuple[str, str | None]:
     """A Table I row label that says what answered the agent's LLM calls, and its footnote.
 
@@ -136,9 +147,10 @@ def _write_tables(
 ) -> dict[str, Path]:
     files: dict[str, Path] = {}
     table1_rows, table1_notes = table1
+    setting = [setting_note(plan)]
     for name, spec, rows, notes in (
-        ("table1", TABLE_I, table1_rows, table1_notes),
-        ("table2", TABLE_II, table2_rows, []),
+        ("table1", TABLE_I, table1_rows, [*setting, *table1_notes]),
+        ("table2", TABLE_II, table2_rows, setting),
     ):
         table = build_table(summary, spec, conventions, rows=rows, notes=notes)
         for suffix, render in (("md", to_markdown), ("tex", to_latex), ("csv", to_csv)):
