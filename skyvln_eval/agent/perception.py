@@ -248,16 +248,19 @@ class Perception:
         self.tracker = LandmarkTracker(self.config.track_radius_m)
 
     def capture(self, rig: CameraRig, pose: ViewPose) -> list[CapturedView]:
-        views = []
-        camera = self.camera_config()
-        n = self.config.headings
-        for k in range(n):
-            heading = (pose.heading_deg + k * 360.0 / n) % 360.0
-            images = rig.capture(compass_to_enu_yaw_rad(heading), self.config.pitch_deg, camera)
-            views.append(CapturedView(k, view_name(k, n), heading, self.config.pitch_deg, images))
+        """The panorama (and the view below), rendered as one batch."""
+        n, pitch = self.config.headings, self.config.pitch_deg
+        headings = [(pose.heading_deg + k * 360.0 / n) % 360.0 for k in range(n)]
+        requests = [(compass_to_enu_yaw_rad(heading), pitch) for heading in headings]
         if self.config.include_below:
-            images = rig.capture(pose.yaw_rad, 90.0, camera)
-            views.append(CapturedView(n, "below", pose.heading_deg, 90.0, images))
+            requests.append((pose.yaw_rad, 90.0))
+        images = rig.capture_many(requests, self.camera_config())
+        views = [
+            CapturedView(k, view_name(k, n), heading, pitch, images[k])
+            for k, heading in enumerate(headings)
+        ]
+        if self.config.include_below:
+            views.append(CapturedView(n, "below", pose.heading_deg, 90.0, images[n]))
         return views
 
     def observe(self, rig: CameraRig, pose: ViewPose, phrases: Sequence[str] = ()) -> Panorama:
