@@ -157,18 +157,22 @@ def march(
             continue
         k = np.float32(z_level - origin[2])
         px, py = frame.x0 + k * sx[:n], frame.y0 - k * sy[:n]
+        # remap walks its maps row by row: one tile (256 rays) per row, not 16 rows of 16.
         gap = sample_layer(
             world.height_m,
-            px.reshape(n * TILE_PX, TILE_PX),
-            py.reshape(n * TILE_PX, TILE_PX),
+            px.reshape(n, TILE_PX * TILE_PX),
+            py.reshape(n, TILE_PX * TILE_PX),
             nearest=False,
             fill=0.0,
         ).reshape(n, TILE_PX, TILE_PX)
         gap -= np.float32(z_level)
         hits = gap >= 0.0
         hits &= flying[:n]
-        which = np.nonzero(hits)
-        if len(which[0]):
+        # Look for the hits only in tiles that have some (a few at most levels).
+        hit_tiles = np.flatnonzero(hits.reshape(n, -1).any(axis=1))
+        if len(hit_tiles):
+            tile, row, col = np.nonzero(hits[hit_tiles])
+            which = (hit_tiles[tile], row, col)
             t = k * inv_dz[which]
             if j == 0:
                 hit_t[which] = t
@@ -233,15 +237,21 @@ def _start_levels(
     tallest point under the tile's footprint at that level reaches the level's height (so
     the level before a hit is always sampled); 0 for a tile with rays on both sides of the
     horizon; ``levels`` (never) for tiles whose rays all go up."""
-    sx = _corners(frame.sx, tiles).astype(np.float64)
-    sy = _corners(frame.sy, tiles).astype(np.float64)
+    sx = _corners(frame.sx, tiles).astype(np.float64).T  # (4 corners, tiles)
+    sy = _corners(frame.sy, tiles).astype(np.float64).T
     down = _corners(frame.down, tiles)
     # With all its rays going down, a tile's footprint at a level is the quad of its corner
-    # rays there: its box, per tile and level.
-    ks = (z_levels - origin[2])[None, :, None]
-    xs = float(frame.x0) + ks * sx[:, None, :]
-    ys = float(frame.y0) - ks * sy[:, None, :]
-    tallest = _box_max(world, xs.min(axis=2), xs.max(axis=2), ys.min(axis=2), ys.max(axis=2))
+    # rays there: its box, per tile and level (corners first: four contiguous arrays).
+    ks = (z_levels - origin[2])[None, None, :]
+    xs = float(frame.x0) + ks * sx[:, :, None]
+    ys = float(frame.y0) - ks * sy[:, :, None]
+    tallest = _box_max(
+        world,
+        np.minimum(np.minimum(xs[0], xs[1]), np.minimum(xs[2], xs[3])),
+        np.maximum(np.maximum(xs[0], xs[1]), np.maximum(xs[2], xs[3])),
+        np.minimum(np.minimum(ys[0], ys[1]), np.minimum(ys[2], ys[3])),
+        np.maximum(np.maximum(ys[0], ys[1]), np.maximum(ys[2], ys[3])),
+    )
     # Bilinear samples never exceed their neighbours; the slack covers float32 rounding.
     reaches = tallest * (1.0 + 1e-5) + 1e-3 >= z_levels[None, :]
     first = np.argmax(reaches, axis=1)  # the ground level always reaches
@@ -265,13 +275,18 @@ def _box_max(
     level = np.where(np.isfinite(extent), level, len(pyramid) - 1).astype(np.int64)
     size = CELL_PX * (2.0**level)
     out = np.zeros(level.shape)
-    for dy in (0, 1):
-        for dx in (0, 1):
-            corner_x = np.where(dx, x_max + 2.0, x_min - 2.0)
-            corner_y = np.where(dy, y_max + 2.0, y_min - 2.0)
-            cx = np.clip(np.floor(np.nan_to_num(corner_x / size)), 0, cells_x - 1).astype(np.int64)
-            cy = np.clip(np.floor(np.nan_to_num(corner_y / size)), 0, cells_y - 1).astype(np.int64)
-            out = np.maximum(out, pyramid[level, cy, cx])
+    # Cell indices of the box's low and high edges (the coordinates are finite).
+    cx = [
+        np.minimum(np.maximum(x // size, 0), cells_x - 1).astype(np.int64)
+        for x in (x_min - 2.0, x_max + 2.0)
+    ]
+    cy = [
+        np.minimum(np.maximum(y // size, 0), cells_y - 1).astype(np.int64)
+        for y in (y_min - 2.0, y_max + 2.0)
+    ]
+    for row in cy:
+        for col in cx:
+            out = np.maximum(out, pyramid[level, row, col])
     return out
 
 
