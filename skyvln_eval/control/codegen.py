@@ -20,7 +20,6 @@ compiled solver behave as the interpreted one (see :func:`_patch_hpipm`).
 from __future__ import annotations
 
 import ctypes
-import fcntl
 import functools
 import hashlib
 import logging
@@ -160,6 +159,11 @@ def _load(name: str, library: Path, rebuild_on_error: bool = True) -> ca.Functio
 def _build_lock(library: Path) -> Iterator[None]:
     """Hold an exclusive lock on ``library``'s lock file (waits while another process builds)."""
     library.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        import fcntl
+    except ImportError:  # not a POSIX system: no lock, at worst two processes both build
+        yield
+        return
     with library.with_suffix(".lock").open("a") as handle:
         fcntl.flock(handle, fcntl.LOCK_EX)
         try:
