@@ -8,14 +8,16 @@ status (``ok``, ``degraded`` or ``error``: :func:`~skyvln_eval.metrics.records.j
 and wall time. Anything the episode raises makes it ``error`` with its traceback; the run
 carries on, unless the error says no episode can succeed (refused credentials).
 
-Worlds and controllers are cached per process: loading a map or building a solver once
-serves every episode on it.
+Worlds are cached per process and controllers per thread: loading a map or building a
+solver once serves every episode on it, and no two threads ever share a solver (CasADi
+solver objects are not thread-safe).
 """
 
 from __future__ import annotations
 
 import functools
 import json
+import threading
 import time
 import traceback
 from collections import OrderedDict
@@ -87,9 +89,16 @@ def _world(data_dir: str, map_name: str, georef: MapGeoref) -> WorldTile:
     return world
 
 
-@functools.lru_cache(maxsize=4)
+_thread_controllers = threading.local()
+
+
 def _controller(name: str, settings_json: str) -> Controller:
-    return make_controller(name, json.loads(settings_json))
+    """This thread's controller for these settings (built on first use)."""
+    cache: dict[tuple[str, str], Controller] = _thread_controllers.__dict__.setdefault("by_key", {})
+    key = (name, settings_json)
+    if key not in cache:
+        cache[key] = make_controller(name, json.loads(settings_json))
+    return cache[key]
 
 
 def _agent(config: RunConfig, episode: Episode, seed: int) -> Agent:

@@ -25,7 +25,7 @@ import numpy as np
 from skyvln_eval.errors import PerceptionError
 from skyvln_eval.frames import compass_to_enu_yaw_rad
 from skyvln_eval.sensing import CameraImages, CameraPose, SensorConfig, SensorKind
-from skyvln_eval.sim.camera import render_camera
+from skyvln_eval.sim.camera import render_views
 from skyvln_eval.worlds.tile import WorldTile
 
 
@@ -56,7 +56,7 @@ class SimulatedSensors:
     def capture_many(self, views: Sequence[tuple[float, float]]) -> list[CameraImages]:
         x, y, z = self._position
         poses = [CameraPose(x, y, z, compass_to_enu_yaw_rad(h), p) for h, p in views]
-        return [self._restrict(render_camera(self._world, pose, self._camera)) for pose in poses]
+        return [self._restrict(i) for i in render_views(self._world, poses, self._camera)]
 
     def _restrict(self, images: CameraImages) -> CameraImages:
         """Only the channels of the sensors the drone carries."""
