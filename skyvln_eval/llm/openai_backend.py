@@ -85,6 +85,24 @@ def _body_text(error: Any) -> str:
     return " ".join(p for p in parts if p)
 
 
+_clients: dict[tuple[str, str | None], Any] = {}
+_clients_lock = threading.Lock()
+
+
+def _shared_client(openai: Any, base_url: str, secret: str | None) -> Any:
+    """One HTTP client per (server, key) per process: agents are built per episode, and a
+    client (with its connection pool) is costly to make; it is safe to share across
+    threads. The key lives only inside the client, as when each backend made its own."""
+    with _clients_lock:
+        key = (base_url, secret)
+        if key not in _clients:
+            # Local servers usually accept any key; the client insists on one.
+            _clients[key] = openai.OpenAI(
+                api_key=secret or "unused", base_url=base_url, max_retries=0
+            )
+        return _clients[key]
+
+
 class _FormatRefused(Exception):
     """The server cannot do the response format of this request (the body says why)."""
 
@@ -165,10 +183,7 @@ class OpenAIBackend(LLMBackend):
                         f"{self.endpoint}: set the environment variable {self.api_key_env} "
                         "to the API key"
                     )
-                # Local servers usually accept any key; the client insists on one.
-                self._client = openai.OpenAI(
-                    api_key=secret or "unused", base_url=self.base_url, max_retries=0
-                )
+                self._client = _shared_client(openai, self.base_url, secret)
             return self._client
 
     def _payload(self, messages: Sequence[Message]) -> list[dict[str, Any]]:
