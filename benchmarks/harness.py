@@ -9,8 +9,11 @@
 Each row gives the peak resident memory of every worker process (``ru_maxrss`` read in
 the worker after each episode).
 3. LLM concurrency, against a loopback OpenAI-compatible server that answers after
-   200 ms: 64 raw calls one after another vs 16 at a time (aim: at least 10x), and
-   16 episodes of the agent with the ``openai`` backend run sequentially vs 16 at a time.
+   200 ms: 64 raw calls one after another vs 16 at a time (aim: at least 10x); 16
+   episodes of the agent with the ``openai`` backend, in official and in dynamics mode,
+   run sequentially vs 16 at a time (16 threads in one process, and 2 processes x 8
+   threads); then the threads executor in dynamics mode, ``--repeats`` times, to show it
+   never crashes (threads never share a CasADi solver).
 
 Run directories go to a temporary folder; episode logs and the dataset to the cache.
 
@@ -74,7 +77,7 @@ def harness_row(label: str, config: RunConfig, run_dir: Path) -> None:
     print(
         f"{label:<28} {n:>5} episodes {wall:>7.1f} s  {n / wall:>6.2f} episodes/s  "
         f"simulated {report.simulated_s:>8.0f} s  ({ratio:>5.1f}x real time)  "
-        f"failed {len(report.failed)}  peak RSS per worker (MiB): {peaks}"
+        f"errors {len(report.errors)}  peak RSS per worker (MiB): {peaks}"
     )
 
 
@@ -109,6 +112,7 @@ def main() -> None:
     parser.add_argument("--skip-official", action="store_true")
     parser.add_argument("--skip-dynamics", action="store_true")
     parser.add_argument("--skip-llm", action="store_true")
+    parser.add_argument("--repeats", type=int, default=10, help="repeated threads runs")
     args = parser.parse_args()
     out = Path(tempfile.mkdtemp(prefix="bench-harness-"))
     common = {
@@ -137,33 +141,62 @@ def main() -> None:
             f"64 LLM calls, 200 ms each: sequential {sequential:.2f} s, "
             f"16 concurrent {concurrent:.2f} s -> {sequential / concurrent:.1f}x (aim: >= 10x)"
         )
-        llm = {
-            "backend": "openai:loopback",
-            "base_url": server.base_url,
-            "api_key_env": "BENCH_KEY",
-            "max_concurrency": 16,
-        }
-        timings = {}
-        for workers in (1, 16):
-            config = RunConfig(
-                system=f"openai x{workers}",
-                data="sample",
-                splits=("val_seen",),
-                limit=16,
-                workers=workers,
-                executor="threads",
-                write_logs=False,
-                agent={"name": "skyvln", "llm": llm},
-            )
-            prepare_job(config, out / f"llm{workers}")
-            start = time.perf_counter()
-            report = run(config, out / f"llm{workers}", executor=make_executor("threads", workers))
-            timings[workers] = time.perf_counter() - start
-            assert report.complete and not report.failed, report.failed
+        llm_episodes(server.base_url, out, args.repeats)
+
+
+def llm_run(
+    base_url: str, run_dir: Path, mode: str, executor: str, workers: int, threads: int
+) -> float:
+    """Seconds for 16 agent episodes of the openai backend over the loopback server."""
+    llm = {
+        "backend": "openai:loopback",
+        "base_url": base_url,
+        "api_key_env": "BENCH_KEY",
+        "max_concurrency": 16,
+        "send_task_data": True,  # the loopback server answers as the rule backend
+    }
+    config = RunConfig(
+        system=f"openai {mode}",
+        data="sample",
+        splits=("val_seen",),
+        limit=16,
+        mode=mode,  # type: ignore[arg-type]
+        workers=workers,
+        executor=executor,  # type: ignore[arg-type]
+        threads_per_worker=threads,
+        write_logs=False,
+        agent={"name": "skyvln", "llm": llm},  # type: ignore[arg-type]
+    )
+    prepare_job(config, run_dir)  # episode logs converted once, not timed
+    start = time.perf_counter()
+    report = run(config, run_dir)
+    seconds = time.perf_counter() - start
+    if not report.complete or report.errors or report.statuses != {"ok": 16}:
+        raise SystemExit(f"{mode} {executor}: {report.statuses}, errors {report.errors}")
+    return seconds
+
+
+def llm_episodes(base_url: str, out: Path, repeats: int) -> None:
+    """16 episodes sequential vs 16 at a time: threads in one process, and 2 processes x 8
+    threads; in official and dynamics mode; then the threads executor ``repeats`` times
+    (threads must never share a CasADi solver: a crash there is a segfault)."""
+    for mode in ("official", "dynamics"):
+        sequential = llm_run(base_url, out / f"{mode}-seq", mode, "serial", 1, 1)
+        threads = llm_run(base_url, out / f"{mode}-thr", mode, "threads", 16, 1)
+        hybrid = llm_run(base_url, out / f"{mode}-hyb", mode, "processes", 2, 8)
         print(
-            f"16 agent episodes over the 200 ms server: sequential {timings[1]:.1f} s, "
-            f"16 at a time {timings[16]:.1f} s -> {timings[1] / timings[16]:.1f}x"
+            f"16 {mode} agent episodes over the 200 ms server: sequential {sequential:.1f} s; "
+            f"16 threads {threads:.1f} s -> {sequential / threads:.1f}x; 2 processes x 8 "
+            f"threads {hybrid:.1f} s -> {sequential / hybrid:.1f}x (aim: >= 12x)"
         )
+    crashes = 0
+    for k in range(repeats):
+        try:
+            llm_run(base_url, out / f"repeat-{k}", "dynamics", "threads", 16, 1)
+        except SystemExit as error:
+            crashes += 1
+            print(f"repeat {k}: {error}")
+    print(f"threads executor, dynamics mode, {repeats} repeated runs: {crashes} with errors")
 
 
 if __name__ == "__main__":

@@ -276,6 +276,10 @@ def run_(
     ray_address: Annotated[
         str | None, typer.Option(help="Ray cluster address (default: a local Ray)")
     ] = None,
+    threads_per_worker: Annotated[
+        int | None,
+        typer.Option(min=1, help="With processes: episodes run in threads in each worker"),
+    ] = None,
     retry_failed: Annotated[
         bool, typer.Option(help="Run episodes that ended in error before again")
     ] = False,
@@ -289,7 +293,9 @@ def run_(
     from skyvln_eval.harness.commands import run_command
     from skyvln_eval.harness.run import error_verdict
 
-    report = run_command(config, out, workers, executor, ray_address, retry_failed)
+    report = run_command(
+        config, out, workers, executor, ray_address, retry_failed, threads_per_worker
+    )
     verdict = error_verdict([report], fail_on_error)
     if verdict:
         _echo_problem(verdict)
@@ -305,6 +311,9 @@ def reproduce(
     ),
     workers: Annotated[int, typer.Option(min=1, help="Parallel episodes")] = 2,
     executor: Annotated[str, typer.Option(help="processes, threads, serial or ray")] = "processes",
+    threads_per_worker: Annotated[
+        int, typer.Option(min=1, help="With processes: episodes run in threads in each worker")
+    ] = 1,
     data_dir: Annotated[
         Path | None,
         typer.Option(help="AVDN-format dataset (default: the plan's, the bundled sample)"),
@@ -338,6 +347,7 @@ def reproduce(
         executor,  # type: ignore[arg-type]
         str(data_dir) if data_dir else None,
         RichRunProgress(err_console),
+        threads_per_worker=threads_per_worker,
     )
     for name in ("table1.md", "table2.md"):
         console.print(report.files[name].read_text(encoding="utf-8"))

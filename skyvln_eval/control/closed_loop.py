@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -32,6 +33,13 @@ from skyvln_eval.sim.quadrotor import DroneState, require_positive
 from skyvln_eval.sim.reference import ReferenceConfig, ReferenceTrajectory, segment_reference
 
 #: Slack for floating-point noise when checking the commands against the limits.
+
+#: Compiled controllers and the plant's step run native code whose memory management
+#: (CasADi's generated checkout/release and HPIPM's workspaces) keeps state shared by every
+#: function loaded from one library, unguarded: two threads in it at once corrupt the heap
+#: ("double free"). One flight at a time steps through native code; the threads executor
+#: still overlaps everything else (LLM waits, rendering, logging).
+NATIVE_CALLS = threading.Lock()
 LIMIT_TOLERANCE = 1e-9
 #: How long a segment may take beyond its reference to settle on the target, by default.
 SETTLE_TIME_S = 30.0
@@ -190,7 +198,8 @@ class Flight:
         window = reference.window(times_s)
         forecast = self.predictor.forecast(self.scenario, times_s)
         previous_input = self.controller.previous_input.copy()
-        command = self.controller.step(self.plant.measure(), window, forecast)
+        with NATIVE_CALLS:
+            command = self.controller.step(self.plant.measure(), window, forecast)
         if not command.is_finite():  # a controller bug must not crash the flight either
             thrust, roll, pitch = self.controller.safe_input()
             stats = SolveStats(
@@ -203,13 +212,14 @@ class Flight:
         self._rows.append(
             self._row(truth, window.states[0], float(window.yaw_rad[0]), command, previous_input)
         )
-        self.plant.step(
-            command.thrust_m_s2,
-            command.roll_ref_rad,
-            command.pitch_ref_rad,
-            command.yaw_ref_rad,
-            self.dt_s,
-        )
+        with NATIVE_CALLS:
+            self.plant.step(
+                command.thrust_m_s2,
+                command.roll_ref_rad,
+                command.pitch_ref_rad,
+                command.yaw_ref_rad,
+                self.dt_s,
+            )
         self.t_s += self.dt_s
 
     def _row(

@@ -43,15 +43,22 @@ def run_command(
     executor: str | None,
     ray_address: str | None,
     retry_failed: bool,
+    threads_per_worker: int | None = None,
 ) -> RunReport:
     config = load_run_config(
-        config_path, workers=workers, executor=executor, ray_address=ray_address
+        config_path,
+        workers=workers,
+        executor=executor,
+        ray_address=ray_address,
+        threads_per_worker=threads_per_worker,
     )
     run_dir = out or Path("runs") / config_path.stem
     report = run(
         config,
         run_dir,
-        executor=make_executor(config.executor, config.workers, config.ray_address),
+        executor=make_executor(
+            config.executor, config.workers, config.ray_address, config.threads_per_worker
+        ),
         progress=RichRunProgress(),
         retry_failed=retry_failed,
     )

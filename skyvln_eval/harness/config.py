@@ -88,6 +88,9 @@ class RunConfig(_Strict):
     seed: int = 0
     workers: int = Field(default=2, ge=1, le=256)
     executor: ExecutorKind = "processes"
+    threads_per_worker: int = Field(
+        default=1, ge=1, le=64, description="processes executor: episodes in threads per worker"
+    )
     ray_address: str | None = None
     write_logs: bool = Field(default=True, description="one run MCAP per episode")
     observations_in_logs: bool = Field(default=True, description="camera images in the run MCAPs")
@@ -104,7 +107,8 @@ class RunConfig(_Strict):
     def digest(self) -> str:
         """A short hash of the settings that decide the results (not workers or executor)."""
         relevant = self.model_dump(
-            mode="json", exclude={"workers", "executor", "ray_address", "write_logs"}
+            mode="json",
+            exclude={"workers", "executor", "threads_per_worker", "ray_address", "write_logs"},
         )
         text = yaml.safe_dump(relevant, sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:12]

@@ -5,6 +5,9 @@
   NMPC). Results do not depend on the worker count: each task is seeded by itself.
 - ``threads``: a thread pool in this process, for runs that mostly wait on a remote LLM:
   while one episode waits on its LLM, the others proceed.
+- ``processes`` with ``threads_per_worker > 1``: worker processes that each run several
+  episodes in threads, for runs that wait on a remote LLM *and* compute (rendering,
+  control): the waits overlap in each process, the computing spreads over the cores.
 - ``ray``: Ray tasks on an existing cluster (``address``) or a local instance, for users
   who outgrow one machine (``pip install 'skyvln-eval[ray]'``; imported only when used).
 
@@ -17,6 +20,9 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import multiprocessing
+import os
+import queue
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal, Protocol, TypeVar
@@ -89,6 +95,99 @@ class ThreadExecutor:
             yield from _drain(pool, fn, tasks)
 
 
+def _thread_worker(
+    fn: Callable[[Any], Any], tasks: Any, results: Any, threads: int
+) -> None:  # pragma: no cover - runs in a child process (covered through the executor's tests)
+    """A worker process: ``threads`` threads take tasks until they meet the end marker."""
+
+    def loop() -> None:
+        while True:
+            item = tasks.get()
+            if item is None:
+                return
+            index, task = item
+            results.put(("start", index, os.getpid()))
+            try:
+                results.put(("done", index, fn(task)))
+            except Exception as exc:  # the caller records it as a failed episode
+                results.put(("error", index, f"{type(exc).__name__}: {exc}"))
+
+    pool = [threading.Thread(target=loop, name=f"episode-{k}") for k in range(threads)]
+    for thread in pool:
+        thread.start()
+    for thread in pool:
+        thread.join()
+
+
+@dataclass(frozen=True)
+class ProcessThreadExecutor:
+    """``workers`` processes, each running ``threads`` episodes at a time in threads.
+
+    Results stream back as episodes finish. A process that dies (a crash in native code)
+    takes only its episodes in flight with it: they are yielded as errors, the other
+    processes carry on with the rest.
+    """
+
+    workers: int
+    threads: int
+
+    def map_unordered(
+        self, fn: Callable[[T], R], tasks: Sequence[T]
+    ) -> Iterator[tuple[T, R | BaseException]]:
+        context = multiprocessing.get_context("spawn")
+        queue_in, queue_out = context.Queue(), context.Queue()
+        for index, task in enumerate(tasks):
+            queue_in.put((index, task))
+        for _ in range(self.workers * self.threads):
+            queue_in.put(None)
+        processes = [
+            context.Process(target=_thread_worker, args=(fn, queue_in, queue_out, self.threads))
+            for _ in range(min(self.workers, max(1, len(tasks))))
+        ]
+        for process in processes:
+            process.start()
+        pending = set(range(len(tasks)))
+        running: dict[int, int] = {}  # task index -> pid of the process running it
+        try:
+            while pending:
+                try:
+                    kind, index, payload = queue_out.get(timeout=0.5)
+                except queue.Empty:
+                    yield from self._lost(tasks, processes, pending, running)
+                    continue
+                if kind == "start":
+                    running[index] = payload
+                    continue
+                pending.discard(index)
+                running.pop(index, None)
+                outcome = payload if kind == "done" else RuntimeError(payload)
+                yield tasks[index], outcome
+        finally:
+            for process in processes:
+                if process.is_alive():
+                    process.terminate()
+                process.join(timeout=10)
+
+    @staticmethod
+    def _lost(
+        tasks: Sequence[T],
+        processes: list[Any],
+        pending: set[int],
+        running: dict[int, int],
+    ) -> Iterator[tuple[T, BaseException]]:
+        """The episodes of processes that died, and all that is left if every one did."""
+        dead = {p.pid: p.exitcode for p in processes if not p.is_alive() and p.exitcode != 0}
+        for index, pid in list(running.items()):
+            if pid in dead:
+                pending.discard(index)
+                running.pop(index)
+                yield tasks[index], RuntimeError(f"worker process exited with code {dead[pid]}")
+        if all(not p.is_alive() for p in processes):
+            for index in sorted(pending):
+                yield tasks[index], RuntimeError("no worker process left to run the episode")
+            pending.clear()
+
+
 @dataclass(frozen=True)
 class RayExecutor:
     """Ray tasks, one per episode; connects to ``address`` or starts a local instance."""
@@ -134,10 +233,20 @@ def import_ray() -> Any:
     return ray
 
 
-def make_executor(kind: str, workers: int, address: str | None = None) -> Executor:
-    """An executor by name (``serial``, ``processes``, ``threads``, ``ray``)."""
-    if workers < 1:
-        raise ConfigError(f"workers must be at least 1, got {workers}")
+def make_executor(
+    kind: str, workers: int, address: str | None = None, threads_per_worker: int = 1
+) -> Executor:
+    """An executor by name (``serial``, ``processes``, ``threads``, ``ray``); ``processes``
+    with ``threads_per_worker > 1`` runs that many episodes in threads in each process."""
+    if workers < 1 or threads_per_worker < 1:
+        raise ConfigError(
+            f"workers and threads_per_worker must be at least 1, got {workers} and "
+            f"{threads_per_worker}"
+        )
+    if kind == "processes" and threads_per_worker > 1:
+        if workers == 1:
+            return ThreadExecutor(threads_per_worker)
+        return ProcessThreadExecutor(workers, threads_per_worker)
     if kind == "serial" or (kind == "processes" and workers == 1):
         return SerialExecutor()
     if kind == "processes":

@@ -298,8 +298,12 @@ def reproduce(
     executor: ExecutorKind = "processes",
     data: str | None = None,
     progress: Progress | None = None,
+    threads_per_worker: int = 1,
 ) -> ReproduceReport:
-    """Run every planned system, then write scores, tables, figures and the summary."""
+    """Run every planned system, then write scores, tables, figures and the summary.
+
+    ``threads_per_worker`` runs that many episodes in threads in each worker process
+    (for remote LLMs: their waits overlap)."""
     out_dir = Path(out_dir)
     started = time.perf_counter()
     data_dir = resolve_data_dir(data or plan.data)
@@ -312,7 +316,10 @@ def reproduce(
     runs = planned_runs(plan, out_dir, workers, executor, str(data_dir))
     jobs = [prepare_job(r.config, r.run_dir) for r in runs]
     reports = execute_jobs(
-        jobs, make_executor(executor, workers), progress, f"reproduce ({plan.name})"
+        jobs,
+        make_executor(executor, workers, threads_per_worker=threads_per_worker),
+        progress,
+        f"reproduce ({plan.name})",
     )
     report = ReproduceReport(out_dir, reports)
     results: list[EpisodeResult] = []

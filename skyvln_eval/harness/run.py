@@ -330,7 +330,9 @@ def run(
 ) -> RunReport:
     """Run ``config`` into ``run_dir``, skipping episodes already recorded there."""
     job = prepare_job(config, run_dir, retry_failed)
-    executor = executor or make_executor(config.executor, config.workers, config.ray_address)
+    executor = executor or make_executor(
+        config.executor, config.workers, config.ray_address, config.threads_per_worker
+    )
     return execute_jobs([job], executor, progress, config.system, task_function)[0]
 
 

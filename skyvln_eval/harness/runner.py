@@ -32,6 +32,7 @@ from skyvln_eval.agent.config import LLM_AGENTS, build_agent
 from skyvln_eval.avdn.imagery import MapGeoref
 from skyvln_eval.avdn.records import Episode
 from skyvln_eval.control import Controller, make_controller, save_flight_log
+from skyvln_eval.control.closed_loop import NATIVE_CALLS
 from skyvln_eval.converters.reader import read_episode
 from skyvln_eval.errors import CacheMissError, LLMAuthError
 from skyvln_eval.harness.commander import SimulatedCommander
@@ -97,7 +98,8 @@ def _controller(name: str, settings_json: str) -> Controller:
     cache: dict[tuple[str, str], Controller] = _thread_controllers.__dict__.setdefault("by_key", {})
     key = (name, settings_json)
     if key not in cache:
-        cache[key] = make_controller(name, json.loads(settings_json))
+        with NATIVE_CALLS:  # CasADi's symbolic core is not thread-safe either
+            cache[key] = make_controller(name, json.loads(settings_json))
     return cache[key]
 
 

@@ -29,6 +29,28 @@ def test_results_do_not_depend_on_the_executor(kind: str, workers: int) -> None:
     assert isinstance(results[3], ValueError)
 
 
+def slow_pid(x: int) -> tuple[int, int, str]:
+    import threading
+    import time
+
+    time.sleep(0.3)  # waits as an LLM call would: threads of one process overlap
+    return x, os.getpid(), threading.current_thread().name
+
+
+def test_processes_with_threads_run_episodes_in_threads_in_several_processes() -> None:
+    executor = make_executor("processes", 2, threads_per_worker=3)
+    results = dict(executor.map_unordered(slow_pid, list(range(12))))
+    assert sorted(results) == list(range(12)) and all(v[0] == k for k, v in results.items())
+    assert len({pid for _, pid, _ in results.values()}) == 2  # two processes ...
+    assert {name for _, _, name in results.values()} >= {"episode-0", "episode-1"}  # ... threads
+    errors = dict(executor.map_unordered(square_or_fail, list(range(6))))
+    assert isinstance(errors[3], Exception) and "three" in str(errors[3]) and errors[5] == 25
+    # A process that dies takes only its episodes in flight: the rest are still run.
+    crashed = dict(executor.map_unordered(crash_worker, list(range(8))))
+    assert isinstance(crashed[2], Exception) and len(crashed) == 8
+    assert sum(not isinstance(v, Exception) for v in crashed.values()) >= 5
+
+
 def test_a_crashed_worker_process_is_reported_not_raised() -> None:
     results = dict(make_executor("processes", 2).map_unordered(crash_worker, [0, 1, 2]))
     assert isinstance(results[2], Exception)
