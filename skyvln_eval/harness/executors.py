@@ -19,12 +19,13 @@ Ray node) is yielded as the exception, so the caller can record it and carry on.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import multiprocessing
-import os
 import queue
 import threading
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from multiprocessing import connection as mp_connection
 from typing import Any, Literal, Protocol, TypeVar
 
 from skyvln_eval.errors import ConfigError, UnknownNameError
@@ -96,25 +97,32 @@ class ThreadExecutor:
 
 
 def _thread_worker(
-    fn: Callable[[Any], Any], tasks: Any, results: Any, threads: int
+    fn: Callable[[Any], Any], conn: Any, threads: int
 ) -> None:  # pragma: no cover - runs in a child process (covered through the executor's tests)
-    """A worker process: ``threads`` threads take tasks until they meet the end marker."""
+    """A worker process: ``threads`` threads run the tasks the parent sends down ``conn``
+    (its own pipe) and send each result back; ``None`` ends the work."""
+    sending = threading.Lock()
+    inbox: queue.Queue[Any] = queue.Queue()
+
+    def send(message: tuple[str, int, Any]) -> None:
+        with sending:
+            conn.send(message)
 
     def loop() -> None:
-        while True:
-            item = tasks.get()
-            if item is None:
-                return
+        while (item := inbox.get()) is not None:
             index, task = item
-            results.put(("start", index, os.getpid()))
             try:
-                results.put(("done", index, fn(task)))
+                send(("done", index, fn(task)))
             except Exception as exc:  # the caller records it as a failed episode
-                results.put(("error", index, f"{type(exc).__name__}: {exc}"))
+                send(("error", index, f"{type(exc).__name__}: {exc}"))
 
     pool = [threading.Thread(target=loop, name=f"episode-{k}") for k in range(threads)]
     for thread in pool:
         thread.start()
+    while (message := conn.recv()) is not None:
+        inbox.put(message)
+    for _ in pool:
+        inbox.put(None)
     for thread in pool:
         thread.join()
 
@@ -123,9 +131,11 @@ def _thread_worker(
 class ProcessThreadExecutor:
     """``workers`` processes, each running ``threads`` episodes at a time in threads.
 
-    Results stream back as episodes finish. A process that dies (a crash in native code)
-    takes only its episodes in flight with it: they are yielded as errors, the other
-    processes carry on with the rest.
+    Each process has its own pipe (no lock is shared between processes, so one that dies
+    cannot block the others); the parent hands it a new episode whenever one of its threads
+    is free. Results stream back as episodes finish. A process that dies (a crash in
+    native code) takes only its episodes in flight with it: they are yielded as errors,
+    and the other processes carry on with the rest.
     """
 
     workers: int
@@ -135,57 +145,76 @@ class ProcessThreadExecutor:
         self, fn: Callable[[T], R], tasks: Sequence[T]
     ) -> Iterator[tuple[T, R | BaseException]]:
         context = multiprocessing.get_context("spawn")
-        queue_in, queue_out = context.Queue(), context.Queue()
-        for index, task in enumerate(tasks):
-            queue_in.put((index, task))
-        for _ in range(self.workers * self.threads):
-            queue_in.put(None)
-        processes = [
-            context.Process(target=_thread_worker, args=(fn, queue_in, queue_out, self.threads))
-            for _ in range(min(self.workers, max(1, len(tasks))))
-        ]
-        for process in processes:
+        todo = list(enumerate(tasks))[::-1]  # popped from the end: in order
+        workers = []
+        for _ in range(min(self.workers, max(1, len(tasks)))):
+            parent_end, child_end = context.Pipe()
+            process = context.Process(target=_thread_worker, args=(fn, child_end, self.threads))
             process.start()
-        pending = set(range(len(tasks)))
-        running: dict[int, int] = {}  # task index -> pid of the process running it
+            child_end.close()
+            workers.append(_Worker(process, parent_end))
         try:
-            while pending:
-                try:
-                    kind, index, payload = queue_out.get(timeout=0.5)
-                except queue.Empty:
-                    yield from self._lost(tasks, processes, pending, running)
-                    continue
-                if kind == "start":
-                    running[index] = payload
-                    continue
-                pending.discard(index)
-                running.pop(index, None)
-                outcome = payload if kind == "done" else RuntimeError(payload)
-                yield tasks[index], outcome
+            for worker in workers:
+                self._feed(worker, todo)
+            while any(w.alive and w.in_flight for w in workers):
+                ready = mp_connection.wait([w.conn for w in workers if w.alive], timeout=1.0)
+                for worker in (w for w in workers if w.conn in ready):
+                    try:
+                        kind, index, payload = worker.conn.recv()
+                    except (EOFError, OSError):  # the process died: its episodes are lost
+                        yield from self._lost(worker, tasks)
+                        continue
+                    worker.in_flight.discard(index)
+                    yield tasks[index], payload if kind == "done" else RuntimeError(payload)
+                    self._feed(worker, todo)
+                if not any(w.alive for w in workers):
+                    break
+            for index, _ in reversed(todo):  # only if every process died
+                yield tasks[index], RuntimeError("no worker process left to run the episode")
         finally:
-            for process in processes:
-                if process.is_alive():
-                    process.terminate()
-                process.join(timeout=10)
+            for worker in workers:
+                worker.stop()
+
+    def _feed(self, worker: _Worker, todo: list[tuple[int, Any]]) -> None:
+        """Give ``worker`` episodes until each of its threads has one."""
+        while worker.alive and todo and len(worker.in_flight) < self.threads:
+            index, task = todo.pop()
+            try:
+                worker.conn.send((index, task))
+            except (BrokenPipeError, OSError):
+                todo.append((index, task))
+                worker.alive = False
+                return
+            worker.in_flight.add(index)
 
     @staticmethod
-    def _lost(
-        tasks: Sequence[T],
-        processes: list[Any],
-        pending: set[int],
-        running: dict[int, int],
-    ) -> Iterator[tuple[T, BaseException]]:
-        """The episodes of processes that died, and all that is left if every one did."""
-        dead = {p.pid: p.exitcode for p in processes if not p.is_alive() and p.exitcode != 0}
-        for index, pid in list(running.items()):
-            if pid in dead:
-                pending.discard(index)
-                running.pop(index)
-                yield tasks[index], RuntimeError(f"worker process exited with code {dead[pid]}")
-        if all(not p.is_alive() for p in processes):
-            for index in sorted(pending):
-                yield tasks[index], RuntimeError("no worker process left to run the episode")
-            pending.clear()
+    def _lost(worker: _Worker, tasks: Sequence[T]) -> Iterator[tuple[T, BaseException]]:
+        worker.alive = False
+        worker.process.join(timeout=5)
+        code = worker.process.exitcode
+        for index in sorted(worker.in_flight):
+            yield tasks[index], RuntimeError(f"worker process exited with code {code}")
+        worker.in_flight.clear()
+
+
+@dataclass(eq=False)
+class _Worker:
+    """One worker process of :class:`ProcessThreadExecutor`, its pipe and its episodes."""
+
+    process: Any
+    conn: Any
+    in_flight: set[int] = field(default_factory=set)
+    alive: bool = True
+
+    def stop(self) -> None:
+        if self.alive:
+            with contextlib.suppress(OSError):
+                self.conn.send(None)
+        self.process.join(timeout=10)
+        if self.process.is_alive():
+            self.process.terminate()
+            self.process.join(timeout=5)
+        self.conn.close()
 
 
 @dataclass(frozen=True)
