@@ -29,10 +29,17 @@ from skyvln_eval.agent.config import LLM_AGENTS, AgentConfig
 from skyvln_eval.avdn.constants import SPLITS, annotation_file_name
 from skyvln_eval.avdn.loader import load_split
 from skyvln_eval.avdn.summary import SplitSummary, summarise_split
-from skyvln_eval.fileio import atomic_write_json, atomic_write_text
+from skyvln_eval.fileio import atomic_write_json, atomic_write_text, ensure_directory
 from skyvln_eval.harness.executors import ExecutorKind, make_executor
 from skyvln_eval.harness.plan import PlannedRun, ReproducePlan, planned_runs
-from skyvln_eval.harness.run import Progress, RunReport, execute_jobs, prepare_job, resolve_data_dir
+from skyvln_eval.harness.run import (
+    Progress,
+    RunJob,
+    RunReport,
+    execute_jobs,
+    prepare_job,
+    resolve_data_dir,
+)
 from skyvln_eval.metrics import MetricConventions, score_results, summarise
 from skyvln_eval.metrics.cost import UNKNOWN_IF_ANY_UNKNOWN
 from skyvln_eval.metrics.records import EpisodeResult
@@ -263,7 +270,7 @@ def reproduce(
     progress: Progress | None = None,
 ) -> ReproduceReport:
     """Run every planned system, then write scores, tables, figures and the summary."""
-    out_dir = Path(out_dir)
+    out_dir = ensure_directory(out_dir, "output folder")
     started = time.perf_counter()
     data_dir = resolve_data_dir(data or plan.data)
     datasets = _dataset_summary(data_dir)
@@ -273,7 +280,13 @@ def reproduce(
         indent=1,
     )
     runs = planned_runs(plan, out_dir, workers, executor, str(data_dir))
-    jobs = [prepare_job(r.config, r.run_dir) for r in runs]
+    jobs: list[RunJob] = []
+    try:
+        jobs += (prepare_job(r.config, r.run_dir) for r in runs)
+    except BaseException:  # e.g. a run directory in use: let go of the ones already held
+        for job in jobs:
+            job.release()
+        raise
     reports = execute_jobs(
         jobs, make_executor(executor, workers), progress, f"reproduce ({plan.name})"
     )

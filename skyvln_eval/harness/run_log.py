@@ -48,6 +48,7 @@ from skyvln_eval.converters.convert import (
 )
 from skyvln_eval.converters.writer import McapLogWriter
 from skyvln_eval.frames import ViewPose, latlng_to_enu, view_to_pose
+from skyvln_eval.harness.crashpoints import crash_point
 from skyvln_eval.sim.obstacles import ObstacleScenario
 from skyvln_eval.worlds.tile import WorldTile
 
@@ -285,6 +286,7 @@ def write_run_log(
         )
         poses = [view_to_pose(corners, episode.georef) for corners in episode.gt_path_corners]
         write_static_content(episode, world if observations else None, poses, writer, options)
+        crash_point("run-log-start")  # test hook: no-op unless $SKYVLN_EVAL_CRASH_AT says
         for index, turn in enumerate(episode.dialog()):
             write_dialog_turn(writer, episode.episode_id, turn, index, 0)
         out = _Messages()
@@ -294,3 +296,4 @@ def write_run_log(
             _control_messages(out, content.control_log)
         _obstacle_messages(out, content.obstacle_segments)
         out.write(writer)
+        crash_point("run-log-end")

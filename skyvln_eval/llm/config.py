@@ -8,11 +8,12 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from skyvln_eval.errors import UnknownNameError
 from skyvln_eval.llm.cache import ResponseCache
 from skyvln_eval.llm.client import LLMClient
 from skyvln_eval.llm.negotiation import StructuredSetting
 from skyvln_eval.llm.prices import load_prices
-from skyvln_eval.llm.registry import create_backend
+from skyvln_eval.llm.registry import create_backend, known_backends
 from skyvln_eval.llm.retry import RetryPolicy
 from skyvln_eval.llm.types import GenerationConfig
 
@@ -99,6 +100,15 @@ class LLMConfig(BaseModel):
     retry: RetryConfig = RetryConfig()
     cache_path: str | None = None
     prices_path: str | None = None
+
+    @field_validator("backend")
+    @classmethod
+    def _known_backend(cls, spec: str) -> str:
+        # Checked on load so that a misspelt backend stops a run before its first episode.
+        name = spec.partition(":")[0]
+        if name not in known_backends():
+            raise ValueError(str(UnknownNameError("LLM backend", name, known_backends())))
+        return spec
 
     @field_validator("budgets")
     @classmethod
