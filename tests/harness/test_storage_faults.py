@@ -16,7 +16,7 @@ import yaml
 
 from skyvln_eval.harness import RunConfig, run
 from skyvln_eval.harness.store import DAMAGED_FILE, RESULTS_FILE
-from skyvln_eval.metrics import read_results
+from skyvln_eval.metrics import EpisodeResult, read_results
 from tests.conftest import REPO, CliOutcome, make_record, write_dataset
 from tests.harness.compare import same_runs
 
@@ -48,6 +48,14 @@ def _limited_run(
         text=True,
         timeout=300,
     )
+
+
+def _reference(config: RunConfig, tmp_path: Path) -> tuple[list[EpisodeResult], list[int]]:
+    """The rows of an uninterrupted run of ``config`` and the byte length of each line of
+    its results file (the header first)."""
+    run(config, tmp_path / "reference")
+    path = tmp_path / "reference" / RESULTS_FILE
+    return read_results(path), [len(line) + 1 for line in path.read_bytes().split(b"\n")[:-1]]
 
 
 def test_a_corrupt_map_image_fails_the_run_naming_the_file(tmp_path: Path, cli: Cli) -> None:
@@ -106,11 +114,7 @@ def test_a_full_disk_while_results_are_appended_keeps_every_completed_row(
     tmp_path: Path, small_config: MakeConfig, cli: Cli
 ) -> None:
     config = small_config(limit=4, write_logs=False)
-    run(config, tmp_path / "reference")
-    reference = read_results(tmp_path / "reference" / RESULTS_FILE)
-    sizes = [
-        len(line) + 1 for line in (tmp_path / "reference" / RESULTS_FILE).read_bytes().split(b"\n")
-    ]
+    reference, sizes = _reference(config, tmp_path)
     # Room for the header, two rows and half of the third.
     room = sum(sizes[:3]) + sizes[3] // 2
     config_file = _write(config, tmp_path / "run.yaml")
@@ -138,11 +142,8 @@ def test_a_full_disk_while_run_logs_are_written_stops_the_run_at_once(
     tmp_path: Path, small_config: MakeConfig, cli: Cli
 ) -> None:
     config = small_config(limit=4, observations_in_logs=True)
-    run(config, tmp_path / "reference")
-    reference = read_results(tmp_path / "reference" / RESULTS_FILE)
-    biggest_row = max(
-        len(line) for line in (tmp_path / "reference" / RESULTS_FILE).read_bytes().split(b"\n")
-    )
+    reference, sizes = _reference(config, tmp_path)
+    biggest_row = max(sizes)
     smallest_log = min(p.stat().st_size for p in (tmp_path / "reference").rglob("*.mcap"))
     room = 3 * biggest_row  # results fit, no run MCAP does
     assert room < smallest_log
