@@ -1,10 +1,13 @@
 """Benchmark: the replay harness at AVDN scale, and overlapping LLM calls.
 
 1. Official mode: the full SkyVLN agent (rule backend) on the AVDN-sized synthetic
-   val_unseen (411 episodes), ``--workers`` processes: episodes/s.
-2. Dynamics mode: the same episodes flown with the NMPC through moving obstacles:
-   episodes/s, wall time (aim: under 2 minutes on 2 cores) and the simulated-to-wall-clock
+   val_unseen (411 episodes), ``--workers`` processes: episodes/s (aim: at least 30).
+2. Dynamics mode: the same episodes flown with the NMPC through two moving obstacles:
+   episodes/s, wall time (aim: at most 60 s on 2 cores) and the simulated-to-wall-clock
    time ratio.
+
+Each row gives the peak resident memory of every worker process (``ru_maxrss`` read in
+the worker after each episode).
 3. LLM concurrency, against a loopback OpenAI-compatible server that answers after
    200 ms: 64 raw calls one after another vs 16 at a time (aim: at least 10x), and
    16 episodes of the agent with the ``openai`` backend run sequentially vs 16 at a time.
@@ -17,30 +20,61 @@ Run directories go to a temporary folder; episode logs and the dataset to the ca
 from __future__ import annotations
 
 import argparse
+import functools
 import os
+import resource
 import tempfile
 import time
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 from skyvln_eval.harness import RunConfig, make_executor, run
+from skyvln_eval.harness.executors import Executor
 from skyvln_eval.harness.run import prepare_job
 from skyvln_eval.llm.config import LLMConfig, build_client
 from skyvln_eval.llm.loopback import LoopbackOpenAIServer
 from skyvln_eval.llm.types import GenerationConfig, Message
 
 
+def _measured(fn: Callable[[Any], Any], task: Any) -> tuple[Any, int, int]:
+    """``fn(task)``, the worker's process id and its peak resident memory so far (KiB)."""
+    return fn(task), os.getpid(), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+
+
+class PeakMemory:
+    """An executor that runs another and keeps each worker's peak resident memory."""
+
+    def __init__(self, inner: Executor) -> None:
+        self.inner = inner
+        self.peak_kib: dict[int, int] = {}
+
+    def map_unordered(
+        self, fn: Callable[[Any], Any], tasks: Sequence[Any]
+    ) -> Iterator[tuple[Any, Any]]:
+        for task, outcome in self.inner.map_unordered(functools.partial(_measured, fn), tasks):
+            if isinstance(outcome, tuple):
+                result, pid, peak = outcome
+                self.peak_kib[pid] = max(self.peak_kib.get(pid, 0), peak)
+                yield task, result
+            else:
+                yield task, outcome
+
+
 def harness_row(label: str, config: RunConfig, run_dir: Path) -> None:
     prepare_job(config, run_dir)  # episode logs converted once, not timed
+    executor = PeakMemory(make_executor(config.executor, config.workers))
     start = time.perf_counter()
-    report = run(config, run_dir, executor=make_executor(config.executor, config.workers))
+    report = run(config, run_dir, executor=executor)
     wall = time.perf_counter() - start
     n = len(report.expected)
     ratio = report.simulated_s / wall if wall else float("nan")
+    peaks = ", ".join(f"{kib / 1024:.0f}" for kib in sorted(executor.peak_kib.values()))
     print(
         f"{label:<28} {n:>5} episodes {wall:>7.1f} s  {n / wall:>6.2f} episodes/s  "
         f"simulated {report.simulated_s:>8.0f} s  ({ratio:>5.1f}x real time)  "
-        f"failed {len(report.failed)}"
+        f"failed {len(report.failed)}  peak RSS per worker (MiB): {peaks}"
     )
 
 

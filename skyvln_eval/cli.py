@@ -314,6 +314,10 @@ def reproduce(
         int | None, typer.Option(min=1, help="Episodes per split (a quick look)")
     ] = None,
     fail_on_error: Annotated[float, typer.Option(min=0.0, max=1.0, help=FAIL_ON_ERROR_HELP)] = 0.0,
+    recordings: Annotated[
+        bool,
+        typer.Option(help="Save a few episodes per system as Rerun recordings (viewer extra)"),
+    ] = True,
 ) -> None:
     """The main job: the paper's Table I and II, control figures and a summary, on the sample.
 
@@ -325,7 +329,7 @@ def reproduce(
     from skyvln_eval.harness.reproduce import reproduce as run_plan
     from skyvln_eval.harness.run import error_verdict
 
-    chosen = load_plan(plan, limit=limit)
+    chosen = load_plan(plan, limit=limit, recordings=None if recordings else 0)
     if data_dir is None and chosen.data == "sample":
         _build_dataset("sample", None, False, 1)  # with a progress bar on first use
     report = run_plan(
@@ -344,6 +348,36 @@ def reproduce(
         _echo_problem(verdict)
     if not report.complete or verdict:
         raise typer.Exit(1)
+
+
+@app.command()
+def view(
+    target: Annotated[
+        Path,
+        typer.Argument(help="A run directory (skyvln-eval run --out), one run MCAP, or an .rrd"),
+    ],
+    episode: Annotated[
+        list[str] | None,
+        typer.Option("--episode", "-e", help="Episode ID or SPLIT/ID; repeat it (default: all)"),
+    ] = None,
+    save: Annotated[
+        Path | None,
+        typer.Option(help="Write FILE.rrd (several episodes: one recording each) or a folder"),
+    ] = None,
+    serve: Annotated[
+        bool, typer.Option(help="Serve the web viewer on 127.0.0.1 (the default without --save)")
+    ] = False,
+    port: Annotated[int, typer.Option(min=0, max=65535, help="Web viewer port")] = 9090,
+) -> None:
+    """See episodes in the Rerun web viewer: map, 3-D flight, camera, texts, control plots.
+
+    One recording per episode, built from its run MCAP only. Needs `pip install
+    'skyvln-eval[viewer]'`. Rerun's usage analytics are off for what this starts (if you
+    start `rerun` yourself, `rerun analytics disable` turns them off).
+    """
+    from skyvln_eval.viewer.commands import run_view
+
+    run_view(target, episode or [], save, serve, port)
 
 
 def _register_report_commands() -> None:

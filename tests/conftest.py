@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ast
 import json
 import os
 import sys
@@ -35,6 +36,19 @@ SHARED_FIXTURES = _shared_fixtures()
 
 BOTM_LEFT = (30.0, 40.0)
 TOP_RIGHT = (30.01, 40.01)  # about 1.1 km square in flat degrees
+
+
+def modules_loaded_by(module: str, prefixes: tuple[str, ...]) -> list[str]:
+    """Modules starting with one of ``prefixes`` that importing ``module`` loads, in a
+    fresh interpreter (so nothing imported by the tests themselves counts)."""
+    import subprocess
+    import sys
+
+    code = f"import sys, {module}\nprint([m for m in sys.modules if m.startswith({prefixes!r})])"
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO
+    )
+    return list(ast.literal_eval(out.stdout.strip()))
 
 
 def make_record(

@@ -7,7 +7,7 @@ import sys
 
 from tests.conftest import REPO
 
-HEAVY = ("ray", "transformers", "torch", "openai")
+HEAVY = ("ray", "transformers", "torch", "openai", "rerun")
 
 
 def test_importing_the_toolkit_imports_no_optional_heavy_dependency() -> None:

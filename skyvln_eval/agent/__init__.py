@@ -20,10 +20,10 @@ from skyvln_eval.agent.actions import (
     action_to_dict,
     decision_json_schema,
 )
-from skyvln_eval.agent.base import Agent, Decision, Observation
-from skyvln_eval.agent.baselines import GroundTruthAgent, NavGPTAgent, RandomAgent
+from skyvln_eval.agent.base import Agent, Decision, EpisodeBrief, Observation
+from skyvln_eval.agent.baselines import NavGPTAgent, RandomAgent
 from skyvln_eval.agent.config import AGENTS, AgentConfig, DetectorConfig, build_agent
-from skyvln_eval.agent.detectors import Detection, Detector, LayerDetector, create_detector
+from skyvln_eval.agent.detectors import Detection, Detector, SimulatedDetector, create_detector
 from skyvln_eval.agent.hsd import SECTOR_NAMES, coarse_position, sector_of
 from skyvln_eval.agent.mapping import (
     TURN_NUDGE,
@@ -50,9 +50,8 @@ __all__ = [
     "Detection",
     "Detector",
     "DetectorConfig",
+    "EpisodeBrief",
     "FlyTo",
-    "GroundTruthAgent",
-    "LayerDetector",
     "Move",
     "NavGPTAgent",
     "Observation",
@@ -61,6 +60,7 @@ __all__ = [
     "PerceptionConfig",
     "RandomAgent",
     "Sighting",
+    "SimulatedDetector",
     "SkyVLNAgent",
     "Stop",
     "SubGoal",

@@ -1,8 +1,11 @@
-"""The agent interface: ``reset(episode, world)`` once, then ``act(observation) -> Decision``.
+"""The agent interface: ``reset(brief)`` once, then ``act(observation) -> Decision``.
 
-An agent sees the world only through the observation's camera rig (it may turn in place
-and capture as often as it likes) and reads only the episode's dialog and start; the
-ground-truth replay baseline is the one agent that reads the ground truth, by design.
+The harness owns the world, the cameras and the episode's ground truth (as in Gymnasium,
+the environment hands out observations). An agent is given an :class:`EpisodeBrief` (the
+dialog so far, where it starts, the map's georeference, its step budget: nothing about the
+goal or the route) and, at each step, an :class:`Observation`: its pose and view, the
+feedback on its last action, new dialog turns, and a :class:`~skyvln_eval.sensing.Sensors`
+handle through which it can turn in place and capture images, and nothing else.
 """
 
 from __future__ import annotations
@@ -16,11 +19,39 @@ from numpy.typing import NDArray
 
 from skyvln_eval.agent.actions import Action
 from skyvln_eval.avdn.imagery import MapGeoref
-from skyvln_eval.avdn.records import Episode
+from skyvln_eval.avdn.records import DialogTurn
 from skyvln_eval.frames import ViewPose
 from skyvln_eval.llm_records import LlmCall, ModuleFailure
-from skyvln_eval.sim.camera import CameraRig
-from skyvln_eval.worlds.tile import WorldTile
+from skyvln_eval.sensing import Sensors
+
+
+@dataclass(frozen=True)
+class EpisodeBrief:
+    """What an agent knows when an episode starts.
+
+    ``dialog`` is every turn so far (earlier rounds and the current round's question and
+    instruction); ``current_round`` the round the agent now follows. ``start_pose`` and
+    ``start_view`` are where it starts (the view's ``[lat, lng]`` corners), ``georef``
+    the map's georeference, ``max_steps`` the view budget, start included.
+    """
+
+    episode_id: str
+    map_name: str
+    dialog: tuple[DialogTurn, ...]
+    current_round: int
+    start_pose: ViewPose
+    start_view: NDArray[np.float64] = field(repr=False)
+    georef: MapGeoref = field(repr=False)
+    max_steps: int
+
+    @property
+    def instruction(self) -> str:
+        """The commander's words of the current round."""
+        return " ".join(
+            t.text
+            for t in self.dialog
+            if t.round_index >= self.current_round and t.speaker == "commander"
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -30,16 +61,17 @@ class Observation:
     ``step_index`` counts views so far (0 at the start view); ``max_steps`` is the view
     budget, start included, so ``actions_left = max_steps - 1 - step_index``.
     ``feedback`` says what became of the previous action (e.g. a step the map border
-    cancelled).
+    cancelled); ``new_dialog`` holds turns added since the last step (the commander's
+    answer to the agent's question).
     """
 
     step_index: int
     max_steps: int
     pose: ViewPose
     view_corners: NDArray[np.float64]
-    georef: MapGeoref
-    camera: CameraRig
+    sensors: Sensors
     feedback: str | None = None
+    new_dialog: tuple[DialogTurn, ...] = ()
 
     @property
     def actions_left(self) -> int:
@@ -49,14 +81,16 @@ class Observation:
 @dataclass(frozen=True)
 class Decision:
     """The agent's thought, its action, a JSON-able trace of how it got there, its LLM
-    calls, and the modules whose answers it could not use (``failures``; a failure of the
-    action module means ``action`` is the safe fallback)."""
+    calls, the modules whose answers it could not use (``failures``; a failure of the
+    action module means ``action`` is the safe fallback), and a question for the
+    commander (``question``), which the harness may have answered by the next step."""
 
     thought: str
     action: Action
     trace: dict[str, Any] = field(default_factory=dict)
     llm_calls: tuple[LlmCall, ...] = ()
     failures: tuple[ModuleFailure, ...] = ()
+    question: str | None = None
 
     @property
     def fallback_action(self) -> bool:
@@ -68,7 +102,7 @@ class Agent(ABC):
 
     name: str = "agent"
 
-    def reset(self, episode: Episode, world: WorldTile) -> None:  # noqa: B027 - optional hook
+    def reset(self, brief: EpisodeBrief) -> None:  # noqa: B027 - optional hook
         """Start an episode."""
 
     @abstractmethod

@@ -2,9 +2,8 @@
 
 * :class:`RandomAgent` draws a uniformly random action of the vocabulary each step
   (STOP included), seeded by the agent seed and the episode id.
-* :class:`GroundTruthAgent` replays the ground-truth path: at each step the AVDN waypoint
-  from its current view to the next ground-truth view, then STOP. It reads the ground
-  truth on purpose; it bounds what the step and the metrics allow.
+* The ground-truth replay is not an agent: it reads the route, which no agent may. The
+  harness builds it from the episode as a labelled oracle (:mod:`skyvln_eval.harness.oracle`).
 * :class:`NavGPTAgent` is the LLM alone, as in NavGPT: one call per step with the whole
   instruction, view-level descriptions of what each view shows (label, caption, left /
   centre / right; no ids, distances or sectors), and the history of its own actions. No
@@ -17,16 +16,12 @@ import json
 import random
 from typing import Any
 
-import numpy as np
-
 from skyvln_eval.agent.actions import (
-    Stop,
-    Waypoint,
     action_from_dict,
     action_record,
     decision_json_schema,
 )
-from skyvln_eval.agent.base import Agent, Decision, Observation
+from skyvln_eval.agent.base import Agent, Decision, EpisodeBrief, Observation
 from skyvln_eval.agent.detectors import episode_seed
 from skyvln_eval.agent.hsd import coarse_position
 from skyvln_eval.agent.images import panorama_images
@@ -40,13 +35,10 @@ from skyvln_eval.agent.motion import (
 from skyvln_eval.agent.odometry import Odometer, llm_agent_settings, pose_summary, roads_text
 from skyvln_eval.agent.perception import Panorama, Perception
 from skyvln_eval.agent.subgoals import DialogText
-from skyvln_eval.avdn.records import Episode
-from skyvln_eval.avdn.step import action_between_views
 from skyvln_eval.errors import ActionParseError
 from skyvln_eval.llm.client import LLMClient
 from skyvln_eval.llm.config import LLMConfig
 from skyvln_eval.llm.simple import random_action
-from skyvln_eval.worlds.tile import WorldTile
 
 
 class RandomAgent(Agent):
@@ -59,38 +51,12 @@ class RandomAgent(Agent):
     def settings(self) -> dict[str, Any]:
         return {"name": self.name, "seed": self.seed}
 
-    def reset(self, episode: Episode, world: WorldTile) -> None:
-        self._rng = random.Random(episode_seed(self.seed, episode.episode_id))
+    def reset(self, brief: EpisodeBrief) -> None:
+        self._rng = random.Random(episode_seed(self.seed, brief.episode_id))
 
     def act(self, observation: Observation) -> Decision:
         action = action_from_dict(random_action(self._rng, {}), {})
         return Decision("random action", action, {"action": action_record(action)})
-
-
-class GroundTruthAgent(Agent):
-    name = "ground_truth"
-
-    def settings(self) -> dict[str, Any]:
-        return {"name": self.name}
-
-    def reset(self, episode: Episode, world: WorldTile) -> None:
-        gt = episode.gt_path_corners
-        # ANDH-Full repeats each round's start view (the previous round's end): skip repeats.
-        keep = [0] + [
-            k for k in range(1, len(gt)) if not np.allclose(gt[k], gt[k - 1], rtol=0.0, atol=1e-9)
-        ]
-        self._targets = gt[keep][1:]
-        self._next = 0
-
-    def act(self, observation: Observation) -> Decision:
-        if self._next >= len(self._targets):
-            return Decision("at the end of the ground truth", Stop(), {"target_index": None})
-        official = action_between_views(observation.view_corners, self._targets[self._next])
-        self._next += 1
-        action = Waypoint(official.waypoint[0], official.waypoint[1], official.altitude)
-        return Decision(
-            f"towards ground-truth view {self._next}", action, {"target_index": self._next}
-        )
 
 
 class NavGPTAgent(Agent):
@@ -113,20 +79,20 @@ class NavGPTAgent(Agent):
     def settings(self) -> dict[str, Any]:
         return llm_agent_settings(self.name, self.seed, self.client, self.llm, self.perception)
 
-    def reset(self, episode: Episode, world: WorldTile) -> None:
-        self._episode = episode
-        self._dialog = DialogText.of(episode.dialog(), episode.first.round_index)
+    def reset(self, brief: EpisodeBrief) -> None:
+        self._brief = brief
+        self._dialog = DialogText.of(brief.dialog, brief.current_round)
         self._history: list[dict[str, Any]] = []
         self._odometer = Odometer()
-        self.perception.reset(world, episode_seed(self.seed, episode.episode_id))
+        self.perception.reset(episode_seed(self.seed, brief.episode_id))
 
     def act(self, observation: Observation) -> Decision:
-        if not hasattr(self, "_episode"):
-            raise ActionParseError("NavGPTAgent.act called before reset(episode, world)")
+        if not hasattr(self, "_brief"):
+            raise ActionParseError("NavGPTAgent.act called before reset(brief)")
         pose = observation.pose
         if self._history:
             self._history[-1]["feedback"] = observation.feedback
-        panorama = self.perception.observe(observation.camera, pose)
+        panorama = self.perception.observe(observation.sensors, pose)
         self._odometer.update(pose, panorama.road_bearings_deg)
         views = self._views(panorama)
         state = {

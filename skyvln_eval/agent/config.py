@@ -12,26 +12,34 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from skyvln_eval.agent.base import Agent
-from skyvln_eval.agent.detectors import Detector, create_detector
+from skyvln_eval.agent.detectors import (
+    Detector,
+    create_detector,
+    detector_class,
+    known_detectors,
+)
 from skyvln_eval.agent.perception import Perception, PerceptionConfig
 from skyvln_eval.errors import ConfigError, UnknownNameError, describe_validation_error
 from skyvln_eval.llm.client import LLMClient
 from skyvln_eval.llm.config import LLMConfig, build_client
+from skyvln_eval.sensing import SensorKind
 
 
 class DetectorConfig(BaseModel):
-    """Which detector and how imperfect (``layers``) or which weights (``grounding_dino``)."""
+    """Which detector, and its settings: imperfections (``simulated``), weights
+    (``grounding_dino``) or the vision-language model to ask (``vlm``)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    name: str = "layers"
+    name: str = "simulated"
     miss_rate: float = Field(default=0.1, ge=0.0, le=1.0)
     false_positive_rate: float = Field(
         default=0.03, ge=0.0, le=1.0, description="share of ordinary buildings taken for landmarks"
     )
+    confusion_rate: float = Field(default=0.05, ge=0.0, le=1.0, description="wrong labels")
     close_look_m: float = Field(
         default=70.0, ge=0.0, description="phantoms are seen through closer"
     )
@@ -40,18 +48,40 @@ class DetectorConfig(BaseModel):
         default=None, description="grounding_dino weights (name or local folder)"
     )
     box_threshold: float = Field(default=0.35, ge=0.0, le=1.0)
+    text_threshold: float = Field(default=0.25, ge=0.0, le=1.0)
+    llm: LLMConfig | None = Field(default=None, description="vlm: the model that looks")
+
+    @field_validator("name")
+    @classmethod
+    def _known(cls, name: str) -> str:
+        if name not in known_detectors():
+            raise UnknownNameError("detector", name, known_detectors())
+        return name
+
+    @property
+    def requires(self) -> frozenset[SensorKind]:
+        """The sensors this detector needs (checked before a run starts)."""
+        return detector_class(self.name).requires
 
     def build(self, seed: int) -> Detector:
-        if self.name == "layers":
+        if self.name == "simulated":
             return create_detector(
-                "layers",
+                "simulated",
                 miss_rate=self.miss_rate,
                 false_positive_rate=self.false_positive_rate,
+                confusion_rate=self.confusion_rate,
                 close_look_m=self.close_look_m,
                 min_pixels=self.min_pixels,
                 seed=seed,
             )
-        options: dict[str, Any] = {"box_threshold": self.box_threshold}
+        if self.name == "vlm":
+            if self.llm is None:
+                raise ConfigError("detector 'vlm' needs llm: the vision-language model to ask")
+            return create_detector("vlm", llm=self.llm)
+        options: dict[str, Any] = {
+            "box_threshold": self.box_threshold,
+            "text_threshold": self.text_threshold,
+        }
         if self.model:
             options["model"] = self.model
         return create_detector(self.name, **options)
@@ -120,9 +150,11 @@ def _random(config: AgentConfig, client: LLMClient | None) -> Agent:
 
 
 def _ground_truth(config: AgentConfig, client: LLMClient | None) -> Agent:
-    from skyvln_eval.agent.baselines import GroundTruthAgent
-
-    return GroundTruthAgent()
+    raise ConfigError(
+        "the ground-truth replay reads the route, which no agent may: it is an oracle the "
+        "harness builds from the episode (skyvln_eval.harness.oracle.ground_truth_oracle); "
+        "runs and plans with agent name 'ground_truth' get it"
+    )
 
 
 #: Agents whose modules call an LLM backend (the others never do).

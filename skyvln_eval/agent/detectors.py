@@ -1,33 +1,35 @@
-"""Landmark detectors: one small interface, a default built on the world's layers, a registry.
+"""Landmark detectors: one small interface, each detector saying which sensors it needs.
 
-:class:`LayerDetector` reads the instance and semantic images a synthetic tile renders
-(the camera's "ground-truth segmentation") and makes them imperfect on purpose: visible
-landmarks are missed at random, and some ordinary buildings are consistently taken for
-landmarks (phantoms) until seen from close by. Scores grow with how much of the landmark
-is visible, plus noise. Captions of real landmarks are the landmark's description, i.e.
-this detector assumes a perfect captioner; phantoms are described from their pixels only.
+``detect(images, phrases) -> detections`` on one capture; ``road_bearings`` reads the roads
+leaving from below the drone, where a detector can. Detectors see pixels only: a capture
+(:class:`~skyvln_eval.sensing.CameraImages`) carries no landmark's name or description.
 
-:class:`~skyvln_eval.agent.grounding_dino.GroundingDinoDetector` (extra ``vision``)
-detects in the RGB image from text phrases instead.
+* :class:`SimulatedDetector` (``simulated``; the default on synthetic data) reads the
+  semantic camera: boxes from each landmark instance's mask, the label from the instance's
+  category, attributes (the colour of its roof or ground) measured from the RGB pixels of
+  the mask. It is imperfect on purpose: landmarks are missed at random, labels confused at
+  random, and some ordinary buildings are taken for landmarks (phantoms: the same building
+  every time it is seen from afar) until seen from close by.
+* ``grounding_dino`` (extra ``vision``) and ``vlm`` (a vision-language model over the OpenAI
+  protocol) detect in the RGB image from the instruction's landmark phrases.
 """
 
 from __future__ import annotations
 
-import weakref
+import math
 import zlib
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Final
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from skyvln_eval.agent.lexicon import CATEGORY_LABELS
 from skyvln_eval.errors import ConfigError, PerceptionError, UnknownNameError
-from skyvln_eval.sim.camera import CameraImages, enu_to_map_px
-from skyvln_eval.worlds.tile import SemanticClass, WorldTile
+from skyvln_eval.sensing import CameraImages, SemanticClass, SensorKind
+from skyvln_eval.vocabulary import CATEGORY_LABELS
 
 Box = tuple[int, int, int, int]  # x0, y0, x1, y1 in pixels, x1 / y1 exclusive
 
@@ -43,6 +45,13 @@ _NAMED_COLOURS: Final = {
     "beige": (215, 195, 150),
     "brown": (120, 80, 40),
 }
+ROAD_CLASSES: Final = (SemanticClass.ROAD, SemanticClass.VEHICLE, SemanticClass.BRIDGE)
+#: Landmark labels an ordinary building can pass for (never a bridge, park or roundabout).
+_BUILDING_LABELS: Final = tuple(
+    label
+    for category, label in CATEGORY_LABELS.items()
+    if category not in ("bridge", "park", "roundabout")
+)
 
 
 @dataclass(frozen=True, eq=False)
@@ -57,19 +66,28 @@ class Detection:
 
 
 class Detector(ABC):
-    """``detect(images, phrases) -> detections``; ``reset`` once per episode."""
+    """``detect(images, phrases) -> detections``; ``reset`` once per episode.
+
+    ``requires`` names the sensors a detector needs; a run whose sensors or data cannot
+    give them refuses to start.
+    """
 
     name: str = "detector"
+    requires: frozenset[SensorKind] = frozenset({"rgb"})
 
-    def reset(self, world: WorldTile, seed: int) -> None:  # noqa: B027 - optional hook
-        """Prepare for an episode on ``world``; ``seed`` makes imperfections reproducible."""
+    def reset(self, seed: int) -> None:  # noqa: B027 - optional hook
+        """Start an episode; ``seed`` makes imperfections reproducible."""
 
     @abstractmethod
     def detect(self, images: CameraImages, phrases: Sequence[str] = ()) -> list[Detection]:
         """Landmarks in one capture; text-prompted detectors look for ``phrases``."""
 
+    def road_bearings(self, below: CameraImages, heading_deg: float) -> tuple[float, ...]:
+        """Compass bearings of roads leaving the point below the drone (none if unknown)."""
+        return ()
+
     def settings(self) -> dict[str, Any]:
-        return {"name": self.name}
+        return {"name": self.name, "requires": sorted(self.requires)}
 
 
 def colour_name(rgb: NDArray[Any]) -> str:
@@ -81,200 +99,217 @@ def colour_name(rgb: NDArray[Any]) -> str:
     return names[int(np.bincount(nearest, minlength=len(names)).argmax())]
 
 
-def _box_of(mask: NDArray[np.bool_]) -> Box:
+def box_of(mask: NDArray[np.bool_]) -> Box:
     rows, cols = np.nonzero(mask)
     return int(cols.min()), int(rows.min()), int(cols.max()) + 1, int(rows.max()) + 1
 
 
-@dataclass
-class _PlainBuildings:
-    """The ordinary (unnamed) buildings of a map: connected components, boxes, roof colours.
+def road_bearings(
+    semantic: NDArray[np.uint8],
+    heading_deg: float,
+    min_fraction: float = 0.75,
+    separation_deg: float = 35.0,
+) -> tuple[float, ...]:
+    """Compass bearings of roads leaving the centre of a straight-down semantic image.
 
-    They depend on the map only, so they are computed once per world and shared by every
-    detector (agents are built per episode); roof colours are named on first use, from the
-    building's own pixels (the same pixels as a whole-map mask would select).
+    Rays from the centre (image up = ``heading_deg``, clockwise to the right) are scored
+    by the share of road pixels along them (cars and bridges count as road; small gaps
+    such as a boulevard's median are closed first); the best-scoring directions at least
+    ``separation_deg`` apart with a share above ``min_fraction`` are the roads.
     """
-
-    components: NDArray[np.int32]
-    boxes: NDArray[np.int32]  # per component: x, y, width, height, area (row 0: background)
-    colours: dict[int, str] = field(default_factory=dict)
-
-    @property
-    def count(self) -> int:
-        return len(self.boxes) - 1
-
-    def colour(self, world: WorldTile, component: int) -> str:
-        if component not in self.colours:
-            x, y, w, h = (int(v) for v in self.boxes[component][:4])
-            inside = self.components[y : y + h, x : x + w] == component
-            pixels = world.bgr[y : y + h, x : x + w][inside]
-            self.colours[component] = colour_name(pixels[..., ::-1])
-        return self.colours[component]
-
-
-_PLAIN_BUILDINGS: weakref.WeakKeyDictionary[WorldTile, _PlainBuildings] = (
-    weakref.WeakKeyDictionary()
-)
-
-
-def _plain_buildings(world: WorldTile) -> _PlainBuildings:
-    if world not in _PLAIN_BUILDINGS:
-        semantic, instance = world.semantic, world.instance
-        if semantic is None or instance is None:
-            raise PerceptionError(f"map {world.map_name} has no semantic / instance layers")
-        plain = ((semantic == SemanticClass.BUILDING) & (instance == 0)).astype(np.uint8)
-        _, components, stats, _ = cv2.connectedComponentsWithStats(plain, connectivity=4)
-        _PLAIN_BUILDINGS[world] = _PlainBuildings(
-            components.astype(np.int32), stats.astype(np.int32)
-        )
-    return _PLAIN_BUILDINGS[world]
+    road = cv2.morphologyEx(
+        np.isin(semantic, ROAD_CLASSES).astype(np.uint8), cv2.MORPH_CLOSE, np.ones((9, 9), np.uint8)
+    )
+    height, width = road.shape
+    cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
+    angles = np.arange(0.0, 360.0, 2.0)
+    radii = np.linspace(0.12, 0.47, 12) * min(height, width)
+    a = np.radians(angles)[:, None]
+    cols = np.clip(np.rint(cx + radii[None, :] * np.sin(a)), 0, width - 1).astype(int)
+    rows = np.clip(np.rint(cy - radii[None, :] * np.cos(a)), 0, height - 1).astype(int)
+    share = road[rows, cols].mean(axis=1)
+    # A wide road scores full over a range of angles: smooth so its middle scores best.
+    window = np.ones(7) / 7.0
+    share = np.convolve(np.concatenate([share[-3:], share, share[:3]]), window, mode="valid")
+    found: list[float] = []
+    for i in np.argsort(-share, kind="stable"):
+        if share[i] < min_fraction:
+            break
+        if all(abs((angles[i] - f + 180.0) % 360.0 - 180.0) >= separation_deg for f in found):
+            found.append(float(angles[i]))
+    return tuple(sorted(round((heading_deg + f) % 360.0, 1) for f in found))
 
 
-@dataclass(frozen=True)
-class _Phantom:
-    """An ordinary building the detector takes for a landmark, whenever it sees it from afar."""
-
-    label: str
-    caption: str
-    score: float
-
-
-class LayerDetector(Detector):
-    """Detections from the semantic and instance layers, with misses and phantoms.
+class SimulatedDetector(Detector):
+    """Detections from the semantic camera, imperfect on purpose; see the module docstring.
 
     * Each visible landmark (at least ``min_pixels``) is missed with probability
-      ``miss_rate``, independently in every view.
-    * A fraction ``false_positive_rate`` of the map's ordinary buildings are phantoms: the
-      detector consistently takes each for a landmark of a random category (the same one
-      every time, as a real detector fooled by an appearance would be), captioned from its
-      roof colour, unless it looks from closer than ``close_look_m``, where the mistake
-      shows and the phantom is not reported.
+      ``miss_rate``, independently in every view, and given a wrong label with probability
+      ``confusion_rate``.
+    * A share ``false_positive_rate`` of ordinary buildings are phantoms, decided when the
+      building is first seen and remembered by where it stands (within
+      ``phantom_cell_m``), so the same building fools the detector every time; it is not
+      reported when seen from closer than ``close_look_m``.
     """
 
-    name = "layers"
+    name = "simulated"
+    requires = frozenset({"rgb", "semantic"})
 
     def __init__(
         self,
         miss_rate: float = 0.1,
         false_positive_rate: float = 0.03,
+        confusion_rate: float = 0.05,
         min_pixels: int = 25,
         close_look_m: float = 70.0,
+        phantom_cell_m: float = 30.0,
         seed: int = 0,
     ) -> None:
-        if not 0.0 <= miss_rate <= 1.0:
-            raise ConfigError(f"detector miss_rate must be in [0, 1], got {miss_rate}")
-        if not 0.0 <= false_positive_rate <= 1.0:
-            raise ConfigError(
-                f"detector false_positive_rate must be in [0, 1], got {false_positive_rate}"
-            )
+        for what, rate in (
+            ("miss_rate", miss_rate),
+            ("false_positive_rate", false_positive_rate),
+            ("confusion_rate", confusion_rate),
+        ):
+            if not 0.0 <= rate <= 1.0:
+                raise ConfigError(f"detector {what} must be in [0, 1], got {rate}")
         self.miss_rate = miss_rate
         self.false_positive_rate = false_positive_rate
+        self.confusion_rate = confusion_rate
         self.min_pixels = min_pixels
         self.close_look_m = close_look_m
+        self.phantom_cell_m = phantom_cell_m
         self.seed = seed
-        self._world: WorldTile | None = None
-        self._components: NDArray[np.int32] | None = None
-        self._phantoms: dict[int, _Phantom] = {}
         self._rng = np.random.default_rng(seed)
+        # Ordinary buildings met this episode: where, and whether each is a phantom.
+        self._buildings: list[tuple[float, float, tuple[str, float] | None]] = []
 
     def settings(self) -> dict[str, Any]:
         return {
-            "name": self.name,
+            **super().settings(),
             "miss_rate": self.miss_rate,
             "false_positive_rate": self.false_positive_rate,
+            "confusion_rate": self.confusion_rate,
             "min_pixels": self.min_pixels,
             "close_look_m": self.close_look_m,
+            "phantom_cell_m": self.phantom_cell_m,
         }
 
-    def reset(self, world: WorldTile, seed: int) -> None:
-        if world.instance is None or world.semantic is None:
-            raise PerceptionError(
-                f"map {world.map_name} has no semantic / instance layers (a real xView map?): "
-                "the 'layers' detector cannot see landmarks there; use detector 'grounding_dino' "
-                "(pip install 'skyvln-eval[vision]')"
-            )
+    def reset(self, seed: int) -> None:
         self._rng = np.random.default_rng([self.seed, seed])
-        buildings = _plain_buildings(world)
-        self._components = buildings.components
-        self._world = world
-        count = buildings.count
-        chosen = np.nonzero(self._rng.random(count) < self.false_positive_rate)[0] + 1
-        # Buildings pass for buildings: a phantom is never a bridge, park or roundabout.
-        labels = [
-            CATEGORY_LABELS[c] for c in CATEGORY_LABELS if c not in ("bridge", "park", "roundabout")
-        ]
-        self._phantoms = {}
-        for component in chosen.tolist():
-            label = labels[int(self._rng.integers(len(labels)))]
-            colour = buildings.colour(world, component)
-            score = float(self._rng.uniform(0.35, 0.7))
-            self._phantoms[component] = _Phantom(label, f"a {label} with a {colour} roof", score)
+        self._buildings = []
+
+    def _check(self, images: CameraImages) -> tuple[NDArray[np.uint8], NDArray[np.uint16]]:
+        if images.semantic is None or images.instance is None:
+            raise PerceptionError(
+                "the 'simulated' detector reads the semantic camera, and this capture has "
+                "none (sensors.semantic is off, or the map has no semantic layers): use "
+                "detector 'grounding_dino' or 'vlm' on RGB"
+            )
+        return images.semantic, images.instance
 
     def detect(self, images: CameraImages, phrases: Sequence[str] = ()) -> list[Detection]:
-        if self._world is None or images.instance is None or images.semantic is None:
-            raise PerceptionError(
-                "LayerDetector.detect needs reset(world) and a capture with layers"
-            )
-        ids, counts = np.unique(images.instance, return_counts=True)
+        semantic, instance = self._check(images)
+        ids, counts = np.unique(instance, return_counts=True)
         out: list[Detection] = []
         for landmark_id, count in zip(ids.tolist(), counts.tolist(), strict=True):
             if landmark_id == 0 or count < self.min_pixels or self._rng.random() < self.miss_rate:
                 continue
-            landmark = self._world.landmark(landmark_id)
-            mask = images.instance == landmark_id
+            category = images.instance_categories.get(landmark_id, "landmark")
+            label = CATEGORY_LABELS.get(category, category.replace("_", " "))
+            if self._rng.random() < self.confusion_rate:
+                label = _BUILDING_LABELS[int(self._rng.integers(len(_BUILDING_LABELS)))]
+            mask = instance == landmark_id
             visible = min(1.0, float(np.sqrt(count)) / 40.0)
             score = float(np.clip(0.45 + 0.5 * visible + self._rng.normal(0.0, 0.05), 0.05, 0.99))
-            label = CATEGORY_LABELS.get(landmark.category, landmark.category.replace("_", " "))
-            out.append(Detection(label, _box_of(mask), score, landmark.description, mask))
-        return out + self._phantom_detections(images)
+            caption = _caption(label, images.rgb[mask], semantic[mask])
+            out.append(Detection(label, box_of(mask), score, caption, mask))
+        return out + self._phantoms(images, semantic, instance)
 
-    def _phantom_detections(self, images: CameraImages) -> list[Detection]:
-        """Phantoms seen in this capture, located through each pixel's ground point."""
-        if not self._phantoms or self._world is None or self._components is None:
+    def _phantoms(
+        self, images: CameraImages, semantic: NDArray[np.uint8], instance: NDArray[np.uint16]
+    ) -> list[Detection]:
+        """Ordinary buildings in this capture that the detector takes for landmarks."""
+        if self.false_positive_rate <= 0.0:
             return []
-        assert images.semantic is not None and images.instance is not None  # checked by detect
-        plain = (images.semantic == SemanticClass.BUILDING) & (images.instance == 0)
-        plain &= np.isfinite(images.depth_m)
-        v, u = np.nonzero(plain)
-        if len(u) == 0:
-            return []
-        points = images.points_enu(u, v)
-        px, py = enu_to_map_px(
-            self._world, points[:, 0].astype(np.float32), points[:, 1].astype(np.float32)
-        )
-        rows = np.clip(np.rint(py).astype(int), 0, self._components.shape[0] - 1)
-        cols = np.clip(np.rint(px).astype(int), 0, self._components.shape[1] - 1)
-        component = self._components[rows, cols]
+        plain = ((semantic == SemanticClass.BUILDING) & (instance == 0)).astype(np.uint8)
+        count, components, stats, _ = cv2.connectedComponentsWithStats(plain, connectivity=4)
         out = []
-        for cid, phantom in self._phantoms.items():
-            here = component == cid
-            if int(here.sum()) < self.min_pixels or self._rng.random() < self.miss_rate:
+        finite = images.finite_depth()
+        for component in range(1, count):
+            if stats[component, cv2.CC_STAT_AREA] < self.min_pixels:
                 continue
-            if float(np.median(images.depth_m[v[here], u[here]])) < self.close_look_m:
+            mask = (components == component) & finite
+            v, u = np.nonzero(mask)
+            if len(u) < self.min_pixels:
                 continue
-            mask = np.zeros(images.depth_m.shape, dtype=bool)
-            mask[v[here], u[here]] = True
-            score = float(np.clip(phantom.score + self._rng.normal(0.0, 0.05), 0.05, 0.99))
-            out.append(Detection(phantom.label, _box_of(mask), score, phantom.caption, mask))
+            points = images.points_enu(u, v)
+            x, y = float(np.median(points[:, 0])), float(np.median(points[:, 1]))
+            phantom = self._phantom_at(x, y)
+            if phantom is None:
+                continue
+            camera = np.array([images.pose.x_m, images.pose.y_m, images.pose.z_m])
+            if float(np.median(np.linalg.norm(points - camera, axis=1))) < self.close_look_m:
+                continue  # seen from close by, the mistake shows
+            if self._rng.random() < self.miss_rate:
+                continue
+            label, base = phantom
+            score = float(np.clip(base + self._rng.normal(0.0, 0.05), 0.05, 0.99))
+            caption = _caption(label, images.rgb[mask], semantic[mask])
+            out.append(Detection(label, box_of(mask), score, caption, mask))
         return out
+
+    def _phantom_at(self, x_m: float, y_m: float) -> tuple[str, float] | None:
+        """Whether the building at ``(x_m, y_m)`` fools the detector (its label and base
+        score), decided the first time it is seen and remembered for the episode, so the
+        same building is the same phantom from every view."""
+        for bx, by, known in self._buildings:
+            if math.hypot(bx - x_m, by - y_m) <= self.phantom_cell_m:
+                return known
+        decision: tuple[str, float] | None = None
+        if self._rng.random() < self.false_positive_rate:
+            label = _BUILDING_LABELS[int(self._rng.integers(len(_BUILDING_LABELS)))]
+            decision = (label, float(self._rng.uniform(0.35, 0.7)))
+        self._buildings.append((x_m, y_m, decision))
+        return decision
+
+    def road_bearings(self, below: CameraImages, heading_deg: float) -> tuple[float, ...]:
+        semantic, _ = self._check(below)
+        return road_bearings(semantic, heading_deg)
+
+
+def _caption(label: str, rgb: NDArray[np.uint8], semantic: NDArray[np.uint8]) -> str:
+    """What the pixels show of a detection: its label and measured colour."""
+    colour = colour_name(rgb)
+    if np.mean(semantic == SemanticClass.BUILDING) >= 0.5:
+        return f"a {label} with a {colour} roof"
+    return f"a {colour} {label}"
 
 
 _DETECTORS: Final[dict[str, str]] = {
-    "layers": "skyvln_eval.agent.detectors:LayerDetector",
+    "simulated": "skyvln_eval.agent.detectors:SimulatedDetector",
     "grounding_dino": "skyvln_eval.agent.grounding_dino:GroundingDinoDetector",
+    "vlm": "skyvln_eval.agent.vlm_detector:VlmDetector",
 }
 
 
-def create_detector(name: str, **options: Any) -> Detector:
-    """A detector by registry name (``layers``, ``grounding_dino``), imported on use."""
+def detector_class(name: str) -> type[Detector]:
+    """A detector class by registry name, imported on use (``did you mean`` when unknown)."""
     import importlib
 
     if name not in _DETECTORS:
         raise UnknownNameError("detector", name, list(_DETECTORS))
     module_name, _, class_name = _DETECTORS[name].partition(":")
-    cls = getattr(importlib.import_module(module_name), class_name)
-    detector: Detector = cls(**options)
-    return detector
+    cls: type[Detector] = getattr(importlib.import_module(module_name), class_name)
+    return cls
+
+
+def known_detectors() -> list[str]:
+    return sorted(_DETECTORS)
+
+
+def create_detector(name: str, **options: Any) -> Detector:
+    """A detector by registry name (``simulated``, ``grounding_dino``, ``vlm``)."""
+    return detector_class(name)(**options)
 
 
 def episode_seed(seed: int, episode_id: str) -> int:

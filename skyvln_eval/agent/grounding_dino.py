@@ -16,7 +16,7 @@ import numpy as np
 
 from skyvln_eval.agent.detectors import Detection, Detector
 from skyvln_eval.errors import MissingExtraError
-from skyvln_eval.sim.camera import CameraImages
+from skyvln_eval.sensing import CameraImages
 
 DEFAULT_MODEL = "IDEA-Research/grounding-dino-tiny"
 

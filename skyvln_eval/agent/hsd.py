@@ -23,7 +23,6 @@ from typing import Any, Final, Literal
 import cv2
 
 from skyvln_eval.agent.calls import JsonCall, call_json
-from skyvln_eval.agent.lexicon import text_similarity
 from skyvln_eval.agent.parsing import load_json_object
 from skyvln_eval.agent.perception import Panorama, Sighting
 from skyvln_eval.agent.subgoals import SubGoal
@@ -33,6 +32,7 @@ from skyvln_eval.llm.config import LLMConfig
 from skyvln_eval.llm.taskdata import task_message
 from skyvln_eval.llm.types import ImagePart, Message
 from skyvln_eval.llm_records import LlmCall, ModuleFailure
+from skyvln_eval.vocabulary import text_similarity
 
 SECTOR_NAMES: Final = (
     "upper-left",

@@ -24,10 +24,10 @@ from typing import Any
 
 import networkx as nx
 
-from skyvln_eval.agent.lexicon import compass_word, text_similarity
 from skyvln_eval.agent.perception import Sighting
 from skyvln_eval.errors import SkyvlnError
 from skyvln_eval.frames import ViewPose, enu_yaw_to_compass_deg
+from skyvln_eval.vocabulary import compass_word, text_similarity
 
 
 @dataclass(frozen=True)

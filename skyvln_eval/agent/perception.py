@@ -2,8 +2,10 @@
 
 Each step the drone turns through ``headings`` evenly spaced headings with the camera
 pitched down ``pitch_deg`` (plus, by default, one straight-down view: the area of the
-current AVDN view). Every detection is placed on the ground from the depth image (median
-of its pixels' 3-D points), giving its distance, compass bearing and size. A landmark
+current AVDN view) through the drone's sensors (images only). Every detection is placed
+on the ground from the depth image (median of its pixels' 3-D points; without a depth
+sensor, where its pixels' rays meet flat ground), giving its distance, compass bearing
+and size. A landmark
 seen in several views keeps the view where its score is highest (as in the paper);
 sightings are matched to earlier steps' by label and position, so a landmark keeps its id
 (``L1``, ``L2``, ...) for the whole episode.
@@ -14,17 +16,14 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Final
+from typing import Any
 
-import cv2
 import numpy as np
-from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from skyvln_eval.agent.detectors import Box, Detection, Detector
-from skyvln_eval.frames import ViewPose, compass_to_enu_yaw_rad, enu_yaw_to_compass_deg
-from skyvln_eval.sim.camera import CameraConfig, CameraImages, CameraRig
-from skyvln_eval.worlds.tile import SemanticClass, WorldTile
+from skyvln_eval.frames import ViewPose, enu_yaw_to_compass_deg
+from skyvln_eval.sensing import CameraImages, Sensors
 
 _FOUR_VIEWS = ("front", "right", "back", "left")
 
@@ -39,9 +38,6 @@ class PerceptionConfig(BaseModel):
         default=60.0, ge=0.0, le=90.0, description="camera pitch down for the panorama"
     )
     include_below: bool = Field(default=True, description="also look straight down (the AVDN view)")
-    image_px: int = Field(default=224, ge=32, le=1024)
-    max_depth_m: float = Field(default=500.0, gt=0.0)
-    height_levels: int = Field(default=24, ge=2, le=512, description="camera ray-march levels")
     merge_radius_m: float = Field(default=20.0, gt=0.0, description="same landmark across views")
     track_radius_m: float = Field(default=25.0, gt=0.0, description="same landmark across steps")
 
@@ -91,8 +87,8 @@ class Sighting:
 class Panorama:
     """The views of one step, the landmarks in them, and the roads leaving from below.
 
-    ``road_bearings_deg`` are compass bearings of roads leaving the point below the drone
-    (from the straight-down view's semantic image; empty without one).
+    ``road_bearings_deg`` are compass bearings of roads leaving the point below the drone,
+    as the detector reads them from the straight-down view (empty if it cannot).
     """
 
     views: tuple[CapturedView, ...]
@@ -144,45 +140,6 @@ class _Found:
     clipped: bool
 
 
-ROAD_CLASSES: Final = (SemanticClass.ROAD, SemanticClass.VEHICLE, SemanticClass.BRIDGE)
-
-
-def road_bearings(
-    semantic: NDArray[np.uint8],
-    heading_deg: float,
-    min_fraction: float = 0.75,
-    separation_deg: float = 35.0,
-) -> list[float]:
-    """Compass bearings of roads leaving the centre of a straight-down semantic image.
-
-    Rays from the centre (image up = ``heading_deg``, clockwise to the right) are scored
-    by the share of road pixels along them (cars and bridges count as road; small gaps
-    such as a boulevard's median are closed first); the best-scoring directions at least
-    ``separation_deg`` apart with a share above ``min_fraction`` are the roads.
-    """
-    road = cv2.morphologyEx(
-        np.isin(semantic, ROAD_CLASSES).astype(np.uint8), cv2.MORPH_CLOSE, np.ones((9, 9), np.uint8)
-    )
-    height, width = road.shape
-    cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
-    angles = np.arange(0.0, 360.0, 2.0)
-    radii = np.linspace(0.12, 0.47, 12) * min(height, width)
-    a = np.radians(angles)[:, None]
-    cols = np.clip(np.rint(cx + radii[None, :] * np.sin(a)), 0, width - 1).astype(int)
-    rows = np.clip(np.rint(cy - radii[None, :] * np.cos(a)), 0, height - 1).astype(int)
-    share = road[rows, cols].mean(axis=1)
-    # A wide road scores full over a range of angles: smooth so its middle scores best.
-    window = np.ones(7) / 7.0
-    share = np.convolve(np.concatenate([share[-3:], share, share[:3]]), window, mode="valid")
-    found: list[float] = []
-    for i in np.argsort(-share, kind="stable"):
-        if share[i] < min_fraction:
-            break
-        if all(abs((angles[i] - f + 180.0) % 360.0 - 180.0) >= separation_deg for f in found):
-            found.append(float(angles[i]))
-    return sorted(round((heading_deg + f) % 360.0, 1) for f in found)
-
-
 def view_name(index: int, count: int) -> str:
     if count == 4:
         return _FOUR_VIEWS[index]
@@ -193,12 +150,12 @@ def _localise(view: CapturedView, detection: Detection) -> _Found | None:
     """Ground position and extent (m) of a detection, from its pixels' depth."""
     images = view.images
     x0, y0, x1, y1 = detection.box_px
-    height, width = images.depth_m.shape[:2]
+    width, height = images.size_px
     region = np.zeros((height, width), dtype=bool)
     region[y0:y1, x0:x1] = True
     if detection.mask is not None:
         region &= detection.mask
-    region &= np.isfinite(images.depth_m)
+    region &= images.finite_depth()
     v, u = np.nonzero(region)
     if len(u) == 0:
         return None
@@ -233,36 +190,28 @@ class Perception:
         self.detector = detector
         self.tracker = LandmarkTracker(config.track_radius_m)
 
-    def camera_config(self) -> CameraConfig:
-        """The camera this agent looks through (it overrides the rig's)."""
-        c = self.config
-        return CameraConfig(
-            width_px=c.image_px,
-            height_px=c.image_px,
-            max_depth_m=c.max_depth_m,
-            height_levels=c.height_levels,
-        )
-
-    def reset(self, world: WorldTile, seed: int) -> None:
-        self.detector.reset(world, seed)
+    def reset(self, seed: int) -> None:
+        self.detector.reset(seed)
         self.tracker = LandmarkTracker(self.config.track_radius_m)
 
-    def capture(self, rig: CameraRig, pose: ViewPose) -> list[CapturedView]:
-        views = []
-        camera = self.camera_config()
+    def capture(self, sensors: Sensors, pose: ViewPose) -> list[CapturedView]:
+        """The panorama's views (and the one straight down), captured as one batch."""
         n = self.config.headings
-        for k in range(n):
-            heading = (pose.heading_deg + k * 360.0 / n) % 360.0
-            images = rig.capture(compass_to_enu_yaw_rad(heading), self.config.pitch_deg, camera)
-            views.append(CapturedView(k, view_name(k, n), heading, self.config.pitch_deg, images))
+        wanted = [
+            ((pose.heading_deg + k * 360.0 / n) % 360.0, self.config.pitch_deg) for k in range(n)
+        ]
         if self.config.include_below:
-            images = rig.capture(pose.yaw_rad, 90.0, camera)
-            views.append(CapturedView(n, "below", pose.heading_deg, 90.0, images))
-        return views
+            wanted.append((pose.heading_deg, 90.0))
+        images = sensors.capture_many(wanted)
+        names = [view_name(k, n) for k in range(n)] + ["below"]
+        return [
+            CapturedView(k, names[k], heading, pitch, image)
+            for k, ((heading, pitch), image) in enumerate(zip(wanted, images, strict=True))
+        ]
 
-    def observe(self, rig: CameraRig, pose: ViewPose, phrases: Sequence[str] = ()) -> Panorama:
+    def observe(self, sensors: Sensors, pose: ViewPose, phrases: Sequence[str] = ()) -> Panorama:
         """Look around from ``pose`` and return every landmark found, once each."""
-        views = self.capture(rig, pose)
+        views = self.capture(sensors, pose)
         found = []
         for view in views:
             for detection in self.detector.detect(view.images, phrases):
@@ -273,7 +222,7 @@ class Perception:
         taken: set[str] = set()
         for f in merge_views(found, self.config.merge_radius_m):
             east, north = f.x_m - pose.x_m, f.y_m - pose.y_m
-            h, w = f.view.images.depth_m.shape
+            w, h = f.view.images.size_px
             landmark_id = self.tracker.assign(f.detection.label, f.x_m, f.y_m, f.size_m, taken)
             taken.add(landmark_id)
             sightings.append(
@@ -298,8 +247,9 @@ class Perception:
                 )
             )
         sightings.sort(key=lambda s: int(s.landmark_id[1:]))
-        below = views[-1].images.semantic if self.config.include_below else None
-        roads = () if below is None else tuple(road_bearings(below, pose.heading_deg))
+        roads: tuple[float, ...] = ()
+        if self.config.include_below:  # the detector reads the roads, if it can
+            roads = self.detector.road_bearings(views[-1].images, pose.heading_deg)
         return Panorama(tuple(views), tuple(sightings), roads)
 
     def settings(self) -> dict[str, Any]:

@@ -3,7 +3,7 @@
 After a fly-to towards the landmark taken for a stop goal, the next look around should
 show it below. If it does not (a detector's phantom, a landmark mistaken for another),
 TrackBack memory rejects it, gives the way back to the place where the decision was made,
-and the LLM formulates a clarification question for the commander (module ``clarify``).
+and the LLM formulates a clarification question for the commander (:mod:`.clarify`).
 Without memory the agent cannot tell that anything went wrong.
 """
 
@@ -11,19 +11,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Final
+from typing import Any
 
-from skyvln_eval.agent.calls import call_json
+from skyvln_eval.agent.clarify import ask_commander
 from skyvln_eval.agent.memory import TrackBackMemory, WayBack
-from skyvln_eval.agent.motion import SYSTEM_PROMPT
-from skyvln_eval.agent.parsing import load_json_object
 from skyvln_eval.agent.perception import Panorama, Sighting
-from skyvln_eval.errors import ActionParseError
 from skyvln_eval.frames import ViewPose
 from skyvln_eval.llm.client import LLMClient
 from skyvln_eval.llm.config import LLMConfig
-from skyvln_eval.llm.taskdata import task_message
-from skyvln_eval.llm.types import Message
 from skyvln_eval.llm_records import LlmCall, ModuleFailure
 
 
@@ -61,22 +56,6 @@ class Verdict:
     failures: list[ModuleFailure] = field(default_factory=list)
 
 
-QUESTION_SCHEMA: Final[dict[str, Any]] = {
-    "type": "object",
-    "properties": {"question": {"type": "string", "minLength": 1, "maxLength": 500}},
-    "required": ["question"],
-    "additionalProperties": False,
-}
-
-
-def _parse_question(text: str) -> str:
-    data = load_json_object(text)
-    question = data.get("question")
-    if not isinstance(question, str) or not 0 < len(question) <= 500:
-        raise ActionParseError("'question' must be a non-empty string of at most 500 characters")
-    return question
-
-
 def check_pursuit(
     pursuit: Pursuit,
     panorama: Panorama,
@@ -97,14 +76,5 @@ def check_pursuit(
     if pursuit.place is None:
         return Verdict()
     way_back = memory.way_back(pursuit.place, pose, reason)
-    data = {"reason": reason, "goal": pursuit.phrase, "memory": memory.clue(pose)}
-    prose = (
-        f"You went wrong: {reason}. Your memory: {data['memory']} Formulate one short "
-        'clarification question for the commander. Answer as {"question": "..."}.\n'
-    )
-    messages = [Message("system", SYSTEM_PROMPT), task_message(prose, "clarify", data)]
-    config = llm.generation("clarify", json_schema=QUESTION_SCHEMA, schema_name="question")
-    call = call_json(client, "clarify", messages, config, _parse_question, llm.repair_policy())
-    failure = call.failure("clarify", "no question asked")
-    failures = [failure] if failure is not None else []
-    return Verdict(way_back, call.value, call.records, call.exchanges, failures)
+    asked = ask_commander(client, llm, reason, pursuit.phrase, memory.clue(pose))
+    return Verdict(way_back, asked.question, asked.records, asked.exchanges, asked.failures)

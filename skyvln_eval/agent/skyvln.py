@@ -14,12 +14,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from skyvln_eval.agent.actions import Action, FlyTo, action_record, decision_json_schema
-from skyvln_eval.agent.base import Agent, Decision, Observation
+from skyvln_eval.agent.base import Agent, Decision, EpisodeBrief, Observation
 from skyvln_eval.agent.calls import call_json
+from skyvln_eval.agent.clarify import Clarification, ask_commander
 from skyvln_eval.agent.detectors import episode_seed
 from skyvln_eval.agent.hsd import HsdResult, PhraseMatch, SpatialDescriptor, matches_text
 from skyvln_eval.agent.images import panorama_images
-from skyvln_eval.agent.lexicon import COMPASS
 from skyvln_eval.agent.memory import TrackBackMemory
 from skyvln_eval.agent.motion import (
     SYSTEM_PROMPT,
@@ -39,12 +39,13 @@ from skyvln_eval.agent.subgoals import (
     parse_subgoals,
     subgoal_messages,
 )
-from skyvln_eval.avdn.records import Episode
+from skyvln_eval.avdn.records import DialogTurn
 from skyvln_eval.errors import ActionParseError
+from skyvln_eval.frames import ViewPose
 from skyvln_eval.llm.client import LLMClient
 from skyvln_eval.llm.config import LLMConfig
 from skyvln_eval.llm_records import LlmCall, ModuleFailure
-from skyvln_eval.worlds.tile import WorldTile
+from skyvln_eval.vocabulary import COMPASS
 
 STOP_KINDS = ("destination", "stop_at")
 
@@ -53,13 +54,15 @@ STOP_KINDS = ("destination", "stop_at")
 class _EpisodeState:
     """Everything the agent carries from step to step of one episode."""
 
-    episode: Episode
+    brief: EpisodeBrief
     dialog: DialogText
+    dialog_turns: tuple[DialogTurn, ...] = ()
     plan: SubGoalPlan | None = None
     odometer: Odometer = field(default_factory=Odometer)
     last_action: dict[str, Any] | None = None
     pursuit: Pursuit | None = None
     done: set[int] = field(default_factory=set)
+    asked_about: set[str] = field(default_factory=set)  # phrases already asked about
 
 
 class SkyVLNAgent(Agent):
@@ -104,31 +107,37 @@ class SkyVLNAgent(Agent):
             top_k=self.descriptor.top_k,
         )
 
-    def reset(self, episode: Episode, world: WorldTile) -> None:
+    def reset(self, brief: EpisodeBrief) -> None:
         self._state = _EpisodeState(
-            episode, DialogText.of(episode.dialog(), episode.first.round_index)
+            brief, DialogText.of(brief.dialog, brief.current_round), brief.dialog
         )
-        self.perception.reset(world, episode_seed(self.seed, episode.episode_id))
+        self.perception.reset(episode_seed(self.seed, brief.episode_id))
         if self.memory is not None:
             self.memory.reset(())
 
     def act(self, observation: Observation) -> Decision:
         st = self._state
         if st is None:
-            raise ActionParseError("SkyVLNAgent.act called before reset(episode, world)")
+            raise ActionParseError("SkyVLNAgent.act called before reset(brief)")
         records: list[LlmCall] = []
         exchanges: list[dict[str, Any]] = []
         failures: list[ModuleFailure] = []
+        first_plan = st.plan is None
+        if observation.new_dialog:  # the commander answered: plan again from the new words
+            turns = (*st.dialog_turns, *observation.new_dialog)
+            st.dialog_turns = turns
+            st.dialog = DialogText.of(turns, max(t.round_index for t in turns))
+            st.plan, st.done = None, set()
         if st.plan is None:
             st.plan = self._extract_subgoals(st.dialog, records, exchanges, failures)
-            if self.memory is not None:
+            if self.memory is not None and first_plan:
                 self.memory.reset(st.plan.context_landmarks)
         pose = observation.pose
         place = None
         if self.memory is not None:
-            instruction = st.episode.first.instructions
+            instruction = st.brief.instruction
             place = self.memory.add_place(observation.step_index, pose, instruction, st.last_action)
-        panorama = self.perception.observe(observation.camera, pose, st.plan.landmark_phrases)
+        panorama = self.perception.observe(observation.sensors, pose, st.plan.landmark_phrases)
         st.odometer.update(pose, panorama.road_bearings_deg)
         met = []
         if self.memory is not None:
@@ -142,6 +151,13 @@ class SkyVLNAgent(Agent):
         records += verdict.records + hsd.records
         exchanges += verdict.exchanges + hsd.exchanges
         failures += verdict.failures + hsd.failures
+        question = verdict.question
+        if question is None:  # HSD cannot tell the stop landmark apart: ask which one
+            asked = self._ask_about_ambiguity(st, hsd.matches, pose)
+            question = asked.question
+            records += asked.records
+            exchanges += asked.exchanges
+            failures += asked.failures
         entries = self.descriptor.entries(panorama, pose.heading_deg)
         state = self._navigation_state(st, observation, entries, hsd, verdict, panorama)
         # What is seen now is where it is now; memory adds only what is out of sight.
@@ -170,13 +186,36 @@ class SkyVLNAgent(Agent):
             "hsd_matches": state["matches"],
             "memory": None if self.memory is None else self.memory.snapshot(),
             "way_back": None if verdict.way_back is None else verdict.way_back.to_dict(),
-            "clarification_question": verdict.question,
+            "clarification_question": question,
             "repaired": result.repaired,
             "fallback": result.fallback,
             "failures": [f.to_json_dict() for f in failures],
             "exchanges": exchanges,
         }
-        return Decision(result.thought, result.action, trace, tuple(records), tuple(failures))
+        return Decision(
+            result.thought, result.action, trace, tuple(records), tuple(failures), question
+        )
+
+    def _ask_about_ambiguity(
+        self, st: _EpisodeState, matches: list[PhraseMatch], pose: ViewPose
+    ) -> Clarification:
+        """A question when HSD ranks two candidates for a stop landmark equally (once per
+        phrase): which of them the commander means."""
+        stops = {g.landmark for g in (st.plan.subgoals if st.plan else ()) if g.kind in STOP_KINDS}
+        for m in matches:
+            if not m.ambiguous or m.phrase not in stops or m.phrase in st.asked_about:
+                continue
+            st.asked_about.add(m.phrase)
+            tied = [c for c in m.candidates if c.match == m.candidates[0].match][:3]
+            where = "; ".join(
+                f"{c.entry['id']} {c.entry['caption']}, {c.entry['distance_m']:.0f} m at bearing "
+                f"{c.entry['bearing_deg']:.0f} deg"
+                for c in tied
+            )
+            reason = f"{len(tied)} places look equally like {m.phrase!r} ({where})"
+            clue = None if self.memory is None else self.memory.clue(pose)
+            return ask_commander(self.client, self.llm, reason, m.phrase, clue)
+        return Clarification()
 
     # -- parts ---------------------------------------------------------------------------
     def _extract_subgoals(

@@ -74,7 +74,7 @@ class SubGoalPlan:
         return [g.landmark for g in self.subgoals if g.landmark]
 
 
-MAX_SUBGOALS: Final = 20
+MAX_SUBGOALS: Final = 10  # an instruction rarely has more than 6; bounds a decoder
 MAX_PHRASE_CHARS: Final = 300
 SIDES: Final = ("left", "right", "ahead")
 

@@ -103,10 +103,12 @@ class Controller(ABC):
     def clip_input(self, u: NDArray[np.float64]) -> NDArray[np.float64]:
         """``u`` within the input bounds and within one rate step of the previous input."""
         limits = self.limits
-        previous = self.previous_input
-        step = limits.tilt_ref_step_max_rad
-        tilt = np.clip(u[1:], previous[1:] - step, previous[1:] + step)
-        tilt = np.clip(tilt, -limits.tilt_ref_max_rad, limits.tilt_ref_max_rad)
+        step, tilt_max = limits.tilt_ref_step_max_rad, limits.tilt_ref_max_rad
+        # Plain floats: two numbers do not need numpy's per-call overhead (same values).
+        tilt = []
+        for value, before in zip(u[1:3], self.previous_input[1:3], strict=True):
+            within_step = min(max(float(value), float(before) - step), float(before) + step)
+            tilt.append(min(max(within_step, -tilt_max), tilt_max))
         thrust = min(max(float(u[0]), limits.thrust_min_m_s2), limits.thrust_max_m_s2)
         return np.array([thrust, *tilt])
 

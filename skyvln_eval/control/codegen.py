@@ -1,24 +1,37 @@
-"""Compiled CasADi functions, cached on disk by a hash of the problem definition.
+"""Compiled CasADi functions, cached on disk across processes and runs.
 
-Generating C for an MPC's functions and compiling it with ``gcc -O3`` takes 10-25 s and
-makes each call several times faster, so a compiled library is built once per problem and
-kept under ``cache_root()/casadi``. The key hashes everything that can change the compiled
-code: the CasADi version, the compiler and its flags, and the function itself (its
-serialised expression graph, so any change of model, cost, constraint, weight or horizon
-is a new key). A broken or half-written cache entry never breaks a run: it is rebuilt, and
-if that fails too the interpreted function is used. Without a C compiler the functions run
-interpreted and a warning says so once per process.
+Generating C for an MPC's step function and compiling it with ``gcc -O3`` takes 10-25 s,
+so a library is built once per problem and machine and kept under ``cache_root()/casadi``.
+The key hashes everything that can change the compiled code: the CasADi version, the
+compiler (its path and its ``--version`` line) and flags, and the function itself (its
+serialised expression graph, so any change of model, cost, constraint, weight, horizon or
+solver option is a new key). Processes that need the same library at the same time (the
+workers of a run) take a file lock, so one of them builds and the others load its result:
+a machine never compiles a problem twice. A broken or half-written cache entry never
+breaks a run: it is rebuilt, and if that fails too the interpreted function is used.
+Without a C compiler the functions run interpreted and a one-line warning says so once
+per process.
+
+Functions that embed HPIPM (the structured QP solver) are linked against the HPIPM and
+BLASFEO libraries of the CasADi wheel. Two additions to the generated source make the
+compiled solver behave as the interpreted one (see :func:`_patch_hpipm`).
 """
 
 from __future__ import annotations
 
+import ctypes
+import functools
 import hashlib
 import logging
 import os
+import re
 import shutil
 import subprocess
 import tempfile
 import warnings
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 import casadi as ca
@@ -30,7 +43,20 @@ from skyvln_eval.paths import cache_root
 log = logging.getLogger(__name__)
 
 CFLAGS = ("-O3", "-fPIC", "-shared")
+#: Name suffix of the exported function that returns the last QP's iteration count.
+ITERATIONS_SYMBOL = "_qp_iterations"
 _warned_no_compiler = False
+
+
+@dataclass(frozen=True)
+class Compiled:
+    """A function to call, whether it is compiled, the library it came from and whether that
+    library was built by this call (rather than found in the cache)."""
+
+    function: ca.Function
+    compiled: bool
+    library: Path | None = None
+    built_now: bool = False
 
 
 def compiler() -> str | None:
@@ -38,21 +64,35 @@ def compiler() -> str | None:
     return shutil.which(os.environ.get("CC", "gcc"))
 
 
+@functools.lru_cache(maxsize=4)
+def compiler_identity(cc: str) -> str:
+    """The compiler's path and the first line of its ``--version`` (part of the cache key)."""
+    try:
+        done = subprocess.run([cc, "--version"], capture_output=True, text=True, check=False)
+        first = done.stdout.splitlines()[0] if done.stdout else ""
+    except OSError:
+        first = ""
+    return f"{cc} {first}".strip()
+
+
+def casadi_dir() -> Path:
+    """The CasADi package folder: its headers and the HPIPM / BLASFEO libraries."""
+    return Path(ca.__file__).parent
+
+
 def cache_key(function: ca.Function, cc: str) -> str:
     digest = hashlib.sha256()
-    for part in (ca.CasadiMeta.version(), Path(cc).name, " ".join(CFLAGS), function.serialize()):
+    parts = (ca.CasadiMeta.version(), compiler_identity(cc), " ".join(CFLAGS), function.serialize())
+    for part in parts:
         digest.update(part.encode() + b"\0")
     return digest.hexdigest()[:20]
 
 
-def maybe_compile(function: ca.Function, mode: CompileMode) -> tuple[ca.Function, bool]:
-    """``function`` compiled to C (from the cache or built now), or itself when not possible.
-
-    Returns the function to call and whether it is compiled.
-    """
+def maybe_compile(function: ca.Function, mode: CompileMode) -> Compiled:
+    """``function`` compiled to C (from the cache or built now), or itself when not possible."""
     global _warned_no_compiler
     if mode == "never":
-        return function, False
+        return Compiled(function, False)
     cc = compiler()
     if cc is None:
         if mode == "always":
@@ -64,17 +104,19 @@ def maybe_compile(function: ca.Function, mode: CompileMode) -> tuple[ca.Function
                 stacklevel=2,
             )
             _warned_no_compiler = True
-        return function, False
+        return Compiled(function, False)
     name = function.name()
     library = cache_root() / "casadi" / f"{name}-{cache_key(function, cc)}.so"
-    if library.exists():
-        try:
-            return ca.external(name, str(library)), True
-        except RuntimeError as error:  # a truncated or foreign file: rebuild it
-            log.warning("rebuilding unusable compiled library %s: %s", library, error)
     try:
-        _build(function, cc, library)
-        return ca.external(name, str(library)), True
+        with _build_lock(library):
+            loaded = _load(name, library)
+            built_now = loaded is None
+            if loaded is None:
+                _build(function, cc, library)
+                loaded = _load(name, library, rebuild_on_error=False)
+        if loaded is None:
+            raise RuntimeError(f"the library built for {name} cannot be loaded")
+        return Compiled(loaded, True, library, built_now)
     except (OSError, RuntimeError, subprocess.CalledProcessError) as error:
         if mode == "always":
             raise SolverBuildError(f"compiling {name} failed: {error}") from error
@@ -83,22 +125,115 @@ def maybe_compile(function: ca.Function, mode: CompileMode) -> tuple[ca.Function
             RuntimeWarning,
             stacklevel=2,
         )
-        return function, False
+        return Compiled(function, False)
+
+
+def qp_iterations_reader(compiled: Compiled) -> Callable[[], int] | None:
+    """The exported ``<name>_qp_iterations()`` of a compiled function embedding HPIPM."""
+    if compiled.library is None:
+        return None
+    try:
+        reader = getattr(
+            ctypes.CDLL(str(compiled.library)), compiled.function.name() + ITERATIONS_SYMBOL
+        )
+    except (OSError, AttributeError):
+        return None
+    reader.restype = ctypes.c_int
+    reader.argtypes = []
+    return reader
+
+
+def _load(name: str, library: Path, rebuild_on_error: bool = True) -> ca.Function | None:
+    if not library.exists():
+        return None
+    try:
+        return ca.external(name, str(library))
+    except RuntimeError as error:  # a truncated or foreign file: rebuild it
+        if not rebuild_on_error:
+            raise
+        log.warning("rebuilding unusable compiled library %s: %s", library, error)
+        return None
+
+
+@contextmanager
+def _build_lock(library: Path) -> Iterator[None]:
+    """Hold an exclusive lock on ``library``'s lock file (waits while another process builds)."""
+    library.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        import fcntl
+    except ImportError:  # not a POSIX system: no lock, at worst two processes both build
+        yield
+        return
+    with library.with_suffix(".lock").open("a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
 
 
 def _build(function: ca.Function, cc: str, library: Path) -> None:
     """Generate C for ``function`` and compile it to ``library`` (temporary name, then rename)."""
-    library.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=library.parent, prefix=".build-") as build:
-        source = f"{function.name()}.c"
-        generator = ca.CodeGenerator(source, {"with_header": False})
+        source = Path(build) / f"{function.name()}.c"
+        generator = ca.CodeGenerator(source.name, {"with_header": False})
         generator.add(function)
         generator.generate(build + os.sep)
+        text = source.read_text()
+        link: list[str] = []
+        if "hpipm_d_ocp_qp_ipm.h" in text:
+            source.write_text(_patch_hpipm(text, function.name()))
+            folder = casadi_dir()
+            link = [
+                f"-I{folder / 'include'}",
+                f"-L{folder}",
+                "-lhpipm",
+                "-lblasfeo",
+                f"-Wl,-rpath,{folder}",
+            ]
         built = Path(build) / library.name
         log.info("compiling %s with %s (once per problem definition)", function.name(), cc)
         subprocess.run(
-            [cc, *CFLAGS, "-o", str(built), str(Path(build) / source), "-lm"],
+            [cc, *CFLAGS, "-o", str(built), str(source), *link, "-lm"],
             check=True,
             capture_output=True,
         )
         built.replace(library)
+
+
+def _patch_hpipm(text: str, name: str) -> str:
+    """Two additions to CasADi's generated HPIPM call (checked with CasADi 3.8).
+
+    1. The generated code fills the solver's option struct field by field on the stack but
+       leaves five fields of the HPIPM version in the wheel unset (``dual_gap_max``,
+       ``lam0_min``, ``t0_min``, ``t0_init``, ``update_fact_exit``); uninitialised, they made
+       solves fail at random under ``-O2``. The interpreted solver starts from HPIPM's
+       defaults for the mode and then sets its options: so does the patched code.
+    2. The iteration count of the last solve, per thread, readable through the exported
+       ``<name>_qp_iterations()`` (the generated function has no output for it).
+    """
+    options = re.search(r"^([ \t]*)(\w+)\.hpipm_options\.mu0 = ", text, re.MULTILINE)
+    mode = re.search(r"\.hpipm_options\.mode = (\d+);", text)
+    includes = list(re.finditer(r"^#include .*$", text, re.MULTILINE))
+    if options is None or mode is None or not includes:
+        raise RuntimeError("unexpected HPIPM code from CasADi: cannot patch it")
+    indent, prob = options.group(1), options.group(2)
+    defaults = (
+        f"{indent}d_ocp_qp_ipm_arg_set_default((enum hpipm_mode) {mode.group(1)}, "
+        f"&{prob}.hpipm_options);\n"
+    )
+    text = text[: options.start()] + defaults + text[options.start() :]
+    text, calls = re.subn(
+        r"^([ \t]*)(\w+_hpipm_solve\(&(\w+), arg, res, iw, w\);)$",
+        r"\1\2\n\1skyvln_qp_iterations = \3.iter_count;",
+        text,
+        flags=re.MULTILINE,
+    )
+    if calls != 1:
+        raise RuntimeError(f"expected one HPIPM call in the generated code, found {calls}")
+    counter = (
+        "\nstatic __thread int skyvln_qp_iterations = -1;\n"
+        f"int {name}{ITERATIONS_SYMBOL}(void) {{ return skyvln_qp_iterations; }}\n"
+    )
+    cut = includes[-1].end()
+    return text[:cut] + counter + text[cut:]

@@ -5,7 +5,10 @@ solves the NLP by sequential quadratic programming in the real-time-iteration fo
 control step linearises the problem at the previous plan shifted by one step (the warm
 start; a hover guess on the first step), solves one structured QP with HPIPM (Gauss-Newton
 Hessian, which is the exact Hessian of the least-squares cost) and applies the first input.
-``MpcConfig.sqp_iterations > 1`` iterates further towards the converged NLP solution.
+Shift, linearisation and QP are one compiled CasADi call per step
+(:class:`~skyvln_eval.control.rti.RtiStep`); Python only copies the measurements into
+preallocated buffers. ``MpcConfig.sqp_iterations > 1`` iterates further towards the
+converged NLP solution.
 
 :class:`LinearMpcController` is the same problem with the model linearised at hover
 (``x+ = A x + B (u - u_hover)``), one QP per step; the input bounds and rate limits are the
@@ -29,7 +32,8 @@ from numpy.typing import NDArray
 
 from skyvln_eval.control.base import Command, Controller, SolveStats
 from skyvln_eval.control.mpc_config import MpcConfig
-from skyvln_eval.control.stage_qp import NZ, QpSolution, StageQp
+from skyvln_eval.control.rti import RtiStep
+from skyvln_eval.control.stage_qp import NZ, StageQp
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.sim.obstacles import ObstacleForecast
 from skyvln_eval.sim.quadrotor import NU, NX, DroneState, rk4_symbolic
@@ -48,21 +52,30 @@ class MpcController(Controller):
         self.horizon_steps = self.config.horizon_steps
         self.dt_s = self.config.dt_s
         self.qp = StageQp(self.prediction_model(), self.config, self.name)
-        self._plan: NDArray[np.float64] | None = None  # last solution, relative to _plan_origin
+        self.rti = RtiStep(self.qp, self.config.compile, self.name)
+        # The last solution (relative to _plan_origin) lives in rti.plan, which the step
+        # Function shifts; _has_plan says whether there is one.
+        self._has_plan = False
         self._plan_origin = np.zeros(3)
         self._plan_age = 0  # control steps since the plan was computed
+        self._slots = np.arange(self.config.max_obstacles)
 
     @abstractmethod
     def prediction_model(self) -> ca.Function:
         """The discrete model ``x+ = F(x, u)`` the controller predicts with."""
 
+    @property
+    def _plan(self) -> NDArray[np.float64] | None:
+        """The last solution (a view of the step Function's plan buffer), if any."""
+        return self.rti.plan if self._has_plan else None
+
     def reset(self) -> None:
         super().reset()
-        self._plan = None
+        self._has_plan = False
         self._plan_age = 0
 
     def settings(self) -> dict[str, Any]:
-        return {**super().settings(), **self.config.as_dict(), "compiled": self.qp.compiled}
+        return {**super().settings(), **self.config.as_dict(), "compiled": self.rti.compiled}
 
     def step(
         self, state: DroneState, reference: ReferenceWindow, obstacles: ObstacleForecast
@@ -83,78 +96,89 @@ class MpcController(Controller):
         inputs_ok = inputs_ok and np.isfinite(obstacles.positions_m).all()
         if not inputs_ok:
             return self._fallback(start, 0, "invalid_input", yaw_ref)
-        origin = state.position_m
-        x0 = state.model_vector()
-        x0[:3] -= origin
-        x_ref = reference.states[: n + 1].copy()
-        x_ref[:, :3] -= origin
-        params = self.qp.pack(
-            x0,
-            self.previous_input,
-            x_ref,
-            reference.inputs[:n],
-            *self._obstacle_slots(obstacles, origin),
-        )
-        w_bar = self._initial_guess(x0, origin)
-        solution, iterations = None, 0
+        rti, inputs = self.rti, self.rti.inputs
+        origin = inputs["origin"]
+        origin[0], origin[1], origin[2] = state.x_m, state.y_m, state.z_m
+        inputs["x0"][:] = state.model_vector()
+        inputs["u_applied"][:] = self.previous_input
+        inputs["x_ref"][:] = reference.states[: n + 1]
+        inputs["u_ref"][:] = reference.inputs[:n]
+        self._obstacle_slots(obstacles, origin)
+        shift = self._warm_start(origin)
+        iterations = 0
+        solved = False
         for _ in range(self.config.sqp_iterations):
             try:
-                attempt = self.qp.solve(w_bar, params)
-            except RuntimeError as error:  # CasADi reports solver crashes this way
-                attempt = QpSolution(w_bar, False, 0, f"error: {error}")
-            iterations += max(attempt.iterations, 0)
-            if not attempt.success:
+                ok, qp_iterations = rti.solve(shift)
+            except RuntimeError:  # CasADi reports solver crashes this way
+                ok, qp_iterations = False, 0
+            iterations += max(qp_iterations, 0)
+            if not ok:
                 break
-            change = float(np.max(np.abs(attempt.w - w_bar)))
-            solution = w_bar = attempt.w
+            solved = True
+            # The shifted guess stays inside the Function: the first iterate always continues.
+            change = np.inf if shift else float(np.max(np.abs(rti.w - rti.guess)))
+            rti.guess[:] = rti.w
+            shift = False
             if change < self.config.sqp_step_tolerance:
                 break
-        if solution is None:
+        if not solved:
             return self._fallback(start, iterations, "", yaw_ref)
-        self._plan, self._plan_origin, self._plan_age = solution, origin, 0
+        rti.plan[:] = rti.guess
+        self._has_plan, self._plan_age = True, 0
+        self._plan_origin[:] = origin
+        solution = rti.plan
         u = self.clip_input(solution[NZ : NZ + NU])
         slack = float(np.max(solution[self.qp.slack_index], initial=0.0))
         status = "solved_soft" if slack > SLACK_TOLERANCE else "solved"
         elapsed_ms = (time.perf_counter() - start) * 1e3
         return self.command(u, yaw_ref, SolveStats(elapsed_ms, iterations, status))
 
-    def _obstacle_slots(
-        self, obstacles: ObstacleForecast, origin: NDArray[np.float64]
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """The nearest ``max_obstacles`` obstacles at steps 1..N (relative), radii, active flags."""
+    def _obstacle_slots(self, obstacles: ObstacleForecast, origin: NDArray[np.float64]) -> None:
+        """The nearest ``max_obstacles`` obstacles at steps 1..N, radii and active flags, into
+        the parameter buffer; an empty slot sits at the origin (relative zero)."""
         n, m = self.horizon_steps, self.config.max_obstacles
-        positions = np.zeros((m, n, 3))
-        keep_out = np.zeros(m)
-        active = np.zeros(m)
-        if obstacles.count and m:
-            future = obstacles.positions_m[:, 1 : n + 1, :] - origin
-            margin = np.min(np.linalg.norm(future, axis=2), axis=1) - obstacles.keep_out_radius_m
-            chosen = np.argsort(margin, kind="stable")[:m]
-            positions[: len(chosen)] = future[chosen]
-            keep_out[: len(chosen)] = (
-                obstacles.keep_out_radius_m[chosen] + self.config.obstacle_margin_m
+        if not m:
+            return
+        inputs = self.rti.inputs
+        positions, keep_out, active = inputs["obstacles"], inputs["keep_out"], inputs["active"]
+        count = 0
+        if obstacles.count:
+            future = obstacles.positions_m[:, 1 : n + 1, :]
+            margin = (
+                np.min(np.linalg.norm(future - origin, axis=2), axis=1)
+                - obstacles.keep_out_radius_m
             )
-            active[: len(chosen)] = 1.0
-        return positions, keep_out, active
+            chosen = np.argsort(margin, kind="stable")[:m]
+            count = len(chosen)
+            positions[:count] = future[chosen]
+            keep_out[:count] = obstacles.keep_out_radius_m[chosen] + self.config.obstacle_margin_m
+        positions[count:] = origin
+        keep_out[count:] = 0.0
+        active[:] = self._slots < count
 
-    def _initial_guess(
-        self, x0: NDArray[np.float64], origin: NDArray[np.float64]
-    ) -> NDArray[np.float64]:
-        """The previous plan shifted to now (one step, more after fallbacks) and re-expressed
-        in the new origin, else a hover guess."""
-        stage, first = self.qp.stage, np.concatenate([x0, self.previous_input])
-        if self._plan is None:
+    def _warm_start(self, origin: NDArray[np.float64]) -> bool:
+        """Prepare the initial guess: ``True`` when the step Function is to shift the plan by
+        one step itself (the usual case); else a guess is written into ``rti.guess`` (a hover
+        guess, or the plan shifted by several steps after fallbacks)."""
+        rti, stage = self.rti, self.qp.stage
+        if self._has_plan and self._plan_age == 0:
+            rti.warm[:3] = self._plan_origin - origin
+            return True
+        first = np.concatenate([rti.inputs["x0"], self.previous_input])
+        first[:3] -= origin
+        if not self._has_plan:
             guess = np.zeros((self.horizon_steps + 1, stage))
             guess[:, :NZ] = first
             guess[:, NZ : NZ + NU] = self.previous_input
-            return guess.ravel()[: self.qp.n_w]
-        plan = self._plan.copy()
+            rti.guess[:] = guess.ravel()[: self.qp.n_w]
+            return False
+        plan = rti.plan.copy()
         plan[self.qp.position_index] += np.tile(self._plan_origin - origin, self.horizon_steps + 1)
         shift = min(self._plan_age + 1, self.horizon_steps)
         # Drop the stages already flown; repeat the last input and state to fill the horizon.
-        guess = np.concatenate([plan[shift * stage :], np.tile(plan[-stage:], shift)])
-        guess[:NZ] = first
-        return guess
+        rti.guess[:] = np.concatenate([plan[shift * stage :], np.tile(plan[-stage:], shift)])
+        return False
 
     def _fallback(self, start: float, iterations: int, reason: str, yaw_ref: float) -> Command:
         """The next input of the previous plan while it lasts, else ease to hover."""

@@ -39,14 +39,11 @@ and radians of this problem.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import casadi as ca
 import numpy as np
-from numpy.typing import NDArray
 
-from skyvln_eval.control.codegen import maybe_compile
 from skyvln_eval.control.mpc_config import MpcConfig
 from skyvln_eval.sim.quadrotor import NU, NX
 
@@ -63,16 +60,11 @@ HPIPM_OPTIONS: dict[str, Any] = {
 }
 
 
-@dataclass(frozen=True)
-class QpSolution:
-    w: NDArray[np.float64]
-    success: bool
-    iterations: int
-    status: str
-
-
 class StageQp:
-    """Builds once the QP data function and the HPIPM solver; ``solve`` runs one QP."""
+    """The QP data function (linearisation at a guess) and the HPIPM solver, built once.
+
+    :class:`~skyvln_eval.control.rti.RtiStep` puts both into one Function per control step.
+    """
 
     def __init__(self, dynamics: ca.Function, config: MpcConfig, name: str) -> None:
         self.config = config
@@ -98,7 +90,7 @@ class StageQp:
             raise RuntimeError("the MPC cost is not quadratic in w: its Hessian is not constant")
         self.hessian = ca.DM(ca.evalf(hessian))
         linear = ca.substitute(gradient, w, ca.DM.zeros(self.n_w))
-        data = ca.Function(
+        self.data = ca.Function(
             f"{name}_qp_data",
             [w, p],
             [linear, jac, lower - offset, upper - offset, lbx, ubx],
@@ -106,7 +98,6 @@ class StageQp:
             ["g", "a", "lba", "uba", "lbx", "ubx"],
             {"cse": True},
         )
-        self.data, self.compiled = maybe_compile(data, config.compile)
         self.solver = ca.conic(
             f"{name}_hpipm",
             "hpipm",
@@ -198,29 +189,3 @@ class StageQp:
 
     def _v(self, w: ca.SX, k: int) -> ca.SX:
         return w[k * self.stage + NZ : (k + 1) * self.stage]
-
-    def pack(
-        self,
-        x0: NDArray[np.float64],
-        u_applied: NDArray[np.float64],
-        x_ref: NDArray[np.float64],
-        u_ref: NDArray[np.float64],
-        obstacles_m: NDArray[np.float64],
-        keep_out_m: NDArray[np.float64],
-        active: NDArray[np.float64],
-    ) -> NDArray[np.float64]:
-        """The parameter vector: obstacles ``(M, N, 3)`` are the positions at steps 1..N."""
-        return np.concatenate(
-            [x0, u_applied, x_ref.ravel(), u_ref.ravel(), obstacles_m.ravel(), keep_out_m, active]
-        )
-
-    def solve(self, w_bar: NDArray[np.float64], params: NDArray[np.float64]) -> QpSolution:
-        """One QP linearised at ``w_bar`` (also its warm start)."""
-        g, a, lba, uba, lbx, ubx = self.data(w_bar, params)
-        out = self.solver(h=self.hessian, g=g, a=a, lba=lba, uba=uba, lbx=lbx, ubx=ubx, x0=w_bar)
-        stats = self.solver.stats()
-        w = out["x"].full().ravel()
-        success = bool(stats.get("success", False)) and bool(np.isfinite(w).all())
-        return QpSolution(
-            w, success, int(stats.get("iter_count", -1)), str(stats.get("return_status", ""))
-        )

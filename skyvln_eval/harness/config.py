@@ -21,6 +21,7 @@ from skyvln_eval.control.registry import controller_names, make_controller
 from skyvln_eval.errors import ConfigError, UnknownNameError, describe_validation_error
 from skyvln_eval.fileio import read_yaml_mapping
 from skyvln_eval.harness.executors import ExecutorKind
+from skyvln_eval.sensing import SensorConfig
 from skyvln_eval.sim.scenarios import ScenarioKind
 
 ExecutionMode = Literal["official", "dynamics"]
@@ -38,6 +39,13 @@ class ObstacleSettings(_Strict):
     radius_m: float = Field(default=1.0, gt=0.0, description="r_obs: another drone, a bird flock")
     safety_radius_m: float = Field(default=0.5, ge=0.0, description="r_s added by the controller")
     obstacle_speed_m_s: float = Field(default=1.0, gt=0.0)
+
+
+class CommanderSettings(_Strict):
+    """The simulated commander that answers the agent's clarification questions from the
+    ground truth (:mod:`skyvln_eval.harness.commander`); ``max_questions: 0`` turns it off."""
+
+    max_questions: int = Field(default=2, ge=0, le=20, description="answers per episode")
 
 
 class DynamicsSettings(_Strict):
@@ -88,6 +96,8 @@ class RunConfig(_Strict):
     limit: int | None = Field(default=None, ge=1)
     mode: ExecutionMode = "official"
     agent: AgentConfig = AgentConfig()
+    sensors: SensorConfig = SensorConfig()
+    commander: CommanderSettings = CommanderSettings()
     dynamics: DynamicsSettings = DynamicsSettings()
     max_action_len: int = Field(default=DEFAULT_MAX_ACTION_LEN, ge=1, le=100)
     seed: int = 0
@@ -144,6 +154,7 @@ def load_run_config(path: str | Path, **overrides: Any) -> RunConfig:
 
 
 __all__ = [
+    "CommanderSettings",
     "DynamicsSettings",
     "ExecutionMode",
     "ObstacleSettings",

@@ -12,13 +12,15 @@ The per-step control log covers the whole episode.
 from __future__ import annotations
 
 import hashlib
+import json
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
-from skyvln_eval.agent.actions import Action, action_record
+from skyvln_eval.agent.actions import Action, action_to_dict
 from skyvln_eval.agent.base import Agent, Observation
 from skyvln_eval.agent.mapping import to_target_pose
 from skyvln_eval.avdn.constants import METERS_PER_DEGREE
@@ -27,12 +29,16 @@ from skyvln_eval.control import ArrivalCriteria, Controller, Flight
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.frames import ViewPose, enu_yaw_to_compass_deg, pose_to_view, view_to_pose
 from skyvln_eval.harness.config import DynamicsSettings
-from skyvln_eval.harness.rollout import Rollout
-from skyvln_eval.sim.camera import CameraConfig, CameraRig
+from skyvln_eval.harness.rollout import Rollout, answer_pending, episode_brief
+from skyvln_eval.sensing import SensorConfig
+
+if TYPE_CHECKING:
+    from skyvln_eval.harness.commander import SimulatedCommander
 from skyvln_eval.sim.obstacles import ObstacleScenario
 from skyvln_eval.sim.quadrotor import DroneState
 from skyvln_eval.sim.reference import ReferenceConfig
 from skyvln_eval.sim.scenarios import ScenarioSpec, make_scenario
+from skyvln_eval.sim.sensors import SimulatedSensors
 from skyvln_eval.worlds.tile import WorldTile
 
 #: A segment shorter than this gets no obstacles (they are placed where the drone cruises).
@@ -71,7 +77,7 @@ def _pose_of(state: DroneState) -> ViewPose:
 
 
 def _feedback(action: Action, reached: bool, collided: bool) -> str:
-    what = action_record(action)
+    what = json.dumps(action_to_dict(action))
     if collided:
         return f"crashed: {what} hit an obstacle"
     return f"done: {what}" if reached else f"partly done: {what} (the drone did not settle in time)"
@@ -85,9 +91,14 @@ def run_dynamics_episode(
     settings: DynamicsSettings,
     seed: int,
     max_steps: int,
-    camera: CameraConfig | None = None,
+    sensors: SensorConfig | None = None,
+    commander: SimulatedCommander | None = None,
 ) -> DynamicsRollout:
-    """Fly ``episode`` with ``agent`` and ``controller``; see the module docstring."""
+    """Fly ``episode`` with ``agent`` and ``controller``; see the module docstring.
+
+    As in official mode, the agent is told only the episode's brief and sees through the
+    drone's ``sensors``.
+    """
     if max_steps < 1:
         raise ConfigError(f"max_steps must be >= 1 (views, start included), got {max_steps}")
     georef = episode.georef
@@ -114,12 +125,20 @@ def run_dynamics_episode(
         ),
     )
     rollout = DynamicsRollout(episode.episode_id, [view], [episode.start_heading_deg])
-    agent.reset(episode, world)
+    agent.reset(episode_brief(episode, max_steps))
+    sensor_config = sensors or SensorConfig()
     feedback: str | None = None
     while len(rollout.views) < max_steps:
-        rig = CameraRig(world, pose.x_m, pose.y_m, pose.z_m, camera or CameraConfig())
+        sensors_here = SimulatedSensors(world, pose.x_m, pose.y_m, pose.z_m, sensor_config)
+        new_dialog = answer_pending(rollout, commander, view)
         observation = Observation(
-            len(rollout.views) - 1, max_steps, pose, view, georef, rig, feedback
+            len(rollout.views) - 1,
+            max_steps,
+            pose,
+            view,
+            sensors_here.handle(),
+            feedback,
+            new_dialog,
         )
         rollout.decision_times_s.append(flight.t_s)
         action = rollout.decide(agent, observation)

@@ -11,13 +11,14 @@ The view budget running out ends it too. An agent error the user can cause
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from skyvln_eval.agent.actions import Action, action_record
+from skyvln_eval.agent.actions import Action, action_record, action_to_dict
 from skyvln_eval.agent.base import Agent, Observation
 from skyvln_eval.agent.mapping import to_official_action
 from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN
@@ -26,9 +27,13 @@ from skyvln_eval.avdn.records import Episode
 from skyvln_eval.avdn.step import OfficialAction, official_step_detailed
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.frames import view_to_pose
-from skyvln_eval.harness.rollout import Rollout
+from skyvln_eval.harness.rollout import Rollout, answer_pending, episode_brief
 from skyvln_eval.metrics.official import official_success as metrics_official_success
-from skyvln_eval.sim.camera import CameraConfig, CameraRig
+from skyvln_eval.sensing import SensorConfig
+
+if TYPE_CHECKING:
+    from skyvln_eval.harness.commander import SimulatedCommander
+from skyvln_eval.sim.sensors import SimulatedSensors
 from skyvln_eval.worlds.tile import WorldTile
 
 
@@ -70,7 +75,7 @@ def official_success(final_view: NDArray[np.float64], gt_end_view: NDArray[np.fl
 
 
 def _feedback(action: Action, outcome: str, turn_deg: int) -> str:
-    what = action_record(action)
+    what = json.dumps(action_to_dict(action))
     if outcome == "full":
         return f"done: {what} (turned {turn_deg} deg)"
     if outcome == "cancelled":
@@ -85,22 +90,35 @@ def run_official_episode(
     episode: Episode,
     world: WorldTile,
     max_steps: int = DEFAULT_MAX_ACTION_LEN,
-    camera: CameraConfig | None = None,
+    sensors: SensorConfig | None = None,
+    commander: SimulatedCommander | None = None,
 ) -> OfficialRollout:
-    """Fly ``episode`` with ``agent`` in official mode; see the module docstring."""
+    """Fly ``episode`` with ``agent`` in official mode; see the module docstring.
+
+    The agent is told only the episode's brief; at each step it gets its pose, the
+    feedback and the drone's ``sensors`` (RGB, depth and the semantic camera by default).
+    """
     if max_steps < 1:
         raise ConfigError(f"max_steps must be >= 1 (views, start included), got {max_steps}")
     georef = episode.georef
     bounds = (georef.gps_botm_left, georef.gps_top_right)
     view = np.asarray(episode.start_view, dtype=np.float64)
     rollout = OfficialRollout(episode.episode_id, [view], [episode.start_heading_deg])
-    agent.reset(episode, world)
+    agent.reset(episode_brief(episode, max_steps))
+    sensor_config = sensors or SensorConfig()
     feedback = None
     while len(rollout.views) < max_steps:
         pose = view_to_pose(view, georef)
-        rig = CameraRig(world, pose.x_m, pose.y_m, pose.z_m, camera or CameraConfig())
+        sensors_here = SimulatedSensors(world, pose.x_m, pose.y_m, pose.z_m, sensor_config)
+        new_dialog = answer_pending(rollout, commander, view)
         observation = Observation(
-            len(rollout.views) - 1, max_steps, pose, view, georef, rig, feedback
+            len(rollout.views) - 1,
+            max_steps,
+            pose,
+            view,
+            sensors_here.handle(),
+            feedback,
+            new_dialog,
         )
         action = rollout.decide(agent, observation)
         if action is None:

@@ -22,10 +22,16 @@ from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN, EpisodeMode, Spli
 from skyvln_eval.configs import config_path
 from skyvln_eval.errors import ConfigError, describe_validation_error
 from skyvln_eval.fileio import read_yaml_mapping
-from skyvln_eval.harness.config import DynamicsSettings, ExecutionMode, RunConfig
+from skyvln_eval.harness.config import (
+    CommanderSettings,
+    DynamicsSettings,
+    ExecutionMode,
+    RunConfig,
+)
 from skyvln_eval.harness.executors import ExecutorKind
 from skyvln_eval.llm.backends_file import backends_file_from_env
 from skyvln_eval.llm.backends_file import environment_backends as _environment_backends
+from skyvln_eval.sensing import SensorConfig
 
 DEFAULT_PLAN = "default"
 TableName = Literal["table1", "table2"]
@@ -85,11 +91,16 @@ class ReproducePlan(_Strict):
     max_action_len: int = Field(default=DEFAULT_MAX_ACTION_LEN, ge=1)
     limit: int | None = Field(default=None, ge=1, description="episodes per split (quick plans)")
     resamples: int = Field(default=1000, ge=0)
+    sensors: SensorConfig = SensorConfig()
+    commander: CommanderSettings = CommanderSettings()
     dynamics: DynamicsSettings = DynamicsSettings()
     table1: Table1Plan
     table2: Table2Plan
     control_figures: ControlFiguresPlan = ControlFiguresPlan()
     trajectory_figures: int = Field(default=2, ge=0)
+    recordings: int = Field(
+        default=2, ge=0, description="example episodes per system saved as Rerun recordings"
+    )
 
 
 def load_plan(name_or_path: str | Path = DEFAULT_PLAN, **overrides: Any) -> ReproducePlan:
@@ -180,6 +191,8 @@ def planned_runs(
             limit=plan.limit,
             mode=system.mode,
             agent=agent,
+            sensors=plan.sensors,
+            commander=plan.commander,
             dynamics=plan.dynamics.model_copy(
                 update={
                     "controller": system.controller,

@@ -85,6 +85,17 @@ STAND_IN_MARKERS = {
 }
 
 
+def setting_note(plan: ReproducePlan) -> str:
+    """What the agents could sense and ask, for the tables' captions."""
+    asks = plan.commander.max_questions
+    commander = (
+        f"a simulated commander answers up to {asks} clarification question(s) per episode"
+        if asks
+        else "no commander answers questions"
+    )
+    return f"Sensors: {plan.sensors.describe()}; {commander}."
+
+
 def table1_label(label: str, agent: AgentConfig) -> tuple[str, str | None]:
     """A Table I row label that says what answered the agent's LLM calls, and its footnote.
 
@@ -110,6 +121,7 @@ class ReproduceReport:
     reports: list[RunReport]
     files: dict[str, Path] = field(default_factory=dict)
     wall_s: float = 0.0
+    notes: list[str] = field(default_factory=list)
 
     @property
     def complete(self) -> bool:
@@ -135,9 +147,10 @@ def _write_tables(
 ) -> dict[str, Path]:
     files: dict[str, Path] = {}
     table1_rows, table1_notes = table1
+    setting = [setting_note(plan)]
     for name, spec, rows, notes in (
-        ("table1", TABLE_I, table1_rows, table1_notes),
-        ("table2", TABLE_II, table2_rows, []),
+        ("table1", TABLE_I, table1_rows, [*setting, *table1_notes]),
+        ("table2", TABLE_II, table2_rows, setting),
     ):
         table = build_table(summary, spec, conventions, rows=rows, notes=notes)
         for suffix, render in (("md", to_markdown), ("tex", to_latex), ("csv", to_csv)):
@@ -253,6 +266,23 @@ def _trajectory_figures(
     return files
 
 
+def _recordings(
+    plan: ReproducePlan, runs: Sequence[PlannedRun], jobs: Sequence[RunJob], out_dir: Path
+) -> tuple[dict[str, Path], list[str]]:
+    """The first ``plan.recordings`` finished episodes of each system as Rerun recordings."""
+    if plan.recordings == 0:
+        return {}, []
+    from skyvln_eval.viewer.examples import write_examples
+
+    chosen: dict[str, tuple[Path, list[tuple[str, str]]]] = {}
+    for planned, job in zip(runs, jobs, strict=True):
+        label = planned.rows[0][1]
+        if label not in chosen:  # a system's first run (its first split) is enough
+            done = sorted((r.split, r.episode_id) for r in job.store.results() if r.status == "ok")
+            chosen[label] = (planned.run_dir, done[: plan.recordings])
+    return write_examples(chosen, out_dir / "recordings")
+
+
 def _dataset_summary(data_dir: Path) -> list[SplitSummary]:
     return [
         summarise_split(load_split(data_dir, split))
@@ -332,6 +362,8 @@ def reproduce(
     report.files |= _navigation_figures(scores, table1_rows, conventions, figures_dir)
     full = [r for r in results if r.system == table1_rows[-1] and r.split == plan.table2.split]
     report.files |= _trajectory_figures(full, data_dir, plan.trajectory_figures, figures_dir)
+    recordings, report.notes = _recordings(plan, runs, jobs, out_dir)
+    report.files |= recordings
     report.wall_s = time.perf_counter() - started
     from skyvln_eval.harness.summary_page import write_summary_page
 

@@ -3,15 +3,53 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from skyvln_eval.agent.actions import Action, Stop
-from skyvln_eval.agent.base import Agent, Decision, Observation
+from skyvln_eval.agent.base import Agent, Decision, EpisodeBrief, Observation
+from skyvln_eval.avdn.records import DialogTurn, Episode
 from skyvln_eval.errors import CacheMissError, LLMAuthError, SkyvlnError
+from skyvln_eval.frames import view_to_pose
 from skyvln_eval.llm_records import LlmCall, ModuleFailure
+
+if TYPE_CHECKING:
+    from skyvln_eval.harness.commander import SimulatedCommander
+
+
+def episode_brief(episode: Episode, max_steps: int) -> EpisodeBrief:
+    """What the agent is told of ``episode``: the dialog so far, where it starts, the map's
+    georeference and the step budget. Not the goal, the route or the world."""
+    georef = episode.georef
+    start = np.asarray(episode.start_view, dtype=np.float64)
+    return EpisodeBrief(
+        episode_id=episode.episode_id,
+        map_name=episode.map_name,
+        dialog=tuple(episode.dialog()),
+        current_round=episode.first.round_index,
+        start_pose=view_to_pose(start, georef),
+        start_view=start,
+        georef=georef,
+        max_steps=max_steps,
+    )
+
+
+def answer_pending(
+    rollout: Rollout, commander: SimulatedCommander | None, view: NDArray[np.float64]
+) -> tuple[DialogTurn, ...]:
+    """The commander's answer to the question of the last decision, as new dialog turns
+    for the next observation (none without a commander, a question, or budget left)."""
+    if commander is None or not rollout.questions:
+        return ()
+    pending = rollout.questions[-1]
+    if pending["step"] != len(rollout.actions) - 1 or pending["answer"] is not None:
+        return ()
+    turns = commander.answer(pending["step"], pending["question"], view)
+    if turns:
+        pending["answer"] = turns[-1].text
+    return turns
 
 
 @dataclass(eq=False)
@@ -19,7 +57,8 @@ class Rollout:
     """Views (start included) and headings, and per decision: action, thought, the feedback
     the agent was given, its trace and its LLM calls. ``stop_reason`` says how it ended:
     ``stop`` (the agent's STOP), ``max_steps`` (the view budget), ``error`` (an agent error
-    the user can cause; ``error`` holds it) or, flown, ``collision``.
+    the user can cause; ``error`` holds it) or, flown, ``collision``. ``questions`` are the
+    agent's clarification questions, with the commander's answers where it gave one.
     """
 
     episode_id: str
@@ -31,6 +70,7 @@ class Rollout:
     traces: list[dict[str, Any]] = field(default_factory=list)
     llm_calls: list[LlmCall] = field(default_factory=list)
     failures: list[ModuleFailure] = field(default_factory=list)
+    questions: list[dict[str, Any]] = field(default_factory=list)
     stop_reason: str = "max_steps"
     error: str | None = None
 
@@ -63,6 +103,10 @@ class Rollout:
             self.stop_reason, self.error = "error", f"{type(error).__name__}: {error}"
             return None
         self.record(decision, observation.feedback)
+        if decision.question:
+            self.questions.append(
+                {"step": len(self.actions) - 1, "question": decision.question, "answer": None}
+            )
         if isinstance(decision.action, Stop):
             self.stop_reason = "stop"
             return None

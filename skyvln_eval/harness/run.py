@@ -33,6 +33,7 @@ from skyvln_eval.harness.config import RunConfig, run_config_from_mapping
 from skyvln_eval.harness.executors import Executor, make_executor
 from skyvln_eval.harness.lock import RunDirLock, hold_run_dir, remove_leftover_temporaries
 from skyvln_eval.harness.official_loop import official_success
+from skyvln_eval.harness.preflight import preflight
 from skyvln_eval.harness.provenance import provenance
 from skyvln_eval.harness.runner import EpisodeTask, failed_result, run_episode_task
 from skyvln_eval.harness.store import ResultStore, RowKey, key_of
@@ -238,6 +239,7 @@ def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = Fal
     run_dir = Path(run_dir)
     data_dir = resolve_data_dir(config.data)
     logs = episode_logs(config, data_dir)
+    preflight(config, data_dir, (episode_id.rsplit("__", 1)[0] for _, episode_id in logs))
     # Locked before anything in it is read: a second launch refuses instead of running
     # the same episodes (the lock dies with this process, however it ends).
     lock = hold_run_dir(run_dir)

@@ -129,16 +129,20 @@ def _agent_messages(
     options: ConvertOptions,
     observations: bool,
 ) -> None:
+    encoded: dict[bytes, bytes] = {}  # a view seen again (a cancelled step) is not re-encoded
     for step in steps:
         t_ns = _ns(step.t_s)
         pose = view_to_pose(step.view, episode.georef)
         out.add(t_ns, t.TOPIC_TF, _drone_tf(t_ns, pose))
         if world is not None and observations:
-            image = encode_image(
-                observe_view(world.bgr, step.view, episode.georef),
-                options.image_format,
-                options.jpeg_quality,
-            )
+            key = np.asarray(step.view, dtype=np.float64).tobytes()
+            if key not in encoded:
+                encoded[key] = encode_image(
+                    observe_view(world.bgr, step.view, episode.georef),
+                    options.image_format,
+                    options.jpeg_quality,
+                )
+            image = encoded[key]
             out.add(
                 t_ns,
                 t.TOPIC_OBSERVATION,

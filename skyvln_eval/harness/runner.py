@@ -8,14 +8,16 @@ status (``ok``, ``degraded`` or ``error``: :func:`~skyvln_eval.metrics.records.j
 and wall time. Anything the episode raises makes it ``error`` with its traceback; the run
 carries on, unless the error says no episode can succeed (refused credentials).
 
-Worlds and controllers are cached per process: loading a map or building a solver once
-serves every episode on it.
+Worlds are cached per process and controllers per thread: loading a map or building a
+solver once serves every episode on it, and no two threads ever share a solver (CasADi
+solver objects are not thread-safe).
 """
 
 from __future__ import annotations
 
 import functools
 import json
+import threading
 import time
 import traceback
 from collections import OrderedDict
@@ -26,15 +28,17 @@ from typing import Any
 import numpy as np
 
 from skyvln_eval.agent.base import Agent
-from skyvln_eval.agent.config import build_agent
+from skyvln_eval.agent.config import LLM_AGENTS, build_agent
 from skyvln_eval.avdn.imagery import MapGeoref
 from skyvln_eval.avdn.records import Episode
 from skyvln_eval.control import Controller, make_controller, save_flight_log
 from skyvln_eval.converters.reader import read_episode
 from skyvln_eval.errors import stops_the_run
+from skyvln_eval.harness.commander import SimulatedCommander
 from skyvln_eval.harness.config import RunConfig
 from skyvln_eval.harness.dynamics_loop import DynamicsRollout, derived_seed, run_dynamics_episode
 from skyvln_eval.harness.official_loop import OfficialRollout, run_official_episode
+from skyvln_eval.harness.oracle import ground_truth_oracle
 from skyvln_eval.harness.run_log import RunLogContent, Step, write_run_log
 from skyvln_eval.metrics.records import EpisodeResult, judge_status
 from skyvln_eval.metrics.safety import summarise_control
@@ -85,9 +89,24 @@ def _world(data_dir: str, map_name: str, georef: MapGeoref) -> WorldTile:
     return world
 
 
-@functools.lru_cache(maxsize=4)
+_thread_controllers = threading.local()
+
+
 def _controller(name: str, settings_json: str) -> Controller:
-    return make_controller(name, json.loads(settings_json))
+    """This thread's controller for these settings (built on first use)."""
+    cache: dict[tuple[str, str], Controller] = _thread_controllers.__dict__.setdefault("by_key", {})
+    key = (name, settings_json)
+    if key not in cache:
+        cache[key] = make_controller(name, json.loads(settings_json))
+    return cache[key]
+
+
+def _agent(config: RunConfig, episode: Episode, seed: int) -> Agent:
+    """The run's agent for ``episode``; the ground-truth replay is an oracle the harness
+    builds from the episode (no agent is given the route)."""
+    if config.agent.name == "ground_truth":
+        return ground_truth_oracle(episode)
+    return build_agent(config.agent.model_copy(update={"seed": seed}))
 
 
 def episode_seed(config: RunConfig, split: str, episode_id: str) -> int:
@@ -120,10 +139,19 @@ def _steps(rollout: OfficialRollout | DynamicsRollout, times_s: list[float]) -> 
     ]
 
 
+def _commander(config: RunConfig, episode: Episode, world: WorldTile, seed: int) -> Any:
+    if config.commander.max_questions == 0 or config.agent.name not in LLM_AGENTS:
+        return None
+    return SimulatedCommander(episode, world, config.commander.max_questions, seed)
+
+
 def _official(
-    agent: Agent, episode: Episode, world: WorldTile, config: RunConfig
+    agent: Agent, episode: Episode, world: WorldTile, config: RunConfig, seed: int
 ) -> tuple[OfficialRollout, RunLogContent, dict[str, Any]]:
-    rollout = run_official_episode(agent, episode, world, config.max_action_len)
+    commander = _commander(config, episode, world, seed)
+    rollout = run_official_episode(
+        agent, episode, world, config.max_action_len, config.sensors, commander
+    )
     times = [float(k) for k in range(len(rollout.views))]  # one second per official step
     content = RunLogContent({}, _steps(rollout, times), rollout.views, times)
     extra = {
@@ -141,7 +169,15 @@ def _dynamics(
         settings.controller, json.dumps(settings.controller_settings, sort_keys=True)
     )
     rollout = run_dynamics_episode(
-        agent, episode, world, controller, settings, seed, config.max_action_len
+        agent,
+        episode,
+        world,
+        controller,
+        settings,
+        seed,
+        config.max_action_len,
+        config.sensors,
+        _commander(config, episode, world, seed),
     )
     view_times = [0.0, *rollout.segment_end_times_s][: len(rollout.views)]
     content = RunLogContent(
@@ -174,11 +210,11 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
             )
         world = _world(task.data_dir, episode.map_name, episode.georef)
         seed = episode_seed(config, task.split, task.episode_id)
-        agent = build_agent(config.agent.model_copy(update={"seed": seed}))
+        agent = _agent(config, episode, seed)
         control = control_log = None
         rollout: OfficialRollout | DynamicsRollout
         if config.mode == "official":
-            rollout, content, extra = _official(agent, episode, world, config)
+            rollout, content, extra = _official(agent, episode, world, config, seed)
         else:
             flown, content, extra = _dynamics(agent, episode, world, config, seed)
             rollout = flown
@@ -197,6 +233,7 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
             "seed": seed,
             "config_digest": digest,
             "execution_mode": config.mode,
+            "questions": rollout.questions,
         }
         if config.write_logs:
             content.run_metadata = {

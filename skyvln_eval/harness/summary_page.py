@@ -81,6 +81,20 @@ def _status_line(report: ReproduceReport) -> str:
     )
 
 
+def _recordings(report: ReproduceReport) -> list[str]:
+    names = sorted(name for name in report.files if name.endswith(".rrd"))
+    lines = [f"- {_link(report, name)}" for name in names]
+    if names:
+        first = report.files[names[0]].relative_to(report.out_dir).as_posix()
+        lines += [
+            "",
+            f"Open one with `skyvln-eval view {first}` (Rerun's web viewer, served on 127.0.0.1 "
+            "with its usage analytics off), or with a local Rerun viewer: `rerun <file>.rrd`. "
+            "Any episode of a run: `skyvln-eval view runs/<system>/<split> --episode <id>`.",
+        ]
+    return lines + [f"- {note}" for note in report.notes]
+
+
 def write_summary_page(
     report: ReproduceReport,
     plan: ReproducePlan,
@@ -135,6 +149,10 @@ def write_summary_page(
             "## Figures",
             "",
             *[f"- {_link(report, name)}" for name in figures],
+            "",
+            "## Episode recordings (Rerun)",
+            "",
+            *(_recordings(report) or [f"(none: the plan asks for {plan.recordings})"]),
             "",
             "## Scores",
             "",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import os
@@ -78,7 +79,8 @@ def load_prices(path: str | Path | None = None) -> PriceTable:
     """Read a price table: ``path``, else ``$SKYVLN_EVAL_PRICES``, else the shipped one.
 
     An absent default table gives an empty one (every cost unknown); a named file that is
-    missing or malformed raises :class:`ConfigError` naming the file and field.
+    missing or malformed raises :class:`ConfigError` naming the file and field. A table is
+    parsed once per process while its file is unchanged (agents are built per episode).
     """
     chosen = path or os.environ.get("SKYVLN_EVAL_PRICES")
     file = Path(chosen) if chosen else DEFAULT_PRICES_PATH
@@ -87,6 +89,14 @@ def load_prices(path: str | Path | None = None) -> PriceTable:
             raise ConfigError(f"price table {file} not found")
         log.warning("price table %s not found: every cost_usd is recorded as unknown", file)
         return PriceTable()
+    stat = file.stat()
+    return _parsed_prices(str(file.resolve()), stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=8)
+def _parsed_prices(path: str, mtime_ns: int, size: int) -> PriceTable:
+    """The table in ``path`` (its modification time and size key the cache)."""
+    file = Path(path)
     try:
         data = yaml.safe_load(file.read_text(encoding="utf-8"))
     except yaml.YAMLError as error:

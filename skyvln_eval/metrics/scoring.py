@@ -46,6 +46,8 @@ CONTROL_COLUMNS: dict[str, str] = {
 STATUS_COLUMNS: dict[str, str] = {
     **{f"status_{status}": "0/1" for status in RESULT_STATUSES},
     "wall_s": "s",
+    "questions_asked": "questions",
+    "questions_answered": "questions",
 }
 
 #: Every metric column of the scores frame with its unit.
@@ -97,6 +99,11 @@ def score_results(
     frame["wall_s"] = pd.array(
         [r.extra.get("wall_s") for r in results], dtype="Float64"
     )  # episode wall time, where the run recorded it
+    questions = [r.extra.get("questions") or [] for r in results]  # asked of the commander
+    frame["questions_asked"] = [float(len(q)) for q in questions]
+    frame["questions_answered"] = [
+        float(sum(x.get("answer") is not None for x in q)) for q in questions
+    ]
     frame = pd.concat([frame, episode_costs(results)], axis=1)
     frame["has_control"] = [r.control is not None for r in results]
     with_control = [k for k, r in enumerate(results) if r.control is not None]

@@ -7,7 +7,10 @@ synthetic tiles, semantic and landmark-instance images. On xView maps (image onl
 ground is flat, so depth comes from the altitude alone.
 
 Rays are marched down through a fixed number of height levels over the height layer, so
-roofs occlude what is behind them; every image is one ``cv2.remap`` of a world layer.
+roofs occlude what is behind them (:mod:`.march`); every image is one ``cv2.remap`` of a
+world layer. The views a drone takes from one position (a decision's panorama) are rendered
+as one batch (:meth:`CameraRig.capture_many`). ``method="reference"`` renders with the
+plain march that samples every ray at every level: the fast one gives the same depths.
 Frames: ENU metres from the map's south-west corner (:mod:`skyvln_eval.frames`); image
 ``u`` to the right, ``v`` down, pixel centres at ``+0.5``; depth is *planar* (distance
 along the optical axis), so a pixel's point is ``camera + depth * ray(u, v)``.
@@ -16,145 +19,69 @@ along the optical axis), so a pixel's point is ``camera + depth * ray(u, v)``.
 from __future__ import annotations
 
 import functools
-import math
-import weakref
-from dataclasses import dataclass
-from typing import Any, Final
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Final, Literal
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from skyvln_eval.avdn.constants import METERS_PER_DEGREE
 from skyvln_eval.errors import ConfigError
+from skyvln_eval.sensing import (
+    SEMANTIC_NONE,
+    CameraConfig,
+    CameraImages,
+    CameraPose,
+    camera_basis,
+    pixel_rays,
+    plane_coordinates,
+)
+from skyvln_eval.sim.march import march, march_reference, sample_layer
 from skyvln_eval.worlds.tile import WorldTile
 
-#: Semantic value of pixels that see the sky or lie outside the map.
-SEMANTIC_NONE: Final = 255
+__all__ = [
+    "SEMANTIC_NONE",
+    "CameraConfig",
+    "CameraImages",
+    "CameraPose",
+    "CameraRig",
+    "camera_basis",
+    "enu_to_map_px",
+    "pixel_rays",
+    "render_camera",
+]
+
 SKY_BGR: Final = (235, 206, 135)
 
 FloatImage = NDArray[np.float32]
-
-
-@dataclass(frozen=True)
-class CameraConfig:
-    """Image size and optics; ``fov_deg`` is the horizontal field of view.
-
-    ``max_depth_m`` is the depth sensor's range (farther pixels get ``inf`` depth but are
-    still seen in RGB); ``height_levels`` the number of height levels rays are marched
-    through. Between two levels a ray moves ``level spacing / tan(depression)`` metres
-    sideways, so at grazing angles a building narrower than that can be missed (its roof
-    is still seen from steeper rays): raise the levels for low pitches and tall
-    buildings, at the cost of one image lookup per level. Rays that go up see the sky:
-    walls above the drone's height are not drawn.
-    """
-
-    width_px: int = 224
-    height_px: int = 224
-    fov_deg: float = 90.0
-    max_depth_m: float = 500.0
-    height_levels: int = 24
-
-    def __post_init__(self) -> None:
-        if self.width_px < 8 or self.height_px < 8:
-            raise ConfigError(
-                f"camera image must be at least 8 x 8 px, got {self.width_px} x {self.height_px}"
-            )
-        if not 10.0 <= self.fov_deg <= 150.0:
-            raise ConfigError(f"camera fov_deg must be in [10, 150], got {self.fov_deg}")
-        if self.height_levels < 2:
-            raise ConfigError(f"camera height_levels must be >= 2, got {self.height_levels}")
-
-    @property
-    def focal_px(self) -> float:
-        return (self.width_px / 2.0) / math.tan(math.radians(self.fov_deg) / 2.0)
-
-
-@dataclass(frozen=True)
-class CameraPose:
-    """Camera position (ENU m, z above ground), body yaw (ENU rad) and pitch down (deg)."""
-
-    x_m: float
-    y_m: float
-    z_m: float
-    yaw_rad: float
-    pitch_deg: float
-
-    def __post_init__(self) -> None:
-        if not 0.0 <= self.pitch_deg <= 90.0:
-            raise ConfigError(f"camera pitch_deg must be in [0, 90] (down), got {self.pitch_deg}")
-        if self.z_m <= 0.0:
-            raise ConfigError(f"camera height z_m must be above ground, got {self.z_m}")
-
-
-def camera_basis(pose: CameraPose) -> tuple[NDArray[np.float64], ...]:
-    """Unit vectors (ENU) of the optical axis, image right and image up."""
-    yaw, pitch = pose.yaw_rad, math.radians(pose.pitch_deg)
-    forward = np.array(
-        [math.cos(yaw) * math.cos(pitch), math.sin(yaw) * math.cos(pitch), -math.sin(pitch)]
-    )
-    right = np.array([math.sin(yaw), -math.cos(yaw), 0.0])
-    up = np.array(
-        [math.cos(yaw) * math.sin(pitch), math.sin(yaw) * math.sin(pitch), math.cos(pitch)]
-    )
-    return forward, right, up
-
-
-def pixel_rays(
-    pose: CameraPose, config: CameraConfig, u: NDArray[Any], v: NDArray[Any]
-) -> NDArray[np.float64]:
-    """Ray directions (ENU, ``(..., 3)``) through image points ``(u, v)``, unit planar depth."""
-    return _rays(pose, *_plane_coordinates(config, u, v))
-
-
-def _plane_coordinates(
-    config: CameraConfig, u: NDArray[Any], v: NDArray[Any]
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Image point ``(u, v)`` as offsets right (``a``) and down (``b``) at unit depth."""
-    f = config.focal_px
-    a = (np.asarray(u, dtype=np.float64) - config.width_px / 2.0) / f
-    b = (np.asarray(v, dtype=np.float64) - config.height_px / 2.0) / f
-    return a, b
+#: ``fast``: the tiled march (:func:`~skyvln_eval.sim.march.march`); ``reference``: every ray
+#: at every level (:func:`~skyvln_eval.sim.march.march_reference`). Same images.
+RenderMethod = Literal["fast", "reference"]
 
 
 def _rays(pose: CameraPose, a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``forward + a right - b up``, in place where possible (same values, fewer arrays)."""
+    """``forward + a right - b up``, computed one component at a time (numpy is slow on an
+    innermost axis of 3; the operations, and so the values, are the same), returned as a
+    ``(..., 3)`` view whose components are contiguous."""
     forward, right, up = camera_basis(pose)
-    rays = a[..., None] * right
-    rays += forward
-    rays -= b[..., None] * up
-    return rays
+    rays = np.empty((3, *np.shape(a)))
+    scratch = np.empty(np.shape(b))
+    for c in range(3):
+        component = rays[c, ...]  # a view, also for a single point
+        np.multiply(a, right[c], out=component)
+        component += forward[c]
+        component -= np.multiply(b, up[c], out=scratch)
+    return np.moveaxis(rays, 0, -1)
 
 
 @functools.lru_cache(maxsize=8)
 def _image_plane(config: CameraConfig) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The ``a``, ``b`` of :func:`pixel_rays` at every pixel centre: fixed per camera."""
     v, u = np.mgrid[0 : config.height_px, 0 : config.width_px].astype(np.float64) + 0.5
-    a, b = _plane_coordinates(config, u, v)
+    a, b = plane_coordinates(config, u, v)
     a.flags.writeable = b.flags.writeable = False
     return a, b
-
-
-@dataclass(frozen=True, eq=False)
-class CameraImages:
-    """One capture: RGB ``(H, W, 3)`` uint8, planar depth (m, float32, ``inf`` = no return),
-    semantic uint8 (:data:`SEMANTIC_NONE` = sky / off-map) and instance uint16 (0 = none),
-    the last two ``None`` on maps without layers."""
-
-    pose: CameraPose
-    config: CameraConfig
-    rgb: NDArray[np.uint8]
-    depth_m: FloatImage
-    semantic: NDArray[np.uint8] | None
-    instance: NDArray[np.uint16] | None
-
-    def points_enu(self, u: NDArray[Any], v: NDArray[Any]) -> NDArray[np.float64]:
-        """ENU points seen at pixel centres ``(u, v)`` (integer pixel indices), from depth."""
-        ui = np.asarray(u, dtype=np.int64)
-        vi = np.asarray(v, dtype=np.int64)
-        rays = pixel_rays(self.pose, self.config, ui + 0.5, vi + 0.5)
-        origin = np.array([self.pose.x_m, self.pose.y_m, self.pose.z_m])
-        return origin + self.depth_m[vi, ui][..., None].astype(np.float64) * rays
 
 
 def enu_to_map_px(
@@ -167,121 +94,80 @@ def enu_to_map_px(
     return (x_m / mpp).astype(np.float32), ((top_m - y_m) / mpp).astype(np.float32)
 
 
-def _sample(
-    layer: NDArray[Any], px: FloatImage, py: FloatImage, nearest: bool, fill: float
-) -> NDArray[Any]:
-    out: NDArray[Any] = cv2.remap(
-        np.asarray(layer),
-        px,
-        py,
-        interpolation=cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR,
-        borderMode=cv2.BORDER_CONSTANT,
-        borderValue=fill,
-    )
-    return out
-
-
-_MAX_HEIGHTS: weakref.WeakKeyDictionary[WorldTile, float] = weakref.WeakKeyDictionary()
-
-
-def _max_height_m(world: WorldTile) -> float:
-    """The tallest point of the map (0 without a height layer), computed once per world."""
-    if world not in _MAX_HEIGHTS:
-        _MAX_HEIGHTS[world] = 0.0 if world.height_m is None else float(world.height_m.max())
-    return _MAX_HEIGHTS[world]
-
-
-def _march(
-    world: WorldTile, origin: NDArray[np.float64], rays: NDArray[np.float64], levels: int
-) -> FloatImage:
-    """Planar depth of the first surface each downward ray meets (``inf`` for rays that go up).
-
-    The ray is sampled where it crosses ``levels`` heights from the map's top down to the
-    ground; a hit is interpolated between the last level above the surface and the first
-    below it. Along a ray, map pixel coordinates are linear in the level's height, so each
-    level costs two multiply-adds and one height lookup.
-    """
-    dz = rays[..., 2]
-    down = dz < -1e-9
-    safe_dz = np.where(down, dz, -1.0)
-    ground_t = (0.0 - origin[2]) / safe_dz
-    max_height = _max_height_m(world)
-    if world.height_m is None or max_height <= 0.0:
-        return np.where(down, ground_t, np.inf).astype(np.float32)
-    top = min(max_height, origin[2] - 1e-3)
-    mpp = world.georef.lat_ratio * METERS_PER_DEGREE
-    (lat0, _), (lat1, _) = world.georef.gps_botm_left, world.georef.gps_top_right
-    top_m = (lat1 - lat0) * METERS_PER_DEGREE
-    # At height z, with k = z - origin_z: t = k / dz, px = x0 + k * sx, py = y0 - k * sy.
-    inv_dz = (1.0 / safe_dz).astype(np.float32)
-    sx = (rays[..., 0] / safe_dz / mpp).astype(np.float32)
-    sy = (rays[..., 1] / safe_dz / mpp).astype(np.float32)
-    x0, y0 = np.float32(origin[0] / mpp), np.float32((top_m - origin[1]) / mpp)
-    hit_t = ground_t.astype(np.float32).ravel()
-    found = (~down).ravel()
-    flat_inv_dz = inv_dz.ravel()
-    previous: tuple[np.float32, NDArray[np.float32]] | None = None
-    for z_level in np.linspace(top, 0.0, levels):
-        k = np.float32(z_level - origin[2])
-        gap = _sample(world.height_m, x0 + k * sx, y0 - k * sy, nearest=False, fill=0.0)
-        gap = (gap - np.float32(z_level)).ravel()
-        # Only the rays that meet the surface at this level are worked on.
-        new = np.flatnonzero((gap >= 0.0) & ~found)
-        if len(new):
-            t = k * flat_inv_dz[new]
-            if previous is None:
-                hit_t[new] = t
-            else:
-                # The ray crossed the surface between the previous level (gap < 0) and this.
-                previous_k, previous_gap = previous
-                previous_t = previous_k * flat_inv_dz[new]
-                before, after = previous_gap[new], gap[new]
-                fraction = np.clip(before / np.minimum(before - after, -1e-9), 0.0, 1.0)
-                hit_t[new] = previous_t + fraction * (t - previous_t)
-            found[new] = True
-            if found.all():
-                break
-        previous = (k, gap)
-    hit_t = hit_t.reshape(dz.shape)
-    return np.where(down, hit_t, np.inf).astype(np.float32)
-
-
 def render_camera(
-    world: WorldTile, pose: CameraPose, config: CameraConfig | None = None
+    world: WorldTile,
+    pose: CameraPose,
+    config: CameraConfig | None = None,
+    method: RenderMethod = "fast",
 ) -> CameraImages:
     """What the front camera sees from ``pose`` over ``world``."""
+    return render_views(world, [pose], config, method)[0]
+
+
+def render_views(
+    world: WorldTile,
+    poses: Sequence[CameraPose],
+    config: CameraConfig | None = None,
+    method: RenderMethod = "fast",
+) -> list[CameraImages]:
+    """What the front camera sees from each pose, all at one position, rendered as a batch."""
     config = config or CameraConfig()
-    rays = _rays(pose, *_image_plane(config))
-    origin = np.array([pose.x_m, pose.y_m, pose.z_m])
-    depth = _march(world, origin, rays, config.height_levels)
+    if not poses:
+        return []
+    origin = np.array([poses[0].x_m, poses[0].y_m, poses[0].z_m])
+    for pose in poses[1:]:
+        if (pose.x_m, pose.y_m, pose.z_m) != tuple(origin):
+            raise ConfigError("render_views renders views from one position: the poses differ")
+    plane = _image_plane(config)
+    rays = np.empty((3, len(poses), config.height_px, config.width_px))
+    for index, pose in enumerate(poses):
+        rays[:, index] = np.moveaxis(_rays(pose, *plane), -1, 0)
+    rays = np.moveaxis(rays, 0, -1)  # (views, H, W, 3), each component contiguous
+    if method == "fast":
+        depth = march(world, origin, rays, config.height_levels)
+    elif method == "reference":
+        depth = np.stack([march_reference(world, origin, r, config.height_levels) for r in rays])
+    else:
+        raise ConfigError(f"render method must be 'fast' or 'reference', got {method!r}")
+    # The views stacked into one tall image: one lookup per layer for the whole batch.
+    n, height, width = depth.shape
+    stacked = rays.reshape(n * height, width, 3)
+    depth = depth.reshape(n * height, width)
     sky = ~np.isfinite(depth)
     # Look the hit up one map pixel further along the ray: a wall is met on the edge of its
     # footprint, and the nearest pixel there may be the ground in front of it.
-    horizontal = np.maximum(np.hypot(rays[..., 0], rays[..., 1]), 1e-6)
+    horizontal = np.maximum(np.hypot(stacked[..., 0], stacked[..., 1]), 1e-6)
     nudge = np.minimum(world.metres_per_pixel / horizontal, 2.0)
     t = np.where(sky, 0.0, depth + nudge)
     px, py = enu_to_map_px(
         world,
-        (origin[0] + t * rays[..., 0]).astype(np.float32),
-        (origin[1] + t * rays[..., 1]).astype(np.float32),
+        (origin[0] + t * stacked[..., 0]).astype(np.float32),
+        (origin[1] + t * stacked[..., 1]).astype(np.float32),
     )
     px[sky] = -1e6  # off the map: sampled as the border value
-    bgr = _sample(world.bgr, px, py, nearest=False, fill=0.0)
+    bgr = sample_layer(world.bgr, px, py, nearest=False, fill=0.0)
     bgr[sky] = SKY_BGR
     semantic = instance = None
     if world.semantic is not None:
-        semantic = _sample(world.semantic, px, py, nearest=True, fill=float(SEMANTIC_NONE))
+        semantic = sample_layer(world.semantic, px, py, nearest=True, fill=float(SEMANTIC_NONE))
     if world.instance is not None:
-        instance = _sample(world.instance, px, py, nearest=True, fill=0.0)
+        instance = sample_layer(world.instance, px, py, nearest=True, fill=0.0)
     depth = np.where(depth > config.max_depth_m, np.inf, depth).astype(np.float32)
-    return CameraImages(
-        pose=pose,
-        config=config,
-        rgb=np.ascontiguousarray(bgr[..., ::-1]),
-        depth_m=depth,
-        semantic=None if semantic is None else semantic.astype(np.uint8),
-        instance=None if instance is None else instance.astype(np.uint16),
-    )
+    rgb = bgr[..., ::-1]
+    images = []
+    for index, pose in enumerate(poses):
+        rows = slice(index * height, (index + 1) * height)
+        images.append(
+            CameraImages(
+                pose=pose,
+                config=config,
+                rgb=np.ascontiguousarray(rgb[rows]),
+                depth_m=depth[rows],
+                semantic=None if semantic is None else semantic[rows].astype(np.uint8),
+                instance=None if instance is None else instance[rows].astype(np.uint16),
+            )
+        )
+    return images
 
 
 @dataclass(frozen=True, eq=False)
@@ -297,7 +183,7 @@ class CameraRig:
     x_m: float
     y_m: float
     z_m: float
-    config: CameraConfig = CameraConfig()
+    config: CameraConfig = field(default_factory=CameraConfig)
 
     @property
     def has_layers(self) -> bool:
@@ -307,5 +193,12 @@ class CameraRig:
         self, yaw_rad: float, pitch_deg: float, config: CameraConfig | None = None
     ) -> CameraImages:
         """The image after turning to ``yaw_rad``; ``config`` overrides the rig's optics."""
-        pose = CameraPose(self.x_m, self.y_m, self.z_m, yaw_rad, pitch_deg)
-        return render_camera(self.world, pose, config or self.config)
+        return self.capture_many([(yaw_rad, pitch_deg)], config)[0]
+
+    def capture_many(
+        self, headings: Sequence[tuple[float, float]], config: CameraConfig | None = None
+    ) -> list[CameraImages]:
+        """The images after turning to each ``(yaw_rad, pitch_deg)``, rendered as one batch
+        (the same images as one :meth:`capture` each, faster)."""
+        poses = [CameraPose(self.x_m, self.y_m, self.z_m, yaw, pitch) for yaw, pitch in headings]
+        return render_views(self.world, poses, config or self.config)

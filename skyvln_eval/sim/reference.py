@@ -93,6 +93,11 @@ class ReferenceTrajectory:
         return np.asarray(self.path(np.array([self.end_time_s]))[0][0])
 
 
+def _clip(values: NDArray[np.float64], low: float, high: float) -> NDArray[np.float64]:
+    """``np.clip`` for these short arrays without its per-call overhead (same values)."""
+    return np.minimum(np.maximum(values, low), high)
+
+
 def _speed_profile(
     length_m: float, cruise_m_s: float, accel_m_s2: float
 ) -> tuple[float, Callable[[NDArray[np.float64]], tuple[NDArray[np.float64], ...]]]:
@@ -110,17 +115,18 @@ def _speed_profile(
     duration = 2.0 * t_a + t_c
 
     def ramp(tau: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
-        phase = np.pi * np.clip(tau, 0.0, t_a) / t_a
-        s = v_c / 2.0 * (np.clip(tau, 0.0, t_a) - t_a / np.pi * np.sin(phase))
+        held = _clip(tau, 0.0, t_a)
+        phase = np.pi * held / t_a
+        s = v_c / 2.0 * (held - t_a / np.pi * np.sin(phase))
         return s, v_c / 2.0 * (1.0 - np.cos(phase)), accel_m_s2 * np.sin(phase)
 
     def distance(tau: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
         """Distance, speed and acceleration from the start, valid up to half the duration."""
         s, v, a = ramp(tau)
-        return s + np.clip(tau - t_a, 0.0, t_c) * v_c, v, a
+        return s + _clip(tau - t_a, 0.0, t_c) * v_c, v, a
 
     def profile(tau: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
-        tau = np.clip(tau, 0.0, duration)
+        tau = _clip(tau, 0.0, duration)
         s_up, v_up, a_up = distance(tau)
         s_down, v_down, a_down = distance(duration - tau)  # the same, run backwards
         rising = tau <= duration / 2.0
@@ -170,7 +176,7 @@ def segment_reference(
     def yaw(times: NDArray[np.float64]) -> NDArray[np.float64]:
         if turn_s == 0.0:
             return np.full(len(times), target.yaw_rad)
-        x = np.clip((times - t0_s) / turn_s, 0.0, 1.0)
+        x = _clip((times - t0_s) / turn_s, 0.0, 1.0)
         angles = start.yaw_rad + turn * (3.0 * x**2 - 2.0 * x**3)
         return np.pi - np.mod(np.pi - angles, 2.0 * np.pi)
 

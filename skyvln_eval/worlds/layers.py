@@ -113,3 +113,8 @@ def read_world_layers(
         for item in info["landmarks"]
     )
     return semantic, instance, height, landmarks
+
+
+def has_world_layers(data_dir: str | Path, map_name: str) -> bool:
+    """Whether a map has semantic layers (synthetic tiles do; real xView imagery does not)."""
+    return (layers_dir(data_dir, map_name) / "semantic.png").is_file()

@@ -9,32 +9,17 @@ layer, a landmark instance layer (with names) and a height layer.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import IntEnum
 
 import numpy as np
 from numpy.typing import NDArray
 
 from skyvln_eval.avdn.constants import METERS_PER_DEGREE
 from skyvln_eval.avdn.imagery import MapGeoref
+from skyvln_eval.sensing import SemanticClass  # what a semantic camera reports, stored here
+
+__all__ = ["Landmark", "LatLng", "SemanticClass", "WorldTile"]
 
 LatLng = tuple[float, float]
-
-
-class SemanticClass(IntEnum):
-    """Semantic classes of synthetic tiles (values stored in the semantic layer)."""
-
-    GROUND = 0
-    ROAD = 1
-    SIDEWALK = 2
-    BUILDING = 3
-    GRASS = 4
-    TREE = 5
-    WATER = 6
-    PARKING = 7
-    VEHICLE = 8
-    SPORTS_FIELD = 9
-    BRIDGE = 10
-    PLAZA = 11
 
 
 @dataclass(frozen=True)

@@ -46,7 +46,7 @@ from skyvln_eval.llm.rule.instructions import parse_instruction
                 {
                     "kind": "destination",
                     "landmark": "a small restaurant with a black roof",
-                    "name": "golden wok restaurant",
+                    "name": "Golden Wok restaurant",
                     "distance_m": 200.0,
                 },
             ],
@@ -55,7 +55,7 @@ from skyvln_eval.llm.rule.instructions import parse_instruction
             "At the roundabout take the right, stop over a church with a cross-shaped red roof "
             "and a bell tower, that is the destination.",
             [
-                {"kind": "turn", "direction": "right", "landmark": "roundabout"},
+                {"kind": "turn", "direction": "right", "landmark": "the roundabout"},
                 {
                     "kind": "destination",
                     "landmark": "a church with a cross-shaped red roof and a bell tower",

@@ -1,7 +1,9 @@
-"""Compiled solver functions: the cache, its key, its repair, and the no-compiler fallback."""
+"""Compiled solver functions: the cache, its key, its lock, its repair, the no-compiler
+fallback, and the compiled NMPC step against the interpreted one."""
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 import warnings
 from pathlib import Path
@@ -10,10 +12,10 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from skyvln_eval.control import MpcConfig, NmpcController, codegen
+from skyvln_eval.control import Flight, MpcConfig, NmpcController, codegen
 from skyvln_eval.errors import SolverBuildError
-from skyvln_eval.sim import ObstacleForecast, segment_reference
-from tests.control.helpers import START, TARGET
+from skyvln_eval.sim import DroneState, ObstacleForecast, segment_reference
+from tests.control.helpers import START, TARGET, scenario
 
 needs_gcc = pytest.mark.skipif(codegen.compiler() is None, reason="no C compiler ($CC or gcc)")
 
@@ -33,10 +35,10 @@ def cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
 def test_a_compiled_function_is_cached_and_reused(
     cache: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    compiled, is_compiled = codegen.maybe_compile(tiny(), "always")
-    assert is_compiled
+    built = codegen.maybe_compile(tiny(), "always")
+    assert built.compiled and built.built_now
     assert np.allclose(
-        np.asarray(compiled([0.5, 2.0])).ravel(), np.asarray(tiny()([0.5, 2.0])).ravel()
+        np.asarray(built.function([0.5, 2.0])).ravel(), np.asarray(tiny()([0.5, 2.0])).ravel()
     )
     assert len(list((cache / "casadi").glob("tiny_test_fn-*.so"))) == 1
 
@@ -44,10 +46,25 @@ def test_a_compiled_function_is_cached_and_reused(
         raise AssertionError("the cached library should have been reused")
 
     monkeypatch.setattr(codegen, "_build", no_build)
-    again, is_compiled = codegen.maybe_compile(tiny(), "always")
-    assert is_compiled and np.allclose(
-        np.asarray(again([1.0, 1.0])), np.asarray(compiled([1.0, 1.0]))
+    again = codegen.maybe_compile(tiny(), "always")
+    assert again.compiled and not again.built_now
+    assert np.allclose(
+        np.asarray(again.function([1.0, 1.0])), np.asarray(built.function([1.0, 1.0]))
     )
+
+
+def _compile_tiny(root: str) -> bool:
+    os.environ["SKYVLN_EVAL_CACHE"] = root
+    return codegen.maybe_compile(tiny(), "always").built_now
+
+
+@needs_gcc
+def test_processes_that_need_the_same_library_at_once_build_it_once(cache: Path) -> None:
+    context = multiprocessing.get_context("spawn")
+    with context.Pool(3) as pool:
+        built = pool.map(_compile_tiny, [str(cache)] * 3)
+    assert sorted(built) == [False, False, True]
+    assert len(list((cache / "casadi").glob("tiny_test_fn-*.so"))) == 1
 
 
 @needs_gcc
@@ -55,16 +72,21 @@ def test_a_broken_cache_entry_is_rebuilt(cache: Path) -> None:
     codegen.maybe_compile(tiny(), "always")
     (library,) = (cache / "casadi").glob("tiny_test_fn-*.so")
     library.write_bytes(b"not a shared library")
-    compiled, is_compiled = codegen.maybe_compile(tiny(), "always")
-    assert is_compiled
-    assert np.allclose(np.asarray(compiled([0.5, 2.0])), np.asarray(tiny()([0.5, 2.0])))
+    built = codegen.maybe_compile(tiny(), "always")
+    assert built.compiled and built.built_now
+    assert np.allclose(np.asarray(built.function([0.5, 2.0])), np.asarray(tiny()([0.5, 2.0])))
 
 
-def test_the_key_changes_with_the_problem() -> None:
+def test_the_key_changes_with_the_problem_and_the_compiler(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     x = ca.SX.sym("x", 2)
     other = ca.Function("tiny_test_fn", [x], [ca.cos(x) * x[0]])
     assert codegen.cache_key(tiny(), "gcc") == codegen.cache_key(tiny(), "gcc")
     assert codegen.cache_key(tiny(), "gcc") != codegen.cache_key(other, "gcc")
+    before = codegen.cache_key(tiny(), "gcc")
+    monkeypatch.setattr(codegen, "compiler_identity", lambda cc: "gcc (Debian 99.1) 99.1")
+    assert codegen.cache_key(tiny(), "gcc") != before
 
 
 def test_without_a_compiler_functions_run_interpreted_with_one_warning(
@@ -73,8 +95,8 @@ def test_without_a_compiler_functions_run_interpreted_with_one_warning(
     monkeypatch.setattr(codegen, "compiler", lambda: None)
     monkeypatch.setattr(codegen, "_warned_no_compiler", False)
     with pytest.warns(RuntimeWarning, match="no C compiler"):
-        function, is_compiled = codegen.maybe_compile(tiny(), "auto")
-    assert not is_compiled and function.name() == "tiny_test_fn"
+        built = codegen.maybe_compile(tiny(), "auto")
+    assert not built.compiled and built.function.name() == "tiny_test_fn"
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a second build says nothing more
         codegen.maybe_compile(tiny(), "auto")
@@ -85,7 +107,7 @@ def test_without_a_compiler_functions_run_interpreted_with_one_warning(
 
 @needs_gcc
 @pytest.mark.slow
-def test_the_compiled_nmpc_gives_the_interpreted_commands(
+def test_the_compiled_nmpc_step_flies_exactly_as_the_interpreted_one(
     tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # Compiling takes 10-25 s: with SKYVLN_EVAL_CACHE set it happens once per problem
@@ -94,11 +116,18 @@ def test_the_compiled_nmpc_gives_the_interpreted_commands(
     monkeypatch.setenv("SKYVLN_EVAL_CACHE", root)
     compiled = NmpcController(MpcConfig(compile="always"))
     interpreted = NmpcController(MpcConfig(compile="never"))
-    assert compiled.qp.compiled and not interpreted.qp.compiled
+    assert compiled.rti.compiled and not interpreted.rti.compiled
     reference = segment_reference(START, TARGET, 0.0)
-    for k in range(5):
-        times = 0.1 * (k + np.arange(21))
-        window, forecast = reference.window(times), ObstacleForecast.none(times)
-        a = compiled.step(START, window, forecast)
-        b = interpreted.step(START, window, forecast)
-        assert np.allclose(a.inputs, b.inputs, atol=1e-9)
+    times = 0.1 * np.arange(21)
+    first = compiled.step(START, reference.window(times), ObstacleForecast.none(times))
+    assert first.stats.iterations > 0  # the library reports HPIPM's iteration count
+    logs = []
+    for controller in (compiled, interpreted):
+        flight = Flight(controller, DroneState(0.0, 0.0, 10.0), scenario=scenario("crossing"))
+        logs.append(flight.fly_to(TARGET, max_time_s=15.0).log)
+    a, b = logs
+    assert len(a) == len(b) and not a.solve_failed.any()
+    columns = ["x_m", "y_m", "z_m", "cmd_thrust_m_s2", "cmd_roll_rad", "cmd_pitch_rad"]
+    assert np.array_equal(a[columns].to_numpy(), b[columns].to_numpy())
+    assert np.array_equal(a.iterations.to_numpy(), b.iterations.to_numpy())
+    assert (a.min_clearance_m >= 0.0).all()

@@ -9,7 +9,7 @@ import pytest
 
 from skyvln_eval.control import Flight
 from skyvln_eval.control.mpc import MpcController
-from skyvln_eval.control.stage_qp import NZ, QpSolution
+from skyvln_eval.control.stage_qp import NZ
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.sim import (
     ConstantVelocity,
@@ -79,10 +79,11 @@ def test_failed_solves_fall_back_to_the_shifted_plan_then_hover() -> None:
     ctl.step(state, window, forecast)  # a good plan to fall back on
     plan = ctl._plan.copy()  # type: ignore[union-attr]
 
-    def broken(w_bar: np.ndarray, params: np.ndarray) -> QpSolution:
-        return QpSolution(np.full_like(w_bar, np.nan), False, 50, "max_iter")
+    def broken(shift: bool) -> tuple[bool, int]:
+        ctl.rti.w[:] = np.nan
+        return False, 50
 
-    ctl.qp.solve = broken  # type: ignore[method-assign]
+    ctl.rti.solve = broken  # type: ignore[method-assign]
     statuses, commands = [], []
     for _ in range(ctl.horizon_steps + 3):
         command = ctl.step(state, window, forecast)
@@ -102,15 +103,15 @@ def test_a_flight_with_a_broken_solver_keeps_flying_and_counts_failures() -> Non
     ctl = controller("nmpc")
     assert isinstance(ctl, MpcController)
     calls = {"n": 0}
-    solve = ctl.qp.solve
+    solve = ctl.rti.solve
 
-    def flaky(w_bar: np.ndarray, params: np.ndarray) -> QpSolution:
+    def flaky(shift: bool) -> tuple[bool, int]:
         calls["n"] += 1
         if calls["n"] % 7 == 0:
-            return QpSolution(w_bar, False, 50, "max_iter")
-        return solve(w_bar, params)
+            return False, 50
+        return solve(shift)
 
-    ctl.qp.solve = flaky  # type: ignore[method-assign]
+    ctl.rti.solve = flaky  # type: ignore[method-assign]
     result = Flight(ctl, START).fly_to(TARGET, max_time_s=40.0)
     assert result.reached
     assert result.failed_steps == int(result.log.solve_failed.sum()) > 0
@@ -132,14 +133,19 @@ def test_after_fallbacks_the_warm_start_is_shifted_to_now() -> None:
     window, forecast = window_and_forecast(ctl)
     ctl.step(START, window, forecast)
     plan = ctl._plan.copy()  # type: ignore[union-attr]
-    solve = ctl.qp.solve
-    ctl.qp.solve = lambda w, p: QpSolution(w, False, 0, "max_iter")  # type: ignore[method-assign]
+    solve = ctl.rti.solve
+    ctl.rti.solve = lambda shift: (False, 0)  # type: ignore[method-assign]
     ctl.step(START, window, forecast)
     ctl.step(START, window, forecast)  # two fallbacks: now is three steps after the plan
-    ctl.qp.solve = solve  # type: ignore[method-assign]
-    guess = ctl._initial_guess(START.model_vector() - [0, 0, 10, 0, 0, 0, 0, 0], START.position_m)
+    ctl.rti.solve = solve  # type: ignore[method-assign]
+    assert not ctl._warm_start(START.position_m)  # the guess is prepared in Python
     stage = ctl.qp.stage
-    assert np.allclose(guess[stage : 2 * stage], plan[4 * stage : 5 * stage])
+    assert np.allclose(ctl.rti.guess[stage : 2 * stage], plan[4 * stage : 5 * stage])
+    # With no fallback pending, the step Function shifts the plan itself.
+    command = ctl.step(START, window, forecast)
+    assert not command.stats.failed
+    assert ctl._warm_start(START.position_m + np.array([1.0, 0.0, 0.0]))
+    assert np.allclose(ctl.rti.warm[:3], [-1.0, 0.0, 0.0])
 
 
 def test_a_solver_that_raises_is_a_failed_step_not_a_crash() -> None:
@@ -147,10 +153,10 @@ def test_a_solver_that_raises_is_a_failed_step_not_a_crash() -> None:
     assert isinstance(ctl, MpcController)
     window, forecast = window_and_forecast(ctl)
 
-    def crashing(w_bar: np.ndarray, params: np.ndarray) -> QpSolution:
+    def crashing(shift: bool) -> tuple[bool, int]:
         raise RuntimeError("hpipm: internal error")
 
-    ctl.qp.solve = crashing  # type: ignore[method-assign]
+    ctl.rti.solve = crashing  # type: ignore[method-assign]
     command = ctl.step(START, window, forecast)
     assert command.is_finite() and command.stats.status == "fallback_hover"
     assert ctl.failures == 1

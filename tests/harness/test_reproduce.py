@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 
 import pytest
@@ -91,6 +92,21 @@ def test_a_small_plan_writes_tables_figures_and_summary_and_resumes(
     summary = report.files["SUMMARY.md"].read_text()
     assert "Table I" in summary and "Table II" in summary and "control_static.png" in summary
     assert "not an LLM" in summary
+    recordings = sorted(name for name in report.files if name.endswith(".rrd"))
+    if importlib.util.find_spec("rerun") is not None:
+        # One recording per system (limit 1): NavGPT-style, Full (also Table II's rule row),
+        # random; linked from the summary with the command that opens them.
+        assert [name.split("__")[0] for name in recordings] == [
+            "full",
+            "navgpt-style",
+            "random-not-an-llm",
+        ]
+        assert all(report.files[name].stat().st_size > 10_000 for name in recordings)
+        assert (
+            f"(recordings/{recordings[0]})" in summary and "skyvln-eval view recordings/" in summary
+        )
+    else:
+        assert not recordings and "pip install 'skyvln-eval[viewer]'" in summary
 
     again = reproduce(plan, tmp_path / "out", workers=1, executor="serial")
     assert all(r.ran_now == 0 for r in again.reports)

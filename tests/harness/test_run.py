@@ -170,9 +170,9 @@ def test_an_agent_that_raises_marks_its_episode_error_and_the_run_goes_on(
 
         reset = agent.reset
 
-        def reset_and_remember(episode: Any, world: Any) -> None:
-            agent._episode_id_for_test = episode.episode_id  # type: ignore[attr-defined]
-            reset(episode, world)
+        def reset_and_remember(brief: Any) -> None:
+            agent._episode_id_for_test = brief.episode_id  # type: ignore[attr-defined]
+            reset(brief)
 
         agent.act, agent.reset = act_or_raise, reset_and_remember  # type: ignore[method-assign]
         return agent

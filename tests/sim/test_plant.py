@@ -92,3 +92,25 @@ def test_measure_without_noise_is_the_true_state() -> None:
 def test_bad_plant_settings_name_the_field(make: object, field: str) -> None:
     with pytest.raises(ConfigError, match=field):
         make()  # type: ignore[operator]
+
+
+def test_the_step_function_gives_the_plain_float_integration_bit_for_bit() -> None:
+    from skyvln_eval.sim.plant import rk4_step_floats
+
+    rng = np.random.default_rng(7)
+    config = PlantConfig(wind=WindConfig(mean_m_s=(1.0, -2.0, 0.3), gust_std_m_s=0.5))
+    for _ in range(40):
+        state = DroneState(
+            *rng.uniform(-50, 50, 3),
+            *rng.uniform(-5, 5, 3),
+            *rng.uniform(-0.4, 0.4, 2),
+            yaw_rad=float(rng.choice([math.pi - 1e-3, -math.pi + 1e-3, rng.uniform(-3, 3)])),
+        )
+        plant = Plant(state, config, seed=int(rng.integers(1000)))
+        u = (float(rng.uniform(5, 20)), *(float(v) for v in rng.uniform(-0.4, 0.4, 2)))
+        yaw_ref = float(rng.uniform(-math.pi, math.pi))
+        x = [float(v) for v in plant._x]
+        wind = [float(w) for w in plant.wind_m_s]
+        expected = rk4_step_floats(x, u, wind, yaw_ref, 0.1 / 4, 4, config.params)
+        plant.step(*u, yaw_ref, 0.1)
+        assert np.array_equal(plant._x, np.array(expected))

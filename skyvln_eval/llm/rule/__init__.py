@@ -2,8 +2,8 @@
 
 It reads only the task data of the agent's requests (:mod:`skyvln_eval.llm.taskdata`)
 and answers each task in the JSON an LLM is asked for, so the whole SkyVLN pipeline runs
-and navigates sensibly without a network: sub-goals from clause patterns
-(:mod:`.instructions`), HSD descriptions and rankings from attribute comparison
+and navigates sensibly without a network: sub-goals read with a vocabulary, not sentence
+patterns (:mod:`.instructions`), HSD descriptions and rankings from attribute comparison
 (:mod:`.matching`), motions from landmarks, headings and distances (:mod:`.navigation`).
 Tables label it ``rule-based (not an LLM)`` (its ``kind`` is ``"rule"``).
 """
@@ -28,9 +28,9 @@ RULE_MODEL = "rule-v1"
 def _subgoals(data: dict[str, Any]) -> dict[str, Any]:
     context: list[str] = []
     for text in data.get("previous_rounds", []):
-        context += landmark_phrases(text)
+        context += [p for p in landmark_phrases(text) if p not in context]
     return {
-        "subgoals": parse_instruction(data.get("instruction") or ""),
+        "subgoals": parse_instruction(data.get("instruction") or "", data.get("question")),
         "context_landmarks": context,
     }
 

@@ -1,109 +1,198 @@
-"""The rule backend's reading of instructions: clause patterns to sub-goals.
+"""The rule backend's reading of instructions: a lexicon and keyword reader.
 
-It understands the phrasings commanders use in AVDN-style dialogs (and that the synthetic
-sample's templates produce): compass headings, turns at intersections or landmarks,
-landmarks to pass on a side, distances to fly, landmarks to stop at, and the
-destination's description with its name in brackets. Anything else is ignored, as a
-careful but literal reader would.
+It knows words, not sentences: landmark categories and colours, compass points in their
+many forms, left / right / ahead, numbers and units, verbs of turning, cues of stopping,
+of the destination and of passing, negations (:mod:`skyvln_eval.vocabulary`). Each clause
+is read for those (:mod:`.clauses`); a sentence then puts its clauses together, so the
+order a commander chooses does not matter:
+
+- a compass point not denied ("not north any more") is a heading;
+- a left / right with a verb of turning or at a junction is a turn; a junction's ordinal
+  ("the second crossing") or landmark ("by the church", "the roundabout") qualifies the
+  turn said in the same clause or next to it ("At the first intersection, turn left");
+- a landmark is the destination, a place to stop at, or one to pass by the cues of its
+  clause, or by a cue elsewhere in the sentence ("Target: a red church", "you'll fly past
+  a park, it'll be off your left"), or by a later "that is your destination";
+- a distance belongs to the sentence's stop or destination, or is a stop of its own.
+
+When the instruction answers the follower's question with a no, the compass point the
+follower asked about is denied too ("Still north?" "Negative, ...").
 """
 
 from __future__ import annotations
 
-import re
-from typing import Any, Final
+from typing import Any
 
-from skyvln_eval.agent.lexicon import COMPASS_PATTERN, category_of
+from skyvln_eval.llm.rule.clauses import ClauseReading, read_clause
+from skyvln_eval.llm.rule.text import Word, sentences_of, words_of
+from skyvln_eval.vocabulary import NEGATIVE_ANSWERS, compass_points_in
 
-ORDINALS: Final = {"first": 1, "second": 2, "third": 3, "fourth": 4, "fifth": 5, "next": 1}
-_DISTANCE = r"(\d+(?:\.\d+)?)\s*(?:m|meters|metres)\b"
-_PATTERNS: Final = (
-    (
-        "turn_nth",
-        re.compile(r"turn (left|right) at the (first|second|third|fourth|fifth|next) intersection"),
-    ),
-    (
-        "turn_by",
-        re.compile(r"turn (left|right) at the (?:intersection|crossing) (?:by|near|with) (.+)"),
-    ),
-    ("roundabout", re.compile(r"at the (roundabout|traffic circle),? take the (left|right)")),
-    ("see_after", re.compile(rf"after about {_DISTANCE} you will see (.+)")),
-    (
-        "pass",
-        re.compile(r"(?:you will pass|keep|pass) (.+?) (on your (left|right)|in front of you)"),
-    ),
-    ("stop_after", re.compile(rf"(?:stop|land|wait) after (?:about )?{_DISTANCE}")),
-    ("fly_about", re.compile(rf"(?:fly|go|move) (?:about|around|roughly) {_DISTANCE}")),
-    ("stop_at", re.compile(r"stop (?:when you reach|at) (.+)")),
-    ("stop_over", re.compile(r"stop (?:over|above) (.+)")),
-    ("destination_is", re.compile(r"(?:the|your) destination is (.+)")),
-    ("turn", re.compile(r"\bturn (left|right)\b")),
-)
-_DESTINATION_TAIL = re.compile(r"^that is (?:the|your) destination$")
+Goal = dict[str, Any]
+_ROLELESS = "mention"  # a landmark no cue has given a role yet
+_JUNCTION = "junction"  # a junction said before (or without) its turn
 
 
-def _landmark(phrase: str) -> tuple[str, str | None]:
-    """A landmark phrase without its bracketed name, and the name."""
-    name = re.search(r"\(([^)]+)\)", phrase)
-    cleaned = re.sub(r"\s*\([^)]*\)", "", phrase).strip(" ,.;")
-    return cleaned, None if name is None else name.group(1).strip()
+class _Sentence:
+    """The goals one sentence adds, and what its clauses left for the others to settle."""
+
+    def __init__(self, goals: list[Goal], denied: set[str]) -> None:
+        self.goals = goals  # the whole instruction's, appended to in order
+        self.start = len(goals)
+        self.denied = denied
+        self.turn_waiting: Goal | None = None
+        self.junction_waiting: Goal | None = None
+        self.free_destination: list[int] = []
+        self.free_stop: list[int] = []
+        self.free_sides: list[str] = []
+        self.distance_m: float | None = None
+        self.clause_of: dict[int, int] = {}  # id(goal) -> clause index
+
+    def own(self) -> list[Goal]:
+        return self.goals[self.start :]
+
+    def add(self, goal: Goal, clause: int) -> Goal:
+        self.goals.append(goal)
+        self.clause_of[id(goal)] = clause
+        return goal
+
+    def drop(self, goal: Goal) -> None:
+        """Remove this very goal (an equal one elsewhere stays)."""
+        del self.goals[next(i for i, g in enumerate(self.goals) if g is goal)]
+
+    def read(self, k: int, r: ClauseReading) -> None:
+        for point in r.headings:
+            last = self.goals[-1] if self.goals else {}
+            if point not in self.denied and last != {"kind": "head", "direction": point}:
+                self.add({"kind": "head", "direction": point}, k)
+        if r.turn is not None:
+            turn = self.add({"kind": "turn", "direction": r.turn}, k)
+            said = self._junction(r)  # "the second right", "left at the church"
+            if said:
+                turn.update(said)
+            elif self.junction_waiting is not None:  # "At the second crossing, bear left"
+                self.drop(self.junction_waiting)
+                turn.update({f: v for f, v in self.junction_waiting.items() if f != "kind"})
+                self.junction_waiting = None
+            else:
+                self.turn_waiting = turn
+        elif r.junction:
+            qualifier = self._junction(r)
+            if self.turn_waiting is not None:  # "Turn left, at the second crossing"
+                self.turn_waiting.update(qualifier)
+                self.turn_waiting = None
+            else:
+                self.junction_waiting = self.add({"kind": _JUNCTION, **qualifier}, k)
+        else:
+            self._landmarks(k, r)
+        if r.distance_m is not None and self.distance_m is None:
+            self.distance_m = r.distance_m
+
+    @staticmethod
+    def _junction(r: ClauseReading) -> Goal:
+        qualifier: Goal = {} if r.ordinal is None else {"ordinal": r.ordinal}
+        landmark = r.roundabout or next(iter(r.mentions), None)
+        if landmark is not None:
+            qualifier["landmark"] = landmark.phrase
+        return qualifier
+
+    def _landmarks(self, k: int, r: ClauseReading) -> None:
+        sure = not r.negated
+        for m in r.mentions:
+            if r.destination and sure:
+                kind = "destination"
+            elif r.stop and sure:
+                kind = "stop_at"
+            elif r.side is not None or r.passing:
+                kind = "pass"
+            else:
+                kind = _ROLELESS
+            goal = self.add({"kind": kind, "landmark": m.phrase}, k)
+            if kind == "pass" and r.side is not None:
+                goal["side"] = r.side
+        for name in r.names:  # a name follows the landmark it names
+            named = [g for g in self.own() if g.get("landmark") and g["kind"] != "turn"]
+            if named and "name" not in named[-1]:
+                named[-1]["name"] = name
+        if not r.mentions:
+            if r.destination and sure:
+                self.free_destination.append(k)
+            elif r.stop and sure:
+                self.free_stop.append(k)
+            if r.side is not None and r.turn is None:
+                self.free_sides.append(r.side)
+
+    def settle(self) -> None:
+        """Give the cues said apart from their landmark to it; the distance to the stop."""
+        for g in self.own():  # a junction no turn came for: a roundabout is just a landmark
+            if g["kind"] == _JUNCTION:
+                if "landmark" in g:
+                    g.pop("ordinal", None)
+                    g["kind"] = _ROLELESS
+                else:
+                    self.drop(g)
+        own = self.own()
+        for side in self.free_sides:
+            open_ = [g for g in own if g["kind"] in ("pass", _ROLELESS) and "side" not in g]
+            if open_:
+                open_[-1].update(kind="pass", side=side)
+        for k in self.free_destination:
+            target = self._nearest_roleless(k) or next(
+                (g for g in reversed(self.goals) if g["kind"] in ("pass", "stop_at")), None
+            )
+            if target is not None:
+                target["kind"] = "destination"
+                target.pop("side", None)
+        for k in self.free_stop:
+            target = self._nearest_roleless(k)
+            if target is not None:
+                target["kind"] = "stop_at"
+        if self.distance_m is not None:
+            stops = [g for g in own if g["kind"] in ("destination", "stop_at")]
+            roleless = [g for g in own if g["kind"] == _ROLELESS]
+            if stops and "distance_m" not in stops[0]:
+                stops[0]["distance_m"] = self.distance_m
+            elif roleless:  # "the church in 200 m": where to go, and how far
+                roleless[-1].update(kind="stop_at", distance_m=self.distance_m)
+            elif not stops:
+                self.goals.append({"kind": "stop_after", "distance_m": self.distance_m})
+        for g in self.own():
+            if g["kind"] == _ROLELESS:
+                g["kind"] = "pass"
+
+    def _nearest_roleless(self, k: int) -> Goal | None:
+        roleless = [g for g in self.own() if g["kind"] == _ROLELESS]
+        after = [g for g in roleless if self.clause_of[id(g)] >= k]
+        return after[0] if after else (roleless[-1] if roleless else None)
 
 
-def _goal(kind: str, **fields: Any) -> dict[str, Any]:
-    return {"kind": kind, **{k: v for k, v in fields.items() if v is not None}}
+def _denied_by_answer(text: str, question: str | None) -> set[str]:
+    """Compass points the follower asked about, when the instruction opens with a no."""
+    words = [w for w in words_of(text) if isinstance(w, Word)]
+    if not question or not words or words[0].low not in NEGATIVE_ANSWERS:
+        return set()
+    asked = [w.text for w in words_of(question) if isinstance(w, Word)]
+    return {point for _, point in compass_points_in(asked)}
 
 
-def _clause_goals(clause: str) -> list[dict[str, Any]]:
-    for name, pattern in _PATTERNS:
-        m = pattern.search(clause)
-        if m is None:
-            continue
-        if name == "turn_nth":
-            return [_goal("turn", direction=m.group(1), ordinal=ORDINALS[m.group(2)])]
-        if name == "turn_by":
-            return [_goal("turn", direction=m.group(1), landmark=_landmark(m.group(2))[0])]
-        if name == "roundabout":
-            return [_goal("turn", direction=m.group(2), landmark=m.group(1))]
-        if name == "see_after":
-            phrase, label = _landmark(m.group(2))
-            return [_goal("stop_at", landmark=phrase, name=label, distance_m=float(m.group(1)))]
-        if name == "pass":
-            side = m.group(3) or "ahead"
-            return [_goal("pass", landmark=_landmark(m.group(1))[0], side=side)]
-        if name in ("stop_after", "fly_about"):
-            return [_goal("stop_after", distance_m=float(m.group(1)))]
-        if name in ("stop_at", "stop_over"):
-            phrase, label = _landmark(m.group(1))
-            return [_goal("stop_at", landmark=phrase, name=label)]
-        if name == "destination_is":
-            phrase, label = _landmark(m.group(1))
-            return [_goal("destination", landmark=phrase, name=label)]
-        if name == "turn":
-            return [_goal("turn", direction=m.group(1))]
-    compass = re.search(COMPASS_PATTERN, clause)
-    if compass and re.search(r"\b(head|fly|go|move|towards|continue|keep)\b", clause):
-        return [_goal("head", direction=compass.group(1))]
-    return []
-
-
-def parse_instruction(text: str) -> list[dict[str, Any]]:
-    """Sub-goals (as JSON dicts) of one instruction, in order."""
-    goals: list[dict[str, Any]] = []
-    for clause in re.split(r"[.;,]\s*|\s+then\s+", text.lower()):
-        clause = clause.strip()
-        if not clause:
-            continue
-        if _DESTINATION_TAIL.match(clause) and goals and goals[-1].get("landmark"):
-            goals[-1]["kind"] = "destination"
-            continue
-        goals.extend(_clause_goals(clause))
-    # A bracketed name split off by a comma inside brackets is rare; names stay as found.
-    return [g for g in goals if g["kind"] != "turn" or "direction" in g]
+def parse_instruction(text: str, question: str | None = None) -> list[dict[str, Any]]:
+    """Sub-goals (as JSON dicts) of one instruction, in order; ``question`` is the
+    follower's question the instruction answers, if any."""
+    goals: list[Goal] = []
+    denied = _denied_by_answer(text, question)
+    for clauses in sentences_of(text):
+        sentence = _Sentence(goals, denied)
+        for k, clause in enumerate(clauses):
+            sentence.read(k, read_clause(clause))
+        sentence.settle()
+    return goals
 
 
 def landmark_phrases(text: str) -> list[str]:
-    """Every landmark phrase an instruction mentions (for earlier rounds' context)."""
-    return [
-        g["landmark"]
-        for g in parse_instruction(text)
-        if g.get("landmark") and category_of(g["landmark"])
+    """Every landmark phrase a text mentions (earlier rounds' context), once each."""
+    phrases = [
+        m.phrase
+        for clauses in sentences_of(text)
+        for clause in clauses
+        for m in read_clause(clause).mentions
     ]
+    return list(dict.fromkeys(phrases))

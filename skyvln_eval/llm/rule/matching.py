@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from skyvln_eval.agent.lexicon import category_of, colours_in, compass_word, content_words
+from skyvln_eval.vocabulary import category_of, colours_in, compass_word, content_words
 
 LEVEL_SCORE = {"strong": 3.0, "partial": 2.0, "weak": 1.0, "none": 0.0, "unknown": 1.0}
 

@@ -19,8 +19,8 @@ from __future__ import annotations
 import math
 from typing import Any, Final
 
-from skyvln_eval.agent.lexicon import COMPASS, category_of, text_similarity
 from skyvln_eval.llm.rule.instructions import parse_instruction
+from skyvln_eval.vocabulary import COMPASS, category_of, text_similarity
 
 #: View edges (m) the rule aims for when stopping: over a landmark of unknown size, and
 #: at a place given only by a distance (the middle of typical AVDN end views).
@@ -242,7 +242,7 @@ def decide_motion(state: dict[str, Any]) -> dict[str, Any]:
 def decide_navgpt(state: dict[str, Any]) -> dict[str, Any]:
     """A decision for the NavGPT-style task: instruction, view-level observations, history."""
     pose = state["pose"]
-    goals = parse_instruction(state["dialog"]["instruction"])
+    goals = parse_instruction(state["dialog"]["instruction"], state["dialog"].get("question"))
     goal = next((g for g in goals if g["kind"] in ("destination", "stop_at")), None)
     if goal is not None:
         seen = [

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -32,9 +32,12 @@ from skyvln_eval.fileio import atomic_write_bytes, atomic_write_json, sha256_fil
 from skyvln_eval.worlds.city import CityTile, generate_city
 from skyvln_eval.worlds.city.generate import GENERATOR_VERSION
 from skyvln_eval.worlds.layers import write_world_layers
-from skyvln_eval.worlds.sample.dialogs import DialogWriter, attention_circles
+from skyvln_eval.worlds.sample.dialogs import DIALOG_VERSION, attention_circles, render_trajectory
+from skyvln_eval.worlds.sample.facts import FactFinder, RoundFacts
+from skyvln_eval.worlds.sample.phrasebook import SPLIT_FAMILIES
 from skyvln_eval.worlds.sample.pilot import PilotFailed, PlanGeo, fly_route, plan_edges
 from skyvln_eval.worlds.sample.routes import plan_route
+from skyvln_eval.worlds.sample.sources import DIALOGS_FILE, TrajectoryDialog, dialogs_document
 from skyvln_eval.worlds.tile import Landmark
 
 DATASET_INFO = "DATASET_INFO.json"
@@ -163,9 +166,22 @@ def _rounds_count(rng: np.random.Generator, remaining: int) -> int:
     return min(wanted, remaining)
 
 
+def wording_seed(spec: DatasetSpec, map_index: int, split: str, traj: int) -> int:
+    """The seed of one trajectory's wording stream, apart from the stream of its route."""
+    sequence = np.random.SeedSequence([spec.seed, map_index, SPLIT_CODES[split], traj])
+    return int(sequence.generate_state(1)[0])
+
+
 def _trajectory_records(
-    rng: np.random.Generator, city: CityTile, geo: PlanGeo, map_name: str, traj: int, n_rounds: int
-) -> list[dict[str, Any]]:
+    rng: np.random.Generator,
+    city: CityTile,
+    geo: PlanGeo,
+    map_name: str,
+    traj: int,
+    n_rounds: int,
+    families: tuple[str, ...],
+    seed: int,
+) -> tuple[list[dict[str, Any]], TrajectoryDialog]:
     """Plan, fly and describe one trajectory; one AVDN record per round."""
     for _ in range(300):
         route = plan_route(rng, city.plan, n_rounds)
@@ -179,24 +195,26 @@ def _trajectory_records(
         break
     else:  # pragma: no cover - a tile without any flyable route would be a generator bug
         raise RuntimeError(f"could not plan a {n_rounds}-round trajectory on map {map_name}")
-    writer = DialogWriter(rng, route, geo, city.plan.landmarks)
+    finder = FactFinder(rng, route, geo, city.plan.landmarks)
+    facts: list[RoundFacts] = []
+    used: set[int] = set()
+    for r, views in enumerate(rounds):
+        round_facts = finder.round_facts(r, views, used)
+        used |= set(round_facts.mentioned_ids)
+        if r > 0:
+            round_facts = replace(round_facts, question=finder.question(r))
+        facts.append(round_facts)
+    utterances = render_trajectory(facts, families, seed)
+    by_id = {lm.landmark_id: lm for lm in city.plan.landmarks}
     georef = geo.georef
     destination = _destination_corners(geo, route.destination.polygon)
     records: list[dict[str, Any]] = []
     texts: list[str] = []
     attention: list[list[Any]] = []
-    used: set[int] = set()
-    for r, views in enumerate(rounds):
-        segment = writer.segment(r, views, used)
-        used |= {lm.landmark_id for lm in segment.mentioned}
-        if r == 0:
-            text = f"[INS] {segment.instructions}"
-        else:
-            question, answer = writer.question(r)
-            body = segment.instructions[0].lower() + segment.instructions[1:]
-            text = f"[QUE] {question} [INS] {answer}, {body}"
+    for r, (views, utterance) in enumerate(zip(rounds, utterances, strict=True)):
+        mentioned = [by_id[i] for i in facts[r].mentioned_ids]
         attention = attention + attention_circles(
-            geo, segment.mentioned, route.point_at(route.stop_s[r]), city.metres_per_px
+            geo, mentioned, route.point_at(route.stop_s[r]), city.metres_per_px
         )
         angle = start_heading if r == 0 else float(view_heading_deg(views[0]))
         records.append(
@@ -204,7 +222,7 @@ def _trajectory_records(
                 "map_name": map_name,
                 "route_index": f"{traj}_{r + 1}",
                 "last_round_idx": len(rounds),
-                "instructions": text,
+                "instructions": utterance.text,
                 "pre_dialogs": list(texts),
                 "gps_botm_left": list(georef.gps_botm_left),
                 "gps_top_right": list(georef.gps_top_right),
@@ -216,13 +234,22 @@ def _trajectory_records(
                 "attention_list": list(attention),
             }
         )
-        texts.append(text)
-    return records
+        texts.append(utterance.text)
+    dialog = TrajectoryDialog(
+        map_name, str(traj), seed, tuple(facts), tuple(u.frames for u in utterances)
+    )
+    return records, dialog
 
 
-def build_map(
-    spec: DatasetSpec, map_index: int, out_dir: str | Path
-) -> dict[str, list[dict[str, Any]]]:
+@dataclass(frozen=True)
+class MapOutput:
+    """One map's share of a split: its records and its trajectories' dialogs."""
+
+    records: list[dict[str, Any]]
+    dialogs: list[TrajectoryDialog]
+
+
+def build_map(spec: DatasetSpec, map_index: int, out_dir: str | Path) -> dict[str, MapOutput]:
     """Generate one map (image, layers) and its records for every split it serves."""
     out_dir = Path(out_dir)
     map_name, splits = spec.map_splits()[map_index]
@@ -248,7 +275,7 @@ def build_map(
             "metres_per_px": spec.metres_per_px,
         },
     )
-    out: dict[str, list[dict[str, Any]]] = {}
+    out: dict[str, MapOutput] = {}
     traj = 0
     for split in splits:
         rng = np.random.default_rng(
@@ -256,12 +283,18 @@ def build_map(
         )
         remaining = spec.quota(split, map_name)
         records: list[dict[str, Any]] = []
+        dialogs: list[TrajectoryDialog] = []
         while remaining > 0:
             n_rounds = _rounds_count(rng, remaining)
-            records += _trajectory_records(rng, city, geo, map_name, traj, n_rounds)
+            seed = wording_seed(spec, map_index, split, traj)
+            new, dialog = _trajectory_records(
+                rng, city, geo, map_name, traj, n_rounds, SPLIT_FAMILIES[split], seed
+            )
+            records += new
+            dialogs.append(dialog)
             remaining -= n_rounds
             traj += 1
-        out[split] = records
+        out[split] = MapOutput(records, dialogs)
     return out
 
 
@@ -274,7 +307,7 @@ def build_dataset(
     """Write the whole dataset under ``out_dir``; returns the dataset info it also writes."""
     out_dir = Path(out_dir)
     maps = spec.map_splits()
-    per_map: list[dict[str, list[dict[str, Any]]]] = []
+    per_map: list[dict[str, MapOutput]] = []
     if workers > 1:
         with ProcessPoolExecutor(max_workers=workers) as pool:
             futures = [pool.submit(build_map, spec, i, out_dir) for i in range(len(maps))]
@@ -288,14 +321,19 @@ def build_dataset(
             if on_map_done:
                 on_map_done(name)
     counts = {}
+    dialogs: dict[str, list[TrajectoryDialog]] = {}
+    empty = MapOutput([], [])
     for split in SPLIT_CODES:
-        records = [r for result in per_map for r in result.get(split, [])]
+        records = [r for result in per_map for r in result.get(split, empty).records]
         atomic_write_json(out_dir / ANNOTATIONS_DIR / annotation_file_name(split), records)
         counts[split] = len(records)
+        dialogs[split] = [d for m in per_map for d in m.get(split, empty).dialogs]
+    atomic_write_json(out_dir / DIALOGS_FILE, dialogs_document(dialogs), indent=1)
     files = sorted(p for p in out_dir.rglob("*") if p.is_file() and p.name != DATASET_INFO)
     info = {
         "format": "skyvln-eval/synthetic-avdn",
         "generator_version": GENERATOR_VERSION,
+        "dialog_version": DIALOG_VERSION,
         "spec": {**asdict(spec), "records": dict(spec.records)},
         "records": counts,
         "maps": {name: list(splits) for name, splits in maps},

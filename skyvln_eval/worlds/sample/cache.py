@@ -2,7 +2,7 @@
 
 The sample is generated, not shipped: on first use it is built into the cache
 (``$SKYVLN_EVAL_CACHE``, else ``$XDG_CACHE_HOME/skyvln-eval``, else
-``~/.cache/skyvln-eval``) under a name that includes the generator version and a hash of
+``~/.cache/skyvln-eval``) under a name that includes the generator and dialog versions and a hash of
 the spec, in a temporary folder renamed into place when complete.
 """
 
@@ -19,13 +19,14 @@ from pathlib import Path
 from skyvln_eval.paths import cache_root
 from skyvln_eval.worlds.city.generate import GENERATOR_VERSION
 from skyvln_eval.worlds.sample.build import DATASET_INFO, SPECS, DatasetSpec, build_dataset
+from skyvln_eval.worlds.sample.dialogs import DIALOG_VERSION
 
 
 def dataset_dir_name(spec: DatasetSpec) -> str:
     digest = hashlib.sha256(
         json.dumps({**asdict(spec), "records": dict(spec.records)}, sort_keys=True).encode()
     ).hexdigest()[:10]
-    return f"{spec.name}-g{GENERATOR_VERSION}-{digest}"
+    return f"{spec.name}-g{GENERATOR_VERSION}d{DIALOG_VERSION}-{digest}"
 
 
 def is_complete(path: Path) -> bool:

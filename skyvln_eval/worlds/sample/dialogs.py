@@ -1,241 +1,221 @@
-"""Commander / follower dialogs for synthetic trajectories, from templates.
+"""Commander / follower dialogs for synthetic trajectories: facts put into words.
 
-Instructions mention what a commander looking at the map would: compass directions,
-turns at intersections, distances, landmarks actually inside the ground-truth views
-(with the side they are on) and the destination's appearance. Later rounds open with
-the follower's question (``[QUE]``) and the commander's answer (``[INS]``), as in AVDN.
+Instructions say what a commander looking at the map would (:mod:`.facts`): compass
+headings, turns at intersections, distances, landmarks inside the ground-truth views
+(with the side they are on) and the destination's appearance. Each clause is written
+with a sentence frame drawn from the families a split speaks (:mod:`.phrasebook`), from
+a wording stream of its own, so the same route can be phrased by any family. Later
+rounds open with the follower's question (``[QUE]``) and the commander's answer
+(``[INS]``), as in AVDN.
 """
 
 from __future__ import annotations
 
+import re
+import string
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Final, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
-from skyvln_eval.avdn.geometry import point_in_view_strict
 from skyvln_eval.worlds.city.plan import LandmarkSpec
+from skyvln_eval.worlds.sample.facts import LandmarkFact, RoundFacts
+from skyvln_eval.worlds.sample.phrasebook import Family, families_named
 from skyvln_eval.worlds.sample.pilot import PlanGeo
-from skyvln_eval.worlds.sample.routes import Route, compass_bearing
+from skyvln_eval.worlds.sample.wording import compass_erly, compass_ward
 
-CARDINALS = ("north", "northeast", "east", "southeast", "south", "southwest", "west", "northwest")
-ORDINALS = ("first", "second", "third", "fourth")
-CATEGORY_WORDS = {
-    "restaurant": "restaurant",
-    "church": "church",
-    "stadium": "stadium",
-    "gas_station": "gas station",
-    "roundabout": "roundabout",
-    "bridge": "bridge",
-    "park": "park",
-    "school": "school",
-    "hospital": "hospital",
-    "mall": "shopping mall",
-    "hotel": "hotel",
-    "tower": "tall tower",
-    "water_tower": "water tower",
+#: Version of the dialogs' wording: 1 spoke a handful of fixed frames; 2 speaks families
+#: of frames, disjoint between seen and unseen splits. Part of the sample's cache key.
+DIALOG_VERSION: Final = 2
+
+_ANSWER_SLOTS: Final = {
+    "which_way": "answer.which_way",
+    "close": "answer.close",
+    "is_it": "answer.is_it",
+    "can_see": "answer.can_see",
 }
-
-
-def cardinal(bearing_deg: float) -> str:
-    return CARDINALS[int(((bearing_deg % 360) + 22.5) // 45) % 8]
-
-
-def side_of(route_bearing: float, from_xy: NDArray[np.float64], to_xy: NDArray[np.float64]) -> str:
-    """'left', 'right' or 'ahead' of a traveller heading ``route_bearing``."""
-    delta = (compass_bearing(from_xy, to_xy) - route_bearing + 180.0) % 360.0 - 180.0
-    if delta > 25:
-        return "right"
-    if delta < -25:
-        return "left"
-    return "ahead"
+_SENTENCE_START = re.compile(r"(^|[.!?]\s+)([a-z])")
 
 
 @dataclass(frozen=True)
-class RoundText:
-    instructions: str
-    mentioned: tuple[LandmarkSpec, ...]
+class Utterance:
+    """Text and the ids of the frames it was written with, in order."""
+
+    text: str
+    frames: tuple[str, ...]
 
 
-class DialogWriter:
-    """Writes every round of one trajectory."""
+@dataclass(frozen=True)
+class AnswerFacts:
+    """What the commander tells a follower who asks the way, from the ground-truth route.
 
-    def __init__(
-        self, rng: np.random.Generator, route: Route, geo: PlanGeo, landmarks: list[LandmarkSpec]
-    ) -> None:
-        self.rng = rng
-        self.route = route
-        self.geo = geo
-        self.landmarks = landmarks
+    ``direction``: a compass point ("north", "northeast", ...) to fly, or "left" / "right"
+    to turn, or "ahead" to keep the heading. ``distance_m``: how far to fly. ``landmark``:
+    the description of the next landmark on the route, or of the destination when
+    ``is_destination``. ``wrong_heading``: the compass point the follower is flying when
+    it is the wrong one (the answer then opens with a correction).
+    """
 
-    def pick(self, options: tuple[str, ...] | list[str]) -> str:
-        return str(options[int(self.rng.integers(len(options)))])
+    direction: str
+    distance_m: float | None = None
+    landmark: str | None = None
+    is_destination: bool = False
+    wrong_heading: str | None = None
 
-    def phrase(self, lm: LandmarkSpec, with_name: bool = False) -> str:
-        text = lm.description
-        if with_name and lm.category not in ("park", "bridge", "roundabout"):
-            text += f" ({lm.name})"
-        return text
 
-    def visible(self, views: list[NDArray[np.float64]], exclude: set[int]) -> list[LandmarkSpec]:
-        centres = self.geo.to_latlng(np.array([lm.polygon.mean(axis=0) for lm in self.landmarks]))
-        seen = np.zeros(len(self.landmarks), bool)
-        for view in views:
-            seen |= np.asarray(point_in_view_strict(centres, view))
-        return [
-            lm
-            for lm, s in zip(self.landmarks, seen, strict=True)
-            if s and lm.landmark_id not in exclude
-        ]
+def sentence_case(text: str) -> str:
+    return _SENTENCE_START.sub(lambda m: m.group(1) + m.group(2).upper(), text)
 
-    def turns(self, s0: float, s1: float) -> list[tuple[float, str]]:
-        out = []
-        for s in self.route.node_s:
-            if s0 + 10 < s < s1 - 5:
-                before = self.route.bearing_at(s - 20.0, 20.0)
-                after = self.route.bearing_at(s, 20.0)
-                delta = (after - before + 180.0) % 360.0 - 180.0
-                if abs(delta) > 35:
-                    out.append((s, "right" if delta > 0 else "left"))
-        return out
 
-    def intersections_before(self, s0: float, s: float) -> int:
-        return sum(1 for t in self.route.node_s if s0 + 10 < t <= s + 1)
+Value = str | int | LandmarkFact | None
 
-    def segment(self, r: int, views: list[NDArray[np.float64]], used: set[int]) -> RoundText:
-        """The instruction part for round ``r`` (0-based): where to go and where to stop."""
-        s0 = 0.0 if r == 0 else self.route.stop_s[r - 1]
-        s1 = self.route.stop_s[r]
-        final = r == len(self.route.stop_s) - 1
-        heading = self.route.bearing_at(s0, 25.0)
-        parts = [
-            self.pick(
-                (
-                    f"head {cardinal(heading)} along the road",
-                    f"fly {cardinal(heading)} following the street",
-                    f"go {cardinal(heading)}",
-                    f"move towards the {cardinal(heading)}",
-                )
-            )
-        ]
-        mentioned: list[LandmarkSpec] = []
-        for s, direction in self.turns(s0, s1)[:2]:
-            nth = self.intersections_before(s0, s)
-            at = self._landmark_near(
-                self.route.point_at(s), 45.0, used | {m.landmark_id for m in mentioned}
-            )
-            if at is not None and at.category == "roundabout":
-                parts.append(f"at the roundabout take the {direction}")
-                mentioned.append(at)
-            elif at is not None and self.rng.random() < 0.6:
-                word = CATEGORY_WORDS.get(at.category, at.category)
-                parts.append(f"turn {direction} at the intersection by the {word}")
-                mentioned.append(at)
-            else:
-                which = ORDINALS[min(nth, 4) - 1] if nth else "next"
-                parts.append(f"turn {direction} at the {which} intersection")
-        passing = [
-            lm
-            for lm in self.visible(views, used | {m.landmark_id for m in mentioned})
-            if lm.landmark_id != self.route.destination.landmark_id
-        ]
-        if passing and self.rng.random() < 0.8:
-            lm = passing[int(self.rng.integers(len(passing)))]
-            closest = self._closest_s(lm, s0, s1)
-            side = side_of(
-                self.route.bearing_at(closest),
-                self.route.point_at(closest),
-                lm.polygon.mean(axis=0),
-            )
-            where = "in front of you" if side == "ahead" else f"on your {side}"
-            parts.append(
-                self.pick(
-                    (f"you will pass {self.phrase(lm)} {where}", f"keep {self.phrase(lm)} {where}")
-                )
-            )
-            mentioned.append(lm)
-        metres = int(round((s1 - s0) / 50.0) * 50) or 50
-        if final:
-            dest = self.route.destination
-            with_name = self.rng.random() < 0.35
-            parts.append(
-                self.pick(
-                    (
-                        f"the destination is {self.phrase(dest, with_name)}",
-                        f"stop over {self.phrase(dest, with_name)}, that is the destination",
-                        f"after about {metres} meters you will see {self.phrase(dest, with_name)}; "
-                        "that is your destination",
-                    )
-                )
-            )
-            mentioned.append(dest)
+
+class Clause(NamedTuple):
+    text: str
+    frame_id: str
+    family: Family
+
+
+class Phraser:
+    """Writes clauses with frames of ``families``, choosing from a stream seeded by ``seed``."""
+
+    def __init__(self, families: Sequence[str], seed: int) -> None:
+        self.families = families_named(families)
+        self.rng = np.random.default_rng(seed)
+
+    def family(self) -> Family:
+        return self.families[int(self.rng.integers(len(self.families)))]
+
+    def clause(self, slot: str, **facts: Value) -> Clause:
+        """One clause saying ``facts`` in the frame for ``slot`` of a family drawn at random."""
+        family = self.family()
+        frame = family.frame(slot)
+        fields = [f for _, f, _, _ in string.Formatter().parse(frame.template) if f]
+        text = frame.template.format(**{f: self._value(family, f, facts) for f in fields})
+        return Clause(text, frame.frame_id, family)
+
+    def _value(self, family: Family, field: str, facts: dict[str, Value]) -> str:
+        style = family.style
+        value = facts[field.split("_")[0]]  # dir_erly and dir_ward say "dir" another way
+        if isinstance(value, LandmarkFact):  # lm
+            named = "" if value.name is None else style.name.format(name=value.name)
+            return value.description + named
+        if field in ("dir", "old"):
+            return style.point(self.rng, str(value))
+        if field.endswith("_erly"):
+            return compass_erly(str(value))
+        if field.endswith("_ward"):
+            return compass_ward(str(value))
+        if field == "nth" and isinstance(value, int):
+            return style.ordinal(value)
+        if field == "side":
+            return style.sides[str(value)]
+        if field == "dist" and isinstance(value, int):
+            return style.distance(self.rng, value)
+        if value is None:
+            raise ValueError(f"frame field {field!r} has no value")
+        return str(value)  # lr, word, lm given as text
+
+    def join(self, clauses: list[Clause]) -> Utterance:
+        """Clauses as sentences: all but the last joined in the manner of one of the
+        families, the last on its own, as a commander closes with where to stop."""
+        texts = [c.text for c in clauses]
+        within = self.family().style.within
+        sentences = [within.join(texts[:-1]), texts[-1]] if len(texts) > 1 else texts
+        text = " ".join(s.rstrip(".") + "." for s in sentences)
+        return Utterance(sentence_case(text), tuple(c.frame_id for c in clauses))
+
+
+def _round_clauses(phraser: Phraser, facts: RoundFacts) -> list[Clause]:
+    clauses = [phraser.clause("head.road" if facts.along_road else "head", dir=facts.heading)]
+    for turn in facts.turns:
+        if turn.roundabout:
+            clauses.append(phraser.clause("turn.roundabout", lr=turn.direction))
+        elif turn.at is not None:
+            clauses.append(phraser.clause("turn.at", lr=turn.direction, word=turn.at.word))
         else:
-            near = self._landmark_near(
-                self.route.point_at(s1), 60.0, used | {m.landmark_id for m in mentioned}
-            )
-            if near is not None and near.landmark_id != self.route.destination.landmark_id:
-                parts.append(
-                    f"stop when you reach the {CATEGORY_WORDS.get(near.category, near.category)}"
-                )
-                mentioned.append(near)
-            else:
-                parts.append(
-                    self.pick(
-                        (
-                            f"stop after about {metres} meters",
-                            f"fly about {metres} meters and wait there",
-                        )
-                    )
-                )
-        sentences = [", ".join(parts[:-1]), parts[-1]] if len(parts) > 1 else parts
-        text = " ".join(sentence[0].upper() + sentence[1:] + "." for sentence in sentences)
-        return RoundText(text, tuple(mentioned))
+            clauses.append(phraser.clause("turn.nth", lr=turn.direction, nth=turn.ordinal))
+    if facts.passing is not None:
+        passing = facts.passing
+        clauses.append(phraser.clause("pass", lm=passing.landmark, side=passing.side))
+    if facts.destination is not None:
+        slot = "destination.distance" if facts.destination_distance else "destination"
+        clauses.append(phraser.clause(slot, lm=facts.destination, dist=facts.distance_m))
+    elif facts.stop_at is not None:
+        clauses.append(phraser.clause("stop.at", word=facts.stop_at.word))
+    else:
+        clauses.append(phraser.clause("stop.distance", dist=facts.distance_m))
+    return clauses
 
-    def question(self, r: int) -> tuple[str, str]:
-        """The follower's question at the start of round ``r`` (>= 1) and the answer's opening."""
-        s = self.route.stop_s[r - 1]
-        heading = self.route.bearing_at(max(0.0, s - 20), 20)
-        next_heading = self.route.bearing_at(s, 25)
-        near = self._landmark_near(self.route.point_at(s), 120.0, set())
-        options = [
-            ("I am at the stop, which way should I go now?", "Go on"),
-            (
-                f"Should I keep flying {cardinal(heading)}?",
-                "Yes, keep going" if cardinal(heading) == cardinal(next_heading) else "No",
-            ),
-            ("Am I close to the destination?", "Not yet"),
-        ]
-        if near is not None and near.landmark_id != self.route.destination.landmark_id:
-            word = CATEGORY_WORDS.get(near.category, near.category)
-            options.append((f"Is the destination the {word} near me?", "No, it is not"))
-            options.append((f"I can see the {word}. Where to now?", "Good"))
-        q, a = options[int(self.rng.integers(len(options)))]
-        return q, a
 
-    def _landmark_near(
-        self, xy: NDArray[np.float64], radius: float, exclude: set[int]
-    ) -> LandmarkSpec | None:
-        best, best_d = None, radius
-        for lm in self.landmarks:
-            if lm.landmark_id in exclude:
-                continue
-            d = float(np.linalg.norm(lm.polygon.mean(axis=0) - xy))
-            if d < best_d:
-                best, best_d = lm, d
-        return best
+def render_round(phraser: Phraser, facts: RoundFacts) -> Utterance:
+    """One round as an AVDN ``instructions`` string: ``[INS] ...`` or ``[QUE] ... [INS] ...``."""
+    clauses = _round_clauses(phraser, facts)
+    if facts.question is None:
+        body = phraser.join(clauses)
+        return Utterance(f"[INS] {body.text}", body.frames)
+    question = facts.question
+    asked = phraser.clause(f"question.{question.kind}", old=question.heading, word=question.word)
+    if question.kind == "keep":
+        slot = "answer.yes" if question.heading == question.next_heading else "answer.correct"
+    else:
+        slot = _ANSWER_SLOTS[question.kind]
+    answer = _answered(phraser.clause(slot, old=question.heading), phraser.join(clauses))
+    return Utterance(
+        f"[QUE] {sentence_case(asked.text)} [INS] {answer.text}", (asked.frame_id, *answer.frames)
+    )
 
-    def _closest_s(self, lm: LandmarkSpec, s0: float, s1: float) -> float:
-        samples = np.linspace(s0, s1, 24)
-        centre = lm.polygon.mean(axis=0)
-        return float(
-            samples[
-                int(np.argmin([np.linalg.norm(self.route.point_at(s) - centre) for s in samples]))
-            ]
-        )
+
+def _answered(opening: Clause, body: Utterance) -> Utterance:
+    """An answer's opening ("Yes, keep going") joined to the rest in its family's manner."""
+    joiner = opening.family.style.answer_joiner
+    rest = body.text if joiner.endswith(". ") else body.text[0].lower() + body.text[1:]
+    return Utterance(sentence_case(opening.text) + joiner + rest, (opening.frame_id, *body.frames))
+
+
+def render_trajectory(
+    rounds: Sequence[RoundFacts], families: Sequence[str], seed: int
+) -> list[Utterance]:
+    """Every round of one trajectory phrased with frames of ``families`` (the split's own,
+    or any others: the same route in other words), deterministically for ``seed``."""
+    phraser = Phraser(families, seed)
+    return [render_round(phraser, facts) for facts in rounds]
+
+
+def commander_answer(facts: AnswerFacts, families: Sequence[str], seed: int) -> Utterance:
+    """The commander's answer to a follower's clarification question, in the words of
+    ``families`` (e.g. ``SPLIT_FAMILIES[split]``), deterministically for ``seed``.
+
+    It opens with a correction when the follower flies the wrong way, then says which way
+    (a compass point, a turn, or straight on), then how far and what comes next.
+    """
+    phraser = Phraser(families, seed)
+    if facts.wrong_heading is not None:
+        opening = phraser.clause("answer.correct", old=facts.wrong_heading)
+    else:
+        opening = phraser.clause("answer.which_way")
+    clauses = []
+    if facts.direction in ("left", "right"):
+        clauses.append(phraser.clause("turn.here", lr=facts.direction))
+    elif facts.direction == "ahead":
+        clauses.append(phraser.clause("straight"))
+    else:
+        clauses.append(phraser.clause("head", dir=facts.direction))
+    metres = None if facts.distance_m is None else max(50, int(round(facts.distance_m / 50) * 50))
+    if facts.landmark is not None:
+        slot = "destination" if facts.is_destination else "next"
+        if metres is not None:
+            slot += ".distance"
+        clauses.append(phraser.clause(slot, lm=facts.landmark, dist=metres))
+    elif metres is not None:
+        clauses.append(phraser.clause("stop.distance", dist=metres))
+    return _answered(opening, phraser.join(clauses))
 
 
 def attention_circles(
-    geo: PlanGeo, mentioned: tuple[LandmarkSpec, ...], stop_xy: NDArray[np.float64], mpp: float
+    geo: PlanGeo, mentioned: Sequence[LandmarkSpec], stop_xy: NDArray[np.float64], mpp: float
 ) -> list[list[object]]:
     """Attention circles ``[[lat, lng], radius_px]`` on mentioned landmarks and the stop."""
     circles: list[list[object]] = []

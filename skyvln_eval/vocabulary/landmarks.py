@@ -1,4 +1,4 @@
-"""Words the agent and the offline backends share: landmark categories, colours, compass points.
+"""Landmark words: categories and the phrases people use for them, colours, attribute words.
 
 Only vocabulary and small text helpers live here; nothing in it looks at a map.
 """
@@ -13,16 +13,16 @@ CATEGORY_PHRASES: Final[dict[str, tuple[str, ...]]] = {
     "water_tower": ("water tower",),
     "gas_station": ("gas station", "petrol station", "fuel station", "filling station"),
     "mall": ("shopping mall", "shopping centre", "shopping center", "mall"),
-    "restaurant": ("restaurant", "pizzeria", "diner", "cafe"),
+    "restaurant": ("restaurant", "pizzeria", "diner", "cafe", "eatery"),
     "church": ("church", "chapel", "cathedral"),
     "stadium": ("stadium", "arena"),
     "roundabout": ("roundabout", "traffic circle"),
     "bridge": ("bridge",),
     "park": ("park",),
     "school": ("school", "academy"),
-    "hospital": ("hospital",),
-    "hotel": ("hotel",),
-    "tower": ("skyscraper", "tall tower", "tower"),
+    "hospital": ("hospital", "clinic", "medical center", "medical centre"),
+    "hotel": ("hotel", "motel", "inn"),
+    "tower": ("skyscraper", "high-rise", "tall tower", "tower"),
 }
 #: How the detector names each category.
 CATEGORY_LABELS: Final[dict[str, str]] = {c: p[0] for c, p in CATEGORY_PHRASES.items()}
@@ -41,19 +41,6 @@ COLOURS: Final = (
     "brown",
     "dark",
 )
-
-#: Compass points and their bearings, degrees clockwise from north.
-COMPASS: Final[dict[str, float]] = {
-    "north": 0.0,
-    "northeast": 45.0,
-    "east": 90.0,
-    "southeast": 135.0,
-    "south": 180.0,
-    "southwest": 225.0,
-    "west": 270.0,
-    "northwest": 315.0,
-}
-COMPASS_PATTERN: Final = r"\b(north(?:east|west)?|south(?:east|west)?|east|west)\b"
 
 _STOPWORDS: Final = frozenset(
     [
@@ -128,9 +115,3 @@ def text_similarity(phrase: str, label: str, caption: str) -> float:
     if phrase_colours and caption_colours and not phrase_colours & caption_colours:
         score -= 0.2
     return max(0.0, min(1.0, score))
-
-
-def compass_word(bearing_deg: float) -> str:
-    """The nearest of the eight compass points."""
-    names = list(COMPASS)
-    return names[int(((bearing_deg % 360.0) + 22.5) // 45.0) % 8]

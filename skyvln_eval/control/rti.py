@@ -1,0 +1,159 @@
+"""One MPC control step as one CasADi Function: shift, linearise, solve the structured QP.
+
+Per control step Python crosses into compiled code once. The Function takes
+
+- ``plan``: the previous solution (relative to the origin it was computed in),
+- ``guess``: a ready initial guess, used instead of the shifted plan when ``warm[3]`` is 0
+  (the hover guess of a first step, or a plan shifted by several steps after fallbacks),
+- ``params``: :data:`PARAM_LAYOUT` in absolute ENU metres, with the new origin first,
+- ``warm``: ``[plan origin - new origin (3), shift flag]``,
+
+and inside it shifts the plan one step (repeating the last stage) and re-expresses it in
+the new origin, puts the measured state and the applied input in the first stage, moves
+every position to the new origin, linearises the problem at the guess
+(:class:`~skyvln_eval.control.stage_qp.StageQp`) and solves the QP with HPIPM. Its outputs
+are the new plan and the QP's multipliers (HPIPM's code writes them unconditionally).
+
+Compiled (the default), it is called through a ``FunctionBuffer`` bound to preallocated
+numpy arrays: no argument conversion, no allocation, about a microsecond of Python per
+call; the return code says whether HPIPM succeeded and the library reports the iteration
+count (:mod:`.codegen`). Interpreted, it is called as usual and the statistics come from
+CasADi.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import casadi as ca
+import numpy as np
+from numpy.typing import NDArray
+
+from skyvln_eval.control.codegen import maybe_compile, qp_iterations_reader
+from skyvln_eval.control.mpc_config import CompileMode
+from skyvln_eval.control.stage_qp import NZ, StageQp
+from skyvln_eval.sim.quadrotor import NU, NX
+
+#: Blocks of the ``params`` input, in order (N = horizon steps, M = obstacle slots).
+PARAM_LAYOUT = (
+    ("origin", "(3,) the positions' origin (the drone's position)"),
+    ("x0", "(8,) the measured model state"),
+    ("u_applied", "(3,) the input applied last step"),
+    ("x_ref", "(N + 1, 8) reference states, now and N steps ahead"),
+    ("u_ref", "(N, 3) reference inputs"),
+    ("obstacles", "(M, N, 3) obstacle centres at steps 1..N (an empty slot at the origin)"),
+    ("keep_out", "(M,) keep-out radii"),
+    ("active", "(M,) 1 for a filled obstacle slot"),
+)
+
+
+class RtiStep:
+    """The compiled (or interpreted) step Function of one :class:`StageQp`, with its buffers.
+
+    Fill :attr:`inputs` (views into the parameter buffer, one per :data:`PARAM_LAYOUT`
+    block), :attr:`plan` or :attr:`guess`, then call :meth:`solve`; the solution is in
+    :attr:`w`.
+    """
+
+    def __init__(self, qp: StageQp, compile_mode: CompileMode, name: str) -> None:
+        self.qp = qp
+        n, m = qp.config.horizon_steps, qp.config.max_obstacles
+        shapes = {
+            "origin": (3,),
+            "x0": (NX,),
+            "u_applied": (NU,),
+            "x_ref": (n + 1, NX),
+            "u_ref": (n, NU),
+            "obstacles": (m, n, 3),
+            "keep_out": (m,),
+            "active": (m,),
+        }
+        sizes = [int(np.prod(shape)) for shape in shapes.values()]
+        self.params = np.zeros(sum(sizes))
+        ends = np.cumsum(sizes)
+        #: Writable views into the parameter buffer, by block name.
+        self.inputs: dict[str, NDArray[np.float64]] = {
+            key: self.params[end - size : end].reshape(shape)
+            for (key, shape), size, end in zip(shapes.items(), sizes, ends, strict=True)
+        }
+        self.plan = np.zeros(qp.n_w)
+        self.guess = np.zeros(qp.n_w)
+        self.warm = np.zeros(4)
+        self.w = np.zeros(qp.n_w)
+        self._lam_a = np.zeros(qp.solver.size1_in("lam_a0"))
+        self._lam_x = np.zeros(qp.n_w)
+        function = self._function(name, sizes)
+        built = maybe_compile(function, compile_mode)
+        self.function, self.compiled = built.function, built.compiled
+        self._iterations = qp_iterations_reader(built)
+        self._trigger: Any = None
+        self._buffer: Any = None  # casadi's stubs misdescribe FunctionBuffer.set_arg
+        if self.compiled:
+            # The buffer reads and writes these arrays in place: they must stay the same objects.
+            self._buffer, self._trigger = self.function.buffer()
+            for index, array in enumerate((self.plan, self.guess, self.params, self.warm)):
+                self._buffer.set_arg(index, array.data)
+            for index, array in enumerate((self.w, self._lam_a, self._lam_x)):
+                self._buffer.set_res(index, array.data)
+
+    def solve(self, shift: bool) -> tuple[bool, int]:
+        """Run the step Function: from the shifted :attr:`plan` (``shift``) or from
+        :attr:`guess`. Returns whether the QP was solved and its iteration count."""
+        self.warm[3] = 1.0 if shift else 0.0
+        if self._trigger is not None:
+            self._trigger()
+            ok = self._buffer.ret() == 0
+            iterations = self._iterations() if self._iterations is not None else -1
+        else:
+            out = self.function(self.plan, self.guess, self.params, self.warm)
+            self.w[:] = np.asarray(out[0]).ravel()
+            stats = self.function.stats()
+            ok, iterations = bool(stats.get("success")), int(stats.get("iter_count", -1))
+        return ok and bool(np.isfinite(self.w).all()), iterations
+
+    def _function(self, name: str, sizes: list[int]) -> ca.Function:
+        qp = self.qp
+        n_w, stage = qp.n_w, qp.stage
+        plan, guess = ca.MX.sym("plan", n_w), ca.MX.sym("guess", n_w)
+        params, warm = ca.MX.sym("params", sum(sizes)), ca.MX.sym("warm", 4)
+        blocks = ca.vertsplit(params, [0, *np.cumsum(sizes).tolist()])
+        origin, x0, u_applied, x_ref, u_ref, obstacles, keep_out, active = blocks
+        n, m = qp.config.horizon_steps, qp.config.max_obstacles
+        # Every position relative to the origin: the problem's numbers stay small.
+        state_origin = ca.vertcat(origin, ca.DM.zeros(NX - 3))
+        x0_rel = x0 - state_origin
+        x_ref_rel = ca.reshape(x_ref, NX, n + 1) - ca.repmat(state_origin, 1, n + 1)
+        obstacles_rel = ca.reshape(obstacles, 3, m * n) - ca.repmat(origin, 1, m * n)
+        p = ca.vertcat(
+            x0_rel, u_applied, ca.vec(x_ref_rel), u_ref, ca.vec(obstacles_rel), keep_out, active
+        )
+        # The warm start: the plan's positions moved to the new origin, shifted one stage.
+        rows = qp.position_index
+        to_positions = ca.DM(
+            ca.Sparsity.triplet(n_w, 3, rows.tolist(), (np.arange(len(rows)) % 3).tolist()),
+            1.0,
+        )
+        moved = plan + ca.mtimes(to_positions, warm[:3])
+        shifted = ca.vertcat(moved[stage:], moved[n_w - stage :])
+        chosen = ca.if_else(warm[3], shifted, guess)
+        start = ca.vertcat(x0_rel, u_applied, chosen[NZ:])
+        g, a, lba, uba, lbx, ubx = qp.data(start, p)
+        solution = qp.solver(
+            h=qp.hessian,
+            g=g,
+            a=a,
+            lba=lba,
+            uba=uba,
+            lbx=lbx,
+            ubx=ubx,
+            x0=start,
+            lam_x0=ca.DM.zeros(n_w),
+            lam_a0=ca.DM.zeros(self._lam_a.size),
+        )
+        return ca.Function(
+            f"{name}_rti",
+            [plan, guess, params, warm],
+            [solution["x"], solution["lam_a"], solution["lam_x"]],
+            ["plan", "guess", "params", "warm"],
+            ["w", "lam_a", "lam_x"],
+        )

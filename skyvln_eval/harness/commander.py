@@ -1,0 +1,86 @@
+"""A commander in the loop: answers the agent's clarification questions from the ground truth.
+
+In AVDN the commander sees the map and the drone, and answers the follower's questions.
+When the agent asks (TrackBack memory lost its way, or HSD could not tell the stop
+landmark apart), the harness's :class:`SimulatedCommander` answers, at most
+``max_questions`` times per episode, in the synthetic commander's language (the phrasing
+families of the episode's split): which way to the destination from where the drone is,
+how far, and the destination's description when the map knows its landmarks. The question
+and the answer join the dialog the agent sees at its next step, as a new round.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skyvln_eval.avdn.geometry import view_centre
+from skyvln_eval.avdn.records import DialogTurn, Episode
+from skyvln_eval.frames import latlng_to_enu, view_to_pose
+from skyvln_eval.harness.dynamics_loop import derived_seed
+from skyvln_eval.vocabulary import compass_word
+from skyvln_eval.worlds.sample import SPLIT_FAMILIES, AnswerFacts, commander_answer, seen_families
+from skyvln_eval.worlds.tile import WorldTile
+
+#: A heading more than this far off the way to the destination is a wrong heading.
+WRONG_HEADING_DEG = 100.0
+
+
+@dataclass
+class SimulatedCommander:
+    """Answers questions about one episode (see the module docstring)."""
+
+    episode: Episode
+    world: WorldTile
+    max_questions: int = 2
+    seed: int = 0
+    answered: int = 0
+
+    def __post_init__(self) -> None:
+        self._round = max((t.round_index for t in self.episode.dialog()), default=1)
+        families = SPLIT_FAMILIES.get(self.episode.split)
+        self._families = families if families else seen_families()
+        self._destination = self._destination_description()
+
+    def _destination_description(self) -> str | None:
+        """The landmark the ground truth ends over, if the map knows its landmarks."""
+        end = self.episode.gt_end_view
+        centre = np.asarray(view_centre(end), dtype=np.float64)
+        best: tuple[float, str] | None = None
+        for landmark in self.world.landmarks:
+            gap = math.hypot(*(np.asarray(landmark.centre) - centre)) * 111_300.0
+            if best is None or gap < best[0]:
+                best = (gap, landmark.description)
+        half_edge_m = float(np.linalg.norm(end[0] - end[1])) * 111_300.0 / 2.0
+        return best[1] if best is not None and best[0] <= half_edge_m else None
+
+    def answer(
+        self, step_index: int, question: str, view: NDArray[np.float64]
+    ) -> tuple[DialogTurn, ...]:
+        """The question and the answer as a new dialog round (nothing once over budget)."""
+        if self.answered >= self.max_questions:
+            return ()
+        georef = self.episode.georef
+        here = view_to_pose(view, georef)
+        goal_x, goal_y = latlng_to_enu(view_centre(self.episode.gt_end_view), georef)
+        east, north = goal_x - here.x_m, goal_y - here.y_m
+        bearing = math.degrees(math.atan2(east, north)) % 360.0
+        off = abs((here.heading_deg - bearing + 180.0) % 360.0 - 180.0)
+        facts = AnswerFacts(
+            direction=compass_word(bearing),
+            distance_m=math.hypot(east, north),
+            landmark=self._destination,
+            is_destination=self._destination is not None,
+            wrong_heading=compass_word(here.heading_deg) if off > WRONG_HEADING_DEG else None,
+        )
+        seed = derived_seed(self.seed, "commander", self.episode.episode_id, step_index)
+        text = commander_answer(facts, self._families, seed).text
+        self.answered += 1
+        self._round += 1
+        return (
+            DialogTurn(self._round, "follower", question),
+            DialogTurn(self._round, "commander", text),
+        )

@@ -1,0 +1,101 @@
+"""The drone's sensors over a world tile: what the harness hands an agent at each step.
+
+:class:`SimulatedSensors` renders what a drone at one position sees over a world tile. The
+agent gets its :meth:`~SimulatedSensors.handle`, a :class:`SensorHandle` implementing
+:class:`skyvln_eval.sensing.Sensors`: it can turn in place and capture, and gets images and
+the camera's geometry. The handle holds only a key into this module's table of live
+simulators, never the world, so nothing an agent is given leads to the world (agent
+modules may not import the simulator: a test checks both).
+
+Channels of sensors the drone does not carry are not handed out: no depth without the
+depth sensor; no semantic, instance or category images without the semantic camera. The
+semantic camera reports each landmark instance's category (as a simulator's panoptic
+segmentation does), not its name or description.
+"""
+
+from __future__ import annotations
+
+import itertools
+import weakref
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from skyvln_eval.errors import PerceptionError
+from skyvln_eval.frames import compass_to_enu_yaw_rad
+from skyvln_eval.sensing import CameraImages, CameraPose, SensorConfig, SensorKind
+from skyvln_eval.sim.camera import render_views
+from skyvln_eval.worlds.tile import WorldTile
+
+
+class SimulatedSensors:
+    """RGB (always), depth and the semantic camera over ``world``, at one drone position."""
+
+    def __init__(
+        self, world: WorldTile, x_m: float, y_m: float, z_m: float, config: SensorConfig
+    ) -> None:
+        self._world = world
+        self._position = (x_m, y_m, z_m)
+        self._config = config
+        self._camera = config.camera()
+        self._key = next(_KEYS)
+        _LIVE[self._key] = self
+
+    def handle(self) -> SensorHandle:
+        """What the agent is given: captures from here, and nothing else."""
+        return SensorHandle(self._key, self._config.kinds)
+
+    @property
+    def kinds(self) -> frozenset[SensorKind]:
+        return self._config.kinds
+
+    def capture(self, heading_deg: float, pitch_deg: float) -> CameraImages:
+        return self.capture_many([(heading_deg, pitch_deg)])[0]
+
+    def capture_many(self, views: Sequence[tuple[float, float]]) -> list[CameraImages]:
+        x, y, z = self._position
+        poses = [CameraPose(x, y, z, compass_to_enu_yaw_rad(h), p) for h, p in views]
+        return [self._restrict(i) for i in render_views(self._world, poses, self._camera)]
+
+    def _restrict(self, images: CameraImages) -> CameraImages:
+        """Only the channels of the sensors the drone carries."""
+        kinds = self._config.kinds
+        if "semantic" in kinds and images.instance is not None:
+            ids = np.unique(images.instance).tolist()
+            categories = {i: self._world.landmark(i).category for i in ids if i}
+            images = replace(images, instance_categories=categories)
+        else:
+            images = replace(images, semantic=None, instance=None, instance_categories={})
+        if "depth" not in kinds:
+            images = replace(images, depth_m=None)
+        return images
+
+
+_KEYS = itertools.count(1)
+#: Simulators of the steps under way, by key; an entry goes when its simulator does.
+_LIVE: weakref.WeakValueDictionary[int, SimulatedSensors] = weakref.WeakValueDictionary()
+
+
+@dataclass(frozen=True)
+class SensorHandle:
+    """An agent's handle on the drone's sensors for one step.
+
+    It implements :class:`~skyvln_eval.sensing.Sensors` and holds a key and the sensor
+    kinds, nothing else; a capture after its step is over is an error.
+    """
+
+    key: int
+    kinds: frozenset[SensorKind]
+
+    def _sensors(self) -> SimulatedSensors:
+        sensors = _LIVE.get(self.key)
+        if sensors is None:
+            raise PerceptionError("these sensors belong to a step that is over: capture now")
+        return sensors
+
+    def capture(self, heading_deg: float, pitch_deg: float) -> CameraImages:
+        return self._sensors().capture(heading_deg, pitch_deg)
+
+    def capture_many(self, views: Sequence[tuple[float, float]]) -> list[CameraImages]:
+        return self._sensors().capture_many(views)

@@ -1,0 +1,139 @@
+"""``skyvln-eval view``: build episode recordings from run MCAPs, save them, serve them.
+
+The CLI parses the options and calls :func:`run_view`; the library functions
+(:func:`build_recordings`, :func:`merge_recordings`, :func:`~.serve.serve_recordings`) do the
+work and are usable from Python too.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import typer
+
+from skyvln_eval.errors import ConfigError
+from skyvln_eval.viewer.deps import rerun_cli_path
+from skyvln_eval.viewer.logs import EpisodeLogRef, find_episode_logs
+from skyvln_eval.viewer.privacy import USER_OPT_OUT, rerun_environment
+from skyvln_eval.viewer.recording import RecordingSummary, write_recording
+from skyvln_eval.viewer.serve import serve_recordings
+
+#: Serving more recordings than this at once is slow in a browser; say so.
+MANY_RECORDINGS = 50
+
+
+def recording_file_name(ref: EpisodeLogRef) -> str:
+    return f"{ref.split}__{ref.episode_id}.rrd"
+
+
+def build_recordings(
+    refs: Sequence[EpisodeLogRef],
+    out_dir: Path,
+    on_done: Callable[[RecordingSummary], None] | None = None,
+) -> list[RecordingSummary]:
+    """One ``.rrd`` per episode in ``out_dir``, built one after the other (streaming each)."""
+    summaries = []
+    for ref in refs:
+        summary = write_recording(ref, out_dir / recording_file_name(ref))
+        summaries.append(summary)
+        if on_done is not None:
+            on_done(summary)
+    return summaries
+
+
+def merge_recordings(paths: Sequence[Path], out: Path) -> None:
+    """Several ``.rrd`` files as one (each episode stays its own recording), atomically."""
+    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+    command = [str(rerun_cli_path()), "rrd", "merge", *map(str, paths), "-o", str(tmp)]
+    result = subprocess.run(
+        command,
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+        env=rerun_environment(),
+        check=False,
+    )
+    if result.returncode != 0 or not tmp.is_file():
+        tmp.unlink(missing_ok=True)
+        raise ConfigError(f"rerun rrd merge failed for {out}: {result.stderr.strip()[-1000:]}")
+    tmp.replace(out)
+
+
+def describe(summary: RecordingSummary, show_path: bool = True) -> str:
+    rows = summary.rows
+    parts = [
+        f"{summary.decisions} decision(s)",
+        f"{rows.get('camera/observation', 0)} image(s)",
+        f"{rows.get('llm/log', 0)} LLM exchange(s)",
+        f"{rows.get('world/drone', 0)} pose(s)",
+        f"{rows.get('world/obstacles', 0)} obstacle sample(s)",
+    ]
+    where = f" -> {summary.path}" if show_path else ""
+    return f"{summary.episode.key}: {', '.join(parts)}{where}"
+
+
+def _save(refs: Sequence[EpisodeLogRef], save: Path, work: Path) -> list[Path]:
+    if save.suffix == ".rrd":
+        if len(refs) == 1:
+            summary = write_recording(refs[0], save)
+            typer.echo(describe(summary))
+            return [save]
+        built = build_recordings(refs, work, lambda s: typer.echo(describe(s, False)))
+        save.parent.mkdir(parents=True, exist_ok=True)
+        merge_recordings([s.path for s in built], save)
+        typer.echo(f"saved {len(built)} recording(s) in {save}")
+        return [save]
+    built = build_recordings(refs, save, lambda s: typer.echo(describe(s)))
+    return [s.path for s in built]
+
+
+def _serve(paths: Sequence[Path], port: int) -> None:
+    with serve_recordings(paths, port=port) as viewer:
+        try:  # from the first line on: a Ctrl-C at any moment stops the server cleanly
+            typer.echo(f"Rerun web viewer (local only, analytics off): {viewer.url}")
+            typer.echo("Open it in a browser; Ctrl-C stops the server.")
+            while viewer.process.poll() is None:
+                time.sleep(0.5)
+        except KeyboardInterrupt:
+            typer.echo("stopped")
+            return
+        typer.echo(f"the rerun process stopped:\n{viewer.log_tail()}", err=True)
+        raise typer.Exit(1)
+
+
+def run_view(
+    target: Path,
+    episodes: Sequence[str],
+    save: Path | None,
+    serve: bool,
+    port: int,
+) -> None:
+    """The ``view`` command (see ``skyvln-eval view --help``)."""
+    if target.suffix == ".rrd":
+        if episodes or save:
+            raise ConfigError(f"{target} is already a recording: --episode and --save do not apply")
+        if not target.is_file():
+            raise ConfigError(f"{target}: no such recording")
+        _serve([target], port)
+        return
+    refs = find_episode_logs(target, episodes)
+    with tempfile.TemporaryDirectory(prefix="skyvln-view-") as work:
+        if save is not None:
+            paths = _save(refs, save, Path(work))
+        else:
+            built = build_recordings(refs, Path(work), lambda s: typer.echo(describe(s, False)))
+            paths = [s.path for s in built]
+        if save is None or serve:
+            if len(paths) > MANY_RECORDINGS:
+                typer.echo(f"serving {len(paths)} recordings; --episode picks a few", err=True)
+            _serve(paths, port)
+        else:
+            typer.echo(
+                f"open with: skyvln-eval view {paths[0]}  (or `rerun FILE.rrd`; "
+                f"`{USER_OPT_OUT}` turns Rerun's analytics off for that)"
+            )

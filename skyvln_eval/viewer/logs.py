@@ -1,0 +1,210 @@
+"""Find the run MCAPs of a run directory and stream one, message by message.
+
+A run directory keeps one run MCAP per episode at ``logs/<split>/<episode_id>.mcap``
+(:mod:`skyvln_eval.harness.run`). Selecting episodes looks those paths up directly, so
+picking one episode of a 400-episode run opens one file. :class:`RunLogStream` reads a
+log through its index, one chunk at a time with its CRC checked, and decodes one message
+at a time: the images of an episode are never all in memory together.
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+import re
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import Any, BinaryIO
+
+from mcap.exceptions import McapError
+from mcap.reader import SeekingReader, make_reader
+from mcap.stream_reader import CRCValidationError
+
+from skyvln_eval.avdn.records import Episode
+from skyvln_eval.converters import topics as t
+from skyvln_eval.converters.reader import LogChannel, McapLog, episode_from_log
+from skyvln_eval.errors import ConfigError, FormatVersionError, McapLogError
+
+LOGS_DIR = "logs"
+_SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.\-]*")
+
+
+@dataclass(frozen=True)
+class EpisodeLogRef:
+    """One episode's run MCAP: where it is, its split and its episode id."""
+
+    path: Path
+    split: str
+    episode_id: str
+
+    @property
+    def key(self) -> str:
+        return f"{self.split}/{self.episode_id}"
+
+
+def _ref(path: Path) -> EpisodeLogRef:
+    return EpisodeLogRef(path, path.parent.name, path.stem)
+
+
+def _parse_selector(selector: str) -> tuple[str | None, str]:
+    """``ID`` or ``SPLIT/ID``; names only (no path tricks such as ``..``)."""
+    split, _, episode_id = selector.rpartition("/")
+    for part in (split, episode_id) if split else (episode_id,):
+        if not _SAFE_NAME.fullmatch(part):
+            raise ConfigError(f"--episode {selector!r} is not an episode id or SPLIT/EPISODE_ID")
+    return (split or None), episode_id
+
+
+def find_episode_logs(target: str | Path, episodes: Sequence[str] = ()) -> list[EpisodeLogRef]:
+    """The run MCAPs to show: ``target`` is a run directory or one ``.mcap`` file.
+
+    ``episodes`` selects by ``ID`` or ``SPLIT/ID``; empty means every episode of the run, in
+    (split, episode) order. An id that matches nothing is an error that lists close ids.
+    """
+    target = Path(target)
+    if target.is_file():
+        if target.suffix != ".mcap":
+            raise ConfigError(f"{target}: not a run directory or an .mcap run log")
+        with RunLogStream(target) as log:  # a lone file: its split and id from its metadata
+            meta = log.metadata.get(t.EPISODE_METADATA, {})
+        return [
+            EpisodeLogRef(target, meta.get("split") or "-", meta.get("episode_id") or target.stem)
+        ]
+    logs = target / LOGS_DIR
+    if not logs.is_dir():
+        raise ConfigError(
+            f"{target}: not a run directory (no {LOGS_DIR}/ folder of run MCAPs); "
+            "give the folder `skyvln-eval run --out` wrote, or one .mcap file"
+        )
+    if not episodes:
+        found = sorted(logs.glob("*/*.mcap"))
+        if not found:
+            raise ConfigError(f"{target}: the run has no run MCAPs under {LOGS_DIR}/")
+        return [_ref(p) for p in found]
+    refs: list[EpisodeLogRef] = []
+    for selector in episodes:
+        split, episode_id = _parse_selector(selector)
+        # Direct lookups (one stat per split), never a listing of every log of the run.
+        splits = [split] if split else sorted(p.name for p in logs.iterdir() if p.is_dir())
+        hits = [logs / s / f"{episode_id}.mcap" for s in splits]
+        hits = [p for p in hits if p.is_file()]
+        if not hits:
+            raise ConfigError(_not_found(target, selector, logs))
+        refs += [_ref(p) for p in hits if _ref(p) not in refs]
+    return refs
+
+
+def _not_found(target: Path, selector: str, logs: Path) -> str:
+    known = sorted({p.stem for p in logs.glob("*/*.mcap")})
+    close = difflib.get_close_matches(selector.rpartition("/")[2], known, n=3)
+    hint = f" Did you mean {', '.join(close)}?" if close else ""
+    return f"{target}: no run MCAP for episode {selector!r}.{hint} ({len(known)} episode(s) in it)"
+
+
+class RunLogStream:
+    """A run (or episode) MCAP opened for streaming; use it as a context manager.
+
+    ``metadata`` holds the metadata records; :meth:`episode` rebuilds the episode from
+    them (format and schema versions checked); :meth:`messages` yields ``(topic,
+    log_time_ns, decoded JSON)`` in log-time order, reading one chunk at a time.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._file: BinaryIO | None = None
+        self._reader: SeekingReader | None = None
+        self.metadata: dict[str, dict[str, str]] = {}
+        self.topic_counts: dict[str, int] = {}
+        self._channels: tuple[LogChannel, ...] = ()
+
+    def __enter__(self) -> RunLogStream:
+        try:
+            self._file = self.path.open("rb")
+        except OSError as error:
+            raise McapLogError(str(self.path), f"cannot open: {error.strerror}") from error
+        try:
+            reader = make_reader(self._file, validate_crcs=True)
+            if not isinstance(reader, SeekingReader):  # a regular file always seeks
+                raise McapLogError(str(self.path), "not a seekable file")
+            self._reader = reader
+            summary = reader.get_summary()
+            if summary is None or summary.statistics is None:
+                raise McapLogError(str(self.path), "no summary section: an unfinished MCAP file")
+            self.metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+            channels = summary.channels
+            counts = summary.statistics.channel_message_counts
+            self.topic_counts = {
+                channels[cid].topic: n for cid, n in counts.items() if cid in channels and n
+            }
+            self._channels = tuple(
+                LogChannel(
+                    c.id,
+                    c.topic,
+                    c.message_encoding,
+                    summary.schemas[c.schema_id].name,
+                    summary.schemas[c.schema_id].encoding,
+                    summary.schemas[c.schema_id].data,
+                    dict(c.metadata),
+                )
+                for c in channels.values()
+                if c.schema_id in summary.schemas
+            )
+        except McapLogError:
+            self.close()
+            raise
+        except (McapError, CRCValidationError, ValueError, KeyError, EOFError) as error:
+            self.close()
+            raise McapLogError(str(self.path), f"damaged MCAP file: {error}") from error
+        self._check_run_format()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self._file is not None:
+            self._file.close()
+        self._file = None
+        self._reader = None
+
+    def _check_run_format(self) -> None:
+        run = self.metadata.get(t.RUN_METADATA)
+        if run is None:
+            return  # an episode log (no run): it shows the ground truth only
+        if run.get("format") != t.RUN_FORMAT:
+            raise McapLogError(str(self.path), f"run format is {run.get('format')!r}")
+        if run.get("version") != str(t.RUN_FORMAT_VERSION):
+            raise FormatVersionError(
+                str(self.path),
+                run.get("version"),
+                t.RUN_FORMAT_VERSION,
+                "View it with the skyvln-eval version that wrote it, or run the episode again.",
+            )
+
+    @property
+    def run_metadata(self) -> dict[str, str]:
+        return self.metadata.get(t.RUN_METADATA, {})
+
+    def episode(self) -> Episode:
+        """The episode, from the log's metadata (no message is read)."""
+        log = McapLog(str(self.path), "", "", self._channels, (), self.metadata)
+        return episode_from_log(log)
+
+    def messages(self, topics: Sequence[str] | None = None) -> Iterator[tuple[str, int, Any]]:
+        """``(topic, log_time_ns, message)`` in log-time order, decoded one at a time."""
+        if self._reader is None:
+            raise McapLogError(str(self.path), "the log is not open (use it in a with block)")
+        try:
+            for _, channel, message in self._reader.iter_messages(
+                topics=list(topics) if topics is not None else None, log_time_order=True
+            ):
+                yield channel.topic, message.log_time, json.loads(message.data)
+        except (McapError, CRCValidationError, ValueError, KeyError, EOFError) as error:
+            raise McapLogError(str(self.path), f"damaged MCAP file: {error}") from error

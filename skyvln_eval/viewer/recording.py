@@ -1,0 +1,295 @@
+"""Build the Rerun recording of one episode from its run MCAP, streaming.
+
+:func:`write_recording` opens the log (:class:`~.logs.RunLogStream`), then logs every
+message in log-time order: static topics as timeless data (:mod:`.static_content`), the
+rest on the ``decision`` and ``sim_time`` timelines. It writes an ``.rrd`` file under a
+temporary name, renamed into place when complete. The log is the only source: nothing is
+recomputed from the dataset or the harness. Entity paths are in :mod:`.entities`.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+import yaml
+
+from skyvln_eval.converters import topics as t
+from skyvln_eval.viewer import entities as e
+from skyvln_eval.viewer import scene, static_content, text
+from skyvln_eval.viewer.blueprint import Focus, episode_blueprint
+from skyvln_eval.viewer.canvas import Canvas
+from skyvln_eval.viewer.deps import rerun_sdk
+from skyvln_eval.viewer.logs import EpisodeLogRef, RunLogStream
+from skyvln_eval.viewer.signals import ControlSignals
+
+Json = Mapping[str, Any]
+#: Topics whose message times are the decisions: agent steps (run logs), else one GPS fix
+#: per ground-truth view (episode logs).
+_CLOCK_TOPICS = (t.TOPIC_AGENT_STEP, t.TOPIC_GPS)
+_DEFAULT_IMAGE_PX = 224
+
+
+@dataclass(frozen=True)
+class RecordingSummary:
+    """What one recording holds: where it was written and the rows logged per entity."""
+
+    path: Path
+    episode: EpisodeLogRef
+    recording_id: str
+    decisions: int
+    rows: dict[str, int]
+
+
+def recording_id(ref: EpisodeLogRef, run: Mapping[str, str]) -> str:
+    """Unique per (run configuration, split, episode), so several runs can be opened together."""
+    digest = run.get("config_digest", "episode-log")
+    return f"{ref.split}/{ref.episode_id}@{digest}"
+
+
+def _image_px(run: Mapping[str, str]) -> tuple[int, int]:
+    """The agent's camera image size (for HSD sector boxes), from the run's resolved config."""
+    try:
+        config = yaml.safe_load(run.get("config", "")) or {}
+        size = int(config["sensors"]["image_px"])
+    except (yaml.YAMLError, KeyError, TypeError, ValueError):
+        size = _DEFAULT_IMAGE_PX
+    return size, size
+
+
+def _decision_times(log: RunLogStream) -> list[int]:
+    for topic in _CLOCK_TOPICS:
+        if log.topic_counts.get(topic):
+            return sorted({t_ns for _, t_ns, _ in log.messages([topic])})
+    return [0]
+
+
+class _Recorder:
+    """Logs one episode's time-ordered messages onto a canvas (one handler per topic)."""
+
+    def __init__(self, canvas: Canvas, image_px: tuple[int, int]) -> None:
+        self.canvas = canvas
+        self.rr: ModuleType = canvas.rr
+        self.image_px = image_px
+        self.flight = scene.Flight()
+        self.signals = ControlSignals()
+        self.dialog: list[Json] = []
+        self.modules: list[str] = []
+        self.detection_views: list[str] = []
+        self.last_view: tuple[scene.Strip, int] | None = None
+        self.views_seen = 0
+        self.handlers: dict[str, Callable[[Json], None]] = {
+            t.TOPIC_TF: self._tf,
+            t.TOPIC_RUN_PATH: lambda _: self._flight_so_far(),
+            t.TOPIC_RUN_VIEWS: self._view,
+            t.TOPIC_OBSERVATION: self._image(e.CAMERA_OBSERVATION),
+            t.TOPIC_GT_OBSERVATION: self._image(f"{e.CAMERA}/gt_observation"),
+            t.TOPIC_AGENT_STEP: self._agent_step,
+            t.TOPIC_AGENT_LOG: self._agent_log,
+            t.TOPIC_AGENT_TARGET: self._target,
+            t.TOPIC_LLM_EXCHANGE: self._exchange,
+            t.TOPIC_CONTROL_STEP: self._control,
+            t.TOPIC_OBSTACLES: self._obstacles,
+            t.TOPIC_DIALOG: self._dialog,
+        }
+
+    def on(self, topic: str, t_ns: int, message: Json) -> None:
+        if (static := static_content.HANDLERS.get(topic)) is not None:
+            static(self.canvas, message)
+        elif (handler := self.handlers.get(topic)) is not None:
+            self.canvas.at(t_ns)
+            handler(message)
+
+    def _tf(self, message: Json) -> None:
+        if message.get("child_frame_id") != t.DRONE_FRAME:
+            return  # the fixed drone -> camera mounting
+        rr, canvas = self.rr, self.canvas
+        position = scene.xyz(message.get("translation", {}))
+        rotation = rr.Quaternion(xyzw=scene.quaternion_xyzw(message.get("rotation", {})))
+        canvas.put(e.WORLD_DRONE, rr.Transform3D(translation=position, quaternion=rotation))
+        dot = rr.Points2D(
+            np.asarray([canvas.frame.pixels(position)]),
+            colors=[scene.DRONE_RGBA],
+            radii=rr.Radius.ui_points(4.0),
+        )
+        canvas.put(e.MAP_DRONE, dot)
+        self.flight.add(position)
+
+    def _flight_so_far(self) -> None:
+        points = self.flight.array()
+        if len(points):
+            strip = [scene.Strip(points, scene.FLOWN_RGBA, False)]
+            self.canvas.put(e.MAP_PATH, self.canvas.strips2d(strip, 2.0))
+            self.canvas.put(e.WORLD_TRAJECTORY, self.canvas.strips3d(strip, 2.0))
+
+    def _view(self, message: Json) -> None:
+        strips = [
+            scene.Strip(s.points, scene.FLOWN_RGBA, s.loop) for s in scene.scene_strips(message)
+        ]
+        if not strips:
+            return
+        # Views come in visiting order, as the log numbers them (visited_view_<k>).
+        index, self.views_seen = self.views_seen, self.views_seen + 1
+        self.canvas.put(f"{e.MAP_VIEWS}/{index}", self.canvas.strips2d(strips))
+        self.canvas.put(f"{e.WORLD_VIEWS}/{index}", self.canvas.strips3d(strips))
+        self.last_view = (strips[0], self.canvas.t_ns)
+
+    def _image(self, path: str) -> Callable[[Json], None]:
+        def log_image(message: Json) -> None:
+            data, media_type = scene.image_bytes(message)  # passed on encoded
+            self.canvas.put(path, self.rr.EncodedImage(contents=data, media_type=media_type))
+
+        return log_image
+
+    def _agent_step(self, step: Json) -> None:
+        canvas = self.canvas
+        canvas.markdown(e.AGENT_STEP, text.step_document(step, canvas.t_ns / 1e9))
+        canvas.markdown(e.AGENT_HSD, text.hsd_document(step))
+        canvas.markdown(e.AGENT_MEMORY, text.memory_document(step))
+        sightings = (step.get("trace") or {}).get("sightings") or []
+        found = scene.detections_by_view(sightings, self.image_px)
+        rr = self.rr
+        for view in found:
+            if view not in self.detection_views:
+                self.detection_views.append(view)
+                grid = scene.frame_and_grid(*self.image_px)
+                sectors = rr.LineStrips2D(grid, colors=[(120, 120, 120, 255)])
+                canvas.rec.log(f"{detections_path(view)}/sectors", sectors, static=True)
+        for view in self.detection_views:  # every view each decision: old boxes disappear
+            boxes = found.get(view, scene.Detections([], []))
+            array = np.asarray(boxes.boxes, np.float64).reshape(-1, 4)
+            fmt = rr.Box2DFormat.XYXY
+            canvas.put(
+                detections_path(view),
+                rr.Boxes2D(array=array, array_format=fmt, labels=boxes.labels),
+            )
+
+    def _agent_log(self, message: Json) -> None:
+        line = self.rr.TextLog(str(message.get("message", "")), level="INFO")
+        self.canvas.put(e.AGENT_LOG, line)
+
+    def _target(self, message: Json) -> None:
+        position = scene.xyz(message.get("pose", {}).get("position", {}))
+        target = self.rr.Points3D(
+            [position],
+            colors=[scene.TARGET_RGBA],
+            radii=self.rr.Radius.ui_points(6.0),
+            labels=["target"],
+        )
+        self.canvas.put(e.WORLD_TARGET, target)
+
+    def _exchange(self, exchange: Json) -> None:
+        module = str(exchange.get("module") or "unknown").replace("/", "_")
+        if module not in self.modules:
+            self.modules.append(module)
+        level = "ERROR" if exchange.get("error") else "INFO"
+        self.canvas.put(e.LLM_LOG, self.rr.TextLog(text.exchange_line(exchange), level=level))
+        self.canvas.markdown(f"{e.LLM}/{module}", text.exchange_document(exchange))
+
+    def _control(self, step: Json) -> None:
+        self.signals.add(step, self.canvas.t_ns, self.canvas.decision)
+        reference = step.get("reference_position_m")
+        if isinstance(reference, list) and len(reference) == 3:
+            point = self.rr.Points3D(
+                [reference], colors=[scene.REFERENCE_RGBA], radii=self.rr.Radius.ui_points(3.0)
+            )
+            self.canvas.put(e.WORLD_REFERENCE, point)
+
+    def _obstacles(self, message: Json) -> None:
+        spheres = scene.scene_spheres(message)
+        ellipsoids = self.rr.Ellipsoids3D(
+            centers=spheres.centres,
+            half_sizes=np.repeat(spheres.radii_m[:, None], 3, axis=1),
+            colors=spheres.colours,
+            fill_mode="solid",
+        )
+        self.canvas.put(e.WORLD_OBSTACLES, ellipsoids)
+
+    def _dialog(self, turn: Json) -> None:
+        self.dialog.append(turn)
+        self.canvas.put(e.DIALOG, self.rr.TextLog(text.dialog_line(turn), level="INFO"))
+
+    def finish(self) -> None:
+        """The whole flight, the final view, the dialog and the control signals."""
+        canvas, rr = self.canvas, self.rr
+        self._flight_so_far()
+        if self.last_view is not None:
+            strip, t_ns = self.last_view
+            canvas.at(t_ns)
+            final = [scene.Strip(strip.points, scene.FINAL_VIEW_RGBA, strip.loop)]
+            canvas.put(e.MAP_FINAL_VIEW, canvas.strips2d(final, 3.0))
+        if self.dialog:
+            canvas.markdown(f"{e.DIALOG}/all", text.dialog_document(self.dialog), static=True)
+        static_content.drone_body(canvas)
+        for name, samples in self.signals.series.items():
+            canvas.rec.send_columns(
+                f"{e.CONTROL}/{name}",
+                indexes=[
+                    rr.TimeColumn(
+                        e.SIM_TIMELINE, duration=np.asarray(samples.t_ns, "timedelta64[ns]")
+                    ),
+                    rr.TimeColumn(e.DECISION_TIMELINE, sequence=samples.decision),
+                ],
+                columns=rr.Scalars.columns(scalars=samples.values),
+            )
+            canvas.rows[f"{e.CONTROL}/{name}"] += len(samples.values)
+
+    def focus(self) -> Focus | None:
+        """Where the 3-D view should look: the flight, from behind its start and above."""
+        points = self.flight.array()
+        if not len(points):
+            return None
+        centre = points.mean(axis=0)
+        reach = max(80.0, float(np.ptp(points[:, :2], axis=0).max()))
+        eye = centre + np.array([-0.5, -1.0, 0.9]) * reach
+        return Focus(eye.tolist(), centre.tolist())
+
+
+def detections_path(view: str) -> str:
+    """Boxes of a panorama view; the view straight down goes over the observation image."""
+    if view == "below":
+        return f"{e.CAMERA_OBSERVATION}/detections"
+    return f"{e.CAMERA_DETECTIONS}/{view.replace(' ', '_').replace('+', '')}"
+
+
+def _record(rr: ModuleType, rec: Any, log: RunLogStream, ref: EpisodeLogRef) -> _Recorder:
+    episode = log.episode()
+    canvas = Canvas(rr, rec, e.MapFrame(episode.georef), _decision_times(log))
+    static_content.episode_card(canvas, episode, log.run_metadata, log.path)
+    recorder = _Recorder(canvas, _image_px(log.run_metadata))
+    for topic, t_ns, message in log.messages():
+        recorder.on(topic, t_ns, message)
+    recorder.finish()
+    blueprint = episode_blueprint(rr, recorder.modules, recorder.detection_views, recorder.focus())
+    rec.send_blueprint(blueprint)
+    return recorder
+
+
+def write_recording(ref: EpisodeLogRef, out: str | Path) -> RecordingSummary:
+    """Build the recording of one episode and write it to ``out`` (``.rrd``), atomically."""
+    rr = rerun_sdk()
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+    with RunLogStream(ref.path) as log:
+        rec_id = recording_id(ref, log.run_metadata)
+        rec = rr.RecordingStream(e.APPLICATION_ID, recording_id=rec_id)
+        try:
+            rec.save(tmp)
+            system = log.run_metadata.get("system", "episode log")
+            rec.send_recording_name(f"{system}: {ref.split}/{ref.episode_id}")
+            recorder = _record(rr, rec, log, ref)
+            rec.flush()
+            rec.disconnect()  # writes the footer: the file is complete only after this
+            tmp.replace(out)
+        except BaseException:
+            rec.disconnect()
+            tmp.unlink(missing_ok=True)
+            raise
+    canvas = recorder.canvas
+    return RecordingSummary(out, ref, rec_id, len(canvas.decision_times_ns), dict(canvas.rows))

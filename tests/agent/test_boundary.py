@@ -1,0 +1,133 @@
+"""The sensor boundary: agents see only their sensors, never the world, the goal or the route."""
+
+from __future__ import annotations
+
+import ast
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from skyvln_eval.agent import AgentConfig, Decision, Stop, build_agent
+from skyvln_eval.agent.base import Agent, EpisodeBrief, Observation
+from skyvln_eval.avdn.records import AvdnRecord, Episode
+from skyvln_eval.harness import run_official_episode
+from skyvln_eval.sensing import SensorConfig
+from skyvln_eval.worlds.tile import Landmark, WorldTile
+from tests.conftest import REPO
+from tests.toy_worlds import town_episode, town_world
+
+AGENT_PACKAGE = REPO / "skyvln_eval" / "agent"
+#: What agent modules may never import: the world's rasters and the simulator.
+FORBIDDEN = ("skyvln_eval.worlds", "skyvln_eval.sim", "skyvln_eval.harness")
+
+
+def _imports(path: Path) -> Iterator[str]:
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            yield from (alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            yield node.module
+
+
+def test_no_agent_module_imports_the_world_or_the_simulator() -> None:
+    offending = [
+        f"{path.relative_to(REPO)} imports {name}"
+        for path in sorted(AGENT_PACKAGE.rglob("*.py"))
+        for name in _imports(path)
+        if name.startswith(FORBIDDEN)
+    ]
+    assert not offending, offending
+
+
+def _reachable(root: Any, depth: int = 8) -> Iterator[Any]:
+    """Everything reachable from ``root`` through attributes, fields and containers."""
+    seen: set[int] = set()
+    stack = [(root, 0)]
+    while stack:
+        item, level = stack.pop()
+        if id(item) in seen or level > depth:
+            continue
+        seen.add(id(item))
+        yield item
+        children: list[Any] = []
+        if isinstance(item, list | tuple | set | frozenset):
+            children += list(item)
+        if isinstance(item, dict):
+            children += list(item.keys()) + list(item.values())
+        if hasattr(item, "__dict__") and not isinstance(item, type):
+            children += list(vars(item).values())
+        for slot in getattr(type(item), "__slots__", ()):
+            if hasattr(item, slot):
+                children.append(getattr(item, slot))
+        for cell in getattr(item, "__closure__", None) or ():
+            children.append(cell.cell_contents)
+        stack += [(child, level + 1) for child in children]
+
+
+class Inspector(Agent):
+    """Keeps what it is given, stops at the second step."""
+
+    def __init__(self) -> None:
+        self.given: list[Any] = []
+
+    def reset(self, brief: EpisodeBrief) -> None:
+        self.given.append(brief)
+
+    def act(self, observation: Observation) -> Decision:
+        self.given.append(observation)
+        images = observation.sensors.capture_many([(0.0, 60.0), (0.0, 90.0)])
+        self.given += images
+        return Decision("look", Stop())
+
+
+def test_nothing_an_agent_is_given_leads_to_the_world_the_goal_or_the_route() -> None:
+    episode = town_episode("Go north. The destination is a small restaurant with a red roof.")
+    world = town_world()
+    inspector = Inspector()
+    run_official_episode(inspector, episode, world)
+    route = episode.gt_path_corners[1:]  # the start view is given; the rest is the answer
+    descriptions = {landmark.description for landmark in world.landmarks}
+    found = list(_reachable(inspector.given))
+    forbidden_types = (WorldTile, Episode, AvdnRecord, Landmark)
+    assert not [type(x).__name__ for x in found if isinstance(x, forbidden_types)]
+    for item in found:
+        if isinstance(item, np.ndarray) and item.dtype.kind == "f":
+            for view in route:  # no copy of a ground-truth view beyond the start
+                assert item.shape != view.shape or not np.allclose(item, view), "a GT view"
+        if isinstance(item, str):
+            assert item not in descriptions, f"a landmark description reached the agent: {item}"
+    brief = inspector.given[0]
+    assert isinstance(brief, EpisodeBrief) and brief.instruction.startswith("Go north")
+
+
+def test_captures_hold_only_the_carried_sensors() -> None:
+    episode = town_episode("Go north.")
+    for sensors, channels in (
+        ({"depth": False, "semantic": False}, {"rgb"}),
+        ({"depth": True, "semantic": False}, {"rgb", "depth_m"}),
+        ({"depth": True, "semantic": True}, {"rgb", "depth_m", "semantic", "instance"}),
+    ):
+        inspector = Inspector()
+        run_official_episode(inspector, episode, town_world(), sensors=SensorConfig(**sensors))
+        capture = inspector.given[2]
+        present = {
+            name
+            for name in ("rgb", "depth_m", "semantic", "instance")
+            if getattr(capture, name) is not None
+        }
+        assert present == channels, sensors
+        assert bool(capture.instance_categories) == ("instance" in channels)
+        assert all(
+            isinstance(c, str) and " " not in c for c in capture.instance_categories.values()
+        )
+
+
+def test_the_full_agent_runs_behind_the_boundary() -> None:
+    episode = town_episode("Go north. The destination is a small restaurant with a red roof.")
+    config = AgentConfig.model_validate(
+        {"detector": {"miss_rate": 0.0, "false_positive_rate": 0.0}}
+    )
+    rollout = run_official_episode(build_agent(config), episode, town_world())
+    assert rollout.error is None and rollout.actions

@@ -1,0 +1,65 @@
+"""A commander in the loop: the agent's questions are answered from the ground truth, in the
+generator's language, within a budget; the answer joins the dialog the agent sees."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from skyvln_eval.agent import AgentConfig, build_agent
+from skyvln_eval.harness import RunConfig, official_success, run, run_official_episode
+from skyvln_eval.harness.commander import SimulatedCommander
+from skyvln_eval.harness.store import RESULTS_FILE
+from skyvln_eval.metrics import MetricConventions, read_results, score_results
+from tests.toy_worlds import town_episode, town_world
+
+# Two restaurants in town: "a restaurant" does not say which one is meant.
+VAGUE = "Go north. The destination is a restaurant."
+PERFECT = {"detector": {"miss_rate": 0.0, "false_positive_rate": 0.0, "confusion_rate": 0.0}}
+
+
+def test_hsd_ambiguity_makes_the_agent_ask_and_the_answer_settles_it() -> None:
+    episode, world = town_episode(VAGUE), town_world()
+    commander = SimulatedCommander(episode, world, max_questions=2, seed=1)
+    agent = build_agent(AgentConfig.model_validate(PERFECT))
+    rollout = run_official_episode(agent, episode, world, commander=commander)
+    [asked, *_] = rollout.questions
+    assert asked["step"] == 0 and asked["question"].endswith("?")
+    assert "restaurant" in rollout.traces[0]["clarification_question"]
+    # The commander answered from the ground truth: where the red restaurant is.
+    assert asked["answer"] is not None and "red roof" in asked["answer"]
+    # The answer reached the agent as a new round, and it planned again from it.
+    replans = [e for t in rollout.traces[1:] for e in t["exchanges"] if e["module"] == "subgoals"]
+    assert replans and asked["answer"] in replans[0]["prompt"][-1]["text"]
+    assert official_success(rollout.final_view, episode.gt_end_view)
+
+
+def test_without_a_commander_questions_stay_unanswered_and_the_budget_holds() -> None:
+    episode, world = town_episode(VAGUE), town_world()
+    agent = build_agent(AgentConfig.model_validate(PERFECT))
+    alone = run_official_episode(agent, episode, world)
+    assert alone.questions and all(q["answer"] is None for q in alone.questions)
+    commander = SimulatedCommander(episode, world, max_questions=0)
+    assert commander.answer(0, "Which one?", episode.start_view) == ()
+    once = SimulatedCommander(episode, world, max_questions=1, seed=3)
+    first = once.answer(0, "Which one?", episode.start_view)
+    assert [t.speaker for t in first] == ["follower", "commander"]
+    assert first[0].round_index == first[1].round_index == 2  # a new round after round 1
+    assert once.answer(1, "And now?", episode.start_view) == ()  # over budget
+
+
+def test_runs_record_questions_and_the_scores_count_them(tmp_path: Path, sample_dir: Path) -> None:
+    config = RunConfig(
+        system="asks",
+        data=str(sample_dir),
+        splits=("val_unseen",),
+        limit=4,
+        executor="serial",
+        commander={"max_questions": 1},  # type: ignore[arg-type]
+    )
+    run(config, tmp_path / "run")
+    results = read_results(tmp_path / "run" / RESULTS_FILE)
+    scores = score_results(results, MetricConventions())
+    for result, (_, row) in zip(results, scores.iterrows(), strict=True):
+        questions = result.extra["questions"]
+        assert row.questions_asked == len(questions)
+        assert row.questions_answered == sum(q["answer"] is not None for q in questions) <= 1

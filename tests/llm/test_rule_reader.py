@@ -1,0 +1,230 @@
+"""The rule stand-in reads instructions with a vocabulary, not with sentence patterns.
+
+Hand-written instructions (no generator wrote them) in many forms of the same content:
+numbers as digits and words, compass points bare, hyphenated, abbreviated, as adverbs or
+colloquially, clause order either way, corrections, sides and turns, names. Then every
+sub-goal the synthetic sample's facts imply, read back from the words of the seen
+families and of val_unseen's families. test_unseen's families are deliberately in no
+reader test: they stay held out for benchmarks/language.py.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from skyvln_eval.llm.rule.instructions import landmark_phrases, parse_instruction
+from skyvln_eval.vocabulary import compass_point, compass_points_in, distances_in
+from skyvln_eval.worlds.sample import SPLIT_FAMILIES, load_dialogs, render_trajectory
+from skyvln_eval.worlds.sample.facts import RoundFacts
+from tests.conftest import REPO, modules_loaded_by
+
+PACKAGE = REPO / "skyvln_eval"
+
+
+@pytest.mark.parametrize(
+    ("text", "question", "expected"),
+    [
+        (
+            "Fly northward along the main road and after roughly 300 m you will see a white "
+            "hospital with a red cross on its roof on your left; land there, it is the "
+            "destination.",
+            None,
+            [
+                {"kind": "head", "direction": "north"},
+                {
+                    "kind": "destination",
+                    "landmark": "a white hospital with a red cross on its roof",
+                    "distance_m": 300.0,
+                },
+            ],
+        ),
+        (
+            "Not east - go west instead, take the first left and stop when you get to the gas "
+            "station.",
+            None,
+            [
+                {"kind": "head", "direction": "west"},
+                {"kind": "turn", "direction": "left", "ordinal": 1},
+                {"kind": "stop_at", "landmark": "the gas station"},
+            ],
+        ),
+        (
+            "Keep the river bridge on your right and continue south for a hundred and fifty "
+            "metres.",
+            None,
+            [
+                {"kind": "pass", "landmark": "the river bridge", "side": "right"},
+                {"kind": "head", "direction": "south"},
+                {"kind": "stop_after", "distance_m": 150.0},
+            ],
+        ),
+        (
+            "No, you drifted; head due west now and hover over the blue-roofed hotel.",
+            "Am I still going north?",
+            [
+                {"kind": "head", "direction": "west"},
+                {"kind": "stop_at", "landmark": "the blue-roofed hotel"},
+            ],
+        ),
+        (
+            "Turn right at the traffic lights by the school, then go 100 yards and stop.",
+            None,
+            [
+                {"kind": "turn", "direction": "right", "landmark": "the school"},
+                {"kind": "stop_after", "distance_m": pytest.approx(91.44)},
+            ],
+        ),
+        (
+            "Bearing SW. At the third crossroads, swing right. Two hundred and fifty meters "
+            'later, you are looking for a stadium with a green pitch, "Memorial Stadium".',
+            None,
+            [
+                {"kind": "head", "direction": "southwest"},
+                {"kind": "turn", "direction": "right", "ordinal": 3},
+                {
+                    "kind": "destination",
+                    "landmark": "a stadium with a green pitch",
+                    "name": "Memorial Stadium",
+                    "distance_m": 250.0,
+                },
+            ],
+        ),
+        (
+            "Go north-easterly about 0.3 km. A grey church will be on your left-hand side, but "
+            "it is not the destination; your destination is the school with a white roof just "
+            "after it.",
+            None,
+            [
+                {"kind": "head", "direction": "northeast"},
+                {"kind": "stop_after", "distance_m": 300.0},
+                {"kind": "pass", "landmark": "a grey church", "side": "left"},
+                {"kind": "destination", "landmark": "the school with a white roof"},
+            ],
+        ),
+        ("Yes, that's right. No idea what else to say", None, []),
+    ],
+)
+def test_the_reader_understands_phrasings_it_was_not_written_for(
+    text: str, question: str | None, expected: list[dict[str, Any]]
+) -> None:
+    assert parse_instruction(text, question) == expected
+
+
+def test_the_vocabulary_reads_compass_points_and_distances_in_many_forms() -> None:
+    forms = ["north-east", "NE", "northeasterly", "north-eastward", "northeastern", "northeast"]
+    assert {compass_point(f) for f in forms} == {"northeast"}
+    assert compass_point("ne") is None and compass_point("Westgate") is None
+    assert compass_points_in(["up", "north", "then", "south", "west"]) == [
+        (1, "north"),
+        (3, "southwest"),
+    ]
+    written = {
+        "150 m": 150.0,
+        "0.15 km": 150.0,
+        "one hundred and fifty metres": 150.0,
+        "a hundred fifty meters": 150.0,
+        "half a kilometre": 500.0,
+        "forty-five metres": 45.0,
+        "a quarter of a mile": pytest.approx(402.336),
+    }
+    for text, metres in written.items():
+        assert distances_in(text.split()) == [(0, metres)], text
+    assert distances_in(["the", "first", "88", "on", "the", "way"]) == []  # no unit: no distance
+
+
+def test_earlier_rounds_give_their_landmarks_as_context() -> None:
+    text = "I can see the bridge. Where to now? Keep a red hotel (Grand Plaza Hotel) on the left."
+    assert landmark_phrases(text) == ["the bridge", "a red hotel"]
+
+
+def _expected(facts: RoundFacts) -> list[dict[str, Any]]:
+    """The sub-goals a round's facts imply, as the reader should give them."""
+    goals: list[dict[str, Any]] = [{"kind": "head", "direction": facts.heading}]
+    for turn in facts.turns:
+        goal: dict[str, Any] = {"kind": "turn", "direction": turn.direction}
+        if turn.at is not None:
+            goal["landmark"] = "roundabout" if turn.roundabout else turn.at.word
+        else:
+            goal["ordinal"] = max(1, turn.ordinal)
+        goals.append(goal)
+    if facts.passing is not None:
+        lm = facts.passing.landmark.description.lower()
+        goals.append({"kind": "pass", "landmark": lm, "side": facts.passing.side})
+    if facts.destination is not None:
+        dest = facts.destination
+        goal = {"kind": "destination", "landmark": dest.description.lower()}
+        goal |= {"name": dest.name} if dest.name else {}
+        goal |= {"distance_m": float(facts.distance_m)} if facts.destination_distance else {}
+        goals.append(goal)
+    elif facts.stop_at is not None:
+        goals.append({"kind": "stop_at", "landmark": facts.stop_at.word})
+    else:
+        goals.append({"kind": "stop_after", "distance_m": float(facts.distance_m)})
+    return goals
+
+
+def _comparable(goals: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Landmark phrases without their article; any name for a roundabout one word."""
+    out = []
+    for goal in goals:
+        goal = dict(goal)
+        if "landmark" in goal:
+            phrase = goal["landmark"].removeprefix("the ").removeprefix("a ").removeprefix("an ")
+            if goal["kind"] == "turn" and phrase in ("roundabout", "traffic circle"):
+                phrase = "roundabout"
+            goal["landmark"] = phrase
+        out.append(goal)
+    return out
+
+
+@pytest.mark.parametrize("families", [SPLIT_FAMILIES["train"], SPLIT_FAMILIES["val_unseen"]])
+def test_the_sample_facts_are_read_back_from_the_words(
+    sample_dir: Path, families: tuple[str, ...]
+) -> None:
+    sources = load_dialogs(sample_dir)
+    read = 0
+    for split in sources.trajectories:
+        for t in sources.trajectories[split]:
+            for offset in range(3):  # other draws of frames, numbers and compass forms
+                utterances = render_trajectory(t.rounds, families, t.wording_seed + offset)
+                for facts, utterance in zip(t.rounds, utterances, strict=True):
+                    question, _, instruction = utterance.text.partition(" [INS] ")
+                    if not instruction:
+                        question, instruction = "", utterance.text.removeprefix("[INS] ")
+                    got = parse_instruction(instruction, question.removeprefix("[QUE] ") or None)
+                    assert _comparable(got) == _comparable(_expected(facts)), utterance.text
+                    read += 1
+    assert read > 300
+
+
+def _imports(path: Path) -> set[str]:
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            names.add(node.module)
+    return names
+
+
+def test_the_rule_backend_imports_nothing_of_the_generator_or_the_agent() -> None:
+    for path in sorted((PACKAGE / "llm" / "rule").glob("*.py")):
+        bad = {
+            m for m in _imports(path) if m.startswith(("skyvln_eval.worlds", "skyvln_eval.agent"))
+        }
+        assert not bad, (path.name, bad)
+    for path in sorted((PACKAGE / "vocabulary").glob("*.py")):  # neutral: imports only itself
+        bad = {m for m in _imports(path) if m.startswith("skyvln_eval.")}
+        assert all(m.startswith("skyvln_eval.vocabulary") for m in bad), (path.name, bad)
+    for path in sorted((PACKAGE / "worlds" / "sample").glob("*.py")):  # and shares no code
+        bad = {
+            m for m in _imports(path) if m.startswith(("skyvln_eval.vocabulary", "skyvln_eval.llm"))
+        }
+        assert not bad, (path.name, bad)
+    loaded = modules_loaded_by("skyvln_eval.llm.rule", ("skyvln_eval.worlds", "skyvln_eval.agent"))
+    assert loaded == []

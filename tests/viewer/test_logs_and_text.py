@@ -1,0 +1,178 @@
+"""Finding and streaming run MCAPs; the text panels; the missing-extra message."""
+
+from __future__ import annotations
+
+import base64
+import sys
+import tracemalloc
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from skyvln_eval.converters import messages as fx
+from skyvln_eval.converters import topics as t
+from skyvln_eval.converters.reader import read_log
+from skyvln_eval.converters.writer import McapLogWriter
+from skyvln_eval.errors import ConfigError, McapLogError, MissingExtraError
+from skyvln_eval.viewer import text
+from skyvln_eval.viewer.logs import RunLogStream, find_episode_logs
+from skyvln_eval.viewer.scene import detections_by_view, sector_box
+
+
+def test_episodes_are_selected_by_id_or_split_and_id(flown_run: Path, tmp_path: Path) -> None:
+    (only,) = find_episode_logs(flown_run)
+    assert find_episode_logs(flown_run, [only.episode_id]) == [only]
+    assert find_episode_logs(flown_run, [only.key, only.episode_id]) == [only]
+    assert find_episode_logs(only.path) == [only]
+    typo = only.episode_id[:-1] + "9"
+    with pytest.raises(ConfigError, match=f"Did you mean {only.episode_id}"):
+        find_episode_logs(flown_run, [typo])
+    for bad in ("../logs", "a/b/c", ""):
+        with pytest.raises(ConfigError, match="not an episode id"):
+            find_episode_logs(flown_run, [bad])
+    with pytest.raises(ConfigError, match="not a run directory"):
+        find_episode_logs(tmp_path)
+
+
+def test_a_truncated_log_is_refused_naming_the_file(flown_run: Path, tmp_path: Path) -> None:
+    (ref,) = find_episode_logs(flown_run)
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(ref.path.read_bytes()[:-100])
+    with pytest.raises(McapLogError, match=str(cut)), RunLogStream(cut):
+        pass
+
+
+def test_the_stream_yields_every_message_in_time_order(flown_run: Path) -> None:
+    (ref,) = find_episode_logs(flown_run)
+    whole = read_log(ref.path)
+    with RunLogStream(ref.path) as log:
+        streamed = [(topic, t_ns) for topic, t_ns, _ in log.messages()]
+        assert log.episode().episode_id == ref.episode_id
+        assert log.topic_counts == whole.summary().topic_counts
+    assert sorted(streamed, key=lambda m: m[1]) == streamed
+    assert sorted(streamed) == sorted((m.topic, m.log_time_ns) for m in whole.messages)
+
+
+def _noise_png(seed: int, side: int = 300) -> bytes:
+    image = np.random.default_rng(seed).integers(0, 256, (side, side, 3), dtype=np.uint8)
+    ok, buf = cv2.imencode(".png", image)
+    assert ok
+    return buf.tobytes()
+
+
+def test_building_streams_images_instead_of_loading_them_all(
+    flown_run: Path, tmp_path: Path, rerun_cli: Path
+) -> None:
+    """A log with ~20 MB of images is built with a small fraction of that in Python memory."""
+    from skyvln_eval.viewer import write_recording
+
+    (ref,) = find_episode_logs(flown_run)
+    source = read_log(ref.path)
+    big = tmp_path / "logs" / ref.split / f"{ref.episode_id}.mcap"
+    big.parent.mkdir(parents=True)
+    images = [_noise_png(seed) for seed in range(8)]
+    total = 0
+    with McapLogWriter(big) as writer:
+        for name, meta in source.metadata.items():
+            writer.add_metadata(name, meta)
+        for k in range(80):
+            data = images[k % len(images)]
+            total += len(data)
+            t_ns = k * 100_000_000
+            message = fx.compressed_image(t_ns, t.CAMERA_FRAME, data, "png")
+            writer.write(t.TOPIC_OBSERVATION, t.COMPRESSED_IMAGE, message, t_ns)
+    assert total > 15_000_000
+    tracemalloc.start()
+    try:
+        summary = write_recording(find_episode_logs(tmp_path)[0], tmp_path / "big.rrd")
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert summary.rows["camera/observation"] == 80
+    assert peak < total / 3, f"peak {peak} bytes of Python memory for {total} bytes of images"
+
+
+def test_exchange_text_shows_every_field_the_log_holds() -> None:
+    exchange = {
+        "timestamp": {"sec": 1, "nsec": 0},
+        "episode_id": "e",
+        "step_index": 2,
+        "module": "motion",
+        "prompt": [{"role": "user", "text": "fly ```north```", "images": 1}],
+        "response": '{"action": "stop"}',
+        "error": None,
+        "status": "ok",
+        "latency_s": 0.84,
+        "usage": {"prompt_tokens": 512, "completion_tokens": 40},
+        "finish_reason": None,
+    }
+    line = text.exchange_line(exchange)
+    assert line.startswith("motion (decision 2): answered")
+    for shown in ("status=ok", "latency_s=0.84", "usage.prompt_tokens=512", "completion_tokens=40"):
+        assert shown in line
+    assert "finish_reason" not in line  # absent values are left out
+    document = text.exchange_document(exchange)
+    assert "````\nfly ```north```\n````" in document  # the fence outlasts the text's own
+    assert "1 image(s) attached" in document and '{"action": "stop"}' in document
+    failed = text.exchange_line({"module": "subgoals", "response": None, "error": "timeout"})
+    assert "error: timeout" in failed
+
+
+def test_detections_use_the_logged_box_else_the_hsd_sector() -> None:
+    sightings = [
+        {"id": "L1", "label": "stadium", "view": "front", "sector": 2, "score": 0.99},
+        {"id": "L2", "label": "park", "view": "below", "box_px": [10, 20, 30, 60], "score": 0.5},
+        {"id": "L3", "label": "tower", "view": "front", "sector": 6, "image_size_px": [300, 150]},
+    ]
+    found = detections_by_view(sightings, (224, 224))
+    assert found["front"].boxes == [sector_box(2, 224, 224), sector_box(6, 300, 150)]
+    assert sector_box(6, 300, 150) == [0.0, 100.0, 100.0, 150.0]
+    assert found["front"].labels[0] == "L1 stadium 0.99 (sector #2)"
+    assert found["below"].boxes == [[10.0, 20.0, 30.0, 60.0]]
+    assert text.sighting_line({**sightings[0], "distance_m": 182.4}).endswith(
+        "view front, sector #2; score=0.99, distance_m=182.4"
+    )
+
+
+def test_memory_text_lists_nodes_and_edges() -> None:
+    step = {
+        "step_index": 3,
+        "trace": {
+            "memory": {
+                "nodes": [{"id": "P0", "kind": "place"}, {"id": "L1", "kind": "landmark"}],
+                "edges": [{"from": "P0", "to": "L1", "kind": "met", "distance_m": 84.1}],
+                "current": "P0",
+            },
+            "clarification_question": "Which tower?",
+        },
+    }
+    document = text.memory_document(step)
+    assert "- P0: kind=place" in document and "- P0 -> L1: kind=met, distance_m=84.1" in document
+    assert "Which tower?" in document
+    assert "TBMA is off" in text.memory_document({"step_index": 0, "trace": {"memory": None}})
+
+
+def test_a_missing_viewer_extra_names_the_install_command(monkeypatch: pytest.MonkeyPatch) -> None:
+    from skyvln_eval.viewer.deps import rerun_sdk
+
+    monkeypatch.setitem(sys.modules, "rerun", None)  # import rerun now raises ImportError
+    with pytest.raises(MissingExtraError, match=r"pip install 'skyvln-eval\[viewer\]'"):
+        rerun_sdk()
+
+
+def test_importing_the_viewer_package_does_not_import_rerun() -> None:
+    import subprocess
+
+    code = "import sys, skyvln_eval.viewer; print('rerun' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_base64_image_bytes_are_passed_through_undecoded() -> None:
+    from skyvln_eval.viewer.scene import image_bytes
+
+    data = _noise_png(1, 16)
+    message = {"data": base64.b64encode(data).decode(), "format": "png"}
+    assert image_bytes(message) == (data, "image/png")

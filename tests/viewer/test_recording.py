@@ -1,0 +1,101 @@
+"""Recordings checked with Rerun's own tools against the run MCAP they were built from."""
+
+from __future__ import annotations
+
+import re
+from collections import Counter
+from pathlib import Path
+
+import pytest
+
+from skyvln_eval.converters import topics as t
+from skyvln_eval.converters.reader import episode_from_log, read_log
+from skyvln_eval.frames import latlng_to_enu
+from skyvln_eval.viewer import entities as e
+from skyvln_eval.viewer.logs import find_episode_logs
+from tests.viewer.tools import rerun_tool
+
+_CHUNK = re.compile(r"^Chunk\(\S+\) with (\d+) rows \(.*?\) - (\S+) - ")
+
+
+def rows_by_entity(printed: str) -> Counter[str]:
+    """Rows per entity path, summed over the chunks `rerun rrd print` lists."""
+    rows: Counter[str] = Counter()
+    for line in printed.splitlines():
+        if match := _CHUNK.match(line):
+            rows[match.group(2)] += int(match.group(1))
+    return rows
+
+
+@pytest.fixture(scope="module")
+def recording(flown_run: Path, rerun_cli: Path, tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
+    from skyvln_eval.viewer import write_recording
+
+    (ref,) = find_episode_logs(flown_run)
+    summary = write_recording(ref, tmp_path_factory.mktemp("rrd") / "episode.rrd")
+    return ref, summary
+
+
+def test_rerun_verifies_the_saved_recording(recording, rerun_cli: Path) -> None:  # type: ignore[no-untyped-def]
+    _, summary = recording
+    result = rerun_tool(rerun_cli, "rrd", "verify", str(summary.path))
+    assert result.returncode == 0, result.stderr
+    assert "1 file verified without error" in result.stdout + result.stderr
+    # Written under a temporary name and renamed: nothing else is left beside it.
+    assert [p.name for p in summary.path.parent.iterdir()] == [summary.path.name]
+
+
+def test_entities_and_counts_match_the_run_mcap(recording, rerun_cli: Path) -> None:  # type: ignore[no-untyped-def]
+    ref, summary = recording
+    printed = rerun_tool(rerun_cli, "rrd", "print", str(summary.path))
+    assert printed.returncode == 0, printed.stderr
+    rows = rows_by_entity(printed.stdout)
+    # The MCAP side is counted with the converters' verifying reader, not the viewer's.
+    log = read_log(ref.path)
+    poses = [m for m in log.topic(t.TOPIC_TF) if m.decode()["child_frame_id"] == t.DRONE_FRAME]
+    counts = {topic: len(log.topic(topic)) for topic in t.TOPICS}
+    assert counts[t.TOPIC_CONTROL_STEP] > 50 and counts[t.TOPIC_OBSTACLES] > 5  # it flew
+
+    assert rows[f"/{e.WORLD_DRONE}"] == len(poses)
+    assert rows[f"/{e.MAP_DRONE}"] == len(poses)
+    assert rows[f"/{e.CAMERA_OBSERVATION}"] == counts[t.TOPIC_OBSERVATION] > 0
+    views = {path for path in rows if path.startswith(f"/{e.MAP_VIEWS}/")}
+    assert len(views) == counts[t.TOPIC_RUN_VIEWS] > 0
+    assert all(rows[path] == 1 for path in views)
+    assert rows[f"/{e.MAP_FINAL_VIEW}"] == 1
+    assert rows[f"/{e.LLM_LOG}"] == counts[t.TOPIC_LLM_EXCHANGE] > 0
+    by_module = sum(
+        n for path, n in rows.items() if path.startswith(f"/{e.LLM}/") and path != f"/{e.LLM_LOG}"
+    )
+    assert by_module == counts[t.TOPIC_LLM_EXCHANGE]
+    assert rows[f"/{e.WORLD_OBSTACLES}"] == counts[t.TOPIC_OBSTACLES]
+    for entity in (e.AGENT_STEP, e.AGENT_HSD, e.AGENT_MEMORY, e.AGENT_LOG):
+        assert rows[f"/{entity}"] == counts[t.TOPIC_AGENT_STEP] > 0
+    for series in ("x_m/state", "x_m/reference", "yaw_rad/reference", "solve_time_ms"):
+        assert rows[f"/{e.CONTROL}/{series}"] == counts[t.TOPIC_CONTROL_STEP]
+    for static in (e.MAP_TILE, e.MAP_GT_ROUTE, e.MAP_GT_VIEWS, e.MAP_GOAL, e.WORLD_GT_ROUTE):
+        assert rows[f"/{static}"] >= 1, static
+    assert rows[f"/{e.DIALOG}"] == counts[t.TOPIC_DIALOG] > 0
+    # The recording is the episode's, on both timelines.
+    assert f'"{summary.recording_id}"' in printed.stdout
+    detail = rerun_tool(
+        rerun_cli, "rrd", "print", "-vv", "--entity", f"/{e.CAMERA_OBSERVATION}", str(summary.path)
+    )
+    assert f"index_name: {e.DECISION_TIMELINE}" in detail.stdout
+    assert f"index_name: {e.SIM_TIMELINE}" in detail.stdout
+    # What the builder says it logged is what Rerun reads back.
+    for path, n in summary.rows.items():
+        if not path.startswith(f"{e.CONTROL}/"):
+            assert rows[f"/{path}"] >= n, path
+
+
+def test_map_pixels_are_the_official_ones(flown_run: Path) -> None:
+    (ref,) = find_episode_logs(flown_run)
+    episode = episode_from_log(read_log(ref.path))
+    corners = episode.gt_path_corners[0]
+    frame = e.MapFrame(episode.georef)
+    official = episode.georef.gps_to_pixel_float(corners)
+    assert frame.pixels(latlng_to_enu(corners, episode.georef)) == pytest.approx(official, abs=1e-6)
+    width, height = frame.size_px
+    assert official[:, 0].min() > 0 and official[:, 0].max() < width
+    assert official[:, 1].min() > 0 and official[:, 1].max() < height

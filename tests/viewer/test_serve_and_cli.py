@@ -1,0 +1,145 @@
+"""`skyvln-eval view`: saving, serving on the loopback only, analytics off."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import time
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+from skyvln_eval.viewer.logs import find_episode_logs
+from skyvln_eval.viewer.privacy import rerun_environment
+from tests.conftest import REPO
+from tests.viewer.tools import rerun_tool, run_skyvln_eval, skyvln_eval_command
+
+
+def test_rerun_processes_run_with_analytics_off(rerun_cli: Path) -> None:
+    env = rerun_environment()  # what the toolkit gives every rerun process it starts
+    result = rerun_tool(rerun_cli, "analytics", "config")
+    assert result.returncode == 0, result.stderr
+    config = json.loads(result.stdout)
+    assert config["analytics_enabled"] is False
+    assert config["config_file_path"].startswith(env["XDG_CONFIG_HOME"])
+    assert "Welcome to Rerun" not in result.stderr  # no first-run notice: a config exists
+
+
+def test_the_served_viewer_listens_on_the_loopback_only_with_a_policy(
+    flown_run: Path, rerun_cli: Path, tmp_path: Path
+) -> None:
+    import psutil
+
+    from skyvln_eval.viewer import write_recording
+    from skyvln_eval.viewer.serve import serve_recordings
+
+    (ref,) = find_episode_logs(flown_run)
+    summary = write_recording(ref, tmp_path / "episode.rrd")
+    with serve_recordings([summary.path], port=0) as viewer:
+        with urllib.request.urlopen(viewer.url, timeout=30) as response:
+            page = response.read().decode()
+            policy = response.headers["Content-Security-Policy"]
+        grpc_port = int(viewer.grpc_url.rsplit(":", 1)[1].split("/")[0])
+        assert "re_viewer.js" in page
+        assert f"connect-src 'self' http://127.0.0.1:{grpc_port}" in policy
+        assert "default-src 'self'" in policy
+        listening = [
+            c.laddr
+            for c in psutil.Process(viewer.process.pid).net_connections(kind="inet")
+            if c.status == psutil.CONN_LISTEN
+        ]
+        assert {a.port for a in listening} >= {grpc_port}
+        assert {a.ip for a in listening} == {"127.0.0.1"}
+        assert viewer.proxy.server_address[0] == "127.0.0.1"
+        process = viewer.process
+    assert process.poll() is not None  # closing stopped the rerun process it started
+
+
+def test_a_taken_port_is_a_clear_error_and_leaves_no_process(
+    flown_run: Path, rerun_cli: Path, tmp_path: Path
+) -> None:
+    import socket
+
+    import psutil
+
+    from skyvln_eval.viewer import write_recording
+    from skyvln_eval.viewer.serve import ViewerServeError, serve_recordings
+
+    (ref,) = find_episode_logs(flown_run)
+    summary = write_recording(ref, tmp_path / "episode.rrd")
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        with pytest.raises(ViewerServeError, match=f"cannot listen on 127.0.0.1:{port}"):
+            serve_recordings([summary.path], port=port)
+    rerun_children = [
+        c
+        for c in psutil.Process().children(recursive=True)
+        if c.name() == rerun_cli.name and c.status() != psutil.STATUS_ZOMBIE
+    ]
+    assert not rerun_children
+
+
+def test_view_saves_one_episode_and_names_unknown_ones(flown_run: Path, tmp_path: Path) -> None:
+    pytest.importorskip("rerun", reason="rerun-sdk is not installed (pip install '.[viewer]')")
+    (ref,) = find_episode_logs(flown_run)
+    out = tmp_path / "one.rrd"
+    result = run_skyvln_eval(
+        "view", str(flown_run), "--episode", ref.episode_id, "--save", str(out)
+    )
+    assert result.returncode == 0, result.stderr
+    assert out.is_file() and out.stat().st_size > 10_000
+    assert f"{ref.key}: " in result.stdout and "decision(s)" in result.stdout
+    bad = run_skyvln_eval("view", str(flown_run), "--episode", "nope", "--save", str(out))
+    assert bad.returncode == 2
+    assert "no run MCAP for episode 'nope'" in bad.stderr
+
+
+def test_view_serves_until_interrupted(flown_run: Path, rerun_cli: Path, tmp_path: Path) -> None:
+    (ref,) = find_episode_logs(flown_run)
+    command = skyvln_eval_command("view", str(flown_run), "--episode", ref.key, "--port", "0")
+    process = subprocess.Popen(
+        command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO
+    )
+    try:
+        url = ""
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and process.stdout is not None:
+            line = process.stdout.readline()
+            if "http://127.0.0.1:" in line:
+                url = line[line.index("http://") :].strip()
+                break
+        assert url, "the command printed no viewer URL"
+        with urllib.request.urlopen(url, timeout=30) as response:
+            assert response.status == 200
+        process.send_signal(signal.SIGINT)
+        out, _ = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait(timeout=10)
+    assert process.returncode == 0
+    assert "stopped" in out
+
+
+def test_several_episodes_saved_as_one_file_keep_one_recording_each(
+    flown_run: Path, rerun_cli: Path, tmp_path: Path
+) -> None:
+    (ref,) = find_episode_logs(flown_run)
+    for split in ("val_seen", "test_unseen"):  # the same log under two splits: two episodes
+        copy = tmp_path / "run" / "logs" / split / ref.path.name
+        copy.parent.mkdir(parents=True)
+        copy.write_bytes(ref.path.read_bytes())
+    out = tmp_path / "both.rrd"
+    result = run_skyvln_eval("view", str(tmp_path / "run"), "--save", str(out))
+    assert result.returncode == 0, result.stderr
+    assert "saved 2 recording(s)" in result.stdout
+    printed = rerun_tool(rerun_cli, "rrd", "print", str(out)).stdout
+    for split in ("val_seen", "test_unseen"):
+        assert f'"{split}/{ref.episode_id}@' in printed
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+    refused = run_skyvln_eval("view", str(out), "--save", str(tmp_path / "again.rrd"))
+    assert refused.returncode == 2 and "already a recording" in refused.stderr
