@@ -6,10 +6,12 @@ an interrupted write never leaves a half file under the final name.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -73,6 +75,26 @@ def ensure_directory(path: str | Path, what: str) -> Path:
     except OSError as error:
         raise ConfigError(f"{what} {path} cannot be created: {error.strerror or error}") from None
     return path
+
+
+@contextlib.contextmanager
+def exclusive_lock(path: str | Path) -> Iterator[None]:
+    """Hold an exclusive OS lock on the file ``path`` (created if missing) for the block.
+
+    Threads and processes alike wait their turn (each opening has its own lock); the
+    kernel drops the lock when its process dies, so a killed holder never blocks anyone.
+    Off POSIX (no ``fcntl``) there is no lock.
+    """
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        yield
+        return
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("a+b") as handle:
+        fcntl.flock(handle.fileno(), fcntl.LOCK_EX)
+        yield
 
 
 def sha256_bytes(data: bytes) -> str:

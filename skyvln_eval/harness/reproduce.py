@@ -312,7 +312,8 @@ def reproduce(
     runs = planned_runs(plan, out_dir, workers, executor, str(data_dir))
     jobs: list[RunJob] = []
     try:
-        jobs += (prepare_job(r.config, r.run_dir) for r in runs)
+        for planned in runs:
+            jobs.append(prepare_job(planned.config, planned.run_dir))
     except BaseException:  # e.g. a run directory in use: let go of the ones already held
         for job in jobs:
             job.release()

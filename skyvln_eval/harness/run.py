@@ -28,7 +28,12 @@ from skyvln_eval.converters.batch import convert_split
 from skyvln_eval.converters.convert import ConvertOptions
 from skyvln_eval.converters.reader import read_episode
 from skyvln_eval.errors import ConfigError
-from skyvln_eval.fileio import atomic_write_json, atomic_write_text, read_yaml_mapping
+from skyvln_eval.fileio import (
+    atomic_write_json,
+    atomic_write_text,
+    exclusive_lock,
+    read_yaml_mapping,
+)
 from skyvln_eval.harness.config import RunConfig, run_config_from_mapping
 from skyvln_eval.harness.executors import Executor, make_executor
 from skyvln_eval.harness.lock import RunDirLock, hold_run_dir, remove_leftover_temporaries
@@ -65,17 +70,18 @@ def episode_logs_root(data_dir: Path) -> Path:
 
 
 def episode_logs(config: RunConfig, data_dir: Path) -> dict[RowKey, Path]:
-    """The episode MCAP of every episode the run covers, in run order (converted if needed)."""
+    """The episode MCAP of every episode the run covers, in run order (converted if needed,
+    one process at a time: the cache is shared by every run on the data)."""
     out: dict[RowKey, Path] = {}
     wanted = set(config.episodes) if config.episodes is not None else None
+    root = episode_logs_root(data_dir)
     for split in config.splits:
-        report = convert_split(
-            data_dir,
-            split,
-            episode_logs_root(data_dir),
-            config.episode_mode,
-            options=EPISODE_LOG_OPTIONS,
-        )
+        # The cache is shared by every run on this data: one process converts a split at a
+        # time (a converter clears what it takes for another's stale temporary files).
+        with exclusive_lock(root / f".{split}-{config.episode_mode}.lock"):
+            report = convert_split(
+                data_dir, split, root, config.episode_mode, options=EPISODE_LOG_OPTIONS
+            )
         rows = [r for r in report.rows if wanted is None or r.episode_id in wanted]
         if config.limit is not None:
             rows = rows[: config.limit]

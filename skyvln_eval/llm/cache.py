@@ -21,17 +21,17 @@ busy or unwritable is left as it is and this process runs without it.
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import logging
 import sqlite3
 import threading
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, Final
 
+from skyvln_eval.fileio import exclusive_lock
 from skyvln_eval.llm.types import Completion, GenerationConfig, Message
 
 log = logging.getLogger(__name__)
@@ -78,19 +78,6 @@ def _corrupt(error: BaseException) -> bool:
         return True
     code = getattr(error, "sqlite_errorcode", None)
     return code is not None and (code & 0xFF) in _CORRUPT_CODES
-
-
-@contextlib.contextmanager
-def _file_lock(path: Path) -> Iterator[None]:
-    """An exclusive OS lock on ``path`` (threads and processes alike); none without fcntl."""
-    try:
-        import fcntl
-    except ImportError:  # pragma: no cover - not POSIX
-        yield
-        return
-    with path.open("a+b") as handle:
-        fcntl.flock(handle.fileno(), fcntl.LOCK_EX)
-        yield
 
 
 def _checksum(payload: str) -> str:
@@ -148,7 +135,7 @@ class ResponseCache:
 
     def _repair(self, error: BaseException) -> sqlite3.Connection | None:
         """Open again under the OS lock; move the file aside only if it is still corrupt."""
-        with _file_lock(self.path.with_name(self.path.name + ".lock")):
+        with exclusive_lock(self.path.with_name(self.path.name + ".lock")):
             try:
                 return self._open()  # another process may have repaired it meanwhile
             except (_NotOurCache, sqlite3.DatabaseError) as again:

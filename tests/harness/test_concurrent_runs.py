@@ -7,6 +7,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -17,9 +18,10 @@ import yaml
 from skyvln_eval.errors import RunDirBusyError
 from skyvln_eval.harness import RunConfig
 from skyvln_eval.harness.lock import RunDirLock
+from skyvln_eval.harness.run import episode_logs
 from skyvln_eval.harness.store import RESULTS_FILE
 from skyvln_eval.metrics import read_results
-from tests.conftest import REPO
+from tests.conftest import REPO, make_record, write_dataset
 
 MakeConfig = Callable[..., RunConfig]
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}
@@ -60,6 +62,7 @@ def test_the_same_run_launched_twice_at_once_runs_each_episode_once(
 HOLDER = """
 import sys, time
 from skyvln_eval.harness.lock import RunDirLock
+from skyvln_eval.harness.run import episode_logs
 lock = RunDirLock(sys.argv[1])
 lock.acquire()
 print("held", flush=True)
@@ -105,3 +108,31 @@ def test_a_run_lets_go_of_its_directory_when_it_ends(tmp_path: Path) -> None:
     again = RunDirLock(tmp_path)
     again.acquire()
     again.release()
+
+
+def test_runs_converting_the_same_episodes_at_once_do_not_trip_over_each_other(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Episode logs are converted into a cache that every run on the data shares: four
+    runs starting together on fresh data (a new cache) each get every episode's log."""
+    monkeypatch.setenv("SKYVLN_EVAL_CACHE", str(tmp_path / "cache"))
+    records = [make_record(route_index=f"{i}_1") for i in range(40)]
+    data = write_dataset(tmp_path / "data", {"val_unseen": records})
+    config = RunConfig(system="x", data=str(data), splits=("val_unseen",))
+    barrier = threading.Barrier(4)
+    outcomes: list[object] = []
+
+    def convert() -> None:
+        barrier.wait()
+        try:
+            outcomes.append(episode_logs(config, data))
+        except Exception as error:  # kept for the assertion below
+            outcomes.append(error)
+
+    threads = [threading.Thread(target=convert) for _ in range(4)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert all(isinstance(o, dict) and len(o) == 40 for o in outcomes), outcomes
+    assert all(path.is_file() for o in outcomes for path in o.values())  # type: ignore[union-attr]
