@@ -42,8 +42,10 @@ def test_the_same_run_launched_twice_at_once_runs_each_episode_once(
     config_file.write_text(yaml.safe_dump(config.model_dump(mode="json")))
     run_dir = tmp_path / "run"
     command = [*_console_script(), "run", str(config_file), "--out", str(run_dir)]
+    # A cache of their own: both launches convert the episode logs at the same moment too.
+    env = {**ENV, "SKYVLN_EVAL_CACHE": str(tmp_path / "cache")}
     launches = [
-        subprocess.Popen(command, cwd=REPO, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        subprocess.Popen(command, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
         for _ in range(2)
     ]
     outputs = [launch.communicate(timeout=300) for launch in launches]
