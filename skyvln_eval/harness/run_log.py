@@ -277,7 +277,27 @@ def write_run_log(
     observations: bool = True,
     options: ConvertOptions = DEFAULT_OPTIONS,
 ) -> None:
-    """Write one run log (see the module docstring) to ``path``, atomically."""
+    """Write one run log (see the module docstring) to ``path``, atomically.
+
+    A write that fails (a full disk) raises an ``OSError`` that names ``path``: the
+    writer's own errors do not say which file they were writing.
+    """
+    try:
+        _write_run_log(path, episode, world, content, observations, options)
+    except OSError as error:
+        if error.filename is not None:
+            raise
+        raise OSError(error.errno, error.strerror, str(path)) from error
+
+
+def _write_run_log(
+    path: str | Path,
+    episode: Episode,
+    world: WorldTile | None,
+    content: RunLogContent,
+    observations: bool,
+    options: ConvertOptions,
+) -> None:
     with McapLogWriter(path) as writer:
         writer.add_metadata(t.EPISODE_METADATA, episode_metadata(episode, options))
         writer.add_metadata(

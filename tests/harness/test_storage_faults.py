@@ -153,7 +153,8 @@ def test_a_full_disk_while_run_logs_are_written_stops_the_run_at_once(
     assert full.returncode == 1, full.stdout + full.stderr
     assert "Traceback" not in full.stderr
     assert "the run stopped early: cannot write the run's files: " in full.stderr
-    assert "File too large (EFBIG)" in full.stderr and "free some space" in full.stderr
+    assert f"{run_dir / 'logs' / 'val_unseen'}/" in full.stderr  # names the file
+    assert ".mcap: File too large (EFBIG)" in full.stderr and "free some space" in full.stderr
     rows = read_results(run_dir / RESULTS_FILE)
     assert len(rows) == 1, "the run stops at the first episode that cannot be written"
     assert not list(run_dir.rglob("*.mcap")) and not list(run_dir.rglob(".*.tmp"))
