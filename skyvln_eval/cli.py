@@ -1,8 +1,9 @@
 """The ``skyvln-eval`` command: one sub-command per verb.
 
 Commands only parse options, call the library and format its results; everything they
-do is available from Python too. Errors the user can fix (``SkyvlnError``) print as one
-clear message and exit with status 2; validation problems exit with status 1.
+do is available from Python too. Errors the user can fix (``SkyvlnError``, and the
+machine's ``OSError``: a full disk, a permission) print as one clear message and exit with
+status 2; validation problems exit with status 1.
 """
 
 from __future__ import annotations
@@ -407,6 +408,11 @@ def main() -> None:
         app()
     except SkyvlnError as exc:
         _echo_problem(f"error: {exc}")
+        raise SystemExit(2) from None
+    except OSError as exc:  # the machine's, not the toolkit's: a full disk, a permission
+        from skyvln_eval.errors import describe_os_error
+
+        _echo_problem(f"error: {describe_os_error(exc)}")
         raise SystemExit(2) from None
 
 

@@ -6,6 +6,7 @@ never an ``assert``: callers can catch ``SkyvlnError`` and show the message as i
 
 from __future__ import annotations
 
+import errno
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -110,9 +111,15 @@ class ConfigError(SkyvlnError):
 
 
 def describe_validation_error(error: Any) -> str:
-    """A pydantic ``ValidationError`` as ``"field.path: message; ..."`` (for ConfigError texts)."""
+    """A pydantic ``ValidationError`` as ``"field.path: message; ..."`` (for ConfigError texts).
+
+    Our own validators' messages are complete sentences: pydantic's "Value error, " prefix
+    is dropped from them.
+    """
     return "; ".join(
-        f"{'.'.join(str(p) for p in e['loc']) or '(top level)'}: {e['msg']}" for e in error.errors()
+        f"{'.'.join(str(p) for p in e['loc']) or '(top level)'}: "
+        + str(e["msg"]).removeprefix("Value error, ")
+        for e in error.errors()
     )
 
 
@@ -159,6 +166,59 @@ class IncompleteRunError(DataError):
             shown = ", ".join(self.unexpected[: self.max_listed])
             parts.append(f"{len(self.unexpected)} episode(s) not in the split: {shown}")
         super().__init__(f"{what} is incomplete: " + "; ".join(parts))
+
+
+class RunDirBusyError(SkyvlnError):
+    """Another process is running in this run directory (it holds the directory's lock)."""
+
+    def __init__(self, run_dir: str, holder: dict[str, Any]) -> None:
+        self.run_dir = run_dir
+        self.holder = holder
+        pid = holder.get("pid")
+        who = f"process {pid}" if pid else "another process"
+        if holder.get("command"):
+            who += f" ({holder['command']})"
+        if holder.get("started"):
+            who += f", running since {holder['started']}"
+        if holder.get("host"):
+            who += f" on {holder['host']}"
+        super().__init__(
+            f"run directory {run_dir} is in use by {who}; a second run there would run the "
+            "same episodes again. Wait for it to finish (the same command then resumes "
+            "anything left), or choose another output directory."
+        )
+
+
+class ResultsWriteError(DataError):
+    """An episode's result row could not be written (a full disk, a quota, an I/O error).
+
+    The rows written before it are intact: running the same command again resumes.
+    """
+
+    def __init__(self, path: str, episode: str, rows_kept: int, error: OSError) -> None:
+        self.path = path
+        self.error = error
+        super().__init__(
+            f"cannot record episode {episode} in {path}: {describe_os_error(error)}. The "
+            f"{rows_kept} row(s) recorded before it are intact; free some space and run the "
+            "same command again: it runs only the episodes that have no row."
+        )
+
+
+def describe_os_error(error: OSError) -> str:
+    """An ``OSError`` as one plain sentence: what failed, on which file, and the errno."""
+    text = error.strerror or str(error)
+    if error.errno is not None:
+        text += f" ({errno.errorcode.get(error.errno, error.errno)})"
+    if error.filename is not None:
+        text = f"{error.filename}: {text}"
+    if error.errno in STORAGE_FULL_ERRNOS:
+        text += ": the disk (or the file size or quota allowed) is full"
+    return text
+
+
+#: errno values that say the storage is full: no later write can succeed either.
+STORAGE_FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EFBIG, errno.EDQUOT})
 
 
 class MetricInputError(SkyvlnError):
@@ -249,3 +309,16 @@ class MissingExtraError(SkyvlnError):
 
 class PerceptionError(SkyvlnError):
     """The world or camera cannot give what a perception component needs."""
+
+
+def stops_the_run(error: BaseException) -> str | None:
+    """Why ``error`` stops a whole run (no later episode could succeed), or ``None`` when it
+    is the episode's own failure: refused credentials, a replay's cache miss, a full disk."""
+    if isinstance(error, LLMAuthError | CacheMissError):
+        return str(error)
+    if isinstance(error, OSError) and error.errno in STORAGE_FULL_ERRNOS:
+        return (
+            f"cannot write the run's files: {describe_os_error(error)}; free some space and "
+            "run the same command again"
+        )
+    return None

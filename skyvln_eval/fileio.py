@@ -1,4 +1,4 @@
-"""Small file helpers shared by every writer: atomic writes and content hashes.
+"""Small file helpers: atomic writes, content hashes, and reading a YAML settings file.
 
 Files are written to a temporary name in the same directory and renamed into place, so
 an interrupted write never leaves a half file under the final name.
@@ -6,12 +6,18 @@ an interrupted write never leaves a half file under the final name.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
+
+import yaml
+
+from skyvln_eval.errors import ConfigError
 
 
 def _umask() -> int:
@@ -50,6 +56,47 @@ def atomic_write_json(path: str | Path, data: Any, indent: int | None = None) ->
     )
 
 
+def ensure_directory(path: str | Path, what: str) -> Path:
+    """Create the folder ``path`` (and its parents) unless it exists; a clear
+    :class:`ConfigError` (starting with ``what``) when it cannot be a folder."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ConfigError(
+            f"{what} {path} is an existing file, not a folder: name a folder (it is created "
+            "if missing)"
+        )
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        blocking = next((p for p in path.parents if p.exists() and not p.is_dir()), path)
+        raise ConfigError(
+            f"{what} {path} cannot be created: {blocking} is a file, not a folder"
+        ) from None
+    except OSError as error:
+        raise ConfigError(f"{what} {path} cannot be created: {error.strerror or error}") from None
+    return path
+
+
+@contextlib.contextmanager
+def exclusive_lock(path: str | Path) -> Iterator[None]:
+    """Hold an exclusive OS lock on the file ``path`` (created if missing) for the block.
+
+    Threads and processes alike wait their turn (each opening has its own lock); the
+    kernel drops the lock when its process dies, so a killed holder never blocks anyone.
+    Off POSIX (no ``fcntl``) there is no lock.
+    """
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        yield
+        return
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("a+b") as handle:
+        fcntl.flock(handle.fileno(), fcntl.LOCK_EX)
+        yield
+
+
 def sha256_bytes(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
@@ -60,3 +107,41 @@ def sha256_file(path: str | Path, chunk: int = 1 << 20) -> str:
         while block := handle.read(chunk):
             digest.update(block)
     return digest.hexdigest()
+
+
+_YAML_KINDS = {list: "a list", str: "a single string", int: "a number", float: "a number"}
+
+
+def read_yaml_mapping(path: str | Path, what: str) -> dict[str, Any]:
+    """The mapping at the top of the YAML file ``path`` (an empty file gives ``{}``).
+
+    Every way the file can be unusable is a :class:`ConfigError` that starts with ``what``
+    and the file: unreadable, not UTF-8 (with the line and the offending byte), not YAML
+    (with the line), or a top level other than a mapping (saying what it is instead).
+    """
+    file = Path(path)
+    try:
+        raw = file.read_bytes()
+    except OSError as error:
+        raise ConfigError(f"{what} {file}: cannot read it: {error.strerror or error}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as error:
+        line = raw.count(b"\n", 0, error.start) + 1
+        raise ConfigError(
+            f"{what} {file}: not UTF-8 text (byte 0x{raw[error.start]:02x} on line {line}, "
+            f"byte offset {error.start}); save it as UTF-8"
+        ) from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as error:
+        raise ConfigError(f"{what} {file}: not valid YAML: {error}") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        kind = _YAML_KINDS.get(type(data), type(data).__name__)
+        raise ConfigError(
+            f"{what} {file}: the top level must be a mapping of settings (key: value lines), "
+            f"but it is {kind}"
+        )
+    return data

@@ -5,7 +5,9 @@ from __future__ import annotations
 import ast
 import json
 import os
+import sys
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -123,3 +125,34 @@ def sample_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
     root = os.environ.get("SKYVLN_EVAL_CACHE") or tmp_path_factory.mktemp("cache")
     return ensure_sample(root)
+
+
+@dataclass(frozen=True)
+class CliOutcome:
+    """What the ``skyvln-eval`` console script did: exit code, stdout, stderr."""
+
+    code: int
+    out: str
+    err: str
+
+
+@pytest.fixture
+def cli(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> Callable[..., CliOutcome]:
+    """Run the console script's entry point in this process, as a user's shell would
+    (errors printed as messages and exit codes, not exceptions)."""
+    from skyvln_eval.cli import main
+
+    def invoke(*args: str) -> CliOutcome:
+        monkeypatch.setattr(sys, "argv", ["skyvln-eval", *args])
+        capsys.readouterr()
+        try:
+            main()
+            code = 0
+        except SystemExit as stop:
+            code = stop.code if isinstance(stop.code, int) else int(stop.code is not None)
+        captured = capsys.readouterr()
+        return CliOutcome(code, captured.out, captured.err)
+
+    return invoke

@@ -15,9 +15,11 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from skyvln_eval.agent.config import AgentConfig
+from skyvln_eval.agent.config import AGENTS, AgentConfig
 from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN, EpisodeMode, Split
-from skyvln_eval.errors import ConfigError, describe_validation_error
+from skyvln_eval.control.registry import controller_names, make_controller
+from skyvln_eval.errors import ConfigError, UnknownNameError, describe_validation_error
+from skyvln_eval.fileio import read_yaml_mapping
 from skyvln_eval.harness.executors import ExecutorKind
 from skyvln_eval.sensing import SensorConfig
 from skyvln_eval.sim.scenarios import ScenarioKind
@@ -63,6 +65,19 @@ class DynamicsSettings(_Strict):
         default=True, description="a collision ends the episode where it happened (a crash)"
     )
 
+    @field_validator("controller")
+    @classmethod
+    def _known_controller(cls, name: str) -> str:
+        # Checked on load, before any episode runs (every episode would fail on it). The
+        # registry's own lookup decides, aliases included; it raises on an unknown name
+        # before building anything.
+        if name not in controller_names():
+            try:
+                make_controller(name)
+            except UnknownNameError as error:
+                raise ValueError(str(error)) from None
+        return name
+
 
 class RunConfig(_Strict):
     """One run: a system on some splits of a dataset.
@@ -94,6 +109,13 @@ class RunConfig(_Strict):
     ray_address: str | None = None
     write_logs: bool = Field(default=True, description="one run MCAP per episode")
     observations_in_logs: bool = Field(default=True, description="camera images in the run MCAPs")
+
+    @field_validator("agent")
+    @classmethod
+    def _known_agent(cls, agent: AgentConfig) -> AgentConfig:
+        if agent.name not in AGENTS:
+            raise ValueError(str(UnknownNameError("agent", agent.name, list(AGENTS))))
+        return agent
 
     @field_validator("splits")
     @classmethod
@@ -130,11 +152,8 @@ def run_config_from_mapping(data: Any, source: str) -> RunConfig:
 def load_run_config(path: str | Path, **overrides: Any) -> RunConfig:
     """Read a YAML run config; ``overrides`` (e.g. ``workers=4``) replace top-level fields."""
     file = Path(path)
-    try:
-        data = yaml.safe_load(file.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as error:
-        raise ConfigError(f"run config {file}: {error}") from error
-    data = dict(data or {}) | {k: v for k, v in overrides.items() if v is not None}
+    data = read_yaml_mapping(file, "run config")
+    data |= {k: v for k, v in overrides.items() if v is not None}
     return run_config_from_mapping(data, f"run config {file}")
 
 

@@ -57,18 +57,37 @@ class SerialExecutor:
 
 
 def _drain(
-    pool: cf.Executor, fn: Callable[[T], R], tasks: Sequence[T]
+    pool: cf.Executor, fn: Callable[[T], R], tasks: Sequence[T], workers: int
 ) -> Iterator[tuple[T, R | BaseException]]:
-    futures = {pool.submit(fn, task): task for task in tasks}
+    """Yield each task's outcome as it finishes, with at most ``workers`` tasks submitted.
+
+    The next task is submitted only once the caller has taken an outcome and asked for
+    more, so a caller that stops (a fatal error: refused credentials, a full disk) starts
+    no further episode: only those already running finish.
+    """
+    waiting = list(reversed(tasks))  # popped from the end: in the given order
+    running: dict[cf.Future[R], T] = {}
+
+    def submit_next() -> None:
+        if waiting:
+            task = waiting.pop()
+            running[pool.submit(fn, task)] = task
+
+    for _ in range(workers):
+        submit_next()
     try:
-        for future in cf.as_completed(futures):
-            task = futures[future]
-            try:
-                yield task, future.result()
-            except Exception as exc:  # e.g. BrokenProcessPool: the caller records it
-                yield task, exc
+        while running:
+            done, _ = cf.wait(running, return_when=cf.FIRST_COMPLETED)
+            for future in done:
+                task = running.pop(future)
+                try:
+                    outcome: R | BaseException = future.result()
+                except Exception as exc:  # e.g. BrokenProcessPool: the caller records it
+                    outcome = exc
+                yield task, outcome
+                submit_next()
     finally:
-        for future in futures:
+        for future in running:
             future.cancel()
 
 
@@ -82,7 +101,7 @@ class ProcessExecutor:
         # "spawn": fresh interpreters, safe with threads in the parent (progress bars, solvers).
         context = multiprocessing.get_context("spawn")
         with cf.ProcessPoolExecutor(max_workers=self.workers, mp_context=context) as pool:
-            yield from _drain(pool, fn, tasks)
+            yield from _drain(pool, fn, tasks, self.workers)
 
 
 @dataclass(frozen=True)
@@ -93,7 +112,7 @@ class ThreadExecutor:
         self, fn: Callable[[T], R], tasks: Sequence[T]
     ) -> Iterator[tuple[T, R | BaseException]]:
         with cf.ThreadPoolExecutor(max_workers=self.workers, thread_name_prefix="episode") as pool:
-            yield from _drain(pool, fn, tasks)
+            yield from _drain(pool, fn, tasks, self.workers)
 
 
 def _thread_worker(

@@ -15,13 +15,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from skyvln_eval.agent.config import AgentConfig
 from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN, EpisodeMode, Split
 from skyvln_eval.configs import config_path
 from skyvln_eval.errors import ConfigError, describe_validation_error
+from skyvln_eval.fileio import read_yaml_mapping
 from skyvln_eval.harness.config import (
     CommanderSettings,
     DynamicsSettings,
@@ -108,11 +108,8 @@ def load_plan(name_or_path: str | Path = DEFAULT_PLAN, **overrides: Any) -> Repr
     path = Path(name_or_path)
     if not path.suffix:
         path = config_path("reproduce", f"{name_or_path}.yaml")
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as error:
-        raise ConfigError(f"reproduce plan {path}: {error}") from error
-    data = dict(data or {}) | {k: v for k, v in overrides.items() if v is not None}
+    data = read_yaml_mapping(path, "reproduce plan")
+    data |= {k: v for k, v in overrides.items() if v is not None}
     try:
         return ReproducePlan.model_validate(data)
     except ValidationError as error:

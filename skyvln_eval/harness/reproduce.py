@@ -29,7 +29,7 @@ from skyvln_eval.agent.config import LLM_AGENTS, AgentConfig
 from skyvln_eval.avdn.constants import SPLITS, annotation_file_name
 from skyvln_eval.avdn.loader import load_split
 from skyvln_eval.avdn.summary import SplitSummary, summarise_split
-from skyvln_eval.fileio import atomic_write_json, atomic_write_text
+from skyvln_eval.fileio import atomic_write_json, atomic_write_text, ensure_directory
 from skyvln_eval.harness.executors import ExecutorKind, make_executor
 from skyvln_eval.harness.plan import PlannedRun, ReproducePlan, planned_runs
 from skyvln_eval.harness.run import (
@@ -163,6 +163,17 @@ def _write_tables(
             atomic_write_text(path, to_markdown(with_ci))
             files[f"{name}_ci.md"] = path
     return files
+
+
+def _featured_row(plan: ReproducePlan, shown: Sequence[str]) -> str:
+    """The Table I row whose trajectories are drawn: Table II's system, else the last agent
+    row (never the oracle)."""
+    rows = list(zip(plan.table1.systems, shown, strict=True))
+    for system, label in rows:
+        if system.label == plan.table2.system.label:
+            return label
+    agents = [label for system, label in rows if system.agent.get("name") != "ground_truth"]
+    return agents[-1] if agents else shown[-1]
 
 
 def _table1_rows(runs: Sequence[PlannedRun], plan: ReproducePlan) -> tuple[list[str], list[str]]:
@@ -304,7 +315,7 @@ def reproduce(
 
     ``threads_per_worker`` runs that many episodes in threads in each worker process
     (for remote LLMs: their waits overlap)."""
-    out_dir = Path(out_dir)
+    out_dir = ensure_directory(out_dir, "output folder")
     started = time.perf_counter()
     data_dir = resolve_data_dir(data or plan.data)
     datasets = _dataset_summary(data_dir)
@@ -314,7 +325,14 @@ def reproduce(
         indent=1,
     )
     runs = planned_runs(plan, out_dir, workers, executor, str(data_dir))
-    jobs = [prepare_job(r.config, r.run_dir) for r in runs]
+    jobs: list[RunJob] = []
+    try:
+        for planned in runs:
+            jobs.append(prepare_job(planned.config, planned.run_dir))
+    except BaseException:  # e.g. a run directory in use: let go of the ones already held
+        for job in jobs:
+            job.release()
+        raise
     reports = execute_jobs(
         jobs,
         make_executor(executor, workers, threads_per_worker=threads_per_worker),
@@ -340,6 +358,7 @@ def reproduce(
     }
     tables_dir = out_dir / "tables"
     table1 = _table1_rows(runs, plan)
+    featured = _featured_row(plan, table1[0])
     report.files |= _write_tables(summary, plan, table1, table2_rows, conventions, tables_dir)
     table1_rows = table1[0]
     flown = [
@@ -361,7 +380,7 @@ def reproduce(
     figures_dir = out_dir / "figures"
     report.files |= _control_figures(plan, out_dir)
     report.files |= _navigation_figures(scores, table1_rows, conventions, figures_dir)
-    full = [r for r in results if r.system == table1_rows[-1] and r.split == plan.table2.split]
+    full = [r for r in results if r.system == featured and r.split == plan.table2.split]
     report.files |= _trajectory_figures(full, data_dir, plan.trajectory_figures, figures_dir)
     recordings, report.notes = _recordings(plan, runs, jobs, out_dir)
     report.files |= recordings

@@ -28,9 +28,15 @@ from skyvln_eval.converters.batch import convert_split
 from skyvln_eval.converters.convert import ConvertOptions
 from skyvln_eval.converters.reader import read_episode
 from skyvln_eval.errors import ConfigError
-from skyvln_eval.fileio import atomic_write_json, atomic_write_text
+from skyvln_eval.fileio import (
+    atomic_write_json,
+    atomic_write_text,
+    exclusive_lock,
+    read_yaml_mapping,
+)
 from skyvln_eval.harness.config import RunConfig, run_config_from_mapping
 from skyvln_eval.harness.executors import Executor, make_executor
+from skyvln_eval.harness.lock import RunDirLock, hold_run_dir, remove_leftover_temporaries
 from skyvln_eval.harness.official_loop import official_success
 from skyvln_eval.harness.preflight import preflight
 from skyvln_eval.harness.provenance import provenance
@@ -64,17 +70,18 @@ def episode_logs_root(data_dir: Path) -> Path:
 
 
 def episode_logs(config: RunConfig, data_dir: Path) -> dict[RowKey, Path]:
-    """The episode MCAP of every episode the run covers, in run order (converted if needed)."""
+    """The episode MCAP of every episode the run covers, in run order (converted if needed,
+    one process at a time: the cache is shared by every run on the data)."""
     out: dict[RowKey, Path] = {}
     wanted = set(config.episodes) if config.episodes is not None else None
+    root = episode_logs_root(data_dir)
     for split in config.splits:
-        report = convert_split(
-            data_dir,
-            split,
-            episode_logs_root(data_dir),
-            config.episode_mode,
-            options=EPISODE_LOG_OPTIONS,
-        )
+        # The cache is shared by every run on this data: one process converts a split at a
+        # time (a converter clears what it takes for another's stale temporary files).
+        with exclusive_lock(root / f".{split}-{config.episode_mode}.lock"):
+            report = convert_split(
+                data_dir, split, root, config.episode_mode, options=EPISODE_LOG_OPTIONS
+            )
         rows = [r for r in report.rows if wanted is None or r.episode_id in wanted]
         if config.limit is not None:
             rows = rows[: config.limit]
@@ -92,9 +99,7 @@ def prepare_run_dir(config: RunConfig, run_dir: Path) -> None:
     """Create the run directory, or check that it holds a run of this same configuration."""
     path = run_dir / CONFIG_FILE
     if path.exists():
-        import yaml
-
-        existing = run_config_from_mapping(yaml.safe_load(path.read_text()), str(path))
+        existing = run_config_from_mapping(read_yaml_mapping(path, "run config"), str(path))
         if existing.digest() != config.digest():
             raise ConfigError(
                 f"{run_dir} holds a run of another configuration ({existing.system!r}, "
@@ -228,6 +233,11 @@ class RunJob:
     store: ResultStore
     report: RunReport
     tasks: list[EpisodeTask]
+    lock: RunDirLock | None = None  # held from preparation to the last recorded row
+
+    def release(self) -> None:
+        if self.lock is not None:
+            self.lock.release()
 
 
 def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = False) -> RunJob:
@@ -236,9 +246,20 @@ def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = Fal
     data_dir = resolve_data_dir(config.data)
     logs = episode_logs(config, data_dir)
     preflight(config, data_dir, (episode_id.rsplit("__", 1)[0] for _, episode_id in logs))
-    prepare_run_dir(config, run_dir)
-    store = ResultStore(run_dir)
-    report = RunReport(run_dir, config.system, list(logs), notes=store.recovery.messages())
+    # Locked before anything in it is read: a second launch refuses instead of running
+    # the same episodes (the lock dies with this process, however it ends).
+    lock = hold_run_dir(run_dir)
+    try:
+        prepare_run_dir(config, run_dir)
+        leftovers = remove_leftover_temporaries(run_dir)
+        store = ResultStore(run_dir)
+    except BaseException:
+        lock.release()
+        raise
+    notes = store.recovery.messages()
+    if leftovers:
+        notes.append(f"removed {leftovers} temporary file(s) left by an interrupted run")
+    report = RunReport(run_dir, config.system, list(logs), notes=notes)
     todo = store.missing(logs, retry_failed=retry_failed)
     report.already_done = len(logs) - len(todo)
     config_json = config.model_dump_json()
@@ -253,7 +274,7 @@ def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = Fal
         )
         for split, episode_id in todo
     ]
-    return RunJob(config, run_dir, store, report, tasks)
+    return RunJob(config, run_dir, store, report, tasks, lock)
 
 
 def _finish(job: RunJob, wall_s: float) -> None:
@@ -288,8 +309,23 @@ def execute_jobs(
     """Run every job's remaining episodes in one executor pass; rows go to each job's store.
 
     Tasks are grouped by map (then run, then episode) so that each worker's world cache
-    serves many episodes in a row.
+    serves many episodes in a row. Each job's run directory lock is released at the end,
+    however it ends.
     """
+    try:
+        return _execute_jobs(jobs, executor, progress, description, task_function)
+    finally:
+        for job in jobs:
+            job.release()
+
+
+def _execute_jobs(
+    jobs: Sequence[RunJob],
+    executor: Executor,
+    progress: Progress | None,
+    description: str,
+    task_function: Callable[[EpisodeTask], EpisodeResult],
+) -> list[RunReport]:
     progress = progress or Progress()
     by_dir = {str(job.run_dir): job for job in jobs}
     tasks = sorted(
@@ -338,7 +374,7 @@ def run(
 
 def run_results(run_dir: str | Path, keys: Sequence[RowKey] | None = None) -> list[EpisodeResult]:
     """The results of a run directory (all, or ``keys`` in that order)."""
-    store = ResultStore(run_dir)
+    store = ResultStore(run_dir, repair=False)  # a reader: the run's own process repairs
     if keys is None:
         return store.results()
     return [r for key in keys if (r := store.get(key)) is not None]

@@ -48,6 +48,7 @@ from skyvln_eval.converters.convert import (
 )
 from skyvln_eval.converters.writer import McapLogWriter
 from skyvln_eval.frames import ViewPose, latlng_to_enu, view_to_pose
+from skyvln_eval.harness.crashpoints import crash_point
 from skyvln_eval.sim.obstacles import ObstacleScenario
 from skyvln_eval.worlds.tile import WorldTile
 
@@ -276,7 +277,27 @@ def write_run_log(
     observations: bool = True,
     options: ConvertOptions = DEFAULT_OPTIONS,
 ) -> None:
-    """Write one run log (see the module docstring) to ``path``, atomically."""
+    """Write one run log (see the module docstring) to ``path``, atomically.
+
+    A write that fails (a full disk) raises an ``OSError`` that names ``path``: the
+    writer's own errors do not say which file they were writing.
+    """
+    try:
+        _write_run_log(path, episode, world, content, observations, options)
+    except OSError as error:
+        if error.filename is not None:
+            raise
+        raise OSError(error.errno, error.strerror, str(path)) from error
+
+
+def _write_run_log(
+    path: str | Path,
+    episode: Episode,
+    world: WorldTile | None,
+    content: RunLogContent,
+    observations: bool,
+    options: ConvertOptions,
+) -> None:
     with McapLogWriter(path) as writer:
         writer.add_metadata(t.EPISODE_METADATA, episode_metadata(episode, options))
         writer.add_metadata(
@@ -289,6 +310,7 @@ def write_run_log(
         )
         poses = [view_to_pose(corners, episode.georef) for corners in episode.gt_path_corners]
         write_static_content(episode, world if observations else None, poses, writer, options)
+        crash_point("run-log-start")  # test hook: no-op unless $SKYVLN_EVAL_CRASH_AT says
         for index, turn in enumerate(episode.dialog()):
             write_dialog_turn(writer, episode.episode_id, turn, index, 0)
         out = _Messages()
@@ -298,3 +320,4 @@ def write_run_log(
             _control_messages(out, content.control_log)
         _obstacle_messages(out, content.obstacle_segments)
         out.write(writer)
+        crash_point("run-log-end")

@@ -34,7 +34,7 @@ from skyvln_eval.avdn.records import Episode
 from skyvln_eval.control import Controller, make_controller, save_flight_log
 from skyvln_eval.control.closed_loop import NATIVE_CALLS
 from skyvln_eval.converters.reader import read_episode
-from skyvln_eval.errors import CacheMissError, LLMAuthError
+from skyvln_eval.errors import stops_the_run
 from skyvln_eval.harness.commander import SimulatedCommander
 from skyvln_eval.harness.config import RunConfig
 from skyvln_eval.harness.dynamics_loop import DynamicsRollout, derived_seed, run_dynamics_episode
@@ -275,7 +275,7 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
     except Exception as exc:  # the episode failed: record it and let the run go on
         episode = episode or read_episode(task.episode_log)
         error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
-        fatal = str(exc) if isinstance(exc, LLMAuthError | CacheMissError) else None
+        fatal = stops_the_run(exc)
         return failed_result(config, task, episode, error, time.perf_counter() - started, fatal)
 
 

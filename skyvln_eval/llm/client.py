@@ -7,6 +7,11 @@ record with its error, the answered attempt one with tokens, cost, latency, the 
 settings sent and the structured-output level used. Latency is the backend's time only;
 the wait for a free slot under ``max_concurrency`` is recorded apart (``queue_s``).
 
+A call has a deadline (the retry policy's ``deadline_s``), counted from the moment its
+first attempt gets a slot: each attempt is given the time left as its timeout (the
+backend bounds an attempt from connect to last byte) and no retry starts that could not
+end before it, so no server, however slow, holds a call longer.
+
 Cached answers are recorded with the original call's tokens, cost and latency and
 ``cached=True``, so a run replayed from the cache reproduces its cost table exactly while
 saying it paid nothing again. Cost is ``None`` (unknown) when the model has no price or
@@ -43,6 +48,30 @@ class CallResult:
     @property
     def text(self) -> str | None:
         return None if self.completion is None else self.completion.text
+
+
+class _Deadline:
+    """The deadline of one call: started by its first attempt, in ``time.monotonic`` time."""
+
+    def __init__(self, budget_s: float | None) -> None:
+        self.budget_s = budget_s
+        self.at: float | None = None
+
+    def left_s(self) -> float | None:
+        if self.budget_s is None or self.at is None:
+            return self.budget_s
+        return self.at - time.monotonic()
+
+    def bound(self, config: GenerationConfig) -> GenerationConfig:
+        """``config`` with its timeout cut to the time left (starting the clock)."""
+        if self.budget_s is None:
+            return config
+        if self.at is None:
+            self.at = time.monotonic() + self.budget_s
+        left = self.at - time.monotonic()
+        if left <= 0.0:
+            raise LLMTransientError(f"the call's deadline of {self.budget_s:g} s has passed")
+        return config if left >= config.timeout_s else replace(config, timeout_s=left)
 
 
 @dataclass
@@ -128,13 +157,14 @@ class LLMClient:
                 return CallResult(hit, (self.answered(base, hit, 1, 0.0),))
         records: list[LlmCall] = []
         queue_s = [0.0]
+        deadline = _Deadline(self.retry.deadline_s)
 
         def attempt() -> Completion:
             waited = time.perf_counter()
             with self._slots:
                 started = time.perf_counter()
                 queue_s[0] = started - waited
-                completion = self.backend.generate(messages, config)
+                completion = self.backend.generate(messages, deadline.bound(config))
             latency = time.perf_counter() - started
             if completion.latency_s <= 0.0:
                 completion = replace(completion, latency_s=latency)
@@ -158,7 +188,9 @@ class LLMClient:
             records.append(failed(error, latency_s, final=False))
 
         try:
-            completion = call_with_retries(attempt, self.retry, on_fault, sleep=self.sleep)
+            completion = call_with_retries(
+                attempt, self.retry, on_fault, sleep=self.sleep, time_left_s=deadline.left_s
+            )
         except LLMAuthError:
             raise
         except LLMTransientError as error:

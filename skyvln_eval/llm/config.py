@@ -8,11 +8,12 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from skyvln_eval.errors import UnknownNameError
 from skyvln_eval.llm.cache import ResponseCache
 from skyvln_eval.llm.client import LLMClient
 from skyvln_eval.llm.negotiation import StructuredSetting
 from skyvln_eval.llm.prices import load_prices
-from skyvln_eval.llm.registry import create_backend
+from skyvln_eval.llm.registry import create_backend, known_backends
 from skyvln_eval.llm.retry import RetryPolicy
 from skyvln_eval.llm.types import GenerationConfig
 
@@ -26,9 +27,17 @@ class RetryConfig(BaseModel):
     max_delay_s: float = Field(default=20.0, ge=0.0)
     jitter: float = Field(default=0.25, ge=0.0, le=1.0)
     max_retry_after_s: float = Field(default=60.0, ge=0.0)
+    deadline_s: float | None = Field(
+        default=None,
+        gt=0.0,
+        description="the whole call, every attempt and wait (default: timeout_s x max_attempts)",
+    )
 
-    def policy(self, seed: int = 0) -> RetryPolicy:
-        return RetryPolicy(**self.model_dump(), seed=seed)
+    def policy(self, seed: int = 0, default_deadline_s: float | None = None) -> RetryPolicy:
+        settings = self.model_dump()
+        if settings["deadline_s"] is None:
+            settings["deadline_s"] = default_deadline_s
+        return RetryPolicy(**settings, seed=seed)
 
 
 @dataclass(frozen=True)
@@ -57,7 +66,10 @@ class LLMConfig(BaseModel):
     server and decoding settings, retries, repair, concurrency, cache and price table.
 
     The API key is never part of the configuration: ``api_key_env`` names the environment
-    variable it is read from. ``max_tokens`` is the budget of a call; ``budgets`` gives
+    variable it is read from. ``timeout_s`` bounds one attempt from connect to last byte
+    (a server that answers a byte at a time cannot stretch it), ``retry.deadline_s`` the
+    whole call with its retries (default ``timeout_s`` times ``retry.max_attempts``).
+    ``max_tokens`` is the budget of a call; ``budgets`` gives
     agent modules their own (e.g. ``{subgoals: 1024}``). An unusable answer is asked for
     again ``repairs`` times, at ``repair_temperature`` (above the first try's, so that the
     same mistake is not simply repeated) and, when the answer was cut off at the budget,
@@ -89,6 +101,15 @@ class LLMConfig(BaseModel):
     cache_path: str | None = None
     prices_path: str | None = None
 
+    @field_validator("backend")
+    @classmethod
+    def _known_backend(cls, spec: str) -> str:
+        # Checked on load so that a misspelt backend stops a run before its first episode.
+        name = spec.partition(":")[0]
+        if name not in known_backends():
+            raise ValueError(str(UnknownNameError("LLM backend", name, known_backends())))
+        return spec
+
     @field_validator("budgets")
     @classmethod
     def _budgets_in_range(cls, budgets: dict[str, int]) -> dict[str, int]:
@@ -108,6 +129,11 @@ class LLMConfig(BaseModel):
             "timeout_s": self.timeout_s,
         }
         return GenerationConfig(**(settings | overrides))
+
+    @property
+    def call_deadline_s(self) -> float:
+        """Seconds one logical call may take, every attempt and wait included."""
+        return self.retry.deadline_s or self.timeout_s * self.retry.max_attempts
 
     def repair_policy(self) -> RepairPolicy:
         return RepairPolicy(self.repairs, self.repair_temperature, self.repair_budget_factor)
@@ -134,7 +160,7 @@ def build_client(config: LLMConfig) -> LLMClient:
     return LLMClient(
         backend=backend,
         cache=cache,
-        retry=config.retry.policy(seed=config.seed or 0),
+        retry=config.retry.policy(seed=config.seed or 0, default_deadline_s=config.call_deadline_s),
         prices=load_prices(config.prices_path),
         max_concurrency=config.max_concurrency,
     )

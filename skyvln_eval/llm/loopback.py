@@ -5,15 +5,16 @@ For tests, benchmarks and offline demonstrations of the ``openai`` backend: it r
 
 Each request to ``POST /v1/chat/completions`` takes the next :class:`Reply` of the script:
 an answer, an HTTP error status (with headers, e.g. Retry-After), a hang longer than the
-client's timeout, a malformed JSON body, or a body cut short. A reply with a ``task`` waits
-for a request of that task; requests it does not match, and all requests once the script
-is used up, are answered as the offline ``rule`` backend would, so a whole agent can run
-against the server. Images in a request are decoded as a real server would (``images`` of
-each kept request: MIME type, size, pixel shape or the decoding error). The server knows
-a request's task only from its task data, which the
-``openai`` backend sends to test servers only when told to (``send_task_data``); a request
-without task data gets a plain text answer. Every request is kept in ``requests`` (parsed
-JSON body, headers and task) for the test to inspect.
+client's timeout, a malformed JSON body, a body cut short, or an answer sent one byte at a
+time (``trickle``: each byte well within any read timeout, the whole far past it). A reply
+with a ``task`` waits for a request of that task; requests it does not match, and all
+requests once the script is used up, are answered as the offline ``rule`` backend would, so
+a whole agent can run against the server. Images in a request are decoded as a real server
+would (``images`` of each kept request: MIME type, size, pixel shape or the decoding
+error). The server knows a request's task only from its task data, which the ``openai``
+backend sends to test servers only when told to (``send_task_data``); a request without
+task data gets a plain text answer. Every request is kept in ``requests`` (parsed JSON
+body, headers and task) for the test to inspect.
 
 ``structured`` makes the server treat ``response_format`` as real servers do: ``"all"``
 accepts every form, ``"llama_cpp"`` answers the ``json_schema`` form with HTTP 500 naming
@@ -40,7 +41,9 @@ from skyvln_eval.llm.openai_backend import TASK_DATA_FIELD
 from skyvln_eval.llm.rule import RuleBackend
 from skyvln_eval.llm.types import GenerationConfig, Message
 
-ReplyKind = Literal["answer", "status", "hang", "malformed", "truncated", "refuse_schema", "rule"]
+ReplyKind = Literal[
+    "answer", "status", "hang", "malformed", "truncated", "trickle", "refuse_schema", "rule"
+]
 StructuredMimic = Literal["all", "llama_cpp", "none"]
 
 
@@ -76,6 +79,13 @@ def malformed(task: str | None = None) -> Reply:
 
 def truncated(task: str | None = None) -> Reply:
     return Reply("truncated", task=task)
+
+
+def trickle(content: str, seconds_per_byte: float, task: str | None = None) -> Reply:
+    """An answer whose whole response (status line, headers, body) goes out one byte at a
+    time, ``seconds_per_byte`` apart: every read of the client succeeds within its read
+    timeout while the response as a whole takes as long as the server likes."""
+    return Reply("trickle", content=content, seconds=seconds_per_byte, task=task)
 
 
 def rule(task: str | None = None) -> Reply:
@@ -191,6 +201,18 @@ class LoopbackOpenAIServer:
                 error = {"error": {"message": text, "type": "test"}}
                 self._send(code, json.dumps(error).encode(), headers)
 
+            def _trickle(self, body: bytes, seconds_per_byte: float) -> None:
+                head = (
+                    "HTTP/1.1 200 OK\r\nContent-Type: application/json\r\n"
+                    f"Content-Length: {len(body)}\r\n\r\n"
+                ).encode("ascii")
+                with contextlib.suppress(OSError):  # the client gave up and closed
+                    for k, byte in enumerate(head + body):
+                        if k:
+                            time.sleep(seconds_per_byte)
+                        self.wfile.write(bytes([byte]))
+                self.close_connection = True
+
             def do_POST(self) -> None:
                 length = int(self.headers.get("Content-Length", "0"))
                 body = json.loads(self.rfile.read(length) or b"{}")
@@ -236,6 +258,8 @@ class LoopbackOpenAIServer:
                     time.sleep(reply.seconds)
                     with contextlib.suppress(OSError):  # the client has gone
                         self._send(200, _completion_body("too late", model))
+                elif reply.kind == "trickle":
+                    self._trickle(_completion_body(reply.content, model), reply.seconds)
                 elif reply.kind == "malformed":
                     self._send(200, b'{"id": "chatcmpl-fake", "choices": [{"index": 0, "mess')
                 elif reply.kind == "truncated":

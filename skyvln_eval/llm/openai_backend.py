@@ -19,6 +19,12 @@ context overflow (:class:`LLMContextOverflowError`, not retried), 429 and 5xx
 (transient, retried by the client), other 4xx (refused). The client's own retries are off
 (``max_retries=0``): :class:`~skyvln_eval.llm.client.LLMClient` retries, so that every
 fault is recorded.
+
+``timeout_s`` bounds a whole attempt, from connect to last byte. The HTTP library's own
+timeouts bound each network operation, so a server that sends its answer one byte at a
+time, each within them, could hold a call for as long as it likes: the request therefore
+runs in a helper thread, and the caller stops waiting when the time is up. The abandoned
+request's client is closed (its next read fails) and never used again.
 """
 
 from __future__ import annotations
@@ -85,22 +91,17 @@ def _body_text(error: Any) -> str:
     return " ".join(p for p in parts if p)
 
 
-_clients: dict[tuple[str, str | None], Any] = {}
-_clients_lock = threading.Lock()
+def _timed_out(timeout_s: float) -> LLMTransientError:
+    return LLMTransientError(
+        f"no complete answer within {timeout_s:.3g} s (timeout, connect to last byte)"
+    )
 
 
-def _shared_client(openai: Any, base_url: str, secret: str | None) -> Any:
-    """One HTTP client per (server, key) per process: agents are built per episode, and a
-    client (with its connection pool) is costly to make; it is safe to share across
-    threads. The key lives only inside the client, as when each backend made its own."""
-    with _clients_lock:
-        key = (base_url, secret)
-        if key not in _clients:
-            # Local servers usually accept any key; the client insists on one.
-            _clients[key] = openai.OpenAI(
-                api_key=secret or "unused", base_url=base_url, max_retries=0
-            )
-        return _clients[key]
+#: Idle HTTP clients per (server, key), shared by every backend of the process: agents are
+#: built per episode, and a client (with its connection pool) is costly to make. The key
+#: lives only inside the clients, as when each backend made its own.
+_idle_clients: dict[tuple[str, str | None], list[Any]] = {}
+_idle_lock = threading.Lock()
 
 
 class _FormatRefused(Exception):
@@ -146,8 +147,11 @@ class OpenAIBackend(LLMBackend):
         self.takes_images = takes_images
         self.structured_output = structured_output
         self.send_task_data = send_task_data
-        self._client: Any = None
-        self._lock = threading.Lock()
+        # Imported now, not in the first call, whose deadline would pay for it (~0.5 s).
+        try:
+            import openai  # noqa: F401
+        except ImportError as error:  # pragma: no cover - the test extra installs openai
+            raise MissingExtraError("the openai backend", "openai", str(error)) from error
 
     def identity(self) -> dict[str, Any]:
         return {"backend": self.name, "model": self.model, "base_url": self.base_url}
@@ -170,21 +174,28 @@ class OpenAIBackend(LLMBackend):
         secret = self._secret()
         return text.replace(secret, "[API key]") if secret else text
 
-    def _get_client(self) -> Any:
-        with self._lock:
-            if self._client is None:
-                try:
-                    import openai
-                except ImportError as error:  # pragma: no cover - the test extra installs openai
-                    raise MissingExtraError("the openai backend", "openai", str(error)) from error
-                secret = self._secret()
-                if secret is None and self.base_url == OPENAI_BASE_URL:
-                    raise LLMAuthError(
-                        f"{self.endpoint}: set the environment variable {self.api_key_env} "
-                        "to the API key"
-                    )
-                self._client = _shared_client(openai, self.base_url, secret)
-            return self._client
+    def _checkout(self) -> Any:
+        """An idle client, or a new one: a client serves one request at a time, so that
+        one abandoned at its deadline can be closed without touching another's."""
+        secret = self._secret()
+        with _idle_lock:
+            idle = _idle_clients.get((self.base_url, secret))
+            if idle:
+                return idle.pop()
+        try:
+            import openai
+        except ImportError as error:  # pragma: no cover - the test extra installs openai
+            raise MissingExtraError("the openai backend", "openai", str(error)) from error
+        if secret is None and self.base_url == OPENAI_BASE_URL:
+            raise LLMAuthError(
+                f"{self.endpoint}: set the environment variable {self.api_key_env} to the API key"
+            )
+        # Local servers usually accept any key; the client insists on one.
+        return openai.OpenAI(api_key=secret or "unused", base_url=self.base_url, max_retries=0)
+
+    def _checkin(self, client: Any) -> None:
+        with _idle_lock:
+            _idle_clients.setdefault((self.base_url, self._secret()), []).append(client)
 
     def _payload(self, messages: Sequence[Message]) -> list[dict[str, Any]]:
         out: list[dict[str, Any]] = []
@@ -220,12 +231,12 @@ class OpenAIBackend(LLMBackend):
         return kwargs
 
     def generate(self, messages: Sequence[Message], config: GenerationConfig) -> Completion:
-        client = self._get_client()
         kwargs = self._request(messages, config)
         level: StructuredLevel | None = None
         if config.json_schema is not None:
             level = self.structured_level()
         started = time.perf_counter()
+        ends_at = time.monotonic() + config.timeout_s
         while True:
             request = dict(kwargs)
             if level is not None:
@@ -233,7 +244,7 @@ class OpenAIBackend(LLMBackend):
                 if fmt is not None:
                     request["response_format"] = fmt
             try:
-                response = self._create(client, request)
+                response = self._create_by(ends_at, request)
                 break
             except _FormatRefused as refusal:
                 level = self._step_down(level, refusal)
@@ -265,7 +276,36 @@ class OpenAIBackend(LLMBackend):
         )
         return lower
 
-    def _create(self, client: Any, kwargs: dict[str, Any]) -> Any:
+    def _create_by(self, ends_at: float, kwargs: dict[str, Any]) -> Any:
+        """One request, answered in full before ``ends_at`` (``time.monotonic``) or given up."""
+        timeout_s = kwargs["timeout"]
+        client = self._checkout()
+        left = ends_at - time.monotonic()
+        if left <= 0.0:
+            self._checkin(client)
+            raise _timed_out(timeout_s)
+        outcome: dict[str, Any] = {}
+        done = threading.Event()
+
+        def send() -> None:
+            try:
+                outcome["response"] = self._create(client, kwargs | {"timeout": left}, timeout_s)
+            except BaseException as error:  # handed to the caller below
+                outcome["error"] = error
+            finally:
+                done.set()
+
+        threading.Thread(target=send, name="skyvln-llm-request", daemon=True).start()
+        if not done.wait(left):
+            # Closing may wait for the stuck read, so it is done aside, never waited for.
+            threading.Thread(target=client.close, name="skyvln-llm-close", daemon=True).start()
+            raise _timed_out(timeout_s)
+        self._checkin(client)
+        if "error" in outcome:
+            raise outcome["error"]
+        return outcome["response"]
+
+    def _create(self, client: Any, kwargs: dict[str, Any], timeout_s: float) -> Any:
         import openai
 
         try:
@@ -276,7 +316,7 @@ class OpenAIBackend(LLMBackend):
                 _retry_after_s(error.response.headers),
             ) from None
         except openai.APITimeoutError:
-            raise LLMTransientError(f"no answer within {kwargs['timeout']} s (timeout)") from None
+            raise _timed_out(timeout_s) from None
         except openai.APIConnectionError as error:
             raise LLMTransientError(
                 self._scrub(f"connection failed or body cut short: {error}")

@@ -144,6 +144,7 @@ def test_the_default_plan_has_the_papers_rows() -> None:
         "w/o HSD",
         "w/o TMA",
         "Full",
+        "GT replay (oracle)",
     ]
     assert plan.table1.splits == ("val_seen", "val_unseen", "test_unseen")
     labels = [b.label for b in plan.table2.backends]

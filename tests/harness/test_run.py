@@ -22,41 +22,11 @@ from skyvln_eval.errors import ConfigError
 from skyvln_eval.harness import RunConfig, load_run_config, make_executor, run
 from skyvln_eval.harness.run import error_verdict
 from skyvln_eval.harness.store import RESULTS_FILE
-from skyvln_eval.metrics import EpisodeResult, MetricConventions, read_results, score_results
-from skyvln_eval.metrics.results_io import result_to_json_dict
+from skyvln_eval.metrics import MetricConventions, read_results, score_results
 from tests.conftest import REPO
+from tests.harness.compare import comparable, scores_of
 
 MakeConfig = Callable[..., RunConfig]
-TIMING_FIELDS = (
-    "latency_s",
-    "queue_s",
-    "wall_s",
-    "llm_s",
-    "solve_time_mean_ms",
-    "solve_time_p50_ms",
-    "solve_time_p95_ms",
-    "solve_time_max_ms",
-)
-
-
-def comparable(result: EpisodeResult) -> dict[str, Any]:
-    """A result without the fields that measure wall-clock time (latency, solve times)."""
-
-    def strip(value: Any) -> Any:
-        if isinstance(value, dict):
-            return {k: strip(v) for k, v in value.items() if k not in TIMING_FIELDS}
-        if isinstance(value, list):
-            return [strip(v) for v in value]
-        return value
-
-    return strip(result_to_json_dict(result))
-
-
-def scores_of(results: list[EpisodeResult]) -> dict[str, tuple[float, float, float]]:
-    scores = score_results(results, MetricConventions())
-    return {
-        row.episode_id: (row.success, row.spl, row.ne_m) for row in scores.itertuples(index=False)
-    }
 
 
 def test_official_run_writes_results_and_run_logs_then_resumes_nothing(

@@ -1,0 +1,158 @@
+"""Bad configs and output paths get one clear message (file, field, what to do) and exit 2,
+before any episode runs; never a traceback."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from skyvln_eval.errors import ConfigError
+from skyvln_eval.harness import load_run_config
+from skyvln_eval.llm import LLMConfig
+from tests.conftest import CliOutcome
+
+Cli = Callable[..., CliOutcome]
+
+
+def _config(sample_dir: Path, **overrides: Any) -> dict[str, Any]:
+    return {
+        "system": "bad input",
+        "data": str(sample_dir),
+        "splits": ["val_unseen"],
+        "limit": 1,
+        "executor": "serial",
+        **overrides,
+    }
+
+
+def _refused(outcome: CliOutcome, *needles: str) -> str:
+    """The one-line message of a refused command (exit 2, no traceback)."""
+    assert outcome.code == 2, outcome
+    assert "Traceback" not in outcome.err + outcome.out
+    for needle in needles:
+        assert needle in outcome.err, (needle, outcome.err)
+    return outcome.err
+
+
+def test_a_config_whose_top_level_is_a_list(tmp_path: Path, cli: Cli) -> None:
+    path = tmp_path / "listed.yaml"
+    path.write_text("- system: x\n- data: sample\n")
+    _refused(
+        cli("run", str(path), "--out", str(tmp_path / "run")),
+        f"run config {path}",
+        "the top level must be a mapping",
+        "but it is a list",
+    )
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_config_that_is_not_utf8(tmp_path: Path, cli: Cli) -> None:
+    path = tmp_path / "latin1.yaml"
+    path.write_bytes("system: x\nagent: {name: skyvln}  # café\n".encode("latin-1"))
+    _refused(
+        cli("run", str(path)),
+        f"run config {path}: not UTF-8 text (byte 0xe9 on line 2",
+        "save it as UTF-8",
+    )
+
+
+def test_configs_that_are_folders_scalars_or_not_yaml(tmp_path: Path, cli: Cli) -> None:
+    folder = tmp_path / "folder.yaml"
+    folder.mkdir()
+    _refused(cli("run", str(folder)), f"run config {folder}: cannot read it: Is a directory")
+    scalar = tmp_path / "scalar.yaml"
+    scalar.write_text("just some words\n")
+    _refused(cli("run", str(scalar)), "but it is a single string")
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("system: [unclosed\n")
+    _refused(cli("run", str(broken)), f"run config {broken}: not valid YAML", "line 2")
+
+
+def test_out_naming_an_existing_file(tmp_path: Path, sample_dir: Path, cli: Cli) -> None:
+    path = tmp_path / "run.yaml"
+    path.write_text(yaml.safe_dump(_config(sample_dir)))
+    existing = tmp_path / "results.txt"
+    existing.write_text("my notes\n")
+    _refused(
+        cli("run", str(path), "--out", str(existing)),
+        f"run directory {existing} is an existing file, not a folder",
+    )
+    assert existing.read_text() == "my notes\n"  # untouched
+    _refused(
+        cli("run", str(path), "--out", str(existing / "run")),
+        f"run directory {existing / 'run'} cannot be created: {existing} is a file",
+    )
+
+
+def test_reproduce_out_naming_a_file_and_a_plan_that_is_a_list(tmp_path: Path, cli: Cli) -> None:
+    existing = tmp_path / "out.txt"
+    existing.write_text("x")
+    _refused(
+        cli("reproduce", "--out", str(existing), "--limit", "1"),
+        f"output folder {existing} is an existing file",
+    )
+    plan = tmp_path / "plan.yaml"
+    plan.write_text("- name: x\n")
+    _refused(cli("reproduce", "--plan", str(plan)), f"reproduce plan {plan}", "it is a list")
+
+
+def test_unknown_backend_controller_and_agent_fail_before_any_episode(
+    tmp_path: Path, sample_dir: Path, cli: Cli
+) -> None:
+    path = tmp_path / "misspelt.yaml"
+    config = _config(
+        sample_dir,
+        mode="dynamics",
+        agent={"name": "skyvln", "llm": {"backend": "opneai:gpt-4o-mini"}},
+        dynamics={"controller": "nmcp"},
+    )
+    path.write_text(yaml.safe_dump(config))
+    message = _refused(
+        cli("run", str(path), "--out", str(tmp_path / "run")),
+        "agent.llm.backend: unknown LLM backend 'opneai'. Did you mean 'openai'?",
+        "Known: openai, random, replay, rule, scripted",
+        "dynamics.controller: unknown controller 'nmcp'. Did you mean 'nmpc'?",
+        "Known: linear_mpc, lmpc, mpc, nmpc, pid",
+    )
+    assert "Value error" not in message
+    path.write_text(yaml.safe_dump(_config(sample_dir, agent={"name": "skyvnl"})))
+    _refused(
+        cli("run", str(path), "--out", str(tmp_path / "run")),
+        "agent: unknown agent 'skyvnl'. Did you mean 'skyvln'?",
+    )
+    assert not (tmp_path / "run").exists(), "no episode may run"
+
+
+def test_known_names_and_aliases_still_load(tmp_path: Path) -> None:
+    path = tmp_path / "alias.yaml"
+    path.write_text("system: x\ndynamics: {controller: lmpc}\nagent: {llm: {backend: rule}}\n")
+    assert load_run_config(path).dynamics.controller == "lmpc"
+    assert LLMConfig(backend="replay:openai:gpt-4o").backend == "replay:openai:gpt-4o"
+    with pytest.raises(Exception, match="unknown LLM backend 'opena'"):
+        LLMConfig(backend="opena:gpt-4o")
+
+
+def test_a_damaged_config_in_the_run_directory_is_named(
+    tmp_path: Path, sample_dir: Path, cli: Cli
+) -> None:
+    path = tmp_path / "run.yaml"
+    path.write_text(yaml.safe_dump(_config(sample_dir)))
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    (run_dir / "config.yaml").write_bytes(b"system: \xff\xfe\n")  # edited by hand, badly
+    _refused(
+        cli("run", str(path), "--out", str(run_dir)),
+        f"run config {run_dir / 'config.yaml'}: not UTF-8 text",
+    )
+
+
+def test_load_run_config_raises_config_errors_only(tmp_path: Path) -> None:
+    for text in (b"- a\n", b"\xff\n", b"a: [\n", b"42\n"):
+        path = tmp_path / "c.yaml"
+        path.write_bytes(text)
+        with pytest.raises(ConfigError, match=str(path)):
+            load_run_config(path)

@@ -1,0 +1,140 @@
+"""One run directory, one process: the same run launched twice at once runs each episode
+once, the second launch says who holds the directory, and a killed holder frees it."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+import yaml
+
+from skyvln_eval.errors import RunDirBusyError
+from skyvln_eval.harness import RunConfig
+from skyvln_eval.harness.lock import RunDirLock
+from skyvln_eval.harness.run import episode_logs
+from skyvln_eval.harness.store import RESULTS_FILE
+from skyvln_eval.metrics import read_results
+from tests.conftest import REPO, make_record, write_dataset
+
+MakeConfig = Callable[..., RunConfig]
+ENV = {**os.environ, "PYTHONPATH": str(REPO)}
+
+
+def _console_script() -> list[str]:
+    script = Path(sys.executable).with_name("skyvln-eval")
+    return [str(script)] if script.exists() else [sys.executable, "-m", "skyvln_eval.cli"]
+
+
+def test_the_same_run_launched_twice_at_once_runs_each_episode_once(
+    tmp_path: Path, small_config: MakeConfig
+) -> None:
+    config = small_config(
+        limit=3, splits=("val_seen", "val_unseen"), write_logs=False, agent={"name": "random"}
+    )
+    config_file = tmp_path / "run.yaml"
+    config_file.write_text(yaml.safe_dump(config.model_dump(mode="json")))
+    run_dir = tmp_path / "run"
+    command = [*_console_script(), "run", str(config_file), "--out", str(run_dir)]
+    # A cache of their own: both launches convert the episode logs at the same moment too.
+    env = {**ENV, "SKYVLN_EVAL_CACHE": str(tmp_path / "cache")}
+    launches = [
+        subprocess.Popen(command, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        for _ in range(2)
+    ]
+    outputs = [launch.communicate(timeout=300) for launch in launches]
+    codes = [launch.returncode for launch in launches]
+    assert sorted(codes) == [0, 2], outputs
+    winner, loser = (0, 1) if codes[0] == 0 else (1, 0)
+    refusal = outputs[loser][1].decode()
+    assert f"run directory {run_dir} is in use by process {launches[winner].pid} (" in refusal
+    assert f"run {config_file} --out {run_dir}), running since " in refusal
+    assert "Wait for it to finish" in refusal and "Traceback" not in refusal
+    assert b"6 run now" in outputs[winner][0]
+    rows = read_results(run_dir / RESULTS_FILE)
+    assert len(rows) == 6 and len({r.key for r in rows}) == 6  # each episode exactly once
+
+
+HOLDER = """
+import sys, time
+from skyvln_eval.harness.lock import RunDirLock
+from skyvln_eval.harness.run import episode_logs
+lock = RunDirLock(sys.argv[1])
+lock.acquire()
+print("held", flush=True)
+time.sleep(600)
+"""
+
+
+def test_the_lock_dies_with_its_process_even_when_killed(tmp_path: Path) -> None:
+    holder = subprocess.Popen(
+        [sys.executable, "-c", HOLDER, str(tmp_path)],
+        cwd=REPO,
+        env=ENV,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout is not None and holder.stdout.readline() == "held\n"
+        with pytest.raises(RunDirBusyError) as busy:
+            RunDirLock(tmp_path).acquire()
+        assert busy.value.holder["pid"] == holder.pid
+        assert f"in use by process {holder.pid} (python" in str(busy.value)
+    finally:
+        os.kill(holder.pid, signal.SIGKILL)
+        holder.wait()
+    deadline = time.monotonic() + 10
+    lock = RunDirLock(tmp_path)
+    while True:  # the kernel drops the lock as the process is reaped
+        try:
+            lock.acquire()
+            break
+        except RunDirBusyError:
+            assert time.monotonic() < deadline, "a killed run's lock must not outlive it"
+            time.sleep(0.05)
+    assert lock.held
+    lock.release()
+
+
+def test_a_run_lets_go_of_its_directory_when_it_ends(tmp_path: Path) -> None:
+    with RunDirLock(tmp_path) as lock:
+        assert lock.held
+        with pytest.raises(RunDirBusyError, match=f"process {os.getpid()} "):
+            RunDirLock(tmp_path).acquire()  # even from this same process: no second run
+    again = RunDirLock(tmp_path)
+    again.acquire()
+    again.release()
+
+
+def test_runs_converting_the_same_episodes_at_once_do_not_trip_over_each_other(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Episode logs are converted into a cache that every run on the data shares: four
+    runs starting together on fresh data (a new cache) each get every episode's log."""
+    monkeypatch.setenv("SKYVLN_EVAL_CACHE", str(tmp_path / "cache"))
+    records = [make_record(route_index=f"{i}_1") for i in range(40)]
+    data = write_dataset(tmp_path / "data", {"val_unseen": records})
+    config = RunConfig(system="x", data=str(data), splits=("val_unseen",))
+    barrier = threading.Barrier(4)
+    outcomes: list[object] = []
+
+    def convert() -> None:
+        barrier.wait()
+        try:
+            outcomes.append(episode_logs(config, data))
+        except Exception as error:  # kept for the assertion below
+            outcomes.append(error)
+
+    threads = [threading.Thread(target=convert) for _ in range(4)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert all(isinstance(o, dict) and len(o) == 40 for o in outcomes), outcomes
+    assert all(path.is_file() for o in outcomes for path in o.values())  # type: ignore[union-attr]

@@ -1,0 +1,105 @@
+"""A run killed with SIGKILL again and again, at seeded points inside result rows and run
+MCAPs, resumes to exactly the rows and scores of a run that was never interrupted."""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import random
+import signal
+from collections import Counter
+from collections.abc import Callable
+from multiprocessing.connection import Connection
+from pathlib import Path
+
+import yaml
+
+from skyvln_eval.converters.validate import check_log
+from skyvln_eval.harness import RunConfig, run
+from skyvln_eval.harness.crashpoints import CRASH_ENV, SITES
+from skyvln_eval.harness.store import DAMAGED_FILE, RESULTS_FILE, ResultStore
+from skyvln_eval.metrics import read_results
+from tests.conftest import CliOutcome
+from tests.harness.compare import same_runs
+
+MakeConfig = Callable[..., RunConfig]
+SEED = 20151
+KILLS = 24
+#: Every PROGRESS_EVERY-th kill lets one more episode finish first, so that the kills fall
+#: on every episode of the run, not only on the first one left.
+PROGRESS_EVERY = 4
+EPISODES = 6
+
+
+def _kill_server(conn: Connection, config_json: str, reference_dir: str, run_dir: str) -> None:
+    """In a fresh interpreter: run the reference (which warms the caches: modules, maps,
+    episode logs), then fork one child per crash point received, each resuming the run
+    until the crash point kills it. Forking a warm, single-threaded process makes a kill
+    cost one episode, not an interpreter start."""
+    import cv2
+
+    cv2.setNumThreads(0)  # no OpenCV worker threads: the server stays single-threaded
+    config = RunConfig.model_validate_json(config_json)
+    run(config, reference_dir)
+    while (crash_at := conn.recv()) is not None:
+        pid = os.fork()
+        if pid == 0:  # the child: never returns into this loop
+            code = 1
+            try:
+                os.environ[CRASH_ENV] = crash_at
+                run(config, run_dir)
+                code = 0
+            finally:
+                os._exit(code)
+        _, status = os.waitpid(pid, 0)
+        conn.send(os.waitstatus_to_exitcode(status))
+
+
+def test_sigkill_at_seeded_points_in_every_write_then_resume_loses_and_repeats_nothing(
+    tmp_path: Path, small_config: MakeConfig, cli: Callable[..., CliOutcome]
+) -> None:
+    # The random agent keeps each episode short; what is tested is how rows and run MCAPs
+    # are written and resumed, which is the same for every agent.
+    config = small_config(limit=EPISODES, agent={"name": "random"}, observations_in_logs=False)
+    run_dir = tmp_path / "killed"
+    ours, theirs = multiprocessing.Pipe()
+    server = multiprocessing.get_context("spawn").Process(
+        target=_kill_server,
+        args=(theirs, config.model_dump_json(), str(tmp_path / "reference"), str(run_dir)),
+    )
+    server.start()
+    rng = random.Random(SEED)
+    kills: list[str] = []
+    try:
+        for point in range(KILLS):
+            left = EPISODES - len(ResultStore(run_dir, repair=False))
+            site = rng.choice(SITES)
+            occurrence = 2 if point % PROGRESS_EVERY == PROGRESS_EVERY - 1 and left > 1 else 1
+            crash_at = f"{site}:{occurrence}:{rng.random():.3f}"
+            ours.send(crash_at)
+            assert ours.poll(120), f"kill {point} ({crash_at}) timed out"
+            assert ours.recv() == -signal.SIGKILL, f"kill {point} ({crash_at}) did not happen"
+            kills.append(crash_at)
+    finally:
+        ours.send(None)
+        server.join(timeout=60)
+    reference = read_results(tmp_path / "reference" / RESULTS_FILE)
+    assert len(reference) == EPISODES
+    done = len(ResultStore(run_dir, repair=False))
+    assert 0 < done < len(reference), "the kills must leave work for the resume"
+    assert set(Counter(k.split(":")[0] for k in kills)) == set(SITES)
+
+    config_file = tmp_path / "run.yaml"
+    config_file.write_text(yaml.safe_dump(config.model_dump(mode="json")))
+    resumed = cli("run", str(config_file), "--out", str(run_dir))
+    assert resumed.code == 0, resumed
+    same_runs(read_results(run_dir / RESULTS_FILE), reference)
+    logs = sorted(run_dir.rglob("*.mcap"))
+    assert len(logs) == len(reference)
+    assert all(not check_log(log).issues for log in logs)
+    assert not list(run_dir.rglob(".*.tmp")), "no half-written file may stay behind"
+    # Every row cut short by a kill was set aside (with its line number), none dropped.
+    row_kills = sum(k.startswith("results-row") for k in kills)
+    aside = (run_dir / DAMAGED_FILE).read_text().splitlines()[1:]
+    assert 0 < len(aside) <= row_kills
+    assert all('"reason":"incomplete last row' in line for line in aside)

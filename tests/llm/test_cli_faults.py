@@ -1,0 +1,128 @@
+"""LLM server faults through `skyvln-eval run`, as a user meets them: refused credentials,
+a context overflow, a 400-digit number in an action."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from skyvln_eval.harness.store import RESULTS_FILE
+from skyvln_eval.llm.loopback import LoopbackOpenAIServer, Reply, answer, status
+from skyvln_eval.metrics import read_results
+from tests.conftest import CliOutcome
+
+Cli = Callable[..., CliOutcome]
+SENTINEL = "sk-SENTINEL-15c0ffee15"
+FAST_RETRY = {"max_attempts": 2, "initial_delay_s": 0.0, "max_delay_s": 0.0}
+
+
+def _config_file(tmp_path: Path, sample_dir: Path, base_url: str, **overrides: Any) -> Path:
+    config = {
+        "system": "faulty server",
+        "data": str(sample_dir),
+        "splits": ["val_unseen"],
+        "limit": 2,
+        "executor": "serial",
+        "agent": {
+            "name": "skyvln",
+            "llm": {
+                "backend": "openai:test-model",
+                "base_url": base_url,
+                "api_key_env": "SKYVLN_TEST_KEY",
+                "send_task_data": True,  # the server answers as the rule backend from it
+                "retry": FAST_RETRY,
+                "timeout_s": 5.0,
+            },
+        },
+        **overrides,
+    }
+    path = tmp_path / "run.yaml"
+    path.write_text(yaml.safe_dump(config))
+    return path
+
+
+def test_refused_credentials_stop_the_run_at_once_and_the_run_resumes_once_fixed(
+    tmp_path: Path, sample_dir: Path, cli: Cli, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("SKYVLN_TEST_KEY", SENTINEL)
+    run_dir = tmp_path / "run"
+    # The server echoes the key in its error, as real services do with a wrong key.
+    refusals: list[Reply] = [status(401) for _ in range(50)]
+    with LoopbackOpenAIServer(refusals, error_message=f"Incorrect API key: {SENTINEL}") as server:
+        path = _config_file(
+            tmp_path, sample_dir, server.base_url, limit=4, executor="threads", workers=2
+        )
+        stopped = cli("run", str(path), "--out", str(run_dir))
+        sent = len(server.requests)
+        server.script.clear()  # the key is fixed: from now on the server answers
+        resumed = cli("run", str(path), "--out", str(run_dir))
+    assert stopped.code == 1, stopped
+    endpoint = f"openai:test-model@{server.base_url}"
+    assert (
+        f"faulty server: the run stopped early: {endpoint} refused the credentials (HTTP 401"
+        in stopped.err
+    )
+    assert "check the API key in the environment variable SKYVLN_TEST_KEY" in stopped.err
+    assert sent <= 2, "at once: one request per worker, not one per episode"
+    everything = stopped.out + stopped.err + resumed.out + resumed.err
+    everything += "".join(p.read_text(errors="replace") for p in run_dir.rglob("*") if p.is_file())
+    assert SENTINEL not in everything and "[API key]" in stopped.err
+    # The episodes the refusal stopped are not counted as done: they run again.
+    assert resumed.code == 0, resumed
+    rows = read_results(run_dir / RESULTS_FILE)
+    assert len(rows) == 4 and len({r.key for r in rows}) == 4
+    assert all(r.status == "ok" and "fatal" not in r.extra for r in rows)
+
+
+def test_a_context_overflow_is_recorded_and_structured_output_stays_on(
+    tmp_path: Path, sample_dir: Path, cli: Cli, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("SKYVLN_TEST_KEY", "sk-test")
+    overflow = "This model's maximum context length is 8192 tokens. However, you requested 9001."
+    script = [status(400, task="motion", message=overflow)]
+    with LoopbackOpenAIServer(script) as server:
+        path = _config_file(tmp_path, sample_dir, server.base_url, limit=1)
+        outcome = cli("run", str(path), "--out", str(tmp_path / "run"))
+        requests = [r for r in server.requests if r["task"] == "motion"]
+    assert outcome.code == 0, outcome  # one module failed: degraded, not an error
+    [row] = read_results(tmp_path / "run" / RESULTS_FILE)
+    failed = [c for c in row.llm_calls if c.outcome == "failed"]
+    assert len(failed) == 1 and "LLMContextOverflowError" in (failed[0].error or "")
+    assert "maximum context length" in (failed[0].error or "")
+    # Not retried unchanged, not taken for a refusal of the response format:
+    first = requests[0]["body"]
+    assert sum(r["body"] == first for r in requests) == 1
+    assert all(r["body"]["response_format"]["type"] == "json_schema" for r in requests)
+    report = json.loads((tmp_path / "run" / "run.json").read_text())
+    assert report["structured_output"] == {"openai:test-model": "json_schema"}
+    assert row.status == "degraded"
+
+
+def test_a_400_digit_distance_is_refused_with_a_reason_and_repaired(
+    tmp_path: Path, sample_dir: Path, cli: Cli, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("SKYVLN_TEST_KEY", "sk-test")
+    huge = "9" * 400
+    decision = (
+        '{"thought": "far away", "action": {"type": "move_forward", "distance_m": ' + huge + "}}"
+    )
+    with LoopbackOpenAIServer([answer(decision, task="motion")]) as server:
+        path = _config_file(tmp_path, sample_dir, server.base_url, limit=1)
+        outcome = cli("run", str(path), "--out", str(tmp_path / "run"))
+        requests = [r for r in server.requests if r["task"] == "motion"]
+    assert outcome.code == 0, outcome
+    assert "OverflowError" not in outcome.out + outcome.err
+    [row] = read_results(tmp_path / "run" / RESULTS_FILE)
+    motion = [c for c in row.llm_calls if c.module == "motion"]
+    assert [(c.repair, c.outcome) for c in motion[:2]] == [(False, "invalid"), (True, "ok")]
+    reason = "field 'distance_m' is far outside the allowed [0, 400]"
+    assert reason in (motion[0].error or "")
+    # The repair request carried the huge answer back with the parser's reason.
+    repair = requests[1]["body"]["messages"]
+    assert huge in repair[-2]["content"] and reason in repair[-1]["content"]
+    assert row.status == "ok"
