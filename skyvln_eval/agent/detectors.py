@@ -104,6 +104,19 @@ def box_of(mask: NDArray[np.bool_]) -> Box:
     return int(cols.min()), int(rows.min()), int(cols.max()) + 1, int(rows.max()) + 1
 
 
+def clip_box(box: Sequence[float], width: int, height: int) -> Box | None:
+    """A box ``(x0, y0, x1, y1)`` in pixels, grown to whole pixels and clipped to the image
+    (``x1`` / ``y1`` exclusive); ``None`` when nothing of it lies inside."""
+    x0, y0, x1, y1 = (float(v) for v in box)
+    if not all(math.isfinite(v) for v in (x0, y0, x1, y1)):
+        return None
+    left, top = max(0, math.floor(min(x0, x1))), max(0, math.floor(min(y0, y1)))
+    right, bottom = min(width, math.ceil(max(x0, x1))), min(height, math.ceil(max(y0, y1)))
+    if right <= left or bottom <= top:
+        return None
+    return left, top, right, bottom
+
+
 def road_bearings(
     semantic: NDArray[np.uint8],
     heading_deg: float,
