@@ -98,3 +98,18 @@ def build_tiny_grounding_dino(folder: Path, seed: int = 0) -> Path:
     processor.save_pretrained(str(folder))
     model.save_pretrained(str(folder))
     return folder
+
+
+def count_model_loads(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """The names GroundingDINO weights are loaded from from now on (transformers'
+    ``from_pretrained`` of zero-shot detection models, wrapped for the test's duration)."""
+    auto = require_vision().AutoModelForZeroShotObjectDetection
+    original = auto.from_pretrained
+    loads: list[str] = []
+
+    def counting(name: str, *args: object, **kwargs: object) -> object:
+        loads.append(name)
+        return original(name, *args, **kwargs)
+
+    monkeypatch.setattr(auto, "from_pretrained", counting)
+    return loads

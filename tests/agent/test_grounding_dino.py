@@ -16,7 +16,7 @@ from skyvln_eval.agent.grounding_dino import GroundingDinoDetector, clean_phrase
 from skyvln_eval.sensing import CameraImages, SensorConfig
 from skyvln_eval.sim.sensors import SimulatedSensors
 from tests.toy_worlds import town_world
-from tests.vision_models import build_tiny_grounding_dino, require_vision
+from tests.vision_models import build_tiny_grounding_dino, count_model_loads, require_vision
 
 PHRASES = ["red restaurant", "Church", "gas station"]
 
@@ -79,18 +79,9 @@ def test_thresholds_and_phrases_decide_what_is_kept(tiny_model: Path) -> None:
 def test_weights_are_loaded_once_per_process_for_many_detectors(
     tiny_model: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    transformers = require_vision()
     fresh = tmp_path / "fresh-model"  # a model this process has not loaded yet
     shutil.copytree(tiny_model, fresh)
-    auto = transformers.AutoModelForZeroShotObjectDetection
-    original = auto.from_pretrained
-    loads: list[str] = []
-
-    def counting(name: str, *args: object, **kwargs: object) -> object:
-        loads.append(name)
-        return original(name, *args, **kwargs)
-
-    monkeypatch.setattr(auto, "from_pretrained", counting)
+    loads = count_model_loads(monkeypatch)
     # As the harness does: one agent, so one detector, per episode.
     detectors = [
         DetectorConfig(name="grounding_dino", model=str(fresh)).build(seed) for seed in range(6)

@@ -24,7 +24,7 @@ from skyvln_eval.harness.store import RESULTS_FILE
 from skyvln_eval.metrics import MetricConventions, read_results, score_results
 from skyvln_eval.worlds.layers import LAYERS_DIR
 from tests.conftest import REPO
-from tests.vision_models import build_tiny_grounding_dino, require_vision
+from tests.vision_models import build_tiny_grounding_dino, count_model_loads
 
 
 @pytest.fixture(scope="module")
@@ -82,17 +82,8 @@ def test_a_detector_whose_sensor_is_off_is_refused_naming_the_sensor(rgb_only_da
 def test_grounding_dino_runs_on_rgb_only_data_and_episodes_are_scored(
     rgb_only_data: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    transformers = require_vision()
     model = build_tiny_grounding_dino(tmp_path / "grounding-dino-tiny")
-    auto = transformers.AutoModelForZeroShotObjectDetection
-    original = auto.from_pretrained
-    loads: list[str] = []
-
-    def counting(name: str, *args: object, **kwargs: object) -> object:
-        loads.append(name)
-        return original(name, *args, **kwargs)
-
-    monkeypatch.setattr(auto, "from_pretrained", counting)
+    loads = count_model_loads(monkeypatch)
     detector = {"name": "grounding_dino", "model": str(model), "box_threshold": 0.3}
     config = write_config(
         tmp_path / "grounding-dino.yaml",
