@@ -18,6 +18,10 @@ import pytest
 from skyvln_eval.avdn import view_from_pose
 
 REPO = Path(__file__).resolve().parent.parent
+# Nothing in the tests may come from the Hugging Face hub (the tiny GroundingDINO is built in
+# the test). huggingface_hub reads this once, when first imported, so it is set here, before
+# any test module imports datasets or transformers.
+os.environ["HF_HUB_OFFLINE"] = "1"
 FIXTURES = REPO / "tests" / "fixtures"
 
 

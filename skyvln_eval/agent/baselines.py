@@ -93,6 +93,7 @@ class NavGPTAgent(Agent):
         if self._history:
             self._history[-1]["feedback"] = observation.feedback
         panorama = self.perception.observe(observation.sensors, pose)
+        detected = self.perception.detector.take_calls()  # a VLM detector's calls, if any
         self._odometer.update(pose, panorama.road_bearings_deg)
         views = self._views(panorama)
         state = {
@@ -140,8 +141,10 @@ class NavGPTAgent(Agent):
             "repaired": result.repaired,
             "exchanges": result.exchanges,
         }
-        failures = (result.failure,) if result.failure is not None else ()
-        return Decision(result.thought, result.action, trace, tuple(result.records), failures)
+        trace["exchanges"] = detected.exchanges + result.exchanges
+        failures = (*detected.failures, *([result.failure] if result.failure else []))
+        records = (*detected.records, *result.records)
+        return Decision(result.thought, result.action, trace, records, failures)
 
     @staticmethod
     def _views(panorama: Panorama) -> list[dict[str, Any]]:

@@ -49,6 +49,10 @@ class DetectorConfig(BaseModel):
     )
     box_threshold: float = Field(default=0.35, ge=0.0, le=1.0)
     text_threshold: float = Field(default=0.25, ge=0.0, le=1.0)
+    device: str = Field(default="cpu", description="grounding_dino: torch device")
+    threads: int | None = Field(
+        default=1, ge=1, le=256, description="grounding_dino: torch threads per worker process"
+    )
     llm: LLMConfig | None = Field(default=None, description="vlm: the model that looks")
 
     @field_validator("name")
@@ -81,6 +85,8 @@ class DetectorConfig(BaseModel):
         options: dict[str, Any] = {
             "box_threshold": self.box_threshold,
             "text_threshold": self.text_threshold,
+            "device": self.device,
+            "threads": self.threads,
         }
         if self.model:
             options["model"] = self.model

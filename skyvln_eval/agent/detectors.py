@@ -20,7 +20,7 @@ import math
 import zlib
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Final
 
 import cv2
@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyvln_eval.errors import ConfigError, PerceptionError, UnknownNameError
+from skyvln_eval.llm_records import LlmCall, ModuleFailure
 from skyvln_eval.sensing import CameraImages, SemanticClass, SensorKind
 from skyvln_eval.vocabulary import CATEGORY_LABELS
 
@@ -66,6 +67,16 @@ class Detection:
     mask: NDArray[np.bool_] | None = None
 
 
+@dataclass
+class DetectorCalls:
+    """The LLM calls a detector made since they were last taken (a VLM's), for the agent's
+    accounting and the run log."""
+
+    records: list[LlmCall] = field(default_factory=list)
+    exchanges: list[dict[str, Any]] = field(default_factory=list)
+    failures: list[ModuleFailure] = field(default_factory=list)
+
+
 class Detector(ABC):
     """``detect(images, phrases) -> detections``; ``reset`` once per episode.
 
@@ -87,6 +98,10 @@ class Detector(ABC):
         """Compass bearings of roads leaving the point below the drone (none if unknown)."""
         return ()
 
+    def take_calls(self) -> DetectorCalls:
+        """The LLM calls made since the last take (none for detectors that make none)."""
+        return DetectorCalls()
+
     def settings(self) -> dict[str, Any]:
         return {"name": self.name, "requires": sorted(self.requires)}
 
@@ -103,6 +118,19 @@ def colour_name(rgb: NDArray[Any]) -> str:
 def box_of(mask: NDArray[np.bool_]) -> Box:
     rows, cols = np.nonzero(mask)
     return int(cols.min()), int(rows.min()), int(cols.max()) + 1, int(rows.max()) + 1
+
+
+def clip_box(box: Sequence[float], width: int, height: int) -> Box | None:
+    """A box ``(x0, y0, x1, y1)`` in pixels, grown to whole pixels and clipped to the image
+    (``x1`` / ``y1`` exclusive); ``None`` when nothing of it lies inside."""
+    x0, y0, x1, y1 = (float(v) for v in box)
+    if not all(math.isfinite(v) for v in (x0, y0, x1, y1)):
+        return None
+    left, top = max(0, math.floor(min(x0, x1))), max(0, math.floor(min(y0, y1)))
+    right, bottom = min(width, math.ceil(max(x0, x1))), min(height, math.ceil(max(y0, y1)))
+    if right <= left or bottom <= top:
+        return None
+    return left, top, right, bottom
 
 
 def road_bearings(

@@ -1,30 +1,146 @@
-"""GroundingDINO through ``transformers``: open-vocabulary detection from landmark phrases.
+"""GroundingDINO through ``transformers``: open-vocabulary boxes on RGB from landmark phrases.
 
-Needs the ``vision`` extra (``pip install 'skyvln-eval[vision]'``) and the model weights
-on disk: the toolkit never downloads at run time (``local_files_only``), so fetch them
-once (e.g. ``huggingface-cli download IDEA-Research/grounding-dino-tiny``) or pass a local
-folder as ``model``. Both are checked when the detector is built, with an error that says
-which is missing.
+Needs the ``vision`` extra (``pip install 'skyvln-eval[vision]'``) and the weights on disk:
+the toolkit never downloads at run time (``local_files_only``), so fetch them once (e.g.
+``huggingface-cli download IDEA-Research/grounding-dino-tiny``) or pass a local folder as
+``model``. Both are checked when the detector is built, with an error saying which is
+missing.
+
+Weights are loaded once per process and device (:func:`load_model`): the harness builds
+an agent, and so a detector, for every episode, and reloading hundreds of megabytes each
+time would cost more than the episode. ``threads`` sets torch's intra-op threads for the
+process (1 by default): the harness already runs one episode per core, and torch's
+threads on top of that oversubscribe the cores; a tiny model was seen 50 times slower
+with 2 threads than with 1 on a busy 2-core machine.
+
+The post-processing is transformers' ``post_process_grounded_object_detection`` with the
+``threshold`` / ``text_threshold`` arguments and the ``text_labels`` result key, both
+present since transformers 4.49 (the ``vision`` extra's lower bound). A text label is the
+prompt's tokens whose score passed ``text_threshold``; the detection's label is the
+phrase those tokens belong to (:func:`match_phrase`).
 """
 
 from __future__ import annotations
 
+import re
+import threading
 from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from skyvln_eval.agent.detectors import Detection, Detector
+from skyvln_eval.agent.detectors import Detection, Detector, clip_box
 from skyvln_eval.errors import MissingExtraError
 from skyvln_eval.sensing import CameraImages
 
 DEFAULT_MODEL = "IDEA-Research/grounding-dino-tiny"
+_WORD = re.compile(r"[a-z0-9]+")
+_SPECIAL_TOKEN = re.compile(r"\[[A-Z]+\]")  # [CLS], [SEP], [PAD] in decoded text labels
+
+
+@dataclass(frozen=True)
+class LoadedModel:
+    """A processor and model pair, ready for inference on ``device``."""
+
+    processor: Any
+    model: Any
+    torch: Any
+    device: str
+    transformers_version: str
+
+
+_LOADED: dict[tuple[str, str], LoadedModel] = {}
+_LOAD_LOCK = threading.Lock()
+
+
+def _model_key(model: str) -> str:
+    """A local folder by its absolute path (``./m`` and ``/abs/m`` are one model), else the
+    hub name as written."""
+    path = Path(model).expanduser()
+    return str(path.resolve()) if path.is_dir() else model
+
+
+def load_model(model: str, device: str = "cpu") -> LoadedModel:
+    """The processor and weights of ``model`` on ``device``, loaded once per process.
+
+    Raises :class:`MissingExtraError` when transformers or torch are not installed, or
+    the weights are not on this machine.
+    """
+    key = (_model_key(model), device)
+    with _LOAD_LOCK:  # thread executors build detectors concurrently: load only once
+        loaded = _LOADED.get(key)
+        if loaded is None:
+            loaded = _load(key[0], device)
+            _LOADED[key] = loaded
+        return loaded
+
+
+def _load(model: str, device: str) -> LoadedModel:
+    try:
+        import torch
+        import transformers
+        from transformers import AutoModelForZeroShotObjectDetection, AutoProcessor
+    except ImportError as error:
+        raise MissingExtraError(
+            "the GroundingDINO detector", "vision", f"cannot import {error.name}"
+        ) from error
+    try:
+        processor = AutoProcessor.from_pretrained(model, local_files_only=True)
+        weights = AutoModelForZeroShotObjectDetection.from_pretrained(model, local_files_only=True)
+    except OSError as error:
+        raise MissingExtraError(
+            "the GroundingDINO detector",
+            "vision",
+            f"weights for {model!r} are not on this machine and are never downloaded at run "
+            f"time; download them once or pass a local folder as model ({error})",
+        ) from error
+    return LoadedModel(
+        processor, weights.to(device).eval(), torch, device, transformers.__version__
+    )
+
+
+def clean_phrases(phrases: Sequence[str]) -> dict[str, str]:
+    """Prompt text of each distinct phrase -> the phrase as given, in order.
+
+    GroundingDINO reads lower-case phrases separated by full stops, so a full stop inside
+    a phrase would split it: it becomes a space.
+    """
+    out: dict[str, str] = {}
+    for phrase in phrases:
+        text = " ".join(phrase.lower().replace(".", " ").split())
+        if text and text not in out:
+            out[text] = phrase
+    return out
+
+
+def match_phrase(text_label: str, prompts: Sequence[str]) -> str | None:
+    """The prompt phrase a decoded text label belongs to, or ``None`` if it shares no word.
+
+    A text label is the run of prompt tokens that passed the text threshold, so it can
+    span two phrases or hold part of one: the phrase with most words in common wins, then
+    the one it covers best, then the earlier one.
+    """
+    words = set(_WORD.findall(_SPECIAL_TOKEN.sub(" ", text_label).lower()))
+    best: tuple[int, float, int] | None = None
+    chosen = None
+    for index, prompt in enumerate(prompts):
+        phrase_words = set(_WORD.findall(prompt))
+        common = len(words & phrase_words)
+        if not common:
+            continue
+        rank = (common, common / len(phrase_words), -index)
+        if best is None or rank > best:
+            best, chosen = rank, prompt
+    return chosen
 
 
 class GroundingDinoDetector(Detector):
-    """Text-prompted boxes; the label is the phrase matched, the caption the same phrase."""
+    """Text-prompted boxes on RGB; label and caption are the phrase matched."""
 
     name = "grounding_dino"
+    requires = frozenset({"rgb"})
 
     def __init__(
         self,
@@ -32,61 +148,63 @@ class GroundingDinoDetector(Detector):
         box_threshold: float = 0.35,
         text_threshold: float = 0.25,
         device: str = "cpu",
+        threads: int | None = 1,
     ) -> None:
-        try:
-            import torch
-            from transformers import AutoModelForZeroShotObjectDetection, AutoProcessor
-        except ImportError as error:
-            raise MissingExtraError(
-                "the GroundingDINO detector", "vision", f"cannot import {error.name}"
-            ) from error
-        try:
-            self._processor = AutoProcessor.from_pretrained(model, local_files_only=True)
-            self._model = AutoModelForZeroShotObjectDetection.from_pretrained(
-                model, local_files_only=True
-            ).to(device)
-        except OSError as error:
-            raise MissingExtraError(
-                "the GroundingDINO detector",
-                "vision",
-                f"weights for {model!r} are not on this machine and are never downloaded at run "
-                f"time; download them once or pass a local folder as model ({error})",
-            ) from error
-        self._torch = torch
+        self._loaded = load_model(model, device)
+        if threads is not None:
+            self._loaded.torch.set_num_threads(threads)  # process-wide, as the note says
         self.model_name = model
         self.box_threshold = box_threshold
         self.text_threshold = text_threshold
         self.device = device
+        self.threads = threads
 
     def settings(self) -> dict[str, Any]:
-        return {"name": self.name, "model": self.model_name, "box_threshold": self.box_threshold}
+        return {
+            **super().settings(),
+            "model": self.model_name,
+            "box_threshold": self.box_threshold,
+            "text_threshold": self.text_threshold,
+            "device": self.device,
+            "threads": self.threads,
+            "transformers": self._loaded.transformers_version,
+        }
 
     def detect(self, images: CameraImages, phrases: Sequence[str] = ()) -> list[Detection]:
-        if not phrases:
+        prompts = clean_phrases(phrases)
+        if not prompts:
             return []
-        # GroundingDINO expects lower-case phrases each ending with a full stop.
-        text = " ".join(p.lower().rstrip(".") + "." for p in phrases)
-        inputs = self._processor(images=images.rgb, text=text, return_tensors="pt").to(self.device)
-        with self._torch.no_grad():
-            outputs = self._model(**inputs)
-        height, width = images.rgb.shape[:2]
-        results = self._processor.post_process_grounded_object_detection(
+        loaded = self._loaded
+        text = ". ".join(prompts) + "."
+        max_tokens = int(loaded.model.config.max_text_len)
+        inputs = loaded.processor(
+            images=images.rgb,
+            text=text,
+            truncation=True,
+            max_length=max_tokens,
+            return_tensors="pt",
+        ).to(loaded.device)
+        with loaded.torch.no_grad():
+            outputs = loaded.model(**inputs)
+        width, height = images.size_px
+        result = loaded.processor.post_process_grounded_object_detection(
             outputs,
-            inputs.input_ids,
+            inputs["input_ids"],
             threshold=self.box_threshold,
             text_threshold=self.text_threshold,
             target_sizes=[(height, width)],
         )[0]
         out = []
-        for box, score, label in zip(
-            results["boxes"], results["scores"], results["labels"], strict=False
+        for box, score, text_label in zip(
+            result["boxes"].tolist(),
+            result["scores"].tolist(),
+            result["text_labels"],
+            strict=True,
         ):
-            x0, y0, x1, y1 = (round(float(v)) for v in box)
-            x0, y0 = max(0, x0), max(0, y0)
-            x1, y1 = min(width, max(x1, x0 + 1)), min(height, max(y1, y0 + 1))
-            out.append(
-                Detection(
-                    str(label), (x0, y0, x1, y1), float(np.clip(float(score), 0, 1)), str(label)
-                )
-            )
+            prompt = match_phrase(str(text_label), list(prompts))
+            clipped = clip_box(box, width, height)
+            if prompt is None or clipped is None:
+                continue  # tokens of no phrase (only separators), or a box off the image
+            phrase = prompts[prompt]
+            out.append(Detection(phrase, clipped, float(np.clip(score, 0.0, 1.0)), phrase))
         return out

@@ -6,11 +6,25 @@ from typing import Final
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 from skyvln_eval.agent.perception import Panorama
 from skyvln_eval.llm.types import ImagePart
 
 JPEG_QUALITY: Final = 85
+
+
+def jpeg_image(rgb: NDArray[np.uint8], max_side_px: int, label: str) -> ImagePart | None:
+    """An RGB image as a JPEG no larger than ``max_side_px`` on its long side (``None`` if
+    OpenCV cannot encode it); ``label`` says in the run log what it shows."""
+    height, width = rgb.shape[:2]
+    scale = min(1.0, max_side_px / max(height, width))
+    bgr: np.ndarray = rgb[..., ::-1]
+    if scale < 1.0:
+        size = (max(1, round(width * scale)), max(1, round(height * scale)))
+        bgr = cv2.resize(bgr, size, interpolation=cv2.INTER_AREA)
+    ok, buffer = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+    return ImagePart(buffer.tobytes(), "image/jpeg", label) if ok else None
 
 
 def panorama_images(panorama: Panorama, max_side_px: int) -> list[ImagePart]:
@@ -21,14 +35,8 @@ def panorama_images(panorama: Panorama, max_side_px: int) -> list[ImagePart]:
     """
     parts = []
     for view in panorama.views:
-        height, width = view.images.rgb.shape[:2]
-        scale = min(1.0, max_side_px / max(height, width))
-        bgr: np.ndarray = view.images.rgb[..., ::-1]
-        if scale < 1.0:
-            size = (max(1, round(width * scale)), max(1, round(height * scale)))
-            bgr = cv2.resize(bgr, size, interpolation=cv2.INTER_AREA)
-        ok, buffer = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
-        if ok:
-            label = f"view {view.name} (facing {view.heading_deg:.0f} deg)"
-            parts.append(ImagePart(buffer.tobytes(), "image/jpeg", label))
+        label = f"view {view.name} (facing {view.heading_deg:.0f} deg)"
+        part = jpeg_image(view.images.rgb, max_side_px, label)
+        if part is not None:
+            parts.append(part)
     return parts

@@ -138,6 +138,10 @@ class SkyVLNAgent(Agent):
             instruction = st.brief.instruction
             place = self.memory.add_place(observation.step_index, pose, instruction, st.last_action)
         panorama = self.perception.observe(observation.sensors, pose, st.plan.landmark_phrases)
+        detected = self.perception.detector.take_calls()  # a VLM detector's calls, if any
+        records += detected.records
+        exchanges += detected.exchanges
+        failures += detected.failures
         st.odometer.update(pose, panorama.road_bearings_deg)
         met = []
         if self.memory is not None:
