@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from skyvln_eval.agent.actions import Action, action_to_dict
-from skyvln_eval.agent.base import Agent, Observation
+from skyvln_eval.agent.base import Agent
 from skyvln_eval.agent.mapping import to_target_pose
 from skyvln_eval.avdn.constants import METERS_PER_DEGREE
 from skyvln_eval.avdn.records import Episode
@@ -29,7 +29,7 @@ from skyvln_eval.control import ArrivalCriteria, Controller, Flight
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.frames import ViewPose, enu_yaw_to_compass_deg, pose_to_view, view_to_pose
 from skyvln_eval.harness.config import DynamicsSettings
-from skyvln_eval.harness.rollout import Rollout, answer_pending, episode_brief
+from skyvln_eval.harness.rollout import Rollout, episode_brief
 from skyvln_eval.sensing import SensorConfig
 
 if TYPE_CHECKING:
@@ -38,7 +38,6 @@ from skyvln_eval.sim.obstacles import ObstacleScenario
 from skyvln_eval.sim.quadrotor import DroneState
 from skyvln_eval.sim.reference import ReferenceConfig
 from skyvln_eval.sim.scenarios import ScenarioSpec, make_scenario
-from skyvln_eval.sim.sensors import SimulatedSensors
 from skyvln_eval.worlds.tile import WorldTile
 
 #: A segment shorter than this gets no obstacles (they are placed where the drone cruises).
@@ -124,24 +123,17 @@ def run_dynamics_episode(
             yaw_tolerance_rad=settings.arrival_yaw_rad,
         ),
     )
-    rollout = DynamicsRollout(episode.episode_id, [view], [episode.start_heading_deg])
+    rollout = DynamicsRollout(
+        episode.episode_id, [view], [episode.start_heading_deg], max_steps=max_steps
+    )
     agent.reset(episode_brief(episode, max_steps))
     sensor_config = sensors or SensorConfig()
     feedback: str | None = None
     while len(rollout.views) < max_steps:
-        sensors_here = SimulatedSensors(world, pose.x_m, pose.y_m, pose.z_m, sensor_config)
-        new_dialog = answer_pending(rollout, commander, view)
-        observation = Observation(
-            len(rollout.views) - 1,
-            max_steps,
-            pose,
-            view,
-            sensors_here.handle(),
-            feedback,
-            new_dialog,
-        )
         rollout.decision_times_s.append(flight.t_s)
-        action = rollout.decide(agent, observation)
+        action = rollout.observe_and_decide(
+            agent, world, pose, view, sensor_config, commander, feedback
+        )
         if action is None:
             break
         target = _inside_map(to_target_pose(action, pose), width_m, height_m)

@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyvln_eval.agent.actions import Action, action_record, action_to_dict
-from skyvln_eval.agent.base import Agent, Observation
+from skyvln_eval.agent.base import Agent
 from skyvln_eval.agent.mapping import to_official_action
 from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN
 from skyvln_eval.avdn.geometry import hull_iou
@@ -27,13 +27,12 @@ from skyvln_eval.avdn.records import Episode
 from skyvln_eval.avdn.step import OfficialAction, official_step_detailed
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.frames import view_to_pose
-from skyvln_eval.harness.rollout import Rollout, answer_pending, episode_brief
+from skyvln_eval.harness.rollout import Rollout, episode_brief
 from skyvln_eval.metrics.official import official_success as metrics_official_success
 from skyvln_eval.sensing import SensorConfig
 
 if TYPE_CHECKING:
     from skyvln_eval.harness.commander import SimulatedCommander
-from skyvln_eval.sim.sensors import SimulatedSensors
 from skyvln_eval.worlds.tile import WorldTile
 
 
@@ -103,24 +102,17 @@ def run_official_episode(
     georef = episode.georef
     bounds = (georef.gps_botm_left, georef.gps_top_right)
     view = np.asarray(episode.start_view, dtype=np.float64)
-    rollout = OfficialRollout(episode.episode_id, [view], [episode.start_heading_deg])
+    rollout = OfficialRollout(
+        episode.episode_id, [view], [episode.start_heading_deg], max_steps=max_steps
+    )
     agent.reset(episode_brief(episode, max_steps))
     sensor_config = sensors or SensorConfig()
     feedback = None
     while len(rollout.views) < max_steps:
         pose = view_to_pose(view, georef)
-        sensors_here = SimulatedSensors(world, pose.x_m, pose.y_m, pose.z_m, sensor_config)
-        new_dialog = answer_pending(rollout, commander, view)
-        observation = Observation(
-            len(rollout.views) - 1,
-            max_steps,
-            pose,
-            view,
-            sensors_here.handle(),
-            feedback,
-            new_dialog,
+        action = rollout.observe_and_decide(
+            agent, world, pose, view, sensor_config, commander, feedback
         )
-        action = rollout.decide(agent, observation)
         if action is None:
             break
         official = to_official_action(action, view)

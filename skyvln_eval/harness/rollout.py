@@ -12,8 +12,11 @@ from skyvln_eval.agent.actions import Action, Stop
 from skyvln_eval.agent.base import Agent, Decision, EpisodeBrief, Observation
 from skyvln_eval.avdn.records import DialogTurn, Episode
 from skyvln_eval.errors import CacheMissError, LLMAuthError, SkyvlnError
-from skyvln_eval.frames import view_to_pose
+from skyvln_eval.frames import ViewPose, view_to_pose
 from skyvln_eval.llm_records import LlmCall, ModuleFailure
+from skyvln_eval.sensing import SensorConfig
+from skyvln_eval.sim.sensors import SimulatedSensors
+from skyvln_eval.worlds.tile import WorldTile
 
 if TYPE_CHECKING:
     from skyvln_eval.harness.commander import SimulatedCommander
@@ -64,6 +67,7 @@ class Rollout:
     episode_id: str
     views: list[NDArray[np.float64]]
     headings_deg: list[int]
+    max_steps: int = 10
     actions: list[Action] = field(default_factory=list)
     thoughts: list[str] = field(default_factory=list)
     feedbacks: list[str | None] = field(default_factory=list)
@@ -87,6 +91,30 @@ class Rollout:
         self.traces.append(decision.trace)
         self.llm_calls.extend(decision.llm_calls)
         self.actions.append(decision.action)
+
+    def observe_and_decide(
+        self,
+        agent: Agent,
+        world: WorldTile,
+        pose: ViewPose,
+        view: NDArray[np.float64],
+        sensors: SensorConfig,
+        commander: SimulatedCommander | None,
+        feedback: str | None,
+    ) -> Action | None:
+        """Hand the agent its observation at ``pose`` (its sensors there, the feedback, the
+        commander's answer to its last question) and :meth:`decide`."""
+        here = SimulatedSensors(world, pose.x_m, pose.y_m, pose.z_m, sensors)
+        observation = Observation(
+            step_index=len(self.views) - 1,
+            max_steps=self.max_steps,
+            pose=pose,
+            view_corners=view,
+            sensors=here.handle(),  # valid while ``here`` lives: for this decision
+            feedback=feedback,
+            new_dialog=answer_pending(self, commander, view),
+        )
+        return self.decide(agent, observation)
 
     def decide(self, agent: Agent, observation: Observation) -> Action | None:
         """Ask the agent, keep its decision, and return the action to carry out.
