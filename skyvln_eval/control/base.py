@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -41,13 +41,21 @@ class SolveStats:
 
 @dataclass(frozen=True)
 class Command:
-    """Inputs of the model (``[T, roll_ref, pitch_ref]``) plus the heading reference."""
+    """Inputs of the model (``[T, roll_ref, pitch_ref]``) plus the heading reference.
+
+    ``predicted_positions_m`` is the path a predictive controller expects to fly, ``(N + 1,
+    3)`` ENU metres from now to the end of its horizon, for the logs and the viewer;
+    ``None`` for controllers without a prediction and for fallback commands.
+    """
 
     thrust_m_s2: float
     roll_ref_rad: float
     pitch_ref_rad: float
     yaw_ref_rad: float
     stats: SolveStats
+    predicted_positions_m: NDArray[np.float64] | None = field(
+        default=None, repr=False, compare=False
+    )
 
     @property
     def inputs(self) -> NDArray[np.float64]:
@@ -112,9 +120,17 @@ class Controller(ABC):
         thrust = min(max(float(u[0]), limits.thrust_min_m_s2), limits.thrust_max_m_s2)
         return np.array([thrust, *tilt])
 
-    def command(self, u: NDArray[np.float64], yaw_ref_rad: float, stats: SolveStats) -> Command:
+    def command(
+        self,
+        u: NDArray[np.float64],
+        yaw_ref_rad: float,
+        stats: SolveStats,
+        predicted_positions_m: NDArray[np.float64] | None = None,
+    ) -> Command:
         """Record ``u`` as the applied input (for the rate limits) and wrap it as a Command."""
         self.previous_input = np.asarray(u, dtype=np.float64).copy()
         if stats.failed:
             self.failures += 1
-        return Command(float(u[0]), float(u[1]), float(u[2]), float(yaw_ref_rad), stats)
+        return Command(
+            float(u[0]), float(u[1]), float(u[2]), float(yaw_ref_rad), stats, predicted_positions_m
+        )

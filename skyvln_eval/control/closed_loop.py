@@ -41,6 +41,9 @@ from skyvln_eval.sim.reference import ReferenceConfig, ReferenceTrajectory, segm
 #: still overlaps everything else (LLM waits, rendering, logging).
 NATIVE_CALLS = threading.Lock()
 LIMIT_TOLERANCE = 1e-9
+#: Extra log column: the controller's predicted positions over its horizon, flattened
+#: ``[x0, y0, z0, x1, ...]`` ENU metres (``None`` without a prediction).
+PREDICTED_PATH_COLUMN = "predicted_path_m"
 #: How long a segment may take beyond its reference to settle on the target, by default.
 SETTLE_TIME_S = 30.0
 
@@ -266,6 +269,11 @@ class Flight:
             "constraint_violation": violation,
             "ref_roll_rad": float(reference_state[6]),
             "ref_pitch_rad": float(reference_state[7]),
+            PREDICTED_PATH_COLUMN: (
+                None
+                if command.predicted_positions_m is None
+                else command.predicted_positions_m.ravel().tolist()
+            ),
         }
 
     def _within_limits(self, command: Command, previous_input: np.ndarray) -> bool:

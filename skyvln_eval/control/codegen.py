@@ -3,11 +3,15 @@
 Generating C for an MPC's step function and compiling it with ``gcc -O3`` takes 10-25 s,
 so a library is built once per problem and machine and kept under ``cache_root()/casadi``.
 The key hashes everything that can change the compiled code: the CasADi version, the
-compiler (its path and its ``--version`` line) and flags, and the function itself (its
-serialised expression graph, so any change of model, cost, constraint, weight, horizon or
-solver option is a new key). Processes that need the same library at the same time (the
-workers of a run) take a file lock, so one of them builds and the others load its result:
-a machine never compiles a problem twice. A broken or half-written cache entry never
+compiler (its path and its ``--version`` line) and flags, the revision of our patches to the
+generated code, and the generated C source itself (about 50 ms to produce), so any change
+of model, cost, constraint, weight, horizon or solver option is a new key. (The function's
+serialised form is not enough: it leaves out the options of an embedded QP solver, so a
+changed HPIPM option used to load the library built with the old one.)
+
+Processes that need the same library at the same time (the workers of a run) take a file
+lock, so one of them builds and the others load its result: a machine never compiles a
+problem twice. A broken or half-written cache entry never
 breaks a run: it is rebuilt, and if that fails too the interpreted function is used.
 Without a C compiler the functions run interpreted and a one-line warning says so once
 per process.
@@ -43,6 +47,8 @@ from skyvln_eval.paths import cache_root
 log = logging.getLogger(__name__)
 
 CFLAGS = ("-O3", "-fPIC", "-shared")
+#: Changes whenever :func:`_patch_hpipm` changes what it does to the generated code.
+PATCH_REVISION = "hpipm-patch-1"
 #: Name suffix of the exported function that returns the last QP's iteration count.
 ITERATIONS_SYMBOL = "_qp_iterations"
 _warned_no_compiler = False
@@ -80,9 +86,23 @@ def casadi_dir() -> Path:
     return Path(ca.__file__).parent
 
 
-def cache_key(function: ca.Function, cc: str) -> str:
+def generated_source(function: ca.Function) -> str:
+    """The C code CasADi generates for ``function`` (before our patches)."""
+    generator = ca.CodeGenerator(f"{function.name()}.c", {"with_header": False})
+    generator.add(function)
+    return str(generator.dump())
+
+
+def cache_key(source: str, cc: str) -> str:
+    """The library's key: CasADi and compiler versions, flags, patch revision, source."""
     digest = hashlib.sha256()
-    parts = (ca.CasadiMeta.version(), compiler_identity(cc), " ".join(CFLAGS), function.serialize())
+    parts = (
+        ca.CasadiMeta.version(),
+        compiler_identity(cc),
+        " ".join(CFLAGS),
+        PATCH_REVISION,
+        source,
+    )
     for part in parts:
         digest.update(part.encode() + b"\0")
     return digest.hexdigest()[:20]
@@ -106,13 +126,14 @@ def maybe_compile(function: ca.Function, mode: CompileMode) -> Compiled:
             _warned_no_compiler = True
         return Compiled(function, False)
     name = function.name()
-    library = cache_root() / "casadi" / f"{name}-{cache_key(function, cc)}.so"
+    source = generated_source(function)
+    library = cache_root() / "casadi" / f"{name}-{cache_key(source, cc)}.so"
     try:
         with _build_lock(library):
             loaded = _load(name, library)
             built_now = loaded is None
             if loaded is None:
-                _build(function, cc, library)
+                _build(name, source, cc, library)
                 loaded = _load(name, library, rebuild_on_error=False)
         if loaded is None:
             raise RuntimeError(f"the library built for {name} cannot be loaded")
@@ -172,17 +193,14 @@ def _build_lock(library: Path) -> Iterator[None]:
             fcntl.flock(handle, fcntl.LOCK_UN)
 
 
-def _build(function: ca.Function, cc: str, library: Path) -> None:
-    """Generate C for ``function`` and compile it to ``library`` (temporary name, then rename)."""
+def _build(name: str, text: str, cc: str, library: Path) -> None:
+    """Compile the generated C ``text`` of function ``name`` to ``library`` (temporary name,
+    then rename)."""
     with tempfile.TemporaryDirectory(dir=library.parent, prefix=".build-") as build:
-        source = Path(build) / f"{function.name()}.c"
-        generator = ca.CodeGenerator(source.name, {"with_header": False})
-        generator.add(function)
-        generator.generate(build + os.sep)
-        text = source.read_text()
+        source = Path(build) / f"{name}.c"
         link: list[str] = []
         if "hpipm_d_ocp_qp_ipm.h" in text:
-            source.write_text(_patch_hpipm(text, function.name()))
+            text = _patch_hpipm(text, name)
             folder = casadi_dir()
             link = [
                 f"-I{folder / 'include'}",
@@ -191,8 +209,9 @@ def _build(function: ca.Function, cc: str, library: Path) -> None:
                 "-lblasfeo",
                 f"-Wl,-rpath,{folder}",
             ]
+        source.write_text(text)
         built = Path(build) / library.name
-        log.info("compiling %s with %s (once per problem definition)", function.name(), cc)
+        log.info("compiling %s with %s (once per problem definition)", name, cc)
         subprocess.run(
             [cc, *CFLAGS, "-o", str(built), str(source), *link, "-lm"],
             check=True,

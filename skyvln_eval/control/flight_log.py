@@ -16,6 +16,10 @@ Columns (:data:`LOG_COLUMNS`; other columns may follow):
 - ``collision``: inside some obstacle's own sphere (distance < ``r_obs``);
 - ``constraint_violation``: ``min_clearance_m < 0`` or a command outside the input bounds or
   beyond the per-step rate limit of roll_ref / pitch_ref.
+
+Flights add ``ref_roll_rad``, ``ref_pitch_rad`` and ``predicted_path_m`` (the controller's
+predicted positions over its horizon, a flat ``[x0, y0, z0, x1, ...]`` list in ENU metres,
+or null for controllers without a prediction and for fallback steps).
 """
 
 from __future__ import annotations

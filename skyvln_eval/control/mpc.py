@@ -132,7 +132,9 @@ class MpcController(Controller):
         slack = float(np.max(solution[self.qp.slack_index], initial=0.0))
         status = "solved_soft" if slack > SLACK_TOLERANCE else "solved"
         elapsed_ms = (time.perf_counter() - start) * 1e3
-        return self.command(u, yaw_ref, SolveStats(elapsed_ms, iterations, status))
+        # Outside the timed part: the predicted path, back in absolute ENU, for the logs.
+        predicted = solution[self.qp.position_index].reshape(-1, 3) + origin
+        return self.command(u, yaw_ref, SolveStats(elapsed_ms, iterations, status), predicted)
 
     def _obstacle_slots(self, obstacles: ObstacleForecast, origin: NDArray[np.float64]) -> None:
         """The nearest ``max_obstacles`` obstacles at steps 1..N, radii and active flags, into

@@ -122,7 +122,7 @@ SCHEMAS: Final[dict[str, SchemaSpec]] = {
         SchemaSpec(DIALOG_TURN, "skyvln_eval/skyvln_eval.DialogTurn.json", version=1),
         SchemaSpec(AGENT_STEP, "skyvln_eval/skyvln_eval.AgentStep.json", version=1),
         SchemaSpec(LLM_EXCHANGE, "skyvln_eval/skyvln_eval.LLMExchange.json", version=2),
-        SchemaSpec(CONTROL_STEP, "skyvln_eval/skyvln_eval.ControlStep.json", version=1),
+        SchemaSpec(CONTROL_STEP, "skyvln_eval/skyvln_eval.ControlStep.json", version=2),
     )
 }
 

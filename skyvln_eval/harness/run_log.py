@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 from skyvln_eval.agent.actions import Action, action_record
 from skyvln_eval.avdn.imagery import observe_view
 from skyvln_eval.avdn.records import Episode
+from skyvln_eval.control.closed_loop import PREDICTED_PATH_COLUMN
 from skyvln_eval.converters import messages as fx
 from skyvln_eval.converters import topics as t
 from skyvln_eval.converters.convert import (
@@ -204,8 +205,15 @@ def _finite_or_none(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
 
 
+def _predicted_positions(flat: Any) -> list[list[float]] | None:
+    if flat is None or len(flat) == 0:
+        return None
+    return np.asarray(flat, dtype=np.float64).reshape(-1, 3).tolist()
+
+
 def _control_messages(out: _Messages, log: pd.DataFrame) -> None:
     columns = {name: log[name].to_numpy() for name in log.columns}
+    predicted = columns.get(PREDICTED_PATH_COLUMN, [None] * len(log))
     for i in range(len(log)):
         t_ns = _ns(float(columns["t_s"][i]))
         pose = ViewPose(
@@ -242,6 +250,7 @@ def _control_messages(out: _Messages, log: pd.DataFrame) -> None:
                 "min_clearance_m": _finite_or_none(float(columns["min_clearance_m"][i])),
                 "collision": bool(columns["collision"][i]),
                 "constraint_violation": bool(columns["constraint_violation"][i]),
+                "predicted_positions_m": _predicted_positions(predicted[i]),
             },
         )
 

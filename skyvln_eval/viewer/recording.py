@@ -83,6 +83,7 @@ class _Recorder:
         self.detection_views: list[str] = []
         self.last_view: tuple[scene.Strip, int] | None = None
         self.views_seen = 0
+        self.horizon_shown = False
         self.handlers: dict[str, Callable[[Json], None]] = {
             t.TOPIC_TF: self._tf,
             t.TOPIC_RUN_PATH: lambda _: self._flight_so_far(),
@@ -199,6 +200,14 @@ class _Recorder:
                 [reference], colors=[scene.REFERENCE_RGBA], radii=self.rr.Radius.ui_points(3.0)
             )
             self.canvas.put(e.WORLD_REFERENCE, point)
+        horizon = step.get("predicted_positions_m")
+        if isinstance(horizon, list) and horizon:
+            strip = [scene.Strip(np.asarray(horizon, dtype=np.float64), scene.HORIZON_RGBA, False)]
+            self.canvas.put(e.WORLD_HORIZON, self.canvas.strips3d(strip, 1.5))
+            self.horizon_shown = True
+        elif self.horizon_shown:  # no prediction this step (a fallback): no stale horizon
+            self.canvas.put(e.WORLD_HORIZON, self.rr.Clear(recursive=False))
+            self.horizon_shown = False
 
     def _obstacles(self, message: Json) -> None:
         spheres = scene.scene_spheres(message)

@@ -24,6 +24,7 @@ FINAL_VIEW_RGBA: Rgba8 = (255, 60, 200, 255)
 DRONE_RGBA: Rgba8 = (255, 255, 255, 255)
 TARGET_RGBA: Rgba8 = (255, 220, 0, 255)
 REFERENCE_RGBA: Rgba8 = (255, 140, 0, 255)
+HORIZON_RGBA: Rgba8 = (255, 80, 80, 255)
 
 
 def xyz(vector: Json) -> list[float]:

@@ -77,16 +77,42 @@ def test_a_broken_cache_entry_is_rebuilt(cache: Path) -> None:
     assert np.allclose(np.asarray(built.function([0.5, 2.0])), np.asarray(tiny()([0.5, 2.0])))
 
 
+def key(function: ca.Function, cc: str = "gcc") -> str:
+    return codegen.cache_key(codegen.generated_source(function), cc)
+
+
 def test_the_key_changes_with_the_problem_and_the_compiler(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     x = ca.SX.sym("x", 2)
     other = ca.Function("tiny_test_fn", [x], [ca.cos(x) * x[0]])
-    assert codegen.cache_key(tiny(), "gcc") == codegen.cache_key(tiny(), "gcc")
-    assert codegen.cache_key(tiny(), "gcc") != codegen.cache_key(other, "gcc")
-    before = codegen.cache_key(tiny(), "gcc")
+    assert key(tiny()) == key(tiny())
+    assert key(tiny()) != key(other)
+    before = key(tiny())
     monkeypatch.setattr(codegen, "compiler_identity", lambda cc: "gcc (Debian 99.1) 99.1")
-    assert codegen.cache_key(tiny(), "gcc") != before
+    assert key(tiny()) != before
+    monkeypatch.setattr(codegen, "PATCH_REVISION", "another revision")
+    assert key(tiny()) != before
+
+
+def hpipm_call(options: dict[str, float]) -> ca.Function:
+    """A function that embeds an HPIPM solve of a one-stage QP with the given options."""
+    h, a = ca.DM.eye(2), ca.DM([[1.0, 1.0]])
+    solver = ca.conic(
+        "tiny_hpipm",
+        "hpipm",
+        {"h": h.sparsity(), "a": a.sparsity()},
+        {"N": 0, "nx": [2], "nu": [0], "ng": [1], "hpipm": options},
+    )
+    g = ca.MX.sym("g", 2)
+    return ca.Function("tiny_qp_fn", [g], [solver(h=h, g=g, a=a, lba=1.0, uba=1.0)["x"]])
+
+
+def test_the_key_changes_with_an_embedded_solver_option() -> None:
+    # A function's serialised form leaves out the options of an embedded QP solver: keyed on
+    # it, a changed HPIPM option loaded the library built with the old one.
+    assert hpipm_call({"iter_max": 3}).serialize() == hpipm_call({"iter_max": 4}).serialize()
+    assert key(hpipm_call({"iter_max": 3})) != key(hpipm_call({"iter_max": 4}))
 
 
 def test_without_a_compiler_functions_run_interpreted_with_one_warning(

@@ -69,6 +69,11 @@ def test_entities_and_counts_match_the_run_mcap(recording, rerun_cli: Path) -> N
     )
     assert by_module == counts[t.TOPIC_LLM_EXCHANGE]
     assert rows[f"/{e.WORLD_OBSTACLES}"] == counts[t.TOPIC_OBSTACLES]
+    # The controller's predicted horizon, once per control step that has one.
+    predicted = [m.decode()["predicted_positions_m"] for m in log.topic(t.TOPIC_CONTROL_STEP)]
+    with_horizon = [p for p in predicted if p is not None]
+    assert len(with_horizon) > 50 and all(len(p) == 21 for p in with_horizon)
+    assert rows[f"/{e.WORLD_HORIZON}"] >= len(with_horizon)
     for entity in (e.AGENT_STEP, e.AGENT_HSD, e.AGENT_MEMORY, e.AGENT_LOG):
         assert rows[f"/{entity}"] == counts[t.TOPIC_AGENT_STEP] > 0
     for series in ("x_m/state", "x_m/reference", "yaw_rad/reference", "solve_time_ms"):
