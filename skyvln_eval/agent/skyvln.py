@@ -185,7 +185,11 @@ class SkyVLNAgent(Agent):
         trace = {
             "subgoals": [g.to_dict() for g in st.plan.subgoals],
             "done_subgoals": sorted(st.done),
-            "sightings": entries,
+            # What the descriptor said, plus where in which image (for the viewer's boxes).
+            "sightings": [
+                {**entry, "box_px": list(s.box_px), "image_size_px": list(s.image_size_px)}
+                for entry, s in zip(entries, panorama.sightings, strict=True)
+            ],
             "roads_deg": list(panorama.road_bearings_deg),
             "hsd_matches": state["matches"],
             "memory": None if self.memory is None else self.memory.snapshot(),

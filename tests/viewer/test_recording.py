@@ -74,6 +74,13 @@ def test_entities_and_counts_match_the_run_mcap(recording, rerun_cli: Path) -> N
     with_horizon = [p for p in predicted if p is not None]
     assert len(with_horizon) > 50 and all(len(p) == 21 for p in with_horizon)
     assert rows[f"/{e.WORLD_HORIZON}"] >= len(with_horizon)
+    # Detections are drawn where the detector boxed them, inside their image.
+    sightings = [s for m in log.topic(t.TOPIC_AGENT_STEP) for s in m.decode()["trace"]["sightings"]]
+    assert sightings
+    for s in sightings:
+        x0, y0, x1, y1 = s["box_px"]
+        width, height = s["image_size_px"]
+        assert 0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height, s
     for entity in (e.AGENT_STEP, e.AGENT_HSD, e.AGENT_MEMORY, e.AGENT_LOG):
         assert rows[f"/{entity}"] == counts[t.TOPIC_AGENT_STEP] > 0
     for series in ("x_m/state", "x_m/reference", "yaw_rad/reference", "solve_time_ms"):
