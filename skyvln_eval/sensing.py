@@ -180,12 +180,20 @@ class CameraImages:
         return origin + depth[..., None] * rays
 
     def finite_depth(self) -> NDArray[np.bool_]:
-        """Pixels whose ground point is known (a depth return, or a ray to the ground)."""
-        if self.depth_m is not None:
-            return np.isfinite(self.depth_m)
-        height, width = self.rgb.shape[:2]
-        v, u = np.mgrid[0:height, 0:width]
-        return np.asarray(pixel_rays(self.pose, self.config, u + 0.5, v + 0.5)[..., 2] < -1e-9)
+        """Pixels whose ground point is known (a depth return, or a ray to the ground);
+        computed once per capture (every detection in it asks), read-only."""
+        cached: NDArray[np.bool_] | None = self.__dict__.get("_finite_depth")
+        if cached is None:
+            if self.depth_m is not None:
+                cached = np.isfinite(self.depth_m)
+            else:
+                height, width = self.rgb.shape[:2]
+                v, u = np.mgrid[0:height, 0:width]
+                rays = pixel_rays(self.pose, self.config, u + 0.5, v + 0.5)
+                cached = np.asarray(rays[..., 2] < -1e-9)
+            cached.flags.writeable = False
+            object.__setattr__(self, "_finite_depth", cached)  # a cache, not a field
+        return cached
 
 
 class SensorConfig(BaseModel):

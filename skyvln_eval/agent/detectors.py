@@ -106,13 +106,18 @@ class Detector(ABC):
         return {"name": self.name, "requires": sorted(self.requires)}
 
 
+_COLOUR_NAMES: Final = tuple(_NAMED_COLOURS)
+_PALETTE: Final = np.array([_NAMED_COLOURS[n] for n in _COLOUR_NAMES], dtype=np.float64)
+
+
 def colour_name(rgb: NDArray[Any]) -> str:
     """The named colour most pixels are closest to (the roof's colour, not the mean of all)."""
     pixels = np.asarray(rgb, dtype=np.float64).reshape(-1, 3)
-    names = list(_NAMED_COLOURS)
-    palette = np.array([_NAMED_COLOURS[n] for n in names], dtype=np.float64)
-    nearest = np.argmin(((pixels[:, None, :] - palette[None, :, :]) ** 2).sum(axis=2), axis=1)
-    return names[int(np.bincount(nearest, minlength=len(names)).argmax())]
+    # ||p - c||^2 - ||p||^2 = |c|^2 - 2 p.c: one matrix product instead of an (n, k, 3)
+    # difference array; exact for integer pixels, so the nearest colour (ties included) is.
+    distance = pixels @ (-2.0 * _PALETTE.T) + (_PALETTE**2).sum(axis=1)
+    nearest = np.argmin(distance, axis=1)
+    return _COLOUR_NAMES[int(np.bincount(nearest, minlength=len(_COLOUR_NAMES)).argmax())]
 
 
 def box_of(mask: NDArray[np.bool_]) -> Box:

@@ -151,14 +151,15 @@ def _localise(view: CapturedView, detection: Detection) -> _Found | None:
     images = view.images
     x0, y0, x1, y1 = detection.box_px
     width, height = images.size_px
-    region = np.zeros((height, width), dtype=bool)
-    region[y0:y1, x0:x1] = True
+    # Only the box's pixels can count: work in its window, not on whole-image masks.
+    window = (slice(max(y0, 0), max(y1, 0)), slice(max(x0, 0), max(x1, 0)))
+    region = images.finite_depth()[window].copy()
     if detection.mask is not None:
-        region &= detection.mask
-    region &= images.finite_depth()
+        region &= detection.mask[window]
     v, u = np.nonzero(region)
     if len(u) == 0:
         return None
+    v, u = v + window[0].start, u + window[1].start
     points = images.points_enu(u, v)[:, :2]
     x, y = np.median(points, axis=0)
     low, high = np.percentile(points, [5, 95], axis=0)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from skyvln_eval.agent import Perception, PerceptionConfig, SimulatedDetector, create_detector
-from skyvln_eval.agent.detectors import Detection, colour_name, road_bearings
+from skyvln_eval.agent.detectors import _NAMED_COLOURS, Detection, colour_name, road_bearings
 from skyvln_eval.agent.perception import LandmarkTracker
 from skyvln_eval.errors import MissingExtraError, PerceptionError, UnknownNameError
 from skyvln_eval.frames import ViewPose
@@ -158,6 +158,30 @@ def test_the_simulated_detector_needs_the_semantic_camera() -> None:
 def test_colour_names_follow_the_majority_of_pixels() -> None:
     pixels = np.array([[200, 40, 40]] * 8 + [[30, 30, 30]] * 3)
     assert colour_name(pixels) == "red"
+
+
+def test_colour_names_are_those_of_the_nearest_colour_by_squared_distance() -> None:
+    # The direct definition, with ties broken towards the palette's first colour.
+    palette = np.array(list(_NAMED_COLOURS.values()), dtype=np.int64)
+    names = list(_NAMED_COLOURS)
+    rng = np.random.default_rng(5)
+    for size in (1, 7, 300):
+        for _ in range(100):
+            pixels = rng.integers(0, 256, (size, 3))
+            distance = ((pixels[:, None, :] - palette[None]) ** 2).sum(axis=2)
+            votes = np.bincount(distance.argmin(axis=1), minlength=len(names))
+            assert colour_name(pixels.astype(np.uint8)) == names[int(votes.argmax())]
+    # Pixels at equal distance from two colours go to the palette's first of them.
+    grid = np.stack(np.meshgrid(*[np.arange(0, 256, 3)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    distance = ((grid[:, None, :] - palette[None]) ** 2).sum(axis=2)
+    ordered = np.sort(distance, axis=1)
+    ties = grid[ordered[:, 0] == ordered[:, 1]]
+    assert len(ties) > 10
+    for pixel in ties:
+        assert (
+            colour_name(pixel[None].astype(np.uint8))
+            == names[int(np.argmin(((pixel[None] - palette) ** 2).sum(axis=1)))]
+        )
 
 
 def test_grounding_dino_without_the_vision_extra_says_how_to_install_it(
