@@ -85,6 +85,9 @@ TOPIC_DIALOG_LOG: Final = "/dialog/log"
 TOPIC_RUN_VIEWS: Final = "/run/views"  # visited view squares, one entity per view
 TOPIC_RUN_PATH: Final = "/run/path"  # the flown (or stepped) path so far
 TOPIC_OBSERVATION: Final = "/camera/observation"  # what the agent saw below it at each decision
+TOPIC_CAMERA_VIEWS: Final = "/camera/views"  # the camera images the agent captured
+#: ``frame_id`` of a ``/camera/views`` image: this prefix and the agent's name of the view.
+CAMERA_VIEW_FRAME_PREFIX: Final = "camera/"
 TOPIC_AGENT_STEP: Final = "/agent/step"
 TOPIC_AGENT_LOG: Final = "/agent/log"  # thought and action as text, for the Log panel
 TOPIC_AGENT_TARGET: Final = "/agent/target"  # target pose of each action (dynamics mode)
@@ -142,6 +145,7 @@ TOPICS: Final[dict[str, str]] = {
     TOPIC_RUN_VIEWS: SCENE_UPDATE,
     TOPIC_RUN_PATH: POSES_IN_FRAME,
     TOPIC_OBSERVATION: COMPRESSED_IMAGE,
+    TOPIC_CAMERA_VIEWS: COMPRESSED_IMAGE,
     TOPIC_AGENT_STEP: AGENT_STEP,
     TOPIC_AGENT_LOG: LOG,
     TOPIC_AGENT_TARGET: POSE_IN_FRAME,

@@ -108,7 +108,11 @@ class RunConfig(_Strict):
     )
     ray_address: str | None = None
     write_logs: bool = Field(default=True, description="one run MCAP per episode")
-    observations_in_logs: bool = Field(default=True, description="camera images in the run MCAPs")
+    observations_in_logs: bool = Field(
+        default=True,
+        description="images in the run MCAPs: the official view and every image the agent's "
+        "camera captured (about 0.5 MB per episode; false leaves them out)",
+    )
 
     @field_validator("agent")
     @classmethod

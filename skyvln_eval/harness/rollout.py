@@ -15,7 +15,7 @@ from skyvln_eval.errors import CacheMissError, LLMAuthError, SkyvlnError
 from skyvln_eval.frames import ViewPose, view_to_pose
 from skyvln_eval.llm_records import LlmCall, ModuleFailure
 from skyvln_eval.sensing import SensorConfig
-from skyvln_eval.sim.sensors import SimulatedSensors
+from skyvln_eval.sim.sensors import Capture, SimulatedSensors
 from skyvln_eval.worlds.tile import WorldTile
 
 if TYPE_CHECKING:
@@ -75,6 +75,8 @@ class Rollout:
     llm_calls: list[LlmCall] = field(default_factory=list)
     failures: list[ModuleFailure] = field(default_factory=list)
     questions: list[dict[str, Any]] = field(default_factory=list)
+    #: Per decision, the images the agent captured for it (for the run log).
+    captures: list[list[Capture]] = field(default_factory=list)
     stop_reason: str = "max_steps"
     error: str | None = None
 
@@ -114,7 +116,10 @@ class Rollout:
             feedback=feedback,
             new_dialog=answer_pending(self, commander, view),
         )
-        return self.decide(agent, observation)
+        action = self.decide(agent, observation)
+        if len(self.captures) < len(self.actions):  # a decision was kept: with its images
+            self.captures.append(list(here.captures))
+        return action
 
     def decide(self, agent: Agent, observation: Observation) -> Action | None:
         """Ask the agent, keep its decision, and return the action to carry out.

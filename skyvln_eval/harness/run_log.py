@@ -7,6 +7,9 @@ seconds; one second per step in official mode):
 
 - ``/tf`` and ``/run/path``: where the drone was, ``/run/views``: every visited view;
 - ``/camera/observation``: the view below the drone at each decision (224 x 224, JPEG);
+- ``/camera/views``: the camera images the agent captured for each decision (JPEG), each
+  with ``frame_id`` ``camera/<view name>`` (the names its trace gives the views, which its
+  sightings refer to);
 - ``/agent/step`` (:data:`AGENT_STEP`): thought, action, feedback and the decision's
   trace (sub-goals, detections with HSD sectors, HSD matches, the TrackBack memory graph),
   ``/agent/log``: the same as text, ``/agent/target``: each action's target pose;
@@ -51,6 +54,7 @@ from skyvln_eval.converters.writer import McapLogWriter
 from skyvln_eval.frames import ViewPose, latlng_to_enu, view_to_pose
 from skyvln_eval.harness.crashpoints import crash_point
 from skyvln_eval.sim.obstacles import ObstacleScenario
+from skyvln_eval.sim.sensors import Capture
 from skyvln_eval.worlds.tile import WorldTile
 
 NS = 1_000_000_000
@@ -71,6 +75,24 @@ class Step:
     feedback: str | None
     trace: Mapping[str, Any]
     target: ViewPose | None = None
+    camera_views: Sequence[tuple[str, NDArray[np.uint8]]] = ()
+
+
+def named_views(
+    trace: Mapping[str, Any], captures: Sequence[Capture]
+) -> list[tuple[str, NDArray[np.uint8]]]:
+    """The decision's captured images, named as the agent's trace names its views (by
+    heading and pitch), else ``heading <h> pitch <p>``."""
+    names = {
+        (round(float(v["heading_deg"]), 1), round(float(v["pitch_deg"]), 1)): str(v["name"])
+        for v in trace.get("views") or []
+        if isinstance(v, Mapping) and {"name", "heading_deg", "pitch_deg"} <= v.keys()
+    }
+    named = []
+    for capture in captures:
+        key = (round(capture.heading_deg, 1), round(capture.pitch_deg, 1))
+        named.append((names.get(key, f"heading {key[0]:g} pitch {key[1]:g}"), capture.rgb))
+    return named
 
 
 @dataclass
@@ -149,6 +171,16 @@ def _agent_messages(
                 t.TOPIC_OBSERVATION,
                 fx.compressed_image(t_ns, t.CAMERA_FRAME, image, options.image_format),
             )
+        if observations:
+            for name, rgb in step.camera_views:
+                jpeg = encode_image(rgb[..., ::-1], options.image_format, options.jpeg_quality)
+                out.add(
+                    t_ns,
+                    t.TOPIC_CAMERA_VIEWS,
+                    fx.compressed_image(
+                        t_ns, f"{t.CAMERA_VIEW_FRAME_PREFIX}{name}", jpeg, options.image_format
+                    ),
+                )
         record = action_record(step.action)
         out.add(
             t_ns,

@@ -40,7 +40,7 @@ from skyvln_eval.harness.config import RunConfig
 from skyvln_eval.harness.dynamics_loop import DynamicsRollout, derived_seed, run_dynamics_episode
 from skyvln_eval.harness.official_loop import OfficialRollout, run_official_episode
 from skyvln_eval.harness.oracle import ground_truth_oracle
-from skyvln_eval.harness.run_log import RunLogContent, Step, write_run_log
+from skyvln_eval.harness.run_log import RunLogContent, Step, named_views, write_run_log
 from skyvln_eval.metrics.records import EpisodeResult, judge_status
 from skyvln_eval.metrics.safety import summarise_control
 from skyvln_eval.worlds.loading import load_world
@@ -136,6 +136,9 @@ def _steps(rollout: OfficialRollout | DynamicsRollout, times_s: list[float]) -> 
             feedback=rollout.feedbacks[k],
             trace=rollout.traces[k],
             target=targets[k] if k < len(targets) else None,
+            camera_views=named_views(
+                rollout.traces[k], rollout.captures[k] if k < len(rollout.captures) else []
+            ),
         )
         for k, action in enumerate(rollout.actions)
     ]

@@ -21,6 +21,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numpy.typing import NDArray
 
 from skyvln_eval.errors import PerceptionError
 from skyvln_eval.frames import compass_to_enu_yaw_rad
@@ -29,8 +30,21 @@ from skyvln_eval.sim.camera import render_views
 from skyvln_eval.worlds.tile import WorldTile
 
 
+@dataclass(frozen=True)
+class Capture:
+    """One image the agent captured: the heading and pitch it asked for, and the RGB it got
+    (the harness logs these; the agent never sees this record)."""
+
+    heading_deg: float
+    pitch_deg: float
+    rgb: NDArray[np.uint8]
+
+
 class SimulatedSensors:
-    """RGB (always), depth and the semantic camera over ``world``, at one drone position."""
+    """RGB (always), depth and the semantic camera over ``world``, at one drone position.
+
+    ``captures`` keeps every image handed out from here, in order, for the run log.
+    """
 
     def __init__(
         self, world: WorldTile, x_m: float, y_m: float, z_m: float, config: SensorConfig
@@ -41,6 +55,7 @@ class SimulatedSensors:
         self._camera = config.camera()
         self._key = next(_KEYS)
         _LIVE[self._key] = self
+        self.captures: list[Capture] = []
 
     def handle(self) -> SensorHandle:
         """What the agent is given: captures from here, and nothing else."""
@@ -56,7 +71,11 @@ class SimulatedSensors:
     def capture_many(self, views: Sequence[tuple[float, float]]) -> list[CameraImages]:
         x, y, z = self._position
         poses = [CameraPose(x, y, z, compass_to_enu_yaw_rad(h), p) for h, p in views]
-        return [self._restrict(i) for i in render_views(self._world, poses, self._camera)]
+        images = [self._restrict(i) for i in render_views(self._world, poses, self._camera)]
+        self.captures += [
+            Capture(float(h), float(p), i.rgb) for (h, p), i in zip(views, images, strict=True)
+        ]
+        return images
 
     def _restrict(self, images: CameraImages) -> CameraImages:
         """Only the channels of the sensors the drone carries."""

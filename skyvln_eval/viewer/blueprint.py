@@ -33,12 +33,8 @@ def episode_blueprint(
     eye = None
     if focus is not None:
         eye = rrb.EyeControls3D(position=focus.eye_m, look_target=focus.target_m, eye_up=[0, 0, 1])
-    camera_views = [
-        rrb.Spatial2DView(origin=e.CAMERA_OBSERVATION, name="below the drone (detections)")
-    ] + [
-        rrb.Spatial2DView(origin=f"{e.CAMERA_DETECTIONS}/{v}", name=f"{v} view (detections)")
-        for v in views
-        if v != "below"
+    camera_views = [rrb.Spatial2DView(origin=e.CAMERA_OBSERVATION, name="official view")] + [
+        rrb.Spatial2DView(origin=e.camera_view(v), name=f"camera: {v}") for v in views
     ]
     plots = [
         rrb.TimeSeriesView(origin=f"{e.CONTROL}/{origin}", name=title) for title, origin in PLOTS

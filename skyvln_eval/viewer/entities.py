@@ -8,7 +8,8 @@ run's simulated clock, seconds). Static content (map, ground truth) is timeless.
   y south, :meth:`MapGeoref.gps_to_pixel_float`); the tile stored in the log is smaller and
   is scaled up onto these pixels;
 - ``world/...``: the 3-D scene in ENU metres (x east, y north, z up);
-- ``camera/...``: what the agent saw below it at each decision, and its detections;
+- ``camera/...``: the official view below the drone at each decision, and every image the
+  agent's camera captured, by view, with its detections;
 - ``dialog``, ``agent/...``, ``llm/...``: text; ``control/...``: scalar signals.
 """
 
@@ -53,7 +54,14 @@ WORLD_HORIZON: Final = "world/horizon"
 
 CAMERA: Final = "camera"
 CAMERA_OBSERVATION: Final = "camera/observation"
-CAMERA_DETECTIONS: Final = "camera/detections"  # one child per panorama view
+CAMERA_DETECTIONS: Final = "camera/detections"  # one child per view: image, boxes, sectors
+
+
+def camera_view(view: str) -> str:
+    """The entity of one camera view the agent captured (its image under ``image``, the
+    detections on it, the HSD sector grid under ``sectors``)."""
+    return f"{CAMERA_DETECTIONS}/{view.replace(' ', '_').replace('+', '')}"
+
 
 DIALOG: Final = "dialog"
 AGENT_LOG: Final = "agent/log"

@@ -89,6 +89,7 @@ class _Recorder:
             t.TOPIC_RUN_PATH: lambda _: self._flight_so_far(),
             t.TOPIC_RUN_VIEWS: self._view,
             t.TOPIC_OBSERVATION: self._image(e.CAMERA_OBSERVATION),
+            t.TOPIC_CAMERA_VIEWS: self._camera_view,
             t.TOPIC_GT_OBSERVATION: self._image(f"{e.CAMERA}/gt_observation"),
             t.TOPIC_AGENT_STEP: self._agent_step,
             t.TOPIC_AGENT_LOG: self._agent_log,
@@ -147,6 +148,23 @@ class _Recorder:
 
         return log_image
 
+    def _add_view(self, view: str) -> None:
+        """A camera view gets its place (and the HSD sector grid) the first time it shows."""
+        if view in self.detection_views:
+            return
+        self.detection_views.append(view)
+        grid = scene.frame_and_grid(*self.image_px)
+        sectors = self.rr.LineStrips2D(grid, colors=[(120, 120, 120, 255)])
+        self.canvas.rec.log(f"{e.camera_view(view)}/sectors", sectors, static=True)
+
+    def _camera_view(self, message: Json) -> None:
+        frame = str(message.get("frame_id", ""))
+        view = frame.removeprefix(t.CAMERA_VIEW_FRAME_PREFIX) or "unnamed"
+        self._add_view(view)
+        data, media_type = scene.image_bytes(message)  # passed on encoded
+        image = self.rr.EncodedImage(contents=data, media_type=media_type)
+        self.canvas.put(f"{e.camera_view(view)}/image", image)
+
     def _agent_step(self, step: Json) -> None:
         canvas = self.canvas
         canvas.markdown(e.AGENT_STEP, text.step_document(step, canvas.t_ns / 1e9))
@@ -156,17 +174,13 @@ class _Recorder:
         found = scene.detections_by_view(sightings, self.image_px)
         rr = self.rr
         for view in found:
-            if view not in self.detection_views:
-                self.detection_views.append(view)
-                grid = scene.frame_and_grid(*self.image_px)
-                sectors = rr.LineStrips2D(grid, colors=[(120, 120, 120, 255)])
-                canvas.rec.log(f"{detections_path(view)}/sectors", sectors, static=True)
+            self._add_view(view)
         for view in self.detection_views:  # every view each decision: old boxes disappear
             boxes = found.get(view, scene.Detections([], []))
             array = np.asarray(boxes.boxes, np.float64).reshape(-1, 4)
             fmt = rr.Box2DFormat.XYXY
             canvas.put(
-                detections_path(view),
+                e.camera_view(view),
                 rr.Boxes2D(array=array, array_format=fmt, labels=boxes.labels),
             )
 
@@ -257,13 +271,6 @@ class _Recorder:
         reach = max(80.0, float(np.ptp(points[:, :2], axis=0).max()))
         eye = centre + np.array([-0.5, -1.0, 0.9]) * reach
         return Focus(eye.tolist(), centre.tolist())
-
-
-def detections_path(view: str) -> str:
-    """Boxes of a panorama view; the view straight down goes over the observation image."""
-    if view == "below":
-        return f"{e.CAMERA_OBSERVATION}/detections"
-    return f"{e.CAMERA_DETECTIONS}/{view.replace(' ', '_').replace('+', '')}"
 
 
 def _record(rr: ModuleType, rec: Any, log: RunLogStream, ref: EpisodeLogRef) -> _Recorder:

@@ -74,6 +74,17 @@ def test_entities_and_counts_match_the_run_mcap(recording, rerun_cli: Path) -> N
     with_horizon = [p for p in predicted if p is not None]
     assert len(with_horizon) > 50 and all(len(p) == 21 for p in with_horizon)
     assert rows[f"/{e.WORLD_HORIZON}"] >= len(with_horizon)
+    # Every image the agent's camera gave it, under the view's name, with that view's boxes.
+    steps = [m.decode() for m in log.topic(t.TOPIC_AGENT_STEP)]
+    assert counts[t.TOPIC_CAMERA_VIEWS] == sum(len(s["trace"]["views"]) for s in steps) > 0
+    names = {v["name"] for s in steps for v in s["trace"]["views"]}
+    images = {
+        path: n
+        for path, n in rows.items()
+        if path.startswith(f"/{e.CAMERA_DETECTIONS}/") and path.endswith("/image")
+    }
+    assert set(images) == {f"/{e.camera_view(name)}/image" for name in names}
+    assert sum(images.values()) == counts[t.TOPIC_CAMERA_VIEWS]
     # Detections are drawn where the detector boxed them, inside their image.
     sightings = [s for m in log.topic(t.TOPIC_AGENT_STEP) for s in m.decode()["trace"]["sightings"]]
     assert sightings
