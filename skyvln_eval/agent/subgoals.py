@@ -109,7 +109,9 @@ SUBGOALS_SCHEMA: Final[dict[str, Any]] = {
                     "distance_m": _nullable(
                         {"type": "number", "exclusiveMinimum": 0, "maximum": 5000}
                     ),
-                    "ordinal": _nullable({"type": "integer", "minimum": 1, "maximum": 10}),
+                    # An enum, not a range: grammar-constrained decoders (llama.cpp's among
+                    # them) enforce enums but not numeric bounds (Gemma wrote 200 here).
+                    "ordinal": _nullable({"type": "integer", "enum": list(range(1, 11))}),
                 },
             },
         },
