@@ -116,9 +116,9 @@ def describe_validation_error(error: Any) -> str:
     Our own validators' messages are complete sentences: pydantic's "Value error, " prefix
     is dropped from them.
     """
-    return "; ".join(
+    return "; ".join(  # a sentence's own full stop would read ".;"
         f"{'.'.join(str(p) for p in e['loc']) or '(top level)'}: "
-        + str(e["msg"]).removeprefix("Value error, ")
+        + str(e["msg"]).removeprefix("Value error, ").rstrip(".")
         for e in error.errors()
     )
 

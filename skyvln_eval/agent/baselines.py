@@ -137,6 +137,7 @@ class NavGPTAgent(Agent):
         self._history.append({"action": action_record(result.action), "thought": result.thought})
         trace = {
             "observation": views,
+            "views": panorama.view_records(),
             "fallback": result.fallback,
             "repaired": result.repaired,
             "exchanges": result.exchanges,

@@ -98,6 +98,14 @@ class Panorama:
     def by_id(self) -> dict[str, Sighting]:
         return {s.landmark_id: s for s in self.sightings}
 
+    def view_records(self) -> list[dict[str, Any]]:
+        """The views by name, heading and pitch, for a decision's trace (the run log names
+        the captured images after them)."""
+        return [
+            {"name": v.name, "heading_deg": v.heading_deg, "pitch_deg": v.pitch_deg}
+            for v in self.views
+        ]
+
 
 @dataclass
 class LandmarkTracker:

@@ -191,12 +191,7 @@ class SkyVLNAgent(Agent):
                 for entry, s in zip(entries, panorama.sightings, strict=True)
             ],
             "roads_deg": list(panorama.road_bearings_deg),
-            # The views looked at, by the names the sightings use (the run log names its
-            # camera images after them).
-            "views": [
-                {"name": v.name, "heading_deg": v.heading_deg, "pitch_deg": v.pitch_deg}
-                for v in panorama.views
-            ],
+            "views": panorama.view_records(),
             "hsd_matches": state["matches"],
             "memory": None if self.memory is None else self.memory.snapshot(),
             "way_back": None if verdict.way_back is None else verdict.way_back.to_dict(),

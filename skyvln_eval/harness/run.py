@@ -198,7 +198,7 @@ def error_verdict(reports: Sequence[RunReport], fail_on_error: float) -> str | N
                 f"{100 * fail_on_error:.0f}%; --fail-on-error sets it)"
             )
             for kind, (count, first) in report.error_kinds().items():
-                lines.append(f"  {count} x {kind}: {first}")
+                lines.append(f"  {count} x {first}")  # the first text starts with its kind
     return "\n".join(lines) or None
 
 
