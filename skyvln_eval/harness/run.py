@@ -197,7 +197,7 @@ def error_verdict(reports: Sequence[RunReport], fail_on_error: float) -> str | N
                 f"in error ({100 * report.error_share:.0f}%, more than the allowed "
                 f"{100 * fail_on_error:.0f}%; --fail-on-error sets it)"
             )
-            for kind, (count, first) in report.error_kinds().items():
+            for count, first in report.error_kinds().values():
                 lines.append(f"  {count} x {first}")  # the first text starts with its kind
     return "\n".join(lines) or None
 
