@@ -101,6 +101,10 @@ class ReproducePlan(_Strict):
     recordings: int = Field(
         default=2, ge=0, description="example episodes per system saved as Rerun recordings"
     )
+    observations_in_logs: bool = Field(
+        default=True,
+        description="images in the run MCAPs (the default plan: about 700 MB with, 270 without)",
+    )
 
 
 def load_plan(name_or_path: str | Path = DEFAULT_PLAN, **overrides: Any) -> ReproducePlan:
@@ -206,6 +210,7 @@ def planned_runs(
             seed=plan.seed,
             workers=workers,
             executor=executor,
+            observations_in_logs=plan.observations_in_logs,
         )
         key = results_digest(config)
         if key in runs:

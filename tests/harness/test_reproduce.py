@@ -168,6 +168,15 @@ def test_a_system_can_override_its_controller_settings(tmp_path: Path) -> None:
     assert runs["w MPC, no obstacles"].digest() != runs["w MPC"].digest()
 
 
+def test_a_plan_can_leave_the_images_out_of_its_run_logs(tmp_path: Path) -> None:
+    default = planned_runs(load_plan("default"), tmp_path, 1, "processes")
+    assert all(r.config.observations_in_logs for r in default)
+    lean = load_plan("default", observations_in_logs=False)
+    assert not any(
+        r.config.observations_in_logs for r in planned_runs(lean, tmp_path, 1, "processes")
+    )
+
+
 def test_endpoints_from_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv(
         "SKYVLN_TEST_BACKENDS", "openai:gpt-4o, openai:llama3@http://127.0.0.1:11434/v1"
