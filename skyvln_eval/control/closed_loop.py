@@ -24,7 +24,7 @@ import numpy as np
 import pandas as pd
 
 from skyvln_eval.control.base import Command, Controller, SolveStats
-from skyvln_eval.control.flight_log import log_frame
+from skyvln_eval.control.flight_log import PREDICTED_PATH_COLUMN, log_frame
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.frames import ViewPose, wrap_angle_rad
 from skyvln_eval.sim.obstacles import ConstantVelocityPredictor, ObstacleForecast, ObstacleScenario
@@ -41,9 +41,6 @@ from skyvln_eval.sim.reference import ReferenceConfig, ReferenceTrajectory, segm
 #: still overlaps everything else (LLM waits, rendering, logging).
 NATIVE_CALLS = threading.Lock()
 LIMIT_TOLERANCE = 1e-9
-#: Extra log column: the controller's predicted positions over its horizon, flattened
-#: ``[x0, y0, z0, x1, ...]`` ENU metres (``None`` without a prediction).
-PREDICTED_PATH_COLUMN = "predicted_path_m"
 #: How long a segment may take beyond its reference to settle on the target, by default.
 SETTLE_TIME_S = 30.0
 

@@ -66,6 +66,9 @@ LOG_COLUMNS: tuple[str, ...] = (
     "collision",
     "constraint_violation",
 )
+#: Extra column: the controller's predicted positions over its horizon, flattened
+#: ``[x0, y0, z0, x1, ...]`` ENU metres (``None`` without a prediction).
+PREDICTED_PATH_COLUMN = "predicted_path_m"
 _STRING = ("controller", "scenario", "status")
 _BOOL = ("solve_failed", "collision", "constraint_violation")
 _INT = ("iterations",)

@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 from skyvln_eval.agent.actions import Action, action_record
 from skyvln_eval.avdn.imagery import observe_view
 from skyvln_eval.avdn.records import Episode
-from skyvln_eval.control.closed_loop import PREDICTED_PATH_COLUMN
+from skyvln_eval.control.flight_log import PREDICTED_PATH_COLUMN
 from skyvln_eval.converters import messages as fx
 from skyvln_eval.converters import topics as t
 from skyvln_eval.converters.convert import (

@@ -142,11 +142,11 @@ class _Recorder:
         self.last_view = (strips[0], self.canvas.t_ns)
 
     def _image(self, path: str) -> Callable[[Json], None]:
-        def log_image(message: Json) -> None:
-            data, media_type = scene.image_bytes(message)  # passed on encoded
-            self.canvas.put(path, self.rr.EncodedImage(contents=data, media_type=media_type))
+        return lambda message: self._put_image(path, message)
 
-        return log_image
+    def _put_image(self, path: str, message: Json) -> None:
+        data, media_type = scene.image_bytes(message)  # passed on encoded
+        self.canvas.put(path, self.rr.EncodedImage(contents=data, media_type=media_type))
 
     def _add_view(self, view: str) -> None:
         """A camera view gets its place (and the HSD sector grid) the first time it shows."""
@@ -161,9 +161,7 @@ class _Recorder:
         frame = str(message.get("frame_id", ""))
         view = frame.removeprefix(t.CAMERA_VIEW_FRAME_PREFIX) or "unnamed"
         self._add_view(view)
-        data, media_type = scene.image_bytes(message)  # passed on encoded
-        image = self.rr.EncodedImage(contents=data, media_type=media_type)
-        self.canvas.put(f"{e.camera_view(view)}/image", image)
+        self._put_image(f"{e.camera_view(view)}/image", message)
 
     def _agent_step(self, step: Json) -> None:
         canvas = self.canvas
