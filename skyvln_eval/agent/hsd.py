@@ -18,7 +18,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any, Final, Literal
+from typing import Any, Final, Literal, TypeVar
 
 import cv2
 
@@ -47,6 +47,8 @@ SECTOR_NAMES: Final = (
 )
 MATCH_LEVELS: Final = ("strong", "partial", "weak", "none")
 Match = Literal["strong", "partial", "weak", "none", "unknown"]
+_Ranking = tuple[list[str], str | None, float]
+T = TypeVar("T")
 
 
 def sector_of(box_px: tuple[int, int, int, int], image_size_px: tuple[int, int]) -> int:
@@ -293,38 +295,61 @@ class SpatialDescriptor:
 
         ``route_hint`` (``direction_deg``, ``remaining_m``) is the commander's heading and
         the distance still to fly, which the ranking may weigh.
+
+        Every (phrase, candidate) description is independent of the others, and each
+        phrase's ranking of the other phrases': the descriptions of all phrases are asked
+        for at once, then all rankings at once (up to the client's concurrency limit), so
+        a decision waits for two answers however many phrases are pending. Records keep
+        the order of one phrase after another.
         """
         result = HsdResult()
         if not self.enabled:
             return result
         by_id = panorama.by_id()
-        for goal in goals:
-            if goal.landmark is None:
-                continue
-            candidates = self.propose(goal.landmark, panorama, heading_deg)
-            # The (phrase, candidate) descriptions are independent: ask for them at once, up
-            # to the client's concurrency limit; results keep the candidates' order.
-            workers = min(self.client.max_concurrency, max(1, len(candidates)))
-            with ThreadPoolExecutor(max_workers=workers) as pool:
-                n = len(candidates)
-                calls = list(
-                    pool.map(self._describe, [goal] * n, candidates, [panorama] * n, [by_id] * n)
-                )
+        goals = [g for g in goals if g.landmark is not None]
+        proposals = [self.propose(g.landmark or "", panorama, heading_deg) for g in goals]
+        pairs = [(goal, c) for goal, cs in zip(goals, proposals, strict=True) for c in cs]
+        descriptions = iter(
+            self._at_once(lambda pair: self._describe(pair[0], pair[1], panorama, by_id), pairs)
+        )
+        per_goal: list[tuple[list[Candidate], list[JsonCall[tuple[str, Match]]]]] = []
+        for candidates in proposals:
+            calls = [next(descriptions) for _ in candidates]
             described = []
             for candidate, call in zip(candidates, calls, strict=True):
+                if call.value is None:
+                    described.append(candidate)
+                else:
+                    text, level = call.value
+                    described.append(Candidate(candidate.entry, candidate.similarity, text, level))
+            per_goal.append((described, calls))
+        # Memory is asked in this thread, in goal order; only the model calls run at once.
+        prepared = [
+            self._rank_request(goal, described, heading_deg, memory_notes, route_hint)
+            for goal, (described, _) in zip(goals, per_goal, strict=True)
+        ]
+        ranks = self._at_once(self._ranked, prepared)
+        for (_, calls), (phrase_match, rank_call) in zip(per_goal, ranks, strict=True):
+            for call in calls:
                 result.records += call.records
                 result.exchanges += call.exchanges
                 failure = call.failure("hsd_describe", "ranked without a description")
-                if failure is not None or call.value is None:
-                    result.failures += [failure] if failure is not None else []
-                    described.append(candidate)
-                else:
-                    text, match = call.value
-                    described.append(Candidate(candidate.entry, candidate.similarity, text, match))
-            result.matches.append(
-                self._rank(goal, described, heading_deg, memory_notes, route_hint, result)
-            )
+                result.failures += [failure] if failure is not None else []
+            if rank_call is not None:
+                result.records += rank_call.records
+                result.exchanges += rank_call.exchanges
+                failure = rank_call.failure("hsd_rank", "proposal order")
+                result.failures += [failure] if failure is not None else []
+            result.matches.append(phrase_match)
         return result
+
+    def _at_once(self, fn: Callable[[Any], T], items: Sequence[Any]) -> list[T]:
+        """``fn`` of each item, in threads up to the client's concurrency limit; in order."""
+        if len(items) <= 1:
+            return [fn(item) for item in items]
+        workers = min(self.client.max_concurrency, len(items))
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            return list(pool.map(fn, items))
 
     def _describe(
         self,
@@ -357,18 +382,18 @@ class SpatialDescriptor:
             self.repair,
         )
 
-    def _rank(
+    def _rank_request(
         self,
         goal: SubGoal,
         candidates: list[Candidate],
         heading_deg: float,
         memory_notes: Callable[[Sequence[str], str], dict[str, str]] | None,
         route_hint: Mapping[str, Any] | None,
-        result: HsdResult,
-    ) -> PhraseMatch:
+    ) -> _RankRequest:
+        """The ranking request for one phrase, with what the memory knows of its candidates."""
         phrase = goal.landmark or ""
         if not candidates:
-            return PhraseMatch(phrase, goal.to_dict(), (), None, 0.0)
+            return _RankRequest(goal, phrase, (), False, False, ())
         levels = [MATCH_LEVELS.index(c.match) if c.match in MATCH_LEVELS else 4 for c in candidates]
         ambiguous = sum(1 for level in levels if level == min(levels)) > 1
         asked = memory_notes is not None
@@ -410,33 +435,54 @@ class SpatialDescriptor:
             "taking the sub-goal's direction and distance into account. Answer as "
             '{"ranking": [ids], "best": id or null if none fits, "confidence": 0..1}.\n'
         )
-        messages = [Message("system", HSD_SYSTEM), task_message(prose, "hsd_rank", data)]
+        messages = (Message("system", HSD_SYSTEM), task_message(prose, "hsd_rank", data))
+        return _RankRequest(goal, phrase, tuple(candidates), asked, ambiguous, messages)
+
+    def _ranked(self, request: _RankRequest) -> tuple[PhraseMatch, JsonCall[_Ranking] | None]:
+        """The phrase's match from the model's ranking (the proposal order when it gave
+        none), and the call (None for a phrase without candidates)."""
+        goal, phrase, candidates = request.goal.to_dict(), request.phrase, request.candidates
+        if not candidates:
+            return PhraseMatch(phrase, goal, (), None, 0.0), None
         ids = [c.entry["id"] for c in candidates]
         call = call_json(
-            self.client, "hsd_rank", messages, self.rank_config, _rank_parser(ids), self.repair
+            self.client,
+            "hsd_rank",
+            request.messages,
+            self.rank_config,
+            _rank_parser(ids),
+            self.repair,
         )
-        result.records += call.records
-        result.exchanges += call.exchanges
-        failure = call.failure("hsd_rank", "proposal order")
-        if failure is not None or call.value is None:  # fall back to the proposal order
-            result.failures += [failure] if failure is not None else []
+        asked, ambiguous = request.asked_memory, request.ambiguous
+        if call.value is None:  # fall back to the proposal order
             best = candidates[0].entry["id"] if candidates[0].similarity >= 0.5 else None
-            return PhraseMatch(
+            match = PhraseMatch(
                 phrase,
-                goal.to_dict(),
-                tuple(candidates),
+                goal,
+                candidates,
                 best,
                 candidates[0].similarity,
                 asked,
                 ambiguous,
                 call.error,
             )
+            return match, call
         ranking, best, confidence = call.value
         order = {cid: i for i, cid in enumerate(ranking)}
         ranked = sorted(candidates, key=lambda c: order.get(c.entry["id"], len(order)))
-        return PhraseMatch(
-            phrase, goal.to_dict(), tuple(ranked), best, confidence, asked, ambiguous
-        )
+        return PhraseMatch(phrase, goal, tuple(ranked), best, confidence, asked, ambiguous), call
+
+
+@dataclass(frozen=True)
+class _RankRequest:
+    """One phrase's ranking, ready to send: its candidates (with memory notes) and prompt."""
+
+    goal: SubGoal
+    phrase: str
+    candidates: tuple[Candidate, ...]
+    asked_memory: bool
+    ambiguous: bool
+    messages: tuple[Message, ...]
 
 
 HSD_SYSTEM: Final = (

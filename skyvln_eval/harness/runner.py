@@ -76,17 +76,26 @@ def _config_texts(config_json: str) -> tuple[str, str]:
 
 
 _worlds: OrderedDict[tuple[str, str], WorldTile] = OrderedDict()
+_worlds_guard = threading.Lock()
+_world_loading: dict[tuple[str, str], threading.Lock] = {}
 
 
 def _world(data_dir: str, map_name: str, georef: MapGeoref) -> WorldTile:
+    """The map's world, loaded once per process: episodes that start together in threads
+    wait for the one that loads it rather than each loading it again."""
     key = (data_dir, map_name)
-    if key in _worlds:
-        _worlds.move_to_end(key)
-        return _worlds[key]
-    world = load_world(data_dir, map_name, georef)
-    _worlds[key] = world
-    while len(_worlds) > _WORLD_CACHE_SIZE:
-        _worlds.popitem(last=False)
+    with _worlds_guard:
+        loading = _world_loading.setdefault(key, threading.Lock())
+    with loading:
+        with _worlds_guard:
+            if key in _worlds:
+                _worlds.move_to_end(key)
+                return _worlds[key]
+        world = load_world(data_dir, map_name, georef)
+        with _worlds_guard:
+            _worlds[key] = world
+            while len(_worlds) > _WORLD_CACHE_SIZE:
+                _worlds.popitem(last=False)
     return world
 
 
