@@ -44,6 +44,31 @@ class Executor(Protocol):
     ) -> Iterator[tuple[T, R | BaseException]]: ...
 
 
+def episodes_are_the_parallelism() -> None:
+    """Let OpenCV run its work in the calling thread: with episodes already running in
+    parallel (processes, threads), its own thread pool only oversubscribes the cores."""
+    import cv2
+
+    cv2.setNumThreads(1)
+
+
+@contextlib.contextmanager
+def _native_threads_off(parallel: bool) -> Iterator[None]:
+    """:func:`episodes_are_the_parallelism` for this process, until the block ends (when
+    episodes run in ``parallel``)."""
+    import cv2
+
+    if not parallel:
+        yield
+        return
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(before)
+
+
 @dataclass(frozen=True)
 class SerialExecutor:
     def map_unordered(
@@ -100,7 +125,11 @@ class ProcessExecutor:
     ) -> Iterator[tuple[T, R | BaseException]]:
         # "spawn": fresh interpreters, safe with threads in the parent (progress bars, solvers).
         context = multiprocessing.get_context("spawn")
-        with cf.ProcessPoolExecutor(max_workers=self.workers, mp_context=context) as pool:
+        with cf.ProcessPoolExecutor(
+            max_workers=self.workers,
+            mp_context=context,
+            initializer=episodes_are_the_parallelism if self.workers > 1 else None,
+        ) as pool:
             yield from _drain(pool, fn, tasks, self.workers)
 
 
@@ -111,7 +140,10 @@ class ThreadExecutor:
     def map_unordered(
         self, fn: Callable[[T], R], tasks: Sequence[T]
     ) -> Iterator[tuple[T, R | BaseException]]:
-        with cf.ThreadPoolExecutor(max_workers=self.workers, thread_name_prefix="episode") as pool:
+        with (
+            _native_threads_off(self.workers > 1),
+            cf.ThreadPoolExecutor(max_workers=self.workers, thread_name_prefix="episode") as pool,
+        ):
             yield from _drain(pool, fn, tasks, self.workers)
 
 
@@ -120,6 +152,7 @@ def _thread_worker(
 ) -> None:  # pragma: no cover - runs in a child process (covered through the executor's tests)
     """A worker process: ``threads`` threads run the tasks the parent sends down ``conn``
     (its own pipe) and send each result back; ``None`` ends the work."""
+    episodes_are_the_parallelism()
     sending = threading.Lock()
     inbox: queue.Queue[Any] = queue.Queue()
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import threading
 
 import pytest
 
@@ -18,6 +19,7 @@ from skyvln_eval.agent.perception import Panorama, Sighting
 from skyvln_eval.agent.subgoals import SubGoal
 from skyvln_eval.llm import LLMClient, LLMConfig, create_backend
 from skyvln_eval.llm.simple import ScriptedBackend
+from skyvln_eval.llm.taskdata import read_task_data
 
 SIZE = (224, 224)
 
@@ -173,3 +175,44 @@ def test_hsd_off_makes_no_calls() -> None:
     hsd = SpatialDescriptor(LLMClient(backend), LLMConfig(), enabled=False)
     result = hsd.match([SubGoal("destination", landmark="a church")], PANORAMA, 0.0, None)
     assert result.matches == [] and result.records == [] and backend.calls == []
+
+
+class _RoundsBackend(ScriptedBackend):
+    """Answers as the rule backend, but each call waits until ``parties[task]`` calls of
+    its task are in flight together: calls made one after another time out."""
+
+    def __init__(self, parties: dict[str, int]) -> None:
+        super().__init__()
+        self.rule = create_backend("rule")
+        self.barriers = {task: threading.Barrier(n, timeout=10.0) for task, n in parties.items()}
+
+    def generate(self, messages, config):  # type: ignore[no-untyped-def]
+        task = read_task_data(messages)["task"]
+        self.barriers[task].wait()  # BrokenBarrierError if the round does not come together
+        self.calls.append(list(messages))
+        return self.rule.generate(messages, config)
+
+
+def test_hsd_asks_for_every_phrase_at_once_describing_then_ranking() -> None:
+    # Two phrases, three candidates each: six descriptions in one round, two rankings in the
+    # next, whatever the number of phrases (a decision waits for two answers, not four).
+    goals = [
+        SubGoal("destination", landmark="a small restaurant with a red roof"),
+        SubGoal("pass", landmark="a church with a cross-shaped red roof"),
+    ]
+    hsd = SpatialDescriptor(LLMClient(create_backend("rule")), LLMConfig(), top_k=3)
+    proposals = [len(hsd.propose(g.landmark or "", PANORAMA, 0.0)) for g in goals]
+    backend = _RoundsBackend({"hsd_describe": sum(proposals), "hsd_rank": len(goals)})
+    client = LLMClient(backend, max_concurrency=8)
+    result = SpatialDescriptor(client, LLMConfig(), top_k=3).match(goals, PANORAMA, 0.0, None)
+    assert [m.phrase for m in result.matches] == [g.landmark for g in goals]
+    assert all(r.outcome == "ok" for r in result.records)
+    # Records read one phrase after another: its descriptions, then its ranking.
+    modules = [r.module for r in result.records]
+    expected = []
+    for n in proposals:
+        expected += ["hsd_describe"] * n + ["hsd_rank"]
+    assert modules == expected
+    # The same matches as the serial rule backend gives.
+    serial = SpatialDescriptor(LLMClient(create_backend("rule"), max_concurrency=1), LLMConfig())
+    assert serial.match(goals, PANORAMA, 0.0, None).matches == result.matches
