@@ -8,12 +8,14 @@
 
 Each row gives the peak resident memory of every worker process (``ru_maxrss`` read in
 the worker after each episode).
-3. LLM concurrency, against a loopback OpenAI-compatible server that answers after
-   200 ms: 64 raw calls one after another vs 16 at a time (aim: at least 10x); 16
-   episodes of the agent with the ``openai`` backend, in official and in dynamics mode,
-   run sequentially vs 16 at a time (16 threads in one process, and 2 processes x 8
-   threads); then the threads executor in dynamics mode, ``--repeats`` times, to show it
-   never crashes (threads never share a CasADi solver).
+3. LLM concurrency, against a loopback OpenAI-compatible server (in a process of its
+   own, as a remote model is) that answers after 200 ms: 64 raw calls one after another
+   vs 16 at a time (aim: at least 10x); 16 episodes of the agent with the ``openai``
+   backend, in official and in dynamics mode, run sequentially vs 16 at a time (16
+   threads in one process, and 2 processes x 8 threads), with the bound the longest
+   episode sets (no schedule ends before it does); then the threads executor in dynamics
+   mode, ``--repeats`` times, to show it never crashes (threads never share a CasADi
+   solver).
 
 Run directories go to a temporary folder; episode logs and the dataset to the cache.
 
@@ -23,9 +25,12 @@ Run directories go to a temporary folder; episode logs and the dataset to the ca
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
 import os
 import resource
+import subprocess
+import sys
 import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -37,7 +42,6 @@ from skyvln_eval.harness import RunConfig, make_executor, run
 from skyvln_eval.harness.executors import Executor
 from skyvln_eval.harness.run import prepare_job
 from skyvln_eval.llm.config import LLMConfig, build_client
-from skyvln_eval.llm.loopback import LoopbackOpenAIServer
 from skyvln_eval.llm.types import GenerationConfig, Message
 from skyvln_eval.metrics.results_io import read_results
 
@@ -135,14 +139,33 @@ def main() -> None:
     if args.skip_llm:
         return
     os.environ.setdefault("BENCH_KEY", "sk-bench")
-    with LoopbackOpenAIServer(latency_s=0.2) as server:
-        sequential = llm_calls(server.base_url, 64, 1)
-        concurrent = llm_calls(server.base_url, 64, 16)
+    with remote_loopback(latency_s=0.2) as base_url:
+        sequential = llm_calls(base_url, 64, 1)
+        concurrent = llm_calls(base_url, 64, 16)
         print(
             f"64 LLM calls, 200 ms each: sequential {sequential:.2f} s, "
             f"16 concurrent {concurrent:.2f} s -> {sequential / concurrent:.1f}x (aim: >= 10x)"
         )
-        llm_episodes(server.base_url, out, args.repeats)
+        llm_episodes(base_url, out, args.repeats)
+
+
+@contextlib.contextmanager
+def remote_loopback(latency_s: float) -> Iterator[str]:
+    """The loopback server in a process of its own, as a remote model is: answering does
+    not take the episodes' interpreter (its lock) from them. Yields the base URL."""
+    server = subprocess.Popen(
+        [sys.executable, "-m", "skyvln_eval.llm.loopback", "--latency-s", str(latency_s)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert server.stdout is not None
+        yield server.stdout.readline().strip()
+    finally:
+        assert server.stdin is not None
+        server.stdin.close()  # the server stops when its input closes
+        server.wait(timeout=30)
 
 
 def llm_run(

@@ -22,6 +22,8 @@ previous plan (``fallback_shift``, for at most a horizon) or eases to hover
 
 from __future__ import annotations
 
+import json
+import threading
 import time
 from abc import abstractmethod
 from typing import Any
@@ -31,8 +33,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyvln_eval.control.base import Command, Controller, SolveStats
+from skyvln_eval.control.codegen import Compiled
 from skyvln_eval.control.mpc_config import MpcConfig
-from skyvln_eval.control.rti import RtiStep
+from skyvln_eval.control.rti import RtiStep, build_step
 from skyvln_eval.control.stage_qp import NZ, StageQp
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.sim.obstacles import ObstacleForecast
@@ -41,6 +44,9 @@ from skyvln_eval.sim.reference import ReferenceWindow
 
 #: Slack above this (m^2 of squared keep-out radius) means an obstacle constraint was relaxed.
 SLACK_TOLERANCE = 1e-6
+
+_PROBLEMS: dict[str, tuple[StageQp, Compiled]] = {}
+_PROBLEMS_LOCK = threading.Lock()
 
 
 class MpcController(Controller):
@@ -51,14 +57,29 @@ class MpcController(Controller):
         super().__init__(self.config.params, self.config.limits)
         self.horizon_steps = self.config.horizon_steps
         self.dt_s = self.config.dt_s
-        self.qp = StageQp(self.prediction_model(), self.config, self.name)
-        self.rti = RtiStep(self.qp, self.config.compile, self.name)
+        self.qp, built = self._shared_problem()
+        self.rti = RtiStep(self.qp, built)
         # The last solution (relative to _plan_origin) lives in rti.plan, which the step
         # Function shifts; _has_plan says whether there is one.
         self._has_plan = False
         self._plan_origin = np.zeros(3)
         self._plan_age = 0  # control steps since the plan was computed
         self._slots = np.arange(self.config.max_obstacles)
+
+    def _shared_problem(self) -> tuple[StageQp, Compiled]:
+        """This problem's QP and step Function, built once per process (~0.1 s of CasADi
+        work under the interpreter's lock, which episode threads would otherwise each pay)
+        and shared by its controllers: they are never changed after building."""
+        key = json.dumps(
+            [type(self).__module__, type(self).__qualname__, self.name, self.config.as_dict()],
+            sort_keys=True,
+            default=str,
+        )
+        with _PROBLEMS_LOCK:
+            if key not in _PROBLEMS:
+                qp = StageQp(self.prediction_model(), self.config, self.name)
+                _PROBLEMS[key] = (qp, build_step(qp, self.config.compile, self.name))
+            return _PROBLEMS[key]
 
     @abstractmethod
     def prediction_model(self) -> ca.Function:

@@ -29,7 +29,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import NDArray
 
-from skyvln_eval.control.codegen import maybe_compile, qp_iterations_reader
+from skyvln_eval.control.codegen import Compiled, maybe_compile, qp_iterations_reader
 from skyvln_eval.control.mpc_config import CompileMode
 from skyvln_eval.control.stage_qp import NZ, StageQp
 from skyvln_eval.sim.quadrotor import NU, NX
@@ -55,19 +55,11 @@ class RtiStep:
     :attr:`w`.
     """
 
-    def __init__(self, qp: StageQp, compile_mode: CompileMode, name: str) -> None:
+    def __init__(self, qp: StageQp, built: Compiled) -> None:
+        """Buffers for ``built`` (:func:`build_step` of ``qp``), which controllers of the
+        same problem share: each has its own buffers, and its own memory in the Function."""
         self.qp = qp
-        n, m = qp.config.horizon_steps, qp.config.max_obstacles
-        shapes = {
-            "origin": (3,),
-            "x0": (NX,),
-            "u_applied": (NU,),
-            "x_ref": (n + 1, NX),
-            "u_ref": (n, NU),
-            "obstacles": (m, n, 3),
-            "keep_out": (m,),
-            "active": (m,),
-        }
+        shapes = _param_shapes(qp)
         sizes = [int(np.prod(shape)) for shape in shapes.values()]
         self.params = np.zeros(sum(sizes))
         ends = np.cumsum(sizes)
@@ -82,8 +74,6 @@ class RtiStep:
         self.w = np.zeros(qp.n_w)
         self._lam_a = np.zeros(qp.solver.size1_in("lam_a0"))
         self._lam_x = np.zeros(qp.n_w)
-        function = self._function(name, sizes)
-        built = maybe_compile(function, compile_mode)
         self.function, self.compiled = built.function, built.compiled
         self._iterations = qp_iterations_reader(built)
         self._trigger: Any = None
@@ -111,49 +101,70 @@ class RtiStep:
             ok, iterations = bool(stats.get("success")), int(stats.get("iter_count", -1))
         return ok and bool(np.isfinite(self.w).all()), iterations
 
-    def _function(self, name: str, sizes: list[int]) -> ca.Function:
-        qp = self.qp
-        n_w, stage = qp.n_w, qp.stage
-        plan, guess = ca.MX.sym("plan", n_w), ca.MX.sym("guess", n_w)
-        params, warm = ca.MX.sym("params", sum(sizes)), ca.MX.sym("warm", 4)
-        blocks = ca.vertsplit(params, [0, *np.cumsum(sizes).tolist()])
-        origin, x0, u_applied, x_ref, u_ref, obstacles, keep_out, active = blocks
-        n, m = qp.config.horizon_steps, qp.config.max_obstacles
-        # Every position relative to the origin: the problem's numbers stay small.
-        state_origin = ca.vertcat(origin, ca.DM.zeros(NX - 3))
-        x0_rel = x0 - state_origin
-        x_ref_rel = ca.reshape(x_ref, NX, n + 1) - ca.repmat(state_origin, 1, n + 1)
-        obstacles_rel = ca.reshape(obstacles, 3, m * n) - ca.repmat(origin, 1, m * n)
-        p = ca.vertcat(
-            x0_rel, u_applied, ca.vec(x_ref_rel), u_ref, ca.vec(obstacles_rel), keep_out, active
-        )
-        # The warm start: the plan's positions moved to the new origin, shifted one stage.
-        rows = qp.position_index
-        to_positions = ca.DM(
-            ca.Sparsity.triplet(n_w, 3, rows.tolist(), (np.arange(len(rows)) % 3).tolist()),
-            1.0,
-        )
-        moved = plan + ca.mtimes(to_positions, warm[:3])
-        shifted = ca.vertcat(moved[stage:], moved[n_w - stage :])
-        chosen = ca.if_else(warm[3], shifted, guess)
-        start = ca.vertcat(x0_rel, u_applied, chosen[NZ:])
-        g, a, lba, uba, lbx, ubx = qp.data(start, p)
-        solution = qp.solver(
-            h=qp.hessian,
-            g=g,
-            a=a,
-            lba=lba,
-            uba=uba,
-            lbx=lbx,
-            ubx=ubx,
-            x0=start,
-            lam_x0=ca.DM.zeros(n_w),
-            lam_a0=ca.DM.zeros(self._lam_a.size),
-        )
-        return ca.Function(
-            f"{name}_rti",
-            [plan, guess, params, warm],
-            [solution["x"], solution["lam_a"], solution["lam_x"]],
-            ["plan", "guess", "params", "warm"],
-            ["w", "lam_a", "lam_x"],
-        )
+
+def build_step(qp: StageQp, compile_mode: CompileMode, name: str) -> Compiled:
+    """The step Function of ``qp``, compiled (or cached, or interpreted) as
+    ``compile_mode`` says; build it once per problem and process (about 0.1 s)."""
+    return maybe_compile(_step_function(qp, name), compile_mode)
+
+
+def _param_shapes(qp: StageQp) -> dict[str, tuple[int, ...]]:
+    n, m = qp.config.horizon_steps, qp.config.max_obstacles
+    return {
+        "origin": (3,),
+        "x0": (NX,),
+        "u_applied": (NU,),
+        "x_ref": (n + 1, NX),
+        "u_ref": (n, NU),
+        "obstacles": (m, n, 3),
+        "keep_out": (m,),
+        "active": (m,),
+    }
+
+
+def _step_function(qp: StageQp, name: str) -> ca.Function:
+    sizes = [int(np.prod(shape)) for shape in _param_shapes(qp).values()]
+    n_w, stage = qp.n_w, qp.stage
+    plan, guess = ca.MX.sym("plan", n_w), ca.MX.sym("guess", n_w)
+    params, warm = ca.MX.sym("params", sum(sizes)), ca.MX.sym("warm", 4)
+    blocks = ca.vertsplit(params, [0, *np.cumsum(sizes).tolist()])
+    origin, x0, u_applied, x_ref, u_ref, obstacles, keep_out, active = blocks
+    n, m = qp.config.horizon_steps, qp.config.max_obstacles
+    # Every position relative to the origin: the problem's numbers stay small.
+    state_origin = ca.vertcat(origin, ca.DM.zeros(NX - 3))
+    x0_rel = x0 - state_origin
+    x_ref_rel = ca.reshape(x_ref, NX, n + 1) - ca.repmat(state_origin, 1, n + 1)
+    obstacles_rel = ca.reshape(obstacles, 3, m * n) - ca.repmat(origin, 1, m * n)
+    p = ca.vertcat(
+        x0_rel, u_applied, ca.vec(x_ref_rel), u_ref, ca.vec(obstacles_rel), keep_out, active
+    )
+    # The warm start: the plan's positions moved to the new origin, shifted one stage.
+    rows = qp.position_index
+    to_positions = ca.DM(
+        ca.Sparsity.triplet(n_w, 3, rows.tolist(), (np.arange(len(rows)) % 3).tolist()),
+        1.0,
+    )
+    moved = plan + ca.mtimes(to_positions, warm[:3])
+    shifted = ca.vertcat(moved[stage:], moved[n_w - stage :])
+    chosen = ca.if_else(warm[3], shifted, guess)
+    start = ca.vertcat(x0_rel, u_applied, chosen[NZ:])
+    g, a, lba, uba, lbx, ubx = qp.data(start, p)
+    solution = qp.solver(
+        h=qp.hessian,
+        g=g,
+        a=a,
+        lba=lba,
+        uba=uba,
+        lbx=lbx,
+        ubx=ubx,
+        x0=start,
+        lam_x0=ca.DM.zeros(n_w),
+        lam_a0=ca.DM.zeros(qp.solver.size1_in("lam_a0")),
+    )
+    return ca.Function(
+        f"{name}_rti",
+        [plan, guess, params, warm],
+        [solution["x"], solution["lam_a"], solution["lam_x"]],
+        ["plan", "guess", "params", "warm"],
+        ["w", "lam_a", "lam_x"],
+    )

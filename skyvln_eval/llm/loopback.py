@@ -16,6 +16,11 @@ backend sends to test servers only when told to (``send_task_data``); a request 
 task data gets a plain text answer. Every request is kept in ``requests`` (parsed JSON
 body, headers and task) for the test to inspect.
 
+``python -m skyvln_eval.llm.loopback --latency-s 0.2`` serves from a process of its own
+(the first line it prints is the base URL; it stops when its standard input closes), for
+benchmarks whose client must not share its interpreter with the server, as no remote
+model does.
+
 ``structured`` makes the server treat ``response_format`` as real servers do: ``"all"``
 accepts every form, ``"llama_cpp"`` answers the ``json_schema`` form with HTTP 500 naming
 ``response_format`` (as llama.cpp's server does) and accepts ``json_object``, ``"none"``
@@ -24,10 +29,12 @@ refuses any ``response_format`` with HTTP 400.
 
 from __future__ import annotations
 
+import argparse
 import base64
 import binascii
 import contextlib
 import json
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -291,3 +298,18 @@ class LoopbackOpenAIServer:
         self._server.shutdown()
         self._server.server_close()
         self._thread.join(timeout=5)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Serve until standard input closes; print the base URL first (see the module doc)."""
+    parser = argparse.ArgumentParser(description="A loopback OpenAI-compatible server.")
+    parser.add_argument("--latency-s", type=float, default=0.0, help="delay of every answer")
+    parser.add_argument("--structured", choices=("all", "llama_cpp", "none"), default="all")
+    args = parser.parse_args(argv)
+    with LoopbackOpenAIServer(latency_s=args.latency_s, structured=args.structured) as server:
+        print(server.base_url, flush=True)
+        sys.stdin.read()
+
+
+if __name__ == "__main__":
+    main()
