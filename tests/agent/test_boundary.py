@@ -41,6 +41,64 @@ def test_no_agent_module_imports_the_world_or_the_simulator() -> None:
     assert not offending, offending
 
 
+#: Modules that look behind objects (frames, referents, raw memory, other modules).
+INTROSPECTION = ("gc", "inspect", "ctypes", "sys")
+#: Dunders that open an object up (its fields, a bound method's owner, a closure's cells).
+OPENING_DUNDERS = ("__dict__", "__self__", "__closure__", "__globals__", "__func__")
+
+
+def _private_reaches(path: Path) -> Iterator[str]:
+    """Where agent code reads a private name of something other than itself: the sensor
+    handle keeps its simulator behind a private method, which agent code must not call."""
+    label = path.relative_to(REPO) if path.is_relative_to(REPO) else path.name
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        dunder = node.attr.startswith("__") if isinstance(node, ast.Attribute) else False
+        if isinstance(node, ast.Attribute) and dunder and node.attr in OPENING_DUNDERS:
+            yield f"{label}:{node.lineno} {ast.unparse(node)}"
+        elif isinstance(node, ast.Attribute) and node.attr.startswith("_") and not dunder:
+            owner = node.value
+            if not (isinstance(owner, ast.Name) and owner.id in ("self", "cls")):
+                yield f"{label}:{node.lineno} {ast.unparse(node)}"
+        elif isinstance(node, ast.Call) and isinstance(node.func, ast.Name):
+            on_itself = bool(node.args) and isinstance(node.args[0], ast.Name)
+            on_itself = on_itself and node.args[0].id in ("self", "cls")  # type: ignore[attr-defined]
+            if (
+                node.func.id in ("getattr", "hasattr")
+                and not on_itself
+                and any(
+                    isinstance(a, ast.Constant) and str(a.value).startswith("_") for a in node.args
+                )
+            ):
+                yield f"{label}:{node.lineno} {ast.unparse(node)}"
+            if node.func.id in ("vars", "globals", "__import__"):
+                yield f"{label}:{node.lineno} {ast.unparse(node)}"
+
+
+def test_no_agent_module_reads_private_names_or_looks_behind_objects() -> None:
+    offending = [
+        reach for path in sorted(AGENT_PACKAGE.rglob("*.py")) for reach in _private_reaches(path)
+    ]
+    offending += [
+        f"{path.relative_to(REPO)} imports {name}"
+        for path in sorted(AGENT_PACKAGE.rglob("*.py"))
+        for name in _imports(path)
+        if name.split(".")[0] in INTROSPECTION
+    ]
+    assert not offending, offending
+
+
+def test_the_private_reach_check_finds_what_it_forbids(tmp_path: Path) -> None:
+    sneaky = tmp_path / "sneaky_agent.py"
+    sneaky.write_text(
+        "def peek(observation):\n"
+        "    world = observation.sensors._sensors()\n"
+        "    return getattr(world, '_world'), vars(world), world.capture.__self__\n",
+        encoding="utf-8",
+    )
+    found = list(_private_reaches(sneaky))
+    assert len(found) == 4 and "observation.sensors._sensors" in found[0]
+
+
 def _reachable(root: Any, depth: int = 8) -> Iterator[Any]:
     """Everything reachable from ``root`` through attributes, fields and containers."""
     seen: set[int] = set()
