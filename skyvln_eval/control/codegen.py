@@ -12,7 +12,8 @@ changed HPIPM option used to load the library built with the old one.)
 Processes that need the same library at the same time (the workers of a run) take a file
 lock, so one of them builds and the others load its result: a machine never compiles a
 problem twice (the compile, lock and cache steps are :mod:`skyvln_eval.cbuild`'s). A
-broken or half-written cache entry never breaks a run: it is rebuilt, and if that fails too the interpreted function is used.
+broken or half-written cache entry never breaks a run: it is rebuilt, and if that fails
+too the interpreted function is used.
 Without a C compiler the functions run interpreted and a one-line warning says so once
 per process.
 
