@@ -1,9 +1,11 @@
 """The ray march of :mod:`.march` compiled from C (``native/march.c``), loaded with ctypes.
 
-:func:`march_native` gives the depths of :func:`~.march.march_reference`, bit for bit, in a
-fraction of the time: one pass over the rays, each sampled per level only from its tile's
-start level (the bound of :func:`~.march.march`, computed in C too) until it meets the
-surface. The C code does the float operations numpy and ``cv2.remap`` do, in the same
+:func:`march_native` gives the depths of :func:`~.march.march_reference`, bit for bit, in
+one pass over the rays: each ray is sampled per level from its tile's start level (the
+bound of :func:`~.march.march`, computed in C too) until it meets the surface, and a level
+where the finest max-pyramid cells under the ray are below the level is passed without
+reading the height layer (``benchmarks/render.py`` measures it against the numpy march).
+The C code does the float operations numpy and ``cv2.remap`` do, in the same
 order and precision; whether ``cv2.remap`` fuses its multiply-adds depends on the CPU, so
 on load the library's bilinear lookup is checked against ``cv2.remap`` on a probe and told
 which to do (a library that matches neither is not used).
