@@ -11,8 +11,9 @@ changed HPIPM option used to load the library built with the old one.)
 
 Processes that need the same library at the same time (the workers of a run) take a file
 lock, so one of them builds and the others load its result: a machine never compiles a
-problem twice. A broken or half-written cache entry never
-breaks a run: it is rebuilt, and if that fails too the interpreted function is used.
+problem twice (the compile, lock and cache steps are :mod:`skyvln_eval.cbuild`'s). A
+broken or half-written cache entry never breaks a run: it is rebuilt, and if that fails
+too the interpreted function is used.
 Without a C compiler the functions run interpreted and a one-line warning says so once
 per process.
 
@@ -24,22 +25,17 @@ compiled solver behave as the interpreted one (see :func:`_patch_hpipm`).
 from __future__ import annotations
 
 import ctypes
-import functools
-import hashlib
 import logging
-import os
 import re
-import shutil
 import subprocess
-import tempfile
 import warnings
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import casadi as ca
 
+from skyvln_eval.cbuild import build_lock, compile_library, compiler, compiler_identity, digest
 from skyvln_eval.control.mpc_config import CompileMode
 from skyvln_eval.errors import SolverBuildError
 from skyvln_eval.paths import cache_root
@@ -65,22 +61,6 @@ class Compiled:
     built_now: bool = False
 
 
-def compiler() -> str | None:
-    """The C compiler to use (``$CC``, else ``gcc``), or ``None`` if there is none."""
-    return shutil.which(os.environ.get("CC", "gcc"))
-
-
-@functools.lru_cache(maxsize=4)
-def compiler_identity(cc: str) -> str:
-    """The compiler's path and the first line of its ``--version`` (part of the cache key)."""
-    try:
-        done = subprocess.run([cc, "--version"], capture_output=True, text=True, check=False)
-        first = done.stdout.splitlines()[0] if done.stdout else ""
-    except OSError:
-        first = ""
-    return f"{cc} {first}".strip()
-
-
 def casadi_dir() -> Path:
     """The CasADi package folder: its headers and the HPIPM / BLASFEO libraries."""
     return Path(ca.__file__).parent
@@ -95,17 +75,9 @@ def generated_source(function: ca.Function) -> str:
 
 def cache_key(source: str, cc: str) -> str:
     """The library's key: CasADi and compiler versions, flags, patch revision, source."""
-    digest = hashlib.sha256()
-    parts = (
-        ca.CasadiMeta.version(),
-        compiler_identity(cc),
-        " ".join(CFLAGS),
-        PATCH_REVISION,
-        source,
+    return digest(
+        (ca.CasadiMeta.version(), compiler_identity(cc), " ".join(CFLAGS), PATCH_REVISION, source)
     )
-    for part in parts:
-        digest.update(part.encode() + b"\0")
-    return digest.hexdigest()[:20]
 
 
 def maybe_compile(function: ca.Function, mode: CompileMode) -> Compiled:
@@ -129,7 +101,7 @@ def maybe_compile(function: ca.Function, mode: CompileMode) -> Compiled:
     source = generated_source(function)
     library = cache_root() / "casadi" / f"{name}-{cache_key(source, cc)}.so"
     try:
-        with _build_lock(library):
+        with build_lock(library):
             loaded = _load(name, library)
             built_now = loaded is None
             if loaded is None:
@@ -176,48 +148,20 @@ def _load(name: str, library: Path, rebuild_on_error: bool = True) -> ca.Functio
         return None
 
 
-@contextmanager
-def _build_lock(library: Path) -> Iterator[None]:
-    """Hold an exclusive lock on ``library``'s lock file (waits while another process builds)."""
-    library.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        import fcntl
-    except ImportError:  # not a POSIX system: no lock, at worst two processes both build
-        yield
-        return
-    with library.with_suffix(".lock").open("a") as handle:
-        fcntl.flock(handle, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
-
-
 def _build(name: str, text: str, cc: str, library: Path) -> None:
-    """Compile the generated C ``text`` of function ``name`` to ``library`` (temporary name,
-    then rename)."""
-    with tempfile.TemporaryDirectory(dir=library.parent, prefix=".build-") as build:
-        source = Path(build) / f"{name}.c"
-        link: list[str] = []
-        if "hpipm_d_ocp_qp_ipm.h" in text:
-            text = _patch_hpipm(text, name)
-            folder = casadi_dir()
-            link = [
-                f"-I{folder / 'include'}",
-                f"-L{folder}",
-                "-lhpipm",
-                "-lblasfeo",
-                f"-Wl,-rpath,{folder}",
-            ]
-        source.write_text(text)
-        built = Path(build) / library.name
-        log.info("compiling %s with %s (once per problem definition)", name, cc)
-        subprocess.run(
-            [cc, *CFLAGS, "-o", str(built), str(source), *link, "-lm"],
-            check=True,
-            capture_output=True,
-        )
-        built.replace(library)
+    """Compile the generated C ``text`` of function ``name`` to ``library``."""
+    link: list[str] = []
+    if "hpipm_d_ocp_qp_ipm.h" in text:
+        text = _patch_hpipm(text, name)
+        folder = casadi_dir()
+        link = [
+            f"-I{folder / 'include'}",
+            f"-L{folder}",
+            "-lhpipm",
+            "-lblasfeo",
+            f"-Wl,-rpath,{folder}",
+        ]
+    compile_library(name, text, cc, CFLAGS, library, link)
 
 
 def _patch_hpipm(text: str, name: str) -> str:

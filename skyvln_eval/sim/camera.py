@@ -9,8 +9,10 @@ ground is flat, so depth comes from the altitude alone.
 Rays are marched down through a fixed number of height levels over the height layer, so
 roofs occlude what is behind them (:mod:`.march`); every image is one ``cv2.remap`` of a
 world layer. The views a drone takes from one position (a decision's panorama) are rendered
-as one batch (:meth:`CameraRig.capture_many`). ``method="reference"`` renders with the
-plain march that samples every ray at every level: the fast one gives the same depths.
+as one batch (:meth:`CameraRig.capture_many`). The march runs in compiled C by default
+(``method="native"``, :mod:`.native_march`: built on first use, numpy with a warning when
+no C compiler is found); ``"fast"`` is the tiled numpy march and ``"reference"`` the plain
+one that samples every ray at every level. All three give the same depths, bit for bit.
 Frames: ENU metres from the map's south-west corner (:mod:`skyvln_eval.frames`); image
 ``u`` to the right, ``v`` down, pixel centres at ``+0.5``; depth is *planar* (distance
 along the optical axis), so a pixel's point is ``camera + depth * ray(u, v)``.
@@ -38,6 +40,7 @@ from skyvln_eval.sensing import (
     plane_coordinates,
 )
 from skyvln_eval.sim.march import march, march_reference, sample_layer
+from skyvln_eval.sim.native_march import march_native
 from skyvln_eval.worlds.tile import WorldTile
 
 __all__ = [
@@ -55,9 +58,11 @@ __all__ = [
 SKY_BGR: Final = (235, 206, 135)
 
 FloatImage = NDArray[np.float32]
-#: ``fast``: the tiled march (:func:`~skyvln_eval.sim.march.march`); ``reference``: every ray
-#: at every level (:func:`~skyvln_eval.sim.march.march_reference`). Same images.
-RenderMethod = Literal["fast", "reference"]
+#: ``native``: the march in C (:func:`~skyvln_eval.sim.native_march.march_native`, ``fast``
+#: without a C compiler); ``fast``: the tiled numpy march (:func:`~skyvln_eval.sim.march.march`);
+#: ``reference``: every ray at every level (:func:`~skyvln_eval.sim.march.march_reference`).
+#: Same images.
+RenderMethod = Literal["native", "fast", "reference"]
 
 
 def _rays(pose: CameraPose, a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -98,7 +103,7 @@ def render_camera(
     world: WorldTile,
     pose: CameraPose,
     config: CameraConfig | None = None,
-    method: RenderMethod = "fast",
+    method: RenderMethod = "native",
 ) -> CameraImages:
     """What the front camera sees from ``pose`` over ``world``."""
     return render_views(world, [pose], config, method)[0]
@@ -108,7 +113,7 @@ def render_views(
     world: WorldTile,
     poses: Sequence[CameraPose],
     config: CameraConfig | None = None,
-    method: RenderMethod = "fast",
+    method: RenderMethod = "native",
 ) -> list[CameraImages]:
     """What the front camera sees from each pose, all at one position, rendered as a batch."""
     config = config or CameraConfig()
@@ -123,12 +128,14 @@ def render_views(
     for index, pose in enumerate(poses):
         rays[:, index] = np.moveaxis(_rays(pose, *plane), -1, 0)
     rays = np.moveaxis(rays, 0, -1)  # (views, H, W, 3), each component contiguous
-    if method == "fast":
+    if method == "native":
+        depth = march_native(world, origin, rays, config.height_levels)
+    elif method == "fast":
         depth = march(world, origin, rays, config.height_levels)
     elif method == "reference":
         depth = np.stack([march_reference(world, origin, r, config.height_levels) for r in rays])
     else:
-        raise ConfigError(f"render method must be 'fast' or 'reference', got {method!r}")
+        raise ConfigError(f"render method must be 'native', 'fast' or 'reference', got {method!r}")
     # The views stacked into one tall image: one lookup per layer for the whole batch.
     n, height, width = depth.shape
     stacked = rays.reshape(n * height, width, 3)

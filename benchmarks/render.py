@@ -1,0 +1,124 @@
+"""Benchmark: rendering a decision's camera views (4 headings at 60 degrees + straight down,
+224 x 224 each, as the agent's perception takes them) over synthetic city tiles.
+
+Prints milliseconds per decision of ``render_views`` with each ray march: ``reference``
+(every ray at every level), ``fast`` (the tiled numpy march, the baseline) and ``native``
+(the march in C), and the march alone for the last two; the ratios are against ``fast``,
+measured in the same process over the same seeded poses. The native depths are checked
+against the reference ones (bit for bit) on the poses the reference renders.
+
+    python benchmarks/render.py [--poses 300] [--reference-poses 30] [--worlds 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from skyvln_eval.sim.camera import CameraPose, RenderMethod, render_views
+from skyvln_eval.sim.march import march
+from skyvln_eval.sim.native_march import march_native, native
+from skyvln_eval.worlds.city import generate_city
+from skyvln_eval.worlds.sample.build import SAMPLE_SPEC, map_georef
+from skyvln_eval.worlds.tile import WorldTile
+
+Decision = tuple[WorldTile, list[CameraPose]]
+
+
+def city_world(index: int) -> WorldTile:
+    """The sample dataset's map ``index``: a 1 km synthetic city at 0.4 m per pixel."""
+    spec = SAMPLE_SPEC
+    city = generate_city(spec.seed * 1000 + index, spec.tile_m, spec.tile_m, spec.metres_per_px)
+    height_px, width_px = city.canvas.height.shape
+    georef, _ = map_georef(spec, index, height_px, width_px)
+    canvas = city.canvas
+    return WorldTile(
+        f"city{index}", georef, canvas.bgr, canvas.semantic, canvas.instance, canvas.height
+    )
+
+
+def decisions(worlds: Sequence[WorldTile], count: int, seed: int = 0) -> list[Decision]:
+    """Seeded positions over the tiles (20-150 m up) and their five views."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for index in range(count):
+        world = worlds[index % len(worlds)]
+        x, y = rng.uniform(50.0, 950.0, size=2)
+        z = float(rng.uniform(20.0, 150.0))
+        yaw = float(rng.uniform(-math.pi, math.pi))
+        headings = [(yaw + k * math.pi / 2, 60.0) for k in range(4)] + [(yaw, 90.0)]
+        out.append((world, [CameraPose(float(x), float(y), z, h, pitch) for h, pitch in headings]))
+    return out
+
+
+def ms_per_decision(run: Callable[[Decision], object], cases: Sequence[Decision]) -> float:
+    run(cases[0])  # warm caches (pyramids, the library) outside the timing
+    start = time.perf_counter()
+    for case in cases:
+        run(case)
+    return (time.perf_counter() - start) / len(cases) * 1000.0
+
+
+def renderer(method: RenderMethod) -> Callable[[Decision], object]:
+    return lambda case: render_views(case[0], case[1], method=method)
+
+
+def marcher(fn: Callable[..., np.ndarray]) -> Callable[[Decision], object]:
+    """The march alone, on the decision's rays as render_views builds them."""
+    from skyvln_eval.sim.camera import CameraConfig, _image_plane, _rays
+
+    config = CameraConfig()
+    plane = _image_plane(config)
+
+    def run(case: Decision) -> object:
+        world, poses = case
+        rays = np.stack([np.moveaxis(_rays(pose, *plane), -1, 0) for pose in poses], axis=1)
+        origin = np.array([poses[0].x_m, poses[0].y_m, poses[0].z_m])
+        return fn(world, origin, np.moveaxis(rays, 0, -1), config.height_levels)
+
+    return run
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--poses", type=int, default=300)
+    parser.add_argument("--reference-poses", type=int, default=30)
+    parser.add_argument("--worlds", type=int, default=2)
+    args = parser.parse_args()
+    if native() is None:
+        print("the compiled march is unavailable: 'native' rows run the numpy march")
+    worlds = [city_world(index) for index in range(args.worlds)]
+    cases = decisions(worlds, args.poses)
+    few = cases[: args.reference_poses]
+    exact = all(
+        np.array_equal(a.depth_m, b.depth_m)
+        for world, poses in few
+        for a, b in zip(
+            render_views(world, poses, method="native"),
+            render_views(world, poses, method="reference"),
+            strict=True,
+        )
+    )
+    print(f"native depths equal to the reference on {len(few)} decisions: {exact}")
+    rows = [
+        (f"render_views reference ({len(few)} decisions)", renderer("reference"), few),
+        ("render_views fast (numpy, baseline)", renderer("fast"), cases),
+        ("render_views native", renderer("native"), cases),
+        ("march fast (numpy)", marcher(march), cases),
+        ("march native", marcher(march_native), cases),
+    ]
+    times = {label: ms_per_decision(run, subset) for label, run, subset in rows}
+    baseline = {"render": times[rows[1][0]], "march": times[rows[3][0]]}
+    for label, ms in times.items():
+        base = baseline["march" if label.startswith("march") else "render"]
+        print(f"{label:<40} {ms:>8.2f} ms per decision   {base / ms:>5.2f} x faster than fast")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,198 @@
+"""The ray march of :mod:`.march` compiled from C (``native/march.c``), loaded with ctypes.
+
+:func:`march_native` gives the depths of :func:`~.march.march_reference`, bit for bit, in
+one pass over the rays: each ray is sampled per level from its tile's start level (the
+bound of :func:`~.march.march`, computed in C too) until it meets the surface, and a level
+where the finest max-pyramid cells under the ray are below the level is passed without
+reading the height layer (``benchmarks/render.py`` measures it against the numpy march).
+The C code does the float operations numpy and ``cv2.remap`` do, in the same
+order and precision; whether ``cv2.remap`` fuses its multiply-adds depends on the CPU, so
+on load the library's bilinear lookup is checked against ``cv2.remap`` on a probe and told
+which to do (a library that matches neither is not used).
+
+The library is built with the system's C compiler on first use and cached on disk
+(:mod:`skyvln_eval.cbuild`; key: source, compiler, flags). Without a compiler, or if the
+build or the probe fails, :func:`march_native` runs :func:`~.march.march` (numpy) and a
+one-line warning says so once per process. The C function keeps no state and ctypes
+releases the GIL while it runs, so episode threads render in parallel.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import logging
+import subprocess
+import threading
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from skyvln_eval.cbuild import build_lock, compile_library, compiler, compiler_identity, digest
+from skyvln_eval.paths import cache_root
+from skyvln_eval.sim.march import (
+    FloatImage,
+    _levels,
+    _map_scale,
+    _pyramid,
+    march,
+    max_height_m,
+)
+from skyvln_eval.worlds.tile import WorldTile
+
+log = logging.getLogger(__name__)
+
+SOURCE = Path(__file__).with_name("native") / "march.c"
+#: No contraction of a * b + c into one rounding, no fast-math: the float operations stay
+#: the ones written (numpy's); the fused ones are explicit ``fmaf`` calls.
+CFLAGS = ("-O3", "-fPIC", "-shared", "-ffp-contract=off", "-fno-fast-math")
+
+_f64 = np.ctypeslib.ndpointer(np.float64, flags="C_CONTIGUOUS")
+_f32 = np.ctypeslib.ndpointer(np.float32, flags="C_CONTIGUOUS")
+_i64, _double = ctypes.c_int64, ctypes.c_double
+
+
+@dataclass(frozen=True)
+class NativeMarch:
+    """The loaded library's functions and whether its lookups fuse multiply-adds."""
+
+    march: Any
+    sample: Any
+    fused: bool
+
+
+_lock = threading.Lock()
+_state: dict[str, NativeMarch | None] = {}
+_warned = False
+
+
+def library_path(cc: str) -> Path:
+    """Where the library built from :data:`SOURCE` by ``cc`` is cached."""
+    key = digest((compiler_identity(cc), " ".join(CFLAGS), SOURCE.read_text()))
+    return cache_root() / "native" / f"march-{key}.so"
+
+
+def native() -> NativeMarch | None:
+    """The compiled march (built or loaded once per process), or ``None`` if unavailable."""
+    with _lock:
+        if "march" not in _state:
+            _state["march"] = _load_native()
+        return _state["march"]
+
+
+def available() -> bool:
+    return native() is not None
+
+
+def reset() -> None:
+    """Forget the loaded library and the warning (tests load it again under new conditions)."""
+    global _warned
+    with _lock:
+        _state.clear()
+        _warned = False
+
+
+def _load_native() -> NativeMarch | None:
+    cc = compiler()
+    if cc is None:
+        _warn_once("no C compiler found ($CC or gcc)")
+        return None
+    library = library_path(cc)
+    try:
+        with build_lock(library):
+            if not library.exists():
+                compile_library("march", SOURCE.read_text(), cc, CFLAGS, library)
+            loaded = _bind(ctypes.CDLL(str(library)))
+    except (OSError, AttributeError, subprocess.CalledProcessError) as error:
+        detail = getattr(error, "stderr", b"") or b""
+        log.debug("building %s failed: %s", library, detail.decode(errors="replace"))
+        _warn_once(f"building the compiled ray march failed ({error})")
+        return None
+    fused = _matching_mode(loaded)
+    if fused is None:
+        _warn_once("the compiled ray march does not reproduce cv2.remap on this machine")
+        return None
+    return NativeMarch(loaded.march, loaded.sample, fused)
+
+
+def _warn_once(reason: str) -> None:
+    global _warned
+    if not _warned:
+        warnings.warn(
+            f"{reason}: camera rays are marched in numpy (slower)", RuntimeWarning, stacklevel=4
+        )
+        _warned = True
+
+
+def _bind(library: ctypes.CDLL) -> NativeMarch:
+    march_fn = library.skyvln_march
+    march_fn.restype = ctypes.c_int
+    march_fn.argtypes = [
+        _f64, _i64, _i64, _i64,  # rays (3, V, H, W), views, height, width
+        _double, _double, _double, _double, _double,  # origin x, y, z, mpp, top_m
+        _f32, _i64, _i64,  # heights, rows, cols
+        _f32, _i64, _i64, _i64,  # pyramid, levels, cells_y, cells_x
+        _f64, _f32, _f32, _i64,  # z_levels, ks, zs, levels
+        ctypes.c_int, _f32,  # fused, depth out
+    ]  # fmt: skip
+    sample_fn = library.skyvln_sample
+    sample_fn.restype = ctypes.c_int
+    sample_fn.argtypes = [_f32, _i64, _i64, _f32, _f32, _i64, ctypes.c_int, _f32]
+    return NativeMarch(march_fn, sample_fn, fused=True)
+
+
+def _matching_mode(loaded: NativeMarch) -> bool | None:
+    """Whether the library must fuse multiply-adds to sample as ``cv2.remap`` does here
+    (``None``: it matches in neither mode). The probe covers the layer's edges and beyond."""
+    rng = np.random.default_rng(0)
+    layer = (rng.random((37, 53)) * 100.0).astype(np.float32)
+    px = rng.uniform(-3.0, 56.0, 4096).astype(np.float32)
+    py = rng.uniform(-3.0, 40.0, 4096).astype(np.float32)
+    expected = cv2.remap(
+        layer,
+        px.reshape(64, 64),
+        py.reshape(64, 64),
+        interpolation=cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=0.0,
+    ).ravel()
+    for fused in (True, False):
+        out = np.empty_like(px)
+        loaded.sample(layer, *layer.shape, px, py, len(px), int(fused), out)
+        if np.array_equal(out, expected):
+            return fused
+    return None
+
+
+def march_native(
+    world: WorldTile, origin: NDArray[np.float64], rays: NDArray[np.float64], levels: int
+) -> FloatImage:
+    """The depths of :func:`~.march.march_reference` for rays ``(V, H, W, 3)`` seen from one
+    ``origin``, marched in C (in numpy by :func:`~.march.march` if the library is missing)."""
+    loaded = native()
+    if loaded is None or world.height_m is None or max_height_m(world) <= 0.0:
+        return march(world, origin, rays, levels)
+    views, height, width = rays.shape[:3]
+    # The C code reads each component contiguously: (3, V, H, W), as render_views builds it.
+    components = np.ascontiguousarray(np.moveaxis(rays, -1, 0), dtype=np.float64)
+    heights = np.ascontiguousarray(world.height_m, dtype=np.float32)
+    pyramid = _pyramid(world)
+    z_levels = _levels(world, origin, levels)
+    # march_reference's per-level float32 values, rounded as numpy rounds them.
+    ks = np.array([np.float32(z - origin[2]) for z in z_levels], np.float32)
+    zs = z_levels.astype(np.float32)
+    mpp, top_m = _map_scale(world)
+    depth = np.empty((views, height, width), np.float32)
+    loaded.march(
+        components, views, height, width,
+        float(origin[0]), float(origin[1]), float(origin[2]), mpp, top_m,
+        heights, *heights.shape,
+        pyramid, *pyramid.shape,
+        z_levels, ks, zs, len(z_levels),
+        int(loaded.fused), depth,
+    )  # fmt: skip
+    return depth

@@ -1,0 +1,121 @@
+"""The ray march in C against the reference march (bit for bit), its cache, and the numpy
+fallback without a C compiler."""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from skyvln_eval.cbuild import compiler
+from skyvln_eval.sim import native_march
+from skyvln_eval.sim.camera import CameraConfig, CameraPose, _image_plane, _rays
+from skyvln_eval.sim.march import march, march_reference
+from skyvln_eval.worlds.tile import WorldTile
+from tests.sim.test_camera_equivalence import seeded_city
+
+needs_cc = pytest.mark.skipif(compiler() is None, reason="no C compiler ($CC or gcc)")
+
+
+@pytest.fixture
+def fresh_library() -> Iterator[None]:
+    """The library loaded again under the test's conditions, and again after it."""
+    native_march.reset()
+    yield
+    native_march.reset()
+
+
+def decision(
+    world: WorldTile, rng: np.random.Generator, config: CameraConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """A seeded position (some off the map, some low) and five views' rays from it."""
+    x, y = rng.uniform(-50.0, 650.0, size=2)
+    z = float(rng.uniform(5.0, 170.0))
+    yaw = float(rng.uniform(-math.pi, math.pi))
+    poses = [
+        CameraPose(float(x), float(y), z, yaw + 1.3 * k, float(pitch))
+        for k, pitch in enumerate((0, 20, 45, 60, 90))
+    ]
+    plane = _image_plane(config)
+    rays = np.stack([np.moveaxis(_rays(pose, *plane), -1, 0) for pose in poses], axis=1)
+    return np.array([x, y, z]), np.moveaxis(rays, 0, -1)
+
+
+def same(a: np.ndarray, b: np.ndarray) -> bool:
+    return a.dtype == b.dtype and np.array_equal(a, b)
+
+
+@needs_cc
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_native_depths_are_the_reference_depths_bit_for_bit(seed: int) -> None:
+    world = seeded_city(seed)
+    rng = np.random.default_rng(200 + seed)
+    assert native_march.available()
+    for config in [CameraConfig(width_px=96, height_px=80)] * 8 + [CameraConfig()]:
+        origin, rays = decision(world, rng, config)
+        levels = config.height_levels
+        native = native_march.march_native(world, origin, rays, levels)
+        reference = np.stack([march_reference(world, origin, r, levels) for r in rays])
+        assert same(native, reference), (seed, origin)
+
+
+@needs_cc
+def test_threads_march_at_once_and_get_the_same_depths() -> None:
+    world = seeded_city(5)
+    config = CameraConfig(width_px=64, height_px=64)
+    rng = np.random.default_rng(5)
+    cases = [decision(world, rng, config) for _ in range(8)]
+    alone = [native_march.march_native(world, o, r, config.height_levels) for o, r in cases]
+    with ThreadPoolExecutor(4) as pool:
+        together = list(
+            pool.map(lambda c: native_march.march_native(world, *c, config.height_levels), cases)
+        )
+    assert all(same(a, b) for a, b in zip(alone, together, strict=True))
+
+
+@needs_cc
+def test_the_library_is_built_once_into_the_cache(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, fresh_library: None
+) -> None:
+    monkeypatch.setenv("SKYVLN_EVAL_CACHE", str(tmp_path))
+    assert native_march.available()
+    (built,) = (tmp_path / "native").glob("march-*.so")
+    stamp = built.stat().st_mtime_ns
+    native_march.reset()
+
+    def no_build(*args: object) -> None:
+        raise AssertionError("the cached library should have been loaded")
+
+    monkeypatch.setattr(native_march, "compile_library", no_build)
+    assert native_march.available()
+    assert built.stat().st_mtime_ns == stamp
+
+
+def test_without_a_compiler_the_numpy_march_runs_with_one_warning(
+    monkeypatch: pytest.MonkeyPatch, fresh_library: None
+) -> None:
+    monkeypatch.setattr(native_march, "compiler", lambda: None)
+    world = seeded_city(6)
+    config = CameraConfig(width_px=48, height_px=40)
+    origin, rays = decision(world, np.random.default_rng(6), config)
+    with pytest.warns(RuntimeWarning, match="no C compiler"):
+        depth = native_march.march_native(world, origin, rays, config.height_levels)
+    assert same(depth, march(world, origin, rays, config.height_levels))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a second march says nothing more
+        native_march.march_native(world, origin, rays, config.height_levels)
+    assert not native_march.available()
+
+
+def test_a_failed_build_falls_back_with_a_warning(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, fresh_library: None
+) -> None:
+    monkeypatch.setenv("SKYVLN_EVAL_CACHE", str(tmp_path))
+    monkeypatch.setattr(native_march, "CFLAGS", ("-not-a-flag-of-any-compiler",))
+    with pytest.warns(RuntimeWarning, match="building the compiled ray march failed"):
+        assert not native_march.available()
