@@ -110,14 +110,36 @@ _COLOUR_NAMES: Final = tuple(_NAMED_COLOURS)
 _PALETTE: Final = np.array([_NAMED_COLOURS[n] for n in _COLOUR_NAMES], dtype=np.float64)
 
 
+# For uint8 pixels, every colour's 16 (|c|^2 - 2 p.c) + its index, an exact int32: the
+# smallest over the palette is the nearest colour's, the first of tied ones.
+_KEY_PER_CHANNEL: Final = (-32 * _PALETTE.T).astype(np.int32)[:, :, None]  # (3, k, 1)
+_KEY_OFFSET: Final = (16 * (_PALETTE**2).sum(axis=1) + np.arange(len(_PALETTE))).astype(np.int32)
+assert len(_PALETTE) <= 16, "the colour's index is kept in a key's low 4 bits"
+
+
 def colour_name(rgb: NDArray[Any]) -> str:
     """The named colour most pixels are closest to (the roof's colour, not the mean of all)."""
-    pixels = np.asarray(rgb, dtype=np.float64).reshape(-1, 3)
-    # ||p - c||^2 - ||p||^2 = |c|^2 - 2 p.c: one matrix product instead of an (n, k, 3)
-    # difference array; exact for integer pixels, so the nearest colour (ties included) is.
-    distance = pixels @ (-2.0 * _PALETTE.T) + (_PALETTE**2).sum(axis=1)
-    nearest = np.argmin(distance, axis=1)
+    pixels = np.asarray(rgb)
+    if pixels.dtype == np.uint8:  # a camera's pixels
+        nearest = _nearest_colours(pixels)
+    else:
+        values = pixels.astype(np.float64).reshape(-1, 3)
+        # ||p - c||^2 - ||p||^2 = |c|^2 - 2 p.c: one matrix product instead of an (n, k, 3)
+        # difference array; exact for integer pixels, so the nearest colour (ties included) is.
+        nearest = np.argmin(values @ (-2.0 * _PALETTE.T) + (_PALETTE**2).sum(axis=1), axis=1)
     return _COLOUR_NAMES[int(np.bincount(nearest, minlength=len(_COLOUR_NAMES)).argmax())]
+
+
+def _nearest_colours(rgb: NDArray[np.uint8]) -> NDArray[np.int32]:
+    """Each uint8 pixel's nearest palette colour, as the float path finds it: the same
+    integers (|c|^2 - 2 p.c, in int32 and shifted to carry the colour's index in the
+    low 4 bits), so the same nearest colour, ties included; one elementwise minimum over
+    the palette instead of a BLAS product (threaded, slow on a busy machine) and argmin."""
+    channels = rgb.reshape(-1, 3).T.astype(np.int32)
+    red, green, blue = _KEY_PER_CHANNEL
+    keys = red * channels[0] + green * channels[1] + blue * channels[2] + _KEY_OFFSET[:, None]
+    nearest: NDArray[np.int32] = np.min(keys, axis=0) & 15
+    return nearest
 
 
 def box_of(mask: NDArray[np.bool_]) -> Box:
