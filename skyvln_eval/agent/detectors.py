@@ -110,18 +110,41 @@ _COLOUR_NAMES: Final = tuple(_NAMED_COLOURS)
 _PALETTE: Final = np.array([_NAMED_COLOURS[n] for n in _COLOUR_NAMES], dtype=np.float64)
 
 
+# For uint8 pixels, every colour's 16 (|c|^2 - 2 p.c) + its index, an exact int32: the
+# smallest over the palette is the nearest colour's, the first of tied ones.
+_KEY_PER_CHANNEL: Final = (-32 * _PALETTE.T).astype(np.int32)[:, :, None]  # (3, k, 1)
+_KEY_OFFSET: Final = (16 * (_PALETTE**2).sum(axis=1) + np.arange(len(_PALETTE))).astype(np.int32)
+assert len(_PALETTE) <= 16, "the colour's index is kept in a key's low 4 bits"
+
+
 def colour_name(rgb: NDArray[Any]) -> str:
     """The named colour most pixels are closest to (the roof's colour, not the mean of all)."""
-    pixels = np.asarray(rgb, dtype=np.float64).reshape(-1, 3)
-    # ||p - c||^2 - ||p||^2 = |c|^2 - 2 p.c: one matrix product instead of an (n, k, 3)
-    # difference array; exact for integer pixels, so the nearest colour (ties included) is.
-    distance = pixels @ (-2.0 * _PALETTE.T) + (_PALETTE**2).sum(axis=1)
-    nearest = np.argmin(distance, axis=1)
+    pixels = np.asarray(rgb)
+    if pixels.dtype == np.uint8:  # a camera's pixels
+        nearest = _nearest_colours(pixels)
+    else:
+        values = pixels.astype(np.float64).reshape(-1, 3)
+        # ||p - c||^2 - ||p||^2 = |c|^2 - 2 p.c: one matrix product instead of an (n, k, 3)
+        # difference array; exact for integer pixels, so the nearest colour (ties included) is.
+        nearest = np.argmin(values @ (-2.0 * _PALETTE.T) + (_PALETTE**2).sum(axis=1), axis=1)
     return _COLOUR_NAMES[int(np.bincount(nearest, minlength=len(_COLOUR_NAMES)).argmax())]
 
 
+def _nearest_colours(rgb: NDArray[np.uint8]) -> NDArray[np.int32]:
+    """Each uint8 pixel's nearest palette colour, as the float path finds it: the same
+    integers (|c|^2 - 2 p.c, in int32 and shifted to carry the colour's index in the
+    low 4 bits), so the same nearest colour, ties included; one elementwise minimum over
+    the palette instead of a BLAS product (threaded, slow on a busy machine) and argmin."""
+    channels = rgb.reshape(-1, 3).T.astype(np.int32)
+    red, green, blue = _KEY_PER_CHANNEL
+    keys = red * channels[0] + green * channels[1] + blue * channels[2] + _KEY_OFFSET[:, None]
+    nearest: NDArray[np.int32] = np.min(keys, axis=0) & 15
+    return nearest
+
+
 def box_of(mask: NDArray[np.bool_]) -> Box:
-    rows, cols = np.nonzero(mask)
+    # The rows and columns holding any of the mask: far fewer than its pixels to list.
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
     return int(cols.min()), int(rows.min()), int(cols.max()) + 1, int(rows.max()) + 1
 
 
@@ -215,7 +238,7 @@ class SimulatedDetector(Detector):
         self.seed = seed
         self._rng = np.random.default_rng(seed)
         # Ordinary buildings met this episode: where, and whether each is a phantom.
-        self._buildings: list[tuple[float, float, tuple[str, float] | None]] = []
+        self._buildings = _KnownBuildings()
 
     def settings(self) -> dict[str, Any]:
         return {
@@ -230,7 +253,7 @@ class SimulatedDetector(Detector):
 
     def reset(self, seed: int) -> None:
         self._rng = np.random.default_rng([self.seed, seed])
-        self._buildings = []
+        self._buildings = _KnownBuildings()
 
     def _check(self, images: CameraImages) -> tuple[NDArray[np.uint8], NDArray[np.uint16]]:
         if images.semantic is None or images.instance is None:
@@ -243,9 +266,12 @@ class SimulatedDetector(Detector):
 
     def detect(self, images: CameraImages, phrases: Sequence[str] = ()) -> list[Detection]:
         semantic, instance = self._check(images)
-        ids, counts = np.unique(instance, return_counts=True)
+        # Every instance id in ascending order with its pixel count, as np.unique gives them,
+        # but by counting: ids are small integers, so no sort of the whole image is needed.
+        counts = np.bincount(instance.ravel())
+        ids = np.flatnonzero(counts)
         out: list[Detection] = []
-        for landmark_id, count in zip(ids.tolist(), counts.tolist(), strict=True):
+        for landmark_id, count in zip(ids.tolist(), counts[ids].tolist(), strict=True):
             if landmark_id == 0 or count < self.min_pixels or self._rng.random() < self.miss_rate:
                 continue
             category = images.instance_categories.get(landmark_id, "landmark")
@@ -255,67 +281,218 @@ class SimulatedDetector(Detector):
             mask = instance == landmark_id
             visible = min(1.0, float(np.sqrt(count)) / 40.0)
             score = float(np.clip(0.45 + 0.5 * visible + self._rng.normal(0.0, 0.05), 0.05, 0.99))
-            caption = _caption(label, images.rgb[mask], semantic[mask])
-            out.append(Detection(label, box_of(mask), score, caption, mask))
+            box = box_of(mask)
+            # The mask's pixels, in the same order, picked from its box, not the whole image.
+            window = (slice(box[1], box[3]), slice(box[0], box[2]))
+            inside = mask[window]
+            caption = _caption(label, images.rgb[window][inside], semantic[window][inside])
+            out.append(Detection(label, box, score, caption, mask))
         return out + self._phantoms(images, semantic, instance)
 
     def _phantoms(
         self, images: CameraImages, semantic: NDArray[np.uint8], instance: NDArray[np.uint16]
     ) -> list[Detection]:
-        """Ordinary buildings in this capture that the detector takes for landmarks."""
+        """Ordinary buildings in this capture that the detector takes for landmarks.
+
+        Each plain building (a connected component of building pixels outside every
+        landmark) with at least ``min_pixels`` pixels of known ground point is placed at
+        the median of a few hundred of those points, and asked, in component order, whether
+        it is a phantom. What does not depend on earlier answers (the pixels, the places,
+        the look-up among buildings met before) is computed for all buildings at once.
+        """
         if self.false_positive_rate <= 0.0:
             return []
-        plain = ((semantic == SemanticClass.BUILDING) & (instance == 0)).astype(np.uint8)
-        count, components, stats, _ = cv2.connectedComponentsWithStats(plain, connectivity=4)
+        plain = (semantic == SemanticClass.BUILDING) & (instance == 0)
+        # Labels only (numbered in raster order of first pixel, as with stats), at a third
+        # of the cost: the stats' areas would only repeat the check on pixel counts below.
+        count, components = cv2.connectedComponents(plain.view(np.uint8), connectivity=4)
+        buildings = _plain_buildings(images, plain, components, count, self.min_pixels)
+        camera = np.array([images.pose.x_m, images.pose.y_m, images.pose.z_m])
+        places = buildings.places()
+        # The buildings met before this capture are looked up for all places at once; only
+        # those met in it (they come later in the order met) are scanned place by place.
+        met_before = len(self._buildings)
+        earlier = self._buildings.first_within(places, self.phantom_cell_m)
         out = []
-        finite = images.finite_depth()
-        for component in range(1, count):
-            x0, y0, w, h, area = (int(value) for value in stats[component])
-            if area < self.min_pixels:
-                continue
-            # Work inside the component's box: whole-image masks per building cost far more.
-            window = (slice(y0, y0 + h), slice(x0, x0 + w))
-            v, u = np.nonzero((components[window] == component) & finite[window])
-            if len(u) < self.min_pixels:
-                continue
-            v, u = v + y0, u + x0
-            # Where the building stands: a few hundred of its pixels place it as well as all.
-            step = max(1, len(u) // _PLACE_SAMPLES)
-            points = images.points_enu(u[::step], v[::step])
-            x, y = float(np.median(points[:, 0])), float(np.median(points[:, 1]))
-            phantom = self._phantom_at(x, y)
+        for k, ((x, y), known) in enumerate(zip(places, earlier, strict=True)):
+            if known is None:
+                known = self._buildings.first_within_since(met_before, x, y, self.phantom_cell_m)
+            phantom = self._phantom_at(x, y, known)
             if phantom is None:
                 continue
-            camera = np.array([images.pose.x_m, images.pose.y_m, images.pose.z_m])
+            points = buildings.sample(k)
             if float(np.median(np.linalg.norm(points - camera, axis=1))) < self.close_look_m:
                 continue  # seen from close by, the mistake shows
             if self._rng.random() < self.miss_rate:
                 continue
             label, base = phantom
             score = float(np.clip(base + self._rng.normal(0.0, 0.05), 0.05, 0.99))
+            v, u = buildings.pixels(k)
             mask = np.zeros(plain.shape, dtype=bool)
             mask[v, u] = True
             caption = _caption(label, images.rgb[v, u], semantic[v, u])
-            out.append(Detection(label, box_of(mask), score, caption, mask))
+            box = (int(u.min()), int(v.min()), int(u.max()) + 1, int(v.max()) + 1)
+            out.append(Detection(label, box, score, caption, mask))
         return out
 
-    def _phantom_at(self, x_m: float, y_m: float) -> tuple[str, float] | None:
+    def _phantom_at(self, x_m: float, y_m: float, known: int | None) -> tuple[str, float] | None:
         """Whether the building at ``(x_m, y_m)`` fools the detector (its label and base
         score), decided the first time it is seen and remembered for the episode, so the
-        same building is the same phantom from every view."""
-        for bx, by, known in self._buildings:
-            if math.hypot(bx - x_m, by - y_m) <= self.phantom_cell_m:
-                return known
+        same building is the same phantom from every view; ``known`` is the building met
+        before that stands there (:meth:`_KnownBuildings.first_within`), if any."""
+        if known is not None:
+            return self._buildings.decisions[known]
         decision: tuple[str, float] | None = None
         if self._rng.random() < self.false_positive_rate:
             label = _BUILDING_LABELS[int(self._rng.integers(len(_BUILDING_LABELS)))]
             decision = (label, float(self._rng.uniform(0.35, 0.7)))
-        self._buildings.append((x_m, y_m, decision))
+        self._buildings.add(x_m, y_m, decision)
         return decision
 
     def road_bearings(self, below: CameraImages, heading_deg: float) -> tuple[float, ...]:
         semantic, _ = self._check(below)
         return road_bearings(semantic, heading_deg)
+
+
+class _KnownBuildings:
+    """The ordinary buildings met in an episode, in the order met: where each stands (in a
+    growing array, so looking many up is one vectorised pass) and whether it is a phantom.
+
+    A building is the first one met within ``radius_m`` (by ``math.hypot``) of a place.
+    """
+
+    def __init__(self) -> None:
+        self._xy: NDArray[np.float64] = np.empty((64, 2))
+        self.decisions: list[tuple[str, float] | None] = []
+
+    def __len__(self) -> int:
+        return len(self.decisions)
+
+    def add(self, x_m: float, y_m: float, decision: tuple[str, float] | None) -> None:
+        n = len(self.decisions)
+        if n == len(self._xy):
+            self._xy = np.concatenate([self._xy, np.empty_like(self._xy)])
+        self._xy[n] = (x_m, y_m)
+        self.decisions.append(decision)
+
+    def first_within(
+        self, places: Sequence[tuple[float, float]], radius_m: float
+    ) -> list[int | None]:
+        """For each place, the index of the first building met within ``radius_m``."""
+        found: list[int | None] = [None] * len(places)
+        n = len(self.decisions)
+        if n == 0 or not places:
+            return found
+        here = np.array(places, dtype=np.float64)
+        dx = self._xy[None, :n, 0] - here[:, None, 0]
+        dy = self._xy[None, :n, 1] - here[:, None, 1]
+        # Squared distances only shortlist: they round differently from math.hypot, so a
+        # hair of slack keeps every building it would accept (NaN ones too), and math.hypot
+        # then decides, place by place in the order met, as a plain scan would.
+        slack = radius_m * (1.0 + 1e-9)
+        for k, i in np.argwhere(~(dx * dx + dy * dy > slack * slack)).tolist():
+            if found[k] is None and math.hypot(float(dx[k, i]), float(dy[k, i])) <= radius_m:
+                found[k] = i
+        return found
+
+    def first_within_since(self, start: int, x_m: float, y_m: float, radius_m: float) -> int | None:
+        """The first building met from the ``start``-th on within ``radius_m`` of the place:
+        a plain scan, for the few met since a batched look-up."""
+        for i, (bx, by) in enumerate(self._xy[start : len(self.decisions)].tolist(), start):
+            if math.hypot(bx - x_m, by - y_m) <= radius_m:
+                return i
+        return None
+
+
+@dataclass(frozen=True)
+class _PlainBuildings:
+    """The plain buildings of one capture big enough to be taken for landmarks, in
+    component order: their pixels with a known ground point (flat indices, one building
+    after another, each in raster order) and, for every building, the ENU points of a
+    sample of those pixels (one building after another too)."""
+
+    flat: NDArray[np.intp]
+    starts: NDArray[np.intp]
+    counts: NDArray[np.intp]
+    width: int
+    points: NDArray[np.float64]
+    point_starts: NDArray[np.intp]
+    point_counts: NDArray[np.intp]
+
+    def __len__(self) -> int:
+        return len(self.counts)
+
+    def pixels(self, k: int) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+        """Rows and columns of building ``k``'s pixels."""
+        flat = self.flat[self.starts[k] : self.starts[k] + self.counts[k]]
+        rows, cols = np.divmod(flat, self.width)
+        return rows, cols
+
+    def sample(self, k: int) -> NDArray[np.float64]:
+        """The ENU points of building ``k``'s sampled pixels."""
+        start = int(self.point_starts[k])
+        return self.points[start : start + int(self.point_counts[k])]
+
+    def places(self) -> list[tuple[float, float]]:
+        """Where each building stands: the medians of its sample's east and north, as
+        ``np.median(sample[:, :2], axis=0)`` gives them, bit for bit."""
+        samples = [self.sample(k)[:, :2] for k in range(len(self))]
+        if np.isnan(self.points[:, :2]).any():  # np.median's NaN rule: never, from depth
+            return [(float(m[0]), float(m[1])) for m in (np.median(s, axis=0) for s in samples)]
+        return [_median_pair(sample) for sample in samples]
+
+
+def _median_pair(block: NDArray[np.float64]) -> tuple[float, float]:
+    """``np.median(block, axis=0)`` of a ``(k, 2)`` block without NaN, bit for bit, at a
+    fraction of its overhead: np.median partitions around the middle and takes the
+    middle value, or for an even count the mean of the two middle ones (their sum,
+    halved); an empty block has NaN medians."""
+    k = len(block)
+    if k == 0:
+        return math.nan, math.nan
+    middle = [(k - 1) // 2, k // 2]
+    low, high = np.partition(block, middle, axis=0)[middle]
+    median = high if k % 2 else (low + high) / 2.0
+    return float(median[0]), float(median[1])
+
+
+def _plain_buildings(
+    images: CameraImages,
+    plain: NDArray[np.bool_],
+    components: NDArray[np.int32],
+    count: int,
+    min_pixels: int,
+) -> _PlainBuildings:
+    """The components of ``plain`` (``count`` labels of ``cv2.connectedComponents``, 0 the
+    background) with at least ``min_pixels`` pixels with a known ground point (see
+    :class:`_PlainBuildings`). Such a component has at least ``min_pixels`` pixels in all,
+    so no separate check of its area is needed."""
+    labels = components.ravel()
+    flat = np.flatnonzero((plain & images.finite_depth()).ravel())
+    # Stable, so each building's pixels stay in raster order, the order np.nonzero gives.
+    flat = flat[np.argsort(labels[flat], kind="stable")]
+    sizes = np.bincount(labels[flat], minlength=count)
+    starts = np.cumsum(sizes) - sizes
+    keep = np.flatnonzero(sizes >= min_pixels)
+    keep = keep[keep > 0]  # not the background
+    starts, sizes = starts[keep], sizes[keep]
+    # Where a building stands: a few hundred of its pixels (every step-th) place it as well
+    # as all; the samples of every building go through one points_enu call.
+    steps = np.maximum(1, sizes // _PLACE_SAMPLES)
+    taken = -(-sizes // steps)  # len(range(0, size, step))
+    first = np.cumsum(taken) - taken
+    within = np.arange(int(taken.sum())) - np.repeat(first, taken)
+    sampled = flat[np.repeat(starts, taken) + within * np.repeat(steps, taken)]
+    rows, cols = np.divmod(sampled, components.shape[1])
+    return _PlainBuildings(
+        flat=flat,
+        starts=starts,
+        counts=sizes,
+        width=components.shape[1],
+        points=images.points_enu(cols, rows),
+        point_starts=first,
+        point_counts=taken,
+    )
 
 
 def _caption(label: str, rgb: NDArray[np.uint8], semantic: NDArray[np.uint8]) -> str:

@@ -1,0 +1,249 @@
+"""The simulated detector against a plain reference of its algorithm before it was
+vectorised: on panoramas rendered from the synthetic sample's worlds, with phantoms on, it
+must find the same detections (labels, boxes, scores, captions, masks) and draw the same
+random numbers; and the exact stand-ins it uses for np.median, math.hypot scans and the
+colour's matrix product agree with them bit for bit."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+
+from skyvln_eval.agent import Perception, PerceptionConfig, SimulatedDetector
+from skyvln_eval.agent.detectors import (
+    _BUILDING_LABELS,
+    _NAMED_COLOURS,
+    _PALETTE,
+    Detection,
+    _KnownBuildings,
+    _median_pair,
+    _nearest_colours,
+    colour_name,
+    episode_seed,
+)
+from skyvln_eval.avdn import load_split
+from skyvln_eval.frames import view_to_pose
+from skyvln_eval.sensing import CameraImages, SemanticClass, SensorConfig
+from skyvln_eval.sim.sensors import SimulatedSensors
+from skyvln_eval.vocabulary import CATEGORY_LABELS
+from skyvln_eval.worlds import load_world
+
+
+class ReferenceDetector:
+    """SimulatedDetector's rules written plainly: a loop over landmarks, a loop over every
+    plain building (its pixels, points and medians one by one), a scan of buildings met."""
+
+    def __init__(self, **settings: Any) -> None:
+        self.miss_rate = settings.get("miss_rate", 0.1)
+        self.false_positive_rate = settings.get("false_positive_rate", 0.03)
+        self.confusion_rate = settings.get("confusion_rate", 0.05)
+        self.min_pixels = settings.get("min_pixels", 25)
+        self.close_look_m = settings.get("close_look_m", 70.0)
+        self.phantom_cell_m = settings.get("phantom_cell_m", 30.0)
+        self.seed = settings.get("seed", 0)
+        self.rng = np.random.default_rng(self.seed)
+        self.buildings: list[tuple[float, float, tuple[str, float] | None]] = []
+
+    def reset(self, seed: int) -> None:
+        self.rng = np.random.default_rng([self.seed, seed])
+        self.buildings = []
+
+    def detect(self, images: CameraImages) -> list[Detection]:
+        semantic, instance = images.semantic, images.instance
+        assert semantic is not None and instance is not None
+        ids, counts = np.unique(instance, return_counts=True)
+        out = []
+        for landmark_id, count in zip(ids.tolist(), counts.tolist(), strict=True):
+            if landmark_id == 0 or count < self.min_pixels or self.rng.random() < self.miss_rate:
+                continue
+            category = images.instance_categories.get(landmark_id, "landmark")
+            label = CATEGORY_LABELS.get(category, category.replace("_", " "))
+            if self.rng.random() < self.confusion_rate:
+                label = _BUILDING_LABELS[int(self.rng.integers(len(_BUILDING_LABELS)))]
+            mask = instance == landmark_id
+            visible = min(1.0, float(np.sqrt(count)) / 40.0)
+            score = float(np.clip(0.45 + 0.5 * visible + self.rng.normal(0.0, 0.05), 0.05, 0.99))
+            caption = reference_caption(label, images.rgb[mask], semantic[mask])
+            out.append(Detection(label, reference_box(mask), score, caption, mask))
+        return out + self.phantoms(images, semantic, instance)
+
+    def phantoms(
+        self, images: CameraImages, semantic: np.ndarray, instance: np.ndarray
+    ) -> list[Detection]:
+        if self.false_positive_rate <= 0.0:
+            return []
+        plain = ((semantic == SemanticClass.BUILDING) & (instance == 0)).astype(np.uint8)
+        count, components, stats, _ = cv2.connectedComponentsWithStats(plain, connectivity=4)
+        out = []
+        finite = images.finite_depth()
+        for component in range(1, count):
+            if stats[component, cv2.CC_STAT_AREA] < self.min_pixels:
+                continue
+            v, u = np.nonzero((components == component) & finite)
+            if len(u) < self.min_pixels:
+                continue
+            step = max(1, len(u) // 200)
+            points = images.points_enu(u[::step], v[::step])
+            x, y = float(np.median(points[:, 0])), float(np.median(points[:, 1]))
+            phantom = self.phantom_at(x, y)
+            if phantom is None:
+                continue
+            camera = np.array([images.pose.x_m, images.pose.y_m, images.pose.z_m])
+            if float(np.median(np.linalg.norm(points - camera, axis=1))) < self.close_look_m:
+                continue
+            if self.rng.random() < self.miss_rate:
+                continue
+            label, base = phantom
+            score = float(np.clip(base + self.rng.normal(0.0, 0.05), 0.05, 0.99))
+            mask = np.zeros(plain.shape, dtype=bool)
+            mask[v, u] = True
+            caption = reference_caption(label, images.rgb[v, u], semantic[v, u])
+            out.append(Detection(label, reference_box(mask), score, caption, mask))
+        return out
+
+    def phantom_at(self, x_m: float, y_m: float) -> tuple[str, float] | None:
+        for bx, by, known in self.buildings:
+            if math.hypot(bx - x_m, by - y_m) <= self.phantom_cell_m:
+                return known
+        decision = None
+        if self.rng.random() < self.false_positive_rate:
+            label = _BUILDING_LABELS[int(self.rng.integers(len(_BUILDING_LABELS)))]
+            decision = (label, float(self.rng.uniform(0.35, 0.7)))
+        self.buildings.append((x_m, y_m, decision))
+        return decision
+
+
+def reference_box(mask: np.ndarray) -> tuple[int, int, int, int]:
+    rows, cols = np.nonzero(mask)
+    return int(cols.min()), int(rows.min()), int(cols.max()) + 1, int(rows.max()) + 1
+
+
+def reference_colour(rgb: np.ndarray) -> str:
+    """The nearest named colour by squared distance, the majority over pixels."""
+    palette = _PALETTE.astype(np.int64)
+    distance = ((rgb.reshape(-1, 1, 3).astype(np.int64) - palette[None]) ** 2).sum(axis=2)
+    votes = np.bincount(distance.argmin(axis=1), minlength=len(palette))
+    return list(_NAMED_COLOURS)[int(votes.argmax())]
+
+
+def reference_caption(label: str, rgb: np.ndarray, semantic: np.ndarray) -> str:
+    colour = reference_colour(rgb)
+    if np.mean(semantic == SemanticClass.BUILDING) >= 0.5:
+        return f"a {label} with a {colour} roof"
+    return f"a {colour} {label}"
+
+
+Episodes = list[tuple[int, list[CameraImages]]]
+
+
+@pytest.fixture(scope="module")
+def panoramas(sample_dir: Path) -> dict[bool, Episodes]:
+    """Each of a few val_seen episodes' seed and the views of the panoramas from its first
+    ground-truth views, rendered with depth and without."""
+    perception = Perception(PerceptionConfig(), SimulatedDetector())
+    episodes = load_split(sample_dir, "val_seen").episodes("andh")[:3]
+    rendered: dict[bool, Episodes] = {True: [], False: []}
+    for episode in episodes:
+        world = load_world(sample_dir, episode.map_name, episode.georef)
+        for depth, out in rendered.items():
+            views = []
+            for corners in episode.gt_path_corners[:4]:
+                pose = view_to_pose(corners, episode.georef)
+                config = SensorConfig(depth=depth)
+                sensors = SimulatedSensors(world, pose.x_m, pose.y_m, pose.z_m, config)
+                views += [view.images for view in perception.capture(sensors, pose)]
+            out.append((episode_seed(0, episode.episode_id), views))
+    return rendered
+
+
+@pytest.mark.parametrize("depth", [True, False])
+@pytest.mark.parametrize(
+    "settings",
+    [
+        {"false_positive_rate": 0.03},
+        {"false_positive_rate": 0.5, "miss_rate": 0.3, "confusion_rate": 0.3, "seed": 4},
+        {"false_positive_rate": 1.0, "close_look_m": 40.0, "phantom_cell_m": 60.0},
+        {"false_positive_rate": 0.3, "min_pixels": 5, "phantom_cell_m": 10.0},
+    ],
+)
+def test_the_detector_finds_what_the_plain_algorithm_finds_and_draws_alike(
+    panoramas: dict[bool, Episodes], depth: bool, settings: dict[str, Any]
+) -> None:
+    new, old = SimulatedDetector(**settings), ReferenceDetector(**settings)
+    phantoms = 0
+    for seed, views in panoramas[depth]:
+        new.reset(seed)
+        old.reset(seed)
+        for images in views:
+            found, expected = new.detect(images), old.detect(images)
+            assert [(d.label, d.box_px, d.score, d.caption) for d in found] == [
+                (d.label, d.box_px, d.score, d.caption) for d in expected
+            ]
+            for a, b in zip(found, expected, strict=True):
+                assert a.mask is not None and b.mask is not None
+                assert a.mask.dtype == bool and np.array_equal(a.mask, b.mask)
+            assert new._rng.bit_generator.state == old.rng.bit_generator.state
+            assert images.instance is not None
+            phantoms += sum(not images.instance[d.mask].any() for d in found)  # no landmark's
+        assert new._buildings.decisions == [decision for _, _, decision in old.buildings]
+        # and placed every building met at the very same point
+        met = np.array([(x, y) for x, y, _ in old.buildings]).reshape(-1, 2)
+        assert new._buildings._xy[: len(met)].tobytes() == met.tobytes()
+    if settings["false_positive_rate"] >= 0.3:
+        assert phantoms > 0  # the phantom path was exercised
+
+
+def test_median_pairs_are_np_median_bit_for_bit() -> None:
+    rng = np.random.default_rng(3)
+    for size in [*range(1, 12), 199, 200, 399]:
+        for coarse in (False, True):
+            block = rng.normal(500.0, 300.0, (size, 2))
+            if coarse:  # many ties
+                block = np.round(block / 100.0) * 100.0
+            got = np.array(_median_pair(block))
+            assert got.tobytes() == np.median(block, axis=0).tobytes()
+
+
+def test_known_buildings_are_found_as_a_hypot_scan_finds_them() -> None:
+    # Places within an ulp or so of the radius, where squared distances and math.hypot
+    # can round to different sides.
+    rng = np.random.default_rng(8)
+    radius = 30.0
+    known = _KnownBuildings()
+    met: list[tuple[float, float]] = []
+    for _ in range(300):
+        angle, x0, y0 = rng.uniform(0, 2 * math.pi), rng.uniform(-500, 500), rng.uniform(-500, 500)
+        x, y = x0 + radius * math.cos(angle), y0 + radius * math.sin(angle)
+        for _ in range(int(rng.integers(0, 3))):
+            x = math.nextafter(x, math.inf if rng.random() < 0.5 else -math.inf)
+        known.add(x, y, None)
+        met.append((x, y))
+        places = [(x0, y0), (x, y), (math.nan, y0), *rng.uniform(-500, 500, (3, 2)).tolist()]
+        scanned = [
+            next(
+                (i for i, (bx, by) in enumerate(met) if math.hypot(bx - px, by - py) <= radius),
+                None,
+            )
+            for px, py in places
+        ]
+        assert known.first_within(places, radius) == scanned
+        assert [known.first_within_since(0, px, py, radius) for px, py in places] == scanned
+
+
+def test_camera_pixels_get_the_colour_the_float_path_gives() -> None:
+    # Every pixel on a grid through the colour cube (ties included), one by one: the
+    # integer keys of uint8 pixels pick the colour the float matrix product picks.
+    grid = np.stack(np.meshgrid(*[np.arange(0, 256, 3)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    floats = grid.astype(np.float64) @ (-2.0 * _PALETTE.T) + (_PALETTE**2).sum(axis=1)
+    assert np.array_equal(_nearest_colours(grid.astype(np.uint8)), floats.argmin(axis=1))
+    rng = np.random.default_rng(2)
+    for size in (1, 5, 300, 5000):
+        pixels = rng.integers(0, 256, (size, 3))
+        assert (
+            colour_name(pixels.astype(np.uint8)) == colour_name(pixels) == reference_colour(pixels)
+        )
