@@ -206,8 +206,11 @@ class ProcessThreadExecutor:
             child_end.close()
             workers.append(_Worker(process, parent_end))
         try:
-            for worker in workers:
-                self._feed(worker, todo)
+            # Dealt one at a time, in turn: neighbouring episodes (often the same map, of
+            # similar length) go to different processes, which spreads the work.
+            for _ in range(self.threads):
+                for worker in workers:
+                    self._feed(worker, todo, up_to=len(worker.in_flight) + 1)
             while any(w.alive and w.in_flight for w in workers):
                 ready = mp_connection.wait([w.conn for w in workers if w.alive], timeout=1.0)
                 for worker in (w for w in workers if w.conn in ready):
@@ -227,9 +230,10 @@ class ProcessThreadExecutor:
             for worker in workers:
                 worker.stop()
 
-    def _feed(self, worker: _Worker, todo: list[tuple[int, Any]]) -> None:
-        """Give ``worker`` episodes until each of its threads has one."""
-        while worker.alive and todo and len(worker.in_flight) < self.threads:
+    def _feed(self, worker: _Worker, todo: list[tuple[int, Any]], up_to: int | None = None) -> None:
+        """Give ``worker`` episodes until each of its threads has one (or it has ``up_to``)."""
+        limit = self.threads if up_to is None else min(up_to, self.threads)
+        while worker.alive and todo and len(worker.in_flight) < limit:
             index, task = todo.pop()
             try:
                 worker.conn.send((index, task))
