@@ -30,7 +30,12 @@ from skyvln_eval.frames import ViewPose, wrap_angle_rad
 from skyvln_eval.sim.obstacles import ConstantVelocityPredictor, ObstacleForecast, ObstacleScenario
 from skyvln_eval.sim.plant import Plant, PlantConfig
 from skyvln_eval.sim.quadrotor import DroneState, require_positive
-from skyvln_eval.sim.reference import ReferenceConfig, ReferenceTrajectory, segment_reference
+from skyvln_eval.sim.reference import (
+    ReferenceConfig,
+    ReferenceTrajectory,
+    ReferenceWindow,
+    segment_reference,
+)
 
 #: Slack for floating-point noise when checking the commands against the limits.
 
@@ -171,12 +176,18 @@ class Flight:
         first_row = len(self._rows)
         n_steps = max(1, round(duration_s / self.dt_s))
         offsets = self.dt_s * np.arange(self.controller.horizon_steps + 1)
+        # The windows of every step the flight may take, as one batch: each step's clock is
+        # the previous one plus dt, as _step advances it, so the times are the same floats.
+        clock = [self.t_s]
+        for _ in range(n_steps - 1):
+            clock.append(clock[-1] + self.dt_s)
+        windows = reference.windows(np.asarray(clock)[:, None] + offsets)
         reached = False
-        for _ in range(n_steps):
+        for window in windows:
             if done is not None and done(self.state, self.t_s):
                 reached = True
                 break
-            self._step(reference, self.t_s + offsets)
+            self._step(window)
         else:
             reached = done is None or bool(done(self.state, self.t_s))
         rows = self._rows[first_row:]
@@ -193,10 +204,9 @@ class Flight:
         """Every step flown so far, all segments."""
         return log_frame(self._rows)
 
-    def _step(self, reference: ReferenceTrajectory, times_s: np.ndarray) -> None:
+    def _step(self, window: ReferenceWindow) -> None:
         truth = self.state
-        window = reference.window(times_s)
-        forecast = self.predictor.forecast(self.scenario, times_s)
+        forecast = self.predictor.forecast(self.scenario, window.times_s)
         previous_input = self.controller.previous_input.copy()
         with NATIVE_CALLS:
             command = self.controller.step(self.plant.measure(), window, forecast)

@@ -88,6 +88,16 @@ class ReferenceTrajectory:
         inputs = np.stack([thrust, roll / p.roll_gain, pitch / p.pitch_gain], axis=1)
         return ReferenceWindow(times, states, inputs, self.yaw(times))
 
+    def windows(self, times_s: NDArray[np.float64]) -> list[ReferenceWindow]:
+        """:meth:`window` at each row of ``times_s`` ``(steps, n)``, computed as one batch
+        (every operation is elementwise or per row, so the values are the same)."""
+        steps, n = times_s.shape
+        whole = self.window(times_s.reshape(-1))
+        states = whole.states.reshape(steps, n, -1)
+        inputs = whole.inputs.reshape(steps, n, -1)
+        yaw = whole.yaw_rad.reshape(steps, n)
+        return [ReferenceWindow(times_s[k], states[k], inputs[k], yaw[k]) for k in range(steps)]
+
     @property
     def final_position_m(self) -> NDArray[np.float64]:
         return np.asarray(self.path(np.array([self.end_time_s]))[0][0])

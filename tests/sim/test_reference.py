@@ -64,3 +64,17 @@ def test_yaw_turns_the_short_way_to_the_target_heading() -> None:
 def test_bad_reference_settings_name_the_field() -> None:
     with pytest.raises(ConfigError, match="cruise_speed_m_s"):
         ReferenceConfig(cruise_speed_m_s=0.0)
+
+
+def test_windows_of_many_steps_equal_each_steps_window_bit_for_bit() -> None:
+    # The flight loop takes every step's window from one batch: it must be the same floats.
+    start = DroneState(x_m=10.0, y_m=20.0, z_m=100.0, yaw_rad=0.3)
+    reference = segment_reference(start, ViewPose(260.0, -40.0, 120.0, -2.5), t0_s=3.7)
+    dt, clock = 0.1, [3.7]
+    for _ in range(399):
+        clock.append(clock[-1] + dt)
+    times = np.asarray(clock)[:, None] + dt * np.arange(21)
+    for k, window in enumerate(reference.windows(times)):
+        alone = reference.window(clock[k] + dt * np.arange(21))
+        for name in ("times_s", "states", "inputs", "yaw_rad"):
+            assert np.array_equal(getattr(window, name), getattr(alone, name)), (k, name)
