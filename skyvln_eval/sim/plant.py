@@ -183,6 +183,7 @@ class Plant:
     def __init__(self, state: DroneState, config: PlantConfig | None = None, seed: int = 0) -> None:
         self.config = config or PlantConfig()
         self._x = np.append(state.model_vector(), state.yaw_rad)
+        self._state: DroneState | None = None  # the true state of _x, made when first asked
         self._gust_m_s = np.zeros(3)
         # Two streams, so turning noise on or off does not change the wind a run sees.
         self._wind_rng = np.random.default_rng([seed, 0])
@@ -191,8 +192,10 @@ class Plant:
 
     @property
     def state(self) -> DroneState:
-        """The true state (no noise)."""
-        return DroneState.from_model_vector(self._x[:NX], self._x[NX])
+        """The true state (no noise); made once per step (the flight loop asks several times)."""
+        if self._state is None:
+            self._state = DroneState.from_model_vector(self._x[:NX], self._x[NX])
+        return self._state
 
     @property
     def wind_m_s(self) -> NDArray[np.float64]:
@@ -221,6 +224,7 @@ class Plant:
         buffers.h[0] = dt_s / self.config.substeps
         buffers.step()
         self._x = buffers.out.copy()
+        self._state = None
         self._advance_gust(dt_s)
         return self.state
 
