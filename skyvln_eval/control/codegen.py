@@ -29,11 +29,14 @@ import logging
 import re
 import subprocess
 import warnings
-from collections.abc import Callable
+import weakref
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import casadi as ca
+import numpy as np
+from numpy.typing import NDArray
 
 from skyvln_eval.cbuild import build_lock, compile_library, compiler, compiler_identity, digest
 from skyvln_eval.control.mpc_config import CompileMode
@@ -134,6 +137,66 @@ def qp_iterations_reader(compiled: Compiled) -> Callable[[], int] | None:
     reader.restype = ctypes.c_int
     reader.argtypes = []
     return reader
+
+
+class NativeCall:
+    """A compiled function called straight through its C entry point, with the caller's
+    arrays as its inputs and outputs and its own work arrays.
+
+    ctypes releases the interpreter's lock for the call (CasADi's ``FunctionBuffer`` holds
+    it), so other threads run Python meanwhile. The generated code keeps no state between
+    calls besides the per-thread iteration count of :func:`_patch_hpipm`: everything it
+    needs is in the work arrays, one set per caller.
+    """
+
+    def __init__(
+        self,
+        compiled: Compiled,
+        inputs: Sequence[NDArray[np.float64]],
+        outputs: Sequence[NDArray[np.float64]],
+    ) -> None:
+        if compiled.library is None:
+            raise ValueError("NativeCall needs a compiled library")
+        name = compiled.function.name()
+        library = ctypes.CDLL(str(compiled.library))
+        sizes = [ctypes.c_longlong() for _ in range(4)]  # casadi_int is long long
+        work = getattr(library, f"{name}_work")
+        work.restype = ctypes.c_int
+        work(*(ctypes.byref(size) for size in sizes))
+        n_arg, n_res, n_iw, n_w = (size.value for size in sizes)
+        for array in (*inputs, *outputs):
+            if array.dtype != np.float64 or not array.flags.c_contiguous:
+                raise ValueError(f"{name}: arguments must be contiguous float64 arrays")
+        self._keep = (*inputs, *outputs)  # the pointers below point into these
+        self._iw = np.zeros(max(n_iw, 1), dtype=np.int64)
+        self._w = np.zeros(max(n_w, 1))
+        pointers = [array.ctypes.data for array in inputs] + [None] * (n_arg - len(inputs))
+        results = [array.ctypes.data for array in outputs] + [None] * (n_res - len(outputs))
+        self._arg = (ctypes.c_void_p * max(n_arg, 1))(*pointers)
+        self._res = (ctypes.c_void_p * max(n_res, 1))(*results)
+        self._function = getattr(library, name)
+        self._function.restype = ctypes.c_int
+        self._function.argtypes = [ctypes.c_void_p] * 4 + [ctypes.c_int]
+        checkout = getattr(library, f"{name}_checkout")
+        checkout.restype = ctypes.c_int
+        self._mem = int(checkout())
+        if self._mem < 0:
+            raise RuntimeError(f"{name}: no memory to check out")
+        release = getattr(library, f"{name}_release")
+        release.argtypes = [ctypes.c_int]
+        weakref.finalize(self, release, self._mem)
+        self._call = (
+            ctypes.addressof(self._arg),
+            ctypes.addressof(self._res),
+            self._iw.ctypes.data,
+            self._w.ctypes.data,
+            self._mem,
+        )
+
+    def __call__(self) -> int:
+        """Run the function; its return code (0: success)."""
+        code: int = self._function(*self._call)
+        return code
 
 
 def _load(name: str, library: Path, rebuild_on_error: bool = True) -> ca.Function | None:

@@ -14,22 +14,26 @@ every position to the new origin, linearises the problem at the guess
 (:class:`~skyvln_eval.control.stage_qp.StageQp`) and solves the QP with HPIPM. Its outputs
 are the new plan and the QP's multipliers (HPIPM's code writes them unconditionally).
 
-Compiled (the default), it is called through a ``FunctionBuffer`` bound to preallocated
-numpy arrays: no argument conversion, no allocation, about a microsecond of Python per
-call; the return code says whether HPIPM succeeded and the library reports the iteration
-count (:mod:`.codegen`). Interpreted, it is called as usual and the statistics come from
-CasADi.
+Compiled (the default), its C entry point is called through ctypes on preallocated numpy
+arrays (:class:`~skyvln_eval.control.codegen.NativeCall`): no argument conversion, no
+allocation, and the interpreter's lock released for the solve, so other episode threads
+run meanwhile; the return code says whether HPIPM succeeded and the library reports the
+iteration count (:mod:`.codegen`). Interpreted, it is called as usual and the statistics
+come from CasADi.
 """
 
 from __future__ import annotations
-
-from typing import Any
 
 import casadi as ca
 import numpy as np
 from numpy.typing import NDArray
 
-from skyvln_eval.control.codegen import Compiled, maybe_compile, qp_iterations_reader
+from skyvln_eval.control.codegen import (
+    Compiled,
+    NativeCall,
+    maybe_compile,
+    qp_iterations_reader,
+)
 from skyvln_eval.control.mpc_config import CompileMode
 from skyvln_eval.control.stage_qp import NZ, StageQp
 from skyvln_eval.sim.quadrotor import NU, NX
@@ -76,23 +80,22 @@ class RtiStep:
         self._lam_x = np.zeros(qp.n_w)
         self.function, self.compiled = built.function, built.compiled
         self._iterations = qp_iterations_reader(built)
-        self._trigger: Any = None
-        self._buffer: Any = None  # casadi's stubs misdescribe FunctionBuffer.set_arg
+        # Compiled, the step runs through its C entry point on these arrays (in place: they
+        # must stay the same objects), with the interpreter's lock released.
+        self._native: NativeCall | None = None
         if self.compiled:
-            # The buffer reads and writes these arrays in place: they must stay the same objects.
-            self._buffer, self._trigger = self.function.buffer()
-            for index, array in enumerate((self.plan, self.guess, self.params, self.warm)):
-                self._buffer.set_arg(index, array.data)
-            for index, array in enumerate((self.w, self._lam_a, self._lam_x)):
-                self._buffer.set_res(index, array.data)
+            self._native = NativeCall(
+                built,
+                (self.plan, self.guess, self.params, self.warm),
+                (self.w, self._lam_a, self._lam_x),
+            )
 
     def solve(self, shift: bool) -> tuple[bool, int]:
         """Run the step Function: from the shifted :attr:`plan` (``shift``) or from
         :attr:`guess`. Returns whether the QP was solved and its iteration count."""
         self.warm[3] = 1.0 if shift else 0.0
-        if self._trigger is not None:
-            self._trigger()
-            ok = self._buffer.ret() == 0
+        if self._native is not None:
+            ok = self._native() == 0
             iterations = self._iterations() if self._iterations is not None else -1
         else:
             out = self.function(self.plan, self.guess, self.params, self.warm)

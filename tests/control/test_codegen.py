@@ -81,6 +81,28 @@ def key(function: ca.Function, cc: str = "gcc") -> str:
     return codegen.cache_key(codegen.generated_source(function), cc)
 
 
+@needs_gcc
+def test_a_native_call_computes_what_the_function_does_on_the_callers_arrays(
+    cache: Path,
+) -> None:
+    x = ca.SX.sym("x", 3)
+    y = ca.SX.sym("y", 2)
+    out = ca.vertcat(ca.sin(x) * y[0], ca.sumsqr(x) + y[1])
+    function = ca.Function("native_test_fn", [x, y], [out, ca.cos(y)])
+    built = codegen.maybe_compile(function, "always")
+    a, b = np.array([0.3, -1.2, 2.5]), np.array([1.5, -0.25])
+    first, second = np.zeros(4), np.zeros(2)
+    call = codegen.NativeCall(built, (a, b), (first, second))
+    assert call() == 0
+    expected = function(a, b)
+    assert np.array_equal(first, np.asarray(expected[0]).ravel())
+    assert np.array_equal(second, np.asarray(expected[1]).ravel())
+    a[:] = [1.0, 2.0, 3.0]  # the call reads its inputs in place
+    assert call() == 0 and np.array_equal(first, np.asarray(function(a, b)[0]).ravel())
+    with pytest.raises(ValueError, match="contiguous float64"):
+        codegen.NativeCall(built, (a.astype(np.float32), b), (first, second))
+
+
 def test_the_key_changes_with_the_problem_and_the_compiler(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
