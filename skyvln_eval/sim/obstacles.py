@@ -123,7 +123,29 @@ class ObstacleScenario:
 
     def positions_m(self, t_s: float) -> NDArray[np.float64]:
         """Obstacle centres at time ``t_s``, shape ``(M, 3)``."""
+        linear = self._constant_velocities
+        if linear is not None:  # the same operations as ConstantVelocity.position_m
+            starts, velocities, start_times = linear
+            result: NDArray[np.float64] = starts + (t_s - start_times)[:, None] * velocities
+            return result
         return self.trajectories_m(np.array([t_s]))[:, 0, :]
+
+    @cached_property
+    def _constant_velocities(
+        self,
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None:
+        """Start points, velocities and start times when every obstacle moves at a constant
+        velocity (the flight loop asks several times a control step: one numpy expression
+        instead of a loop over obstacles); None otherwise."""
+        motions = [o.motion for o in self.obstacles]
+        if not all(isinstance(m, ConstantVelocity) for m in motions):
+            return None
+        linear = [m for m in motions if isinstance(m, ConstantVelocity)]
+        return (
+            np.array([m.start_m for m in linear], dtype=np.float64).reshape(-1, 3),
+            np.array([m.velocity_m_s for m in linear], dtype=np.float64).reshape(-1, 3),
+            np.array([m.start_time_s for m in linear], dtype=np.float64),
+        )
 
     def trajectories_m(self, times_s: NDArray[np.float64]) -> NDArray[np.float64]:
         """Obstacle centres at each time, shape ``(M, n, 3)``."""
@@ -133,18 +155,23 @@ class ObstacleScenario:
         return out
 
     def velocities_m_s(self, t_s: float) -> NDArray[np.float64]:
+        linear = self._constant_velocities
+        if linear is not None:
+            return linear[1].copy()
         out = np.empty((len(self.obstacles), 3))
         for i, obstacle in enumerate(self.obstacles):
             out[i] = obstacle.motion.velocity_at(np.array([t_s]))[0]
         return out
 
-    @property
+    @cached_property
     def radii_m(self) -> NDArray[np.float64]:
-        return np.array([o.radius_m for o in self.obstacles])
+        """Each obstacle's radius (read-only: made once, read every control step)."""
+        return _read_only(np.array([o.radius_m for o in self.obstacles]))
 
-    @property
+    @cached_property
     def safety_radii_m(self) -> NDArray[np.float64]:
-        return np.array([o.safety_radius_m for o in self.obstacles])
+        """Each obstacle's safety radius (read-only: made once, read every control step)."""
+        return _read_only(np.array([o.safety_radius_m for o in self.obstacles]))
 
     def distances_m(self, position_m: ArrayLike, t_s: float) -> NDArray[np.float64]:
         """Distance from ``position_m`` to each obstacle centre at ``t_s``, shape ``(M,)``."""
@@ -216,3 +243,8 @@ class ConstantVelocityPredictor:
         ahead = (times - times[0])[None, :, None]
         positions = position[:, None, :] + ahead * velocity[:, None, :]
         return ObstacleForecast(times, positions, scenario.radii_m, scenario.safety_radii_m)
+
+
+def _read_only(array: NDArray[np.float64]) -> NDArray[np.float64]:
+    array.flags.writeable = False
+    return array

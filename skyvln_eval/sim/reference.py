@@ -15,7 +15,7 @@ profile (sinusoidal acceleration up to ``max_acceleration_m_s2``, cruise at
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -88,15 +88,17 @@ class ReferenceTrajectory:
         inputs = np.stack([thrust, roll / p.roll_gain, pitch / p.pitch_gain], axis=1)
         return ReferenceWindow(times, states, inputs, self.yaw(times))
 
-    def windows(self, times_s: NDArray[np.float64]) -> list[ReferenceWindow]:
+    def windows(self, times_s: NDArray[np.float64]) -> Iterator[ReferenceWindow]:
         """:meth:`window` at each row of ``times_s`` ``(steps, n)``, computed as one batch
-        (every operation is elementwise or per row, so the values are the same)."""
+        (every operation is elementwise or per row, so the values are the same) and handed
+        out one step at a time (a flight that arrives early takes only what it flies)."""
         steps, n = times_s.shape
         whole = self.window(times_s.reshape(-1))
         states = whole.states.reshape(steps, n, -1)
         inputs = whole.inputs.reshape(steps, n, -1)
         yaw = whole.yaw_rad.reshape(steps, n)
-        return [ReferenceWindow(times_s[k], states[k], inputs[k], yaw[k]) for k in range(steps)]
+        for k in range(steps):
+            yield ReferenceWindow(times_s[k], states[k], inputs[k], yaw[k])
 
     @property
     def final_position_m(self) -> NDArray[np.float64]:

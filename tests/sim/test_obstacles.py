@@ -38,6 +38,31 @@ def test_constant_velocity_motion_and_its_forecast_agree() -> None:
     assert forecast.keep_out_radius_m[0] == pytest.approx(0.7)
 
 
+def test_constant_velocity_scenarios_place_their_obstacles_exactly_as_each_motion_does() -> None:
+    # The scenario computes all constant-velocity obstacles in one expression: the floats
+    # must be those of each obstacle's own motion.
+    rng = np.random.default_rng(7)
+    obstacles = tuple(
+        SphereObstacle(
+            ConstantVelocity(
+                tuple(rng.uniform(-300, 300, 3)),  # type: ignore[arg-type]
+                tuple(rng.normal(0, 2, 3)),  # type: ignore[arg-type]
+                float(rng.uniform(0, 50)),
+            )
+        )
+        for _ in range(5)
+    )
+    scenario = ObstacleScenario("five", obstacles)
+    for t in rng.uniform(0, 400, 50):
+        each = np.array([o.motion.position_m(np.array([t]))[0] for o in obstacles])
+        assert np.array_equal(scenario.positions_m(float(t)), each)
+        velocities = np.array([o.motion.velocity_at(np.array([t]))[0] for o in obstacles])
+        assert np.array_equal(scenario.velocities_m_s(float(t)), velocities)
+    spline = SplinePath((0.0, 10.0), ((0.0, 0.0, 5.0), (10.0, 0.0, 5.0)))
+    mixed = ObstacleScenario("mixed", (*obstacles[:1], SphereObstacle(spline)))
+    assert np.array_equal(mixed.positions_m(3.0)[1], spline.position_m(np.array([3.0]))[0])
+
+
 def test_spline_path_passes_its_points_and_holds_outside_its_span() -> None:
     path = SplinePath((0.0, 2.0, 4.0), ((0, 0, 0), (2, 1, 0), (4, 0, 1)))
     at = path.position_m(np.array([-1.0, 0.0, 2.0, 4.0, 9.0]))
