@@ -37,14 +37,14 @@ from skyvln_eval.sim.reference import (
     segment_reference,
 )
 
-#: Slack for floating-point noise when checking the commands against the limits.
-
 #: Compiled controllers and the plant's step run native code whose memory management
 #: (CasADi's generated checkout/release and HPIPM's workspaces) keeps state shared by every
 #: function loaded from one library, unguarded: two threads in it at once corrupt the heap
 #: ("double free"). One flight at a time steps through native code; the threads executor
-#: still overlaps everything else (LLM waits, rendering, logging).
+#: still overlaps everything else (LLM waits, rendering, logging), also during an NMPC
+#: solve, which runs with the interpreter's lock released (codegen.NativeCall).
 NATIVE_CALLS = threading.Lock()
+#: Slack for floating-point noise when checking the commands against the limits.
 LIMIT_TOLERANCE = 1e-9
 #: How long a segment may take beyond its reference to settle on the target, by default.
 SETTLE_TIME_S = 30.0
