@@ -1,8 +1,8 @@
-"""The simulated detector against a plain reference of its algorithm before it was
-vectorised: on panoramas rendered from the synthetic sample's worlds, with phantoms on, it
-must find the same detections (labels, boxes, scores, captions, masks) and draw the same
-random numbers; and the exact stand-ins it uses for np.median, math.hypot scans and the
-colour's matrix product agree with them bit for bit."""
+"""The simulated detector against its algorithm before it was vectorised
+(:mod:`tests.agent.detector_reference`): on panoramas rendered from the synthetic sample's
+worlds, with phantoms on, it must find the same detections (labels, boxes, scores,
+captions, masks) and draw the same random numbers; and the exact stand-ins it uses for
+np.median, math.hypot scans and the colour's matrix product agree with them bit for bit."""
 
 from __future__ import annotations
 
@@ -10,16 +10,13 @@ import math
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 import pytest
 
 from skyvln_eval.agent import Perception, PerceptionConfig, SimulatedDetector
 from skyvln_eval.agent.detectors import (
-    _BUILDING_LABELS,
     _NAMED_COLOURS,
     _PALETTE,
-    Detection,
     _KnownBuildings,
     _median_pair,
     _nearest_colours,
@@ -28,99 +25,10 @@ from skyvln_eval.agent.detectors import (
 )
 from skyvln_eval.avdn import load_split
 from skyvln_eval.frames import view_to_pose
-from skyvln_eval.sensing import CameraImages, SemanticClass, SensorConfig
+from skyvln_eval.sensing import CameraImages, SensorConfig
 from skyvln_eval.sim.sensors import SimulatedSensors
-from skyvln_eval.vocabulary import CATEGORY_LABELS
 from skyvln_eval.worlds import load_world
-
-
-class ReferenceDetector:
-    """SimulatedDetector's rules written plainly: a loop over landmarks, a loop over every
-    plain building (its pixels, points and medians one by one), a scan of buildings met."""
-
-    def __init__(self, **settings: Any) -> None:
-        self.miss_rate = settings.get("miss_rate", 0.1)
-        self.false_positive_rate = settings.get("false_positive_rate", 0.03)
-        self.confusion_rate = settings.get("confusion_rate", 0.05)
-        self.min_pixels = settings.get("min_pixels", 25)
-        self.close_look_m = settings.get("close_look_m", 70.0)
-        self.phantom_cell_m = settings.get("phantom_cell_m", 30.0)
-        self.seed = settings.get("seed", 0)
-        self.rng = np.random.default_rng(self.seed)
-        self.buildings: list[tuple[float, float, tuple[str, float] | None]] = []
-
-    def reset(self, seed: int) -> None:
-        self.rng = np.random.default_rng([self.seed, seed])
-        self.buildings = []
-
-    def detect(self, images: CameraImages) -> list[Detection]:
-        semantic, instance = images.semantic, images.instance
-        assert semantic is not None and instance is not None
-        ids, counts = np.unique(instance, return_counts=True)
-        out = []
-        for landmark_id, count in zip(ids.tolist(), counts.tolist(), strict=True):
-            if landmark_id == 0 or count < self.min_pixels or self.rng.random() < self.miss_rate:
-                continue
-            category = images.instance_categories.get(landmark_id, "landmark")
-            label = CATEGORY_LABELS.get(category, category.replace("_", " "))
-            if self.rng.random() < self.confusion_rate:
-                label = _BUILDING_LABELS[int(self.rng.integers(len(_BUILDING_LABELS)))]
-            mask = instance == landmark_id
-            visible = min(1.0, float(np.sqrt(count)) / 40.0)
-            score = float(np.clip(0.45 + 0.5 * visible + self.rng.normal(0.0, 0.05), 0.05, 0.99))
-            caption = reference_caption(label, images.rgb[mask], semantic[mask])
-            out.append(Detection(label, reference_box(mask), score, caption, mask))
-        return out + self.phantoms(images, semantic, instance)
-
-    def phantoms(
-        self, images: CameraImages, semantic: np.ndarray, instance: np.ndarray
-    ) -> list[Detection]:
-        if self.false_positive_rate <= 0.0:
-            return []
-        plain = ((semantic == SemanticClass.BUILDING) & (instance == 0)).astype(np.uint8)
-        count, components, stats, _ = cv2.connectedComponentsWithStats(plain, connectivity=4)
-        out = []
-        finite = images.finite_depth()
-        for component in range(1, count):
-            if stats[component, cv2.CC_STAT_AREA] < self.min_pixels:
-                continue
-            v, u = np.nonzero((components == component) & finite)
-            if len(u) < self.min_pixels:
-                continue
-            step = max(1, len(u) // 200)
-            points = images.points_enu(u[::step], v[::step])
-            x, y = float(np.median(points[:, 0])), float(np.median(points[:, 1]))
-            phantom = self.phantom_at(x, y)
-            if phantom is None:
-                continue
-            camera = np.array([images.pose.x_m, images.pose.y_m, images.pose.z_m])
-            if float(np.median(np.linalg.norm(points - camera, axis=1))) < self.close_look_m:
-                continue
-            if self.rng.random() < self.miss_rate:
-                continue
-            label, base = phantom
-            score = float(np.clip(base + self.rng.normal(0.0, 0.05), 0.05, 0.99))
-            mask = np.zeros(plain.shape, dtype=bool)
-            mask[v, u] = True
-            caption = reference_caption(label, images.rgb[v, u], semantic[v, u])
-            out.append(Detection(label, reference_box(mask), score, caption, mask))
-        return out
-
-    def phantom_at(self, x_m: float, y_m: float) -> tuple[str, float] | None:
-        for bx, by, known in self.buildings:
-            if math.hypot(bx - x_m, by - y_m) <= self.phantom_cell_m:
-                return known
-        decision = None
-        if self.rng.random() < self.false_positive_rate:
-            label = _BUILDING_LABELS[int(self.rng.integers(len(_BUILDING_LABELS)))]
-            decision = (label, float(self.rng.uniform(0.35, 0.7)))
-        self.buildings.append((x_m, y_m, decision))
-        return decision
-
-
-def reference_box(mask: np.ndarray) -> tuple[int, int, int, int]:
-    rows, cols = np.nonzero(mask)
-    return int(cols.min()), int(rows.min()), int(cols.max()) + 1, int(rows.max()) + 1
+from tests.agent.detector_reference import ReferenceDetector
 
 
 def reference_colour(rgb: np.ndarray) -> str:
@@ -129,13 +37,6 @@ def reference_colour(rgb: np.ndarray) -> str:
     distance = ((rgb.reshape(-1, 1, 3).astype(np.int64) - palette[None]) ** 2).sum(axis=2)
     votes = np.bincount(distance.argmin(axis=1), minlength=len(palette))
     return list(_NAMED_COLOURS)[int(votes.argmax())]
-
-
-def reference_caption(label: str, rgb: np.ndarray, semantic: np.ndarray) -> str:
-    colour = reference_colour(rgb)
-    if np.mean(semantic == SemanticClass.BUILDING) >= 0.5:
-        return f"a {label} with a {colour} roof"
-    return f"a {colour} {label}"
 
 
 Episodes = list[tuple[int, list[CameraImages]]]
