@@ -62,7 +62,7 @@ def _native_threads_off(parallel: bool) -> Iterator[None]:
         yield
         return
     before = cv2.getNumThreads()
-    cv2.setNumThreads(1)
+    episodes_are_the_parallelism()
     try:
         yield
     finally:

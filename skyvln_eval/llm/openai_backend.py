@@ -31,10 +31,12 @@ from __future__ import annotations
 
 import base64
 import contextlib
+import functools
 import json
 import logging
 import os
 import re
+import ssl
 import threading
 import time
 from collections.abc import Sequence
@@ -102,6 +104,25 @@ def _timed_out(timeout_s: float) -> LLMTransientError:
 #: lives only inside the clients, as when each backend made its own.
 _idle_clients: dict[tuple[str, str | None], list[Any]] = {}
 _idle_lock = threading.Lock()
+
+
+@functools.lru_cache(maxsize=1)
+def _tls_context() -> ssl.SSLContext | bool:
+    """One verifying TLS context for every client of the process, made as the HTTP library
+    makes its default one: each client would otherwise load the certificate store again
+    (~30 ms of CPU, paid by every episode thread that starts a client)."""
+    import importlib
+
+    for name in ("httpx2", "httpx"):  # recent openai releases use httpx2, older ones httpx
+        try:
+            http = importlib.import_module(name)
+        except ImportError:
+            continue
+        make = getattr(http, "create_ssl_context", None)
+        if make is not None:
+            context: ssl.SSLContext = make()
+            return context
+    return True  # the client's own default
 
 
 class _FormatRefused(Exception):
@@ -190,17 +211,12 @@ class OpenAIBackend(LLMBackend):
             raise LLMAuthError(
                 f"{self.endpoint}: set the environment variable {self.api_key_env} to the API key"
             )
-        # Local servers usually accept any key; the client insists on one. Over plain HTTP
-        # there is no TLS: skip loading the certificate store (~30 ms of CPU per client, paid
-        # by every episode thread that starts against a local server).
-        http_client = None
-        if self.base_url.startswith("http://"):
-            http_client = openai.DefaultHttpxClient(verify=False)
+        # Local servers usually accept any key; the client insists on one.
         return openai.OpenAI(
             api_key=secret or "unused",
             base_url=self.base_url,
             max_retries=0,
-            http_client=http_client,
+            http_client=openai.DefaultHttpxClient(verify=_tls_context()),
         )
 
     def _checkin(self, client: Any) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import ssl
 
 import pytest
 
@@ -166,3 +167,12 @@ def test_the_openai_backend_needs_a_model_and_a_key_for_the_real_service(
     backend = create_backend("openai:gpt-4o")
     with pytest.raises(LLMError, match="OPENAI_API_KEY"):
         backend.generate(HELLO, CONFIG)
+
+
+def test_clients_share_one_tls_context_that_verifies_certificates() -> None:
+    # Made once per process (not per client), and never at the price of verification.
+    from skyvln_eval.llm.openai_backend import _tls_context
+
+    context = _tls_context()
+    assert isinstance(context, ssl.SSLContext) and _tls_context() is context
+    assert context.verify_mode == ssl.CERT_REQUIRED and context.check_hostname
