@@ -32,6 +32,7 @@ TILE_PX = 16
 CELL_PX = 16
 
 _MAX_HEIGHTS: weakref.WeakKeyDictionary[WorldTile, float] = weakref.WeakKeyDictionary()
+_MIN_HEIGHTS: weakref.WeakKeyDictionary[WorldTile, float] = weakref.WeakKeyDictionary()
 _PYRAMIDS: weakref.WeakKeyDictionary[WorldTile, NDArray[np.float32]] = weakref.WeakKeyDictionary()
 
 
@@ -55,6 +56,13 @@ def max_height_m(world: WorldTile) -> float:
     if world not in _MAX_HEIGHTS:
         _MAX_HEIGHTS[world] = 0.0 if world.height_m is None else float(world.height_m.max())
     return _MAX_HEIGHTS[world]
+
+
+def min_height_m(world: WorldTile) -> float:
+    """The lowest point of the map (0 without a height layer), computed once per world."""
+    if world not in _MIN_HEIGHTS:
+        _MIN_HEIGHTS[world] = 0.0 if world.height_m is None else float(world.height_m.min())
+    return _MIN_HEIGHTS[world]
 
 
 class _Frame:

@@ -2,9 +2,11 @@
 
 :func:`march_native` gives the depths of :func:`~.march.march_reference`, bit for bit, in
 one pass over the rays: each ray is sampled per level from its tile's start level (the
-bound of :func:`~.march.march`, computed in C too) until it meets the surface, and a level
-where the finest max-pyramid cells under the ray are below the level is passed without
-reading the height layer (``benchmarks/render.py`` measures it against the numpy march).
+bound of :func:`~.march.march`, computed in C too) until it meets the surface. The height
+layer is read only where it can matter: a level where the finest max-pyramid cells under
+the ray are below the level is passed, and where those cells are all 0 (open ground, on a
+layer without negative heights) the sample is 0 (``benchmarks/render.py`` measures it
+against the numpy march).
 The C code does the float operations numpy and ``cv2.remap`` do, in the same
 order and precision; whether ``cv2.remap`` fuses its multiply-adds depends on the CPU, so
 on load the library's bilinear lookup is checked against ``cv2.remap`` on a probe and told
@@ -24,6 +26,7 @@ import logging
 import subprocess
 import threading
 import warnings
+import weakref
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -41,6 +44,7 @@ from skyvln_eval.sim.march import (
     _pyramid,
     march,
     max_height_m,
+    min_height_m,
 )
 from skyvln_eval.worlds.tile import WorldTile
 
@@ -68,6 +72,7 @@ class NativeMarch:
 _lock = threading.Lock()
 _state: dict[str, NativeMarch | None] = {}
 _warned = False
+_PAIRS: weakref.WeakKeyDictionary[WorldTile, NDArray[np.float32]] = weakref.WeakKeyDictionary()
 
 
 def library_path(cc: str) -> Path:
@@ -135,9 +140,9 @@ def _bind(library: ctypes.CDLL) -> NativeMarch:
         _f64, _i64, _i64, _i64,  # rays (3, V, H, W), views, height, width
         _double, _double, _double, _double, _double,  # origin x, y, z, mpp, top_m
         _f32, _i64, _i64,  # heights, rows, cols
-        _f32, _i64, _i64, _i64,  # pyramid, levels, cells_y, cells_x
+        _f32, _i64, _i64, _i64, _f32,  # pyramid, levels, cells_y, cells_x, cell pairs
         _f64, _f32, _f32, _i64,  # z_levels, ks, zs, levels
-        ctypes.c_int, _f32,  # fused, depth out
+        ctypes.c_int, ctypes.c_int, _f32,  # fused, heights all >= 0, depth out
     ]  # fmt: skip
     sample_fn = library.skyvln_sample
     sample_fn.restype = ctypes.c_int
@@ -168,6 +173,21 @@ def _matching_mode(loaded: NativeMarch) -> bool | None:
     return None
 
 
+def _cell_pairs(world: WorldTile) -> NDArray[np.float32]:
+    """Per pair of finest pyramid cell rows and columns, the max over their 2 x 2 cells:
+    entry ``(a + 1, b + 1)`` covers cells ``a..a+1`` by ``b..b+1`` (cells beyond the layer
+    are 0), so one read bounds a bilinear sample's four neighbours. Made once per world."""
+    if world not in _PAIRS:
+        cells = _pyramid(world)[0]
+        padded = np.pad(cells, 1)
+        pairs = np.maximum(
+            np.maximum(padded[:-1, :-1], padded[1:, :-1]),
+            np.maximum(padded[:-1, 1:], padded[1:, 1:]),
+        )
+        _PAIRS[world] = np.ascontiguousarray(pairs, dtype=np.float32)
+    return _PAIRS[world]
+
+
 def march_native(
     world: WorldTile, origin: NDArray[np.float64], rays: NDArray[np.float64], levels: int
 ) -> FloatImage:
@@ -191,8 +211,8 @@ def march_native(
         components, views, height, width,
         float(origin[0]), float(origin[1]), float(origin[2]), mpp, top_m,
         heights, *heights.shape,
-        pyramid, *pyramid.shape,
+        pyramid, *pyramid.shape, _cell_pairs(world),
         z_levels, ks, zs, len(z_levels),
-        int(loaded.fused), depth,
+        int(loaded.fused), int(min_height_m(world) >= 0.0), depth,
     )  # fmt: skip
     return depth

@@ -3,6 +3,7 @@ fallback without a C compiler."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 from collections.abc import Iterator
@@ -62,6 +63,26 @@ def test_native_depths_are_the_reference_depths_bit_for_bit(seed: int) -> None:
         native = native_march.march_native(world, origin, rays, levels)
         reference = np.stack([march_reference(world, origin, r, levels) for r in rays])
         assert same(native, reference), (seed, origin)
+
+
+@needs_cc
+def test_a_layer_with_heights_below_the_ground_gets_the_reference_depths() -> None:
+    """Where every neighbour's cell is 0 the march takes the sample as 0 without reading
+    the layer, which holds only when no height is negative: here some are (pits around
+    the blocks' corners), and the depths must still be the reference's."""
+    city = seeded_city(7)
+    heights = city.height_m.copy()
+    heights[::37, ::41] = -3.0
+    world = dataclasses.replace(city, map_name="pits", height_m=heights)
+    rng = np.random.default_rng(7)
+    config = CameraConfig(width_px=96, height_px=80)
+    for _ in range(6):
+        origin, rays = decision(world, rng, config)
+        native = native_march.march_native(world, origin, rays, config.height_levels)
+        reference = np.stack(
+            [march_reference(world, origin, r, config.height_levels) for r in rays]
+        )
+        assert same(native, reference), origin
 
 
 @needs_cc

@@ -30,6 +30,13 @@ typedef struct {
     int64_t levels, cells_y, cells_x;
 } Pyramid;
 
+/* native_march._cell_pairs: (cells_y + 1) x (cells_x + 1) maxima, entry (a + 1, b + 1)
+ * the max over the finest cells a..a+1 x b..b+1 (cells beyond the layer are 0). */
+typedef struct {
+    const float *data;
+    int64_t cols;
+} CellPairs;
+
 /* A camera ray in map pixels: at k = z - origin_z it is at (x0 + k sx, y0 - k sy). */
 typedef struct {
     int down;
@@ -39,6 +46,7 @@ typedef struct {
 typedef struct {
     Layer layer;
     Pyramid pyramid;
+    CellPairs pairs;
     const double *z_levels; /* the levels' heights, top down */
     const float *ks;        /* float32(z_level - origin_z) */
     const float *zs;        /* float32(z_level) */
@@ -46,6 +54,7 @@ typedef struct {
     double origin_z;
     float x0, y0;
     int fused;
+    int nonnegative; /* whether no height is below 0 */
 } March;
 
 /* Plain comparisons: fmaxf and friends (NaN rules) may be library calls. No NaN reaches them. */
@@ -111,27 +120,37 @@ static inline float bilinear(const Layer *layer, float px, float py, int fused) 
     return locate(layer, px, py, &spot) ? interpolate(layer, &spot, fused) : 0.0f;
 }
 
-/* Whether the sample at a located point is surely below height z: the tallest of the
- * finest pyramid cells holding its neighbours (a small array, mostly in cache) is, so the
- * four heights (far apart in a large layer) need not be read. */
-static inline int surely_below(const March *m, const Spot *s, double z) {
-    const Pyramid *p = &m->pyramid;
-    int64_t col0 = s->ix < 0 ? 0 : s->ix, col1 = s->ix + 1 >= m->layer.cols ? s->ix : s->ix + 1;
-    int64_t row0 = s->iy < 0 ? 0 : s->iy, row1 = s->iy + 1 >= m->layer.rows ? s->iy : s->iy + 1;
-    const float *top = p->data + (row0 >> CELL_BITS) * p->cells_x;
-    const float *bottom = p->data + (row1 >> CELL_BITS) * p->cells_x;
-    /* From 0: a neighbour outside the layer is the border value 0. */
-    float tallest = max_f(max_f(0.0f, max_f(top[col0 >> CELL_BITS], top[col1 >> CELL_BITS])),
-                          max_f(bottom[col0 >> CELL_BITS], bottom[col1 >> CELL_BITS]));
-    /* Bilinear samples never exceed their neighbours; the slack covers rounding. */
+/* An upper bound of the sample at a located point, read without its four heights (far
+ * apart in a large layer): the tallest of the finest pyramid cells that can hold them
+ * (pixels ix, ix + 1 lie in cells ix >> CELL_BITS and the next; ix >= -1, so the index is
+ * at least 0). One read of a small array, mostly in cache. */
+static inline float cells_tallest(const March *m, const Spot *s) {
+    const CellPairs *p = &m->pairs;
+    return p->data[((s->iy >> CELL_BITS) + 1) * p->cols + (s->ix >> CELL_BITS) + 1];
+}
+
+/* Whether a sample bounded by `tallest` is surely below height z. Bilinear samples never
+ * exceed their neighbours; the slack covers rounding. */
+static inline int surely_below(float tallest, double z) {
     return (double)tallest * (1.0 + 1e-5) + 1e-3 < z;
+}
+
+/* The sample at a located point bounded by `tallest`: 0 without reading the layer when
+ * the bound is 0 on a layer without negative heights (the four neighbours are then all 0,
+ * and cv2.remap interpolates exactly 0 between them). Most rays end on open ground. */
+static inline float sample_below(const March *m, const Spot *s, float tallest) {
+    if (tallest == 0.0f && m->nonnegative) return 0.0f;
+    return interpolate(&m->layer, s, m->fused);
 }
 
 /* numpy's float32 operations of march_reference: px = x0 + k sx, py = y0 - k sy. */
 static inline float gap_at(const March *m, const Ray *ray, int64_t j) {
     float k = m->ks[j];
     float px = m->x0 + k * ray->sx, py = m->y0 - k * ray->sy;
-    return bilinear(&m->layer, px, py, m->fused) - m->zs[j];
+    Spot spot;
+    float sample = 0.0f;
+    if (locate(&m->layer, px, py, &spot)) sample = sample_below(m, &spot, cells_tallest(m, &spot));
+    return sample - m->zs[j];
 }
 
 /* march._crossing for one ray. */
@@ -229,11 +248,12 @@ INLINE float march_ray(const March *m, const Ray *ray, int64_t start) {
         Spot spot;
         float sample = 0.0f;
         if (locate(&m->layer, px, py, &spot)) {
-            if (surely_below(m, &spot, m->z_levels[j])) {
+            float tallest = cells_tallest(m, &spot);
+            if (surely_below(tallest, m->z_levels[j])) {
                 have_previous = 0;
                 continue;
             }
-            sample = interpolate(&m->layer, &spot, m->fused);
+            sample = sample_below(m, &spot, tallest);
         }
         float gap = sample - m->zs[j];
         if (gap >= 0.0f) {
@@ -302,12 +322,13 @@ __attribute__((target("fma"))) static void march_views_fma(const March *m, const
 int skyvln_march(const double *rays, int64_t views, int64_t height, int64_t width,
                  double origin_x, double origin_y, double origin_z, double mpp, double top_m,
                  const float *heights, int64_t rows, int64_t cols, const float *pyramid,
-                 int64_t pyramid_levels, int64_t cells_y, int64_t cells_x,
+                 int64_t pyramid_levels, int64_t cells_y, int64_t cells_x, const float *pairs,
                  const double *z_levels, const float *ks, const float *zs, int64_t levels,
-                 int fused, float *depth) {
+                 int fused, int nonnegative, float *depth) {
     March m;
     m.layer = (Layer){heights, rows, cols};
     m.pyramid = (Pyramid){pyramid, pyramid_levels, cells_y, cells_x};
+    m.pairs = (CellPairs){pairs, cells_x + 1};
     m.z_levels = z_levels;
     m.ks = ks;
     m.zs = zs;
@@ -316,6 +337,7 @@ int skyvln_march(const double *rays, int64_t views, int64_t height, int64_t widt
     m.x0 = (float)(origin_x / mpp);
     m.y0 = (float)((top_m - origin_y) / mpp);
     m.fused = fused;
+    m.nonnegative = nonnegative;
 #if defined(__x86_64__) && defined(__GNUC__)
     if (fused && __builtin_cpu_supports("fma")) {
         march_views_fma(&m, rays, views, height, width, mpp, depth);
