@@ -5,7 +5,9 @@ one pass over the rays: each ray is sampled per level from its tile's start leve
 bound of :func:`~.march.march`, computed in C too) until it meets the surface. The height
 layer is read only where it can matter: a level where the finest max-pyramid cells under
 the ray are below the level is passed, and where those cells are all 0 (open ground, on a
-layer without negative heights) the sample is 0 (``benchmarks/render.py`` measures it
+layer without negative heights) the sample is 0. On CPUs with AVX2 eight adjacent rays of
+a tile row are marched together, level by level (they meet the surface within a level of
+each other), with their heights gathered at once (``benchmarks/render.py`` measures it
 against the numpy march).
 The C code does the float operations numpy and ``cv2.remap`` do, in the same
 order and precision; whether ``cv2.remap`` fuses its multiply-adds depends on the CPU, so
@@ -142,7 +144,7 @@ def _bind(library: ctypes.CDLL) -> NativeMarch:
         _f32, _i64, _i64,  # heights, rows, cols
         _f32, _i64, _i64, _i64, _f32,  # pyramid, levels, cells_y, cells_x, cell pairs
         _f64, _f32, _f32, _i64,  # z_levels, ks, zs, levels
-        ctypes.c_int, ctypes.c_int, _f32,  # fused, heights all >= 0, depth out
+        ctypes.c_int, ctypes.c_int, ctypes.c_int, _f32,  # fused, heights >= 0, lanes, depth
     ]  # fmt: skip
     sample_fn = library.skyvln_sample
     sample_fn.restype = ctypes.c_int
@@ -189,10 +191,16 @@ def _cell_pairs(world: WorldTile) -> NDArray[np.float32]:
 
 
 def march_native(
-    world: WorldTile, origin: NDArray[np.float64], rays: NDArray[np.float64], levels: int
+    world: WorldTile,
+    origin: NDArray[np.float64],
+    rays: NDArray[np.float64],
+    levels: int,
+    lanes: bool = True,
 ) -> FloatImage:
     """The depths of :func:`~.march.march_reference` for rays ``(V, H, W, 3)`` seen from one
-    ``origin``, marched in C (in numpy by :func:`~.march.march` if the library is missing)."""
+    ``origin``, marched in C (in numpy by :func:`~.march.march` if the library is missing).
+    ``lanes``: eight rays at a time on CPUs with AVX2 (the same depths; ``False`` marches
+    one ray at a time, as on other CPUs)."""
     loaded = native()
     if loaded is None or world.height_m is None or max_height_m(world) <= 0.0:
         return march(world, origin, rays, levels)
@@ -213,6 +221,6 @@ def march_native(
         heights, *heights.shape,
         pyramid, *pyramid.shape, _cell_pairs(world),
         z_levels, ks, zs, len(z_levels),
-        int(loaded.fused), int(min_height_m(world) >= 0.0), depth,
+        int(loaded.fused), int(min_height_m(world) >= 0.0), int(lanes), depth,
     )  # fmt: skip
     return depth

@@ -1,4 +1,5 @@
-/* The ray march of skyvln_eval.sim.march in C, one ray at a time (see native_march.py).
+/* The ray march of skyvln_eval.sim.march in C (see native_march.py): one ray at a time,
+ * or on CPUs with AVX2 eight adjacent rays at a time (march_lanes), with the same results.
  *
  * Depths are meant to be bit-identical to march_reference, so every float operation below
  * is the one numpy and cv2.remap perform, in the same order and precision: build with
@@ -6,6 +7,9 @@
  * maps and a float32 layer) interpolates in float from x - floor(x), first along x, then
  * along y, with fused multiply-adds where the CPU has them (`fused`); a neighbour outside
  * the layer is the border value 0, a point whose four neighbours are all outside is 0.
+ * The eight-lane code does the same IEEE operations lane by lane (the vector instructions
+ * round as the scalar ones do); only its conservative bounds may differ, which decide
+ * which samples to skip, never a sample's value.
  *
  * Reentrant: no globals, no allocation; Python calls it with the GIL released.
  */
@@ -268,11 +272,182 @@ INLINE float march_ray(const March *m, const Ray *ray, int64_t start) {
     return ray->ground_t;
 }
 
+#if defined(__x86_64__) && defined(__GNUC__)
+#include <immintrin.h>
+#define HAVE_LANES 1
+#define LANES 8
+#define AVX2 __attribute__((target("avx2,fma")))
+
+/* lerp() on eight lanes: the same operations, lane by lane. */
+AVX2 static inline __m256 lerp8(__m256 a, __m256 b, __m256 t, int fused) {
+    __m256 d = _mm256_sub_ps(b, a);
+    return fused ? _mm256_fmadd_ps(t, d, a) : _mm256_add_ps(a, _mm256_mul_ps(t, d));
+}
+
+AVX2 static inline __m256 as_mask(__m256i bits) { return _mm256_castsi256_ps(bits); }
+
+/* The lanes set in `bits` as a mask. */
+AVX2 static inline __m256 lane_mask(int bits) {
+    const __m256i lanes = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+    __m256i set = _mm256_and_si256(_mm256_set1_epi32(bits), lanes);
+    return as_mask(_mm256_cmpeq_epi32(set, lanes));
+}
+
+/* make_ray() for rays i..i+LANES-1, four at a time: the same double operations. */
+AVX2 static void make_lanes(const double *rays, int64_t n, int64_t i, double origin_z,
+                            double mpp, Ray out[LANES]) {
+    float sx[LANES], sy[LANES], inv_dz[LANES], ground_t[LANES];
+    int down = 0;
+    for (int h = 0; h < LANES; h += 4) {
+        __m256d dz = _mm256_loadu_pd(rays + 2 * n + i + h);
+        __m256d is_down = _mm256_cmp_pd(dz, _mm256_set1_pd(-1e-9), _CMP_LT_OQ);
+        __m256d safe_dz = _mm256_blendv_pd(_mm256_set1_pd(-1.0), dz, is_down);
+        __m256d scale = _mm256_set1_pd(mpp);
+        _mm_storeu_ps(ground_t + h,
+                      _mm256_cvtpd_ps(_mm256_div_pd(_mm256_set1_pd(0.0 - origin_z), safe_dz)));
+        _mm_storeu_ps(inv_dz + h, _mm256_cvtpd_ps(_mm256_div_pd(_mm256_set1_pd(1.0), safe_dz)));
+        __m256d x = _mm256_div_pd(_mm256_loadu_pd(rays + i + h), safe_dz);
+        __m256d y = _mm256_div_pd(_mm256_loadu_pd(rays + n + i + h), safe_dz);
+        _mm_storeu_ps(sx + h, _mm256_cvtpd_ps(_mm256_div_pd(x, scale)));
+        _mm_storeu_ps(sy + h, _mm256_cvtpd_ps(_mm256_div_pd(y, scale)));
+        down |= _mm256_movemask_pd(is_down) << h;
+    }
+    for (int l = 0; l < LANES; ++l)
+        out[l] = (Ray){down >> l & 1, sx[l], sy[l], inv_dz[l], ground_t[l]};
+}
+
+/* The gaps (sample - level) of eight rays at level j, lane by lane as march_ray computes
+ * them: the points are located at once and, for lanes in `want`, the layer's four heights
+ * gathered (a neighbour outside the layer is the border value 0). With `below` given, the
+ * lanes whose bound (cells_tallest) is surely below the level are set there and not read:
+ * their gap is negative, but not computed. */
+AVX2 static inline __m256 level_gaps(const March *m, __m256 sx, __m256 sy, int64_t j,
+                                     __m256 want, int *below) {
+    const __m256 zero = _mm256_setzero_ps(), minus_one = _mm256_set1_ps(-1.0f);
+    const __m256i one = _mm256_set1_epi32(1), minus_one_i = _mm256_set1_epi32(-1);
+    const __m256i cols = _mm256_set1_epi32((int)m->layer.cols);
+    const __m256i rows = _mm256_set1_epi32((int)m->layer.rows);
+    __m256 k = _mm256_set1_ps(m->ks[j]), z = _mm256_set1_ps(m->zs[j]);
+    __m256 px = _mm256_add_ps(_mm256_set1_ps(m->x0), _mm256_mul_ps(k, sx));
+    __m256 py = _mm256_sub_ps(_mm256_set1_ps(m->y0), _mm256_mul_ps(k, sy));
+    /* locate(): a point with a neighbour on the layer (false for NaN). */
+    __m256 inside = _mm256_and_ps(
+        _mm256_and_ps(_mm256_cmp_ps(px, minus_one, _CMP_GE_OQ),
+                      _mm256_cmp_ps(px, _mm256_set1_ps((float)m->layer.cols), _CMP_LT_OQ)),
+        _mm256_and_ps(_mm256_cmp_ps(py, minus_one, _CMP_GE_OQ),
+                      _mm256_cmp_ps(py, _mm256_set1_ps((float)m->layer.rows), _CMP_LT_OQ)));
+    /* Lanes off the layer sample 0; a point on it keeps their indices small. */
+    px = _mm256_blendv_ps(zero, px, inside);
+    py = _mm256_blendv_ps(zero, py, inside);
+    __m256 floor_x = _mm256_floor_ps(px), floor_y = _mm256_floor_ps(py);
+    __m256i ix = _mm256_cvttps_epi32(floor_x), iy = _mm256_cvttps_epi32(floor_y);
+    /* cells_tallest(), and surely_below() in float (a slack as conservative). */
+    __m256i cell = _mm256_add_epi32(
+        _mm256_mullo_epi32(_mm256_add_epi32(_mm256_srai_epi32(iy, CELL_BITS), one),
+                           _mm256_set1_epi32((int)m->pairs.cols)),
+        _mm256_add_epi32(_mm256_srai_epi32(ix, CELL_BITS), one));
+    __m256 tallest = _mm256_mask_i32gather_ps(zero, m->pairs.data, cell, inside, 4);
+    __m256 read = _mm256_and_ps(want, inside);
+    if (below) {
+        __m256 bound = _mm256_add_ps(_mm256_mul_ps(tallest, _mm256_set1_ps(1.0f + 1e-5f)),
+                                     _mm256_set1_ps(1e-3f));
+        __m256 surely = _mm256_and_ps(inside, _mm256_cmp_ps(bound, z, _CMP_LT_OQ));
+        *below = _mm256_movemask_ps(surely);
+        read = _mm256_andnot_ps(surely, read);
+    }
+    /* sample_below(): a bound of 0 on a layer without negative heights is a sample of 0. */
+    if (m->nonnegative) read = _mm256_andnot_ps(_mm256_cmp_ps(tallest, zero, _CMP_EQ_OQ), read);
+    __m256 sample = zero;
+    if (_mm256_movemask_ps(read)) {
+        __m256 fx = _mm256_sub_ps(px, floor_x), fy = _mm256_sub_ps(py, floor_y);
+        __m256 left = as_mask(_mm256_cmpgt_epi32(ix, minus_one_i));
+        __m256 right = as_mask(_mm256_cmpgt_epi32(cols, _mm256_add_epi32(ix, one)));
+        __m256 top = as_mask(_mm256_cmpgt_epi32(iy, minus_one_i));
+        __m256 bottom = as_mask(_mm256_cmpgt_epi32(rows, _mm256_add_epi32(iy, one)));
+        __m256i at = _mm256_add_epi32(_mm256_mullo_epi32(iy, cols), ix);
+        __m256i under = _mm256_add_epi32(at, cols);
+        const float *data = m->layer.data;
+        __m256 up_left = _mm256_and_ps(read, _mm256_and_ps(top, left));
+        __m256 up_right = _mm256_and_ps(read, _mm256_and_ps(top, right));
+        __m256 down_left = _mm256_and_ps(read, _mm256_and_ps(bottom, left));
+        __m256 down_right = _mm256_and_ps(read, _mm256_and_ps(bottom, right));
+        __m256 p00 = _mm256_mask_i32gather_ps(zero, data, at, up_left, 4);
+        __m256 p01 = _mm256_mask_i32gather_ps(zero, data, _mm256_add_epi32(at, one), up_right, 4);
+        __m256 p10 = _mm256_mask_i32gather_ps(zero, data, under, down_left, 4);
+        __m256 p11 =
+            _mm256_mask_i32gather_ps(zero, data, _mm256_add_epi32(under, one), down_right, 4);
+        __m256 upper = lerp8(p00, p01, fx, m->fused), lower = lerp8(p10, p11, fx, m->fused);
+        sample = _mm256_and_ps(read, lerp8(upper, lower, fy, m->fused));
+    }
+    return _mm256_sub_ps(sample, z);
+}
+
+/* crossing() on eight lanes: the same operations, lane by lane. */
+AVX2 static inline __m256 crossing8(float previous_k, __m256 before, __m256 after, __m256 t,
+                                    __m256 inv_dz) {
+    __m256 previous_t = _mm256_mul_ps(_mm256_set1_ps(previous_k), inv_dz);
+    __m256 span = _mm256_sub_ps(before, after), limit = _mm256_set1_ps(-1e-9f);
+    span = _mm256_blendv_ps(limit, span, _mm256_cmp_ps(span, limit, _CMP_LE_OQ));
+    __m256 fraction = _mm256_div_ps(before, span);
+    __m256 zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.0f);
+    fraction = _mm256_blendv_ps(fraction, zero, _mm256_cmp_ps(fraction, zero, _CMP_LT_OQ));
+    fraction = _mm256_blendv_ps(fraction, one, _mm256_cmp_ps(fraction, one, _CMP_GT_OQ));
+    return _mm256_add_ps(previous_t, _mm256_mul_ps(fraction, _mm256_sub_ps(t, previous_t)));
+}
+
+/* march_ray for eight rays of one tile row, level by level together from `start`: the
+ * same depths (adjacent rays meet the surface within a level of each other, so lanes
+ * rarely wait). Rays that go up get INFINITY. */
+AVX2 static void march_lanes(const March *m, const Ray rays[LANES], int64_t start,
+                             float *out) {
+    float sx[LANES], sy[LANES], inv_dz[LANES], depth[LANES];
+    int active = 0; /* lanes still in flight */
+    for (int l = 0; l < LANES; ++l) {
+        sx[l] = rays[l].sx;
+        sy[l] = rays[l].sy;
+        inv_dz[l] = rays[l].inv_dz;
+        depth[l] = rays[l].down ? rays[l].ground_t : INFINITY;
+        active |= rays[l].down << l;
+    }
+    const __m256 vsx = _mm256_loadu_ps(sx), vsy = _mm256_loadu_ps(sy);
+    const __m256 vinv_dz = _mm256_loadu_ps(inv_dz);
+    const __m256 all = as_mask(_mm256_set1_epi32(-1));
+    __m256 result = _mm256_loadu_ps(depth), previous = _mm256_setzero_ps();
+    int have_previous = 0; /* lanes whose `previous` holds the previous level's gap */
+    for (int64_t j = start; j < m->levels && active; ++j) {
+        int below;
+        __m256 gap = level_gaps(m, vsx, vsy, j, all, &below);
+        int hits = _mm256_movemask_ps(_mm256_cmp_ps(gap, _mm256_setzero_ps(), _CMP_GE_OQ)) &
+                   ~below & active;
+        if (hits) {
+            __m256 t = _mm256_mul_ps(_mm256_set1_ps(m->ks[j]), vinv_dz);
+            __m256 depth_here = t;
+            if (j > 0) {
+                /* The previous level's gaps, sampled now where that level was passed. */
+                int missing = hits & ~have_previous;
+                __m256 before = previous;
+                if (missing) {
+                    __m256 lanes = lane_mask(missing);
+                    __m256 sampled = level_gaps(m, vsx, vsy, j - 1, lanes, NULL);
+                    before = _mm256_blendv_ps(before, sampled, lanes);
+                }
+                depth_here = crossing8(m->ks[j - 1], before, gap, t, vinv_dz);
+            }
+            result = _mm256_blendv_ps(result, depth_here, lane_mask(hits));
+            active &= ~hits;
+        }
+        previous = gap;
+        have_previous = ~below;
+    }
+    _mm256_storeu_ps(out, result);
+}
+#endif
+
 /* All rays of one TILE_PX square tile of a view, rows [r0, r1) and columns [c0, c1) of
  * the image whose first ray is `first`. */
 INLINE void march_tile(const March *m, const double *rays, int64_t n, int64_t width,
                        int64_t first, int64_t r0, int64_t r1, int64_t c0, int64_t c1,
-                       double mpp, float *depth) {
+                       double mpp, int lanes, float *depth) {
     const int64_t corner_rows[4] = {r0, r0, r1 - 1, r1 - 1};
     const int64_t corner_cols[4] = {c0, c1 - 1, c0, c1 - 1};
     Ray corners[4];
@@ -285,7 +460,16 @@ INLINE void march_tile(const March *m, const double *rays, int64_t n, int64_t wi
     /* A tile with rays on both sides of the horizon is sampled from the top. */
     int64_t start = all_down ? tile_start(m, corners) : 0;
     for (int64_t r = r0; r < r1; ++r) {
-        for (int64_t c = c0; c < c1; ++c) {
+        int64_t c = c0;
+#ifdef HAVE_LANES
+        for (; lanes && c + LANES <= c1; c += LANES) {
+            int64_t i = first + r * width + c;
+            Ray eight[LANES];
+            make_lanes(rays, n, i, m->origin_z, mpp, eight);
+            march_lanes(m, eight, start, depth + i);
+        }
+#endif
+        for (; c < c1; ++c) {
             int64_t i = first + r * width + c;
             Ray ray = make_ray(rays, n, i, m->origin_z, mpp);
             depth[i] = ray.down ? march_ray(m, &ray, start) : INFINITY;
@@ -294,26 +478,32 @@ INLINE void march_tile(const March *m, const double *rays, int64_t n, int64_t wi
 }
 
 INLINE void march_views(const March *m, const double *rays, int64_t views, int64_t height,
-                        int64_t width, double mpp, float *depth) {
+                        int64_t width, double mpp, int lanes, float *depth) {
     int64_t n = views * height * width;
     for (int64_t v = 0; v < views; ++v) {
         int64_t first = v * height * width;
         for (int64_t r0 = 0; r0 < height; r0 += TILE_PX) {
             for (int64_t c0 = 0; c0 < width; c0 += TILE_PX) {
                 march_tile(m, rays, n, width, first, r0, min64(r0 + TILE_PX, height), c0,
-                           min64(c0 + TILE_PX, width), mpp, depth);
+                           min64(c0 + TILE_PX, width), mpp, lanes, depth);
             }
         }
     }
 }
 
-#if defined(__x86_64__) && defined(__GNUC__)
+#ifdef HAVE_LANES
 /* The same code built for CPUs with FMA: fmaf is then one instruction, not a libm call. */
 __attribute__((target("fma"))) static void march_views_fma(const March *m, const double *rays,
                                                           int64_t views, int64_t height,
                                                           int64_t width, double mpp,
                                                           float *depth) {
-    march_views(m, rays, views, height, width, mpp, depth);
+    march_views(m, rays, views, height, width, mpp, 0, depth);
+}
+
+/* And for CPUs with AVX2 (and FMA), eight rays at a time. */
+AVX2 static void march_views_avx2(const March *m, const double *rays, int64_t views,
+                                  int64_t height, int64_t width, double mpp, float *depth) {
+    march_views(m, rays, views, height, width, mpp, 1, depth);
 }
 #endif
 
@@ -324,7 +514,7 @@ int skyvln_march(const double *rays, int64_t views, int64_t height, int64_t widt
                  const float *heights, int64_t rows, int64_t cols, const float *pyramid,
                  int64_t pyramid_levels, int64_t cells_y, int64_t cells_x, const float *pairs,
                  const double *z_levels, const float *ks, const float *zs, int64_t levels,
-                 int fused, int nonnegative, float *depth) {
+                 int fused, int nonnegative, int lanes, float *depth) {
     March m;
     m.layer = (Layer){heights, rows, cols};
     m.pyramid = (Pyramid){pyramid, pyramid_levels, cells_y, cells_x};
@@ -338,13 +528,19 @@ int skyvln_march(const double *rays, int64_t views, int64_t height, int64_t widt
     m.y0 = (float)((top_m - origin_y) / mpp);
     m.fused = fused;
     m.nonnegative = nonnegative;
-#if defined(__x86_64__) && defined(__GNUC__)
+#ifdef HAVE_LANES
+    /* The lanes index the layer and the cell pairs with 32-bit integers. */
+    int small = (rows + 1) * (cols + 1) < INT32_MAX && (cells_y + 2) * (cells_x + 2) < INT32_MAX;
+    if (lanes && small && __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")) {
+        march_views_avx2(&m, rays, views, height, width, mpp, depth);
+        return 0;
+    }
     if (fused && __builtin_cpu_supports("fma")) {
         march_views_fma(&m, rays, views, height, width, mpp, depth);
         return 0;
     }
 #endif
-    march_views(&m, rays, views, height, width, mpp, depth);
+    march_views(&m, rays, views, height, width, mpp, 0, depth);
     return 0;
 }
 
