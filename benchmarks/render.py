@@ -3,7 +3,8 @@
 
 Prints milliseconds per decision of ``render_views`` with each ray march: ``reference``
 (every ray at every level), ``fast`` (the tiled numpy march, the baseline) and ``native``
-(the march in C), and the march alone for the last two; the ratios are against ``fast``,
+(the march in C), and the march alone for the last two (the C one also one ray at a
+time, as on CPUs without AVX2); the ratios are against ``fast``,
 measured in the same process over the same seeded poses. The native depths are checked
 against the reference ones (bit for bit) on the poses the reference renders.
 
@@ -83,6 +84,11 @@ def marcher(fn: Callable[..., np.ndarray]) -> Callable[[Decision], object]:
     return run
 
 
+def one_ray(*args: object) -> np.ndarray:
+    """The compiled march without its eight-lane code (as on CPUs without AVX2)."""
+    return march_native(*args, lanes=False)  # type: ignore[arg-type]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -111,7 +117,8 @@ def main() -> None:
         ("render_views fast (numpy, baseline)", renderer("fast"), cases),
         ("render_views native", renderer("native"), cases),
         ("march fast (numpy)", marcher(march), cases),
-        ("march native", marcher(march_native), cases),
+        ("march native, one ray at a time", marcher(one_ray), cases),
+        ("march native (8 rays at a time on AVX2)", marcher(march_native), cases),
     ]
     times = {label: ms_per_decision(run, subset) for label, run, subset in rows}
     baseline = {"render": times[rows[1][0]], "march": times[rows[3][0]]}
