@@ -40,7 +40,7 @@ from skyvln_eval.sensing import (
     plane_coordinates,
 )
 from skyvln_eval.sim.march import march, march_reference, sample_layer
-from skyvln_eval.sim.native_march import lookup_native, march_native
+from skyvln_eval.sim.native_march import march_native
 from skyvln_eval.worlds.tile import WorldTile
 
 __all__ = [
@@ -138,10 +138,20 @@ def render_views(
         raise ConfigError(f"render method must be 'native', 'fast' or 'reference', got {method!r}")
     # The views stacked into one tall image: one lookup per layer for the whole batch.
     n, height, width = depth.shape
-    coordinates = lookup_native(world, origin, rays, depth) if method == "native" else None
-    px, py = coordinates or lookup_coordinates(world, origin, rays, depth)
+    stacked = rays.reshape(n * height, width, 3)
     depth = depth.reshape(n * height, width)
     sky = ~np.isfinite(depth)
+    # Look the hit up one map pixel further along the ray: a wall is met on the edge of its
+    # footprint, and the nearest pixel there may be the ground in front of it.
+    horizontal = np.maximum(np.hypot(stacked[..., 0], stacked[..., 1]), 1e-6)
+    nudge = np.minimum(world.metres_per_pixel / horizontal, 2.0)
+    t = np.where(sky, 0.0, depth + nudge)
+    px, py = enu_to_map_px(
+        world,
+        (origin[0] + t * stacked[..., 0]).astype(np.float32),
+        (origin[1] + t * stacked[..., 1]).astype(np.float32),
+    )
+    px[sky] = -1e6  # off the map: sampled as the border value
     bgr = sample_layer(world.bgr, px, py, nearest=False, fill=0.0)
     bgr[sky] = SKY_BGR
     semantic = instance = None
@@ -165,29 +175,6 @@ def render_views(
             )
         )
     return images
-
-
-def lookup_coordinates(
-    world: WorldTile, origin: NDArray[np.float64], rays: NDArray[np.float64], depth: FloatImage
-) -> tuple[FloatImage, FloatImage]:
-    """Where the layers are looked up for rays ``(V, H, W, 3)`` and their depths: map pixel
-    coordinates ``(V * H, W)`` of each hit (``px`` off the map for rays that see the sky)."""
-    n, height, width = depth.shape
-    stacked = rays.reshape(n * height, width, 3)
-    depth = depth.reshape(n * height, width)
-    sky = ~np.isfinite(depth)
-    # Look the hit up one map pixel further along the ray: a wall is met on the edge of its
-    # footprint, and the nearest pixel there may be the ground in front of it.
-    horizontal = np.maximum(np.hypot(stacked[..., 0], stacked[..., 1]), 1e-6)
-    nudge = np.minimum(world.metres_per_pixel / horizontal, 2.0)
-    t = np.where(sky, 0.0, depth + nudge)
-    px, py = enu_to_map_px(
-        world,
-        (origin[0] + t * stacked[..., 0]).astype(np.float32),
-        (origin[1] + t * stacked[..., 1]).astype(np.float32),
-    )
-    px[sky] = -1e6  # off the map: sampled as the border value
-    return px, py
 
 
 @dataclass(frozen=True, eq=False)

@@ -69,7 +69,6 @@ class NativeMarch:
     march: Any
     sample: Any
     fused: bool
-    lookup: Any
 
 
 _lock = threading.Lock()
@@ -124,7 +123,7 @@ def _load_native() -> NativeMarch | None:
     if fused is None:
         _warn_once("the compiled ray march does not reproduce cv2.remap on this machine")
         return None
-    return NativeMarch(loaded.march, loaded.sample, fused, loaded.lookup)
+    return NativeMarch(loaded.march, loaded.sample, fused)
 
 
 def _warn_once(reason: str) -> None:
@@ -150,10 +149,7 @@ def _bind(library: ctypes.CDLL) -> NativeMarch:
     sample_fn = library.skyvln_sample
     sample_fn.restype = ctypes.c_int
     sample_fn.argtypes = [_f32, _i64, _i64, _f32, _f32, _i64, ctypes.c_int, _f32]
-    lookup_fn = library.skyvln_lookup
-    lookup_fn.restype = ctypes.c_int
-    lookup_fn.argtypes = [_f64, _f32, _i64, _double, _double, _double, _double, _f32, _f32]
-    return NativeMarch(march_fn, sample_fn, fused=True, lookup=lookup_fn)
+    return NativeMarch(march_fn, sample_fn, fused=True)
 
 
 def _matching_mode(loaded: NativeMarch) -> bool | None:
@@ -228,23 +224,3 @@ def march_native(
         int(loaded.fused), int(min_height_m(world) >= 0.0), int(lanes), depth,
     )  # fmt: skip
     return depth
-
-
-def lookup_native(
-    world: WorldTile, origin: NDArray[np.float64], rays: NDArray[np.float64], depth: FloatImage
-) -> tuple[FloatImage, FloatImage] | None:
-    """:func:`~skyvln_eval.sim.camera.lookup_coordinates` in C, the same floats (``None``
-    without the library)."""
-    loaded = native()
-    if loaded is None:
-        return None
-    views, height, width = depth.shape
-    components = np.ascontiguousarray(np.moveaxis(rays, -1, 0), dtype=np.float64)
-    px = np.empty((views * height, width), np.float32)
-    py = np.empty_like(px)
-    mpp, top_m = _map_scale(world)
-    loaded.lookup(
-        components, np.ascontiguousarray(depth), depth.size,
-        float(origin[0]), float(origin[1]), mpp, top_m, px, py,
-    )  # fmt: skip
-    return px, py

@@ -551,25 +551,3 @@ int skyvln_sample(const float *heights, int64_t rows, int64_t cols, const float 
     for (int64_t i = 0; i < n; ++i) out[i] = bilinear(&layer, px[i], py[i], fused);
     return 0;
 }
-
-/* camera.render_views' lookups after the march, for n rays (components (3, n)) and their
- * planar depths: the map pixel one map pixel further along each ray than its hit (px, py),
- * in numpy's operations (float64, then float32 from the ENU metres on), and px = -1e6 (off
- * the map) for rays that see the sky. Returns 0. */
-int skyvln_lookup(const double *rays, const float *depth, int64_t n, double origin_x,
-                  double origin_y, double mpp, double top_m, float *px, float *py) {
-    const float mpp32 = (float)mpp, top32 = (float)top_m;
-    for (int64_t i = 0; i < n; ++i) {
-        double rx = rays[i], ry = rays[n + i];
-        int sky = !isfinite(depth[i]);
-        double horizontal = hypot(rx, ry);
-        if (horizontal < 1e-6) horizontal = 1e-6; /* np.maximum (a NaN stays NaN) */
-        double nudge = mpp / horizontal;
-        if (nudge > 2.0) nudge = 2.0; /* np.minimum */
-        double t = sky ? 0.0 : (double)depth[i] + nudge;
-        float x = (float)(origin_x + t * rx), y = (float)(origin_y + t * ry);
-        px[i] = sky ? -1e6f : x / mpp32;
-        py[i] = (top32 - y) / mpp32;
-    }
-    return 0;
-}
