@@ -15,7 +15,13 @@ import pytest
 
 from skyvln_eval.cbuild import compiler
 from skyvln_eval.sim import native_march
-from skyvln_eval.sim.camera import CameraConfig, CameraPose, _image_plane, _rays
+from skyvln_eval.sim.camera import (
+    CameraConfig,
+    CameraPose,
+    _image_plane,
+    _rays,
+    render_views,
+)
 from skyvln_eval.sim.march import march, march_reference
 from skyvln_eval.worlds.tile import WorldTile
 from tests.sim.test_camera_equivalence import seeded_city
@@ -89,6 +95,27 @@ def test_a_layer_with_heights_below_the_ground_gets_the_reference_depths() -> No
         for lanes in (True, False):
             native = native_march.march_native(world, origin, rays, config.height_levels, lanes)
             assert same(native, reference), (origin, lanes)
+
+
+@needs_cc
+def test_native_views_are_the_numpy_views_in_every_layer() -> None:
+    world = seeded_city(4)
+    rng = np.random.default_rng(4)
+    config = CameraConfig(width_px=96, height_px=80)
+    for _ in range(4):
+        x, y = rng.uniform(-50.0, 650.0, size=2)
+        poses = [
+            CameraPose(float(x), float(y), 60.0, 0.7 * k, float(pitch))
+            for k, pitch in enumerate((0, 45, 90))
+        ]
+        native = render_views(world, poses, config, method="native")
+        numpy_views = render_views(world, poses, config, method="fast")
+        for a, b in zip(native, numpy_views, strict=True):
+            assert same(a.depth_m, b.depth_m) and same(a.rgb, b.rgb)
+            assert a.semantic is not None and b.semantic is not None
+            assert same(a.semantic, b.semantic)
+            assert a.instance is not None and b.instance is not None
+            assert same(a.instance, b.instance)
 
 
 @needs_cc
