@@ -173,9 +173,14 @@ class ObstacleScenario:
         """Each obstacle's safety radius (read-only: made once, read every control step)."""
         return _read_only(np.array([o.safety_radius_m for o in self.obstacles]))
 
+    @cached_property
+    def keep_out_radii_m(self) -> NDArray[np.float64]:
+        """Each obstacle's keep-out radius, ``radius + safety radius`` (read-only)."""
+        return _read_only(self.radii_m + self.safety_radii_m)
+
     def distances_m(self, position_m: ArrayLike, t_s: float) -> NDArray[np.float64]:
         """Distance from ``position_m`` to each obstacle centre at ``t_s``, shape ``(M,)``."""
-        return np.linalg.norm(self.positions_m(t_s) - np.asarray(position_m), axis=1)
+        return row_norms(self.positions_m(t_s) - np.asarray(position_m))
 
 
 @dataclass(frozen=True)
@@ -243,6 +248,13 @@ class ConstantVelocityPredictor:
         ahead = (times - times[0])[None, :, None]
         positions = position[:, None, :] + ahead * velocity[:, None, :]
         return ObstacleForecast(times, positions, scenario.radii_m, scenario.safety_radii_m)
+
+
+def row_norms(vectors: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The Euclidean norm along the last axis: the operations ``np.linalg.norm(..., axis=-1)``
+    runs for a real array (the same floats), without its per-call argument handling."""
+    result: NDArray[np.float64] = np.sqrt(np.add.reduce(vectors * vectors, axis=-1))
+    return result
 
 
 def _read_only(array: NDArray[np.float64]) -> NDArray[np.float64]:

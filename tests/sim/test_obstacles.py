@@ -19,6 +19,7 @@ from skyvln_eval.sim import (
     make_scenario,
     segment_reference,
 )
+from skyvln_eval.sim.obstacles import row_norms
 
 
 def route() -> tuple[np.ndarray, np.ndarray]:
@@ -61,6 +62,13 @@ def test_constant_velocity_scenarios_place_their_obstacles_exactly_as_each_motio
     spline = SplinePath((0.0, 10.0), ((0.0, 0.0, 5.0), (10.0, 0.0, 5.0)))
     mixed = ObstacleScenario("mixed", (*obstacles[:1], SphereObstacle(spline)))
     assert np.array_equal(mixed.positions_m(3.0)[1], spline.position_m(np.array([3.0]))[0])
+
+
+def test_row_norms_are_numpys_norms_bit_for_bit() -> None:
+    rng = np.random.default_rng(3)
+    for shape in [(1, 3), (2, 3), (7, 3), (2, 20, 3), (5, 21, 3)]:
+        vectors = rng.normal(0.0, 10.0, shape) * rng.choice([1e-3, 1.0, 1e3], shape)
+        assert np.array_equal(row_norms(vectors), np.linalg.norm(vectors, axis=-1))
 
 
 def test_spline_path_passes_its_points_and_holds_outside_its_span() -> None:
