@@ -244,12 +244,8 @@ class Flight:
         command: Command,
         previous_tilt: tuple[float, float],
     ) -> dict[str, Any]:
-        clearance, collision = math.inf, False
-        scenario = self.scenario
-        if scenario.obstacles:
-            distances = scenario.distances_m((truth.x_m, truth.y_m, truth.z_m), self.t_s)
-            clearance = float((distances - scenario.keep_out_radii_m).min())
-            collision = bool((distances < scenario.radii_m).any())
+        position = (truth.x_m, truth.y_m, truth.z_m)
+        clearance, collision = self.scenario.clearance_m(position, self.t_s)
         violation = clearance < 0.0 or not self._within_limits(command, previous_tilt)
         reference = reference_state.tolist()  # the Python floats of the row, in one call
         return {

@@ -187,10 +187,11 @@ class MpcController(Controller):
             count = len(chosen)
             positions[:count] = future[chosen]
             keep_out[:count] = radii[chosen] + self.config.obstacle_margin_m
-        positions[count:] = origin
-        keep_out[count:] = 0.0
         active[:count] = 1.0
-        active[count:] = 0.0
+        if count < m:  # empty slots (writing empty slices costs as much as full ones)
+            positions[count:] = origin
+            keep_out[count:] = 0.0
+            active[count:] = 0.0
 
     def _warm_start(self, origin: NDArray[np.float64]) -> bool:
         """Prepare the initial guess: ``True`` when the step Function is to shift the plan by

@@ -13,6 +13,7 @@ knows the true motion (an oracle, for ablations).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -146,6 +147,54 @@ class ObstacleScenario:
             np.array([m.velocity_m_s for m in linear], dtype=np.float64).reshape(-1, 3),
             np.array([m.start_time_s for m in linear], dtype=np.float64),
         )
+
+    @cached_property
+    def _constant_velocity_floats(self) -> list[tuple[float, ...]] | None:
+        """Per obstacle, as Python floats: start point, velocity, start time, keep-out radius
+        and radius, when every obstacle moves at a constant velocity; None otherwise."""
+        linear = self._constant_velocities
+        if linear is None:
+            return None
+        starts, velocities, start_times = (array.tolist() for array in linear)
+        return [
+            (*start, *velocity, start_time, keep_out, radius)
+            for start, velocity, start_time, keep_out, radius in zip(
+                starts,
+                velocities,
+                start_times,
+                self.keep_out_radii_m.tolist(),
+                self.radii_m.tolist(),
+                strict=True,
+            )
+        ]
+
+    def clearance_m(self, position_m: Vec3, t_s: float) -> tuple[float, bool]:
+        """How far ``position_m`` is outside the nearest keep-out sphere at ``t_s`` (negative:
+        inside one; inf without obstacles), and whether it is inside an obstacle's radius.
+
+        The flight loop asks once a control step. Constant-velocity obstacles are computed on
+        plain floats, with the operations of :meth:`positions_m` and :meth:`distances_m` in
+        numpy's order (left to right over x, y, z), so the values are the same bit for bit
+        (tested); NaN anywhere makes the clearance NaN, as numpy's minimum does.
+        """
+        if not self.obstacles:
+            return math.inf, False
+        linear = self._constant_velocity_floats
+        if linear is None:
+            distances = self.distances_m(position_m, t_s)
+            clearance = float((distances - self.keep_out_radii_m).min())
+            return clearance, bool((distances < self.radii_m).any())
+        x, y, z = position_m
+        clearances, collision = [], False
+        for sx, sy, sz, vx, vy, vz, start_time, keep_out, radius in linear:
+            dt = t_s - start_time
+            dx, dy, dz = sx + dt * vx - x, sy + dt * vy - y, sz + dt * vz - z
+            distance = math.sqrt(dx * dx + dy * dy + dz * dz)
+            clearances.append(distance - keep_out)
+            collision = collision or distance < radius
+        if any(map(math.isnan, clearances)):
+            return math.nan, collision
+        return min(clearances), collision
 
     def trajectories_m(self, times_s: NDArray[np.float64]) -> NDArray[np.float64]:
         """Obstacle centres at each time, shape ``(M, n, 3)``."""
