@@ -182,8 +182,9 @@ class MpcController(Controller):
         if obstacles.count:
             future = obstacles.positions_m[:, 1 : n + 1, :]
             radii = obstacles.keep_out_radius_m
-            margin = row_norms(future - origin).min(axis=1) - radii
-            chosen = np.argsort(margin, kind="stable")[:m]
+            # The ufunc and method forms skip the argument handling of np.min and np.argsort.
+            margin = np.minimum.reduce(row_norms(future - origin), axis=1) - radii
+            chosen = margin.argsort(kind="stable")[:m]
             count = len(chosen)
             positions[:count] = future[chosen]
             keep_out[:count] = radii[chosen] + self.config.obstacle_margin_m
