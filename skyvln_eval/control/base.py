@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -110,25 +111,33 @@ class Controller(ABC):
 
     def clip_input(self, u: NDArray[np.float64]) -> NDArray[np.float64]:
         """``u`` within the input bounds and within one rate step of the previous input."""
+        return np.array(self.clipped_values(float(u[0]), float(u[1]), float(u[2])))
+
+    def clipped_values(
+        self, thrust: float, roll_ref: float, pitch_ref: float
+    ) -> tuple[float, float, float]:
+        """:meth:`clip_input` on plain floats: three numbers do not need numpy's per-call
+        overhead (the same comparisons, so the same values, NaN included)."""
         limits = self.limits
         step, tilt_max = limits.tilt_ref_step_max_rad, limits.tilt_ref_max_rad
-        # Plain floats: two numbers do not need numpy's per-call overhead (same values).
-        tilt = []
-        for value, before in zip(u[1:3], self.previous_input[1:3], strict=True):
-            within_step = min(max(float(value), float(before) - step), float(before) + step)
-            tilt.append(min(max(within_step, -tilt_max), tilt_max))
-        thrust = min(max(float(u[0]), limits.thrust_min_m_s2), limits.thrust_max_m_s2)
-        return np.array([thrust, *tilt])
+        roll_before, pitch_before = float(self.previous_input[1]), float(self.previous_input[2])
+        roll = min(max(roll_ref, roll_before - step), roll_before + step)
+        pitch = min(max(pitch_ref, pitch_before - step), pitch_before + step)
+        return (
+            min(max(thrust, limits.thrust_min_m_s2), limits.thrust_max_m_s2),
+            min(max(roll, -tilt_max), tilt_max),
+            min(max(pitch, -tilt_max), tilt_max),
+        )
 
     def command(
         self,
-        u: NDArray[np.float64],
+        u: NDArray[np.float64] | Sequence[float],
         yaw_ref_rad: float,
         stats: SolveStats,
         predicted_positions_m: NDArray[np.float64] | None = None,
     ) -> Command:
         """Record ``u`` as the applied input (for the rate limits) and wrap it as a Command."""
-        self.previous_input = np.asarray(u, dtype=np.float64).copy()
+        self.previous_input = np.array(u, dtype=np.float64)  # a copy: the caller keeps u
         if stats.failed:
             self.failures += 1
         return Command(

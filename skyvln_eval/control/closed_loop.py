@@ -207,7 +207,11 @@ class Flight:
     def _step(self, window: ReferenceWindow) -> None:
         truth = self.state
         forecast = self.predictor.forecast(self.scenario, window.times_s)
-        previous_input = self.controller.previous_input.copy()
+        # The input the rate limits start from, as floats (the controller replaces it).
+        previous_tilt = (
+            float(self.controller.previous_input[1]),
+            float(self.controller.previous_input[2]),
+        )
         with NATIVE_CALLS:
             command = self.controller.step(self.plant.measure(), window, forecast)
         if not command.is_finite():  # a controller bug must not crash the flight either
@@ -220,7 +224,7 @@ class Flight:
             )
             command = Command(thrust, roll, pitch, truth.yaw_rad, stats)
         self._rows.append(
-            self._row(truth, window.states[0], float(window.yaw_rad[0]), command, previous_input)
+            self._row(truth, window.states[0], float(window.yaw_rad[0]), command, previous_tilt)
         )
         with NATIVE_CALLS:
             self.plant.step(
@@ -238,15 +242,12 @@ class Flight:
         reference_state: np.ndarray,
         reference_yaw: float,
         command: Command,
-        previous_input: np.ndarray,
+        previous_tilt: tuple[float, float],
     ) -> dict[str, Any]:
-        clearance, collision = math.inf, False
-        if self.scenario.obstacles:
-            distances = self.scenario.distances_m(truth.position_m, self.t_s)
-            keep_out = self.scenario.radii_m + self.scenario.safety_radii_m
-            clearance = float(np.min(distances - keep_out))
-            collision = bool(np.any(distances < self.scenario.radii_m))
-        violation = clearance < 0.0 or not self._within_limits(command, previous_input)
+        position = (truth.x_m, truth.y_m, truth.z_m)
+        clearance, collision = self.scenario.clearance_m(position, self.t_s)
+        violation = clearance < 0.0 or not self._within_limits(command, previous_tilt)
+        reference = reference_state.tolist()  # the Python floats of the row, in one call
         return {
             "controller": self.controller.name,
             "scenario": self.scenario.name,
@@ -260,9 +261,9 @@ class Flight:
             "roll_rad": truth.roll_rad,
             "pitch_rad": truth.pitch_rad,
             "yaw_rad": truth.yaw_rad,
-            "ref_x_m": float(reference_state[0]),
-            "ref_y_m": float(reference_state[1]),
-            "ref_z_m": float(reference_state[2]),
+            "ref_x_m": reference[0],
+            "ref_y_m": reference[1],
+            "ref_z_m": reference[2],
             "ref_yaw_rad": reference_yaw,
             "cmd_thrust_m_s2": command.thrust_m_s2,
             "cmd_roll_rad": command.roll_ref_rad,
@@ -274,8 +275,8 @@ class Flight:
             "min_clearance_m": clearance,
             "collision": collision,
             "constraint_violation": violation,
-            "ref_roll_rad": float(reference_state[6]),
-            "ref_pitch_rad": float(reference_state[7]),
+            "ref_roll_rad": reference[6],
+            "ref_pitch_rad": reference[7],
             PREDICTED_PATH_COLUMN: (
                 None
                 if command.predicted_positions_m is None
@@ -283,13 +284,18 @@ class Flight:
             ),
         }
 
-    def _within_limits(self, command: Command, previous_input: np.ndarray) -> bool:
+    def _within_limits(self, command: Command, previous_tilt: tuple[float, float]) -> bool:
         limits, eps = self.controller.limits, LIMIT_TOLERANCE
-        tilt = np.array([command.roll_ref_rad, command.pitch_ref_rad])
+        tilt_max = limits.tilt_ref_max_rad + eps
+        step_max = limits.tilt_ref_step_max_rad + eps
+        roll, pitch = command.roll_ref_rad, command.pitch_ref_rad
+        # Plain floats: the same comparisons numpy made on two-element arrays.
         return bool(
             limits.thrust_min_m_s2 - eps <= command.thrust_m_s2 <= limits.thrust_max_m_s2 + eps
-            and np.all(np.abs(tilt) <= limits.tilt_ref_max_rad + eps)
-            and np.all(np.abs(tilt - previous_input[1:]) <= limits.tilt_ref_step_max_rad + eps)
+            and abs(roll) <= tilt_max
+            and abs(pitch) <= tilt_max
+            and abs(roll - previous_tilt[0]) <= step_max
+            and abs(pitch - previous_tilt[1]) <= step_max
         )
 
 

@@ -23,6 +23,7 @@ previous plan (``fallback_shift``, for at most a horizon) or eases to hover
 from __future__ import annotations
 
 import json
+import math
 import threading
 import time
 from abc import abstractmethod
@@ -38,7 +39,7 @@ from skyvln_eval.control.mpc_config import MpcConfig
 from skyvln_eval.control.rti import RtiStep, build_step
 from skyvln_eval.control.stage_qp import NZ, StageQp
 from skyvln_eval.errors import ConfigError
-from skyvln_eval.sim.obstacles import ObstacleForecast
+from skyvln_eval.sim.obstacles import ObstacleForecast, row_norms
 from skyvln_eval.sim.quadrotor import NU, NX, DroneState, rk4_symbolic
 from skyvln_eval.sim.reference import ReferenceWindow
 
@@ -64,7 +65,16 @@ class MpcController(Controller):
         self._has_plan = False
         self._plan_origin = np.zeros(3)
         self._plan_age = 0  # control steps since the plan was computed
-        self._slots = np.arange(self.config.max_obstacles)
+        # The parameter blocks step writes every control step, looked up once.
+        inputs = self.rti.inputs
+        self._origin, self._x0, self._u_applied = (
+            inputs["origin"],
+            inputs["x0"],
+            inputs["u_applied"],
+        )
+        self._x_ref, self._u_ref = inputs["x_ref"], inputs["u_ref"]
+        # x_ref and u_ref are adjacent in the buffer: one finiteness check covers both.
+        self._references = self.rti.blocks("x_ref", "u_ref")
 
     def _shared_problem(self) -> tuple[StageQp, Compiled]:
         """This problem's QP and step Function, built once per process (~0.1 s of CasADi
@@ -109,21 +119,21 @@ class MpcController(Controller):
                 f"(now and {n} steps of {self.dt_s} s), got {len(reference.times_s)} and "
                 f"{obstacles.positions_m.shape[1]}"
             )
-        yaw_ref = (
-            float(reference.yaw_rad[0]) if np.isfinite(reference.yaw_rad[0]) else state.yaw_rad
-        )
-        inputs_ok = state.is_finite() and np.isfinite(reference.states[: n + 1]).all()
-        inputs_ok = inputs_ok and np.isfinite(reference.inputs[:n]).all()
+        yaw_ref = float(reference.yaw_rad[0])
+        if not math.isfinite(yaw_ref):
+            yaw_ref = state.yaw_rad
+        # The references go into the parameter buffer first and are checked there (a step
+        # with invalid inputs leaves the buffer to the next step, which rewrites all of it).
+        self._x_ref[:] = reference.states[: n + 1]
+        self._u_ref[:] = reference.inputs[:n]
+        inputs_ok = state.is_finite() and np.isfinite(self._references).all()
         inputs_ok = inputs_ok and np.isfinite(obstacles.positions_m).all()
         if not inputs_ok:
             return self._fallback(start, 0, "invalid_input", yaw_ref)
-        rti, inputs = self.rti, self.rti.inputs
-        origin = inputs["origin"]
+        rti, origin = self.rti, self._origin
         origin[0], origin[1], origin[2] = state.x_m, state.y_m, state.z_m
-        inputs["x0"][:] = state.model_vector()
-        inputs["u_applied"][:] = self.previous_input
-        inputs["x_ref"][:] = reference.states[: n + 1]
-        inputs["u_ref"][:] = reference.inputs[:n]
+        self._x0[:] = state.model_values()
+        self._u_applied[:] = self.previous_input
         self._obstacle_slots(obstacles, origin)
         shift = self._warm_start(origin)
         iterations = 0
@@ -149,12 +159,15 @@ class MpcController(Controller):
         self._has_plan, self._plan_age = True, 0
         self._plan_origin[:] = origin
         solution = rti.plan
-        u = self.clip_input(solution[NZ : NZ + NU])
-        slack = float(np.max(solution[self.qp.slack_index], initial=0.0))
+        u = self.clipped_values(
+            float(solution[NZ]), float(solution[NZ + 1]), float(solution[NZ + 2])
+        )
+        slack = float(solution[self.qp.slack_index].max(initial=0.0))
         status = "solved_soft" if slack > SLACK_TOLERANCE else "solved"
         elapsed_ms = (time.perf_counter() - start) * 1e3
         # Outside the timed part: the predicted path, back in absolute ENU, for the logs.
-        predicted = solution[self.qp.position_index].reshape(-1, 3) + origin
+        predicted = solution[self.qp.position_index].reshape(-1, 3)
+        predicted += origin
         return self.command(u, yaw_ref, SolveStats(elapsed_ms, iterations, status), predicted)
 
     def _obstacle_slots(self, obstacles: ObstacleForecast, origin: NDArray[np.float64]) -> None:
@@ -168,17 +181,18 @@ class MpcController(Controller):
         count = 0
         if obstacles.count:
             future = obstacles.positions_m[:, 1 : n + 1, :]
-            margin = (
-                np.min(np.linalg.norm(future - origin, axis=2), axis=1)
-                - obstacles.keep_out_radius_m
-            )
-            chosen = np.argsort(margin, kind="stable")[:m]
+            radii = obstacles.keep_out_radius_m
+            # The ufunc and method forms skip the argument handling of np.min and np.argsort.
+            margin = np.minimum.reduce(row_norms(future - origin), axis=1) - radii
+            chosen = margin.argsort(kind="stable")[:m]
             count = len(chosen)
             positions[:count] = future[chosen]
-            keep_out[:count] = obstacles.keep_out_radius_m[chosen] + self.config.obstacle_margin_m
-        positions[count:] = origin
-        keep_out[count:] = 0.0
-        active[:] = self._slots < count
+            keep_out[:count] = radii[chosen] + self.config.obstacle_margin_m
+        active[:count] = 1.0
+        if count < m:  # empty slots (writing empty slices costs as much as full ones)
+            positions[count:] = origin
+            keep_out[count:] = 0.0
+            active[count:] = 0.0
 
     def _warm_start(self, origin: NDArray[np.float64]) -> bool:
         """Prepare the initial guess: ``True`` when the step Function is to shift the plan by

@@ -72,6 +72,10 @@ class RtiStep:
             key: self.params[end - size : end].reshape(shape)
             for (key, shape), size, end in zip(shapes.items(), sizes, ends, strict=True)
         }
+        self._spans = {
+            key: (int(end - size), int(end))
+            for key, size, end in zip(shapes, sizes, ends, strict=True)
+        }
         self.plan = np.zeros(qp.n_w)
         self.guess = np.zeros(qp.n_w)
         self.warm = np.zeros(4)
@@ -89,6 +93,11 @@ class RtiStep:
                 (self.plan, self.guess, self.params, self.warm),
                 (self.w, self._lam_a, self._lam_x),
             )
+
+    def blocks(self, first: str, last: str) -> NDArray[np.float64]:
+        """A flat view of the parameter buffer from block ``first`` to block ``last``
+        (inclusive, in :data:`PARAM_LAYOUT` order)."""
+        return self.params[self._spans[first][0] : self._spans[last][1]]
 
     def solve(self, shift: bool) -> tuple[bool, int]:
         """Run the step Function: from the shifted :attr:`plan` (``shift``) or from

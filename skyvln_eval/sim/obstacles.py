@@ -13,6 +13,7 @@ knows the true motion (an oracle, for ablations).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -147,6 +148,54 @@ class ObstacleScenario:
             np.array([m.start_time_s for m in linear], dtype=np.float64),
         )
 
+    @cached_property
+    def _constant_velocity_floats(self) -> list[tuple[float, ...]] | None:
+        """Per obstacle, as Python floats: start point, velocity, start time, keep-out radius
+        and radius, when every obstacle moves at a constant velocity; None otherwise."""
+        linear = self._constant_velocities
+        if linear is None:
+            return None
+        starts, velocities, start_times = (array.tolist() for array in linear)
+        return [
+            (*start, *velocity, start_time, keep_out, radius)
+            for start, velocity, start_time, keep_out, radius in zip(
+                starts,
+                velocities,
+                start_times,
+                self.keep_out_radii_m.tolist(),
+                self.radii_m.tolist(),
+                strict=True,
+            )
+        ]
+
+    def clearance_m(self, position_m: Vec3, t_s: float) -> tuple[float, bool]:
+        """How far ``position_m`` is outside the nearest keep-out sphere at ``t_s`` (negative:
+        inside one; inf without obstacles), and whether it is inside an obstacle's radius.
+
+        The flight loop asks once a control step. Constant-velocity obstacles are computed on
+        plain floats, with the operations of :meth:`positions_m` and :meth:`distances_m` in
+        numpy's order (left to right over x, y, z), so the values are the same bit for bit
+        (tested); NaN anywhere makes the clearance NaN, as numpy's minimum does.
+        """
+        if not self.obstacles:
+            return math.inf, False
+        linear = self._constant_velocity_floats
+        if linear is None:
+            distances = self.distances_m(position_m, t_s)
+            clearance = float((distances - self.keep_out_radii_m).min())
+            return clearance, bool((distances < self.radii_m).any())
+        x, y, z = position_m
+        clearances, collision = [], False
+        for sx, sy, sz, vx, vy, vz, start_time, keep_out, radius in linear:
+            dt = t_s - start_time
+            dx, dy, dz = sx + dt * vx - x, sy + dt * vy - y, sz + dt * vz - z
+            distance = math.sqrt(dx * dx + dy * dy + dz * dz)
+            clearances.append(distance - keep_out)
+            collision = collision or distance < radius
+        if any(map(math.isnan, clearances)):
+            return math.nan, collision
+        return min(clearances), collision
+
     def trajectories_m(self, times_s: NDArray[np.float64]) -> NDArray[np.float64]:
         """Obstacle centres at each time, shape ``(M, n, 3)``."""
         out = np.empty((len(self.obstacles), len(times_s), 3))
@@ -173,9 +222,14 @@ class ObstacleScenario:
         """Each obstacle's safety radius (read-only: made once, read every control step)."""
         return _read_only(np.array([o.safety_radius_m for o in self.obstacles]))
 
+    @cached_property
+    def keep_out_radii_m(self) -> NDArray[np.float64]:
+        """Each obstacle's keep-out radius, ``radius + safety radius`` (read-only)."""
+        return _read_only(self.radii_m + self.safety_radii_m)
+
     def distances_m(self, position_m: ArrayLike, t_s: float) -> NDArray[np.float64]:
         """Distance from ``position_m`` to each obstacle centre at ``t_s``, shape ``(M,)``."""
-        return np.linalg.norm(self.positions_m(t_s) - np.asarray(position_m), axis=1)
+        return row_norms(self.positions_m(t_s) - np.asarray(position_m))
 
 
 @dataclass(frozen=True)
@@ -243,6 +297,13 @@ class ConstantVelocityPredictor:
         ahead = (times - times[0])[None, :, None]
         positions = position[:, None, :] + ahead * velocity[:, None, :]
         return ObstacleForecast(times, positions, scenario.radii_m, scenario.safety_radii_m)
+
+
+def row_norms(vectors: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The Euclidean norm along the last axis: the operations ``np.linalg.norm(..., axis=-1)``
+    runs for a real array (the same floats), without its per-call argument handling."""
+    result: NDArray[np.float64] = np.sqrt(np.add.reduce(vectors * vectors, axis=-1))
+    return result
 
 
 def _read_only(array: NDArray[np.float64]) -> NDArray[np.float64]:

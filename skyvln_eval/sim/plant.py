@@ -182,13 +182,22 @@ class Plant:
 
     def __init__(self, state: DroneState, config: PlantConfig | None = None, seed: int = 0) -> None:
         self.config = config or PlantConfig()
-        self._x = np.append(state.model_vector(), state.yaw_rad)
+        self._buffers = _StepBuffers(self.config.params, self.config.substeps)
+        # The true state (model state plus yaw) lives in the step Function's input buffer,
+        # which each step overwrites with its result: no per-step copy or allocation.
+        self._x = self._buffers.x
+        self._x[:] = (*state.model_values(), state.yaw_rad)
         self._state: DroneState | None = None  # the true state of _x, made when first asked
         self._gust_m_s = np.zeros(3)
+        self._wind_mean_m_s = np.asarray(self.config.wind.mean_m_s, dtype=np.float64)
+        noise = self.config.noise  # frozen: its spreads are the same every step
+        self._noise_std = np.array(
+            [noise.position_std_m] * 3 + [noise.velocity_std_m_s] * 3 + [noise.attitude_std_rad] * 3
+        )
+        self._noisy = bool(self._noise_std.any())
         # Two streams, so turning noise on or off does not change the wind a run sees.
         self._wind_rng = np.random.default_rng([seed, 0])
         self._noise_rng = np.random.default_rng([seed, 1])
-        self._buffers = _StepBuffers(self.config.params, self.config.substeps)
 
     @property
     def state(self) -> DroneState:
@@ -199,7 +208,7 @@ class Plant:
 
     @property
     def wind_m_s(self) -> NDArray[np.float64]:
-        return np.asarray(self.config.wind.mean_m_s) + self._gust_m_s
+        return self._wind_mean_m_s + self._gust_m_s
 
     def step(
         self,
@@ -216,27 +225,22 @@ class Plant:
             min(max(roll_ref_rad, -limits.tilt_ref_max_rad), limits.tilt_ref_max_rad),
             min(max(pitch_ref_rad, -limits.tilt_ref_max_rad), limits.tilt_ref_max_rad),
         )
-        buffers = self._buffers
-        buffers.x[:] = self._x
+        buffers = self._buffers  # buffers.x is self._x, the state now
         buffers.u[:] = u
-        buffers.wind[:] = self.wind_m_s
+        np.add(self._wind_mean_m_s, self._gust_m_s, out=buffers.wind)  # wind_m_s, in place
         buffers.yaw_ref[0] = yaw_ref_rad
         buffers.h[0] = dt_s / self.config.substeps
         buffers.step()
-        self._x = buffers.out.copy()
+        self._x[:] = buffers.out
         self._state = None
         self._advance_gust(dt_s)
         return self.state
 
     def measure(self) -> DroneState:
         """The state as the sensors report it (true state plus seeded Gaussian noise)."""
-        noise = self.config.noise
-        std = np.array(
-            [noise.position_std_m] * 3 + [noise.velocity_std_m_s] * 3 + [noise.attitude_std_rad] * 3
-        )
-        if not std.any():
+        if not self._noisy:
             return self.state
-        x = self._x + std * self._noise_rng.standard_normal(NX + 1)
+        x = self._x + self._noise_std * self._noise_rng.standard_normal(NX + 1)
         return DroneState.from_model_vector(x[:NX], wrap_angle_rad(float(x[NX])))
 
     def _advance_gust(self, dt_s: float) -> None:

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -133,12 +133,27 @@ class DroneState:
         cls, x: Sequence[float] | NDArray[np.float64], yaw_rad: float
     ) -> DroneState:
         """From the 8-vector ``[p, v, roll, pitch]`` and a yaw."""
-        values = {name: float(value) for name, value in zip(STATE_NAMES, x[:NX], strict=True)}
-        return cls(**values, yaw_rad=float(yaw_rad))
+        # One conversion to Python floats (the plant makes a state every control step); a
+        # vector of another length fails to unpack.
+        x_m, y_m, z_m, vx, vy, vz, roll, pitch = np.asarray(x[:NX], dtype=np.float64).tolist()
+        return cls(x_m, y_m, z_m, vx, vy, vz, roll, pitch, float(yaw_rad))
 
     def model_vector(self) -> NDArray[np.float64]:
         """The model state ``[p, v, roll, pitch]`` as an 8-vector."""
-        return np.array([getattr(self, name) for name in STATE_NAMES], dtype=np.float64)
+        return np.array(self.model_values(), dtype=np.float64)
+
+    def model_values(self) -> tuple[float, ...]:
+        """The model state ``[p, v, roll, pitch]`` as plain floats (in STATE_NAMES order)."""
+        return (
+            self.x_m,
+            self.y_m,
+            self.z_m,
+            self.vx_m_s,
+            self.vy_m_s,
+            self.vz_m_s,
+            self.roll_rad,
+            self.pitch_rad,
+        )
 
     @property
     def position_m(self) -> NDArray[np.float64]:
@@ -149,7 +164,7 @@ class DroneState:
         return np.array([self.vx_m_s, self.vy_m_s, self.vz_m_s])
 
     def is_finite(self) -> bool:
-        return all(math.isfinite(getattr(self, f.name)) for f in fields(self))
+        return all(map(math.isfinite, self.model_values())) and math.isfinite(self.yaw_rad)
 
 
 def hover_input(params: QuadrotorParams) -> NDArray[np.float64]:

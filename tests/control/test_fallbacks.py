@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -58,6 +59,22 @@ def test_a_non_finite_state_gives_a_finite_flagged_command(name: str) -> None:
         assert command.stats.failed
         assert command.stats.status.endswith("invalid_input")
     assert ctl.failures == 2
+
+
+@pytest.mark.parametrize("name", ["nmpc", "mpc"])
+def test_a_non_finite_reference_state_or_input_is_refused(name: str) -> None:
+    ctl = controller(name)
+    window, forecast = window_and_forecast(ctl)
+    n = ctl.horizon_steps
+    for field, row in (("states", 0), ("states", n), ("inputs", n - 1)):
+        bad = dataclasses.replace(window, **{field: getattr(window, field).copy()})
+        getattr(bad, field)[row, -1] = math.nan
+        command = ctl.step(START, bad, forecast)
+        assert command.is_finite() and command.stats.status.endswith("invalid_input")
+    # The input past the horizon's last interval is not used, nor checked.
+    unused = dataclasses.replace(window, inputs=window.inputs.copy())
+    unused.inputs[n] = math.nan
+    assert not ctl.step(START, unused, forecast).stats.failed
 
 
 def test_a_non_finite_forecast_is_refused_without_an_exception() -> None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -19,6 +21,7 @@ from skyvln_eval.sim import (
     make_scenario,
     segment_reference,
 )
+from skyvln_eval.sim.obstacles import row_norms
 
 
 def route() -> tuple[np.ndarray, np.ndarray]:
@@ -61,6 +64,46 @@ def test_constant_velocity_scenarios_place_their_obstacles_exactly_as_each_motio
     spline = SplinePath((0.0, 10.0), ((0.0, 0.0, 5.0), (10.0, 0.0, 5.0)))
     mixed = ObstacleScenario("mixed", (*obstacles[:1], SphereObstacle(spline)))
     assert np.array_equal(mixed.positions_m(3.0)[1], spline.position_m(np.array([3.0]))[0])
+
+
+def test_row_norms_are_numpys_norms_bit_for_bit() -> None:
+    rng = np.random.default_rng(3)
+    for shape in [(1, 3), (2, 3), (7, 3), (2, 20, 3), (5, 21, 3)]:
+        vectors = rng.normal(0.0, 10.0, shape) * rng.choice([1e-3, 1.0, 1e3], shape)
+        assert np.array_equal(row_norms(vectors), np.linalg.norm(vectors, axis=-1))
+
+
+def test_clearance_on_floats_is_the_array_computation_bit_for_bit() -> None:
+    rng = np.random.default_rng(5)
+
+    def sphere(start_time_s: float) -> SphereObstacle:
+        motion = ConstantVelocity(
+            tuple(rng.uniform(-50, 50, 3)), tuple(rng.uniform(-3, 3, 3)), start_time_s
+        )
+        return SphereObstacle(motion, float(rng.uniform(0.1, 2)), float(rng.uniform(0, 1)))
+
+    for count in (1, 2, 3, 6):
+        scenario = ObstacleScenario(
+            "s", tuple(sphere(float(rng.uniform(0, 9))) for _ in range(count))
+        )
+        for _ in range(300):
+            position = tuple(float(v) for v in rng.uniform(-50, 50, 3))
+            t_s = float(rng.uniform(0, 100))
+            distances = np.linalg.norm(scenario.positions_m(t_s) - np.asarray(position), axis=1)
+            keep_out = scenario.radii_m + scenario.safety_radii_m
+            expected = float(np.min(distances - keep_out))
+            clearance, collision = scenario.clearance_m(position, t_s)  # type: ignore[arg-type]
+            assert clearance == expected
+            assert collision == bool(np.any(distances < scenario.radii_m))
+    # A drone inside an obstacle, a non-finite position, and a spline obstacle (arrays).
+    inside = ObstacleScenario("in", (SphereObstacle(ConstantVelocity((1.0, 0.0, 0.0)), 0.5),))
+    assert inside.clearance_m((1.2, 0.0, 0.0), 0.0) == (0.2 - 0.8, True)
+    clearance, collision = inside.clearance_m((math.nan, 0.0, 0.0), 0.0)
+    assert math.isnan(clearance) and not collision
+    spline = SphereObstacle(SplinePath((0.0, 2.0), ((0.0, 0.0, 0.0), (2.0, 0.0, 0.0))), 0.5)
+    mixed = ObstacleScenario("mixed", (spline, *inside.obstacles))
+    assert mixed.clearance_m((1.0, 0.0, 3.0), 1.0) == (3.0 - 0.8, False)
+    assert ObstacleScenario("none").clearance_m((0.0, 0.0, 0.0), 0.0) == (math.inf, False)
 
 
 def test_spline_path_passes_its_points_and_holds_outside_its_span() -> None:

@@ -70,7 +70,11 @@ def test_drone_state_round_trips_through_the_model_vector() -> None:
     state = DroneState(1, 2, 3, 4, 5, 6, 0.1, 0.2, 0.3)
     again = DroneState.from_model_vector(state.model_vector(), state.yaw_rad)
     assert again == state
+    assert all(type(v) is float for v in (again.x_m, again.vz_m_s, again.yaw_rad))
     assert not DroneState(math.nan, 0, 0).is_finite()
+    assert not DroneState(0, 0, 0, yaw_rad=math.inf).is_finite()
+    with pytest.raises(ValueError):
+        DroneState.from_model_vector([1.0, 2.0, 3.0], 0.0)
 
 
 @pytest.mark.parametrize(

@@ -1,0 +1,97 @@
+"""Benchmark: the Python work of one control step of the dynamics flight loop.
+
+Flies the compiled NMPC (the default settings) through three successive segments with two
+spheres crossing the first one (the ``crossing`` scenario, seeded), as
+:class:`skyvln_eval.control.Flight` does in dynamics mode, ``--repeat`` times after one
+warm-up flight. The baseline in the same process is the native solve alone: the compiled
+step's C call (:class:`~skyvln_eval.control.codegen.NativeCall`), timed by wrapping the
+controller's instance of it. Prints, as medians over the repeats, the wall time per
+control step, the native solve's share, the rest (the Python around it: measuring,
+forecasting, packing, clipping, the plant, the log row) and the ratio of the whole step
+to the solve. The machine's load moves every figure; compare runs made side by side.
+
+    PYTHONPATH=. python benchmarks/flight_loop.py [--repeat 15]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import numpy as np
+
+from skyvln_eval.control import Flight, make_controller
+from skyvln_eval.control.codegen import NativeCall
+from skyvln_eval.control.mpc import MpcController
+from skyvln_eval.frames import ViewPose
+from skyvln_eval.sim import DroneState, ObstacleScenario, ScenarioSpec, make_scenario
+from skyvln_eval.sim.reference import segment_reference
+
+START = DroneState(0.0, 0.0, 10.0)
+TARGETS = (
+    ViewPose(16.0, 6.0, 12.0, 0.5),
+    ViewPose(60.0, 30.0, 15.0, 1.5),
+    ViewPose(0.0, 80.0, 12.0, -1.0),
+)
+
+
+class TimedCall:
+    """A native call that adds up the seconds spent in it."""
+
+    def __init__(self, call: NativeCall) -> None:
+        self.call = call
+        self.seconds = 0.0
+
+    def __call__(self) -> int:
+        start = time.perf_counter()
+        code = self.call()
+        self.seconds += time.perf_counter() - start
+        return code
+
+
+def crossing() -> ObstacleScenario:
+    """Two spheres crossing the first segment's nominal route when the drone passes."""
+    reference = segment_reference(START, TARGETS[0], 0.0)
+    times = np.arange(0.0, reference.end_time_s, 0.1)
+    spec = ScenarioSpec(kind="crossing", n_obstacles=2, seed=0)
+    return make_scenario(spec, times, reference.window(times).position_m)
+
+
+def fly(controller: MpcController, scenario: ObstacleScenario) -> int:
+    """One flight through every target; the number of control steps."""
+    flight = Flight(controller, START, scenario)
+    return sum(len(flight.fly_to(target).rows) for target in TARGETS)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeat", type=int, default=15)
+    args = parser.parse_args()
+    controller = make_controller("nmpc", {})
+    assert isinstance(controller, MpcController)
+    native = controller.rti._native
+    if native is None:
+        raise SystemExit("the NMPC is not compiled here (no C compiler?): nothing to compare")
+    timed = TimedCall(native)
+    controller.rti._native = timed  # type: ignore[assignment]
+    scenario = crossing()
+    fly(controller, scenario)  # warm-up
+    whole, solve = [], []
+    for _ in range(args.repeat):
+        timed.seconds = 0.0
+        start = time.perf_counter()
+        steps = fly(controller, scenario)
+        whole.append((time.perf_counter() - start) / steps * 1e3)
+        solve.append(timed.seconds / steps * 1e3)
+    rest = [w - s for w, s in zip(whole, solve, strict=True)]
+    step_ms, solve_ms, rest_ms = (statistics.median(v) for v in (whole, solve, rest))
+    print(f"{steps} control steps a flight, {args.repeat} flights (medians)")
+    print(f"  whole step     {step_ms:.4f} ms")
+    print(f"  native solve   {solve_ms:.4f} ms   (baseline)")
+    print(f"  rest (Python)  {rest_ms:.4f} ms   (min {min(rest):.4f})")
+    print(f"  whole / solve  {step_ms / solve_ms:.2f}x")
+
+
+if __name__ == "__main__":
+    main()
