@@ -128,6 +128,23 @@ def _trace_without_exchanges(trace: Mapping[str, Any]) -> dict[str, Any]:
     return json.loads(json.dumps({k: v for k, v in trace.items() if k != "exchanges"}, default=str))
 
 
+class _ImageEncoder:
+    """Each distinct image encoded once per log: the agent often captures the same pixels
+    again (a cancelled step looks again from where it was), and the encoding, a pure
+    function of the pixels, is the same bytes each time."""
+
+    def __init__(self, options: ConvertOptions) -> None:
+        self._options = options
+        self._by_pixels: dict[tuple[tuple[int, ...], str, bytes], bytes] = {}
+
+    def encode(self, bgr: NDArray[np.uint8]) -> bytes:
+        key = (bgr.shape, bgr.dtype.str, bgr.tobytes())
+        if key not in self._by_pixels:
+            options = self._options
+            self._by_pixels[key] = encode_image(bgr, options.image_format, options.jpeg_quality)
+        return self._by_pixels[key]
+
+
 def _agent_messages(
     out: _Messages,
     episode: Episode,
@@ -136,7 +153,8 @@ def _agent_messages(
     options: ConvertOptions,
     observations: bool,
 ) -> None:
-    encoded: dict[bytes, bytes] = {}  # a view seen again (a cancelled step) is not re-encoded
+    encoded: dict[bytes, bytes] = {}  # a view seen again (a cancelled step) is not re-rendered
+    images = _ImageEncoder(options)
     for step in steps:
         t_ns = ns(step.t_s)
         pose = view_to_pose(step.view, episode.georef)
@@ -144,11 +162,7 @@ def _agent_messages(
         if world is not None and observations:
             key = np.asarray(step.view, dtype=np.float64).tobytes()
             if key not in encoded:
-                encoded[key] = encode_image(
-                    observe_view(world.bgr, step.view, episode.georef),
-                    options.image_format,
-                    options.jpeg_quality,
-                )
+                encoded[key] = images.encode(observe_view(world.bgr, step.view, episode.georef))
             image = encoded[key]
             out.add(
                 t_ns,
@@ -157,7 +171,7 @@ def _agent_messages(
             )
         if observations:
             for name, rgb in step.camera_views:
-                jpeg = encode_image(rgb[..., ::-1], options.image_format, options.jpeg_quality)
+                jpeg = images.encode(rgb[..., ::-1])
                 out.add(
                     t_ns,
                     t.TOPIC_CAMERA_VIEWS,
