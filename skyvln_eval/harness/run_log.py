@@ -135,11 +135,14 @@ class _ImageEncoder:
 
     def __init__(self, options: ConvertOptions) -> None:
         self._options = options
-        self._by_pixels: dict[tuple[tuple[int, ...], str, bytes], bytes] = {}
+        self._by_pixels: dict[tuple[bool, tuple[int, ...], str, bytes], bytes] = {}
 
-    def encode(self, bgr: NDArray[np.uint8]) -> bytes:
-        key = (bgr.shape, bgr.dtype.str, bgr.tobytes())
+    def encode(self, image: NDArray[np.uint8], rgb: bool) -> bytes:
+        """``image`` (BGR, or RGB if ``rgb``) encoded. The key is the image as given: the
+        camera's RGB arrays are contiguous, so keying them costs a copy, not a flip."""
+        key = (rgb, image.shape, image.dtype.str, image.tobytes())
         if key not in self._by_pixels:
+            bgr = image[..., ::-1] if rgb else image
             options = self._options
             self._by_pixels[key] = encode_image(bgr, options.image_format, options.jpeg_quality)
         return self._by_pixels[key]
@@ -162,7 +165,9 @@ def _agent_messages(
         if world is not None and observations:
             key = np.asarray(step.view, dtype=np.float64).tobytes()
             if key not in encoded:
-                encoded[key] = images.encode(observe_view(world.bgr, step.view, episode.georef))
+                encoded[key] = images.encode(
+                    observe_view(world.bgr, step.view, episode.georef), rgb=False
+                )
             image = encoded[key]
             out.add(
                 t_ns,
@@ -171,7 +176,7 @@ def _agent_messages(
             )
         if observations:
             for name, rgb in step.camera_views:
-                jpeg = images.encode(rgb[..., ::-1])
+                jpeg = images.encode(rgb, rgb=True)
                 out.add(
                     t_ns,
                     t.TOPIC_CAMERA_VIEWS,
