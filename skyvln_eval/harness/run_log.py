@@ -26,7 +26,6 @@ first); the writer renames the file into place only when it is complete.
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,7 +38,6 @@ from numpy.typing import NDArray
 from skyvln_eval.agent.actions import Action, action_record
 from skyvln_eval.avdn.imagery import observe_view
 from skyvln_eval.avdn.records import Episode
-from skyvln_eval.control.flight_log import PREDICTED_PATH_COLUMN
 from skyvln_eval.converters import messages as fx
 from skyvln_eval.converters import topics as t
 from skyvln_eval.converters.convert import (
@@ -52,12 +50,12 @@ from skyvln_eval.converters.convert import (
 )
 from skyvln_eval.converters.writer import McapLogWriter
 from skyvln_eval.frames import ViewPose, latlng_to_enu, view_to_pose
+from skyvln_eval.harness.control_messages import control_messages, drone_tf, ns
 from skyvln_eval.harness.crashpoints import crash_point
 from skyvln_eval.sim.obstacles import ObstacleScenario
 from skyvln_eval.sim.sensors import Capture
 from skyvln_eval.worlds.tile import WorldTile
 
-NS = 1_000_000_000
 VISITED_RGBA = (0.1, 0.6, 1.0, 1.0)
 OBSTACLE_RGBA = (1.0, 0.3, 0.1, 0.6)
 OBSTACLE_SAMPLE_S = 0.5
@@ -107,10 +105,6 @@ class RunLogContent:
     obstacle_segments: list[tuple[float, float, ObstacleScenario]] = field(default_factory=list)
 
 
-def _ns(t_s: float) -> int:
-    return max(0, round(t_s * NS))
-
-
 class _Messages:
     """Messages collected with (time, order) and written sorted by both."""
 
@@ -125,16 +119,6 @@ class _Messages:
             writer.write(topic, schema, message, t_ns)
 
 
-def _drone_tf(t_ns: int, pose: ViewPose) -> Any:
-    return fx.frame_transform(
-        t_ns,
-        t.MAP_FRAME,
-        t.DRONE_FRAME,
-        fx.vector3(pose.x_m, pose.y_m, pose.z_m),
-        fx.yaw_quaternion(pose.yaw_rad),
-    )
-
-
 def _view_loop(view: NDArray[np.float64], episode: Episode) -> list[list[float]]:
     xy = latlng_to_enu(view, episode.georef)
     return [[float(x), float(y), 0.0] for x, y in xy]
@@ -142,6 +126,26 @@ def _view_loop(view: NDArray[np.float64], episode: Episode) -> list[list[float]]
 
 def _trace_without_exchanges(trace: Mapping[str, Any]) -> dict[str, Any]:
     return json.loads(json.dumps({k: v for k, v in trace.items() if k != "exchanges"}, default=str))
+
+
+class _ImageEncoder:
+    """Each distinct image encoded once per log: the agent often captures the same pixels
+    again (a cancelled step looks again from where it was), and the encoding, a pure
+    function of the pixels, is the same bytes each time."""
+
+    def __init__(self, options: ConvertOptions) -> None:
+        self._options = options
+        self._by_pixels: dict[tuple[bool, tuple[int, ...], str, bytes], bytes] = {}
+
+    def encode(self, image: NDArray[np.uint8], rgb: bool) -> bytes:
+        """``image`` (BGR, or RGB if ``rgb``) encoded. The key is the image as given: the
+        camera's RGB arrays are contiguous, so keying them costs a copy, not a flip."""
+        key = (rgb, image.shape, image.dtype.str, image.tobytes())
+        if key not in self._by_pixels:
+            bgr = image[..., ::-1] if rgb else image
+            options = self._options
+            self._by_pixels[key] = encode_image(bgr, options.image_format, options.jpeg_quality)
+        return self._by_pixels[key]
 
 
 def _agent_messages(
@@ -152,18 +156,17 @@ def _agent_messages(
     options: ConvertOptions,
     observations: bool,
 ) -> None:
-    encoded: dict[bytes, bytes] = {}  # a view seen again (a cancelled step) is not re-encoded
+    encoded: dict[bytes, bytes] = {}  # a view seen again (a cancelled step) is not re-rendered
+    images = _ImageEncoder(options)
     for step in steps:
-        t_ns = _ns(step.t_s)
+        t_ns = ns(step.t_s)
         pose = view_to_pose(step.view, episode.georef)
-        out.add(t_ns, t.TOPIC_TF, _drone_tf(t_ns, pose))
+        out.add(t_ns, t.TOPIC_TF, drone_tf(t_ns, pose))
         if world is not None and observations:
             key = np.asarray(step.view, dtype=np.float64).tobytes()
             if key not in encoded:
-                encoded[key] = encode_image(
-                    observe_view(world.bgr, step.view, episode.georef),
-                    options.image_format,
-                    options.jpeg_quality,
+                encoded[key] = images.encode(
+                    observe_view(world.bgr, step.view, episode.georef), rgb=False
                 )
             image = encoded[key]
             out.add(
@@ -173,7 +176,7 @@ def _agent_messages(
             )
         if observations:
             for name, rgb in step.camera_views:
-                jpeg = encode_image(rgb[..., ::-1], options.image_format, options.jpeg_quality)
+                jpeg = images.encode(rgb, rgb=True)
                 out.add(
                     t_ns,
                     t.TOPIC_CAMERA_VIEWS,
@@ -219,7 +222,7 @@ def _agent_messages(
 def _path_messages(out: _Messages, episode: Episode, content: RunLogContent) -> None:
     poses: list[Any] = []
     for k, (view, t_s) in enumerate(zip(content.views, content.view_times_s, strict=True)):
-        t_ns = _ns(t_s)
+        t_ns = ns(t_s)
         pose = view_to_pose(view, episode.georef)
         poses.append(fx.pose(pose.x_m, pose.y_m, pose.z_m, pose.yaw_rad))
         out.add(t_ns, t.TOPIC_RUN_PATH, fx.poses_in_frame(t_ns, t.MAP_FRAME, list(poses)))
@@ -233,58 +236,9 @@ def _path_messages(out: _Messages, episode: Episode, content: RunLogContent) -> 
         )
 
 
-def _finite_or_none(value: float) -> float | None:
-    return float(value) if math.isfinite(value) else None
-
-
-def _predicted_positions(flat: Any) -> list[list[float]] | None:
-    if flat is None or len(flat) == 0:
-        return None
-    return np.asarray(flat, dtype=np.float64).reshape(-1, 3).tolist()
-
-
 def _control_messages(out: _Messages, log: pd.DataFrame) -> None:
-    columns = {name: log[name].to_numpy() for name in log.columns}
-    predicted = columns.get(PREDICTED_PATH_COLUMN, [None] * len(log))
-    for i in range(len(log)):
-        t_ns = _ns(float(columns["t_s"][i]))
-        pose = ViewPose(
-            float(columns["x_m"][i]),
-            float(columns["y_m"][i]),
-            float(columns["z_m"][i]),
-            float(columns["yaw_rad"][i]),
-        )
-        out.add(t_ns, t.TOPIC_TF, _drone_tf(t_ns, pose))
-        out.add(
-            t_ns,
-            t.TOPIC_CONTROL_STEP,
-            {
-                "timestamp": fx.timestamp(t_ns),
-                "controller": str(columns["controller"][i]),
-                "position_m": [pose.x_m, pose.y_m, pose.z_m],
-                "velocity_m_s": [float(columns[c][i]) for c in ("vx_m_s", "vy_m_s", "vz_m_s")],
-                "attitude_rad": [
-                    float(columns[c][i]) for c in ("roll_rad", "pitch_rad", "yaw_rad")
-                ],
-                "reference_position_m": [
-                    float(columns[c][i]) for c in ("ref_x_m", "ref_y_m", "ref_z_m")
-                ],
-                "reference_yaw_rad": float(columns["ref_yaw_rad"][i]),
-                "command": {
-                    "thrust_m_s2": float(columns["cmd_thrust_m_s2"][i]),
-                    "roll_rad": float(columns["cmd_roll_rad"][i]),
-                    "pitch_rad": float(columns["cmd_pitch_rad"][i]),
-                },
-                "solve_time_ms": float(columns["solve_time_ms"][i]),
-                "iterations": int(columns["iterations"][i]),
-                "status": str(columns["status"][i]),
-                "solve_failed": bool(columns["solve_failed"][i]),
-                "min_clearance_m": _finite_or_none(float(columns["min_clearance_m"][i])),
-                "collision": bool(columns["collision"][i]),
-                "constraint_violation": bool(columns["constraint_violation"][i]),
-                "predicted_positions_m": _predicted_positions(predicted[i]),
-            },
-        )
+    for t_ns, topic, message in control_messages(log):
+        out.add(t_ns, topic, message)
 
 
 def _obstacle_messages(
@@ -296,7 +250,7 @@ def _obstacle_messages(
         times = np.arange(start_s, end_s + 1e-9, OBSTACLE_SAMPLE_S)
         tracks = [ob.motion.position_m(times) for ob in scenario.obstacles]
         for i, t_s in enumerate(times):
-            t_ns = _ns(float(t_s))
+            t_ns = ns(float(t_s))
             spheres = [
                 fx.sphere(track[i].tolist(), 2.0 * ob.radius_m, OBSTACLE_RGBA)
                 for track, ob in zip(tracks, scenario.obstacles, strict=True)

@@ -1,0 +1,245 @@
+"""The run log's per-control-step messages (``/tf`` and ``/control/step``), written fast.
+
+A dynamics episode has hundreds of control steps, each with two messages. Building a
+dict per message and handing it to the writer's JSON encoder cost most of a run log's
+time, so rows are turned into the writer's JSON text here, column by column.
+
+The text must be byte for byte what :func:`~skyvln_eval.converters.writer.encode_json`
+writes for the dicts :func:`control_step_message` and :func:`drone_tf` build (the
+reference; the tests compare the two). That holds because the JSON encoder writes a
+float as ``float.__repr__``, an int as ``int.__repr__``, a bool as ``true``/``false``
+and a string by ``json.dumps`` rules, and the templates below repeat the dicts' keys in
+their order with the compact separators. A row the encoder would refuse or treat
+differently (a NaN or infinite value, an odd column type) keeps its dicts, so the writer
+fails on it exactly as before.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+
+from skyvln_eval.control.flight_log import PREDICTED_PATH_COLUMN
+from skyvln_eval.converters import messages as fx
+from skyvln_eval.converters import topics as t
+from skyvln_eval.frames import ViewPose
+
+NS = 1_000_000_000
+
+_POSITION = ("x_m", "y_m", "z_m")
+_VELOCITY = ("vx_m_s", "vy_m_s", "vz_m_s")
+_ATTITUDE = ("roll_rad", "pitch_rad", "yaw_rad")
+_REFERENCE = ("ref_x_m", "ref_y_m", "ref_z_m")
+_COMMAND = ("cmd_thrust_m_s2", "cmd_roll_rad", "cmd_pitch_rad")
+#: The flight log's columns the messages write as floats (all must be finite).
+FLOAT_COLUMNS = (
+    "t_s",
+    *_POSITION,
+    *_VELOCITY,
+    *_ATTITUDE,
+    *_REFERENCE,
+    "ref_yaw_rad",
+    *_COMMAND,
+    "solve_time_ms",
+)
+_STRING_COLUMNS = ("controller", "status")
+_BOOL_COLUMNS = ("solve_failed", "collision", "constraint_violation")
+
+#: One (log time, topic, message) per message; a message is a dict or its JSON bytes.
+Message = tuple[int, str, Any]
+
+
+def ns(t_s: float) -> int:
+    return max(0, round(t_s * NS))
+
+
+def drone_tf(t_ns: int, pose: ViewPose) -> Any:
+    return fx.frame_transform(
+        t_ns,
+        t.MAP_FRAME,
+        t.DRONE_FRAME,
+        fx.vector3(pose.x_m, pose.y_m, pose.z_m),
+        fx.yaw_quaternion(pose.yaw_rad),
+    )
+
+
+def _finite_or_none(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
+
+
+def _predicted_positions(flat: Any) -> list[list[float]] | None:
+    if flat is None or len(flat) == 0:
+        return None
+    return np.asarray(flat, dtype=np.float64).reshape(-1, 3).tolist()
+
+
+def control_step_message(columns: dict[str, Any], i: int, t_ns: int, pose: ViewPose) -> Any:
+    """Row ``i``'s ``/control/step`` message as a dict (the reference for the fast text)."""
+    predicted = columns.get(PREDICTED_PATH_COLUMN)
+    return {
+        "timestamp": fx.timestamp(t_ns),
+        "controller": str(columns["controller"][i]),
+        "position_m": [pose.x_m, pose.y_m, pose.z_m],
+        "velocity_m_s": [float(columns[c][i]) for c in _VELOCITY],
+        "attitude_rad": [float(columns[c][i]) for c in _ATTITUDE],
+        "reference_position_m": [float(columns[c][i]) for c in _REFERENCE],
+        "reference_yaw_rad": float(columns["ref_yaw_rad"][i]),
+        "command": {
+            "thrust_m_s2": float(columns["cmd_thrust_m_s2"][i]),
+            "roll_rad": float(columns["cmd_roll_rad"][i]),
+            "pitch_rad": float(columns["cmd_pitch_rad"][i]),
+        },
+        "solve_time_ms": float(columns["solve_time_ms"][i]),
+        "iterations": int(columns["iterations"][i]),
+        "status": str(columns["status"][i]),
+        "solve_failed": bool(columns["solve_failed"][i]),
+        "min_clearance_m": _finite_or_none(float(columns["min_clearance_m"][i])),
+        "collision": bool(columns["collision"][i]),
+        "constraint_violation": bool(columns["constraint_violation"][i]),
+        "predicted_positions_m": _predicted_positions(None if predicted is None else predicted[i]),
+    }
+
+
+def _row_dicts(columns: dict[str, Any], i: int) -> list[Message]:
+    """Row ``i``'s two messages as dicts: the path for rows the fast text does not cover."""
+    t_ns = ns(float(columns["t_s"][i]))
+    pose = ViewPose(*(float(columns[c][i]) for c in (*_POSITION, "yaw_rad")))
+    return [
+        (t_ns, t.TOPIC_TF, drone_tf(t_ns, pose)),
+        (t_ns, t.TOPIC_CONTROL_STEP, control_step_message(columns, i, t_ns, pose)),
+    ]
+
+
+_TF = (
+    '{{"timestamp":{{"sec":{sec},"nsec":{nsec}}},'
+    f'"parent_frame_id":{json.dumps(t.MAP_FRAME)},"child_frame_id":{json.dumps(t.DRONE_FRAME)},'
+    '"translation":{{"x":{x},"y":{y},"z":{z}}},'
+    '"rotation":{{"x":0.0,"y":0.0,"z":{qz},"w":{qw}}}}}'
+)
+_CONTROL_STEP = (
+    '{{"timestamp":{{"sec":{sec},"nsec":{nsec}}},"controller":{controller},'
+    '"position_m":[{x},{y},{z}],"velocity_m_s":[{vx_m_s},{vy_m_s},{vz_m_s}],'
+    '"attitude_rad":[{roll_rad},{pitch_rad},{yaw_rad}],'
+    '"reference_position_m":[{ref_x_m},{ref_y_m},{ref_z_m}],"reference_yaw_rad":{ref_yaw_rad},'
+    '"command":{{"thrust_m_s2":{cmd_thrust_m_s2},"roll_rad":{cmd_roll_rad},'
+    '"pitch_rad":{cmd_pitch_rad}}},"solve_time_ms":{solve_time_ms},"iterations":{iterations},'
+    '"status":{status},"solve_failed":{solve_failed},"min_clearance_m":{min_clearance_m},'
+    '"collision":{collision},"constraint_violation":{constraint_violation},'
+    '"predicted_positions_m":{predicted}}}'
+)
+
+
+def _json_string(value: Any) -> str:
+    # As the writer encodes a str (non-ASCII kept, control characters escaped).
+    return json.dumps(str(value), ensure_ascii=False)
+
+
+def _json_bool(value: Any) -> str:
+    return "true" if bool(value) else "false"
+
+
+def _fast_columns_fit(log: pd.DataFrame) -> bool:
+    """Whether every column has the type the flight log gives it (then the text's
+    conversions are the dicts' ones); any other log keeps the dicts."""
+    kinds = {name: log[name].dtype.kind for name in log.columns}
+    needed = (*FLOAT_COLUMNS, "min_clearance_m", "iterations", *_STRING_COLUMNS, *_BOOL_COLUMNS)
+    if any(name not in kinds for name in needed):
+        return False
+    return (
+        all(kinds[c] == "f" for c in (*FLOAT_COLUMNS, "min_clearance_m"))
+        and kinds["iterations"] in "iu"
+        and all(kinds[c] == "b" for c in _BOOL_COLUMNS)
+    )
+
+
+@functools.lru_cache(maxsize=64)
+def _points_template(n_points: int) -> str:
+    """``[[{},{},{}],...]`` for ``n_points`` points: the JSON of a list of 3-lists."""
+    return "[" + ",".join(["[{},{},{}]"] * n_points) + "]"
+
+
+def _predicted_texts(predicted: Any, n_rows: int) -> tuple[list[str], NDArray[np.bool_]]:
+    """Each row's ``predicted_positions_m`` JSON text and whether the row has only finite
+    values there: all rows' points formatted in one pass."""
+    texts = ["null"] * n_rows
+    finite = np.ones(n_rows, dtype=bool)
+    if predicted is None:
+        return texts, finite
+    rows: list[int] = []
+    arrays: list[NDArray[np.float64]] = []
+    for i in range(n_rows):
+        flat = predicted[i]
+        if flat is None or len(flat) == 0:
+            continue
+        points = np.asarray(flat, dtype=np.float64).reshape(-1, 3)
+        if not np.isfinite(points).all():
+            finite[i] = False
+            continue
+        rows.append(i)
+        arrays.append(points)
+    if not arrays:
+        return texts, finite
+    # Every float's text in one C-level pass, then each row's points through a template
+    # made once per point count.
+    reprs = list(map(float.__repr__, np.concatenate(arrays).ravel().tolist()))
+    start = 0
+    for i, points in zip(rows, arrays, strict=True):
+        end = start + 3 * len(points)
+        texts[i] = _points_template(len(points)).format(*reprs[start:end])
+        start = end
+    return texts, finite
+
+
+def control_messages(log: pd.DataFrame) -> list[Message]:
+    """Each control step's ``/tf`` and ``/control/step`` messages, in row order."""
+    columns = {name: log[name].to_numpy() for name in log.columns}
+    n_rows = len(log)
+    if not _fast_columns_fit(log):
+        return [m for i in range(n_rows) for m in _row_dicts(columns, i)]
+    floats = np.column_stack([columns[c].astype(np.float64) for c in FLOAT_COLUMNS])
+    predicted_texts, predicted_finite = _predicted_texts(columns.get(PREDICTED_PATH_COLUMN), n_rows)
+    fast_rows = np.isfinite(floats).all(axis=1) & predicted_finite
+    values = {c: floats[:, k].tolist() for k, c in enumerate(FLOAT_COLUMNS)}
+    clearance = columns["min_clearance_m"].astype(np.float64).tolist()
+    iterations = columns["iterations"].tolist()
+    strings = {c: [_json_string(v) for v in columns[c].tolist()] for c in _STRING_COLUMNS}
+    bools = {c: [_json_bool(v) for v in columns[c].tolist()] for c in _BOOL_COLUMNS}
+    messages: list[Message] = []
+    for i in range(n_rows):
+        if not fast_rows[i]:
+            messages += _row_dicts(columns, i)
+            continue
+        t_ns = ns(values["t_s"][i])
+        sec, nsec = divmod(t_ns, NS)
+        # Each float's text is made once: the position and yaw appear in both messages.
+        text = {c: repr(values[c][i]) for c in FLOAT_COLUMNS[1:]}
+        x, y, z = text["x_m"], text["y_m"], text["z_m"]
+        half = 0.5 * values["yaw_rad"][i]
+        tf = _TF.format(
+            sec=sec, nsec=nsec, x=x, y=y, z=z, qz=repr(math.sin(half)), qw=repr(math.cos(half))
+        )
+        step = _CONTROL_STEP.format(
+            sec=sec,
+            nsec=nsec,
+            x=x,
+            y=y,
+            z=z,
+            controller=strings["controller"][i],
+            status=strings["status"][i],
+            iterations=int(iterations[i]),
+            min_clearance_m=repr(clearance[i]) if math.isfinite(clearance[i]) else "null",
+            solve_failed=bools["solve_failed"][i],
+            collision=bools["collision"][i],
+            constraint_violation=bools["constraint_violation"][i],
+            predicted=predicted_texts[i],
+            **text,
+        )
+        messages.append((t_ns, t.TOPIC_TF, tf.encode("utf-8")))
+        messages.append((t_ns, t.TOPIC_CONTROL_STEP, step.encode("utf-8")))
+    return messages

@@ -1,0 +1,127 @@
+"""The run log's control-step messages: the fast JSON text is the writer's encoding of the
+reference dicts, byte for byte, and rows the text does not cover keep their dicts."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from skyvln_eval.control.flight_log import LOG_COLUMNS, PREDICTED_PATH_COLUMN, log_frame
+from skyvln_eval.converters import topics as t
+from skyvln_eval.converters.writer import encode_json
+from skyvln_eval.harness import control_messages as cm
+
+TRICKY = [0.0, -0.0, 1e-7, -1e-5, 1e-4, 1e16, 9999999999999998.0, 1e22, 5e-324, 0.1, 1 / 3, 2.5]
+
+
+def _row(k: int, value: float, **changes: Any) -> dict[str, Any]:
+    row: dict[str, Any] = dict.fromkeys(LOG_COLUMNS, value)
+    row |= {
+        "controller": "nmpc",
+        "scenario": "crossing",
+        "t_s": 0.05 * k,
+        "iterations": 7 + k,
+        "status": "solved",
+        "solve_failed": k % 2 == 0,
+        "collision": False,
+        "constraint_violation": k % 3 == 0,
+        PREDICTED_PATH_COLUMN: [value, -value, value / 3.0, 1.0, 2.0, 3.0],
+    }
+    return row | changes
+
+
+def _reference(log: pd.DataFrame, rows: list[int] | None = None) -> list[tuple[int, str, bytes]]:
+    """What the run log wrote before the fast text: the dicts, encoded by the writer."""
+    columns = {name: log[name].to_numpy() for name in log.columns}
+    return [
+        (t_ns, topic, encode_json(message))
+        for i in (range(len(log)) if rows is None else rows)
+        for t_ns, topic, message in cm._row_dicts(columns, i)
+    ]
+
+
+def _written(log: pd.DataFrame) -> list[tuple[int, str, bytes]]:
+    return [
+        (t_ns, topic, message if isinstance(message, bytes) else encode_json(message))
+        for t_ns, topic, message in cm.control_messages(log)
+    ]
+
+
+def _assert_fast_and_equal(log: pd.DataFrame) -> None:
+    messages = cm.control_messages(log)
+    assert all(isinstance(message, bytes) for _, _, message in messages)
+    assert _written(log) == _reference(log)
+
+
+def test_tricky_floats_ints_and_strings_give_the_writers_bytes() -> None:
+    rows = [_row(k, v) for k, v in enumerate(TRICKY)]
+    rows[0] |= {"min_clearance_m": math.nan, "controller": 'n"mpc\n é ✈', "status": "\x01"}
+    rows[1] |= {"min_clearance_m": math.inf, PREDICTED_PATH_COLUMN: None}
+    rows[2] |= {"min_clearance_m": -math.inf, PREDICTED_PATH_COLUMN: []}
+    rows[3] |= {"iterations": 2**62, "t_s": -1.0}  # a negative time logs at 0
+    rows[4] |= {PREDICTED_PATH_COLUMN: np.arange(9.0).reshape(3, 3)}
+    _assert_fast_and_equal(log_frame(rows))
+
+
+def test_a_log_without_predictions_writes_null() -> None:
+    log = log_frame([_row(k, v) for k, v in enumerate(TRICKY)]).drop(
+        columns=[PREDICTED_PATH_COLUMN]
+    )
+    _assert_fast_and_equal(log)
+    assert all(b'"predicted_positions_m":null}' in m for _, topic, m in _written(log)[1::2])
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+@pytest.mark.parametrize("where", ["vx_m_s", "solve_time_ms", "t_s", PREDICTED_PATH_COLUMN])
+def test_a_non_finite_row_keeps_its_dicts_and_the_writer_refuses_it(bad: float, where: str) -> None:
+    value = [1.0, bad, 3.0] if where == PREDICTED_PATH_COLUMN else bad
+    log = log_frame([_row(0, 1.5), _row(1, 2.5, **{where: value}), _row(2, 3.5)])
+    if where == "t_s":  # the time itself cannot be made: the same error as before
+        with pytest.raises((ValueError, OverflowError)):
+            cm.control_messages(log)
+        return
+    messages = cm.control_messages(log)
+    kinds = [isinstance(message, bytes) for _, _, message in messages]
+    assert kinds == [True, True, False, False, True, True]
+    assert messages[:2] + messages[4:] == _reference(log, [0, 2])
+    with pytest.raises(ValueError, match="Out of range float"):
+        encode_json(messages[3][2])
+
+
+def test_a_log_of_other_column_types_keeps_the_dicts() -> None:
+    log = log_frame([_row(k, v) for k, v in enumerate(TRICKY)])
+    log["iterations"] = log["iterations"].astype(np.float64)  # not the flight log's int
+    messages = cm.control_messages(log)
+    assert not any(isinstance(message, bytes) for _, _, message in messages)
+    assert _written(log) == _reference(log)
+
+
+def test_messages_come_in_row_order_on_their_topics() -> None:
+    log = log_frame([_row(k, v) for k, v in enumerate(TRICKY)])
+    messages = cm.control_messages(log)
+    assert [topic for _, topic, _ in messages] == [t.TOPIC_TF, t.TOPIC_CONTROL_STEP] * len(TRICKY)
+    assert [t_ns for t_ns, _, _ in messages[::2]] == [cm.ns(0.05 * k) for k in range(len(TRICKY))]
+
+
+finite = st.floats(allow_nan=False, allow_infinity=False)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    values=st.lists(finite, min_size=len(cm.FLOAT_COLUMNS) + 1, max_size=len(cm.FLOAT_COLUMNS) + 1),
+    predicted=st.lists(finite, max_size=12).map(lambda v: v[: len(v) - len(v) % 3]),
+    clearance=st.floats(),
+)
+def test_any_finite_row_gives_the_writers_bytes(
+    values: list[float], predicted: list[float], clearance: float
+) -> None:
+    row = _row(0, 0.0, **dict(zip(cm.FLOAT_COLUMNS, values, strict=False)))
+    row |= {"t_s": abs(values[0]) % 1e6, "min_clearance_m": clearance}
+    row[PREDICTED_PATH_COLUMN] = predicted
+    _assert_fast_and_equal(log_frame([row]))
