@@ -5,6 +5,7 @@ Only vocabulary and small text helpers live here; nothing in it looks at a map.
 
 from __future__ import annotations
 
+import functools
 import re
 from typing import Final
 
@@ -77,8 +78,12 @@ _STOPWORDS: Final = frozenset(
 _WORD = re.compile(r"[a-z]+")
 
 
+@functools.lru_cache(maxsize=4096)
 def category_of(text: str) -> str | None:
-    """The landmark category a phrase names (``"a small restaurant ..."`` -> ``restaurant``)."""
+    """The landmark category a phrase names (``"a small restaurant ..."`` -> ``restaurant``).
+
+    Remembered per text: an episode asks about the same phrases and captions again and
+    again, and each new text is a search per category phrase."""
     lowered = text.lower()
     best: tuple[int, str] | None = None
     for category, phrases in CATEGORY_PHRASES.items():
