@@ -37,6 +37,7 @@ import casadi as ca
 import numpy as np
 
 from skyvln_eval.control import Command, Controller, Flight, MpcConfig, SolveStats
+from skyvln_eval.control.codegen import blasfeo_instruction_sets
 from skyvln_eval.control.mpc import LinearMpcController, NmpcController
 from skyvln_eval.sim import (
     ConstantVelocity,
@@ -303,6 +304,9 @@ def main() -> None:
         f"{os.cpu_count()} CPUs, load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; "
         f"N = {N}, dt = {DT} s, {args.steps} steps, two spheres crossing at 0.3 m/s"
     )
+    sets = blasfeo_instruction_sets()
+    kind = "unknown" if sets is None else sets or "none: the generic C build"
+    print(f"instruction sets of the BLASFEO under HPIPM (the QP's linear algebra): {kind}")
     results: dict[str, dict[str, float]] = {}
     header = (
         f"{'set-up':38} {'build s':>7} {'median ms':>9} {'p95':>7} {'max':>7} {'cpu med':>7} "

@@ -69,6 +69,26 @@ def casadi_dir() -> Path:
     return Path(ca.__file__).parent
 
 
+def blasfeo_instruction_sets() -> str | None:
+    """The instruction sets of the BLASFEO that CasADi's HPIPM runs its linear algebra on,
+    as that library reports them (e.g. ``"AVX AVX2 FMA"``; ``""`` for a generic C build),
+    or ``None`` if there is no such library to ask. Most of a solve's time is spent there:
+    the CasADi wheel's generic build runs the NMPC's QP about half as fast as one built for
+    the CPU (measured; see ``benchmarks/nmpc.py``)."""
+    # Asked through HPIPM's own library: a symbol looked up there comes from the BLASFEO
+    # it loads (its dependency), whichever of the files beside it that is.
+    for path in sorted(casadi_dir().glob("libhpipm*")):
+        try:
+            library = ctypes.CDLL(str(path))
+            describe = library.blasfeo_processor_library_string
+        except (OSError, AttributeError):
+            continue
+        text = ctypes.create_string_buffer(256)
+        describe(text)
+        return text.value.decode(errors="replace").strip()
+    return None
+
+
 def generated_source(function: ca.Function) -> str:
     """The C code CasADi generates for ``function`` (before our patches)."""
     generator = ca.CodeGenerator(f"{function.name()}.c", {"with_header": False})

@@ -179,3 +179,12 @@ def test_the_compiled_nmpc_step_flies_exactly_as_the_interpreted_one(
     assert np.array_equal(a[columns].to_numpy(), b[columns].to_numpy())
     assert np.array_equal(a.iterations.to_numpy(), b.iterations.to_numpy())
     assert (a.min_clearance_m >= 0.0).all()
+
+
+def test_the_blasfeo_under_hpipm_reports_its_instruction_sets() -> None:
+    """The CasADi wheel ships BLASFEO next to HPIPM, and the library answers which
+    instruction sets it was built for (benchmarks/nmpc.py prints it): words from BLASFEO's
+    own list, or none for its generic C build."""
+    sets = codegen.blasfeo_instruction_sets()
+    assert sets is not None, "no BLASFEO library to ask in CasADi's folder"
+    assert set(sets.split()) <= {"AVX", "AVX2", "FMA", "SSE3", "VFPv3", "NEON", "VFPv4", "NEONv2"}
