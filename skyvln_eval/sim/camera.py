@@ -25,6 +25,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Final, Literal
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -160,7 +161,8 @@ def render_views(
     if world.instance is not None:
         instance = sample_layer(world.instance, px, py, nearest=True, fill=0.0)
     depth = np.where(depth > config.max_depth_m, np.inf, depth).astype(np.float32)
-    rgb = bgr[..., ::-1]
+    # Contiguous, so each view's copy below is one memcpy (not a gather of reversed channels).
+    rgb = np.asarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), dtype=np.uint8)
     images = []
     for index, pose in enumerate(poses):
         rows = slice(index * height, (index + 1) * height)
@@ -168,7 +170,7 @@ def render_views(
             CameraImages(
                 pose=pose,
                 config=config,
-                rgb=np.ascontiguousarray(rgb[rows]),
+                rgb=rgb[rows].copy(),  # its own memory, not a view of the batch
                 depth_m=depth[rows],
                 semantic=None if semantic is None else semantic[rows].astype(np.uint8),
                 instance=None if instance is None else instance[rows].astype(np.uint16),
