@@ -81,7 +81,9 @@ class SimulatedSensors:
         """Only the channels of the sensors the drone carries."""
         kinds = self._config.kinds
         if "semantic" in kinds and images.instance is not None:
-            ids = np.unique(images.instance).tolist()
+            # The ids present, ascending (as np.unique gives them), by counting: ids are
+            # small integers, so no sort or hash of the whole image is needed.
+            ids = np.flatnonzero(np.bincount(images.instance.ravel())).tolist()
             categories = {i: self._world.landmark(i).category for i in ids if i}
             images = replace(images, instance_categories=categories)
         else:
