@@ -84,9 +84,9 @@ def marcher(fn: Callable[..., np.ndarray]) -> Callable[[Decision], object]:
     return run
 
 
-def one_ray(*args: object) -> np.ndarray:
+def one_ray(world: WorldTile, origin: np.ndarray, rays: np.ndarray, levels: int) -> np.ndarray:
     """The compiled march without its eight-lane code (as on CPUs without AVX2)."""
-    return march_native(*args, lanes=False)  # type: ignore[arg-type]
+    return march_native(world, origin, rays, levels, lanes=False)
 
 
 def main() -> None:

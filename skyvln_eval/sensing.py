@@ -136,6 +136,17 @@ def pixel_rays(
     return forward + a[..., None] * right - b[..., None] * up
 
 
+def instance_pixel_counts(
+    instance: NDArray[np.uint16],
+) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """The instance ids an instance image holds, ascending (as ``np.unique`` gives them), and
+    each one's pixel count: by counting, since ids are small integers, with no sort or hash
+    of the whole image (0, no landmark, included when present)."""
+    counts = np.bincount(instance.ravel())
+    ids = np.flatnonzero(counts)
+    return ids, counts[ids]
+
+
 @dataclass(frozen=True, eq=False)
 class CameraImages:
     """One capture: what the drone's sensors saw in one direction.

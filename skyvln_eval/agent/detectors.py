@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from skyvln_eval.errors import ConfigError, PerceptionError, UnknownNameError
 from skyvln_eval.llm_records import LlmCall, ModuleFailure
-from skyvln_eval.sensing import CameraImages, SemanticClass, SensorKind
+from skyvln_eval.sensing import CameraImages, SemanticClass, SensorKind, instance_pixel_counts
 from skyvln_eval.vocabulary import CATEGORY_LABELS
 
 Box = tuple[int, int, int, int]  # x0, y0, x1, y1 in pixels, x1 / y1 exclusive
@@ -266,12 +266,9 @@ class SimulatedDetector(Detector):
 
     def detect(self, images: CameraImages, phrases: Sequence[str] = ()) -> list[Detection]:
         semantic, instance = self._check(images)
-        # Every instance id in ascending order with its pixel count, as np.unique gives them,
-        # but by counting: ids are small integers, so no sort of the whole image is needed.
-        counts = np.bincount(instance.ravel())
-        ids = np.flatnonzero(counts)
+        ids, counts = instance_pixel_counts(instance)
         out: list[Detection] = []
-        for landmark_id, count in zip(ids.tolist(), counts[ids].tolist(), strict=True):
+        for landmark_id, count in zip(ids.tolist(), counts.tolist(), strict=True):
             if landmark_id == 0 or count < self.min_pixels or self._rng.random() < self.miss_rate:
                 continue
             category = images.instance_categories.get(landmark_id, "landmark")

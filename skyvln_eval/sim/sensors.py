@@ -25,7 +25,13 @@ from numpy.typing import NDArray
 
 from skyvln_eval.errors import PerceptionError
 from skyvln_eval.frames import compass_to_enu_yaw_rad
-from skyvln_eval.sensing import CameraImages, CameraPose, SensorConfig, SensorKind
+from skyvln_eval.sensing import (
+    CameraImages,
+    CameraPose,
+    SensorConfig,
+    SensorKind,
+    instance_pixel_counts,
+)
 from skyvln_eval.sim.camera import render_views
 from skyvln_eval.worlds.tile import WorldTile
 
@@ -81,9 +87,7 @@ class SimulatedSensors:
         """Only the channels of the sensors the drone carries."""
         kinds = self._config.kinds
         if "semantic" in kinds and images.instance is not None:
-            # The ids present, ascending (as np.unique gives them), by counting: ids are
-            # small integers, so no sort or hash of the whole image is needed.
-            ids = np.flatnonzero(np.bincount(images.instance.ravel())).tolist()
+            ids = instance_pixel_counts(images.instance)[0].tolist()
             categories = {i: self._world.landmark(i).category for i in ids if i}
             images = replace(images, instance_categories=categories)
         else:

@@ -25,7 +25,7 @@ from skyvln_eval.agent.detectors import (
 )
 from skyvln_eval.avdn import load_split
 from skyvln_eval.frames import view_to_pose
-from skyvln_eval.sensing import CameraImages, SensorConfig
+from skyvln_eval.sensing import CameraImages, SensorConfig, instance_pixel_counts
 from skyvln_eval.sim.sensors import SimulatedSensors
 from skyvln_eval.worlds import load_world
 from tests.agent.detector_reference import ReferenceDetector
@@ -148,3 +148,20 @@ def test_camera_pixels_get_the_colour_the_float_path_gives() -> None:
         assert (
             colour_name(pixels.astype(np.uint8)) == colour_name(pixels) == reference_colour(pixels)
         )
+
+
+def test_instance_pixel_counts_are_numpys_unique_counts() -> None:
+    rng = np.random.default_rng(11)
+    images = [
+        np.zeros((8, 8), np.uint16),
+        np.full((8, 8), 65535, np.uint16),
+        *(
+            (rng.integers(0, 3, (64, 64)) * rng.integers(0, 400, (64, 64))).astype(np.uint16)
+            for _ in range(20)
+        ),
+    ]
+    for instance in images:
+        ids, counts = instance_pixel_counts(instance)
+        expected_ids, expected_counts = np.unique(instance, return_counts=True)
+        assert ids.tolist() == expected_ids.tolist()
+        assert counts.tolist() == expected_counts.tolist()
