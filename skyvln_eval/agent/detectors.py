@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from skyvln_eval.agent.order_stats import column_medians
 from skyvln_eval.errors import ConfigError, PerceptionError, UnknownNameError
 from skyvln_eval.llm_records import LlmCall, ModuleFailure
 from skyvln_eval.sensing import CameraImages, SemanticClass, SensorKind, instance_pixel_counts
@@ -436,21 +437,7 @@ class _PlainBuildings:
         samples = [self.sample(k)[:, :2] for k in range(len(self))]
         if np.isnan(self.points[:, :2]).any():  # np.median's NaN rule: never, from depth
             return [(float(m[0]), float(m[1])) for m in (np.median(s, axis=0) for s in samples)]
-        return [_median_pair(sample) for sample in samples]
-
-
-def _median_pair(block: NDArray[np.float64]) -> tuple[float, float]:
-    """``np.median(block, axis=0)`` of a ``(k, 2)`` block without NaN, bit for bit, at a
-    fraction of its overhead: np.median partitions around the middle and takes the
-    middle value, or for an even count the mean of the two middle ones (their sum,
-    halved); an empty block has NaN medians."""
-    k = len(block)
-    if k == 0:
-        return math.nan, math.nan
-    middle = [(k - 1) // 2, k // 2]
-    low, high = np.partition(block, middle, axis=0)[middle]
-    median = high if k % 2 else (low + high) / 2.0
-    return float(median[0]), float(median[1])
+        return [column_medians(sample) for sample in samples]
 
 
 def _plain_buildings(

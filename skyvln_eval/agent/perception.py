@@ -22,6 +22,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from skyvln_eval.agent.detectors import Box, Detection, Detector
+from skyvln_eval.agent.order_stats import column_median_and_percentiles
 from skyvln_eval.frames import ViewPose, enu_yaw_to_compass_deg
 from skyvln_eval.sensing import CameraImages, Sensors
 
@@ -169,8 +170,10 @@ def _localise(view: CapturedView, detection: Detection) -> _Found | None:
         return None
     v, u = v + window[0].start, u + window[1].start
     points = images.points_enu(u, v)[:, :2]
-    x, y = np.median(points, axis=0)
-    low, high = np.percentile(points, [5, 95], axis=0)
+    if np.isnan(points).any():  # numpy's NaN rules: never, from finite depth
+        (x, y), (low, high) = np.median(points, axis=0), np.percentile(points, [5, 95], axis=0)
+    else:
+        (x, y), (low, high) = column_median_and_percentiles(points, (5, 95))
     clipped = bool(u.min() == 0 or v.min() == 0 or u.max() == width - 1 or v.max() == height - 1)
     return _Found(detection, view, float(x), float(y), float(np.max(high - low)), clipped)
 

@@ -18,7 +18,6 @@ from skyvln_eval.agent.detectors import (
     _NAMED_COLOURS,
     _PALETTE,
     _KnownBuildings,
-    _median_pair,
     _nearest_colours,
     colour_name,
     episode_seed,
@@ -97,17 +96,6 @@ def test_the_detector_finds_what_the_plain_algorithm_finds_and_draws_alike(
         assert new._buildings._xy[: len(met)].tobytes() == met.tobytes()
     if settings["false_positive_rate"] >= 0.3:
         assert phantoms > 0  # the phantom path was exercised
-
-
-def test_median_pairs_are_np_median_bit_for_bit() -> None:
-    rng = np.random.default_rng(3)
-    for size in [*range(1, 12), 199, 200, 399]:
-        for coarse in (False, True):
-            block = rng.normal(500.0, 300.0, (size, 2))
-            if coarse:  # many ties
-                block = np.round(block / 100.0) * 100.0
-            got = np.array(_median_pair(block))
-            assert got.tobytes() == np.median(block, axis=0).tobytes()
 
 
 def test_known_buildings_are_found_as_a_hypot_scan_finds_them() -> None:
