@@ -434,10 +434,7 @@ class _PlainBuildings:
     def places(self) -> list[tuple[float, float]]:
         """Where each building stands: the medians of its sample's east and north, as
         ``np.median(sample[:, :2], axis=0)`` gives them, bit for bit."""
-        samples = [self.sample(k)[:, :2] for k in range(len(self))]
-        if np.isnan(self.points[:, :2]).any():  # np.median's NaN rule: never, from depth
-            return [(float(m[0]), float(m[1])) for m in (np.median(s, axis=0) for s in samples)]
-        return [column_medians(sample) for sample in samples]
+        return [column_medians(self.sample(k)[:, :2]) for k in range(len(self))]
 
 
 def _plain_buildings(

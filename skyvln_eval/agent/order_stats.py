@@ -13,8 +13,7 @@ arithmetic (tests compare them with numpy bit for bit, signed zeros included):
   ``a + (b - a) * g`` with ``g`` the fractional part, or ``b - (b - a) * (1 - g)`` when
   ``g >= 0.5``; at or past the last index it is the largest value.
 
-Blocks must hold no NaN (numpy propagates NaN; the callers' points come from finite depth
-and check this).
+A block with NaN (never, from finite depth) is handed to numpy, whose NaN rules then hold.
 """
 
 from __future__ import annotations
@@ -50,7 +49,7 @@ def column_medians(block: NDArray[np.float64]) -> tuple[float, float]:
     """``np.median(block, axis=0)`` of a ``(k, 2)`` block; NaN medians when it is empty."""
     if len(block) == 0:
         return math.nan, math.nan
-    median = _medians(_columns(block))
+    median = np.median(block, axis=0) if np.isnan(block).any() else _medians(_columns(block))
     return float(median[0]), float(median[1])
 
 
@@ -62,6 +61,8 @@ def column_median_and_percentiles(
     k = len(block)
     if k == 0:
         raise ValueError("the medians and percentiles of an empty block are undefined")
+    if np.isnan(block).any():
+        return np.median(block, axis=0), np.percentile(block, list(percents), axis=0)
     virtual = (k - 1) * (np.asarray(percents, dtype=np.float64) / 100)
     # numpy's bookkeeping, kept as it is because the fraction depends on it: at or past
     # the last index both neighbours are the last value (index -1), and the fraction is

@@ -170,10 +170,7 @@ def _localise(view: CapturedView, detection: Detection) -> _Found | None:
         return None
     v, u = v + window[0].start, u + window[1].start
     points = images.points_enu(u, v)[:, :2]
-    if np.isnan(points).any():  # numpy's NaN rules: never, from finite depth
-        (x, y), (low, high) = np.median(points, axis=0), np.percentile(points, [5, 95], axis=0)
-    else:
-        (x, y), (low, high) = column_median_and_percentiles(points, (5, 95))
+    (x, y), (low, high) = column_median_and_percentiles(points, (5, 95))
     clipped = bool(u.min() == 0 or v.min() == 0 or u.max() == width - 1 or v.max() == height - 1)
     return _Found(detection, view, float(x), float(y), float(np.max(high - low)), clipped)
 

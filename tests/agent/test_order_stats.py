@@ -43,3 +43,11 @@ def test_medians_and_percentiles_are_numpy_s(percents: tuple[float, ...]) -> Non
 def test_an_empty_block_is_refused() -> None:
     with pytest.raises(ValueError, match="empty block"):
         column_median_and_percentiles(np.zeros((0, 2)), (5, 95))
+
+
+def test_blocks_with_nan_get_numpy_s_answers() -> None:
+    block = np.array([[1.0, np.nan], [2.0, 3.0], [4.0, 5.0]])
+    assert np.array(column_medians(block)).tobytes() == np.median(block, axis=0).tobytes()
+    median, values = column_median_and_percentiles(block, (5, 95))
+    assert median.tobytes() == np.median(block, axis=0).tobytes()
+    assert values.tobytes() == np.percentile(block, [5, 95], axis=0).tobytes()
