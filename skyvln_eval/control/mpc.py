@@ -5,10 +5,11 @@ solves the NLP by sequential quadratic programming in the real-time-iteration fo
 control step linearises the problem at the previous plan shifted by one step (the warm
 start; a hover guess on the first step), solves one structured QP with HPIPM (Gauss-Newton
 Hessian, which is the exact Hessian of the least-squares cost) and applies the first input.
-Shift, linearisation and QP are one compiled CasADi call per step
-(:class:`~skyvln_eval.control.rti.RtiStep`); Python only copies the measurements into
-preallocated buffers. ``MpcConfig.sqp_iterations > 1`` iterates further towards the
-converged NLP solution.
+Shift and linearisation are one compiled CasADi call per step and the QP is solved by the
+compiled Riccati interior point method (:class:`~skyvln_eval.control.rti.RiccatiStep`;
+``qp_solver: hpipm`` solves it with HPIPM inside the CasADi call instead); Python only
+copies the measurements into preallocated buffers. ``MpcConfig.sqp_iterations > 1``
+iterates further towards the converged NLP solution.
 
 :class:`LinearMpcController` is the same problem with the model linearised at hover
 (``x+ = A x + B (u - u_hover)``), one QP per step; the input bounds and rate limits are the
@@ -26,7 +27,9 @@ import json
 import math
 import threading
 import time
+import warnings
 from abc import abstractmethod
+from collections.abc import Callable
 from typing import Any
 
 import casadi as ca
@@ -34,11 +37,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyvln_eval.control.base import Command, Controller, SolveStats
-from skyvln_eval.control.codegen import Compiled
 from skyvln_eval.control.mpc_config import MpcConfig
-from skyvln_eval.control.rti import RtiStep, build_step
+from skyvln_eval.control.rti import (
+    HpipmStep,
+    RiccatiStep,
+    StepBuffers,
+    build_hpipm_step,
+    build_riccati_step,
+)
 from skyvln_eval.control.stage_qp import NZ, StageQp
-from skyvln_eval.errors import ConfigError
+from skyvln_eval.errors import ConfigError, SolverBuildError
 from skyvln_eval.sim.obstacles import ObstacleForecast, row_norms
 from skyvln_eval.sim.quadrotor import NU, NX, DroneState, rk4_symbolic
 from skyvln_eval.sim.reference import ReferenceWindow
@@ -46,7 +54,7 @@ from skyvln_eval.sim.reference import ReferenceWindow
 #: Slack above this (m^2 of squared keep-out radius) means an obstacle constraint was relaxed.
 SLACK_TOLERANCE = 1e-6
 
-_PROBLEMS: dict[str, tuple[StageQp, Compiled]] = {}
+_PROBLEMS: dict[str, tuple[StageQp, Callable[[], StepBuffers], str]] = {}
 _PROBLEMS_LOCK = threading.Lock()
 
 
@@ -58,8 +66,8 @@ class MpcController(Controller):
         super().__init__(self.config.params, self.config.limits)
         self.horizon_steps = self.config.horizon_steps
         self.dt_s = self.config.dt_s
-        self.qp, built = self._shared_problem()
-        self.rti = RtiStep(self.qp, built)
+        self.qp, new_step, self.qp_solver_used = self._shared_problem()
+        self.rti = new_step()
         # The last solution (relative to _plan_origin) lives in rti.plan, which the step
         # Function shifts; _has_plan says whether there is one.
         self._has_plan = False
@@ -76,10 +84,12 @@ class MpcController(Controller):
         # x_ref and u_ref are adjacent in the buffer: one finiteness check covers both.
         self._references = self.rti.blocks("x_ref", "u_ref")
 
-    def _shared_problem(self) -> tuple[StageQp, Compiled]:
-        """This problem's QP and step Function, built once per process (~0.1 s of CasADi
-        work under the interpreter's lock, which episode threads would otherwise each pay)
-        and shared by its controllers: they are never changed after building."""
+    def _shared_problem(self) -> tuple[StageQp, Callable[[], StepBuffers], str]:
+        """This problem's QP, a maker of step buffers for it and the QP solver's name, built
+        once per process (~0.1 s of CasADi work under the interpreter's lock, which episode
+        threads would otherwise each pay) and shared by its controllers: the QP and the
+        compiled functions are never changed after building; each controller gets its own
+        buffers and work areas."""
         key = json.dumps(
             [type(self).__module__, type(self).__qualname__, self.name, self.config.as_dict()],
             sort_keys=True,
@@ -88,8 +98,27 @@ class MpcController(Controller):
         with _PROBLEMS_LOCK:
             if key not in _PROBLEMS:
                 qp = StageQp(self.prediction_model(), self.config, self.name)
-                _PROBLEMS[key] = (qp, build_step(qp, self.config.compile, self.name))
+                _PROBLEMS[key] = (qp, *self._step_maker(qp))
             return _PROBLEMS[key]
+
+    def _step_maker(self, qp: StageQp) -> tuple[Callable[[], StepBuffers], str]:
+        """The configured QP solver, or HPIPM (with one warning) where the Riccati solver
+        cannot be compiled and ``compile`` allows it."""
+        compile_mode = self.config.compile
+        if self.config.qp_solver == "riccati" and compile_mode != "never":
+            try:
+                riccati = build_riccati_step(qp, self.name)
+                return (lambda: RiccatiStep(qp, riccati)), "riccati"
+            except SolverBuildError as error:
+                if compile_mode == "always":
+                    raise
+                warnings.warn(
+                    f"{error}; {self.name} solves its QP with HPIPM instead",
+                    RuntimeWarning,
+                    stacklevel=4,
+                )
+        hpipm = build_hpipm_step(qp, compile_mode, self.name)
+        return (lambda: HpipmStep(qp, hpipm)), "hpipm"
 
     @abstractmethod
     def prediction_model(self) -> ca.Function:
@@ -106,7 +135,12 @@ class MpcController(Controller):
         self._plan_age = 0
 
     def settings(self) -> dict[str, Any]:
-        return {**super().settings(), **self.config.as_dict(), "compiled": self.rti.compiled}
+        return {
+            **super().settings(),
+            **self.config.as_dict(),
+            "compiled": self.rti.compiled,
+            "qp_solver_used": self.qp_solver_used,
+        }
 
     def step(
         self, state: DroneState, reference: ReferenceWindow, obstacles: ObstacleForecast

@@ -25,6 +25,10 @@ from skyvln_eval.sim.quadrotor import (
 #: runs them interpreted with one warning; ``"always"`` fails without a compiler; ``"never"``
 #: always interprets.
 CompileMode = Literal["auto", "always", "never"]
+#: ``"riccati"``: the compiled interior point method with a Riccati recursion
+#: (:mod:`skyvln_eval.control.stage_ipm`; needs a C compiler, else HPIPM with a warning);
+#: ``"hpipm"``: HPIPM through CasADi (compiled or interpreted as ``compile`` says).
+QpSolver = Literal["riccati", "hpipm"]
 
 
 @dataclass(frozen=True)
@@ -75,6 +79,7 @@ class MpcConfig:
     sqp_iterations: int = 1
     sqp_step_tolerance: float = 1e-4
     compile: CompileMode = "auto"
+    qp_solver: QpSolver = "riccati"
 
     def __post_init__(self) -> None:
         for name in ("horizon_steps", "max_obstacles", "sqp_iterations"):
@@ -86,6 +91,10 @@ class MpcConfig:
                 )
         require_positive(self, "dt_s", "sqp_step_tolerance")
         require_non_negative(self, "obstacle_margin_m")
+        if self.qp_solver not in ("riccati", "hpipm"):
+            raise ConfigError(
+                f"MpcConfig.qp_solver must be 'riccati' or 'hpipm', got {self.qp_solver!r}"
+            )
         if self.compile not in ("auto", "always", "never"):
             raise ConfigError(
                 f"MpcConfig.compile must be 'auto', 'always' or 'never', got {self.compile!r}"

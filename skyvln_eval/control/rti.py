@@ -1,6 +1,6 @@
-"""One MPC control step as one CasADi Function: shift, linearise, solve the structured QP.
+"""One MPC control step as one compiled call: shift, linearise, solve the structured QP.
 
-Per control step Python crosses into compiled code once. The Function takes
+Per control step Python crosses into compiled code once per part. A step Function takes
 
 - ``plan``: the previous solution (relative to the origin it was computed in),
 - ``guess``: a ready initial guess, used instead of the shifted plan when ``warm[3]`` is 0
@@ -10,16 +10,18 @@ Per control step Python crosses into compiled code once. The Function takes
 
 and inside it shifts the plan one step (repeating the last stage) and re-expresses it in
 the new origin, puts the measured state and the applied input in the first stage, moves
-every position to the new origin, linearises the problem at the guess
-(:class:`~skyvln_eval.control.stage_qp.StageQp`) and solves the QP with HPIPM. Its outputs
-are the new plan and the QP's multipliers (HPIPM's code writes them unconditionally).
+every position to the new origin and linearises the problem at the guess
+(:class:`~skyvln_eval.control.stage_qp.StageQp`). Two ways to solve the QP:
 
-Compiled (the default), its C entry point is called through ctypes on preallocated numpy
-arrays (:class:`~skyvln_eval.control.codegen.NativeCall`): no argument conversion, no
-allocation, and the interpreter's lock released for the solve, so other episode threads
-run meanwhile; the return code says whether HPIPM succeeded and the library reports the
-iteration count (:mod:`.codegen`). Interpreted, it is called as usual and the statistics
-come from CasADi.
+- :class:`RiccatiStep` (the default): the Function writes the QP stage by stage
+  (:mod:`.stage_blocks`) and the compiled Riccati interior point method
+  (:mod:`.stage_ipm`) solves it;
+- :class:`HpipmStep`: the Function also solves the QP with HPIPM (CasADi's interface),
+  and runs interpreted where there is no C compiler.
+
+Compiled, a Function's C entry point is called through ctypes on preallocated numpy arrays
+(:class:`~skyvln_eval.control.codegen.NativeCall`): no argument conversion, no allocation,
+and the interpreter's lock released, so other episode threads run meanwhile.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from skyvln_eval.control.codegen import (
     qp_iterations_reader,
 )
 from skyvln_eval.control.mpc_config import CompileMode
+from skyvln_eval.control.stage_ipm import Sizes, StageIpm, load_library
 from skyvln_eval.control.stage_qp import NZ, StageQp
 from skyvln_eval.sim.quadrotor import NU, NX
 
@@ -51,17 +54,14 @@ PARAM_LAYOUT = (
 )
 
 
-class RtiStep:
-    """The compiled (or interpreted) step Function of one :class:`StageQp`, with its buffers.
+class StepBuffers:
+    """The buffers of one controller's step: fill :attr:`inputs` (views into the parameter
+    buffer, one per :data:`PARAM_LAYOUT` block), :attr:`plan` or :attr:`guess`, then call
+    :meth:`solve`; the solution is in :attr:`w`."""
 
-    Fill :attr:`inputs` (views into the parameter buffer, one per :data:`PARAM_LAYOUT`
-    block), :attr:`plan` or :attr:`guess`, then call :meth:`solve`; the solution is in
-    :attr:`w`.
-    """
+    compiled: bool
 
-    def __init__(self, qp: StageQp, built: Compiled) -> None:
-        """Buffers for ``built`` (:func:`build_step` of ``qp``), which controllers of the
-        same problem share: each has its own buffers, and its own memory in the Function."""
+    def __init__(self, qp: StageQp) -> None:
         self.qp = qp
         shapes = _param_shapes(qp)
         sizes = [int(np.prod(shape)) for shape in shapes.values()]
@@ -80,6 +80,75 @@ class RtiStep:
         self.guess = np.zeros(qp.n_w)
         self.warm = np.zeros(4)
         self.w = np.zeros(qp.n_w)
+
+    def blocks(self, first: str, last: str) -> NDArray[np.float64]:
+        """A flat view of the parameter buffer from block ``first`` to block ``last``
+        (inclusive, in :data:`PARAM_LAYOUT` order)."""
+        return self.params[self._spans[first][0] : self._spans[last][1]]
+
+    def solve(self, shift: bool) -> tuple[bool, int]:
+        """Run the step: from the shifted :attr:`plan` (``shift``) or from :attr:`guess`.
+        Returns whether the QP was solved and its iteration count."""
+        raise NotImplementedError
+
+
+class RiccatiStep(StepBuffers):
+    """The QP written stage by stage by a compiled Function and solved by the compiled
+    Riccati interior point method (:mod:`.stage_ipm`): two native calls per step."""
+
+    compiled = True
+
+    def __init__(self, qp: StageQp, built: tuple[Compiled, Sizes]) -> None:
+        super().__init__(qp)
+        blocks, sizes = built
+        self.problem = np.zeros(sizes.problem_doubles)
+        self.start = np.zeros(qp.n_w)
+        self._blocks = NativeCall(
+            blocks, (self.plan, self.guess, self.params, self.warm), (self.problem, self.start)
+        )
+        self.solver = StageIpm(load_library(sizes), sizes, qp.hessian_blocks)
+        self.solver.bind(self.problem, self.start, self.w)
+
+    def solve(self, shift: bool) -> tuple[bool, int]:
+        self.warm[3] = 1.0 if shift else 0.0
+        if self._blocks() != 0:
+            return False, 0
+        status, iterations = self.solver()
+        return status == 0 and bool(np.isfinite(self.w).all()), iterations
+
+
+def build_riccati_step(qp: StageQp, name: str) -> tuple[Compiled, Sizes]:
+    """The compiled blocks Function of ``qp`` and the solver's sizes (the solver library
+    is built or loaded here too, so a missing compiler shows now). Raises
+    :class:`~skyvln_eval.errors.SolverBuildError` when either cannot be compiled."""
+    inputs, start, p = step_inputs(qp)
+    function = ca.Function(
+        f"{name}_rti_blocks",
+        inputs,
+        [qp.problem(start, p), start],
+        ["plan", "guess", "params", "warm"],
+        ["problem", "start"],
+    )
+    compiled = maybe_compile(function, "always")
+    sizes = Sizes(
+        horizon=qp.config.horizon_steps,
+        states=NX,
+        inputs=NU,
+        slacks=qp.n_v - NU,
+        rows=qp.rows_per_stage - NZ,
+    )
+    load_library(sizes)
+    return compiled, sizes
+
+
+class HpipmStep(StepBuffers):
+    """The step Function of one :class:`StageQp` with HPIPM inside (compiled or
+    interpreted), with its buffers."""
+
+    def __init__(self, qp: StageQp, built: Compiled) -> None:
+        """Buffers for ``built`` (:func:`build_step` of ``qp``), which controllers of the
+        same problem share: each has its own buffers, and its own memory in the Function."""
+        super().__init__(qp)
         self._lam_a = np.zeros(qp.solver.size1_in("lam_a0"))
         self._lam_x = np.zeros(qp.n_w)
         self.function, self.compiled = built.function, built.compiled
@@ -94,14 +163,7 @@ class RtiStep:
                 (self.w, self._lam_a, self._lam_x),
             )
 
-    def blocks(self, first: str, last: str) -> NDArray[np.float64]:
-        """A flat view of the parameter buffer from block ``first`` to block ``last``
-        (inclusive, in :data:`PARAM_LAYOUT` order)."""
-        return self.params[self._spans[first][0] : self._spans[last][1]]
-
     def solve(self, shift: bool) -> tuple[bool, int]:
-        """Run the step Function: from the shifted :attr:`plan` (``shift``) or from
-        :attr:`guess`. Returns whether the QP was solved and its iteration count."""
         self.warm[3] = 1.0 if shift else 0.0
         if self._native is not None:
             ok = self._native() == 0
@@ -114,8 +176,8 @@ class RtiStep:
         return ok and bool(np.isfinite(self.w).all()), iterations
 
 
-def build_step(qp: StageQp, compile_mode: CompileMode, name: str) -> Compiled:
-    """The step Function of ``qp``, compiled (or cached, or interpreted) as
+def build_hpipm_step(qp: StageQp, compile_mode: CompileMode, name: str) -> Compiled:
+    """The HPIPM step Function of ``qp``, compiled (or cached, or interpreted) as
     ``compile_mode`` says; build it once per problem and process (about 0.1 s)."""
     return maybe_compile(_step_function(qp, name), compile_mode)
 
@@ -134,7 +196,12 @@ def _param_shapes(qp: StageQp) -> dict[str, tuple[int, ...]]:
     }
 
 
-def _step_function(qp: StageQp, name: str) -> ca.Function:
+def step_inputs(qp: StageQp) -> tuple[list[ca.MX], ca.MX, ca.MX]:
+    """The inputs of a step Function (``plan``, ``guess``, ``params``, ``warm``) and, from
+    them, the point to linearise at and the QP's parameter vector: the warm start (the plan's
+    positions moved to the new origin and shifted one stage, or the ready guess) with the
+    measured state and applied input as its first stage, every position relative to the
+    origin."""
     sizes = [int(np.prod(shape)) for shape in _param_shapes(qp).values()]
     n_w, stage = qp.n_w, qp.stage
     plan, guess = ca.MX.sym("plan", n_w), ca.MX.sym("guess", n_w)
@@ -160,6 +227,12 @@ def _step_function(qp: StageQp, name: str) -> ca.Function:
     shifted = ca.vertcat(moved[stage:], moved[n_w - stage :])
     chosen = ca.if_else(warm[3], shifted, guess)
     start = ca.vertcat(x0_rel, u_applied, chosen[NZ:])
+    return [plan, guess, params, warm], start, p
+
+
+def _step_function(qp: StageQp, name: str) -> ca.Function:
+    inputs, start, p = step_inputs(qp)
+    n_w = qp.n_w
     g, a, lba, uba, lbx, ubx = qp.data(start, p)
     solution = qp.solver(
         h=qp.hessian,
@@ -175,7 +248,7 @@ def _step_function(qp: StageQp, name: str) -> ca.Function:
     )
     return ca.Function(
         f"{name}_rti",
-        [plan, guess, params, warm],
+        inputs,
         [solution["x"], solution["lam_a"], solution["lam_x"]],
         ["plan", "guess", "params", "warm"],
         ["w", "lam_a", "lam_x"],

@@ -45,9 +45,11 @@ import casadi as ca
 import numpy as np
 
 from skyvln_eval.control.mpc_config import MpcConfig
+from skyvln_eval.control.stage_blocks import hessian_blocks, stage_blocks
 from skyvln_eval.sim.quadrotor import NU, NX
 
 NZ = NX + NU  # augmented state [x, u_prev]
+
 HPIPM_OPTIONS: dict[str, Any] = {
     "mode": "speed_abs",
     "iter_max": 50,
@@ -72,6 +74,8 @@ class StageQp:
         self.n_v = NU + (1 if m else 0)
         self.stage = NZ + self.n_v
         self.n_w = n * self.stage + NZ
+        #: Constraint rows per stage: the model and memory rows, the rate limits, the spheres.
+        self.rows_per_stage = NZ + 2 + m
         starts = self.stage * np.arange(n + 1)
         #: Where in ``w`` the positions of every stage, and the slacks, are.
         self.position_index = (starts[:, None] + np.arange(3)).ravel()
@@ -90,6 +94,17 @@ class StageQp:
             raise RuntimeError("the MPC cost is not quadratic in w: its Hessian is not constant")
         self.hessian = ca.DM(ca.evalf(hessian))
         linear = ca.substitute(gradient, w, ca.DM.zeros(self.n_w))
+        #: The same QP stage by stage, in the layout of the Riccati solver (:mod:`.stage_ipm`):
+        #: ``problem(w, p)`` the linearised blocks, :attr:`hessian_blocks` the cost's Hessian.
+        self.problem = ca.Function(
+            f"{name}_qp_blocks",
+            [w, p],
+            [stage_blocks(self, jac, offset, lower, upper, linear, lbx, ubx)],
+            ["w", "p"],
+            ["problem"],
+            {"cse": True},
+        )
+        self.hessian_blocks = hessian_blocks(self, self.hessian)
         self.data = ca.Function(
             f"{name}_qp_data",
             [w, p],

@@ -14,9 +14,16 @@ TARGET = ViewPose(16.0, 6.0, 12.0, 0.5)
 
 
 def controller(name: str, **settings: object) -> Controller:
-    """A controller by name; the MPCs run interpreted so the tests never wait for gcc."""
-    if name != "pid":
-        settings = {"compile": "never", **settings}
+    """A controller by name: ``"nmpc"`` and ``"mpc"`` with HPIPM interpreted (no wait for
+    gcc), ``"nmpc/riccati"`` and ``"mpc/riccati"`` with the compiled Riccati QP solver (the
+    default; built once per problem and test session)."""
+    if name.endswith("/riccati"):
+        name, settings = (
+            name.split("/")[0],
+            {"qp_solver": "riccati", "compile": "always", **settings},
+        )
+    elif name != "pid":
+        settings = {"compile": "never", "qp_solver": "hpipm", **settings}
     return make_controller(name, settings)
 
 

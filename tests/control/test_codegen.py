@@ -1,5 +1,5 @@
 """Compiled solver functions: the cache, its key, its lock, its repair, the no-compiler
-fallback, and the compiled NMPC step against the interpreted one."""
+fallback, and the compiled HPIPM NMPC step against the interpreted one."""
 
 from __future__ import annotations
 
@@ -155,15 +155,15 @@ def test_without_a_compiler_functions_run_interpreted_with_one_warning(
 
 @needs_gcc
 @pytest.mark.slow
-def test_the_compiled_nmpc_step_flies_exactly_as_the_interpreted_one(
+def test_the_compiled_hpipm_nmpc_step_flies_exactly_as_the_interpreted_one(
     tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # Compiling takes 10-25 s: with SKYVLN_EVAL_CACHE set it happens once per problem
     # definition and later runs load the library; otherwise once per test session.
     root = os.environ.get("SKYVLN_EVAL_CACHE") or str(tmp_path_factory.mktemp("solver-cache"))
     monkeypatch.setenv("SKYVLN_EVAL_CACHE", root)
-    compiled = NmpcController(MpcConfig(compile="always"))
-    interpreted = NmpcController(MpcConfig(compile="never"))
+    compiled = NmpcController(MpcConfig(compile="always", qp_solver="hpipm"))
+    interpreted = NmpcController(MpcConfig(compile="never", qp_solver="hpipm"))
     assert compiled.rti.compiled and not interpreted.rti.compiled
     reference = segment_reference(START, TARGET, 0.0)
     times = 0.1 * np.arange(21)

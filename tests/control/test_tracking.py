@@ -9,8 +9,8 @@ from skyvln_eval.control import LOG_COLUMNS, Flight
 from skyvln_eval.sim import DroneState, PlantConfig, ReferenceTrajectory, WindConfig
 from tests.control.helpers import START, TARGET, controller, scenario
 
-ALL = ["nmpc", "mpc", "pid"]
-MPCS = ["nmpc", "mpc"]
+MPCS = ["nmpc", "mpc", "nmpc/riccati", "mpc/riccati"]
+ALL = [*MPCS, "pid"]
 
 
 @pytest.mark.parametrize("name", ALL)
