@@ -42,7 +42,8 @@ from skyvln_eval.sim.reference import (
 #: function loaded from one library, unguarded: two threads in it at once corrupt the heap
 #: ("double free"). One flight at a time steps through native code; the threads executor
 #: still overlaps everything else (LLM waits, rendering, logging), also during an NMPC
-#: solve, which runs with the interpreter's lock released (codegen.NativeCall).
+#: solve, which runs with the interpreter's lock released (codegen.NativeCall). (The
+#: Riccati QP solver itself is reentrant; HPIPM's path and CasADi's checkout are not.)
 NATIVE_CALLS = threading.Lock()
 #: Slack for floating-point noise when checking the commands against the limits.
 LIMIT_TOLERANCE = 1e-9

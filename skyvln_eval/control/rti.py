@@ -1,6 +1,6 @@
-"""One MPC control step as one compiled call: shift, linearise, solve the structured QP.
+"""One MPC control step in compiled code: shift, linearise, solve the structured QP.
 
-Per control step Python crosses into compiled code once per part. A step Function takes
+Per control step Python crosses into compiled code once or twice. A step Function takes
 
 - ``plan``: the previous solution (relative to the origin it was computed in),
 - ``guess``: a ready initial guess, used instead of the shifted plan when ``warm[3]`` is 0
@@ -25,6 +25,8 @@ and the interpreter's lock released, so other episode threads run meanwhile.
 """
 
 from __future__ import annotations
+
+from abc import ABC, abstractmethod
 
 import casadi as ca
 import numpy as np
@@ -54,7 +56,7 @@ PARAM_LAYOUT = (
 )
 
 
-class StepBuffers:
+class StepBuffers(ABC):
     """The buffers of one controller's step: fill :attr:`inputs` (views into the parameter
     buffer, one per :data:`PARAM_LAYOUT` block), :attr:`plan` or :attr:`guess`, then call
     :meth:`solve`; the solution is in :attr:`w`."""
@@ -86,10 +88,10 @@ class StepBuffers:
         (inclusive, in :data:`PARAM_LAYOUT` order)."""
         return self.params[self._spans[first][0] : self._spans[last][1]]
 
+    @abstractmethod
     def solve(self, shift: bool) -> tuple[bool, int]:
         """Run the step: from the shifted :attr:`plan` (``shift``) or from :attr:`guess`.
         Returns whether the QP was solved and its iteration count."""
-        raise NotImplementedError
 
 
 class RiccatiStep(StepBuffers):
@@ -146,7 +148,7 @@ class HpipmStep(StepBuffers):
     interpreted), with its buffers."""
 
     def __init__(self, qp: StageQp, built: Compiled) -> None:
-        """Buffers for ``built`` (:func:`build_step` of ``qp``), which controllers of the
+        """Buffers for ``built`` (:func:`build_hpipm_step` of ``qp``), which controllers of the
         same problem share: each has its own buffers, and its own memory in the Function."""
         super().__init__(qp)
         self._lam_a = np.zeros(qp.solver.size1_in("lam_a0"))
