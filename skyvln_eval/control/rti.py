@@ -27,6 +27,7 @@ and the interpreter's lock released, so other episode threads run meanwhile.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
@@ -39,7 +40,7 @@ from skyvln_eval.control.codegen import (
     qp_iterations_reader,
 )
 from skyvln_eval.control.mpc_config import CompileMode
-from skyvln_eval.control.stage_ipm import Sizes, StageIpm, load_library
+from skyvln_eval.control.stage_ipm import SOLVED, Sizes, StageIpm, load_library
 from skyvln_eval.control.stage_qp import NZ, StageQp
 from skyvln_eval.sim.quadrotor import NU, NX
 
@@ -96,40 +97,65 @@ class StepBuffers(ABC):
 
 class RiccatiStep(StepBuffers):
     """The QP written stage by stage by a compiled Function and solved by the compiled
-    Riccati interior point method (:mod:`.stage_ipm`): two native calls per step."""
+    Riccati interior point method (:mod:`.stage_ipm`): two native calls per step.
+
+    A QP it cannot solve (about 1 in 4,000 of a flight past obstacles with a random agent:
+    it stalls on nearly degenerate constraints) is solved again by HPIPM through CasADi,
+    interpreted (a few milliseconds); :attr:`hpipm_solves` counts them."""
 
     compiled = True
 
-    def __init__(self, qp: StageQp, built: tuple[Compiled, Sizes]) -> None:
+    def __init__(self, qp: StageQp, built: RiccatiBuild) -> None:
         super().__init__(qp)
-        blocks, sizes = built
-        self.problem = np.zeros(sizes.problem_doubles)
+        self.problem = np.zeros(built.sizes.problem_doubles)
         self.start = np.zeros(qp.n_w)
+        self.qp_parameters = np.zeros(qp.n_p)
         self._blocks = NativeCall(
-            blocks, (self.plan, self.guess, self.params, self.warm), (self.problem, self.start)
+            built.blocks,
+            (self.plan, self.guess, self.params, self.warm),
+            (self.problem, self.start, self.qp_parameters),
         )
-        self.solver = StageIpm(load_library(sizes), sizes, qp.hessian_blocks)
+        self.solver = StageIpm(load_library(built.sizes), built.sizes, qp.hessian_blocks)
         self.solver.bind(self.problem, self.start, self.w)
+        self._hpipm = built.hpipm
+        self.hpipm_solves = 0
 
     def solve(self, shift: bool) -> tuple[bool, int]:
         self.warm[3] = 1.0 if shift else 0.0
         if self._blocks() != 0:
             return False, 0
         status, iterations = self.solver()
-        return status == 0 and bool(np.isfinite(self.w).all()), iterations
+        if status not in SOLVED:
+            self.hpipm_solves += 1
+            solution = self._hpipm(self.start, self.qp_parameters)
+            self.w[:] = np.asarray(solution[0]).ravel()
+            stats = self._hpipm.stats()
+            iterations += int(stats.get("iter_count", 0))
+            return bool(stats.get("success")) and bool(np.isfinite(self.w).all()), iterations
+        return bool(np.isfinite(self.w).all()), iterations
 
 
-def build_riccati_step(qp: StageQp, name: str) -> tuple[Compiled, Sizes]:
-    """The compiled blocks Function of ``qp`` and the solver's sizes (the solver library
-    is built or loaded here too, so a missing compiler shows now). Raises
+@dataclass(frozen=True)
+class RiccatiBuild:
+    """What the Riccati steps of one problem share: the compiled blocks Function, the
+    solver's sizes and the interpreted HPIPM solve of the same QP (the fall-back)."""
+
+    blocks: Compiled
+    sizes: Sizes
+    hpipm: ca.Function
+
+
+def build_riccati_step(qp: StageQp, name: str) -> RiccatiBuild:
+    """The compiled blocks Function of ``qp``, the solver's sizes (the solver library is
+    built or loaded here too, so a missing compiler shows now) and the fall-back. Raises
     :class:`~skyvln_eval.errors.SolverBuildError` when either cannot be compiled."""
     inputs, start, p = step_inputs(qp)
     function = ca.Function(
         f"{name}_rti_blocks",
         inputs,
-        [qp.problem(start, p), start],
+        [qp.problem(start, p), start, p],
         ["plan", "guess", "params", "warm"],
-        ["problem", "start"],
+        ["problem", "start", "p"],
     )
     compiled = maybe_compile(function, "always")
     sizes = Sizes(
@@ -140,7 +166,8 @@ def build_riccati_step(qp: StageQp, name: str) -> tuple[Compiled, Sizes]:
         rows=qp.rows_per_stage - NZ,
     )
     load_library(sizes)
-    return compiled, sizes
+    at, parameters = ca.MX.sym("start", qp.n_w), ca.MX.sym("p", qp.n_p)
+    return RiccatiBuild(compiled, sizes, _hpipm_solve(qp, f"{name}_hpipm_qp", at, parameters))
 
 
 class HpipmStep(StepBuffers):
@@ -232,11 +259,18 @@ def step_inputs(qp: StageQp) -> tuple[list[ca.MX], ca.MX, ca.MX]:
     return [plan, guess, params, warm], start, p
 
 
-def _step_function(qp: StageQp, name: str) -> ca.Function:
-    inputs, start, p = step_inputs(qp)
-    n_w = qp.n_w
+def _hpipm_solve(qp: StageQp, name: str, start: ca.MX, p: ca.MX) -> ca.Function:
+    """``(start, p) -> (w, lam_a, lam_x)``: the QP linearised at ``start`` solved by HPIPM.
+    The multipliers are outputs because CasADi's HPIPM interface writes them whether they
+    are asked for or not (without them, it writes through a null pointer)."""
+    solution = _hpipm_solution(qp, start, p)
+    outputs = [solution["x"], solution["lam_a"], solution["lam_x"]]
+    return ca.Function(name, [start, p], outputs, ["start", "p"], ["w", "lam_a", "lam_x"])
+
+
+def _hpipm_solution(qp: StageQp, start: ca.MX, p: ca.MX) -> dict[str, ca.MX]:
     g, a, lba, uba, lbx, ubx = qp.data(start, p)
-    solution = qp.solver(
+    solution: dict[str, ca.MX] = qp.solver(
         h=qp.hessian,
         g=g,
         a=a,
@@ -245,9 +279,15 @@ def _step_function(qp: StageQp, name: str) -> ca.Function:
         lbx=lbx,
         ubx=ubx,
         x0=start,
-        lam_x0=ca.DM.zeros(n_w),
+        lam_x0=ca.DM.zeros(qp.n_w),
         lam_a0=ca.DM.zeros(qp.solver.size1_in("lam_a0")),
     )
+    return solution
+
+
+def _step_function(qp: StageQp, name: str) -> ca.Function:
+    inputs, start, p = step_inputs(qp)
+    solution = _hpipm_solution(qp, start, p)
     return ca.Function(
         f"{name}_rti",
         inputs,

@@ -466,18 +466,24 @@ INLINE double start_side(double *t, double *lam, double *m, double bound, double
     return *m;
 }
 
-/* Settings: [tolerance, mu0, t0_min, max iterations, fraction to the boundary].
+/* The primal iterate into out = [z_0 v_0 z_1 v_1 ... z_N]. */
+INLINE void keep_primal(const Work *w, double *out, const double *z0) {
+    const int stride = NV + NZ;
+    memcpy(out, z0, sizeof(double) * NZ);
+    for (int k = 0; k < SN; ++k) {
+        memcpy(out + k * stride + NZ, w->s[k].y, sizeof(double) * NV);
+        memcpy(out + (k + 1) * stride, w->s[k + 1].y + ZOFF, sizeof(double) * NZ);
+    }
+}
+
+/* One run of the method from the primal guess (slacks and multipliers from mu0, t0_min).
  * Returns 0 when solved, 1 at the iteration limit, 2 on a non-finite residual, 3 when a
- * factorisation failed; *iterations is the number of Newton iterations taken.
- * z0 is the fixed first state; guess (the layout of out) the primal starting point. */
-CPU_VARIANTS
-int stage_ipm_solve(const Hessian *H, const Problem *pb, const double *z0, const double *guess,
-                    double *out, Work *w, const double *settings, int *iterations) {
-    const double tol = settings[0], mu0 = settings[1], t0_min = settings[2];
-    const int iter_max = (int)settings[3];
-    const double boundary = settings[4];
-    const int stride = NV + NZ; /* out = [z_0 v_0 z_1 v_1 ... z_N] */
-    pack(pb, H, w);
+ * factorisation failed, 4 when it stopped (1 or 3) but its best iterate has every residual
+ * within the acceptable one. out holds the best iterate in every case but 2. */
+INLINE int interior_point(const Problem *pb, const double *z0, const double *guess,
+                          double *out, Work *w, double tol, double mu0, double t0_min,
+                          int iter_max, double boundary, double acceptable, int *iterations) {
+    const int stride = NV + NZ; /* guess = [z_0 v_0 z_1 v_1 ... z_N] */
     double count = 0.0;
     for (int k = 0; k <= SN; ++k) {
         StageWork *s = &w->s[k];
@@ -504,6 +510,10 @@ int stage_ipm_solve(const Hessian *H, const Problem *pb, const double *z0, const
         }
     }
     w->count = count > 0.0 ? count : 1.0;
+    /* The best iterate so far (the smallest largest residual), kept for when the method
+     * stalls short of the tolerance: barrier weights of nearly degenerate constraints grow
+     * without bound and rounding then holds the stationarity residual near 1e-6. */
+    double best = INFINITY;
     int status = 1, it;
     for (it = 0;; ++it) {
         double res[5], mu;
@@ -512,7 +522,12 @@ int stage_ipm_solve(const Hessian *H, const Problem *pb, const double *z0, const
             status = 2;
             break;
         }
-        if (res[0] <= tol && res[1] <= tol && res[2] <= tol && res[3] <= tol) {
+        const double worst = VMAX(VMAX(res[0], res[1]), VMAX(res[2], res[3]));
+        if (worst < best) {
+            best = worst;
+            keep_primal(w, out, z0);
+        }
+        if (worst <= tol) {
             status = 0;
             break;
         }
@@ -531,10 +546,11 @@ int stage_ipm_solve(const Hessian *H, const Problem *pb, const double *z0, const
         double alpha = max_step(w);
         double ratio = mu > 0.0 ? mu_after(w, alpha) / mu : 0.0;
         double centring = VMIN(ratio * ratio * ratio, 1.0);
-        /* corrector, on the same factorisation */
+        /* corrector, on the same factorisation; the fraction to the boundary tends to 1 as
+         * mu does (as in IPOPT), so the last steps are not held back */
         right_hand_side(w, centring * mu, 1);
         newton_step(w, 1);
-        alpha = VMIN(1.0, boundary * max_step(w));
+        alpha = VMIN(1.0, VMAX(boundary, 1.0 - mu) * max_step(w));
         for (int k = 0; k < SN; ++k) {
             StageWork *s = &w->s[k], *next = &w->s[k + 1];
             for (int i = 0; i < NV; ++i) s->y[i] += alpha * s->dy[i];
@@ -546,12 +562,20 @@ int stage_ipm_solve(const Hessian *H, const Problem *pb, const double *z0, const
         }
     }
     *iterations = it;
-    memcpy(out, z0, sizeof(double) * NZ);
-    for (int k = 0; k < SN; ++k) {
-        memcpy(out + k * stride + NZ, w->s[k].y, sizeof(double) * NV);
-        memcpy(out + (k + 1) * stride, w->s[k + 1].y + ZOFF, sizeof(double) * NZ);
-    }
+    if (status != 0 && status != 2 && best <= acceptable) status = 4;
     return status;
+}
+
+
+/* Settings: [tolerance, mu0, t0_min, max iterations, least fraction to the boundary,
+ * acceptable residual]. Returns interior_point's code and its iterations.
+ * z0 is the fixed first state; guess (the layout of out) the primal starting point. */
+CPU_VARIANTS
+int stage_ipm_solve(const Hessian *H, const Problem *pb, const double *z0, const double *guess,
+                    double *out, Work *w, const double *settings, int *iterations) {
+    pack(pb, H, w);
+    return interior_point(pb, z0, guess, out, w, settings[0], settings[1], settings[2],
+                          (int)settings[3], settings[4], settings[5], iterations);
 }
 
 /* Sizes the caller allocates: the work area and the two inputs, in bytes. */
