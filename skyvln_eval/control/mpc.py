@@ -212,16 +212,18 @@ class MpcController(Controller):
             return
         inputs = self.rti.inputs
         positions, keep_out, active = inputs["obstacles"], inputs["keep_out"], inputs["active"]
-        count = 0
-        if obstacles.count:
+        count = min(obstacles.count, m)
+        if count:
             future = obstacles.positions_m[:, 1 : n + 1, :]
             radii = obstacles.keep_out_radius_m
-            # The ufunc and method forms skip the argument handling of np.min and np.argsort.
-            margin = np.minimum.reduce(row_norms(future - origin), axis=1) - radii
-            chosen = margin.argsort(kind="stable")[:m]
-            count = len(chosen)
-            positions[:count] = future[chosen]
-            keep_out[:count] = radii[chosen] + self.config.obstacle_margin_m
+            if obstacles.count > m:  # keep the m that come nearest over the horizon
+                # The ufunc and method forms skip the argument handling of np.min and np.argsort.
+                margin = np.minimum.reduce(row_norms(future - origin), axis=1) - radii
+                chosen = margin.argsort(kind="stable")[:m]
+                future, radii = future[chosen], radii[chosen]
+            # The slots are interchangeable in the QP: with room for all, no ordering.
+            positions[:count] = future
+            np.add(radii, self.config.obstacle_margin_m, out=keep_out[:count])
         active[:count] = 1.0
         if count < m:  # empty slots (writing empty slices costs as much as full ones)
             positions[count:] = origin
