@@ -50,12 +50,12 @@ def flown_qps(controller: NmpcController, steps: int) -> Iterator[tuple[np.ndarr
 
 @needs_gcc
 def test_its_solutions_are_the_exact_solutions_of_the_flights_qps() -> None:
-    """Every fourth QP of 80 control steps past two crossing spheres (qpOASES takes 0.2 s
-    each), solved again by qpOASES (an
-    active-set method: exact to rounding): the same solution to within what the interior
-    point tolerance (residuals 1e-6) allows, 5e-4 (measured: 4.4e-4 on the first, cold
-    started, QP, under 7e-5 on the others; HPIPM's exit test at the same tolerance was off by
-    up to 8e-3), with obstacle and rate constraints among those that are active."""
+    """Every eighth QP of 80 control steps past two crossing spheres (qpOASES is slow on
+    them), solved again by qpOASES (an active-set method: exact to rounding): the same
+    solution to within what the interior point tolerance (residuals 1e-6) allows, 5e-4
+    (measured: 4.4e-4 on the first, cold started, QP, under 7e-5 on the others; HPIPM's
+    exit test at the same tolerance was off by up to 8e-3), with obstacle and rate
+    constraints among those that are active."""
     controller = riccati_controller()
     qp = controller.qp
     inputs, start, p = step_inputs(qp)
@@ -71,7 +71,7 @@ def test_its_solutions_are_the_exact_solutions_of_the_flights_qps() -> None:
     count = 0
     for index, (plan, guess, params, warm, w, ok) in enumerate(flown_qps(controller, 80)):
         assert ok, "every QP of the flight is solved"
-        if index % 4:
+        if index % 8:
             continue
         g, a, lba, uba, lbx, ubx, at = data(plan, guess, params, warm)
         solution = exact(h=qp.hessian, g=g, a=a, lba=lba, uba=uba, lbx=lbx, ubx=ubx)
@@ -91,7 +91,7 @@ def test_its_solutions_are_the_exact_solutions_of_the_flights_qps() -> None:
         if np.any(bound >= qp.stage - qp.n_v):  # beyond the fixed first state
             active_kinds.add("input bound")
         count += 1
-    assert count == 20
+    assert count == 10
     assert {"rate", "obstacle"} <= active_kinds, active_kinds
 
 
