@@ -20,6 +20,8 @@ from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
+from skyvln_eval.paths import cache_root
+
 log = logging.getLogger(__name__)
 
 
@@ -86,3 +88,16 @@ def compile_library(
             capture_output=True,
         )
         built.replace(library)
+
+
+def cached_library(name: str, text: str, cc: str, flags: Sequence[str]) -> Path:
+    """The shared library built by ``cc`` from the C ``text`` with ``flags``, under the
+    cache's ``native`` folder (named ``name-<key>.so``, the key over the compiler, the flags
+    and the source): compiled on first use, while other processes wait for it. Raises
+    :class:`subprocess.CalledProcessError` (with the compiler's output) if the build fails."""
+    key = digest((compiler_identity(cc), " ".join(flags), text))
+    library = cache_root() / "native" / f"{name}-{key}.so"
+    with build_lock(library):
+        if not library.exists():
+            compile_library(name, text, cc, flags, library)
+    return library

@@ -3,8 +3,8 @@
 :class:`NmpcController` predicts with the nonlinear model (one RK4 step per interval) and
 solves the NLP by sequential quadratic programming in the real-time-iteration form: each
 control step linearises the problem at the previous plan shifted by one step (the warm
-start; a hover guess on the first step), solves one structured QP with HPIPM (Gauss-Newton
-Hessian, which is the exact Hessian of the least-squares cost) and applies the first input.
+start; a hover guess on the first step), solves one structured QP (Gauss-Newton Hessian,
+which is the exact Hessian of the least-squares cost) and applies the first input.
 Shift and linearisation are one compiled CasADi call per step and the QP is solved by the
 compiled Riccati interior point method (:class:`~skyvln_eval.control.rti.RiccatiStep`;
 ``qp_solver: hpipm`` solves it with HPIPM inside the CasADi call instead); Python only

@@ -6,7 +6,7 @@ Riccati factorisation of the Newton system, stage by stage, and two solves with 
 built for the problem's sizes (horizon, obstacle slots), so every loop has a fixed length,
 and it multiplies only the model's blocks of the dynamics (the input memory's rows are
 known by their shape). Measured on the benchmark scenario's 200 QPs (``benchmarks/nmpc.py``)
-against HPIPM as CasADi sets it up, on the same QPs and the same residual tolerance: 4.5
+against HPIPM as CasADi sets it up, on the same QPs and the same residual tolerance: 5.1
 iterations on average where HPIPM takes 6.3, about 0.03 ms per iteration where HPIPM's
 (on the CasADi wheel's generic BLASFEO) takes about 0.1, and closer to the QP's exact
 solution (every variable within 2e-5 of a 1e-11 solve, where HPIPM's first inputs were off
@@ -33,9 +33,8 @@ from typing import Final
 import numpy as np
 from numpy.typing import NDArray
 
-from skyvln_eval.cbuild import build_lock, compile_library, compiler, compiler_identity, digest
+from skyvln_eval.cbuild import cached_library, compiler
 from skyvln_eval.errors import SolverBuildError
-from skyvln_eval.paths import cache_root
 
 SOURCE: Final = Path(__file__).with_name("native") / "stage_ipm.c"
 CFLAGS: Final = ("-O3", "-fPIC", "-shared")
@@ -185,13 +184,8 @@ def load_library(sizes: Sizes) -> ctypes.CDLL:
         if cc is None:
             raise SolverBuildError("no C compiler found ($CC or gcc) for the MPC's QP solver")
         flags = (*CFLAGS, *sizes.defines())
-        key = digest((compiler_identity(cc), " ".join(flags), SOURCE.read_text()))
-        library = cache_root() / "native" / f"stage_ipm-{key}.so"
         try:
-            with build_lock(library):
-                if not library.exists():
-                    compile_library("stage_ipm", SOURCE.read_text(), cc, flags, library)
-                loaded = ctypes.CDLL(str(library))
+            loaded = ctypes.CDLL(str(cached_library("stage_ipm", SOURCE.read_text(), cc, flags)))
         except (OSError, subprocess.CalledProcessError) as error:
             detail = getattr(error, "stderr", b"") or b""
             raise SolverBuildError(

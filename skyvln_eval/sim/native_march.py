@@ -37,8 +37,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from skyvln_eval.cbuild import build_lock, compile_library, compiler, compiler_identity, digest
-from skyvln_eval.paths import cache_root
+from skyvln_eval.cbuild import cached_library, compiler
 from skyvln_eval.sim.march import (
     FloatImage,
     _levels,
@@ -77,12 +76,6 @@ _warned = False
 _PAIRS: weakref.WeakKeyDictionary[WorldTile, NDArray[np.float32]] = weakref.WeakKeyDictionary()
 
 
-def library_path(cc: str) -> Path:
-    """Where the library built from :data:`SOURCE` by ``cc`` is cached."""
-    key = digest((compiler_identity(cc), " ".join(CFLAGS), SOURCE.read_text()))
-    return cache_root() / "native" / f"march-{key}.so"
-
-
 def native() -> NativeMarch | None:
     """The compiled march (built or loaded once per process), or ``None`` if unavailable."""
     with _lock:
@@ -108,15 +101,11 @@ def _load_native() -> NativeMarch | None:
     if cc is None:
         _warn_once("no C compiler found ($CC or gcc)")
         return None
-    library = library_path(cc)
     try:
-        with build_lock(library):
-            if not library.exists():
-                compile_library("march", SOURCE.read_text(), cc, CFLAGS, library)
-            loaded = _bind(ctypes.CDLL(str(library)))
+        loaded = _bind(ctypes.CDLL(str(cached_library("march", SOURCE.read_text(), cc, CFLAGS))))
     except (OSError, AttributeError, subprocess.CalledProcessError) as error:
         detail = getattr(error, "stderr", b"") or b""
-        log.debug("building %s failed: %s", library, detail.decode(errors="replace"))
+        log.debug("building the ray march failed: %s", detail.decode(errors="replace"))
         _warn_once(f"building the compiled ray march failed ({error})")
         return None
     fused = _matching_mode(loaded)

@@ -15,6 +15,7 @@ import pytest
 from skyvln_eval.control import Flight, MpcConfig, NmpcController, codegen, mpc, stage_ipm
 from skyvln_eval.control.rti import RiccatiStep, step_inputs
 from skyvln_eval.control.stage_ipm import STATUS
+from skyvln_eval.control.stage_qp import NZ
 from skyvln_eval.errors import SolverBuildError
 from skyvln_eval.sim import DroneState
 from tests.control.helpers import TARGET, scenario
@@ -81,9 +82,9 @@ def test_its_solutions_are_the_exact_solutions_of_the_flights_qps() -> None:
         values = np.asarray(ca.mtimes(a, solution["x"])).ravel()
         low, high = np.asarray(lba).ravel(), np.asarray(uba).ravel()
         for row in np.flatnonzero((np.abs(values - low) < 1e-7) | (np.abs(values - high) < 1e-7)):
-            local = row % rows
-            if local >= 11:
-                active_kinds.add("rate" if local < 13 else "obstacle")
+            local = row % rows  # the model and memory rows, 2 rate limits, the spheres
+            if local >= NZ:
+                active_kinds.add("rate" if local < NZ + 2 else "obstacle")
         bound = np.flatnonzero(
             (np.abs(reference - np.asarray(lbx).ravel()) < 1e-7)
             | (np.abs(reference - np.asarray(ubx).ravel()) < 1e-7)
