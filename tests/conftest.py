@@ -114,8 +114,20 @@ def dataset_factory(tmp_path: Path) -> Callable[..., Path]:
 @pytest.fixture(scope="session", autouse=True)
 def _hermetic_cache(tmp_path_factory: pytest.TempPathFactory) -> None:
     """Everything the toolkit caches (datasets, episode logs, compiled solvers) goes to a
-    temporary folder, unless SKYVLN_EVAL_CACHE names one to reuse between test runs."""
-    os.environ.setdefault("SKYVLN_EVAL_CACHE", str(tmp_path_factory.mktemp("skyvln-cache")))
+    temporary folder, unless SKYVLN_EVAL_CACHE names one to reuse between test runs.
+
+    The test processes of one ``pytest -n`` run share that folder (the base temporary
+    folder's parent is theirs in common): the sample and the compiled solvers are built
+    once, not once per process. Every cache entry is written under a temporary name and
+    renamed, so processes that build the same entry at once keep one of them."""
+    if "SKYVLN_EVAL_CACHE" in os.environ:
+        return
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        shared = tmp_path_factory.getbasetemp().parent / "skyvln-cache"
+        shared.mkdir(exist_ok=True)
+        os.environ["SKYVLN_EVAL_CACHE"] = str(shared)
+    else:
+        os.environ["SKYVLN_EVAL_CACHE"] = str(tmp_path_factory.mktemp("skyvln-cache"))
 
 
 @pytest.fixture(scope="session")
