@@ -98,11 +98,22 @@ def test_view_saves_one_episode_and_names_unknown_ones(flown_run: Path, tmp_path
     assert "no run MCAP for episode 'nope'" in bad.stderr
 
 
+def _sigint_default() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_view_serves_until_interrupted(flown_run: Path, rerun_cli: Path, tmp_path: Path) -> None:
     (ref,) = find_episode_logs(flown_run)
     command = skyvln_eval_command("view", str(flown_run), "--episode", ref.key, "--port", "0")
     process = subprocess.Popen(
-        command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO
+        command,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=REPO,
+        # Ctrl-C as in a terminal: a test run started in the background (CI scripts often
+        # are) ignores SIGINT, and a child would inherit that and never see the signal.
+        preexec_fn=_sigint_default,
     )
     try:
         url = ""
