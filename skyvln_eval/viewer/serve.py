@@ -17,14 +17,18 @@ would expose private recordings to the network; the executable takes ``--bind``.
 
 from __future__ import annotations
 
+import ctypes
 import http.client
+import os
 import shutil
+import signal
 import socket
 import subprocess
+import sys
 import tempfile
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
@@ -41,6 +45,7 @@ DEFAULT_PORT = 9090
 #: Headers of the upstream response that the proxy does not pass on (it re-frames the body).
 _HOP_BY_HOP = frozenset({"connection", "transfer-encoding", "content-length", "keep-alive"})
 _STARTUP_S = 60.0
+_PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 
 
 class ViewerServeError(SkyvlnError):
@@ -182,6 +187,21 @@ def _start_proxy(
     return proxy
 
 
+def _terminated_with(parent_pid: int) -> Callable[[], None]:
+    """What the executable's process runs before it starts (Linux): it is sent SIGTERM
+    when the thread that started it dies, however that dies. A toolkit killed with
+    SIGKILL runs no clean-up, and a rerun server left behind would keep its ports and a
+    core busy. If the toolkit is already gone, the process ends at once."""
+
+    def arrange() -> None:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+        if os.getppid() != parent_pid:  # died before the request took effect
+            os._exit(1)
+
+    return arrange
+
+
 def serve_recordings(
     rrd_paths: Sequence[str | Path],
     port: int = DEFAULT_PORT,
@@ -211,6 +231,7 @@ def serve_recordings(
     process = subprocess.Popen(
         command,
         start_new_session=True,
+        preexec_fn=_terminated_with(os.getpid()) if sys.platform == "linux" else None,
         stdin=subprocess.DEVNULL,
         stdout=log_file,
         stderr=subprocess.STDOUT,

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
+import sys
 import time
 import urllib.request
 from pathlib import Path
@@ -102,7 +104,8 @@ def _sigint_default() -> None:
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
-def test_view_serves_until_interrupted(flown_run: Path, rerun_cli: Path, tmp_path: Path) -> None:
+def _start_view(flown_run: Path) -> tuple[subprocess.Popen[str], str]:
+    """``skyvln-eval view`` on the run's episode, and the URL it printed once serving."""
     (ref,) = find_episode_logs(flown_run)
     command = skyvln_eval_command("view", str(flown_run), "--episode", ref.key, "--port", "0")
     process = subprocess.Popen(
@@ -115,15 +118,19 @@ def test_view_serves_until_interrupted(flown_run: Path, rerun_cli: Path, tmp_pat
         # are) ignores SIGINT, and a child would inherit that and never see the signal.
         preexec_fn=_sigint_default,
     )
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and process.stdout is not None:
+        line = process.stdout.readline()
+        if "http://127.0.0.1:" in line:
+            return process, line[line.index("http://") :].strip()
+    process.kill()
+    process.wait(timeout=10)
+    raise AssertionError("the command printed no viewer URL")
+
+
+def test_view_serves_until_interrupted(flown_run: Path, rerun_cli: Path, tmp_path: Path) -> None:
+    process, url = _start_view(flown_run)
     try:
-        url = ""
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and process.stdout is not None:
-            line = process.stdout.readline()
-            if "http://127.0.0.1:" in line:
-                url = line[line.index("http://") :].strip()
-                break
-        assert url, "the command printed no viewer URL"
         with urllib.request.urlopen(url, timeout=30) as response:
             assert response.status == 200
         process.send_signal(signal.SIGINT)
@@ -154,3 +161,42 @@ def test_several_episodes_saved_as_one_file_keep_one_recording_each(
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
     refused = run_skyvln_eval("view", str(out), "--save", str(tmp_path / "again.rrd"))
     assert refused.returncode == 2 and "already a recording" in refused.stderr
+
+
+def _children(pid: int) -> list[int]:
+    """Processes whose parent is ``pid`` (Linux /proc)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            found.append(int(stat.parent.name))
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"  # a zombie has ended; only its parent's reaping is left
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="the parent-death signal is Linux's")
+def test_a_killed_view_command_leaves_no_rerun_server(flown_run: Path, rerun_cli: Path) -> None:
+    process, _ = _start_view(flown_run)
+    servers = _children(process.pid)
+    try:
+        assert servers, "the view command started no rerun server"
+        process.kill()  # SIGKILL: no clean-up of the toolkit's runs
+        process.wait(timeout=10)
+        deadline = time.monotonic() + 30
+        while any(_alive(pid) for pid in servers) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not any(_alive(pid) for pid in servers), "the rerun server outlived the viewer"
+    finally:
+        for pid in servers:
+            if _alive(pid):
+                os.kill(pid, signal.SIGKILL)
