@@ -16,7 +16,9 @@ segmentation does), not its name or description.
 from __future__ import annotations
 
 import itertools
+import threading
 import weakref
+from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
@@ -26,6 +28,7 @@ from numpy.typing import NDArray
 from skyvln_eval.errors import PerceptionError
 from skyvln_eval.frames import compass_to_enu_yaw_rad
 from skyvln_eval.sensing import (
+    CameraConfig,
     CameraImages,
     CameraPose,
     SensorConfig,
@@ -77,7 +80,8 @@ class SimulatedSensors:
     def capture_many(self, views: Sequence[tuple[float, float]]) -> list[CameraImages]:
         x, y, z = self._position
         poses = [CameraPose(x, y, z, compass_to_enu_yaw_rad(h), p) for h, p in views]
-        images = [self._restrict(i) for i in render_views(self._world, poses, self._camera)]
+        rendered = RECENT_RENDERS.render(self._world, poses, self._camera)
+        images = [self._restrict(i) for i in rendered]
         self.captures += [
             Capture(float(h), float(p), i.rgb) for (h, p), i in zip(views, images, strict=True)
         ]
@@ -96,6 +100,62 @@ class SimulatedSensors:
             images = replace(images, depth_m=None)
         return images
 
+
+class RecentRenders:
+    """The last few batches of views rendered in this process, by world, poses and camera.
+
+    A drone often looks again from exactly where it looked before (an official step that
+    was refused or only turned it back, a cancelled flight): those views are the same
+    pixels (the renderer is a pure function of its inputs), so they are copied, not
+    rendered again. Every capture gets arrays of its own, so what one agent does to its
+    images cannot reach another capture. Safe for episode threads (one lock; rendering
+    runs outside it).
+    """
+
+    def __init__(self, size: int = 4) -> None:
+        self.size = size
+        self.hits = 0
+        self._batches: OrderedDict[
+            tuple[WorldTile, tuple[CameraPose, ...], CameraConfig], list[CameraImages]
+        ] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def render(
+        self, world: WorldTile, poses: Sequence[CameraPose], camera: CameraConfig
+    ) -> list[CameraImages]:
+        """``render_views(world, poses, camera)``, copied from a recent batch when it is one."""
+        key = (world, tuple(poses), camera)
+        with self._lock:
+            batch = self._batches.get(key)
+            if batch is not None:
+                self._batches.move_to_end(key)
+                self.hits += 1
+        if batch is None:
+            batch = render_views(world, poses, camera)
+            with self._lock:
+                self._batches[key] = batch
+                while len(self._batches) > self.size:
+                    self._batches.popitem(last=False)
+        return [_copied(images) for images in batch]
+
+    def clear(self) -> None:
+        with self._lock:
+            self._batches.clear()
+            self.hits = 0
+
+
+def _copied(images: CameraImages) -> CameraImages:
+    return replace(
+        images,
+        rgb=images.rgb.copy(),
+        depth_m=None if images.depth_m is None else images.depth_m.copy(),
+        semantic=None if images.semantic is None else images.semantic.copy(),
+        instance=None if images.instance is None else images.instance.copy(),
+    )
+
+
+#: This process's recent renders (about 10 MB: four decisions' views).
+RECENT_RENDERS = RecentRenders()
 
 _KEYS = itertools.count(1)
 #: Simulators of the steps under way, by key; an entry goes when its simulator does.
