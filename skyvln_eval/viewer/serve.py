@@ -192,10 +192,12 @@ def _terminated_with(parent_pid: int) -> Callable[[], None]:
     when the thread that started it dies, however that dies. A toolkit killed with
     SIGKILL runs no clean-up, and a rerun server left behind would keep its ports and a
     core busy. If the toolkit is already gone, the process ends at once."""
+    # Looked up here, before the fork: the child only makes the call (no dynamic loading
+    # between fork and exec, where another thread of the parent may hold the loader's lock).
+    prctl = ctypes.CDLL(None, use_errno=True).prctl
 
     def arrange() -> None:
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+        prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
         if os.getppid() != parent_pid:  # died before the request took effect
             os._exit(1)
 

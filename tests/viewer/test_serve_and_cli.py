@@ -128,7 +128,7 @@ def _start_view(flown_run: Path) -> tuple[subprocess.Popen[str], str]:
     raise AssertionError("the command printed no viewer URL")
 
 
-def test_view_serves_until_interrupted(flown_run: Path, rerun_cli: Path, tmp_path: Path) -> None:
+def test_view_serves_until_interrupted(flown_run: Path, rerun_cli: Path) -> None:
     process, url = _start_view(flown_run)
     try:
         with urllib.request.urlopen(url, timeout=30) as response:
