@@ -9,6 +9,8 @@ layer without negative heights) the sample is 0. On CPUs with AVX2 eight adjacen
 a tile row are marched together, level by level (they meet the surface within a level of
 each other), with their heights gathered at once (``benchmarks/render.py`` measures it
 against the numpy march).
+The library also makes the views' rays (:func:`native_rays`) and the map pixel each hit
+shows (:func:`native_hit_coords`), the numpy of :mod:`.camera` in one pass each.
 The C code does the float operations numpy and ``cv2.remap`` do, in the same
 order and precision; whether ``cv2.remap`` fuses its multiply-adds depends on the CPU, so
 on load the library's bilinear lookup is checked against ``cv2.remap`` on a probe and told
@@ -67,6 +69,8 @@ class NativeMarch:
 
     march: Any
     sample: Any
+    rays: Any
+    hit_coords: Any
     fused: bool
 
 
@@ -112,7 +116,7 @@ def _load_native() -> NativeMarch | None:
     if fused is None:
         _warn_once("the compiled ray march does not reproduce cv2.remap on this machine")
         return None
-    return NativeMarch(loaded.march, loaded.sample, fused)
+    return NativeMarch(loaded.march, loaded.sample, loaded.rays, loaded.hit_coords, fused)
 
 
 def _warn_once(reason: str) -> None:
@@ -138,7 +142,17 @@ def _bind(library: ctypes.CDLL) -> NativeMarch:
     sample_fn = library.skyvln_sample
     sample_fn.restype = ctypes.c_int
     sample_fn.argtypes = [_f32, _i64, _i64, _f32, _f32, _i64, ctypes.c_int, _f32]
-    return NativeMarch(march_fn, sample_fn, fused=True)
+    rays_fn = library.skyvln_rays
+    rays_fn.restype = ctypes.c_int
+    rays_fn.argtypes = [_f64, _f64, _i64, _f64, _i64, _f64]
+    coords_fn = library.skyvln_hit_coords
+    coords_fn.restype = ctypes.c_int
+    coords_fn.argtypes = [
+        _f64, _f32, _f64, _i64,  # rays (3, n), depths, nudges, n
+        _double, _double, _double, _double, ctypes.c_float,  # origin x, y, mpp, top_m, range
+        _f32, _f32, _f32,  # px, py, depths beyond the range made inf
+    ]  # fmt: skip
+    return NativeMarch(march_fn, sample_fn, rays_fn, coords_fn, fused=True)
 
 
 def _matching_mode(loaded: NativeMarch) -> bool | None:
@@ -213,3 +227,48 @@ def march_native(
         int(loaded.fused), int(min_height_m(world) >= 0.0), int(lanes), depth,
     )  # fmt: skip
     return depth
+
+
+def native_rays(
+    bases: NDArray[np.float64], a: NDArray[np.float64], b: NDArray[np.float64]
+) -> NDArray[np.float64] | None:
+    """The camera rays ``(3, V, H, W)`` of views with ``bases`` ``(V, 3, 3)`` (forward,
+    right, up) over the image plane ``a``, ``b`` ``(H, W)``, as ``camera._rays`` computes
+    them, bit for bit; ``None`` without the library."""
+    loaded = native()
+    if loaded is None:
+        return None
+    views = len(bases)
+    rays = np.empty((3, views, *a.shape))
+    loaded.rays(
+        np.ascontiguousarray(a, np.float64), np.ascontiguousarray(b, np.float64), a.size,
+        np.ascontiguousarray(bases, np.float64), views, rays,
+    )  # fmt: skip
+    return rays
+
+
+def native_hit_coords(
+    world: WorldTile,
+    origin: NDArray[np.float64],
+    rays: NDArray[np.float64],
+    depth: FloatImage,
+    nudge: NDArray[np.float64],
+    max_depth_m: float,
+) -> tuple[FloatImage, FloatImage, FloatImage] | None:
+    """``camera.hit_coordinates`` in one pass of C, bit for bit: for rays ``(3, ...)``,
+    their depths and nudges ``(...)``, the map pixel each looks up (``px``, ``py``) and
+    the depths with anything beyond ``max_depth_m`` made inf; ``None`` without the
+    library."""
+    loaded = native()
+    if loaded is None:
+        return None
+    mpp, top_m = _map_scale(world)
+    rays = np.ascontiguousarray(rays, np.float64)
+    depth = np.ascontiguousarray(depth, np.float32)
+    nudge = np.ascontiguousarray(nudge, np.float64)
+    px, py, out = (np.empty(depth.shape, np.float32) for _ in range(3))
+    loaded.hit_coords(
+        rays, depth, nudge, depth.size, float(origin[0]), float(origin[1]), mpp, top_m,
+        max_depth_m, px, py, out,
+    )  # fmt: skip
+    return px, py, out

@@ -100,3 +100,19 @@ def test_bad_camera_settings_are_rejected() -> None:
         CameraPose(0.0, 0.0, -1.0, 0.0, 90.0)
     with pytest.raises(ConfigError, match="fov_deg"):
         CameraConfig(fov_deg=200.0)
+
+
+def test_the_four_channel_map_gives_the_three_channel_lookup() -> None:
+    """Views look the map up in a four-channel copy (OpenCV vectorises that case): the
+    same values as the three-channel image at any sub-pixel point, on and off the map."""
+    from skyvln_eval.sim.camera import _bgra
+    from skyvln_eval.sim.march import sample_layer
+
+    world = flat_world()
+    rng = np.random.default_rng(3)
+    height, width = world.shape
+    px = rng.uniform(-3.0, width + 3.0, (64, 256)).astype(np.float32)
+    py = rng.uniform(-3.0, height + 3.0, (64, 256)).astype(np.float32)
+    four = sample_layer(_bgra(world), px, py, nearest=False, fill=0.0)
+    three = sample_layer(world.bgr, px, py, nearest=False, fill=0.0)
+    assert np.array_equal(four[..., :3], three)

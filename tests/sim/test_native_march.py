@@ -20,7 +20,10 @@ from skyvln_eval.sim.camera import (
     CameraConfig,
     CameraPose,
     _image_plane,
+    _nudges,
     _rays,
+    camera_basis,
+    hit_coordinates,
     render_views,
 )
 from skyvln_eval.sim.march import march, march_reference
@@ -117,6 +120,49 @@ def test_native_views_are_the_numpy_views_in_every_layer() -> None:
             assert same(a.semantic, b.semantic)
             assert a.instance is not None and b.instance is not None
             assert same(a.instance, b.instance)
+
+
+@needs_cc
+@pytest.mark.parametrize("max_depth_m", [500.0, 80.3])
+def test_rays_and_hit_coordinates_in_c_are_numpys_bit_for_bit(max_depth_m: float) -> None:
+    """The rays and the map pixels each view looks up, in C and in numpy (the reference):
+    sky rays, depths beyond the range (one not a float32) and positions off the map."""
+    world = seeded_city(8)
+    rng = np.random.default_rng(8)
+    config = CameraConfig(width_px=90, height_px=70, max_depth_m=max_depth_m)
+    plane = _image_plane(config)
+    for _ in range(4):
+        origin, along_last = decision(world, rng, config)
+        rays = np.ascontiguousarray(np.moveaxis(along_last, -1, 0))
+        poses = [
+            CameraPose(*origin, float(rng.uniform(-4.0, 4.0)), float(pitch))
+            for pitch in (0, 20, 45, 60, 90)
+        ]
+        bases = np.array([np.concatenate(camera_basis(pose)) for pose in poses])
+        expected = np.stack([np.moveaxis(_rays(pose, *plane), -1, 0) for pose in poses], axis=1)
+        in_c = native_march.native_rays(bases, *plane)
+        assert in_c is not None and same(in_c, expected)
+        depth = native_march.march_native(world, origin, along_last, config.height_levels)
+        assert np.isinf(depth).any() and (depth[np.isfinite(depth)] > max_depth_m).any()
+        nudge = np.stack([_nudges(config, p.pitch_deg, world.metres_per_pixel) for p in poses])
+        reference = hit_coordinates(world, origin, rays, depth, nudge, max_depth_m)
+        coords = native_march.native_hit_coords(world, origin, rays, depth, nudge, max_depth_m)
+        assert coords is not None
+        for a, b in zip(coords, reference, strict=True):
+            assert same(a, b)
+
+
+def test_a_rays_nudge_does_not_depend_on_the_yaw() -> None:
+    """One map pixel along each pixel's ray, made once per pitch: what the ray's own
+    horizontal length gives at any yaw (to rounding)."""
+    config = CameraConfig(width_px=64, height_px=48)
+    mpp = 0.4
+    for pitch in (0.0, 33.0, 60.0, 90.0):
+        nudge = _nudges(config, pitch, mpp)
+        for yaw in np.linspace(-math.pi, math.pi, 7):
+            rays = _rays(CameraPose(0.0, 0.0, 50.0, float(yaw), pitch), *_image_plane(config))
+            horizontal = np.maximum(np.hypot(rays[..., 0], rays[..., 1]), 1e-6)
+            np.testing.assert_allclose(nudge, np.minimum(mpp / horizontal, 2.0), rtol=1e-12)
 
 
 @needs_cc

@@ -551,3 +551,42 @@ int skyvln_sample(const float *heights, int64_t rows, int64_t cols, const float 
     for (int64_t i = 0; i < n; ++i) out[i] = bilinear(&layer, px[i], py[i], fused);
     return 0;
 }
+
+/* The camera rays of camera._rays for each view: component c of view v at pixel i is
+ * (a[i] right[c] + forward[c]) - b[i] up[c], the operations numpy does there. `bases`
+ * holds per view forward, right and up (9 doubles); `rays` is (3, views, n). Returns 0. */
+int skyvln_rays(const double *a, const double *b, int64_t n, const double *bases, int64_t views,
+                double *rays) {
+    for (int64_t v = 0; v < views; ++v) {
+        const double *forward = bases + 9 * v, *right = forward + 3, *up = forward + 6;
+        for (int c = 0; c < 3; ++c) {
+            double *out = rays + (c * views + v) * n;
+            const double f = forward[c], r = right[c], u = up[c];
+            for (int64_t i = 0; i < n; ++i) out[i] = (a[i] * r + f) - b[i] * u;
+        }
+    }
+    return 0;
+}
+
+/* Where each of n rays (3, n) hit, in map pixels (px, py), as camera.hit_coordinates
+ * computes it in numpy: the hit looked up `nudge` further along the ray, in double, then
+ * divided in float32 (numpy's weak Python-float scalars); px is -1e6 (off the map) for
+ * the sky. `depth_out` is the depth with anything beyond max_depth (compared in float32)
+ * made inf. Returns 0. */
+int skyvln_hit_coords(const double *rays, const float *depth, const double *nudge, int64_t n,
+                      double origin_x, double origin_y, double mpp, double top_m,
+                      float max_depth, float *px, float *py, float *depth_out) {
+    const double *rx = rays, *ry = rays + n;
+    const float mpp_f = (float)mpp, top_f = (float)top_m;
+    for (int64_t i = 0; i < n; ++i) {
+        const float d = depth[i];
+        const int sky = !isfinite(d);
+        const double t = sky ? 0.0 : (double)d + nudge[i];
+        const float x = (float)(origin_x + t * rx[i]);
+        const float y = (float)(origin_y + t * ry[i]);
+        px[i] = sky ? -1e6f : x / mpp_f;
+        py[i] = (top_f - y) / mpp_f;
+        depth_out[i] = d > max_depth ? INFINITY : d;
+    }
+    return 0;
+}
