@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import functools
 import math
-import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -27,6 +26,7 @@ from skyvln_eval.control.base import Command, Controller, SolveStats
 from skyvln_eval.control.flight_log import PREDICTED_PATH_COLUMN, log_frame
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.frames import ViewPose, wrap_angle_rad
+from skyvln_eval.native_calls import NATIVE_CALLS
 from skyvln_eval.sim.obstacles import ConstantVelocityPredictor, ObstacleForecast, ObstacleScenario
 from skyvln_eval.sim.plant import Plant, PlantConfig
 from skyvln_eval.sim.quadrotor import DroneState, require_positive
@@ -37,14 +37,6 @@ from skyvln_eval.sim.reference import (
     segment_reference,
 )
 
-#: Compiled controllers and the plant's step run native code whose memory management
-#: (CasADi's generated checkout/release and HPIPM's workspaces) keeps state shared by every
-#: function loaded from one library, unguarded: two threads in it at once corrupt the heap
-#: ("double free"). One flight at a time steps through native code; the threads executor
-#: still overlaps everything else (LLM waits, rendering, logging), also during an NMPC
-#: solve, which runs with the interpreter's lock released (codegen.NativeCall). (The
-#: Riccati QP solver itself is reentrant; HPIPM's path and CasADi's checkout are not.)
-NATIVE_CALLS = threading.Lock()
 #: Slack for floating-point noise when checking the commands against the limits.
 LIMIT_TOLERANCE = 1e-9
 #: How long a segment may take beyond its reference to settle on the target, by default.

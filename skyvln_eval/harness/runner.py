@@ -32,7 +32,6 @@ from skyvln_eval.agent.config import LLM_AGENTS, build_agent
 from skyvln_eval.avdn.imagery import MapGeoref
 from skyvln_eval.avdn.records import Episode
 from skyvln_eval.control import Controller, make_controller, save_flight_log
-from skyvln_eval.control.closed_loop import NATIVE_CALLS
 from skyvln_eval.converters.reader import read_episode
 from skyvln_eval.errors import stops_the_run
 from skyvln_eval.harness.commander import SimulatedCommander
@@ -43,6 +42,7 @@ from skyvln_eval.harness.oracle import ground_truth_oracle
 from skyvln_eval.harness.run_log import RunLogContent, Step, named_views, write_run_log
 from skyvln_eval.metrics.records import EpisodeResult, judge_status
 from skyvln_eval.metrics.safety import summarise_control
+from skyvln_eval.native_calls import NATIVE_CALLS
 from skyvln_eval.worlds.loading import load_world
 from skyvln_eval.worlds.tile import WorldTile
 

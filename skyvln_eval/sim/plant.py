@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.frames import wrap_angle_rad
+from skyvln_eval.native_calls import NATIVE_CALLS
 from skyvln_eval.sim.quadrotor import (
     NX,
     DroneState,
@@ -150,7 +151,9 @@ def _rk4(
 
 @functools.lru_cache(maxsize=8)
 def _step_function(params: QuadrotorParams, substeps: int) -> Any:
-    """``(x, u, wind, yaw_ref, h) -> x+``: one control step of the plant as a CasADi Function."""
+    """``(x, u, wind, yaw_ref, h) -> x+``: one control step of the plant as a CasADi Function,
+    built once per process (call it under :data:`NATIVE_CALLS`: CasADi's symbolic core is
+    not thread-safe, and threads that all miss the cache would each build it)."""
     import casadi as ca
 
     x, u, wind = ca.SX.sym("x", NX + 1), ca.SX.sym("u", 3), ca.SX.sym("wind", 3)
@@ -168,7 +171,8 @@ class _StepBuffers:
         self.x, self.u, self.wind = np.zeros(NX + 1), np.zeros(3), np.zeros(3)
         self.yaw_ref, self.h, self.out = np.zeros(1), np.zeros(1), np.zeros(NX + 1)
         self._buffer: Any
-        self._buffer, self._trigger = _step_function(params, substeps).buffer()
+        with NATIVE_CALLS:
+            self._buffer, self._trigger = _step_function(params, substeps).buffer()
         for index, array in enumerate((self.x, self.u, self.wind, self.yaw_ref, self.h)):
             self._buffer.set_arg(index, array.data)
         self._buffer.set_res(0, self.out.data)

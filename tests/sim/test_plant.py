@@ -114,3 +114,29 @@ def test_the_step_function_gives_the_plain_float_integration_bit_for_bit() -> No
         expected = rk4_step_floats(x, u, wind, yaw_ref, 0.1 / 4, 4, config.params)
         plant.step(*u, yaw_ref, 0.1)
         assert np.array_equal(plant._x, np.array(expected))
+
+
+def test_plants_made_in_many_threads_at_once_build_the_step_function_once() -> None:
+    """CasADi's symbolic core is not thread-safe, and each thread that missed the cache
+    would build the Function again: episodes that start together in threads wait for the
+    first build instead (under the native-calls lock)."""
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    from skyvln_eval.sim import plant
+
+    # Parameters no other test uses: a build this test must see, whatever ran before.
+    config = PlantConfig(substeps=3)
+    plant._step_function.cache_clear()
+    start = threading.Barrier(8)
+
+    def make(_: int) -> Plant:
+        start.wait()
+        return Plant(DroneState(0.0, 0.0, 30.0), config)
+
+    with ThreadPoolExecutor(8) as pool:
+        plants = list(pool.map(make, range(8)))
+    assert plant._step_function.cache_info().misses == 1
+    for p in plants:
+        p.step(G, 0.0, 0.0, 0.0, dt_s=0.1)
+    assert len({p.state.z_m for p in plants}) == 1
