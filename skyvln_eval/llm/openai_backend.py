@@ -106,11 +106,21 @@ _idle_clients: dict[tuple[str, str | None], list[Any]] = {}
 _idle_lock = threading.Lock()
 
 
-@functools.lru_cache(maxsize=1)
+_tls_lock = threading.Lock()
+
+
 def _tls_context() -> ssl.SSLContext | bool:
     """One verifying TLS context for every client of the process, made as the HTTP library
     makes its default one: each client would otherwise load the certificate store again
-    (~30 ms of CPU, paid by every episode thread that starts a client)."""
+    (~30 ms of CPU, paid by every episode thread that starts a client). Made under a lock:
+    episode threads that start together would otherwise all miss the cache and each make
+    one, at once."""
+    with _tls_lock:
+        return _made_tls_context()
+
+
+@functools.lru_cache(maxsize=1)
+def _made_tls_context() -> ssl.SSLContext | bool:
     import importlib
 
     for name in ("httpx2", "httpx"):  # recent openai releases use httpx2, older ones httpx

@@ -176,3 +176,23 @@ def test_clients_share_one_tls_context_that_verifies_certificates() -> None:
     context = _tls_context()
     assert isinstance(context, ssl.SSLContext) and _tls_context() is context
     assert context.verify_mode == ssl.CERT_REQUIRED and context.check_hostname
+
+
+def test_threads_that_start_clients_at_once_make_one_tls_context() -> None:
+    """Episode threads start together: they must not each load the certificate store."""
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    from skyvln_eval.llm import openai_backend
+
+    openai_backend._made_tls_context.cache_clear()
+    start = threading.Barrier(6)
+
+    def make(_: int) -> object:
+        start.wait()
+        return openai_backend._tls_context()
+
+    with ThreadPoolExecutor(6) as pool:
+        contexts = list(pool.map(make, range(6)))
+    assert openai_backend._made_tls_context.cache_info().misses == 1
+    assert all(c is contexts[0] for c in contexts)
