@@ -33,7 +33,6 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from skyvln_eval.avdn.constants import METERS_PER_DEGREE
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.sensing import (
     SEMANTIC_NONE,
@@ -44,7 +43,7 @@ from skyvln_eval.sensing import (
     pixel_rays,
     plane_coordinates,
 )
-from skyvln_eval.sim.march import march, march_reference, sample_layer
+from skyvln_eval.sim.march import _map_scale, march, march_reference, sample_layer
 from skyvln_eval.sim.native_march import march_native, native_hit_coords, native_rays
 from skyvln_eval.worlds.tile import WorldTile
 
@@ -123,9 +122,7 @@ def enu_to_map_px(
     world: WorldTile, x_m: FloatImage, y_m: FloatImage
 ) -> tuple[FloatImage, FloatImage]:
     """ENU metres to sub-pixel coordinates of the resized map grid (pixel centres at integers)."""
-    mpp = world.georef.lat_ratio * METERS_PER_DEGREE
-    (lat0, _), (lat1, _) = world.georef.gps_botm_left, world.georef.gps_top_right
-    top_m = (lat1 - lat0) * METERS_PER_DEGREE
+    mpp, top_m = _map_scale(world)  # the scale the march and the C look-up use
     return (x_m / mpp).astype(np.float32), ((top_m - y_m) / mpp).astype(np.float32)
 
 
@@ -188,8 +185,9 @@ def render_views(
     plane = _image_plane(config)
     native = method == "native"
     # Each component contiguous: (3, views, H, W); in C when the library is there.
-    bases = np.array([np.concatenate(camera_basis(pose)) for pose in poses])
-    rays = native_rays(bases, *plane) if native else None
+    rays = None
+    if native:
+        rays = native_rays(np.array([np.concatenate(camera_basis(p)) for p in poses]), *plane)
     if rays is None:
         rays = np.empty((3, len(poses), config.height_px, config.width_px))
         for index, pose in enumerate(poses):

@@ -235,6 +235,8 @@ def native_rays(
     """The camera rays ``(3, V, H, W)`` of views with ``bases`` ``(V, 3, 3)`` (forward,
     right, up) over the image plane ``a``, ``b`` ``(H, W)``, as ``camera._rays`` computes
     them, bit for bit; ``None`` without the library."""
+    if bases.shape[1:] not in ((3, 3), (9,)) or a.shape != b.shape:
+        raise ValueError(f"native_rays: bases {bases.shape}, a {a.shape}, b {b.shape}")
     loaded = native()
     if loaded is None:
         return None
@@ -259,6 +261,11 @@ def native_hit_coords(
     their depths and nudges ``(...)``, the map pixel each looks up (``px``, ``py``) and
     the depths with anything beyond ``max_depth_m`` made inf; ``None`` without the
     library."""
+    # The C code reads 3 x depth.size ray components and depth.size nudges: check first.
+    if rays.shape != (3, *depth.shape) or nudge.shape != depth.shape:
+        raise ValueError(
+            f"native_hit_coords: rays {rays.shape}, depth {depth.shape}, nudge {nudge.shape}"
+        )
     loaded = native()
     if loaded is None:
         return None
