@@ -16,7 +16,6 @@ fails on it exactly as before.
 
 from __future__ import annotations
 
-import functools
 import json
 import math
 from typing import Any
@@ -28,6 +27,7 @@ from numpy.typing import NDArray
 from skyvln_eval.control.flight_log import PREDICTED_PATH_COLUMN
 from skyvln_eval.converters import messages as fx
 from skyvln_eval.converters import topics as t
+from skyvln_eval.converters.float_text import float_texts, point_list_texts
 from skyvln_eval.frames import ViewPose
 
 NS = 1_000_000_000
@@ -158,41 +158,30 @@ def _fast_columns_fit(log: pd.DataFrame) -> bool:
     )
 
 
-@functools.lru_cache(maxsize=64)
-def _points_template(n_points: int) -> str:
-    """``[[{},{},{}],...]`` for ``n_points`` points: the JSON of a list of 3-lists."""
-    return "[" + ",".join(["[{},{},{}]"] * n_points) + "]"
-
-
 def _predicted_texts(predicted: Any, n_rows: int) -> tuple[list[str], NDArray[np.bool_]]:
     """Each row's ``predicted_positions_m`` JSON text and whether the row has only finite
-    values there: all rows' points formatted in one pass."""
+    values there: the rows with the same number of points formatted in one pass."""
     texts = ["null"] * n_rows
     finite = np.ones(n_rows, dtype=bool)
     if predicted is None:
         return texts, finite
-    rows: list[int] = []
-    arrays: list[NDArray[np.float64]] = []
+    by_count: dict[int, tuple[list[int], list[NDArray[np.float64]]]] = {}
     for i in range(n_rows):
         flat = predicted[i]
         if flat is None or len(flat) == 0:
             continue
         points = np.asarray(flat, dtype=np.float64).reshape(-1, 3)
-        if not np.isfinite(points).all():
-            finite[i] = False
-            continue
+        rows, arrays = by_count.setdefault(len(points), ([], []))
         rows.append(i)
         arrays.append(points)
-    if not arrays:
-        return texts, finite
-    # Every float's text in one C-level pass, then each row's points through a template
-    # made once per point count.
-    reprs = list(map(float.__repr__, np.concatenate(arrays).ravel().tolist()))
-    start = 0
-    for i, points in zip(rows, arrays, strict=True):
-        end = start + 3 * len(points)
-        texts[i] = _points_template(len(points)).format(*reprs[start:end])
-        start = end
+    for rows, arrays in by_count.values():
+        stacked = np.stack(arrays)
+        ok = np.isfinite(stacked).reshape(len(rows), -1).all(axis=1)
+        good = [bool(g) for g in ok]
+        finite[[i for i, g in zip(rows, good, strict=True) if not g]] = False
+        kept = [i for i, g in zip(rows, good, strict=True) if g]
+        for i, text in zip(kept, point_list_texts(stacked[ok]), strict=True):
+            texts[i] = text
     return texts, finite
 
 
@@ -205,8 +194,19 @@ def control_messages(log: pd.DataFrame) -> list[Message]:
     floats = np.column_stack([columns[c].astype(np.float64) for c in FLOAT_COLUMNS])
     predicted_texts, predicted_finite = _predicted_texts(columns.get(PREDICTED_PATH_COLUMN), n_rows)
     fast_rows = np.isfinite(floats).all(axis=1) & predicted_finite
-    values = {c: floats[:, k].tolist() for k, c in enumerate(FLOAT_COLUMNS)}
-    clearance = columns["min_clearance_m"].astype(np.float64).tolist()
+    times = floats[:, 0].tolist()
+    yaws = floats[:, FLOAT_COLUMNS.index("yaw_rad")].tolist()
+    clearance = columns["min_clearance_m"].astype(np.float64)
+    clearance_finite = np.isfinite(clearance).tolist()
+    # The floats' texts in one pass: every column but the time, the clearance, and the
+    # quaternion of each yaw (math.sin / math.cos, as the dicts compute them). Rows the
+    # fast text does not cover get zeros here; their texts are not used.
+    half_turns = [0.5 * yaw if math.isfinite(yaw) else 0.0 for yaw in yaws]
+    quaternion = np.array([(math.sin(h), math.cos(h)) for h in half_turns]).reshape(n_rows, 2)
+    table = np.column_stack([floats[:, 1:], clearance, quaternion])
+    table[~np.isfinite(table)] = 0.0
+    width, named = table.shape[1], len(FLOAT_COLUMNS) - 1
+    flat = float_texts(table.ravel())
     iterations = columns["iterations"].tolist()
     strings = {c: [_json_string(v) for v in columns[c].tolist()] for c in _STRING_COLUMNS}
     bools = {c: [_json_bool(v) for v in columns[c].tolist()] for c in _BOOL_COLUMNS}
@@ -215,15 +215,13 @@ def control_messages(log: pd.DataFrame) -> list[Message]:
         if not fast_rows[i]:
             messages += _row_dicts(columns, i)
             continue
-        t_ns = ns(values["t_s"][i])
+        t_ns = ns(times[i])
         sec, nsec = divmod(t_ns, NS)
-        # Each float's text is made once: the position and yaw appear in both messages.
-        text = {c: repr(values[c][i]) for c in FLOAT_COLUMNS[1:]}
+        row = flat[i * width : (i + 1) * width]
+        text = dict(zip(FLOAT_COLUMNS[1:], row[:named], strict=True))
+        clearance_text, qz, qw = row[named:]
         x, y, z = text["x_m"], text["y_m"], text["z_m"]
-        half = 0.5 * values["yaw_rad"][i]
-        tf = _TF.format(
-            sec=sec, nsec=nsec, x=x, y=y, z=z, qz=repr(math.sin(half)), qw=repr(math.cos(half))
-        )
+        tf = _TF.format(sec=sec, nsec=nsec, x=x, y=y, z=z, qz=qz, qw=qw)
         step = _CONTROL_STEP.format(
             sec=sec,
             nsec=nsec,
@@ -233,7 +231,7 @@ def control_messages(log: pd.DataFrame) -> list[Message]:
             controller=strings["controller"][i],
             status=strings["status"][i],
             iterations=int(iterations[i]),
-            min_clearance_m=repr(clearance[i]) if math.isfinite(clearance[i]) else "null",
+            min_clearance_m=clearance_text if clearance_finite[i] else "null",
             solve_failed=bools["solve_failed"][i],
             collision=bools["collision"][i],
             constraint_violation=bools["constraint_violation"][i],
