@@ -176,7 +176,7 @@ def _predicted_texts(predicted: Any, n_rows: int) -> tuple[list[str], NDArray[np
         arrays.append(points)
     for rows, arrays in by_count.values():
         stacked = np.stack(arrays)
-        ok = np.isfinite(stacked).reshape(len(rows), -1).all(axis=1)
+        ok: NDArray[np.bool_] = np.isfinite(stacked).reshape(len(rows), -1).all(axis=1)
         good = [bool(g) for g in ok]
         finite[[i for i, g in zip(rows, good, strict=True) if not g]] = False
         kept = [i for i, g in zip(rows, good, strict=True) if g]
