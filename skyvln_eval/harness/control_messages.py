@@ -175,12 +175,13 @@ def _predicted_texts(predicted: Any, n_rows: int) -> tuple[list[str], NDArray[np
         rows.append(i)
         arrays.append(points)
     for rows, arrays in by_count.values():
-        stacked = np.stack(arrays)
-        ok: NDArray[np.bool_] = np.isfinite(stacked).reshape(len(rows), -1).all(axis=1)
-        good = [bool(g) for g in ok]
+        good = [bool(np.isfinite(points).all()) for points in arrays]
         finite[[i for i, g in zip(rows, good, strict=True) if not g]] = False
         kept = [i for i, g in zip(rows, good, strict=True) if g]
-        for i, text in zip(kept, point_list_texts(stacked[ok]), strict=True):
+        if not kept:
+            continue
+        stacked = np.stack([points for points, g in zip(arrays, good, strict=True) if g])
+        for i, text in zip(kept, point_list_texts(stacked), strict=True):
             texts[i] = text
     return texts, finite
 
