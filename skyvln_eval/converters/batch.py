@@ -6,9 +6,13 @@ once per group) and spread over ``workers`` processes; every file is a pure func
 its episode, its map and the options, so the output is byte-identical whatever the
 number of workers.
 
-A re-run skips an episode whose file exists, reads back without any error, and was made
-from the same input (same records, map image, options, toolkit and format versions: the
-``input_sha256`` in its conversion metadata). Anything else is converted again.
+A re-run skips an episode whose file was made from the same input (same records, map
+image, options, toolkit and format versions: the ``input_sha256``) and is whole. The
+quick check: the split's manifest recorded that input and these exact bytes (size and
+SHA-256), so the file need not be parsed. Without such a record (a conversion cut short
+before its manifest) or when the bytes differ, the file must read back without any
+error and carry that ``input_sha256`` in its conversion metadata. Anything else is
+converted again.
 """
 
 from __future__ import annotations
@@ -45,6 +49,7 @@ from skyvln_eval.converters.manifest import (
     ManifestRow,
     episode_file_name,
     gt_lengths_m,
+    read_manifest,
     write_manifest,
 )
 from skyvln_eval.converters.reader import read_log
@@ -83,6 +88,9 @@ class MapJob:
     episodes: tuple[tuple[dict[str, Any], ...], ...]
     out_dir: str
     options: ConvertOptions
+    #: What the split's last manifest recorded of this map's files: (file name, input
+    #: SHA-256, size, SHA-256) each.
+    recorded: tuple[tuple[str, str, int, str], ...] = ()
 
 
 @dataclass
@@ -124,10 +132,17 @@ def input_fingerprint(
     return sha256_bytes(json.dumps(payload, ensure_ascii=False).encode("utf-8"))
 
 
-def _existing_row(path: Path, fingerprint: str, episode: Episode) -> ManifestRow | None:
-    """The manifest row of a file that can be skipped, or None to convert again."""
+def _existing_row(
+    path: Path, fingerprint: str, episode: Episode, recorded: tuple[str, int, str] | None
+) -> ManifestRow | None:
+    """The manifest row of a file that can be skipped, or None to convert again;
+    ``recorded`` is the last manifest's (input SHA-256, size, SHA-256) of the file."""
     if not path.is_file():
         return None
+    if recorded is not None and recorded[:2] == (fingerprint, path.stat().st_size):
+        digest = sha256_file(path)
+        if digest == recorded[2]:  # the very bytes made from this input
+            return _row(episode, path, fingerprint, digest)
     try:
         log = read_log(path)
     except SkyvlnError:
@@ -137,7 +152,19 @@ def _existing_row(path: Path, fingerprint: str, episode: Episode) -> ManifestRow
     return _row(episode, path, fingerprint)
 
 
-def _row(episode: Episode, path: Path, fingerprint: str) -> ManifestRow:
+def _recorded_files(manifest: Path) -> dict[str, tuple[str, int, str]]:
+    """The last manifest's (input SHA-256, size, SHA-256) by file name; none when there
+    is no readable manifest (then every file is read back)."""
+    if not manifest.is_file():
+        return {}
+    try:
+        rows = read_manifest(manifest)
+    except SkyvlnError:
+        return {}
+    return {r.file_name: (r.input_sha256, r.size_bytes, r.sha256) for r in rows}
+
+
+def _row(episode: Episode, path: Path, fingerprint: str, digest: str | None = None) -> ManifestRow:
     gt_length, d_net = gt_lengths_m(episode)
     return ManifestRow(
         episode_id=episode.episode_id,
@@ -149,7 +176,7 @@ def _row(episode: Episode, path: Path, fingerprint: str) -> ManifestRow:
         gt_length_m=gt_length,
         d_net_m=d_net,
         file_name=path.name,
-        sha256=sha256_file(path),
+        sha256=sha256_file(path) if digest is None else digest,
         size_bytes=path.stat().st_size,
         input_sha256=fingerprint,
     )
@@ -165,6 +192,7 @@ def run_map_job(job: MapJob) -> list[EpisodeOutcome]:
         return [EpisodeOutcome(_first_id(raw), "failed", note=note) for raw in job.episodes]
     world: WorldTile | None = None
     outcomes = []
+    recorded = {name: (source, size, digest) for name, source, size, digest in job.recorded}
     for raw in job.episodes:
         try:
             episode = Episode(
@@ -174,7 +202,7 @@ def run_map_job(job: MapJob) -> list[EpisodeOutcome]:
             )
             fingerprint = input_fingerprint(raw, job.split, job.mode, map_sha256, job.options)
             path = Path(job.out_dir) / episode_file_name(episode.episode_id)
-            row = _existing_row(path, fingerprint, episode)
+            row = _existing_row(path, fingerprint, episode, recorded.get(path.name))
             if row is not None:
                 outcomes.append(EpisodeOutcome(episode.episode_id, "skipped", row))
                 continue
@@ -213,6 +241,7 @@ def _jobs(
     out_dir: Path,
     options: ConvertOptions,
 ) -> list[MapJob]:
+    recorded = _recorded_files(out_dir / MANIFEST_NAME)
     by_map: dict[str, list[Episode]] = {}
     for episode in episodes:
         by_map.setdefault(episode.map_name, []).append(episode)
@@ -227,6 +256,11 @@ def _jobs(
             episodes=tuple(tuple(r.to_json_dict() for r in e.records) for e in group),
             out_dir=str(out_dir),
             options=options,
+            recorded=tuple(
+                (name, *recorded[name])
+                for name in (episode_file_name(e.episode_id) for e in group)
+                if name in recorded
+            ),
         )
         for map_name, group in by_map.items()
     ]

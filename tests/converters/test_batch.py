@@ -63,6 +63,39 @@ def test_rerun_skips_converted_episodes_and_workers_give_identical_output(
     assert _tree(again.out_dir) == _tree(reference.out_dir)
 
 
+def test_a_rerun_trusts_the_manifests_hashes_and_reads_back_only_other_files(
+    converted_sample: ConvertedSample, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    data_dir = converted_sample.data_dir
+    first = convert_split(data_dir, "val_seen", tmp_path, "andh")
+    folder, expected = first.out_dir, _tree(first.out_dir)
+    read: list[str] = []
+    real = batch.read_log
+
+    def counted(path: Path) -> object:
+        read.append(Path(path).name)
+        return real(path)
+
+    monkeypatch.setattr(batch, "read_log", counted)
+    again = convert_split(data_dir, "val_seen", tmp_path, "andh")
+    assert again.count("skipped") == len(first.rows) and read == [], "bytes as recorded"
+    assert again.rows == first.rows
+    # The same size, other bytes: not trusted, read back (and converted again if damaged).
+    victim = folder / first.rows[1].file_name
+    data = bytearray(victim.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    victim.write_bytes(bytes(data))
+    convert_split(data_dir, "val_seen", tmp_path, "andh")
+    assert read == [victim.name]
+    assert _tree(folder) == expected
+    # No manifest (a conversion cut short before it): every file is read back, all skip.
+    read.clear()
+    (folder / MANIFEST_NAME).unlink()
+    report = convert_split(data_dir, "val_seen", tmp_path, "andh")
+    assert report.count("skipped") == len(first.rows) and len(read) == len(first.rows)
+    assert _tree(folder) == expected
+
+
 def test_damaged_stale_and_leftover_files_are_handled(
     converted_sample: ConvertedSample, tmp_path: Path
 ) -> None:
