@@ -239,7 +239,7 @@ def _crop_png(panorama: Panorama, s: Sighting) -> ImagePart:
     x0, y0, x1, y1 = s.box_px
     pad = 8
     crop = view.images.rgb[max(0, y0 - pad) : y1 + pad, max(0, x0 - pad) : x1 + pad]
-    ok, buf = cv2.imencode(".png", crop[..., ::-1])
+    ok, buf = cv2.imencode(".png", cv2.cvtColor(crop, cv2.COLOR_RGB2BGR))
     return ImagePart(buf.tobytes() if ok else b"", label=f"{s.landmark_id} in view {view.name}")
 
 

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
@@ -142,7 +143,9 @@ class _ImageEncoder:
         camera's RGB arrays are contiguous, so keying them costs a copy, not a flip."""
         key = (rgb, image.shape, image.dtype.str, image.tobytes())
         if key not in self._by_pixels:
-            bgr = image[..., ::-1] if rgb else image
+            # A channel swap into new memory: OpenCV would copy a reversed-channel view
+            # element by element (twice the JPEG encoding's own time), to the same pixels.
+            bgr = cv2.cvtColor(image, cv2.COLOR_RGB2BGR) if rgb else image
             options = self._options
             self._by_pixels[key] = encode_image(bgr, options.image_format, options.jpeg_quality)
         return self._by_pixels[key]
