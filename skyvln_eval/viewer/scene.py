@@ -101,7 +101,8 @@ def image_bytes(message: Json) -> tuple[bytes, str]:
 def decode_rgb(data: bytes) -> NDArray[np.uint8] | None:
     """An encoded image as RGB pixels, or None if it cannot be decoded."""
     image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-    return None if image is None else np.ascontiguousarray(image[:, :, ::-1])
+    # cvtColor, not a reversed-channel copy: the same pixels, several times faster.
+    return None if image is None else np.asarray(cv2.cvtColor(image, cv2.COLOR_BGR2RGB))
 
 
 @dataclass
