@@ -82,11 +82,14 @@ def log_frame(rows: list[dict[str, Any]]) -> pd.DataFrame:
         raise DataError(f"flight log rows lack the column(s) {', '.join(missing)}")
     extra = [c for c in frame.columns if c not in LOG_COLUMNS]
     frame = frame[[*LOG_COLUMNS, *extra]]
-    types: dict[str, Any] = {c: "float64" for c in LOG_COLUMNS if c not in _STRING + _BOOL + _INT}
+    types: dict[str, str] = {c: "float64" for c in LOG_COLUMNS if c not in _STRING + _BOOL + _INT}
     types.update(dict.fromkeys(_STRING, "str"))
     types.update(dict.fromkeys(_BOOL, "bool"))
     types.update(dict.fromkeys(_INT, "int64"))
-    return frame.astype(types)
+    # Only the columns not inferred as their type are converted (astype copies every
+    # column it is given, the same values for those already of the type).
+    convert = {c: t for c, t in types.items() if str(frame[c].dtype) != t}
+    return frame.astype(convert) if convert else frame
 
 
 def save_flight_log(
@@ -104,7 +107,10 @@ def save_flight_log(
     metadata[b"skyvln_settings"] = json.dumps(settings or {}, default=str).encode()
     table = table.replace_schema_metadata(metadata)
     buffer = io.BytesIO()
-    pq.write_table(table, buffer)
+    # Dictionary pages only for the text columns: on the floats they cost most of the
+    # writing time and made the file larger (they are a storage detail: read back, the
+    # columns are the same).
+    pq.write_table(table, buffer, use_dictionary=[c for c in _STRING if c in frame.columns])
     atomic_write_bytes(path, buffer.getvalue())
     return Path(path)
 

@@ -88,6 +88,19 @@ def test_an_empty_log_still_has_the_columns() -> None:
     assert list(log_frame([]).columns) == list(LOG_COLUMNS)
 
 
+def test_the_log_fixes_each_columns_type_whatever_the_rows_hold(tmp_path: Path) -> None:
+    row: dict[str, object] = dict.fromkeys(LOG_COLUMNS, 1)  # ints where floats belong
+    row |= {"controller": "pid", "scenario": "none", "status": "ok", "iterations": 3.0}
+    row |= {"solve_failed": 0, "collision": np.bool_(False), "constraint_violation": 1}
+    log = log_frame([row, {**row, "t_s": 0.5}])
+    kinds = {name: log[name].dtype.kind for name in LOG_COLUMNS}
+    assert kinds["t_s"] == kinds["x_m"] == kinds["min_clearance_m"] == "f"
+    assert kinds["iterations"] == "i" and kinds["collision"] == kinds["solve_failed"] == "b"
+    assert str(log["controller"].dtype) == str(log["status"].dtype) == "str"
+    again = load_flight_log(save_flight_log(log, tmp_path / "typed.parquet"))
+    pd.testing.assert_frame_equal(again, log, check_exact=True)
+
+
 def test_reading_something_else_is_a_clear_error(tmp_path: Path) -> None:
     other = tmp_path / "other.parquet"
     pq.write_table(pa.table({"a": [1]}), other)
