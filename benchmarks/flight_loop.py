@@ -18,12 +18,14 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
 from skyvln_eval.control import Flight, make_controller
-from skyvln_eval.control.codegen import NativeCall
 from skyvln_eval.control.mpc import MpcController
+from skyvln_eval.control.rti import HpipmStep, RiccatiStep
 from skyvln_eval.frames import ViewPose
 from skyvln_eval.sim import DroneState, ObstacleScenario, ScenarioSpec, make_scenario
 from skyvln_eval.sim.reference import segment_reference
@@ -36,18 +38,34 @@ TARGETS = (
 )
 
 
-class TimedCall:
-    """A native call that adds up the seconds spent in it."""
+class Stopwatch:
+    """The seconds spent in the native calls it wraps, added up."""
 
-    def __init__(self, call: NativeCall) -> None:
-        self.call = call
+    def __init__(self) -> None:
         self.seconds = 0.0
 
-    def __call__(self) -> int:
-        start = time.perf_counter()
-        code = self.call()
-        self.seconds += time.perf_counter() - start
-        return code
+    def wrap(self, call: Callable[[], Any]) -> Callable[[], Any]:
+        def timed() -> Any:
+            start = time.perf_counter()
+            result = call()
+            self.seconds += time.perf_counter() - start
+            return result
+
+        return timed
+
+
+def time_native_calls(controller: MpcController) -> Stopwatch:
+    """Wrap the controller's native calls in one stopwatch (exits if there are none)."""
+    watch = Stopwatch()
+    step = controller.rti
+    if isinstance(step, RiccatiStep):
+        step._blocks = watch.wrap(step._blocks)  # type: ignore[assignment]
+        step.solver = watch.wrap(step.solver)  # type: ignore[assignment]
+    elif isinstance(step, HpipmStep) and step._native is not None:
+        step._native = watch.wrap(step._native)  # type: ignore[assignment]
+    else:
+        raise SystemExit("the NMPC is not compiled here (no C compiler?): nothing to compare")
+    return watch
 
 
 def crossing() -> ObstacleScenario:
@@ -70,11 +88,7 @@ def main() -> None:
     args = parser.parse_args()
     controller = make_controller("nmpc", {})
     assert isinstance(controller, MpcController)
-    native = controller.rti._native
-    if native is None:
-        raise SystemExit("the NMPC is not compiled here (no C compiler?): nothing to compare")
-    timed = TimedCall(native)
-    controller.rti._native = timed  # type: ignore[assignment]
+    timed = time_native_calls(controller)
     scenario = crossing()
     fly(controller, scenario)  # warm-up
     whole, solve = [], []
