@@ -1,0 +1,42 @@
+"""The benchmarks still run: each of the quick ones on a tiny size, as a user runs it.
+
+Their figures are not checked (timings belong to benchmarks, not tests); what is checked
+is that the script runs to its end and prints its comparison. A benchmark that reaches
+for a renamed attribute otherwise breaks unnoticed until someone needs its figures.
+The slow ones (harness, nmpc's IPOPT baseline, the language and real-LLM benchmarks, and
+those that build the full synthetic dataset first: load_split, convert) are left out.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+
+QUICK = {
+    "flight_loop.py": (["--repeat", "1"], "whole / solve"),
+    "render.py": (["--poses", "2", "--reference-poses", "1", "--worlds", "1"], "faster than"),
+    "detector.py": (["--decisions", "2", "--repeat", "1"], "speed-up"),
+    "metrics.py": (
+        ["--episodes", "200", "--baseline", "20", "--resamples", "50", "--bootstrap-n", "50"],
+        "ratio",
+    ),
+}
+
+
+@pytest.mark.parametrize("script", sorted(QUICK))
+def test_the_benchmark_runs_and_prints_its_comparison(script: str) -> None:
+    arguments, expected = QUICK[script]
+    done = subprocess.run(
+        [sys.executable, str(BENCHMARKS / script), *arguments],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert expected in done.stdout, done.stdout[-2000:]
