@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import json
 import multiprocessing
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -88,9 +88,8 @@ class MapJob:
     episodes: tuple[tuple[dict[str, Any], ...], ...]
     out_dir: str
     options: ConvertOptions
-    #: What the split's last manifest recorded of this map's files: (file name, input
-    #: SHA-256, size, SHA-256) each.
-    recorded: tuple[tuple[str, str, int, str], ...] = ()
+    #: The split's last manifest rows of this map's files, by file name.
+    recorded: Mapping[str, ManifestRow] = field(default_factory=dict)
 
 
 @dataclass
@@ -133,15 +132,19 @@ def input_fingerprint(
 
 
 def _existing_row(
-    path: Path, fingerprint: str, episode: Episode, recorded: tuple[str, int, str] | None
+    path: Path, fingerprint: str, episode: Episode, recorded: ManifestRow | None
 ) -> ManifestRow | None:
     """The manifest row of a file that can be skipped, or None to convert again;
-    ``recorded`` is the last manifest's (input SHA-256, size, SHA-256) of the file."""
+    ``recorded`` is the last manifest's row of the file."""
     if not path.is_file():
         return None
-    if recorded is not None and recorded[:2] == (fingerprint, path.stat().st_size):
+    if (
+        recorded is not None
+        and recorded.input_sha256 == fingerprint
+        and recorded.size_bytes == path.stat().st_size
+    ):
         digest = sha256_file(path)
-        if digest == recorded[2]:  # the very bytes made from this input
+        if digest == recorded.sha256:  # the very bytes made from this input
             return _row(episode, path, fingerprint, digest)
     try:
         log = read_log(path)
@@ -152,16 +155,16 @@ def _existing_row(
     return _row(episode, path, fingerprint)
 
 
-def _recorded_files(manifest: Path) -> dict[str, tuple[str, int, str]]:
-    """The last manifest's (input SHA-256, size, SHA-256) by file name; none when there
-    is no readable manifest (then every file is read back)."""
+def _recorded_files(manifest: Path) -> dict[str, ManifestRow]:
+    """The last manifest's rows by file name; none when there is no readable manifest
+    (then every file is read back)."""
     if not manifest.is_file():
         return {}
     try:
         rows = read_manifest(manifest)
     except SkyvlnError:
         return {}
-    return {r.file_name: (r.input_sha256, r.size_bytes, r.sha256) for r in rows}
+    return {r.file_name: r for r in rows}
 
 
 def _row(episode: Episode, path: Path, fingerprint: str, digest: str | None = None) -> ManifestRow:
@@ -192,7 +195,6 @@ def run_map_job(job: MapJob) -> list[EpisodeOutcome]:
         return [EpisodeOutcome(_first_id(raw), "failed", note=note) for raw in job.episodes]
     world: WorldTile | None = None
     outcomes = []
-    recorded = {name: (source, size, digest) for name, source, size, digest in job.recorded}
     for raw in job.episodes:
         try:
             episode = Episode(
@@ -202,7 +204,7 @@ def run_map_job(job: MapJob) -> list[EpisodeOutcome]:
             )
             fingerprint = input_fingerprint(raw, job.split, job.mode, map_sha256, job.options)
             path = Path(job.out_dir) / episode_file_name(episode.episode_id)
-            row = _existing_row(path, fingerprint, episode, recorded.get(path.name))
+            row = _existing_row(path, fingerprint, episode, job.recorded.get(path.name))
             if row is not None:
                 outcomes.append(EpisodeOutcome(episode.episode_id, "skipped", row))
                 continue
@@ -256,11 +258,11 @@ def _jobs(
             episodes=tuple(tuple(r.to_json_dict() for r in e.records) for e in group),
             out_dir=str(out_dir),
             options=options,
-            recorded=tuple(
-                (name, *recorded[name])
+            recorded={
+                name: recorded[name]
                 for name in (episode_file_name(e.episode_id) for e in group)
                 if name in recorded
-            ),
+            },
         )
         for map_name, group in by_map.items()
     ]

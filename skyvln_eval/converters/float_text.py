@@ -14,6 +14,8 @@ value: slower, but the same text.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 import numpy as np
 import orjson
 from numpy.typing import NDArray
@@ -72,12 +74,14 @@ def point_list_texts(points: NDArray[np.float64]) -> list[str]:
     if not np.isfinite(points).all():
         raise ValueError("point_list_texts takes finite values only")
     template = "[" + ",".join(["[{},{},{}]"] * n) + "]"
-    if not _FAST:
-        flat = [repr(v) for v in points.ravel().tolist()]
-        return [template.format(*flat[3 * n * r : 3 * n * (r + 1)]) for r in range(rows)]
-    # The rows' texts are separated by "]],[[" (no number contains a bracket).
-    text = orjson.dumps(np.ascontiguousarray(points), option=_OPTIONS).decode()
-    texts = ["[[" + row + "]]" for row in text[3:-3].split("]],[[")]
-    for r in np.flatnonzero(_needs_repr(points).reshape(rows, -1).any(axis=1)).tolist():
-        texts[r] = template.format(*(repr(v) for v in points[r].ravel().tolist()))
+    redo: Iterable[int] = range(rows)  # rows written value by value, through float_texts
+    texts = [""] * rows
+    if _FAST:
+        # The rows' texts are separated by "]],[[" (no number contains a bracket); rows
+        # with a value where orjson's notation is not repr's are written again.
+        text = orjson.dumps(np.ascontiguousarray(points), option=_OPTIONS).decode()
+        texts = ["[[" + row + "]]" for row in text[3:-3].split("]],[[")]
+        redo = np.flatnonzero(_needs_repr(points).reshape(rows, -1).any(axis=1)).tolist()
+    for r in redo:
+        texts[r] = template.format(*float_texts(points[r].ravel()))
     return texts
