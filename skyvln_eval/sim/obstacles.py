@@ -16,13 +16,16 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.interpolate import CubicSpline
 
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.sim.quadrotor import require_non_negative, require_positive
+
+if TYPE_CHECKING:
+    from scipy.interpolate import CubicSpline
 
 Vec3 = tuple[float, float, float]
 
@@ -75,6 +78,10 @@ class SplinePath:
 
     @cached_property
     def _spline(self) -> CubicSpline:
+        # Imported here: scipy.interpolate takes half a second to import, and only
+        # obstacles on spline paths need it (not every process that imports this module).
+        from scipy.interpolate import CubicSpline
+
         return CubicSpline(self.times_s, np.asarray(self.points_m), bc_type="clamped")
 
     def position_m(self, t_s: NDArray[np.float64]) -> NDArray[np.float64]:
