@@ -15,12 +15,13 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
 import pandas as pd
+from numpy.typing import NDArray
 
 from skyvln_eval.control.base import Command, Controller, SolveStats
 from skyvln_eval.control.flight_log import PREDICTED_PATH_COLUMN, log_frame
@@ -169,14 +170,8 @@ class Flight:
         first_row = len(self._rows)
         n_steps = max(1, round(duration_s / self.dt_s))
         offsets = self.dt_s * np.arange(self.controller.horizon_steps + 1)
-        # The windows of every step the flight may take, as one batch: each step's clock is
-        # the previous one plus dt, as _step advances it, so the times are the same floats.
-        clock = [self.t_s]
-        for _ in range(n_steps - 1):
-            clock.append(clock[-1] + self.dt_s)
-        windows = reference.windows(np.asarray(clock)[:, None] + offsets)
         reached = False
-        for window in windows:
+        for window in _step_windows(reference, self.t_s, self.dt_s, n_steps, offsets):
             if done is not None and done(self.state, self.t_s):
                 reached = True
                 break
@@ -290,6 +285,29 @@ class Flight:
             and abs(roll - previous_tilt[0]) <= step_max
             and abs(pitch - previous_tilt[1]) <= step_max
         )
+
+
+def _step_windows(
+    reference: ReferenceTrajectory,
+    t0_s: float,
+    dt_s: float,
+    n_steps: int,
+    offsets: NDArray[np.floating[Any]],
+) -> Iterator[ReferenceWindow]:
+    """The reference window of each step a flight may take, made in batches of 32, 64, 128...
+    steps as the flight gets to them: a flight is given time to spare and most arrive long
+    before it is up (in the harness they fly about a ninth of it), so one batch for every
+    step allowed would mostly be thrown away. Each step's clock is the previous one plus
+    ``dt_s``, as :meth:`Flight._step` advances it, so the times are the same floats."""
+    clock, made, batch = t0_s, 0, 32
+    while made < n_steps:
+        times = []
+        for _ in range(min(batch, n_steps - made)):
+            times.append(clock)
+            clock += dt_s
+        yield from reference.windows(np.asarray(times)[:, None] + offsets)
+        made += len(times)
+        batch *= 2
 
 
 def fly_to(

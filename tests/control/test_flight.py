@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -18,9 +20,11 @@ from skyvln_eval.control import (
     log_frame,
     save_flight_log,
 )
+from skyvln_eval.control.closed_loop import _step_windows
 from skyvln_eval.errors import DataError, FormatVersionError
 from skyvln_eval.frames import ViewPose
 from skyvln_eval.sim import ScenarioSpec, make_scenario
+from skyvln_eval.sim.reference import ReferenceWindow, segment_reference
 from tests.control.helpers import START, TARGET, controller, scenario
 
 SECOND = ViewPose(4.0, 14.0, 15.0, -2.5)
@@ -147,3 +151,31 @@ def test_a_long_segment_gets_the_time_it_needs_by_default() -> None:
     far = ViewPose(300.0, 0.0, 10.0, 0.0)  # 150 s at the default 2 m/s cruise speed
     result = Flight(controller("pid"), START).fly_to(far)
     assert result.reached and result.t_end_s > 150.0
+
+
+def test_step_windows_come_in_growing_batches_with_the_steps_own_clock() -> None:
+    # A flight asks for windows as it flies: one that arrives early has not paid for the
+    # rest of the time it was allowed, and every window's times are the ones one batch of
+    # all steps (each clock the previous one plus dt) would give, to the last bit.
+    reference = segment_reference(START, TARGET, 0.3)
+    offsets = 0.05 * np.arange(21)
+    clock = [0.3]
+    for _ in range(999):
+        clock.append(clock[-1] + 0.05)
+    whole = list(reference.windows(np.asarray(clock)[:, None] + offsets))
+    asked: list[int] = []
+    original = reference.windows
+
+    def counting(times_s: np.ndarray) -> Iterator[ReferenceWindow]:
+        asked.append(len(times_s))
+        return original(times_s)
+
+    object.__setattr__(reference, "windows", counting)
+    lazy = _step_windows(reference, 0.3, 0.05, 1000, offsets)
+    first = list(itertools.islice(lazy, 40))
+    assert asked == [32, 64]  # 40 steps flown: two batches made, not 1000 steps' worth
+    rest = list(lazy)
+    assert asked == [32, 64, 128, 256, 512, 8] and len(first) + len(rest) == 1000
+    for a, b in zip(first + rest, whole, strict=True):
+        assert np.array_equal(a.times_s, b.times_s) and np.array_equal(a.states, b.states)
+        assert np.array_equal(a.inputs, b.inputs) and np.array_equal(a.yaw_rad, b.yaw_rad)
