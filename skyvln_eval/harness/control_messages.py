@@ -175,13 +175,11 @@ def _predicted_texts(predicted: Any, n_rows: int) -> tuple[list[str], NDArray[np
         rows.append(i)
         arrays.append(points)
     for rows, arrays in by_count.values():
-        good = [bool(np.isfinite(points).all()) for points in arrays]
-        finite[[i for i, g in zip(rows, good, strict=True) if not g]] = False
-        kept = [i for i, g in zip(rows, good, strict=True) if g]
-        if not kept:
-            continue
-        stacked = np.stack([points for points, g in zip(arrays, good, strict=True) if g])
-        for i, text in zip(kept, point_list_texts(stacked), strict=True):
+        stacked = np.stack(arrays)
+        good = np.isfinite(stacked).all(axis=(1, 2))
+        indices = np.asarray(rows)
+        finite[indices[~good]] = False
+        for i, text in zip(indices[good].tolist(), point_list_texts(stacked[good]), strict=True):
             texts[i] = text
     return texts, finite
 

@@ -43,7 +43,7 @@ from skyvln_eval.sensing import (
     pixel_rays,
     plane_coordinates,
 )
-from skyvln_eval.sim.march import _map_scale, march, march_reference, sample_layer
+from skyvln_eval.sim.march import map_scale, march, march_reference, sample_layer
 from skyvln_eval.sim.native_march import march_native, native_hit_coords, native_rays
 from skyvln_eval.worlds.tile import WorldTile
 
@@ -122,7 +122,7 @@ def enu_to_map_px(
     world: WorldTile, x_m: FloatImage, y_m: FloatImage
 ) -> tuple[FloatImage, FloatImage]:
     """ENU metres to sub-pixel coordinates of the resized map grid (pixel centres at integers)."""
-    mpp, top_m = _map_scale(world)  # the scale the march and the C look-up use
+    mpp, top_m = map_scale(world)  # the scale the march and the C look-up use
     return (x_m / mpp).astype(np.float32), ((top_m - y_m) / mpp).astype(np.float32)
 
 

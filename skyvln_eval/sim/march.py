@@ -74,14 +74,14 @@ class _Frame:
         self.down = dz < -1e-9
         safe_dz = np.where(self.down, dz, -1.0)
         self.ground_t = (0.0 - origin[2]) / safe_dz
-        mpp, top_m = _map_scale(world)
+        mpp, top_m = map_scale(world)
         self.inv_dz = (1.0 / safe_dz).astype(np.float32)
         self.sx = (rays[..., 0] / safe_dz / mpp).astype(np.float32)
         self.sy = (rays[..., 1] / safe_dz / mpp).astype(np.float32)
         self.x0, self.y0 = np.float32(origin[0] / mpp), np.float32((top_m - origin[1]) / mpp)
 
 
-def _map_scale(world: WorldTile) -> tuple[float, float]:
+def map_scale(world: WorldTile) -> tuple[float, float]:
     """Metres per map pixel, and the map's north edge in ENU metres (map row 0)."""
     mpp = world.georef.lat_ratio * METERS_PER_DEGREE
     (lat0, _), (lat1, _) = world.georef.gps_botm_left, world.georef.gps_top_right

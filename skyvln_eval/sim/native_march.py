@@ -43,8 +43,8 @@ from skyvln_eval.cbuild import cached_library, compiler
 from skyvln_eval.sim.march import (
     FloatImage,
     _levels,
-    _map_scale,
     _pyramid,
+    map_scale,
     march,
     max_height_m,
     min_height_m,
@@ -216,7 +216,7 @@ def march_native(
     # march_reference's per-level float32 values, rounded as numpy rounds them.
     ks = np.array([np.float32(z - origin[2]) for z in z_levels], np.float32)
     zs = z_levels.astype(np.float32)
-    mpp, top_m = _map_scale(world)
+    mpp, top_m = map_scale(world)
     depth = np.empty((views, height, width), np.float32)
     loaded.march(
         components, views, height, width,
@@ -269,7 +269,7 @@ def native_hit_coords(
     loaded = native()
     if loaded is None:
         return None
-    mpp, top_m = _map_scale(world)
+    mpp, top_m = map_scale(world)
     rays = np.ascontiguousarray(rays, np.float64)
     depth = np.ascontiguousarray(depth, np.float32)
     nudge = np.ascontiguousarray(nudge, np.float64)
