@@ -13,9 +13,10 @@ the worker after each episode).
    vs 16 at a time (aim: at least 10x); 16 episodes of the agent with the ``openai``
    backend, in official and in dynamics mode, run sequentially vs 16 at a time (16
    threads in one process, and 2 processes x 8 threads), with the bound the longest
-   episode sets (no schedule ends before it does); then the threads executor in dynamics
-   mode, ``--repeats`` times, to show it never crashes (threads never share a CasADi
-   solver).
+   episode sets (no schedule ends before it does) and the CPU time each schedule used (its
+   threads and worker processes; 16 threads share one interpreter, so their Python work
+   runs one thread at a time); then the threads executor in dynamics mode, ``--repeats``
+   times, to show it never crashes (threads never share a CasADi solver).
 
 Run directories go to a temporary folder; episode logs and the dataset to the cache.
 
@@ -168,11 +169,19 @@ def remote_loopback(latency_s: float) -> Iterator[str]:
         server.wait(timeout=30)
 
 
+def cpu_seconds() -> float:
+    """CPU time (user + system) of this process and of its children that have ended."""
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
 def llm_run(
     base_url: str, run_dir: Path, mode: str, executor: str, workers: int, threads: int
-) -> tuple[float, float]:
-    """Seconds for 16 agent episodes of the openai backend over the loopback server, and
-    the longest episode's own wall time."""
+) -> tuple[float, float, float]:
+    """Seconds for 16 agent episodes of the openai backend over the loopback server, the
+    longest episode's own wall time, and the CPU seconds the run used (the loopback server,
+    still running, is not counted)."""
     llm = {
         "backend": "openai:loopback",
         "base_url": base_url,
@@ -193,13 +202,15 @@ def llm_run(
         agent={"name": "skyvln", "llm": llm},  # type: ignore[arg-type]
     )
     prepare_job(config, run_dir)  # episode logs converted once, not timed
+    cpu_before = cpu_seconds()
     start = time.perf_counter()
     report = run(config, run_dir)
     seconds = time.perf_counter() - start
+    cpu = cpu_seconds() - cpu_before
     if not report.complete or report.errors or report.statuses != {"ok": 16}:
         raise SystemExit(f"{mode} {executor}: {report.statuses}, errors {report.errors}")
     walls = [float(r.extra["wall_s"]) for r in read_results(run_dir / "results.jsonl")]
-    return seconds, max(walls)
+    return seconds, max(walls), cpu
 
 
 def llm_episodes(base_url: str, out: Path, repeats: int) -> None:
@@ -207,16 +218,19 @@ def llm_episodes(base_url: str, out: Path, repeats: int) -> None:
     threads; in official and dynamics mode; then the threads executor ``repeats`` times
     (threads must never share a CasADi solver: a crash there is a segfault)."""
     for mode in ("official", "dynamics"):
-        sequential, longest = llm_run(base_url, out / f"{mode}-seq", mode, "serial", 1, 1)
-        threads, _ = llm_run(base_url, out / f"{mode}-thr", mode, "threads", 16, 1)
-        hybrid, _ = llm_run(base_url, out / f"{mode}-hyb", mode, "processes", 2, 8)
+        sequential, longest, sequential_cpu = llm_run(
+            base_url, out / f"{mode}-seq", mode, "serial", 1, 1
+        )
+        threads, _, threads_cpu = llm_run(base_url, out / f"{mode}-thr", mode, "threads", 16, 1)
+        hybrid, _, hybrid_cpu = llm_run(base_url, out / f"{mode}-hyb", mode, "processes", 2, 8)
         # No schedule finishes before the longest episode does: its chain of calls (each
         # waits for the answer before) and its own computing bound any speed-up.
         print(
-            f"16 {mode} agent episodes over the 200 ms server: sequential {sequential:.1f} s "
-            f"(longest episode {longest:.1f} s, so at most {sequential / longest:.1f}x); "
-            f"16 threads {threads:.1f} s -> {sequential / threads:.1f}x; 2 processes x 8 "
-            f"threads {hybrid:.1f} s -> {sequential / hybrid:.1f}x (aim: >= 12x)"
+            f"16 {mode} agent episodes over the 200 ms server: sequential {sequential:.1f} s, "
+            f"CPU {sequential_cpu:.1f} s (longest episode {longest:.1f} s, so at most "
+            f"{sequential / longest:.1f}x); 16 threads {threads:.1f} s, CPU {threads_cpu:.1f} s "
+            f"-> {sequential / threads:.1f}x; 2 processes x 8 threads {hybrid:.1f} s, CPU "
+            f"{hybrid_cpu:.1f} s -> {sequential / hybrid:.1f}x (aim: >= 12x)"
         )
     crashes = 0
     for k in range(repeats):
