@@ -11,13 +11,17 @@ flown minus reference (yaw wrapped to (-pi, pi]), angles shown in degrees.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import pandas as pd
-from matplotlib.figure import Figure
 
 from skyvln_eval.errors import DataError
 from skyvln_eval.metrics.safety import check_control_log, tracking_errors
 from skyvln_eval.reports.render import new_figure
+
+if TYPE_CHECKING:  # matplotlib is imported when a figure is made (render.new_figure)
+    from matplotlib.figure import Figure
 
 _POSITION = (("x", "x_m", "ref_x_m"), ("y", "y_m", "ref_y_m"), ("z", "z_m", "ref_z_m"))
 _ATTITUDE = (

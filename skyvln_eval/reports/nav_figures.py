@@ -8,16 +8,19 @@ arrays (``(K, 4, 2)`` ``[lat, lng]``) and draws them with the tile's georeferenc
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
-from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
 from skyvln_eval.errors import MetricInputError
 from skyvln_eval.metrics.conventions import MetricConventions
 from skyvln_eval.reports.render import new_figure
 from skyvln_eval.worlds.tile import WorldTile
+
+if TYPE_CHECKING:  # matplotlib is imported when a figure is made (render.new_figure)
+    from matplotlib.figure import Figure
 
 
 def success_rate_curve(

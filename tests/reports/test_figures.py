@@ -20,6 +20,7 @@ from skyvln_eval.reports import (
     trajectory_figure,
 )
 from skyvln_eval.worlds import WorldTile
+from tests.conftest import modules_loaded_by
 from tests.metrics.helpers import result, square
 from tests.metrics.test_safety_and_cost import control_log
 
@@ -101,3 +102,10 @@ def test_trajectory_over_a_map_tile(tmp_path: Path) -> None:
         trajectory_figure(tile, gt, gt + 0.0001, title="demo"), tmp_path / "t2.png"
     ).read_bytes()
     assert a == b
+
+
+def test_matplotlib_is_loaded_by_the_first_figure_not_by_the_command_line() -> None:
+    # Every worker process of a command-line run imports the command line again (spawn
+    # re-runs the console script): matplotlib there would cost each one ~0.5 s for nothing.
+    assert modules_loaded_by("skyvln_eval.cli", ("matplotlib",)) == []
+    assert modules_loaded_by("skyvln_eval.reports", ("matplotlib",)) == []
