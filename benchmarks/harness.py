@@ -17,10 +17,15 @@ the worker after each episode).
    threads and worker processes; 16 threads share one interpreter, so their Python work
    runs one thread at a time); then the threads executor in dynamics mode, ``--repeats``
    times, to show it never crashes (threads never share a CasADi solver).
+4. The two ways of overlapping LLM waits at a larger scale, where the processes' start-up
+   is paid once for many episodes: ``--scale`` episodes (default 64) of the AVDN-sized
+   val_unseen in each mode, 16 threads vs 2 processes x 8 threads (which the README's
+   advice on executors for remote LLMs rests on).
 
 Run directories go to a temporary folder; episode logs and the dataset to the cache.
 
     python benchmarks/harness.py [--workers 2] [--limit N] [--skip-official] [--skip-dynamics]
+        [--skip-llm] [--repeats 10] [--scale 64]
 """
 
 from __future__ import annotations
@@ -119,6 +124,9 @@ def main() -> None:
     parser.add_argument("--skip-dynamics", action="store_true")
     parser.add_argument("--skip-llm", action="store_true")
     parser.add_argument("--repeats", type=int, default=10, help="repeated threads runs")
+    parser.add_argument(
+        "--scale", type=int, default=64, help="episodes per executor at scale (0: skip)"
+    )
     args = parser.parse_args()
     out = Path(tempfile.mkdtemp(prefix="bench-harness-"))
     common = {
@@ -148,6 +156,8 @@ def main() -> None:
             f"16 concurrent {concurrent:.2f} s -> {sequential / concurrent:.1f}x (aim: >= 10x)"
         )
         llm_episodes(base_url, out, args.repeats)
+        if args.scale:
+            executors_at_scale(base_url, out, args.scale)
 
 
 @contextlib.contextmanager
@@ -177,11 +187,18 @@ def cpu_seconds() -> float:
 
 
 def llm_run(
-    base_url: str, run_dir: Path, mode: str, executor: str, workers: int, threads: int
+    base_url: str,
+    run_dir: Path,
+    mode: str,
+    executor: str,
+    workers: int,
+    threads: int,
+    episodes: int = 16,
 ) -> tuple[float, float, float]:
-    """Seconds for 16 agent episodes of the openai backend over the loopback server, the
-    longest episode's own wall time, and the CPU seconds the run used (the loopback server,
-    still running, is not counted)."""
+    """Seconds for agent episodes of the openai backend over the loopback server (16 of the
+    sample's val_seen, or more of the AVDN-sized val_unseen), the longest episode's own
+    wall time, and the CPU seconds the run used (the loopback server, still running, is
+    not counted)."""
     llm = {
         "backend": "openai:loopback",
         "base_url": base_url,
@@ -191,9 +208,9 @@ def llm_run(
     }
     config = RunConfig(
         system=f"openai {mode}",
-        data="sample",
-        splits=("val_seen",),
-        limit=16,
+        data="sample" if episodes <= 16 else "full",
+        splits=("val_seen",) if episodes <= 16 else ("val_unseen",),
+        limit=episodes,
         mode=mode,  # type: ignore[arg-type]
         workers=workers,
         executor=executor,  # type: ignore[arg-type]
@@ -207,7 +224,7 @@ def llm_run(
     report = run(config, run_dir)
     seconds = time.perf_counter() - start
     cpu = cpu_seconds() - cpu_before
-    if not report.complete or report.errors or report.statuses != {"ok": 16}:
+    if not report.complete or report.errors or report.statuses != {"ok": episodes}:
         raise SystemExit(f"{mode} {executor}: {report.statuses}, errors {report.errors}")
     walls = [float(r.extra["wall_s"]) for r in read_results(run_dir / "results.jsonl")]
     return seconds, max(walls), cpu
@@ -240,6 +257,22 @@ def llm_episodes(base_url: str, out: Path, repeats: int) -> None:
             crashes += 1
             print(f"repeat {k}: {error}")
     print(f"threads executor, dynamics mode, {repeats} repeated runs: {crashes} with errors")
+
+
+def executors_at_scale(base_url: str, out: Path, episodes: int) -> None:
+    """``episodes`` in each mode, 16 threads in one process vs 2 processes x 8 threads."""
+    for mode in ("official", "dynamics"):
+        threads, _, threads_cpu = llm_run(
+            base_url, out / f"{mode}-scale-thr", mode, "threads", 16, 1, episodes
+        )
+        hybrid, _, hybrid_cpu = llm_run(
+            base_url, out / f"{mode}-scale-hyb", mode, "processes", 2, 8, episodes
+        )
+        print(
+            f"{episodes} {mode} agent episodes over the 200 ms server: 16 threads "
+            f"{threads:.1f} s, CPU {threads_cpu:.1f} s; 2 processes x 8 threads {hybrid:.1f} s, "
+            f"CPU {hybrid_cpu:.1f} s -> processes x threads {threads / hybrid:.2f}x the threads"
+        )
 
 
 if __name__ == "__main__":
