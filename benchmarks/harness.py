@@ -44,6 +44,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
+from skyvln_eval.avdn.constants import Split
 from skyvln_eval.harness import RunConfig, make_executor, run
 from skyvln_eval.harness.executors import Executor
 from skyvln_eval.harness.run import prepare_job
@@ -194,11 +195,11 @@ def llm_run(
     workers: int,
     threads: int,
     episodes: int = 16,
+    data: tuple[str, Split] = ("sample", "val_seen"),
 ) -> tuple[float, float, float]:
-    """Seconds for agent episodes of the openai backend over the loopback server (16 of the
-    sample's val_seen, or more of the AVDN-sized val_unseen), the longest episode's own
-    wall time, and the CPU seconds the run used (the loopback server, still running, is
-    not counted)."""
+    """Seconds for ``episodes`` agent episodes of the openai backend over the loopback
+    server, from ``data`` (dataset, split), the longest episode's own wall time, and the
+    CPU seconds the run used (the loopback server, still running, is not counted)."""
     llm = {
         "backend": "openai:loopback",
         "base_url": base_url,
@@ -208,8 +209,8 @@ def llm_run(
     }
     config = RunConfig(
         system=f"openai {mode}",
-        data="sample" if episodes <= 16 else "full",
-        splits=("val_seen",) if episodes <= 16 else ("val_unseen",),
+        data=data[0],
+        splits=(data[1],),
         limit=episodes,
         mode=mode,  # type: ignore[arg-type]
         workers=workers,
@@ -260,13 +261,15 @@ def llm_episodes(base_url: str, out: Path, repeats: int) -> None:
 
 
 def executors_at_scale(base_url: str, out: Path, episodes: int) -> None:
-    """``episodes`` in each mode, 16 threads in one process vs 2 processes x 8 threads."""
+    """``episodes`` of the AVDN-sized val_unseen in each mode, 16 threads in one process vs
+    2 processes x 8 threads."""
+    split: tuple[str, Split] = ("full", "val_unseen")
     for mode in ("official", "dynamics"):
         threads, _, threads_cpu = llm_run(
-            base_url, out / f"{mode}-scale-thr", mode, "threads", 16, 1, episodes
+            base_url, out / f"{mode}-scale-thr", mode, "threads", 16, 1, episodes, split
         )
         hybrid, _, hybrid_cpu = llm_run(
-            base_url, out / f"{mode}-scale-hyb", mode, "processes", 2, 8, episodes
+            base_url, out / f"{mode}-scale-hyb", mode, "processes", 2, 8, episodes, split
         )
         print(
             f"{episodes} {mode} agent episodes over the 200 ms server: 16 threads "

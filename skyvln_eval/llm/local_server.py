@@ -118,8 +118,9 @@ def local_llama_server(
 
     Its prompt cache (``--cache``) stays off. It would only save a little: consecutive
     decision prompts share their first 110-140 tokens of 1,300-2,000 (the server already
-    reuses the previous prompt's prefix). And with llama-cpp-python 0.3 on a 2-core machine, its RAM
-    cache grew to 23.9 GB resident in 9 calls, and the kernel killed the server.
+    reuses the previous prompt's prefix). And with llama-cpp-python 0.3 on a 2-core
+    machine, its RAM cache grew to 23.9 GB resident in 9 calls, and the kernel killed the
+    server.
     """
     port = port or _free_port()
     command = [
