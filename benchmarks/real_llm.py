@@ -28,7 +28,12 @@ from typing import Any
 
 from skyvln_eval.harness import RunConfig, run
 from skyvln_eval.harness.store import RESULTS_FILE
-from skyvln_eval.llm.local_server import MODEL_ALIAS, find_local_llama, local_llama_server
+from skyvln_eval.llm.local_server import (
+    MODEL_ALIAS,
+    find_local_llama,
+    llm_settings,
+    local_llama_server,
+)
 from skyvln_eval.metrics import EpisodeResult, MetricConventions, read_results, score_results
 
 
@@ -107,12 +112,7 @@ def main() -> None:
     parser.add_argument("--base-url", default=None, help="a running server's /v1 URL")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp, server(args.base_url) as url:
-        llm = {
-            "backend": f"openai:{MODEL_ALIAS}",
-            "base_url": url,
-            "timeout_s": 600.0,
-            "max_concurrency": 1,
-        }
+        llm = llm_settings(url, timeout_s=600.0)
         measure(f"Full, {MODEL_ALIAS} (llama.cpp)", llm, args, Path(tmp) / "model")
         measure(
             "Full, rule-based stand-in (not an LLM)", {"backend": "rule"}, args, Path(tmp) / "rule"

@@ -11,6 +11,7 @@ A backends file (YAML) names complete backend configurations, with defaults for 
         backend: "openai:gemma-3-270m"
         base_url: "http://127.0.0.1:8765/v1"
         structured_output: json_object_schema
+        system_role: false
 
 An entry of ``$SKYVLN_EVAL_BACKENDS`` (comma-separated) is either the name of such a
 backend or a spec ``openai:<model>[@<base_url>]``; both resolve to a full

@@ -87,6 +87,11 @@ class LLMConfig(BaseModel):
     send_task_data: bool = Field(
         default=False, description="test servers only: add each request's task data to its body"
     )
+    system_role: bool = Field(
+        default=True,
+        description="false for models without a system role (Gemma): the system prompt "
+        "opens the first user message",
+    )
     temperature: float = Field(default=0.0, ge=0.0, le=2.0)
     top_p: float = Field(default=1.0, gt=0.0, le=1.0)
     max_tokens: int = Field(default=512, ge=16, le=32768)
@@ -147,6 +152,7 @@ class LLMConfig(BaseModel):
                 "takes_images": self.takes_images,
                 "structured_output": self.structured_output,
                 "send_task_data": self.send_task_data,
+                "system_role": self.system_role,
             }
         if name == "replay":
             return {"base_url": self.base_url}

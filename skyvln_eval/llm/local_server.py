@@ -9,6 +9,13 @@ or from a file named by ``$SKYVLN_EVAL_LLAMA_MODEL``.
 The server may live in another virtual environment: ``$SKYVLN_EVAL_LLAMA_PYTHON`` names
 its interpreter (building llama-cpp-python takes minutes, so one build can serve many
 environments). :func:`find_local_llama` says what is missing, in words a skip can show.
+
+The server formats prompts with llama-cpp-python's ``gemma`` chat format, which has no
+system role and leaves system messages out of the prompt without a word (measured: the
+same prompt tokens with and without the agent's 727-character system prompt; 157 more
+when it opens the first user turn). Gemma's own template puts the system text at the
+start of the first user turn; :func:`llm_settings` asks the backend to do that
+(``system_role: false``).
 """
 
 from __future__ import annotations
@@ -25,7 +32,7 @@ import urllib.request
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Final
+from typing import Any, Final
 
 from skyvln_eval.errors import LLMError
 
@@ -37,6 +44,17 @@ INSTALL_HINT: Final = (
     "pip install 'skyvln-eval[local-llm]' (builds llama-cpp-python, ~8 min once; "
     "CMAKE_ARGS=-DGGML_NATIVE=OFF keeps the wheel portable)"
 )
+
+
+def llm_settings(base_url: str, **overrides: Any) -> dict[str, Any]:
+    """The LLM configuration (:class:`~skyvln_eval.llm.config.LLMConfig` fields) for the
+    model this module serves at ``base_url``, with ``overrides``."""
+    return {
+        "backend": f"openai:{MODEL_ALIAS}",
+        "base_url": base_url,
+        "system_role": False,  # the gemma chat format would drop the system prompt
+        "max_concurrency": 1,  # the server has one slot
+    } | overrides
 
 
 @dataclass(frozen=True)

@@ -25,12 +25,18 @@ timeouts bound each network operation, so a server that sends its answer one byt
 time, each within them, could hold a call for as long as it likes: the request therefore
 runs in a helper thread, and the caller stops waiting when the time is up. The abandoned
 request's client is closed (its next read fails) and never used again.
+
+Some models have no system role (Gemma), and some servers drop a system message without
+a word: llama-cpp-python's ``gemma`` chat format leaves it out of the prompt. With
+``system_role=False`` the system text opens the first user message instead, as Gemma's
+own chat template places it, so the instructions reach the model either way.
 """
 
 from __future__ import annotations
 
 import base64
 import contextlib
+import dataclasses
 import functools
 import json
 import logging
@@ -135,6 +141,20 @@ def _made_tls_context() -> ssl.SSLContext | bool:
     return True  # the client's own default
 
 
+def without_system_role(messages: Sequence[Message]) -> list[Message]:
+    """``messages`` for a model without a system role: the system messages' text opens the
+    first user message (a user message of its own when there is none)."""
+    system = "\n\n".join(m.text for m in messages if m.role == "system")
+    rest = [m for m in messages if m.role != "system"]
+    if not system:
+        return rest
+    first_user = next((i for i, m in enumerate(rest) if m.role == "user"), None)
+    if first_user is None:
+        return [Message("user", system), *rest]
+    opened = dataclasses.replace(rest[first_user], text=f"{system}\n\n{rest[first_user].text}")
+    return [*rest[:first_user], opened, *rest[first_user + 1 :]]
+
+
 class _FormatRefused(Exception):
     """The server cannot do the response format of this request (the body says why)."""
 
@@ -149,6 +169,10 @@ class OpenAIBackend(LLMBackend):
     as ``skyvln_task_data``, for test servers that stand in for a model (the loopback
     server answers from it as the rule backend would). Off by default: real servers
     never receive it, and OpenAI refuses unknown fields.
+
+    ``system_role=False`` sends system messages as the start of the first user message
+    (see the module docstring); the identity says so, so cached answers of the two forms
+    are kept apart.
     """
 
     name = "openai"
@@ -162,6 +186,7 @@ class OpenAIBackend(LLMBackend):
         takes_images: bool = False,
         structured_output: StructuredSetting = "auto",
         send_task_data: bool = False,
+        system_role: bool = True,
     ) -> None:
         if not model:
             raise ConfigError(
@@ -178,6 +203,7 @@ class OpenAIBackend(LLMBackend):
         self.takes_images = takes_images
         self.structured_output = structured_output
         self.send_task_data = send_task_data
+        self.system_role = system_role
         # Imported now, not in the first call, whose deadline would pay for it (~0.5 s).
         try:
             import openai  # noqa: F401
@@ -185,7 +211,14 @@ class OpenAIBackend(LLMBackend):
             raise MissingExtraError("the openai backend", "openai", str(error)) from error
 
     def identity(self) -> dict[str, Any]:
-        return {"backend": self.name, "model": self.model, "base_url": self.base_url}
+        identity: dict[str, Any] = {
+            "backend": self.name,
+            "model": self.model,
+            "base_url": self.base_url,
+        }
+        if not self.system_role:  # the model sees other prompts: other cache keys
+            identity["system_role"] = False
+        return identity
 
     @property
     def endpoint(self) -> str:
@@ -235,7 +268,7 @@ class OpenAIBackend(LLMBackend):
 
     def _payload(self, messages: Sequence[Message]) -> list[dict[str, Any]]:
         out: list[dict[str, Any]] = []
-        for message in messages:
+        for message in messages if self.system_role else without_system_role(messages):
             if message.images and self.takes_images:
                 parts: list[dict[str, Any]] = [{"type": "text", "text": message.text}]
                 for image in message.images:

@@ -1,13 +1,21 @@
-"""What the real llama.cpp server does with structured output: the facts negotiation rests on."""
+"""The real llama.cpp server: what it does with structured output and system messages (the
+facts negotiation and ``system_role`` rest on), and the agent's calls answered by it."""
 
 from __future__ import annotations
 
 import json
 import urllib.error
 import urllib.request
+from dataclasses import replace
 from typing import Any
 
-from skyvln_eval.llm.local_server import MODEL_ALIAS
+from skyvln_eval.agent.actions import Stop, decision_json_schema
+from skyvln_eval.agent.calls import CUT_OFF_REQUEST, call_json
+from skyvln_eval.agent.motion import SYSTEM_PROMPT, MotionGenerator
+from skyvln_eval.agent.subgoals import SUBGOALS_SCHEMA, parse_subgoals
+from skyvln_eval.llm import GenerationConfig, LLMClient, Message
+from skyvln_eval.llm.config import LLMConfig, RepairPolicy, build_client
+from skyvln_eval.llm.local_server import MODEL_ALIAS, llm_settings
 
 SCHEMA = {
     "type": "object",
@@ -50,3 +58,82 @@ def test_real_server_refuses_strict_json_schema_and_constrains_json_object(
     content = json.loads(reply["choices"][0]["message"]["content"], strict=False)
     assert content["colour"] in ("red", "blue")  # grammar-constrained to the enum
     assert reply["usage"]["prompt_tokens"] > 0
+
+
+# The backend and the agent's calls against the real server, call by call: short prompts,
+# a few seconds each, so that every test run checks them (the full agent on whole
+# episodes, test_real_llm.py, takes minutes).
+
+
+def _client(base_url: str, **overrides: Any) -> LLMClient:
+    return build_client(LLMConfig(**llm_settings(base_url, timeout_s=180.0, **overrides)))
+
+
+def test_the_system_prompt_reaches_a_model_without_a_system_role(local_llm_url: str) -> None:
+    question = Message("user", "Which way is north?")
+    config = GenerationConfig(max_tokens=16, timeout_s=180.0)
+    counted = {}
+    for system_role in (False, True):
+        client = _client(local_llm_url, system_role=system_role)
+        alone = client.call("motion", [question], config).records[-1].prompt_tokens
+        both = (
+            client.call("motion", [Message("system", SYSTEM_PROMPT), question], config)
+            .records[-1]
+            .prompt_tokens
+        )
+        assert alone is not None and both is not None, "the server reports prompt tokens"
+        counted[system_role] = both - alone
+    print(
+        f"\nsystem prompt of {len(SYSTEM_PROMPT)} characters: {counted[False]} more prompt "
+        f"tokens in the first user turn, {counted[True]} as a system message"
+    )
+    # Folded into the first user turn, all of it is read (a token per 2-6 characters).
+    assert counted[False] >= len(SYSTEM_PROMPT) / 8
+
+
+def test_an_answer_cut_off_at_its_budget_is_detected_and_asked_for_with_more(
+    local_llm_url: str,
+) -> None:
+    client = _client(local_llm_url)
+    config = GenerationConfig(
+        max_tokens=16, timeout_s=180.0, json_schema=SUBGOALS_SCHEMA, schema_name="subgoals"
+    )
+    messages = [
+        Message("system", "Extract the sub-goals of a drone's instruction as JSON."),
+        Message("user", "Fly north past the church, turn left at the bridge, stop at the tower."),
+    ]
+    call = call_json(client, "subgoals", messages, config, parse_subgoals, RepairPolicy())
+    first, second = call.records[0], call.records[1]
+    assert first.finish_reason == "length" and first.outcome == "invalid"
+    assert "max_tokens=16" in (first.error or "")
+    assert second.repair and second.max_tokens == 32 and second.temperature == 0.7
+    assert CUT_OFF_REQUEST.format(tokens=16) in call.exchanges[1]["prompt"][-1]["text"]
+    assert call.value is not None or "no usable answer" in (call.error or "")
+
+
+def test_real_decisions_are_parsed_or_refused_with_a_reason_the_repair_carries(
+    local_llm_url: str,
+) -> None:
+    llm = LLMConfig(**llm_settings(local_llm_url, timeout_s=180.0))
+    config = llm.generation("motion", json_schema=decision_json_schema(), schema_name="decision")
+    motion = MotionGenerator(build_client(llm), replace(config, max_tokens=96), llm.repair_policy())
+    prompts = [
+        "The commander says: fly forward about 100 m, then stop at the parking lot. You fly "
+        "60 m above the ground, heading 0 deg. 5 actions left.",
+        "The commander says: turn left and fly to the white building with a red roof. "
+        "Landmarks: L1, a white building with a red roof, 120 m away at bearing 270 deg. "
+        "4 actions left.",
+    ]
+    for prompt in prompts:
+        result = motion.decide(SYSTEM_PROMPT, prompt, {}, {"L1": (-120.0, 0.0)})
+        outcomes = [(r.outcome, r.finish_reason, r.error) for r in result.records]
+        print(f"\n{result.action} repaired={result.repaired} calls={outcomes}")
+        assert all(r.outcome != "failed" for r in result.records), outcomes  # all answered
+        for refused, asked_again in zip(result.exchanges, result.exchanges[1:], strict=False):
+            # Whatever the grammar let through is accepted, or refused with the parser's
+            # reason, and that reason goes back to the model.
+            assert refused["error"] and refused["error"] in asked_again["prompt"][-1]["text"]
+        if result.failure is None:
+            assert result.records[-1].outcome == "ok"
+        else:  # no usable answer: the fallback says why
+            assert isinstance(result.action, Stop) and result.failure.reason == result.fallback

@@ -8,7 +8,14 @@ import ssl
 import pytest
 
 from skyvln_eval.errors import LLMAuthError, LLMError
-from skyvln_eval.llm import GenerationConfig, LLMClient, Message, RetryPolicy, create_backend
+from skyvln_eval.llm import (
+    GenerationConfig,
+    ImagePart,
+    LLMClient,
+    Message,
+    RetryPolicy,
+    create_backend,
+)
 from skyvln_eval.llm.loopback import (
     LoopbackOpenAIServer,
     answer,
@@ -17,6 +24,7 @@ from skyvln_eval.llm.loopback import (
     status,
     truncated,
 )
+from skyvln_eval.llm.openai_backend import without_system_role
 
 FAST_RETRY = RetryPolicy(max_attempts=8, initial_delay_s=0.01, max_delay_s=0.05, jitter=0.5)
 CONFIG = GenerationConfig(timeout_s=0.5)
@@ -144,8 +152,6 @@ def test_a_pinned_level_is_used_as_is_and_a_refusal_says_so() -> None:
 
 
 def test_images_go_as_data_urls_only_to_models_that_take_them() -> None:
-    from skyvln_eval.llm import ImagePart
-
     image = ImagePart(b"\x89PNG fake bytes")
     messages = [Message("user", "What is this?", (image,))]
     with LoopbackOpenAIServer([answer("a"), answer("b")]) as server:
@@ -154,6 +160,31 @@ def test_images_go_as_data_urls_only_to_models_that_take_them() -> None:
         with_images, without = (r["body"]["messages"][0]["content"] for r in server.requests)
     assert with_images[1]["image_url"]["url"].startswith("data:image/png;base64,")
     assert without == "What is this?"
+
+
+def test_a_model_without_a_system_role_gets_the_system_prompt_in_its_first_user_turn() -> None:
+    images = (ImagePart(b"\x89PNG fake bytes"),)
+    messages = [
+        Message("system", "You fly a drone."),
+        Message("user", "Where now?", images),
+        Message("assistant", "{}"),
+        Message("user", "Answer again."),
+    ]
+    with LoopbackOpenAIServer([answer("a"), answer("b")]) as server:
+        folded = _client(server, [], system_role=False, takes_images=True)
+        folded.call("motion", messages, CONFIG)
+        _client(server, [], takes_images=True).call("motion", messages, CONFIG)
+        sent_folded, sent_plain = (r["body"]["messages"] for r in server.requests)
+    assert [m["role"] for m in sent_folded] == ["user", "assistant", "user"]
+    first = sent_folded[0]["content"]
+    assert first[0] == {"type": "text", "text": "You fly a drone.\n\nWhere now?"}
+    assert first[1]["image_url"]["url"].startswith("data:image/png;base64,")  # kept
+    assert sent_folded[2]["content"] == "Answer again."
+    assert [m["role"] for m in sent_plain] == ["system", "user", "assistant", "user"]
+    # The two forms are different prompts to the model: their answers are cached apart.
+    assert folded.backend.identity() != _client(server, []).backend.identity()
+    only_system = without_system_role([Message("system", "Rules."), Message("system", "More.")])
+    assert only_system == [Message("user", "Rules.\n\nMore.")]
 
 
 def test_the_openai_backend_needs_a_model_and_a_key_for_the_real_service(
