@@ -63,8 +63,10 @@ def test_processes_and_threads_creating_one_cache_at_once_lose_nothing(tmp_path:
     threads = [
         threading.Thread(target=_create_and_put, args=(path, f"t{i}", barrier)) for i in range(8)
     ]
-    for worker in [*processes, *threads]:
-        worker.start()
+    for process in processes:
+        process.start()
+    for thread in threads:
+        thread.start()
     for thread in threads:
         thread.join()
     for process in processes:
