@@ -137,3 +137,16 @@ def test_real_decisions_are_parsed_or_refused_with_a_reason_the_repair_carries(
             assert result.records[-1].outcome == "ok"
         else:  # no usable answer: the fallback says why
             assert isinstance(result.action, Stop) and result.failure.reason == result.fallback
+
+
+def test_a_prompt_longer_than_the_context_is_its_own_failure_and_not_retried(
+    local_llm_url: str,
+) -> None:
+    client = _client(local_llm_url)
+    result = client.call(
+        "motion", [Message("user", "north east south west " * 3000)], GenerationConfig()
+    )
+    assert result.completion is None and len(result.records) == 1  # asked once
+    record = result.records[0]
+    assert record.outcome == "failed" and record.error is not None
+    assert record.error.startswith("LLMContextOverflowError: the prompt does not fit")
