@@ -155,7 +155,7 @@ class LLMConfig(BaseModel):
                 "system_role": self.system_role,
             }
         if name == "replay":
-            return {"base_url": self.base_url}
+            return {"base_url": self.base_url, "system_role": self.system_role}
         return {}
 
 

@@ -59,7 +59,9 @@ def create_backend(spec: str, **options: Any) -> LLMBackend:
         raise ConfigError(f"backend {spec!r} does not take these options: {error}") from error
 
 
-def backend_identity(spec: str, base_url: str | None = None) -> dict[str, Any]:
-    """The cache identity the backend ``spec`` would have (used by ``replay``)."""
-    options = {} if base_url is None else {"base_url": base_url}
+def backend_identity(spec: str, base_url: str | None = None, **options: Any) -> dict[str, Any]:
+    """The cache identity the backend ``spec`` would have with ``options`` (used by
+    ``replay``)."""
+    if base_url is not None:
+        options["base_url"] = base_url
     return create_backend(spec, **options).identity()

@@ -116,15 +116,18 @@ def random_action(rng: random.Random, data: dict[str, Any]) -> dict[str, Any]:
 class ReplayBackend(LLMBackend):
     """Answers only from the response cache, as the replayed backend answered.
 
-    ``of`` is the replayed registry spec (``"openai:gpt-4o"``) and ``base_url`` its
-    server, so the cache keys match the original run's. The cache lookup happens in
-    :class:`~skyvln_eval.llm.client.LLMClient`; reaching :meth:`generate` means a miss.
+    ``of`` is the replayed registry spec (``"openai:gpt-4o"``), ``base_url`` its server
+    and ``system_role`` its setting, so the cache keys match the original run's. The cache
+    lookup happens in :class:`~skyvln_eval.llm.client.LLMClient`; reaching
+    :meth:`generate` means a miss.
     """
 
     name = "replay"
     kind = "replay"
 
-    def __init__(self, model: str | None = None, base_url: str | None = None) -> None:
+    def __init__(
+        self, model: str | None = None, base_url: str | None = None, system_role: bool = True
+    ) -> None:
         if not model:
             raise ConfigError(
                 "replay needs the replayed backend: 'replay:<backend>:<model>', "
@@ -133,7 +136,8 @@ class ReplayBackend(LLMBackend):
         from skyvln_eval.llm.registry import backend_identity
 
         self.model = model
-        self._identity = backend_identity(model, base_url=base_url)
+        options = {} if system_role else {"system_role": False}  # openai's option only
+        self._identity = backend_identity(model, base_url=base_url, **options)
 
     def identity(self) -> dict[str, Any]:
         return dict(self._identity)

@@ -81,18 +81,26 @@ def test_replay_with_an_empty_cache_fails_clearly(tmp_path: Path) -> None:
         build_client(LLMConfig(backend="replay:openai:gpt-4o"))
 
 
-def test_replay_answers_what_the_real_backend_answered(tmp_path: Path) -> None:
+@pytest.mark.parametrize("system_role", [True, False])
+def test_replay_answers_what_the_real_backend_answered(tmp_path: Path, system_role: bool) -> None:
     path = str(tmp_path / "c.sqlite")
+    settings = {"cache_path": path, "system_role": system_role}
     with LoopbackOpenAIServer([answer('{"go": "north"}')]) as server:
-        live = build_client(
-            LLMConfig(backend="openai:m", base_url=server.base_url, cache_path=path)
-        )
+        live = build_client(LLMConfig(backend="openai:m", base_url=server.base_url, **settings))
         first = live.call("motion", PROMPT, CONFIG)
         replay = build_client(
-            LLMConfig(backend="replay:openai:m", base_url=server.base_url, cache_path=path)
+            LLMConfig(backend="replay:openai:m", base_url=server.base_url, **settings)
         )
         second = replay.call("motion", PROMPT, CONFIG)
         assert len(server.requests) == 1  # the replay never reached the server
+        # The other form of the prompt is another request: the replay has no answer for it.
+        other = LLMConfig(
+            backend="replay:openai:m",
+            base_url=server.base_url,
+            **settings | {"system_role": not system_role},
+        )
+        with pytest.raises(CacheMissError):
+            build_client(other).call("motion", PROMPT, CONFIG)
     assert second.text == first.text == '{"go": "north"}'
     assert second.records[0].cached and second.records[0].backend == "openai"
     assert second.records[0].prompt_tokens == first.records[0].prompt_tokens
