@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 
 import pytest
@@ -24,9 +25,14 @@ def local_llm_url() -> Iterator[str]:
 
     Skipped, with what is missing, when llama-cpp-python or the GGUF package is not
     installed (the ``local-llm`` extra, or ``$SKYVLN_EVAL_LLAMA_PYTHON``).
+
+    When other test workers share the machine (pytest-xdist), the server computes in one
+    thread: on all cores it starved the other worker's tests, whose 0.5 s deadlines then
+    ran out (measured in CI: an extra timeout in test_agent_faults).
     """
     llama = find_local_llama()
     if isinstance(llama, str):
         pytest.skip(f"no real local LLM: {llama}")
-    with local_llama_server(llama) as base_url:
+    threads = 1 if os.environ.get("PYTEST_XDIST_WORKER") else None
+    with local_llama_server(llama, n_threads=threads) as base_url:
         yield base_url
