@@ -26,10 +26,11 @@ from skyvln_eval.agent.detectors import episode_seed
 from skyvln_eval.agent.hsd import coarse_position
 from skyvln_eval.agent.images import panorama_images
 from skyvln_eval.agent.motion import (
+    ACTION_SPACE,
     SYSTEM_PROMPT,
     MotionGenerator,
-    action_prompt,
     commander_prompt,
+    feedback_prompt,
     pose_prompt,
 )
 from skyvln_eval.agent.odometry import Odometer, llm_agent_settings, pose_summary, roads_text
@@ -122,13 +123,14 @@ class NavGPTAgent(Agent):
             for h in self._history[-8:]
         )
         user = (
-            commander_prompt(self._dialog)
+            ACTION_SPACE
+            + commander_prompt(self._dialog)
             + pose_prompt(pose)
             + f"## What you see\n{seen}\n"
             + f"{roads_text(panorama.road_bearings_deg, self._odometer.start_roads)}\n"
             + f"{self._odometer.text()}\n"
             + f"## History\n{history or '(none)'}\n"
-            + action_prompt(observation.feedback, pose.edge_m / 2.0, observation.actions_left)
+            + feedback_prompt(observation.feedback, observation.actions_left)
         )
         images = []
         if self.client.backend.takes_images:

@@ -1,13 +1,19 @@
 """The LLM motion generator: system, action and navigation prompts -> thought and one action.
 
 * System prompt: the embodiment (a drone, its camera, what its views mean, how it is judged).
-* Action prompt: feedback on the last action, the possible actions with their limits at
-  the current height, and the output format.
+* Action prompt: the possible actions with their limits and the output format (the same
+  text at every step), then feedback on the last action and the actions left.
 * Navigation prompt: the commander's words (earlier rounds and the current instruction),
-  the drone's pose, the spatial descriptor's text (HSD or coarse), TrackBack memory's
-  clues, and the sub-goals with their progress. The same content goes with the request
-  as task data for the offline stand-ins (:mod:`skyvln_eval.llm.taskdata`), never as a
-  second copy in the text.
+  the drone's pose (and how far one step reaches from its height), the spatial
+  descriptor's text (HSD or coarse), TrackBack memory's clues, and the sub-goals with
+  their progress. The same content goes with the request as task data for the offline
+  stand-ins (:mod:`skyvln_eval.llm.taskdata`), never as a second copy in the text.
+
+A decision's text starts with what stays the same through an episode (the actions, then
+the commander's words) and ends with what changes at every step: servers that keep the
+previous prompt's computed prefix (llama.cpp does, so do hosted APIs' prompt caches)
+compute only the rest. The order follows the paper's (system, action, navigation
+prompt) with the dialog moved ahead of the feedback.
 
 The answer must be ``{"thought": ..., "action": {...}}`` (see :mod:`.parsing`). An
 unusable answer is sent back for repair (:mod:`.calls`); if no answer can be used, the
@@ -58,22 +64,28 @@ OUTPUT_FORMAT: Final = (
 )
 
 
-def action_prompt(feedback: str | None, reach_m: float, actions_left: int) -> str:
-    """Feedback, the possible actions with their limits, and the output format."""
+#: The possible actions and the output format: the same text at every step.
+ACTION_SPACE: Final = (
+    "## Possible actions\n"
+    f"- move_forward / move_left / move_right: distance_m (0-{MAX_MOVE_M:.0f}); one step "
+    "covers at most half your view ahead (see Your drone), longer moves are shortened\n"
+    "- turn: degrees (-180..180, positive = right / clockwise)\n"
+    f"- ascend / descend: distance_m (0-{MAX_CLIMB_M:.0f}); height stays within "
+    f"{MIN_HEIGHT_M:.0f}-{MAX_HEIGHT_M:.0f} m\n"
+    "- fly_to: landmark (an id such as L3 from the lists below, or a memory node), "
+    "optional height_m to arrive at\n"
+    "- waypoint: x, y in [-1, 1] (half view edges; x right, y forward) and altitude in "
+    "[0, 1] (view edge 40 + 360 x altitude metres)\n"
+    "- stop: you are at the destination\n"
+    f"Allowed types: {', '.join(ACTION_TYPES)}.\n{OUTPUT_FORMAT}\n"
+)
+
+
+def feedback_prompt(feedback: str | None, actions_left: int) -> str:
+    """What the last action did, and how many actions are left."""
     return (
         f"## Feedback\n{feedback or 'This is the first step.'}\n"
-        f"## Possible actions ({actions_left} left before the episode ends)\n"
-        f"- move_forward / move_left / move_right: distance_m (0-{MAX_MOVE_M:.0f}); one step "
-        f"covers at most {reach_m:.0f} m ahead (half your view), longer moves are shortened\n"
-        "- turn: degrees (-180..180, positive = right / clockwise)\n"
-        f"- ascend / descend: distance_m (0-{MAX_CLIMB_M:.0f}); height stays within "
-        f"{MIN_HEIGHT_M:.0f}-{MAX_HEIGHT_M:.0f} m\n"
-        "- fly_to: landmark (an id such as L3 from the lists below, or a memory node), "
-        "optional height_m to arrive at\n"
-        "- waypoint: x, y in [-1, 1] (half view edges; x right, y forward) and altitude in "
-        "[0, 1] (view edge 40 + 360 x altitude metres)\n"
-        "- stop: you are at the destination\n"
-        f"Allowed types: {', '.join(ACTION_TYPES)}.\n{OUTPUT_FORMAT}\n"
+        f"{actions_left} actions left before the episode ends.\n"
     )
 
 
@@ -93,10 +105,12 @@ def commander_prompt(dialog: DialogText) -> str:
 
 
 def pose_prompt(pose: ViewPose) -> str:
-    """Where the drone is pointing, how high it is and what its view covers."""
+    """Where the drone is pointing, how high it is, what its view covers and how far one
+    step reaches (half the view's edge)."""
     return (
         f"## Your drone\nHeading {pose.heading_deg:.0f} deg, height {pose.z_m:.1f} m: your "
-        f"view below is a {pose.edge_m:.0f} m square.\n"
+        f"view below is a {pose.edge_m:.0f} m square; one step covers at most "
+        f"{pose.edge_m / 2.0:.0f} m ahead.\n"
     )
 
 

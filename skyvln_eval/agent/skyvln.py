@@ -22,10 +22,11 @@ from skyvln_eval.agent.hsd import HsdResult, PhraseMatch, SpatialDescriptor, mat
 from skyvln_eval.agent.images import panorama_images
 from skyvln_eval.agent.memory import TrackBackMemory
 from skyvln_eval.agent.motion import (
+    ACTION_SPACE,
     SYSTEM_PROMPT,
     MotionGenerator,
-    action_prompt,
     commander_prompt,
+    feedback_prompt,
     navigation_prompt,
     pose_prompt,
 )
@@ -312,8 +313,9 @@ class SkyVLNAgent(Agent):
         verdict: Verdict,
         hsd: HsdResult,
     ) -> str:
-        """Dialog, pose, action prompt and navigation prompt (descriptor, HSD's matches,
-        memory, sub-goal progress): everything of the task data, said once."""
+        """Action space, dialog, feedback, pose and navigation prompt (descriptor, HSD's
+        matches, memory, sub-goal progress): everything of the task data, said once, what
+        stays the same through the episode first (see :mod:`.motion`)."""
         pose = observation.pose
         remembered = st.odometer.start_roads if self.memory is not None else None
         landmarks = self.descriptor.text(entries)
@@ -333,9 +335,10 @@ class SkyVLNAgent(Agent):
         if self.memory is not None:  # the path flown is the memory's to tell
             lines.append(st.odometer.text())
         return (
-            commander_prompt(st.dialog)
+            ACTION_SPACE
+            + commander_prompt(st.dialog)
+            + feedback_prompt(observation.feedback, observation.actions_left)
             + pose_prompt(pose)
-            + action_prompt(observation.feedback, pose.edge_m / 2.0, observation.actions_left)
             + navigation_prompt(landmarks, memory, "\n".join(lines))
         )
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -9,6 +10,7 @@ import numpy as np
 import pytest
 
 from skyvln_eval.agent import AgentConfig, Detection, Detector, FlyTo, Stop, build_agent
+from skyvln_eval.agent.motion import ACTION_SPACE
 from skyvln_eval.agent.perception import Perception, PerceptionConfig
 from skyvln_eval.agent.skyvln import SkyVLNAgent
 from skyvln_eval.errors import ConfigError, UnknownNameError
@@ -84,6 +86,28 @@ def test_without_tbma_there_is_no_memory_of_the_path() -> None:
     assert state["memory"] is None and state["odometry"] is None
     with_memory = motion_states(AgentConfig.model_validate(PERFECT))[0]
     assert with_memory["odometry"] is not None and with_memory["memory"] is not None
+
+
+def motion_texts(config: AgentConfig) -> list[str]:
+    """The text of every motion request of an episode (the user message's prose)."""
+    backend = RecordingRule()
+    run(config, backend=backend)
+    module = "navgpt" if config.name == "navgpt" else "motion"
+    return [messages[-1].text for data, messages in backend.requests if data["task"] == module]
+
+
+@pytest.mark.parametrize("name", ["skyvln", "navgpt"])
+def test_decision_prompts_begin_with_what_stays_the_same_through_the_episode(name: str) -> None:
+    # A server that keeps the previous prompt's computed prefix (llama.cpp; hosted prompt
+    # caches) then computes only what changed: the action space and the commander's words
+    # come first, the feedback and the pose (which change at every step) after them.
+    texts = motion_texts(AgentConfig.model_validate({**PERFECT, "name": name}))
+    assert len(texts) >= 2
+    heads = {re.split("## Feedback|## Your drone", text)[0] for text in texts}
+    assert len(heads) == 1  # the same text before the feedback or the pose at every step
+    [head] = heads
+    assert head.startswith(ACTION_SPACE) and RED in head
+    assert len({text[len(head) :] for text in texts}) == len(texts)  # the rest changes
 
 
 class OneFakeRestaurant(Detector):
