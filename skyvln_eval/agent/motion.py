@@ -12,8 +12,9 @@
 A decision's text starts with what stays the same through an episode (the actions, then
 the commander's words) and ends with what changes at every step: servers that keep the
 previous prompt's computed prefix (llama.cpp does; hosted prompt caches do once the
-shared part is long enough, OpenAI's from 1,024 tokens) compute only the rest. The order follows the paper's (system, action, navigation
-prompt) with the dialog moved ahead of the feedback.
+shared part is long enough, OpenAI's from 1,024 tokens) compute only the rest. The
+order follows the paper's (system, action, navigation prompt) with the dialog moved ahead
+of the feedback.
 
 The answer must be ``{"thought": ..., "action": {...}}`` (see :mod:`.parsing`). An
 unusable answer is sent back for repair (:mod:`.calls`); if no answer can be used, the
