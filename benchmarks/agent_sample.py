@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import argparse
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -99,7 +99,7 @@ def report(split: str, tallies: dict[str, Tally]) -> None:
         )
     )
     full = tallies[FULL].plans
-    mean: Callable[[list[float] | list[int]], float] = lambda xs: float(np.mean(xs)) if xs else 0.0  # noqa: E731
+    mean: Callable[[Sequence[float]], float] = lambda xs: float(np.mean(xs)) if xs else 0.0  # noqa: E731
     for name, t in tallies.items():
         differ = sum(a != b for a, b in zip(t.plans, full, strict=True))
         print(

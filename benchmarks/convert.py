@@ -31,7 +31,7 @@ from skyvln_eval.converters import ConvertOptions, convert_split
 from skyvln_eval.worlds.sample import ensure_dataset
 
 # The sibling benchmark's timer (this script's folder is first on sys.path when it runs).
-from load_split import best_of  # type: ignore[import-not-found]  # isort: skip
+from load_split import best_of  # isort: skip
 
 SPLITS = ("val_unseen", "test_unseen")
 

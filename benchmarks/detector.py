@@ -80,7 +80,7 @@ def run(
     detector: Any, episodes: Sequence[Episode]
 ) -> tuple[float, list[list[Detection]], dict[str, Any]]:
     """Seconds spent detecting, the detections of every view, the generator's state."""
-    found = []
+    found: list[list[Detection]] = []
     spent = 0.0
     for seed, decisions in episodes:
         detector.reset(seed)
@@ -90,7 +90,7 @@ def run(
                 found.append(detector.detect(images))
                 spent += time.perf_counter() - start
     rng = detector.rng if isinstance(detector, ReferenceDetector) else detector._rng
-    return spent, found, rng.bit_generator.state
+    return spent, found, dict(rng.bit_generator.state)
 
 
 def same(old: list[list[Detection]], new: list[list[Detection]]) -> int:

@@ -11,15 +11,17 @@ Aim: load_split under 3x json.load.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from skyvln_eval.avdn import SPLITS, annotation_file_name, load_split
 from skyvln_eval.worlds.sample import ensure_dataset
 
 
-def best_of(repeat: int, fn) -> float:  # type: ignore[no-untyped-def]
+def best_of(repeat: int, fn: Callable[[], object]) -> float:
     times = []
     for _ in range(repeat):
         start = time.perf_counter()
@@ -49,7 +51,7 @@ def main() -> None:
                 json.load(handle)
 
         t_json = best_of(args.repeat, plain)
-        t_load = best_of(args.repeat, lambda split=split: load_split(data_dir, split))
+        t_load = best_of(args.repeat, functools.partial(load_split, data_dir, split))
         records = len(load_split(data_dir, split).records)
         total_json += t_json
         total_load += t_load

@@ -18,12 +18,16 @@ from __future__ import annotations
 import argparse
 import math
 import time
+from collections.abc import Callable
+from typing import TypeVar
 
 import numpy as np
 import shapely
 
 from skyvln_eval.avdn import METERS_PER_DEGREE, view_from_pose
 from skyvln_eval.metrics import EpisodeResult, bootstrap_ci, score_results
+
+T = TypeVar("T")
 
 
 def synthetic_views(rng: np.random.Generator, n: int) -> tuple[list, list]:
@@ -83,7 +87,7 @@ def naive_score(visited: np.ndarray, gt: np.ndarray, threshold_m: float = 20.0) 
             "ndtw": math.exp(-dtw[-1, -1] / (len(r) * threshold_m))}  # fmt: skip
 
 
-def timed(fn):  # type: ignore[no-untyped-def]
+def timed(fn: Callable[[], T]) -> tuple[T, float]:
     start = time.perf_counter()
     value = fn()
     return value, time.perf_counter() - start

@@ -244,7 +244,7 @@ def fly(controller: Controller, steps: int, obstacles: bool = True) -> dict[str,
         cpu_ms.append((time.thread_time() - start) * 1e3)
         return command
 
-    controller.step = timed  # type: ignore[method-assign]
+    controller.step = timed  # type: ignore[method-assign,assignment]
     flight = Flight(controller, DroneState(0.0, 0.0, 1.0), scenario=scenario(obstacles))
     log = flight.fly(reference(), duration_s=steps * DT).log
     error = np.linalg.norm(
