@@ -86,7 +86,7 @@ def feedback_prompt(feedback: str | None, actions_left: int) -> str:
     """What the last action did, and how many actions are left."""
     return (
         f"## Feedback\n{feedback or 'This is the first step.'}\n"
-        f"{actions_left} actions left before the episode ends.\n"
+        f"Actions left before the episode ends: {actions_left}.\n"
     )
 
 

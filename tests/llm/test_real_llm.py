@@ -4,7 +4,7 @@ The model is small and weak; what this checks is the protocol against a real ser
 structured output negotiated down to what llama.cpp takes, every call answered, actions
 parsed (with repair) rather than replaced by the fallback, and the counts on record.
 
-It takes about 7 minutes on 2 cores (410 s measured: calls of 1,000-2,000 prompt tokens,
+It takes about 7 minutes on 2 cores (410 s measured: calls of 1,500-2,600 prompt tokens,
 20-90 s each), more than a test run can spend, so it runs when
 ``$SKYVLN_EVAL_REAL_LLM_EPISODES`` is 1; the server's answers to the agent's calls are
 checked on every run by ``test_local_server.py``, with short prompts.
