@@ -23,6 +23,7 @@ from skyvln_eval.llm import (
     create_backend,
     load_prices,
     register_backend,
+    registry,
 )
 from skyvln_eval.llm.simple import ScriptedBackend
 from skyvln_eval.llm_records import LlmCall
@@ -44,7 +45,13 @@ def test_importing_the_llm_package_does_not_import_openai() -> None:
     assert out.stdout.strip() == "False"
 
 
-def test_a_registered_backend_is_created_like_the_built_in_ones() -> None:
+def test_a_registered_backend_is_created_like_the_built_in_ones(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # The registry is the process's: restored afterwards, so tests that list the known
+    # backends in the same worker do not see "echo".
+    monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))
+
     class Echo(LLMBackend):
         name = "echo"
         kind = "scripted"
