@@ -10,6 +10,7 @@ no memory at all: no landmark notes, no way back, and no knowledge of the path f
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -246,7 +247,7 @@ class SkyVLNAgent(Agent):
             "subgoals",
             subgoal_messages(dialog),
             config,
-            parse_subgoals,
+            functools.partial(parse_subgoals, dialog=dialog),
             self.llm.repair_policy(),
         )
         records += call.records

@@ -11,6 +11,7 @@ those rounds ended, so TrackBack memory can recognise them near the start.
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Any, Final, Literal
@@ -86,8 +87,9 @@ def _nullable(schema: dict[str, Any]) -> dict[str, Any]:
 
 _PHRASE: Final = {"type": "string", "maxLength": MAX_PHRASE_CHARS}
 
-#: The sub-goal answer's schema; :func:`parse_subgoals` accepts exactly what it allows
-#: (and rejects a landmark-less pass / stop_at / destination with a reason to repair).
+#: The sub-goal answer's schema; :func:`parse_subgoals` accepts exactly what it allows,
+#: except what a schema cannot say, rejected with a reason to repair: a landmark-less pass /
+#: stop_at / destination, and phrases not copied from the dialog.
 SUBGOALS_SCHEMA: Final[dict[str, Any]] = {
     "type": "object",
     "additionalProperties": False,
@@ -143,6 +145,11 @@ class DialogText:
         instruction = " ".join(t.text for t in current if t.speaker == "commander")
         return cls(previous, question, instruction)
 
+    def words(self) -> frozenset[str]:
+        """Every word of the dialog (:func:`phrase_words`): what copied phrases are made of."""
+        rounds = (*self.previous, self.question or "", self.instruction)
+        return frozenset(phrase_words(" ".join(rounds)))
+
     def prose(self) -> str:
         return (
             f"Earlier rounds:\n{chr(10).join(self.previous) or '(none)'}\n"
@@ -179,6 +186,34 @@ def subgoal_messages(dialog: DialogText) -> list[Message]:
     ]
 
 
+_WORD: Final = re.compile(r"[^\W_]+")  # runs of letters and digits, in any script
+
+
+def phrase_words(text: str) -> list[str]:
+    """The words of a phrase, lower case, without punctuation."""
+    return _WORD.findall(text.lower())
+
+
+def _check_copied(phrase: str | None, dialog_words: frozenset[str], where: str) -> None:
+    """A landmark phrase or name must be copied from the dialog: every word of it is a
+    word of the dialog. A small model under a grammar fills arrays with fragments (Gemma 3
+    270M wrote the landmark ``"}, {"``); an answer the dialog cannot have given is refused
+    with the words it lacks, which the repair shows the model."""
+    if phrase is None:
+        return
+    words = phrase_words(phrase)
+    if not words:
+        raise ActionParseError(
+            f"{where} {phrase!r} has no words: copy the phrase word for word from the dialog"
+        )
+    missing = list(dict.fromkeys(w for w in words if w not in dialog_words))
+    if missing:
+        raise ActionParseError(
+            f"{where} {phrase!r} is not in the dialog (it has no "
+            f"{', '.join(repr(w) for w in missing)}): copy phrases word for word"
+        )
+
+
 def _optional_str(item: dict[str, Any], key: str, where: str) -> str | None:
     value = item.get(key)
     if value is None:
@@ -190,8 +225,11 @@ def _optional_str(item: dict[str, Any], key: str, where: str) -> str | None:
     return value.strip() or None
 
 
-def parse_subgoals(text: str) -> SubGoalPlan:
-    """Validate the LLM's sub-goal JSON; :class:`ActionParseError` says what is wrong."""
+def parse_subgoals(text: str, dialog: DialogText) -> SubGoalPlan:
+    """Validate the LLM's sub-goal JSON for ``dialog`` (its landmark phrases, names and
+    context landmarks must be copied from it); :class:`ActionParseError` says what is
+    wrong."""
+    dialog_words = dialog.words()
     data = load_json_object(text)
     items = data.get("subgoals")
     if not isinstance(items, list) or len(items) > MAX_SUBGOALS:
@@ -233,6 +271,9 @@ def parse_subgoals(text: str) -> SubGoalPlan:
         landmark = _optional_str(item, "landmark", where)
         if kind in ("pass", "stop_at", "destination") and landmark is None:
             raise ActionParseError(f"{where} of kind {kind} needs a landmark phrase")
+        name = _optional_str(item, "name", where)
+        _check_copied(landmark, dialog_words, f"{where}.landmark")
+        _check_copied(name, dialog_words, f"{where}.name")
         side = _optional_str(item, "side", where)
         if side is not None and side.lower() not in SIDES:
             raise ActionParseError(f"{where}.side {side!r} is not one of {', '.join(SIDES)}")
@@ -240,7 +281,7 @@ def parse_subgoals(text: str) -> SubGoalPlan:
             SubGoal(
                 kind=kind,
                 landmark=landmark,
-                name=_optional_str(item, "name", where),
+                name=name,
                 direction=None if direction is None else direction.lower(),
                 side=None if side is None else side.lower(),
                 distance_m=None if distance is None else float(distance),
@@ -255,7 +296,10 @@ def parse_subgoals(text: str) -> SubGoalPlan:
             f"'context_landmarks' must hold at most {MAX_SUBGOALS} phrases of at most "
             f"{MAX_PHRASE_CHARS} characters"
         )
-    return SubGoalPlan(tuple(goals), tuple(c.strip() for c in context if c.strip()))
+    context = [c.strip() for c in context if c.strip()]
+    for i, phrase in enumerate(context):
+        _check_copied(phrase, dialog_words, f"context_landmarks[{i}]")
+    return SubGoalPlan(tuple(goals), tuple(context))
 
 
 def plan_to_json(plan: SubGoalPlan) -> str:

@@ -3,6 +3,7 @@ the answer was cut off; a module that still gets nothing usable is a recorded fa
 
 from __future__ import annotations
 
+import functools
 import json
 from pathlib import Path
 
@@ -10,7 +11,7 @@ import pytest
 
 from skyvln_eval.agent import AgentConfig, build_agent
 from skyvln_eval.agent.calls import call_json
-from skyvln_eval.agent.subgoals import SUBGOALS_SCHEMA, parse_subgoals
+from skyvln_eval.agent.subgoals import SUBGOALS_SCHEMA, DialogText, parse_subgoals
 from skyvln_eval.converters import topics as t
 from skyvln_eval.converters.reader import read_log
 from skyvln_eval.converters.validate import check_log
@@ -44,7 +45,7 @@ def test_a_cut_off_answer_is_asked_again_with_a_larger_budget() -> None:
             "subgoals",
             [Message("user", "Decompose: go north.")],
             config,
-            parse_subgoals,
+            functools.partial(parse_subgoals, dialog=DialogText((), None, "Go north.")),
             llm.repair_policy(),
         )
         bodies = [r["body"] for r in server.requests]

@@ -82,7 +82,7 @@ def test_the_prompt_carries_earlier_rounds_and_the_current_one() -> None:
     assert data["instruction"] == "Go north. The destination is a red hotel."
     assert data["previous_rounds"] == ["commander: Go west. Stop when you reach the church."]
     answer = create_backend("rule").generate(messages, GenerationConfig()).text
-    plan = parse_subgoals(answer)
+    plan = parse_subgoals(answer, DialogText.of(turns, current_round=2))
     assert plan.subgoals == (
         SubGoal("head", direction="north"),
         SubGoal("destination", landmark="a red hotel"),
@@ -101,13 +101,38 @@ def test_the_prompt_carries_earlier_rounds_and_the_current_one() -> None:
         ({"subgoals": [{"kind": "turn", "direction": "left", "ordinal": 0}]}, "ordinal must be"),
         ({"subgoals": [{"kind": "head", "direction": "north", "cmd": "rm"}]}, "unknown field"),
         ({"subgoals": "go north"}, "must be a list"),
+        # What Gemma 3 270M wrote under the grammar: a fragment of JSON as a landmark.
+        ({"subgoals": [{"kind": "pass", "landmark": "}, {"}]}, r"'\}, \{' has no words"),
+        (
+            {"subgoals": [{"kind": "stop_at", "landmark": "the blue stadium"}]},
+            r"landmark 'the blue stadium' is not in the dialog \(it has no 'blue', 'stadium'\)",
+        ),
+        (
+            {"subgoals": [{"kind": "destination", "landmark": "the church", "name": "St Mary"}]},
+            r"subgoals\[0\].name 'St Mary' is not in the dialog",
+        ),
+        ({"subgoals": [], "context_landmarks": ["a red hotel"]}, r"context_landmarks\[0\]"),
     ],
 )
 def test_invalid_subgoals_are_rejected_with_a_reason(
     payload: dict[str, object], reason: str
 ) -> None:
+    dialog = DialogText(("commander: Go west.",), None, "Stop when you reach the church.")
     with pytest.raises(ActionParseError, match=reason):
-        parse_subgoals(json.dumps(payload))
+        parse_subgoals(json.dumps(payload), dialog)
+
+
+def test_copied_phrases_are_read_word_for_word_whatever_the_case_and_punctuation() -> None:
+    dialog = DialogText(
+        ("commander: Fly past the Red-Roofed church.",), "Where?", "Stop at the gas station."
+    )
+    answer = {
+        "subgoals": [{"kind": "stop_at", "landmark": "The GAS station,"}],
+        "context_landmarks": ["red roofed church"],
+    }
+    plan = parse_subgoals(json.dumps(answer), dialog)
+    assert plan.landmark_phrases == ["The GAS station,"]
+    assert plan.context_landmarks == ("red roofed church",)
 
 
 def test_structured_output_nulls_are_accepted() -> None:
@@ -120,5 +145,6 @@ def test_structured_output_nulls_are_accepted() -> None:
         "distance_m": 150,
         "ordinal": None,
     }
-    plan = parse_subgoals(json.dumps({"subgoals": [item], "context_landmarks": []}))
+    answer = json.dumps({"subgoals": [item], "context_landmarks": []})
+    plan = parse_subgoals(answer, DialogText((), None, "Fly 150 metres."))
     assert plan.subgoals == (SubGoal("stop_after", distance_m=150.0),)

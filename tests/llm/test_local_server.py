@@ -3,6 +3,7 @@ facts negotiation and ``system_role`` rest on), and the agent's calls answered b
 
 from __future__ import annotations
 
+import functools
 import json
 import urllib.error
 import urllib.request
@@ -12,7 +13,7 @@ from typing import Any
 from skyvln_eval.agent.actions import Stop, decision_json_schema
 from skyvln_eval.agent.calls import CUT_OFF_REQUEST, call_json
 from skyvln_eval.agent.motion import SYSTEM_PROMPT, MotionGenerator
-from skyvln_eval.agent.subgoals import SUBGOALS_SCHEMA, parse_subgoals
+from skyvln_eval.agent.subgoals import SUBGOALS_SCHEMA, DialogText, parse_subgoals
 from skyvln_eval.llm import GenerationConfig, LLMClient, Message
 from skyvln_eval.llm.config import LLMConfig, RepairPolicy, build_client
 from skyvln_eval.llm.local_server import MODEL_ALIAS, llm_settings
@@ -94,11 +95,13 @@ def test_an_answer_cut_off_at_its_budget_is_detected_and_asked_for_with_more(
     config = GenerationConfig(
         max_tokens=16, timeout_s=180.0, json_schema=SUBGOALS_SCHEMA, schema_name="subgoals"
     )
+    instruction = "Fly north past the church, turn left at the bridge, stop at the tower."
     messages = [
         Message("system", "Extract the sub-goals of a drone's instruction as JSON."),
-        Message("user", "Fly north past the church, turn left at the bridge, stop at the tower."),
+        Message("user", instruction),
     ]
-    call = call_json(client, "subgoals", messages, config, parse_subgoals, RepairPolicy())
+    parse = functools.partial(parse_subgoals, dialog=DialogText((), None, instruction))
+    call = call_json(client, "subgoals", messages, config, parse, RepairPolicy())
     first, second = call.records[0], call.records[1]
     assert first.finish_reason == "length" and first.outcome == "invalid"
     assert "max_tokens=16" in (first.error or "")
