@@ -29,7 +29,7 @@ SUMMARY_METRICS = ("success", "oracle_success", "spl", "gp_m", "oracle_gp_m", "n
                    "llm_cost_usd", "llm_latency_s")  # fmt: skip
 #: What the terminal table shows (summary.csv has every metric above).
 PRINTED_METRICS = ("success", "oracle_success", "spl", "gp_m", "ne_m", "path_length_m",
-                   "status_error", "fallback_rate", "llm_cost_usd")  # fmt: skip
+                   "status_error", "status_degraded", "fallback_rate", "llm_cost_usd")  # fmt: skip
 
 
 def _cell(by_metric: Any, metric: str) -> str:

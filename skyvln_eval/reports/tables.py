@@ -68,14 +68,16 @@ TABLE_II = TableSpec(
         ("ne_m", "NE/m"),
         ("fallback_rate", "Fallback/%"),
         ("llm_call_failure_rate", "Call fail/%"),
+        ("status_degraded", "Degraded/%"),
         ("status_error", "Error/%"),
         ("llm_cost_usd", "Cost/$"),
         ("llm_latency_s", "LLM s"),
     ),
     caption=(
         "Ablation over LLM backends. Fallback: decisions that used the fallback action; "
-        "Call fail: LLM calls with no answer after retries; Error: episodes with no usable "
-        "LLM answer or that raised; Cost and LLM s: per episode (n/a: unknown)."
+        "Call fail: LLM calls with no answer after retries; Degraded: episodes where an "
+        "answer could not be used (a fallback action, no sub-goals, ...); Error: episodes "
+        "with no usable LLM answer or that raised; Cost and LLM s: per episode (n/a: unknown)."
     ),
     label="tab:results_backends",
     digits=(("llm_cost_usd", 4),),

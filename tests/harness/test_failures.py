@@ -14,10 +14,14 @@ from typer.testing import CliRunner
 
 from skyvln_eval.cli import app
 from skyvln_eval.harness.store import RESULTS_FILE
-from skyvln_eval.llm.loopback import LoopbackOpenAIServer, status
+from skyvln_eval.llm.loopback import LoopbackOpenAIServer, answer, status
 from skyvln_eval.metrics import read_results
 
 FAST_RETRY = {"max_attempts": 2, "initial_delay_s": 0.0, "max_delay_s": 0.0}
+#: What Gemma 3 270M wrote as sub-goals under its grammar.
+JUNK_SUBGOALS = json.dumps(
+    {"subgoals": [{"kind": "pass", "landmark": "}, {", "side": "left"}], "context_landmarks": []}
+)
 
 
 def _llm(base_url: str, model: str, **extra: Any) -> dict[str, Any]:
@@ -30,7 +34,7 @@ def _llm(base_url: str, model: str, **extra: Any) -> dict[str, Any]:
     }
 
 
-def _plan(path: Path, data: str, dead_url: str, live_url: str) -> Path:
+def _plan(path: Path, data: str, dead_url: str, live_url: str, junk_url: str) -> Path:
     full = {"label": "Full", "mode": "official", "agent": {"name": "skyvln"}}
     plan = {
         "name": "faults",
@@ -48,6 +52,8 @@ def _plan(path: Path, data: str, dead_url: str, live_url: str) -> Path:
                     "label": "unpriced model",
                     "llm": _llm(live_url, "unpriced-model", send_task_data=True),
                 },
+                # Answers, but its sub-goals are fragments no dialog holds.
+                {"label": "junk sub-goals", "llm": _llm(junk_url, "junk", send_task_data=True)},
                 {"label": "rule-based (not an LLM)", "llm": {"backend": "rule"}},
             ],
             "environment_variable": None,
@@ -77,8 +83,10 @@ def test_a_dead_endpoint_is_an_error_in_every_table_and_fails_the_command(
     with (
         LoopbackOpenAIServer([status(500)] * 500) as dead,
         LoopbackOpenAIServer() as live,
+        LoopbackOpenAIServer([answer(JUNK_SUBGOALS, task="subgoals")] * 100) as junk,
     ):
-        plan = _plan(tmp_path / "faults.yaml", str(sample_dir), dead.base_url, live.base_url)
+        urls = (dead.base_url, live.base_url, junk.base_url)
+        plan = _plan(tmp_path / "faults.yaml", str(sample_dir), *urls)
         failed = _reproduce(plan, out)
         # The user allows every episode to err: the command passes, the rows do not change.
         allowed = _reproduce(plan, out, "--fail-on-error", "1.0")
@@ -98,6 +106,12 @@ def test_a_dead_endpoint_is_an_error_in_every_table_and_fails_the_command(
     assert dead_row["Unseen Testing Error/% ↓"].strip("*<u>/") == "100.00"
     assert dead_row["Unseen Testing Call fail/% ↓"].strip("*<u>/") == "100.00"
     assert dead_row["Unseen Testing Fallback/% ↓"].strip("*<u>/") == "100.00"
+    assert dead_row["Unseen Testing Degraded/% ↓"].strip("*<u>/") == "0.00"  # errors, not that
+    # Sub-goals refused at every try: the decisions are the model's, the episodes degraded.
+    junk_row = dict(zip(header, _row(table2, "junk sub-goals"), strict=True))
+    assert junk_row["Unseen Testing Degraded/% ↓"].strip("*<u>/") == "100.00"
+    assert junk_row["Unseen Testing Fallback/% ↓"].strip("*<u>/") == "0.00"
+    assert junk_row["Unseen Testing Error/% ↓"].strip("*<u>/") == "0.00"
     assert dead_row["Unseen Testing SR/% ↑"].strip("*<u>/") == "0.00"
     # Unknown cost is "n/a", never 0: in Table II, the cost table, the summary CSV ...
     unpriced = dict(zip(header, _row(table2, "unpriced model"), strict=True))
