@@ -15,6 +15,7 @@ right only, no distance, no sector, no candidate ranking.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -174,8 +175,7 @@ class HsdResult:
 
 
 MAX_DESCRIPTION_CHARS: Final = 2000
-#: Answer schemas; the parsers below accept exactly what they allow (ids are checked
-#: against the candidates of the call).
+#: Answer schemas; the parsers below accept exactly what they allow.
 DESCRIPTION_SCHEMA: Final[dict[str, Any]] = {
     "type": "object",
     "properties": {
@@ -185,16 +185,22 @@ DESCRIPTION_SCHEMA: Final[dict[str, Any]] = {
     "required": ["description", "match"],
     "additionalProperties": False,
 }
-RANK_SCHEMA: Final[dict[str, Any]] = {
-    "type": "object",
-    "properties": {
-        "ranking": {"type": "array", "items": {"type": "string", "maxLength": 40}},
-        "best": {"anyOf": [{"type": "string", "maxLength": 40}, {"type": "null"}]},
-        "confidence": {"type": "number", "minimum": 0, "maximum": 1},
-    },
-    "required": ["ranking", "best", "confidence"],
-    "additionalProperties": False,
-}
+
+
+def rank_schema(ids: Sequence[str]) -> dict[str, Any]:
+    """The ranking answer's schema for one call's candidates: ids only from ``ids`` (an
+    enum, which grammar-constrained decoders enforce), as :func:`_rank_parser` checks."""
+    candidate = {"type": "string", "enum": list(ids)}
+    return {
+        "type": "object",
+        "properties": {
+            "ranking": {"type": "array", "items": candidate, "maxItems": len(ids)},
+            "best": {"anyOf": [candidate, {"type": "null"}]},
+            "confidence": {"type": "number", "minimum": 0, "maximum": 1},
+        },
+        "required": ["ranking", "best", "confidence"],
+        "additionalProperties": False,
+    }
 
 
 def _parse_description(text: str) -> tuple[str, Match]:
@@ -257,7 +263,7 @@ class SpatialDescriptor:
         self.describe_config = llm.generation(
             "hsd_describe", json_schema=DESCRIPTION_SCHEMA, schema_name="description"
         )
-        self.rank_config = llm.generation("hsd_rank", json_schema=RANK_SCHEMA, schema_name="rank")
+        self.rank_config = llm.generation("hsd_rank", schema_name="rank")  # schema per call
         self.repair = llm.repair_policy()
         self.enabled = enabled
         self.top_k = top_k
@@ -449,7 +455,7 @@ class SpatialDescriptor:
             self.client,
             "hsd_rank",
             request.messages,
-            self.rank_config,
+            dataclasses.replace(self.rank_config, json_schema=rank_schema(ids)),
             _rank_parser(ids),
             self.repair,
         )

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import threading
+from collections.abc import Sequence
+from typing import Any
 
 import pytest
 
@@ -17,7 +19,14 @@ from skyvln_eval.agent.hsd import (
 )
 from skyvln_eval.agent.perception import Panorama, Sighting
 from skyvln_eval.agent.subgoals import SubGoal
-from skyvln_eval.llm import LLMClient, LLMConfig, create_backend
+from skyvln_eval.llm import (
+    Completion,
+    GenerationConfig,
+    LLMClient,
+    LLMConfig,
+    Message,
+    create_backend,
+)
 from skyvln_eval.llm.simple import ScriptedBackend
 from skyvln_eval.llm.taskdata import read_task_data
 
@@ -168,6 +177,29 @@ def test_an_unusable_ranking_falls_back_to_the_proposal_order_and_is_recorded() 
     assert [r.repair for r in result.records[-2:]] == [False, True]  # asked again once
     [failure] = result.failures  # and the fallback is on record
     assert failure.module == "hsd_rank" and failure.substitute == "proposal order"
+
+
+def test_the_ranking_schema_offers_exactly_the_calls_candidates() -> None:
+    """A grammar-constrained decoder can only name a candidate of the call, and whatever
+    it writes under the schema the parser accepts."""
+    describe = json.dumps({"description": "looks right", "match": "strong"})
+    schemas: list[dict[str, Any]] = []
+
+    class Recording(ScriptedBackend):
+        def generate(self, messages: Sequence[Message], config: GenerationConfig) -> Completion:
+            schemas.append(config.json_schema or {})
+            return super().generate(messages, config)
+
+    ranked = json.dumps({"ranking": ["L3", "L1"], "best": None, "confidence": 0.2})
+    backend = Recording([describe] * 3 + [ranked])
+    hsd = SpatialDescriptor(LLMClient(backend), LLMConfig(), enabled=True)
+    goal = SubGoal("destination", landmark="a small restaurant with a red roof")
+    [match] = hsd.match([goal], PANORAMA, 0.0, memory_notes=None).matches
+    ids = sorted(c.entry["id"] for c in match.candidates)
+    rank = schemas[-1]["properties"]
+    assert sorted(rank["ranking"]["items"]["enum"]) == ids == ["L1", "L2", "L3"]
+    assert rank["ranking"]["maxItems"] == 3 and sorted(rank["best"]["anyOf"][0]["enum"]) == ids
+    assert match.error is None and match.best is None  # as ranked: none fits
 
 
 def test_hsd_off_makes_no_calls() -> None:
