@@ -14,7 +14,7 @@ right and ``y`` forward in half view edges, ``altitude`` in [0, 1] (view edge
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Final, Literal
 
@@ -289,13 +289,22 @@ def action_record(action: Action) -> dict[str, Any]:
     return out
 
 
-def action_json_schema() -> dict[str, Any]:
+def action_json_schema(landmark_ids: Sequence[str] | None = None) -> dict[str, Any]:
     """The schema of one action: one object per action type (a discriminated union on
-    ``type``), each with exactly its fields and their ranges, from :data:`ACTION_SPECS`."""
+    ``type``), each with exactly its fields and their ranges, from :data:`ACTION_SPECS`.
+
+    With ``landmark_ids`` (the ids a decision may fly to), ``fly_to`` names one of them (an
+    enum, which grammar-constrained decoders enforce; no ``fly_to`` when there is none),
+    so a constrained decoder cannot name a landmark the parser refuses.
+    """
     variants = []
     for kind, specs in ACTION_SPECS.items():
+        if kind == "fly_to" and landmark_ids is not None and not landmark_ids:
+            continue
         properties: dict[str, Any] = {"type": {"type": "string", "enum": [kind]}}
         properties |= {spec.name: spec.schema() for spec in specs}
+        if kind == "fly_to" and landmark_ids:
+            properties["landmark"] = properties["landmark"] | {"enum": list(landmark_ids)}
         variants.append(
             {
                 "type": "object",
@@ -312,17 +321,18 @@ def action_json_schema() -> dict[str, Any]:
 MAX_SCHEMA_THOUGHT_CHARS: Final = 400
 
 
-def decision_json_schema() -> dict[str, Any]:
+def decision_json_schema(landmark_ids: Sequence[str] | None = None) -> dict[str, Any]:
     """JSON schema of the motion generator's output, sent as structured output.
 
     ``{"thought": str, "action": <one action type with its fields>}``; every field that
-    the parser accepts and nothing else (see :func:`action_json_schema`).
+    the parser accepts and nothing else (see :func:`action_json_schema`; ``landmark_ids``
+    the ids this decision may fly to, when known).
     """
     return {
         "type": "object",
         "properties": {
             "thought": {"type": "string", "maxLength": MAX_SCHEMA_THOUGHT_CHARS},
-            "action": action_json_schema(),
+            "action": action_json_schema(landmark_ids),
         },
         "required": ["thought", "action"],
         "additionalProperties": False,

@@ -25,7 +25,7 @@ as the motion module's failure.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Final
 
 from skyvln_eval.agent.actions import (
@@ -36,6 +36,7 @@ from skyvln_eval.agent.actions import (
     MIN_HEIGHT_M,
     Action,
     Stop,
+    decision_json_schema,
 )
 from skyvln_eval.agent.calls import call_json
 from skyvln_eval.agent.parsing import parse_decision
@@ -155,11 +156,14 @@ class MotionGenerator:
         """One decision: ``user`` is the prompt text, ``state`` the same as task data."""
         sent = tuple(images) if self.client.backend.takes_images else ()
         messages = [Message("system", system), task_message(user, self.module, state, sent)]
+        config = self.config
+        if config.json_schema is not None:  # fly_to may name only this decision's landmarks
+            config = replace(config, json_schema=decision_json_schema(list(landmark_offsets)))
         call = call_json(
             self.client,
             self.module,
             messages,
-            self.config,
+            config,
             lambda text: parse_decision(text, landmark_offsets),
             repair=self.repair,
         )

@@ -153,15 +153,28 @@ def test_the_decision_schema_is_a_union_with_exactly_each_actions_fields() -> No
         assert variant["additionalProperties"] is False
 
 
+def test_without_landmarks_a_decision_cannot_fly_to_one() -> None:
+    none = decision_json_schema([])
+    jsonschema.Draft202012Validator.check_schema(none)
+    kinds = [v["properties"]["type"]["enum"][0] for v in none["properties"]["action"]["anyOf"]]
+    assert "fly_to" not in kinds and len(kinds) == len(ACTION_SPECS) - 1
+    fly_to = {"type": "fly_to", "landmark": "L3", "height_m": None}
+    assert not jsonschema.Draft202012Validator(none).is_valid(json.loads(decision(fly_to)))
+    with pytest.raises(ActionParseError, match="not a known one"):
+        parse_decision(decision(fly_to), {})
+
+
 @settings(max_examples=60, deadline=None)
 @given(where=st.floats(0.0, 1.0), kind=st.sampled_from(list(ACTION_SPECS)))
 def test_whatever_the_schema_allows_the_parser_accepts(where: float, kind: str) -> None:
-    validator = jsonschema.Draft202012Validator(decision_json_schema())
+    validator = jsonschema.Draft202012Validator(decision_json_schema(list(LANDMARKS)))
     assert _agree(validator, _instance(kind, lambda spec: _in_range(spec, where)))
 
 
 def test_what_the_schema_refuses_the_parser_refuses_with_a_reason() -> None:
-    validator = jsonschema.Draft202012Validator(decision_json_schema())
+    validator = jsonschema.Draft202012Validator(decision_json_schema(list(LANDMARKS)))
+    # A decision's schema names only its landmarks: an id it does not know, both refuse.
+    assert not _agree(validator, {"type": "fly_to", "landmark": "L9", "height_m": None})
     for kind, specs in ACTION_SPECS.items():
         valid = _instance(kind, lambda spec: _in_range(spec, 0.5))
         for spec in specs:

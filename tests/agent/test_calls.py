@@ -136,3 +136,23 @@ def test_a_model_that_takes_images_gets_the_views_as_jpeg_and_the_log_names_them
         agent = build_agent(AgentConfig(name="navgpt", llm=_llm(server.base_url)))
         run_official_episode(agent, town_episode(RED), town_world(), max_steps=2)
         assert all(r["images"] == [] for r in server.requests)
+
+
+def test_each_decision_is_sent_a_schema_naming_only_the_landmarks_it_may_fly_to() -> None:
+    with LoopbackOpenAIServer() as server:
+        config = AgentConfig(llm=_llm(server.base_url))
+        run_official_episode(build_agent(config), town_episode(RED), town_world())
+        motion = [r for r in server.requests if r["task"] == "motion"]
+    offered = []
+    for request in motion:
+        schema = request["body"]["response_format"]["json_schema"]["schema"]
+        variants = {
+            v["properties"]["type"]["enum"][0]: v for v in schema["properties"]["action"]["anyOf"]
+        }
+        ids = variants["fly_to"]["properties"]["landmark"]["enum"] if "fly_to" in variants else []
+        prompt = request["body"]["messages"][-1]["content"]
+        text = prompt if isinstance(prompt, str) else " ".join(p.get("text", "") for p in prompt)
+        assert all(f"{i}" in text for i in ids)  # ids the prompt lists, nothing else
+        offered.append(len(ids))
+    print(f"\nlandmark ids offered per decision: {offered}")
+    assert motion and any(offered)  # landmarks were in view at some decision
