@@ -299,12 +299,12 @@ def action_json_schema(landmark_ids: Sequence[str] | None = None) -> dict[str, A
     """
     variants = []
     for kind, specs in ACTION_SPECS.items():
-        if kind == "fly_to" and landmark_ids is not None and not landmark_ids:
-            continue
         properties: dict[str, Any] = {"type": {"type": "string", "enum": [kind]}}
         properties |= {spec.name: spec.schema() for spec in specs}
-        if kind == "fly_to" and landmark_ids:
-            properties["landmark"] = properties["landmark"] | {"enum": list(landmark_ids)}
+        if kind == "fly_to" and landmark_ids is not None:
+            if not landmark_ids:
+                continue
+            properties["landmark"] |= {"enum": list(landmark_ids)}
         variants.append(
             {
                 "type": "object",

@@ -15,10 +15,9 @@ right only, no distance, no sector, no candidate ranking.
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Final, Literal, TypeVar
 
 import cv2
@@ -455,7 +454,7 @@ class SpatialDescriptor:
             self.client,
             "hsd_rank",
             request.messages,
-            dataclasses.replace(self.rank_config, json_schema=rank_schema(ids)),
+            replace(self.rank_config, json_schema=rank_schema(ids)),
             _rank_parser(ids),
             self.repair,
         )
