@@ -146,9 +146,10 @@ class DialogText:
         return cls(previous, question, instruction)
 
     def words(self) -> frozenset[str]:
-        """Every word of the dialog (:func:`phrase_words`): what copied phrases are made of."""
-        rounds = (*self.previous, self.question or "", self.instruction)
-        return frozenset(phrase_words(" ".join(rounds)))
+        """Every word the speakers said (:func:`phrase_words`): what copied phrases are made
+        of. The speaker labels of earlier rounds are the prompt's, not the dialog's words."""
+        said = [_without_speaker(line) for line in self.previous]
+        return frozenset(phrase_words(" ".join((*said, self.question or "", self.instruction))))
 
     def prose(self) -> str:
         return (
@@ -163,6 +164,12 @@ class DialogText:
             "question": self.question,
             "instruction": self.instruction,
         }
+
+
+def _without_speaker(line: str) -> str:
+    """An earlier round's line (``"commander: ..."``) without its speaker label."""
+    speaker, separator, text = line.partition(": ")
+    return text if separator and speaker in ("commander", "follower") else line
 
 
 def subgoal_messages(dialog: DialogText) -> list[Message]:

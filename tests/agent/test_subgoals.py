@@ -122,6 +122,14 @@ def test_invalid_subgoals_are_rejected_with_a_reason(
         parse_subgoals(json.dumps(payload), dialog)
 
 
+def test_speaker_labels_of_earlier_rounds_are_not_dialog_words() -> None:
+    dialog = DialogText(("commander: Go west.", "follower: Which way?"), None, "Stop here.")
+    answer = {"subgoals": [{"kind": "stop_at", "landmark": "the follower"}]}
+    with pytest.raises(ActionParseError, match=r"'follower'"):
+        parse_subgoals(json.dumps(answer), dialog)
+    assert {"go", "west", "which", "way", "stop", "here"} == dialog.words()
+
+
 def test_copied_phrases_are_read_word_for_word_whatever_the_case_and_punctuation() -> None:
     dialog = DialogText(
         ("commander: Fly past the Red-Roofed church.",), "Where?", "Stop at the gas station."
