@@ -35,11 +35,11 @@ from skyvln_eval.agent.odometry import Odometer, llm_agent_settings, pose_summar
 from skyvln_eval.agent.perception import Panorama, Perception
 from skyvln_eval.agent.pursuit import Pursuit, Verdict, check_pursuit
 from skyvln_eval.agent.subgoals import (
-    SUBGOALS_SCHEMA,
     DialogText,
     SubGoalPlan,
     parse_subgoals,
     subgoal_messages,
+    subgoals_json_schema,
 )
 from skyvln_eval.avdn.records import DialogTurn
 from skyvln_eval.errors import ActionParseError
@@ -239,9 +239,9 @@ class SkyVLNAgent(Agent):
         """The sub-goals of the dialog; when none could be extracted, the failure is
         recorded and the agent goes on from the commander's words alone (they are in
         every motion prompt)."""
-        config = self.llm.generation(
-            "subgoals", json_schema=SUBGOALS_SCHEMA, schema_name="subgoals"
-        )
+        # Phrases may be made only of the dialog's words, so the schema is this dialog's.
+        schema = subgoals_json_schema(dialog)
+        config = self.llm.generation("subgoals", json_schema=schema, schema_name="subgoals")
         call = call_json(
             self.client,
             "subgoals",

@@ -80,47 +80,6 @@ MAX_PHRASE_CHARS: Final = 300
 SIDES: Final = ("left", "right", "ahead")
 
 
-def _nullable(schema: dict[str, Any]) -> dict[str, Any]:
-    # anyOf rather than a type list: grammar converters drop enums and lengths of the latter.
-    return {"anyOf": [schema, {"type": "null"}]}
-
-
-_PHRASE: Final = {"type": "string", "maxLength": MAX_PHRASE_CHARS}
-
-#: The sub-goal answer's schema; :func:`parse_subgoals` accepts exactly what it allows,
-#: except what a schema cannot say, rejected with a reason to repair: a landmark-less pass /
-#: stop_at / destination, and phrases not copied from the dialog.
-SUBGOALS_SCHEMA: Final[dict[str, Any]] = {
-    "type": "object",
-    "additionalProperties": False,
-    "required": ["subgoals", "context_landmarks"],
-    "properties": {
-        "subgoals": {
-            "type": "array",
-            "maxItems": MAX_SUBGOALS,
-            "items": {
-                "type": "object",
-                "additionalProperties": False,
-                "required": list(SUBGOAL_FIELDS),
-                "properties": {
-                    "kind": {"type": "string", "enum": list(SUBGOAL_KINDS)},
-                    "landmark": _nullable(_PHRASE),
-                    "name": _nullable(_PHRASE),
-                    "direction": _nullable({"type": "string", "enum": list(DIRECTIONS)}),
-                    "side": _nullable({"type": "string", "enum": list(SIDES)}),
-                    "distance_m": _nullable(
-                        {"type": "number", "exclusiveMinimum": 0, "maximum": 5000}
-                    ),
-                    # An enum, not a range: grammar-constrained decoders (llama.cpp's among
-                    # them) enforce enums but not numeric bounds (Gemma wrote 200 here).
-                    "ordinal": _nullable({"type": "integer", "enum": list(range(1, 11))}),
-                },
-            },
-        },
-        "context_landmarks": {"type": "array", "maxItems": MAX_SUBGOALS, "items": _PHRASE},
-    },
-}
-
 SUBGOALS_SYSTEM: Final = (
     "You read navigation dialogs between a drone pilot (follower) and a commander who sees "
     "the map. You split the current instruction into ordered sub-goals and extract every "
@@ -145,11 +104,17 @@ class DialogText:
         instruction = " ".join(t.text for t in current if t.speaker == "commander")
         return cls(previous, question, instruction)
 
+    def said(self) -> str:
+        """What the speakers said, as one text: the earlier rounds without their speaker
+        labels (those are the prompt's words, not the dialog's), the question, the
+        instruction."""
+        earlier = [_without_speaker(line) for line in self.previous]
+        return " ".join((*earlier, self.question or "", self.instruction))
+
     def words(self) -> frozenset[str]:
         """Every word the speakers said (:func:`phrase_words`): what copied phrases are made
-        of. The speaker labels of earlier rounds are the prompt's, not the dialog's words."""
-        said = [_without_speaker(line) for line in self.previous]
-        return frozenset(phrase_words(" ".join((*said, self.question or "", self.instruction))))
+        of."""
+        return frozenset(phrase_words(self.said()))
 
     def prose(self) -> str:
         return (
@@ -213,12 +178,81 @@ def _check_copied(phrase: str | None, dialog_words: frozenset[str], where: str) 
         raise ActionParseError(
             f"{where} {phrase!r} has no words: copy the phrase word for word from the dialog"
         )
+    if len(words) > MAX_PHRASE_WORDS:
+        raise ActionParseError(
+            f"{where} {phrase!r} has {len(words)} words; a landmark phrase has at most "
+            f"{MAX_PHRASE_WORDS}: copy only the landmark's words"
+        )
     missing = list(dict.fromkeys(w for w in words if w not in dialog_words))
     if missing:
         raise ActionParseError(
             f"{where} {phrase!r} is not in the dialog (it has no "
             f"{', '.join(repr(w) for w in missing)}): copy phrases word for word"
         )
+
+
+def _nullable(schema: dict[str, Any]) -> dict[str, Any]:
+    # anyOf rather than a type list: grammar converters drop enums and lengths of the latter.
+    return {"anyOf": [schema, {"type": "null"}]}
+
+
+MAX_PHRASE_WORDS: Final = 20
+
+
+def phrase_schema(dialog: DialogText) -> dict[str, Any]:
+    """A landmark phrase or name copied from ``dialog``: words of the dialog (as written, in
+    lower case or capitalised), at most :data:`MAX_PHRASE_WORDS`, separated by spaces,
+    commas, hyphens or apostrophes. A grammar-constrained decoder can then only write what
+    :func:`parse_subgoals` accepts as copied (Gemma 3 270M, unconstrained, wrote ``"}, {"``).
+    Without words in the dialog no phrase can be copied: the schema allows none."""
+    forms = {
+        form
+        for token in _WORD.findall(dialog.said())
+        for form in (token, token.lower(), token.capitalize())
+    }
+    if not forms:
+        return {"not": {}}
+    # Plain groups: llama.cpp's schema-to-grammar converter refuses "(?:".
+    word = "(" + "|".join(sorted(forms, key=lambda w: (-len(w), w))) + ")"
+    pattern = f"^{word}([ ,'-]+{word}){{0,{MAX_PHRASE_WORDS - 1}}}$"
+    return {"type": "string", "maxLength": MAX_PHRASE_CHARS, "pattern": pattern}
+
+
+def subgoals_json_schema(dialog: DialogText) -> dict[str, Any]:
+    """The sub-goal answer's schema for ``dialog``; :func:`parse_subgoals` accepts all it
+    allows, and refuses, with a reason to repair, what a schema cannot say: a landmark-less
+    pass / stop_at / destination."""
+    phrase = phrase_schema(dialog)
+    return {
+        "type": "object",
+        "additionalProperties": False,
+        "required": ["subgoals", "context_landmarks"],
+        "properties": {
+            "subgoals": {
+                "type": "array",
+                "maxItems": MAX_SUBGOALS,
+                "items": {
+                    "type": "object",
+                    "additionalProperties": False,
+                    "required": list(SUBGOAL_FIELDS),
+                    "properties": {
+                        "kind": {"type": "string", "enum": list(SUBGOAL_KINDS)},
+                        "landmark": _nullable(phrase),
+                        "name": _nullable(phrase),
+                        "direction": _nullable({"type": "string", "enum": list(DIRECTIONS)}),
+                        "side": _nullable({"type": "string", "enum": list(SIDES)}),
+                        "distance_m": _nullable(
+                            {"type": "number", "exclusiveMinimum": 0, "maximum": 5000}
+                        ),
+                        # An enum, not a range: grammar-constrained decoders (llama.cpp's
+                        # among them) enforce enums but not numeric bounds (Gemma wrote 200).
+                        "ordinal": _nullable({"type": "integer", "enum": list(range(1, 11))}),
+                    },
+                },
+            },
+            "context_landmarks": {"type": "array", "maxItems": MAX_SUBGOALS, "items": phrase},
+        },
+    }
 
 
 def _optional_str(item: dict[str, Any], key: str, where: str) -> str | None:

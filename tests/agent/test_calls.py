@@ -11,7 +11,7 @@ import pytest
 
 from skyvln_eval.agent import AgentConfig, build_agent
 from skyvln_eval.agent.calls import call_json
-from skyvln_eval.agent.subgoals import SUBGOALS_SCHEMA, DialogText, parse_subgoals
+from skyvln_eval.agent.subgoals import DialogText, parse_subgoals, subgoals_json_schema
 from skyvln_eval.converters import topics as t
 from skyvln_eval.converters.reader import read_log
 from skyvln_eval.converters.validate import check_log
@@ -39,13 +39,15 @@ def test_a_cut_off_answer_is_asked_again_with_a_larger_budget() -> None:
     script = [answer('{"subgoals": [{"kind": "he', finish_reason="length"), answer(GOOD)]
     with LoopbackOpenAIServer(script) as server:
         llm = _llm(server.base_url, budgets={"subgoals": 100}, repair_temperature=0.9)
-        config = llm.generation("subgoals", json_schema=SUBGOALS_SCHEMA, schema_name="subgoals")
+        dialog = DialogText((), None, "Go north.")
+        schema = subgoals_json_schema(dialog)
+        config = llm.generation("subgoals", json_schema=schema, schema_name="subgoals")
         call = call_json(
             build_client(llm),
             "subgoals",
             [Message("user", "Decompose: go north.")],
             config,
-            functools.partial(parse_subgoals, dialog=DialogText((), None, "Go north.")),
+            functools.partial(parse_subgoals, dialog=dialog),
             llm.repair_policy(),
         )
         bodies = [r["body"] for r in server.requests]

@@ -4,9 +4,18 @@ from __future__ import annotations
 
 import json
 
+import jsonschema
 import pytest
 
-from skyvln_eval.agent.subgoals import DialogText, SubGoal, parse_subgoals, subgoal_messages
+from skyvln_eval.agent.subgoals import (
+    MAX_PHRASE_WORDS,
+    SUBGOAL_FIELDS,
+    DialogText,
+    SubGoal,
+    parse_subgoals,
+    subgoal_messages,
+    subgoals_json_schema,
+)
 from skyvln_eval.avdn import parse_utterances
 from skyvln_eval.errors import ActionParseError
 from skyvln_eval.llm import GenerationConfig, create_backend, read_task_data
@@ -128,6 +137,41 @@ def test_speaker_labels_of_earlier_rounds_are_not_dialog_words() -> None:
     with pytest.raises(ActionParseError, match=r"'follower'"):
         parse_subgoals(json.dumps(answer), dialog)
     assert {"go", "west", "which", "way", "stop", "here"} == dialog.words()
+
+
+@pytest.mark.parametrize(
+    ("landmark", "copied"),
+    [
+        ("the gas station", True),
+        ("Gas-Station", True),
+        ("The River-bridge", True),
+        ("the river's bridge", False),  # 's' is no word of the dialog
+        ("Bridge, gas station", True),
+        ("the church", False),  # a word the dialog does not have
+        ("}, {", False),  # what Gemma 3 270M wrote without the grammar
+        ("commander", False),  # a speaker label, not a word said
+        ("the " * MAX_PHRASE_WORDS + "bridge", False),  # too many words
+        ("", False),
+    ],
+)
+def test_the_schema_allows_the_copied_phrases_the_parser_accepts_and_none_it_refuses(
+    landmark: str, copied: bool
+) -> None:
+    dialog = DialogText(
+        ("commander: Go south to the river.",), "Which bridge?", "Stop at the gas station."
+    )
+    answer = {"subgoals": [{"kind": "stop_at", "landmark": landmark}], "context_landmarks": []}
+    for field in set(SUBGOAL_FIELDS) - {"kind", "landmark"}:
+        answer["subgoals"][0][field] = None
+    validator = jsonschema.Draft202012Validator(subgoals_json_schema(dialog))
+    assert validator.is_valid(answer) is copied
+    if copied:
+        assert parse_subgoals(json.dumps(answer), dialog).landmark_phrases == [landmark]
+    else:
+        with pytest.raises(ActionParseError):
+            parse_subgoals(json.dumps(answer), dialog)
+    context = {"subgoals": [], "context_landmarks": [landmark]}
+    assert validator.is_valid(context) is copied
 
 
 def test_copied_phrases_are_read_word_for_word_whatever_the_case_and_punctuation() -> None:

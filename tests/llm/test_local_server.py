@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import functools
 import json
+import re
 import urllib.error
 import urllib.request
 from dataclasses import replace
@@ -13,7 +14,12 @@ from typing import Any
 from skyvln_eval.agent.actions import Stop, decision_json_schema
 from skyvln_eval.agent.calls import CUT_OFF_REQUEST, call_json
 from skyvln_eval.agent.motion import SYSTEM_PROMPT, MotionGenerator
-from skyvln_eval.agent.subgoals import SUBGOALS_SCHEMA, DialogText, parse_subgoals
+from skyvln_eval.agent.subgoals import (
+    DialogText,
+    parse_subgoals,
+    phrase_words,
+    subgoals_json_schema,
+)
 from skyvln_eval.llm import GenerationConfig, LLMClient, Message
 from skyvln_eval.llm.config import LLMConfig, RepairPolicy, build_client
 from skyvln_eval.llm.local_server import MODEL_ALIAS, llm_settings
@@ -25,11 +31,16 @@ SCHEMA = {
 }
 
 
-def _post(base_url: str, response_format: dict[str, Any]) -> tuple[int, str]:
+def _post(
+    base_url: str,
+    response_format: dict[str, Any],
+    prompt: str = "Pick a colour, answer in JSON.",
+    max_tokens: int = 24,
+) -> tuple[int, str]:
     body = {
         "model": MODEL_ALIAS,
-        "messages": [{"role": "user", "content": "Pick a colour, answer in JSON."}],
-        "max_tokens": 24,
+        "messages": [{"role": "user", "content": prompt}],
+        "max_tokens": max_tokens,
         "temperature": 0.0,
         "response_format": response_format,
     }
@@ -59,6 +70,28 @@ def test_real_server_refuses_strict_json_schema_and_constrains_json_object(
     content = json.loads(reply["choices"][0]["message"]["content"], strict=False)
     assert content["colour"] in ("red", "blue")  # grammar-constrained to the enum
     assert reply["usage"]["prompt_tokens"] > 0
+
+
+def test_the_sub_goal_grammar_lets_the_model_copy_only_the_dialogs_words(
+    local_llm_url: str,
+) -> None:
+    """The per-dialog schema becomes the server's grammar (the server refuses patterns it
+    cannot convert, e.g. "(?:"); every phrase written under it, even cut off, is made of
+    the dialog's words (unconstrained, Gemma 3 270M wrote the landmark "}, {")."""
+    dialog = DialogText((), None, "Go south past the bridge and stop at the gas station.")
+    schema = subgoals_json_schema(dialog)
+    prompt = f"Extract the sub-goals as JSON: {dialog.instruction}"
+    status, text = _post(local_llm_url, {"type": "json_object", "schema": schema}, prompt, 120)
+    assert status == 200, text
+    content = json.loads(text)["choices"][0]["message"]["content"]
+    # Landmarks, names and the context landmarks' complete strings, of a JSON maybe cut off.
+    phrases = re.findall(r'"(?:landmark|name)"\s*:\s*"([^"]*)"', content)
+    _, _, context = content.partition('"context_landmarks"')
+    phrases += re.findall(r'"([^"]*)"', context)
+    print(f"\nphrases written: {phrases}")
+    assert phrases, content
+    for phrase in phrases:
+        assert phrase_words(phrase) and set(phrase_words(phrase)) <= dialog.words(), phrase
 
 
 # The backend and the agent's calls against the real server, call by call: short prompts,
@@ -92,15 +125,19 @@ def test_an_answer_cut_off_at_its_budget_is_detected_and_asked_for_with_more(
     local_llm_url: str,
 ) -> None:
     client = _client(local_llm_url)
-    config = GenerationConfig(
-        max_tokens=16, timeout_s=180.0, json_schema=SUBGOALS_SCHEMA, schema_name="subgoals"
-    )
     instruction = "Fly north past the church, turn left at the bridge, stop at the tower."
+    dialog = DialogText((), None, instruction)
+    config = GenerationConfig(
+        max_tokens=16,
+        timeout_s=180.0,
+        json_schema=subgoals_json_schema(dialog),
+        schema_name="subgoals",
+    )
     messages = [
         Message("system", "Extract the sub-goals of a drone's instruction as JSON."),
         Message("user", instruction),
     ]
-    parse = functools.partial(parse_subgoals, dialog=DialogText((), None, instruction))
+    parse = functools.partial(parse_subgoals, dialog=dialog)
     call = call_json(client, "subgoals", messages, config, parse, RepairPolicy())
     first, second = call.records[0], call.records[1]
     assert first.finish_reason == "length" and first.outcome == "invalid"
