@@ -26,6 +26,7 @@ from skyvln_eval.llm.types import Message
 SUBGOAL_FIELDS: Final = ("kind", "landmark", "name", "direction", "side", "distance_m", "ordinal")
 SubGoalKind = Literal["head", "turn", "pass", "stop_after", "stop_at", "destination"]
 SUBGOAL_KINDS: Final = ("head", "turn", "pass", "stop_after", "stop_at", "destination")
+LANDMARK_KINDS: Final = ("pass", "stop_at", "destination")  # these name their landmark
 DIRECTIONS: Final = (
     "north",
     "northeast",
@@ -219,10 +220,31 @@ def phrase_schema(dialog: DialogText) -> dict[str, Any]:
 
 
 def subgoals_json_schema(dialog: DialogText) -> dict[str, Any]:
-    """The sub-goal answer's schema for ``dialog``; :func:`parse_subgoals` accepts all it
-    allows, and refuses, with a reason to repair, what a schema cannot say: a landmark-less
-    pass / stop_at / destination."""
+    """The sub-goal answer's schema for ``dialog``, which :func:`parse_subgoals` agrees
+    with: a sub-goal is one of two shapes, by kind, both with every field (null where it
+    does not apply): a ``pass``, ``stop_at`` or ``destination`` names its landmark, the
+    other kinds may."""
     phrase = phrase_schema(dialog)
+
+    def shape(kinds: Sequence[str], landmark: dict[str, Any]) -> dict[str, Any]:
+        return {
+            "type": "object",
+            "additionalProperties": False,
+            "required": list(SUBGOAL_FIELDS),
+            "properties": {
+                "kind": {"type": "string", "enum": list(kinds)},
+                "landmark": landmark,
+                "name": _nullable(phrase),
+                "direction": _nullable({"type": "string", "enum": list(DIRECTIONS)}),
+                "side": _nullable({"type": "string", "enum": list(SIDES)}),
+                "distance_m": _nullable({"type": "number", "exclusiveMinimum": 0, "maximum": 5000}),
+                # An enum, not a range: grammar-constrained decoders (llama.cpp's among
+                # them) enforce enums but not numeric bounds (Gemma wrote 200 here).
+                "ordinal": _nullable({"type": "integer", "enum": list(range(1, 11))}),
+            },
+        }
+
+    others = [k for k in SUBGOAL_KINDS if k not in LANDMARK_KINDS]
     return {
         "type": "object",
         "additionalProperties": False,
@@ -232,22 +254,7 @@ def subgoals_json_schema(dialog: DialogText) -> dict[str, Any]:
                 "type": "array",
                 "maxItems": MAX_SUBGOALS,
                 "items": {
-                    "type": "object",
-                    "additionalProperties": False,
-                    "required": list(SUBGOAL_FIELDS),
-                    "properties": {
-                        "kind": {"type": "string", "enum": list(SUBGOAL_KINDS)},
-                        "landmark": _nullable(phrase),
-                        "name": _nullable(phrase),
-                        "direction": _nullable({"type": "string", "enum": list(DIRECTIONS)}),
-                        "side": _nullable({"type": "string", "enum": list(SIDES)}),
-                        "distance_m": _nullable(
-                            {"type": "number", "exclusiveMinimum": 0, "maximum": 5000}
-                        ),
-                        # An enum, not a range: grammar-constrained decoders (llama.cpp's
-                        # among them) enforce enums but not numeric bounds (Gemma wrote 200).
-                        "ordinal": _nullable({"type": "integer", "enum": list(range(1, 11))}),
-                    },
+                    "anyOf": [shape(LANDMARK_KINDS, phrase), shape(others, _nullable(phrase))]
                 },
             },
             "context_landmarks": {"type": "array", "maxItems": MAX_SUBGOALS, "items": phrase},
@@ -310,7 +317,7 @@ def parse_subgoals(text: str, dialog: DialogText) -> SubGoalPlan:
                 f"{where}.ordinal must be an integer in [1, 10], got {ordinal!r}"
             )
         landmark = _optional_str(item, "landmark", where)
-        if kind in ("pass", "stop_at", "destination") and landmark is None:
+        if kind in LANDMARK_KINDS and landmark is None:
             raise ActionParseError(f"{where} of kind {kind} needs a landmark phrase")
         name = _optional_str(item, "name", where)
         _check_copied(landmark, dialog_words, f"{where}.landmark")

@@ -174,6 +174,31 @@ def test_the_schema_allows_the_copied_phrases_the_parser_accepts_and_none_it_ref
     assert validator.is_valid(context) is copied
 
 
+@pytest.mark.parametrize(
+    ("kind", "landmark", "accepted"),
+    [
+        ("pass", None, False),
+        ("destination", None, False),
+        ("head", None, True),
+        ("stop_at", "the gas station", True),
+        ("turn", "the river", True),
+    ],
+)
+def test_the_schema_and_the_parser_agree_on_which_kinds_name_a_landmark(
+    kind: str, landmark: str | None, accepted: bool
+) -> None:
+    dialog = DialogText((), None, "Go south to the river and stop at the gas station.")
+    item = dict.fromkeys(SUBGOAL_FIELDS) | {"kind": kind, "landmark": landmark}
+    answer = {"subgoals": [item], "context_landmarks": []}
+    validator = jsonschema.Draft202012Validator(subgoals_json_schema(dialog))
+    assert validator.is_valid(answer) is accepted
+    if accepted:
+        assert parse_subgoals(json.dumps(answer), dialog).subgoals[0].kind == kind
+    else:
+        with pytest.raises(ActionParseError, match="needs a landmark phrase"):
+            parse_subgoals(json.dumps(answer), dialog)
+
+
 def test_copied_phrases_are_read_word_for_word_whatever_the_case_and_punctuation() -> None:
     dialog = DialogText(
         ("commander: Fly past the Red-Roofed church.",), "Where?", "Stop at the gas station."
