@@ -13,10 +13,12 @@ reference row.
     python benchmarks/real_llm.py [--episodes 10] [--max-steps 10] [--base-url URL]
 
 Gemma 3 270M is a small base model: expect a low SR. Measured on 2 cores (10 episodes of
-test_unseen): 110 calls, 18.4 s each on average, 34 minutes in all; all 90 decisions
-parsed, SR 0%, NE 188.3 m; its sub-goals are refused in every episode (landmark phrases
-such as "}, {" that no dialog holds, also after the repair), so every episode is
-"degraded". The server reuses the previous prompt's computed prefix: of a decision prompt, the
+test_unseen): 132 calls, 16.9 s each on average, 37 minutes in all; 86 of 87 decisions
+parsed (1 fallback), 7 unusable answers, 5 repairs; 8 episodes "ok", 2 "degraded" (a
+sub-goal distance of 1e15 m, which llama.cpp's grammar cannot bound, and the fallback);
+SR 0%, NE 187.4 m. Before the sub-goal schema was made per dialog (phrases a pattern of
+the dialog's words) its sub-goals were refused in every episode ("}, {" for a landmark).
+The server reuses the previous prompt's computed prefix: of a decision prompt, the
 first ~500 tokens (system prompt, actions, the commander's words) are the same at every
 step of an episode and are not computed again.
 """

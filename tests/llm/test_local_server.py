@@ -81,7 +81,7 @@ def test_the_sub_goal_grammar_lets_the_model_copy_only_the_dialogs_words(
     dialog = DialogText((), None, "Go south past the bridge and stop at the gas station.")
     schema = subgoals_json_schema(dialog)
     prompt = f"Extract the sub-goals as JSON: {dialog.instruction}"
-    status, text = _post(local_llm_url, {"type": "json_object", "schema": schema}, prompt, 120)
+    status, text = _post(local_llm_url, {"type": "json_object", "schema": schema}, prompt, 60)
     assert status == 200, text
     content = json.loads(text)["choices"][0]["message"]["content"]
     # Landmarks, names and the context landmarks' complete strings, of a JSON maybe cut off.
