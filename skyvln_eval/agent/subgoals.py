@@ -78,6 +78,7 @@ class SubGoalPlan:
 
 MAX_SUBGOALS: Final = 10  # an instruction rarely has more than 6; bounds a decoder
 MAX_PHRASE_CHARS: Final = 300
+MAX_PHRASE_WORDS: Final = 20
 SIDES: Final = ("left", "right", "ahead")
 
 
@@ -197,22 +198,19 @@ def _nullable(schema: dict[str, Any]) -> dict[str, Any]:
     return {"anyOf": [schema, {"type": "null"}]}
 
 
-MAX_PHRASE_WORDS: Final = 20
-
-
-def phrase_schema(dialog: DialogText) -> dict[str, Any]:
+def phrase_schema(dialog: DialogText) -> dict[str, Any] | None:
     """A landmark phrase or name copied from ``dialog``: words of the dialog (as written, in
     lower case or capitalised), at most :data:`MAX_PHRASE_WORDS`, separated by spaces,
     commas, hyphens or apostrophes. A grammar-constrained decoder can then only write what
     :func:`parse_subgoals` accepts as copied (Gemma 3 270M, unconstrained, wrote ``"}, {"``).
-    Without words in the dialog no phrase can be copied: the schema allows none."""
+    ``None`` when the dialog has no words: no phrase can be copied from it."""
     forms = {
         form
         for token in _WORD.findall(dialog.said())
         for form in (token, token.lower(), token.capitalize())
     }
     if not forms:
-        return {"not": {}}
+        return None
     # Plain groups: llama.cpp's schema-to-grammar converter refuses "(?:".
     word = "(" + "|".join(sorted(forms, key=lambda w: (-len(w), w))) + ")"
     pattern = f"^{word}([ ,'-]+{word}){{0,{MAX_PHRASE_WORDS - 1}}}$"
@@ -221,10 +219,14 @@ def phrase_schema(dialog: DialogText) -> dict[str, Any]:
 
 def subgoals_json_schema(dialog: DialogText) -> dict[str, Any]:
     """The sub-goal answer's schema for ``dialog``, which :func:`parse_subgoals` agrees
-    with: a sub-goal is one of two shapes, by kind, both with every field (null where it
-    does not apply): a ``pass``, ``stop_at`` or ``destination`` names its landmark, the
-    other kinds may."""
+    with: a sub-goal has one of two shapes, by kind, both with every field (null where it
+    does not apply): a ``pass``, ``stop_at`` or ``destination`` names its landmark (copied,
+    :func:`phrase_schema`), the other kinds may."""
     phrase = phrase_schema(dialog)
+    # Without words to copy, phrases are null, no sub-goal names a landmark and there are no
+    # context landmarks (as the parser would find); a schema nothing satisfies could make a
+    # server refuse the level for the whole run.
+    maybe_phrase = _nullable(phrase) if phrase is not None else {"type": "null"}
 
     def shape(kinds: Sequence[str], landmark: dict[str, Any]) -> dict[str, Any]:
         return {
@@ -234,7 +236,7 @@ def subgoals_json_schema(dialog: DialogText) -> dict[str, Any]:
             "properties": {
                 "kind": {"type": "string", "enum": list(kinds)},
                 "landmark": landmark,
-                "name": _nullable(phrase),
+                "name": maybe_phrase,
                 "direction": _nullable({"type": "string", "enum": list(DIRECTIONS)}),
                 "side": _nullable({"type": "string", "enum": list(SIDES)}),
                 "distance_m": _nullable({"type": "number", "exclusiveMinimum": 0, "maximum": 5000}),
@@ -244,7 +246,12 @@ def subgoals_json_schema(dialog: DialogText) -> dict[str, Any]:
             },
         }
 
-    others = [k for k in SUBGOAL_KINDS if k not in LANDMARK_KINDS]
+    others = shape([k for k in SUBGOAL_KINDS if k not in LANDMARK_KINDS], maybe_phrase)
+    if phrase is None:
+        shapes, context = [others], {"type": "array", "maxItems": 0}
+    else:
+        shapes = [shape(LANDMARK_KINDS, phrase), others]
+        context = {"type": "array", "maxItems": MAX_SUBGOALS, "items": phrase}
     return {
         "type": "object",
         "additionalProperties": False,
@@ -253,11 +260,9 @@ def subgoals_json_schema(dialog: DialogText) -> dict[str, Any]:
             "subgoals": {
                 "type": "array",
                 "maxItems": MAX_SUBGOALS,
-                "items": {
-                    "anyOf": [shape(LANDMARK_KINDS, phrase), shape(others, _nullable(phrase))]
-                },
+                "items": {"anyOf": shapes},
             },
-            "context_landmarks": {"type": "array", "maxItems": MAX_SUBGOALS, "items": phrase},
+            "context_landmarks": context,
         },
     }
 

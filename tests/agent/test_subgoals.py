@@ -199,6 +199,25 @@ def test_the_schema_and_the_parser_agree_on_which_kinds_name_a_landmark(
             parse_subgoals(json.dumps(answer), dialog)
 
 
+def test_a_dialog_without_words_has_a_schema_that_allows_only_what_the_parser_takes() -> None:
+    dialog = DialogText((), None, "?!")
+    validator = jsonschema.Draft202012Validator(subgoals_json_schema(dialog))
+    head = dict.fromkeys(SUBGOAL_FIELDS) | {"kind": "head", "direction": "north"}
+    answer = {"subgoals": [head], "context_landmarks": []}
+    assert validator.is_valid(answer)
+    assert parse_subgoals(json.dumps(answer), dialog).subgoals == (
+        SubGoal("head", direction="north"),
+    )
+    for refused in (
+        {"subgoals": [head | {"kind": "pass"}], "context_landmarks": []},
+        {"subgoals": [head | {"landmark": "north"}], "context_landmarks": []},
+        {"subgoals": [], "context_landmarks": ["north"]},
+    ):
+        assert not validator.is_valid(refused)
+        with pytest.raises(ActionParseError):
+            parse_subgoals(json.dumps(refused), dialog)
+
+
 def test_copied_phrases_are_read_word_for_word_whatever_the_case_and_punctuation() -> None:
     dialog = DialogText(
         ("commander: Fly past the Red-Roofed church.",), "Where?", "Stop at the gas station."
