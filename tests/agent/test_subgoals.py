@@ -160,9 +160,8 @@ def test_the_schema_allows_the_copied_phrases_the_parser_accepts_and_none_it_ref
     dialog = DialogText(
         ("commander: Go south to the river.",), "Which bridge?", "Stop at the gas station."
     )
-    answer = {"subgoals": [{"kind": "stop_at", "landmark": landmark}], "context_landmarks": []}
-    for field in set(SUBGOAL_FIELDS) - {"kind", "landmark"}:
-        answer["subgoals"][0][field] = None
+    item = dict.fromkeys(SUBGOAL_FIELDS) | {"kind": "stop_at", "landmark": landmark}
+    answer = {"subgoals": [item], "context_landmarks": []}
     validator = jsonschema.Draft202012Validator(subgoals_json_schema(dialog))
     assert validator.is_valid(answer) is copied
     if copied:
