@@ -113,6 +113,11 @@ class DialogText:
         earlier = [_without_speaker(line) for line in self.previous]
         return " ".join((*earlier, self.question or "", self.instruction))
 
+    def instructs(self) -> bool:
+        """Whether the current instruction has words, so that it has at least one sub-goal
+        (an empty plan for it is a failed extraction, not a plan)."""
+        return bool(phrase_words(self.instruction))
+
     def words(self) -> frozenset[str]:
         """Every word the speakers said (:func:`phrase_words`): what copied phrases are made
         of."""
@@ -148,6 +153,7 @@ def subgoal_messages(dialog: DialogText) -> list[Message]:
         "side left/right/ahead), stop_after (distance_m), stop_at (a landmark to stop at), "
         "destination (the landmark that is the destination; its name if given, and "
         "distance_m if the commander says how far). Copy landmark phrases word for word. "
+        "Give at least one sub-goal (head ahead when the commander only says to go on). "
         "List landmarks mentioned only in earlier rounds as context_landmarks.\n"
         + dialog.prose()
         + 'Answer as {"subgoals": [{"kind": ..., "landmark": ..., "name": ..., "direction": ..., '
@@ -259,6 +265,7 @@ def subgoals_json_schema(dialog: DialogText) -> dict[str, Any]:
         "properties": {
             "subgoals": {
                 "type": "array",
+                "minItems": 1 if dialog.instructs() else 0,
                 "maxItems": MAX_SUBGOALS,
                 "items": {"anyOf": shapes},
             },
@@ -287,6 +294,11 @@ def parse_subgoals(text: str, dialog: DialogText) -> SubGoalPlan:
     items = data.get("subgoals")
     if not isinstance(items, list) or len(items) > MAX_SUBGOALS:
         raise ActionParseError(f"'subgoals' must be a list of at most {MAX_SUBGOALS} items")
+    if not items and dialog.instructs():
+        raise ActionParseError(
+            "'subgoals' is empty, but the commander's instruction has words: give at least "
+            "one sub-goal (head ahead when it only says to go on)"
+        )
     goals = []
     for i, item in enumerate(items):
         where = f"subgoals[{i}]"

@@ -12,6 +12,7 @@ from skyvln_eval.errors import CacheMissError, ConfigError, LLMError
 from skyvln_eval.llm.base import LLMBackend
 from skyvln_eval.llm.taskdata import read_task_data
 from skyvln_eval.llm.types import Completion, GenerationConfig, Message
+from skyvln_eval.vocabulary import COMPASS
 
 ScriptItem = str | Exception | Callable[[Sequence[Message]], str]
 
@@ -75,7 +76,8 @@ class RandomBackend(LLMBackend):
         task = data["task"]
         answer: dict[str, Any]
         if task == "subgoals":
-            answer = {"subgoals": []}
+            # One random heading: a plan may not be empty when the instruction has words.
+            answer = {"subgoals": [{"kind": "head", "direction": rng.choice(sorted(COMPASS))}]}
         elif task == "hsd_describe":
             answer = {
                 "description": "no opinion",

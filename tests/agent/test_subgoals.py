@@ -71,7 +71,8 @@ from skyvln_eval.llm.rule.instructions import parse_instruction
                 },
             ],
         ),
-        ("Yes, keep going. No idea what else to say", []),
+        ("Yes, keep going. No idea what else to say", [{"kind": "head", "direction": "ahead"}]),
+        ("?!", []),
     ],
 )
 def test_the_rule_backend_reads_instructions_into_subgoals(
@@ -120,7 +121,15 @@ def test_the_prompt_carries_earlier_rounds_and_the_current_one() -> None:
             {"subgoals": [{"kind": "destination", "landmark": "the church", "name": "St Mary"}]},
             r"subgoals\[0\].name 'St Mary' is not in the dialog",
         ),
-        ({"subgoals": [], "context_landmarks": ["a red hotel"]}, r"context_landmarks\[0\]"),
+        (
+            {
+                "subgoals": [{"kind": "stop_at", "landmark": "the church"}],
+                "context_landmarks": ["a red hotel"],
+            },
+            r"context_landmarks\[0\]",
+        ),
+        # The instruction has words, so a plan without sub-goals is a failed extraction.
+        ({"subgoals": [], "context_landmarks": []}, "'subgoals' is empty"),
     ],
 )
 def test_invalid_subgoals_are_rejected_with_a_reason(
@@ -169,7 +178,8 @@ def test_the_schema_allows_the_copied_phrases_the_parser_accepts_and_none_it_ref
     else:
         with pytest.raises(ActionParseError):
             parse_subgoals(json.dumps(answer), dialog)
-    context = {"subgoals": [], "context_landmarks": [landmark]}
+    head = dict.fromkeys(SUBGOAL_FIELDS) | {"kind": "head", "direction": "south"}
+    context = {"subgoals": [head], "context_landmarks": [landmark]}
     assert validator.is_valid(context) is copied
 
 
@@ -215,6 +225,21 @@ def test_a_dialog_without_words_has_a_schema_that_allows_only_what_the_parser_ta
         assert not validator.is_valid(refused)
         with pytest.raises(ActionParseError):
             parse_subgoals(json.dumps(refused), dialog)
+
+
+@pytest.mark.parametrize(("instruction", "empty_allowed"), [("Keep going.", False), ("?!", True)])
+def test_an_empty_plan_is_refused_by_schema_and_parser_when_the_instruction_has_words(
+    instruction: str, empty_allowed: bool
+) -> None:
+    dialog = DialogText(("commander: Go west.",), None, instruction)
+    empty = {"subgoals": [], "context_landmarks": []}
+    validator = jsonschema.Draft202012Validator(subgoals_json_schema(dialog))
+    assert validator.is_valid(empty) is empty_allowed
+    if empty_allowed:
+        assert parse_subgoals(json.dumps(empty), dialog).subgoals == ()
+    else:
+        with pytest.raises(ActionParseError, match="'subgoals' is empty"):
+            parse_subgoals(json.dumps(empty), dialog)
 
 
 def test_copied_phrases_are_read_word_for_word_whatever_the_case_and_punctuation() -> None:

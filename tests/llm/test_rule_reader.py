@@ -105,7 +105,12 @@ PACKAGE = REPO / "skyvln_eval"
                 {"kind": "destination", "landmark": "the school with a white roof"},
             ],
         ),
-        ("Yes, that's right. No idea what else to say", None, []),
+        # No cue the reader knows: the commander lets the follower go on.
+        (
+            "Yes, that's right. No idea what else to say",
+            None,
+            [{"kind": "head", "direction": "ahead"}],
+        ),
     ],
 )
 def test_the_reader_understands_phrasings_it_was_not_written_for(

@@ -184,6 +184,10 @@ def parse_instruction(text: str, question: str | None = None) -> list[dict[str, 
         for k, clause in enumerate(clauses):
             sentence.read(k, read_clause(clause))
         sentence.settle()
+    if not goals and any(isinstance(w, Word) for w in words_of(text)):
+        # Words without a cue this reader knows ("Yes, keep going"): the commander lets
+        # the follower go on, which is a sub-goal too (an empty plan is a failed reading).
+        goals.append({"kind": "head", "direction": "ahead"})
     return goals
 
 
