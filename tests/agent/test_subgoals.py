@@ -268,3 +268,16 @@ def test_structured_output_nulls_are_accepted() -> None:
     answer = json.dumps({"subgoals": [item], "context_landmarks": []})
     plan = parse_subgoals(answer, DialogText((), None, "Fly 150 metres."))
     assert plan.subgoals == (SubGoal("stop_after", distance_m=150.0),)
+
+
+def test_the_random_backend_plans_one_heading_the_parser_accepts() -> None:
+    # A floor for comparisons must not fail its extractions: its plan is never empty.
+    dialog = DialogText((), None, "Fly to the red building by the river.")
+    backend = create_backend("random")
+    headings = set()
+    for seed in range(8):
+        answer = backend.generate(subgoal_messages(dialog), GenerationConfig(seed=seed)).text
+        (goal,) = parse_subgoals(answer, dialog).subgoals
+        assert goal.kind == "head"
+        headings.add(goal.direction)
+    assert len(headings) > 1  # random, not one fixed heading
