@@ -232,7 +232,7 @@ def test_an_empty_plan_is_refused_by_schema_and_parser_when_the_instruction_has_
     instruction: str, empty_allowed: bool
 ) -> None:
     dialog = DialogText(("commander: Go west.",), None, instruction)
-    empty = {"subgoals": [], "context_landmarks": []}
+    empty: dict[str, list[str]] = {"subgoals": [], "context_landmarks": []}
     validator = jsonschema.Draft202012Validator(subgoals_json_schema(dialog))
     assert validator.is_valid(empty) is empty_allowed
     if empty_allowed:
