@@ -65,6 +65,7 @@ typedef struct {
 static inline float max_f(float a, float b) { return a > b ? a : b; }
 static inline double max_d(double a, double b) { return a > b ? a : b; }
 static inline double min_d(double a, double b) { return a < b ? a : b; }
+static inline int64_t min64(int64_t a, int64_t b) { return a < b ? a : b; }
 
 /* a + t (b - a), rounded once when fused (as OpenCV's vector kernels do with FMA). */
 static inline float lerp(float a, float b, float t, int fused) {
@@ -217,12 +218,17 @@ static double box_max(const Pyramid *p, double x_min, double x_max, double y_min
     return tallest;
 }
 
-/* march._start_levels for one tile whose four corner rays all go down: the level before
- * the first one the tallest point under the corners' footprint there reaches. */
-static int64_t tile_start(const March *m, const Ray corners[4]) {
-    for (int64_t j = 0; j < m->levels; ++j) {
-        double k = m->z_levels[j] - m->origin_z;
-        double x_min = INFINITY, x_max = -INFINITY, y_min = INFINITY, y_max = -INFINITY;
+/* An upper bound of the layer under the tile's four corner rays at every level from a to b
+ * (a <= b): box_max of the box holding their points at both levels. Along a ray a point's
+ * coordinates are monotone in k (so are their roundings), so the points of the levels
+ * between lie in that box too; and a larger box's cells hold the smaller box's (the
+ * pyramid's cells nest), so the bound is at least each level's own. For a == b it is
+ * exactly that level's bound. */
+static double corners_tallest(const March *m, const Ray corners[4], int64_t a, int64_t b) {
+    double x_min = INFINITY, x_max = -INFINITY, y_min = INFINITY, y_max = -INFINITY;
+    const int64_t ends[2] = {a, b};
+    for (int e = 0; e < (a == b ? 1 : 2); ++e) {
+        double k = m->z_levels[ends[e]] - m->origin_z;
         for (int c = 0; c < 4; ++c) {
             double x = (double)m->x0 + k * (double)corners[c].sx;
             double y = (double)m->y0 - k * (double)corners[c].sy;
@@ -231,14 +237,34 @@ static int64_t tile_start(const March *m, const Ray corners[4]) {
             y_min = min_d(y_min, y);
             y_max = max_d(y_max, y);
         }
-        double tallest = box_max(&m->pyramid, x_min, x_max, y_min, y_max);
-        /* Bilinear samples never exceed their neighbours; the slack covers rounding. */
-        if (tallest * (1.0 + 1e-5) + 1e-3 >= m->z_levels[j]) return j > 0 ? j - 1 : 0;
+    }
+    return box_max(&m->pyramid, x_min, x_max, y_min, y_max);
+}
+
+/* Whether a layer bounded by `tallest` may reach height z: bilinear samples never exceed
+ * their neighbours; the slack covers rounding. */
+static inline int may_reach(double tallest, double z) { return tallest * (1.0 + 1e-5) + 1e-3 >= z; }
+
+/* Levels a block of the tile start's scan passes at once, when the block's bound is below
+ * its lowest level; most tiles start some 18 levels down, past four or five blocks. */
+#define START_BLOCK 4
+
+/* march._start_levels for one tile whose four corner rays all go down: the level before
+ * the first one the tallest point under the corners' footprint there reaches. Blocks of
+ * levels the layer surely does not reach are passed with one bound each; the block where
+ * it may is scanned level by level, so the level found is the one a plain scan finds. */
+static int64_t tile_start(const March *m, const Ray corners[4]) {
+    for (int64_t a = 0; a < m->levels; a += START_BLOCK) {
+        int64_t b = min64(a + START_BLOCK, m->levels) - 1;
+        /* The block's lowest level is its last (levels go down). */
+        if (b > a && !may_reach(corners_tallest(m, corners, a, b), m->z_levels[b])) continue;
+        for (int64_t j = a; j <= b; ++j) {
+            if (may_reach(corners_tallest(m, corners, j, j), m->z_levels[j]))
+                return j > 0 ? j - 1 : 0;
+        }
     }
     return 0;
 }
-
-static inline int64_t min64(int64_t a, int64_t b) { return a < b ? a : b; }
 
 /* The depth of one downward ray, sampled from level `start` on: no level above `start`
  * may reach the surface (the tile's bound guarantees it). The ray hits at the first level
@@ -293,27 +319,35 @@ AVX2 static inline __m256 lane_mask(int bits) {
     return as_mask(_mm256_cmpeq_epi32(set, lanes));
 }
 
+/* make_ray() for eight rays, as vectors: each lane is its ray's Ray, from the same double
+ * operations. Built in registers, not through per-lane arrays: eight scalar stores read
+ * back as one vector stall the load (no store forwarding across them). */
+typedef struct {
+    __m256 sx, sy, inv_dz, ground_t;
+    int down; /* lane bits of the rays that go down */
+} Lanes;
+
 /* make_ray() for rays i..i+LANES-1, four at a time: the same double operations. */
-AVX2 static void make_lanes(const double *rays, int64_t n, int64_t i, double origin_z,
-                            double mpp, Ray out[LANES]) {
-    float sx[LANES], sy[LANES], inv_dz[LANES], ground_t[LANES];
+AVX2 static Lanes make_lanes(const double *rays, int64_t n, int64_t i, double origin_z,
+                             double mpp) {
+    __m128 ground_t[2], inv_dz[2], sx[2], sy[2];
     int down = 0;
-    for (int h = 0; h < LANES; h += 4) {
-        __m256d dz = _mm256_loadu_pd(rays + 2 * n + i + h);
+    const __m256d scale = _mm256_set1_pd(mpp);
+    for (int h = 0; h < 2; ++h) {
+        __m256d dz = _mm256_loadu_pd(rays + 2 * n + i + 4 * h);
         __m256d is_down = _mm256_cmp_pd(dz, _mm256_set1_pd(-1e-9), _CMP_LT_OQ);
         __m256d safe_dz = _mm256_blendv_pd(_mm256_set1_pd(-1.0), dz, is_down);
-        __m256d scale = _mm256_set1_pd(mpp);
-        _mm_storeu_ps(ground_t + h,
-                      _mm256_cvtpd_ps(_mm256_div_pd(_mm256_set1_pd(0.0 - origin_z), safe_dz)));
-        _mm_storeu_ps(inv_dz + h, _mm256_cvtpd_ps(_mm256_div_pd(_mm256_set1_pd(1.0), safe_dz)));
-        __m256d x = _mm256_div_pd(_mm256_loadu_pd(rays + i + h), safe_dz);
-        __m256d y = _mm256_div_pd(_mm256_loadu_pd(rays + n + i + h), safe_dz);
-        _mm_storeu_ps(sx + h, _mm256_cvtpd_ps(_mm256_div_pd(x, scale)));
-        _mm_storeu_ps(sy + h, _mm256_cvtpd_ps(_mm256_div_pd(y, scale)));
-        down |= _mm256_movemask_pd(is_down) << h;
+        ground_t[h] = _mm256_cvtpd_ps(_mm256_div_pd(_mm256_set1_pd(0.0 - origin_z), safe_dz));
+        inv_dz[h] = _mm256_cvtpd_ps(_mm256_div_pd(_mm256_set1_pd(1.0), safe_dz));
+        __m256d x = _mm256_div_pd(_mm256_loadu_pd(rays + i + 4 * h), safe_dz);
+        __m256d y = _mm256_div_pd(_mm256_loadu_pd(rays + n + i + 4 * h), safe_dz);
+        sx[h] = _mm256_cvtpd_ps(_mm256_div_pd(x, scale));
+        sy[h] = _mm256_cvtpd_ps(_mm256_div_pd(y, scale));
+        down |= _mm256_movemask_pd(is_down) << (4 * h);
     }
-    for (int l = 0; l < LANES; ++l)
-        out[l] = (Ray){down >> l & 1, sx[l], sy[l], inv_dz[l], ground_t[l]};
+    return (Lanes){_mm256_set_m128(sx[1], sx[0]), _mm256_set_m128(sy[1], sy[0]),
+                   _mm256_set_m128(inv_dz[1], inv_dz[0]),
+                   _mm256_set_m128(ground_t[1], ground_t[0]), down};
 }
 
 /* The gaps (sample - level) of eight rays at level j, lane by lane as march_ray computes
@@ -398,21 +432,12 @@ AVX2 static inline __m256 crossing8(float previous_k, __m256 before, __m256 afte
 /* march_ray for eight rays of one tile row, level by level together from `start`: the
  * same depths (adjacent rays meet the surface within a level of each other, so lanes
  * rarely wait). Rays that go up get INFINITY. */
-AVX2 static void march_lanes(const March *m, const Ray rays[LANES], int64_t start,
-                             float *out) {
-    float sx[LANES], sy[LANES], inv_dz[LANES], depth[LANES];
-    int active = 0; /* lanes still in flight */
-    for (int l = 0; l < LANES; ++l) {
-        sx[l] = rays[l].sx;
-        sy[l] = rays[l].sy;
-        inv_dz[l] = rays[l].inv_dz;
-        depth[l] = rays[l].down ? rays[l].ground_t : INFINITY;
-        active |= rays[l].down << l;
-    }
-    const __m256 vsx = _mm256_loadu_ps(sx), vsy = _mm256_loadu_ps(sy);
-    const __m256 vinv_dz = _mm256_loadu_ps(inv_dz);
+AVX2 static void march_lanes(const March *m, const Lanes *rays, int64_t start, float *out) {
+    int active = rays->down; /* lanes still in flight */
+    const __m256 vsx = rays->sx, vsy = rays->sy, vinv_dz = rays->inv_dz;
     const __m256 all = as_mask(_mm256_set1_epi32(-1));
-    __m256 result = _mm256_loadu_ps(depth), previous = _mm256_setzero_ps();
+    __m256 result = _mm256_blendv_ps(_mm256_set1_ps(INFINITY), rays->ground_t, lane_mask(active));
+    __m256 previous = _mm256_setzero_ps();
     int have_previous = 0; /* lanes whose `previous` holds the previous level's gap */
     for (int64_t j = start; j < m->levels && active; ++j) {
         int below;
@@ -464,9 +489,8 @@ INLINE void march_tile(const March *m, const double *rays, int64_t n, int64_t wi
 #ifdef HAVE_LANES
         for (; lanes && c + LANES <= c1; c += LANES) {
             int64_t i = first + r * width + c;
-            Ray eight[LANES];
-            make_lanes(rays, n, i, m->origin_z, mpp, eight);
-            march_lanes(m, eight, start, depth + i);
+            Lanes eight = make_lanes(rays, n, i, m->origin_z, mpp);
+            march_lanes(m, &eight, start, depth + i);
         }
 #endif
         for (; c < c1; ++c) {
