@@ -243,7 +243,9 @@ static double corners_tallest(const March *m, const Ray corners[4], int64_t a, i
 
 /* Whether a layer bounded by `tallest` may reach height z: bilinear samples never exceed
  * their neighbours; the slack covers rounding. */
-static inline int may_reach(double tallest, double z) { return tallest * (1.0 + 1e-5) + 1e-3 >= z; }
+static inline int may_reach(double tallest, double z) {
+    return tallest * (1.0 + 1e-5) + 1e-3 >= z;
+}
 
 /* Levels a block of the tile start's scan passes at once, when the block's bound is below
  * its lowest level; most tiles start some 18 levels down, past four or five blocks. */
@@ -319,9 +321,8 @@ AVX2 static inline __m256 lane_mask(int bits) {
     return as_mask(_mm256_cmpeq_epi32(set, lanes));
 }
 
-/* make_ray() for eight rays, as vectors: each lane is its ray's Ray, from the same double
- * operations. Built in registers, not through per-lane arrays: eight scalar stores read
- * back as one vector stall the load (no store forwarding across them). */
+/* Eight rays' Ray fields, lane by lane. Built in registers, not through per-lane arrays:
+ * eight scalar stores read back as one vector stall the load (no store forwarding). */
 typedef struct {
     __m256 sx, sy, inv_dz, ground_t;
     int down; /* lane bits of the rays that go down */
