@@ -13,11 +13,12 @@ reference row.
     python benchmarks/real_llm.py [--episodes 10] [--max-steps 10] [--base-url URL]
 
 Gemma 3 270M is a small base model: expect a low SR. Measured on 2 cores (10 episodes of
-test_unseen): 132 calls, 16.9 s each on average, 37 minutes in all; 86 of 87 decisions
-parsed (1 fallback), 7 unusable answers, 5 repairs; 8 episodes "ok", 2 "degraded" (a
-sub-goal distance of 1e15 m, which llama.cpp's grammar cannot bound, and the fallback);
-SR 0%, NE 187.4 m. Before the sub-goal schema was made per dialog (phrases a pattern of
-the dialog's words) its sub-goals were refused in every episode ("}, {" for a landmark).
+test_unseen): 139 calls, 12.4 s each on average, 29 minutes in all; 90 of 90 decisions
+parsed (no fallback), 11 unusable answers (7 rankings, 4 sub-goal answers), 9 repairs;
+8 episodes "ok", 2 "degraded" (their sub-goals not extracted); SR 0%, NE 196.8 m. Each
+module's unusable answers are counted by reason (values blanked). Before the sub-goal
+schema was made per dialog (phrases a pattern of the dialog's words) its sub-goals were
+refused in every episode ("}, {" for a landmark).
 The server reuses the previous prompt's computed prefix: of a decision prompt, the
 first ~500 tokens (system prompt, actions, the commander's words) are the same at every
 step of an episode and are not computed again.
@@ -27,8 +28,10 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import re
 import tempfile
 import time
+from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -109,6 +112,20 @@ def measure(label: str, llm: dict[str, Any], args: argparse.Namespace, out: Path
             f"tokens {usage['prompt_tokens'] + usage['completion_tokens']:.0f}, "
             f"LLM {usage['llm_s']:.0f} s"
         )
+        reasons = Counter(
+            _reason(c.error) for c in calls if c.module == module and c.outcome == "invalid"
+        )
+        for reason, count in reasons.most_common():
+            print(f"    {count} x {reason}")
+
+
+def _reason(error: str | None) -> str:
+    """An unusable answer's reason with its values blanked (quoted text '...', numbers N;
+    a quoted field name that opens the reason stays), so that alike reasons count
+    together."""
+    text = (error or "no reason recorded").removeprefix("invalid output: ")
+    text = re.sub(r"(?<=.)'[^']*'", "'...'", text)
+    return re.sub(r"\d+(?:\.\d+)?(?:e[+-]?\d+)?", "N", text)[:160]
 
 
 def main() -> None:
