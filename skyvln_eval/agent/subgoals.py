@@ -11,7 +11,6 @@ those rounds ended, so TrackBack memory can recognise them near the start.
 from __future__ import annotations
 
 import json
-import re
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Any, Final, Literal
@@ -21,6 +20,7 @@ from skyvln_eval.avdn.records import DialogTurn
 from skyvln_eval.errors import ActionParseError
 from skyvln_eval.llm.taskdata import task_message
 from skyvln_eval.llm.types import Message
+from skyvln_eval.vocabulary.words import WORD, phrase_words
 
 #: Fields of one sub-goal in the LLM's JSON (``null`` where they do not apply).
 SUBGOAL_FIELDS: Final = ("kind", "landmark", "name", "direction", "side", "distance_m", "ordinal")
@@ -166,14 +166,6 @@ def subgoal_messages(dialog: DialogText) -> list[Message]:
     ]
 
 
-_WORD: Final = re.compile(r"[^\W_]+")  # runs of letters and digits, in any script
-
-
-def phrase_words(text: str) -> list[str]:
-    """The words of a phrase, lower case, without punctuation."""
-    return _WORD.findall(text.lower())
-
-
 def _check_copied(phrase: str | None, dialog_words: frozenset[str], where: str) -> None:
     """A landmark phrase or name must be copied from the dialog: every word of it is a
     word of the dialog. A small model under a grammar fills arrays with fragments (Gemma 3
@@ -212,7 +204,7 @@ def phrase_schema(dialog: DialogText) -> dict[str, Any] | None:
     ``None`` when the dialog has no words: no phrase can be copied from it."""
     forms = {
         form
-        for token in _WORD.findall(dialog.said())
+        for token in WORD.findall(dialog.said())
         for form in (token, token.lower(), token.capitalize())
     }
     if not forms:

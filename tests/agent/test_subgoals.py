@@ -281,3 +281,14 @@ def test_the_random_backend_plans_one_heading_the_parser_accepts() -> None:
         assert goal.kind == "head"
         headings.add(goal.direction)
     assert len(headings) > 1  # random, not one fixed heading
+
+
+@pytest.mark.parametrize("instruction", ["Keep going.", "日本", "é"])
+def test_the_rule_stand_in_and_the_parser_agree_that_words_need_a_sub_goal(
+    instruction: str,
+) -> None:
+    # Both read words by one definition (vocabulary.words): the stand-in never answers an
+    # instruction with an empty plan that the parser then refuses.
+    dialog = DialogText((), None, instruction)
+    answer = create_backend("rule").generate(subgoal_messages(dialog), GenerationConfig()).text
+    assert parse_subgoals(answer, dialog).subgoals

@@ -26,6 +26,7 @@ from typing import Any
 from skyvln_eval.llm.rule.clauses import ClauseReading, read_clause
 from skyvln_eval.llm.rule.text import Word, sentences_of, words_of
 from skyvln_eval.vocabulary import NEGATIVE_ANSWERS, compass_points_in
+from skyvln_eval.vocabulary.words import phrase_words
 
 Goal = dict[str, Any]
 _ROLELESS = "mention"  # a landmark no cue has given a role yet
@@ -184,7 +185,7 @@ def parse_instruction(text: str, question: str | None = None) -> list[dict[str, 
         for k, clause in enumerate(clauses):
             sentence.read(k, read_clause(clause))
         sentence.settle()
-    if not goals and any(isinstance(w, Word) for w in words_of(text)):
+    if not goals and phrase_words(text):
         # Words without a cue this reader knows ("Yes, keep going"): the commander lets
         # the follower go on, which is a sub-goal too (an empty plan is a failed reading).
         goals.append({"kind": "head", "direction": "ahead"})
