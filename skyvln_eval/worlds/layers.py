@@ -81,12 +81,13 @@ def _read_png(path: Path, flags: int) -> NDArray[Any]:
     return image
 
 
-def read_world_layers(
-    data_dir: str | Path, map_name: str
-) -> tuple[NDArray[np.uint8], NDArray[np.uint16], NDArray[np.float32], tuple[Landmark, ...]] | None:
-    """The layers of a synthetic map, or None when the map has none (e.g. real xView)."""
-    folder = layers_dir(data_dir, map_name)
-    meta_path = folder / "landmarks.json"
+#: The raster layers' files, in the order :func:`read_layer_rasters` returns them.
+LAYER_FILES = ("semantic.png", "instance.png", "height_dm.png")
+
+
+def read_landmarks(data_dir: str | Path, map_name: str) -> tuple[Landmark, ...] | None:
+    """The landmarks of a synthetic map, or None when the map has no layers (real xView)."""
+    meta_path = layers_dir(data_dir, map_name) / "landmarks.json"
     if not meta_path.is_file():
         return None
     info = json.loads(meta_path.read_text(encoding="utf-8"))
@@ -97,10 +98,7 @@ def read_world_layers(
             LAYERS_FORMAT_VERSION,
             "Regenerate the synthetic dataset with this version (`skyvln-eval sample --force`).",
         )
-    semantic = _read_png(folder / "semantic.png", cv2.IMREAD_UNCHANGED).astype(np.uint8)
-    instance = _read_png(folder / "instance.png", cv2.IMREAD_UNCHANGED).astype(np.uint16)
-    height = _read_png(folder / "height_dm.png", cv2.IMREAD_UNCHANGED).astype(np.float32) / 10.0
-    landmarks = tuple(
+    return tuple(
         Landmark(
             landmark_id=int(item["landmark_id"]),
             name=item["name"],
@@ -112,7 +110,19 @@ def read_world_layers(
         )
         for item in info["landmarks"]
     )
-    return semantic, instance, height, landmarks
+
+
+def read_layer_rasters(
+    data_dir: str | Path, map_name: str
+) -> tuple[NDArray[np.uint8], NDArray[np.uint16], NDArray[np.float32]]:
+    """The semantic, instance and height (metres) layers of a synthetic map."""
+    semantic_png, instance_png, height_png = (
+        layers_dir(data_dir, map_name) / name for name in LAYER_FILES
+    )
+    semantic = _read_png(semantic_png, cv2.IMREAD_UNCHANGED).astype(np.uint8)
+    instance = _read_png(instance_png, cv2.IMREAD_UNCHANGED).astype(np.uint16)
+    height = _read_png(height_png, cv2.IMREAD_UNCHANGED).astype(np.float32) / 10.0
+    return semantic, instance, height
 
 
 def has_world_layers(data_dir: str | Path, map_name: str) -> bool:

@@ -7,7 +7,14 @@ from pathlib import Path
 from skyvln_eval.avdn.constants import IMAGES_DIR
 from skyvln_eval.avdn.imagery import MapGeoref, load_map_bgr, map_image_path
 from skyvln_eval.errors import MapImageError
-from skyvln_eval.worlds.layers import read_world_layers
+from skyvln_eval.worlds.decoded import Rasters, decoded_rasters
+from skyvln_eval.worlds.layers import (
+    LAYER_FILES,
+    LAYERS_FORMAT_VERSION,
+    layers_dir,
+    read_landmarks,
+    read_layer_rasters,
+)
 from skyvln_eval.worlds.tile import WorldTile
 
 
@@ -15,18 +22,45 @@ def load_world(data_dir: str | Path, map_name: str, georef: MapGeoref) -> WorldT
     """The map as the official loader sees it (BGR, width-resized) plus any layers.
 
     Real xView maps give the image only; synthetic maps also give semantic, instance and
-    height layers and landmarks, which must match the resized image's shape.
+    height layers and landmarks, which must match the resized image's shape. The decoded
+    rasters come from the machine's cache of decoded maps when it holds them (read-only
+    arrays; see :mod:`skyvln_eval.worlds.decoded`).
     """
     path = map_image_path(Path(data_dir) / IMAGES_DIR, map_name)
-    bgr = load_map_bgr(path, georef)
-    layers = read_world_layers(data_dir, map_name)
-    if layers is None:
-        return WorldTile(map_name=map_name, georef=georef, bgr=bgr)
-    semantic, instance, height, landmarks = layers
-    if semantic.shape != bgr.shape[:2]:
-        raise MapImageError(
-            str(path),
-            f"world layers have shape {semantic.shape} but the resized map is {bgr.shape[:2]}; "
-            "the layers belong to another version of this map",
-        )
-    return WorldTile(map_name, georef, bgr, semantic, instance, height, landmarks)
+    if not path.is_file():
+        raise MapImageError(str(path), "map image not found")
+    landmarks = read_landmarks(data_dir, map_name)
+    sources = [path]
+    if landmarks is not None:
+        sources += [layers_dir(data_dir, map_name) / name for name in LAYER_FILES]
+        for source in sources[1:]:
+            if not source.is_file():
+                raise MapImageError(str(source), "missing or unreadable layer image")
+
+    def decode() -> Rasters:
+        bgr = load_map_bgr(path, georef)
+        if landmarks is None:
+            return {"bgr": bgr}
+        semantic, instance, height_m = read_layer_rasters(data_dir, map_name)
+        if semantic.shape != bgr.shape[:2]:
+            raise MapImageError(
+                str(path),
+                f"world layers have shape {semantic.shape} but the resized map is "
+                f"{bgr.shape[:2]}; the layers belong to another version of this map",
+            )
+        return {"bgr": bgr, "semantic": semantic, "instance": instance, "height_m": height_m}
+
+    # The width resize depends on the ratios only; the layers' meaning on their version.
+    recipe = {"resize": [georef.lng_ratio, georef.lat_ratio], "layers": LAYERS_FORMAT_VERSION}
+    rasters = decoded_rasters(sources, recipe, decode)
+    if landmarks is None:
+        return WorldTile(map_name=map_name, georef=georef, bgr=rasters["bgr"])
+    return WorldTile(
+        map_name,
+        georef,
+        rasters["bgr"],
+        rasters["semantic"],
+        rasters["instance"],
+        rasters["height_m"],
+        landmarks,
+    )

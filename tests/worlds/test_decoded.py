@@ -1,0 +1,133 @@
+"""The machine's cache of decoded maps: same arrays, read-only, decoded once, bounded."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from skyvln_eval.avdn import load_split
+from skyvln_eval.errors import ConfigError
+from skyvln_eval.worlds import decoded, load_world
+from skyvln_eval.worlds.decoded import BUDGET_ENV, budget_bytes, decoded_rasters
+from skyvln_eval.worlds.layers import read_layer_rasters
+
+
+def _source(tmp_path: Path, name: str, text: str) -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+class _Decoder:
+    """Counts its calls; its arrays depend on the source's text."""
+
+    def __init__(self, source: Path) -> None:
+        self.source = source
+        self.calls = 0
+
+    def __call__(self) -> decoded.Rasters:
+        self.calls += 1
+        value = len(self.source.read_text())
+        return {"a": np.full((3, 4), value, np.uint16), "b": np.arange(5, dtype=np.float32)}
+
+
+def test_second_request_is_read_from_the_cache_read_only(tmp_path: Path) -> None:
+    source = _source(tmp_path, "map.tif", "xyz")
+    decode = _Decoder(source)
+    first = decoded_rasters([source], {"r": 1}, decode, cache_dir=tmp_path / "cache")
+    second = decoded_rasters([source], {"r": 1}, decode, cache_dir=tmp_path / "cache")
+    assert decode.calls == 1
+    for name in ("a", "b"):
+        assert type(second[name]) is np.ndarray
+        assert second[name].dtype == first[name].dtype
+        np.testing.assert_array_equal(second[name], first[name])
+        assert not second[name].flags.writeable
+    with pytest.raises(ValueError, match="read-only"):
+        second["a"][0, 0] = 1
+
+
+def test_a_changed_source_or_recipe_is_decoded_again(tmp_path: Path) -> None:
+    source = _source(tmp_path, "map.tif", "xyz")
+    decode = _Decoder(source)
+    cache = tmp_path / "cache"
+    decoded_rasters([source], {"r": 1}, decode, cache_dir=cache)
+    decoded_rasters([source], {"r": 2}, decode, cache_dir=cache)
+    assert decode.calls == 2
+    replacement = _source(tmp_path, "new.tif", "longer text")
+    replacement.replace(source)  # a new file in the old one's place
+    again = decoded_rasters([source], {"r": 1}, decode, cache_dir=cache)
+    assert decode.calls == 3
+    assert int(again["a"][0, 0]) == len("longer text")
+
+
+def test_least_recently_used_entries_go_when_over_budget(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    cache = tmp_path / "cache"
+    sources = [_source(tmp_path, f"map{k}.tif", "x" * k) for k in range(3)]
+    for source in sources:
+        decoded_rasters([source], {}, _Decoder(source), cache_dir=cache)
+    assert len(list(cache.iterdir())) == 3
+    first = decoded.entry_key([sources[0]], {})
+    os.utime(cache / first / "names.json", (1.0, 1.0))  # the oldest use
+    entry_size = sum(p.stat().st_size for p in (cache / first).iterdir())
+    monkeypatch.setenv(BUDGET_ENV, str(3.5 * entry_size / 2**30))
+    extra = _source(tmp_path, "map9.tif", "y")
+    decoded_rasters([extra], {}, _Decoder(extra), cache_dir=cache)
+    kept = {p.name for p in cache.iterdir()}
+    assert first not in kept and decoded.entry_key([extra], {}) in kept
+    assert len(kept) == 3
+    monkeypatch.setenv(BUDGET_ENV, "0")
+    other = _source(tmp_path, "map8.tif", "z")
+    decoded_rasters([other], {}, _Decoder(other), cache_dir=cache)
+    assert [p.name for p in cache.iterdir()] == [decoded.entry_key([other], {})]
+
+
+def test_an_unwritable_cache_still_gives_the_arrays_with_a_notice(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    source = _source(tmp_path, "map.tif", "xyz")
+    blocker = _source(tmp_path, "not-a-folder", "")
+    monkeypatch.setattr(decoded, "_warned", type(decoded._warned)())
+    with pytest.warns(RuntimeWarning, match="decoded maps are not cached"):
+        rasters = decoded_rasters([source], {}, _Decoder(source), cache_dir=blocker / "cache")
+    assert int(rasters["a"][0, 0]) == 3
+
+
+def test_budget_must_be_a_non_negative_number(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(BUDGET_ENV, "lots")
+    with pytest.raises(ConfigError, match=BUDGET_ENV):
+        budget_bytes()
+    monkeypatch.setenv(BUDGET_ENV, "-1")
+    with pytest.raises(ConfigError, match=BUDGET_ENV):
+        budget_bytes()
+
+
+def test_cached_world_equals_a_fresh_decode(
+    sample_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    record = load_split(sample_dir, "val_seen").records[0]
+    data = tmp_path / "data"
+    shutil.copytree(sample_dir, data)
+    monkeypatch.setenv("SKYVLN_EVAL_CACHE", str(tmp_path / "cache"))
+    fresh = load_world(data, record.map_name, record.georef)  # decoded and stored
+    cached = load_world(data, record.map_name, record.georef)  # mapped from the store
+    semantic, instance, height_m = read_layer_rasters(data, record.map_name)
+    for name, expected in (("semantic", semantic), ("instance", instance), ("height_m", height_m)):
+        for world in (fresh, cached):
+            array = getattr(world, name)
+            assert array.dtype == expected.dtype
+            np.testing.assert_array_equal(array, expected)
+    np.testing.assert_array_equal(cached.bgr, fresh.bgr)
+    assert cached.landmarks == fresh.landmarks
+    assert cached.height_m is not None and fresh.height_m is not None
+    assert not cached.height_m.flags.writeable
+    # A layer rewritten with other content is read again, not served from the store.
+    height_png = data / "world_layers" / record.map_name / "height_dm.png"
+    shutil.copyfile(data / "world_layers" / record.map_name / "semantic.png", height_png)
+    changed = load_world(data, record.map_name, record.georef).height_m
+    assert changed is not None and not np.array_equal(changed, fresh.height_m)
