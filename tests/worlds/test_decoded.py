@@ -131,3 +131,19 @@ def test_cached_world_equals_a_fresh_decode(
     shutil.copyfile(data / "world_layers" / record.map_name / "semantic.png", height_png)
     changed = load_world(data, record.map_name, record.georef).height_m
     assert changed is not None and not np.array_equal(changed, fresh.height_m)
+
+
+def test_a_process_that_stored_the_entry_first_wins(tmp_path: Path) -> None:
+    """Two processes decode one map at once: the second's rename finds the first's entry,
+    keeps it and returns the stored arrays."""
+    source = _source(tmp_path, "map.tif", "xyz")
+    cache = tmp_path / "cache"
+
+    def racing_decode() -> decoded.Rasters:
+        decoded_rasters([source], {}, _Decoder(source), cache_dir=cache)  # the other one
+        return {"a": np.zeros((3, 4), np.uint16), "b": np.zeros(5, np.float32)}
+
+    rasters = decoded_rasters([source], {}, racing_decode, cache_dir=cache)
+    assert int(rasters["a"][0, 0]) == 3  # the stored entry, not this decode's zeros
+    assert not rasters["a"].flags.writeable
+    assert [p.name for p in cache.iterdir()] == [decoded.entry_key([source], {})]
