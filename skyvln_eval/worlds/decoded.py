@@ -15,6 +15,7 @@ dataset's maps take 60 MB each); the entries used least recently go first.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -73,6 +74,7 @@ def decoded_rasters(
     A missing source raises ``FileNotFoundError`` here; callers that want their own error
     for it check the files first.
     """
+    budget = budget_bytes()  # a bad setting is reported before any work
     root = cache_dir or cache_root() / DECODED_DIR
     folder = root / entry_key(sources, recipe)
     cached = _read_entry(folder)
@@ -81,7 +83,7 @@ def decoded_rasters(
     rasters = decode()
     try:
         _write_entry(folder, rasters)
-        _evict(root, budget_bytes(), keep=folder)
+        _evict(root, budget, keep=folder)
     except OSError as error:
         if not _warned.is_set():
             _warned.set()
@@ -116,9 +118,10 @@ def _read_entry(folder: Path) -> Rasters | None:
         rasters = {
             name: np.load(folder / f"{name}.npy", mmap_mode="r").view(np.ndarray) for name in names
         }
-        os.utime(names_file)  # used now: evicted last
     except (OSError, ValueError):  # not there, evicted meanwhile, or unreadable: a miss
         return None
+    with contextlib.suppress(OSError):  # a cache others filled may be read-only to us
+        os.utime(names_file)  # used now: evicted last
     return rasters
 
 

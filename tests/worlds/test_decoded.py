@@ -147,3 +147,18 @@ def test_a_process_that_stored_the_entry_first_wins(tmp_path: Path) -> None:
     assert int(rasters["a"][0, 0]) == 3  # the stored entry, not this decode's zeros
     assert not rasters["a"].flags.writeable
     assert [p.name for p in cache.iterdir()] == [decoded.entry_key([source], {})]
+
+
+def test_a_read_only_cache_is_still_read(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A cache filled by someone else may not let us mark entries as used: still a hit."""
+    source = _source(tmp_path, "map.tif", "xyz")
+    cache = tmp_path / "cache"
+    decoded_rasters([source], {}, _Decoder(source), cache_dir=cache)
+
+    def refuse(*args: object, **kwargs: object) -> None:
+        raise PermissionError("read-only file system")
+
+    monkeypatch.setattr(decoded.os, "utime", refuse)
+    decode = _Decoder(source)
+    rasters = decoded_rasters([source], {}, decode, cache_dir=cache)
+    assert decode.calls == 0 and int(rasters["a"][0, 0]) == 3
