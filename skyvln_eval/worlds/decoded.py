@@ -10,7 +10,7 @@ decoding depends on (``recipe``). An entry is written to a temporary folder and 
 when the cache cannot be written, the freshly decoded arrays are used, with one notice.
 
 The cache keeps at most ``$SKYVLN_EVAL_DECODED_MAPS_GIB`` GiB (default 4: the synthetic
-dataset's maps take 60 MB each); the entries used least recently go first.
+dataset's maps take 63 MB each); the entries used least recently go first.
 """
 
 from __future__ import annotations
