@@ -1,7 +1,7 @@
 """Small file helpers: atomic writes, content hashes, and reading a YAML settings file.
 
-Files are written to a temporary name in the same directory and renamed into place, so
-an interrupted write never leaves a half file under the final name.
+Files (and cache folders) are written to a temporary name in the same directory and
+renamed into place, so an interrupted write never leaves a half file under the final name.
 """
 
 from __future__ import annotations
@@ -10,8 +10,9 @@ import contextlib
 import hashlib
 import json
 import os
+import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -95,6 +96,17 @@ def exclusive_lock(path: str | Path) -> Iterator[None]:
     with path.open("a+b") as handle:
         fcntl.flock(handle.fileno(), fcntl.LOCK_EX)
         yield
+
+
+def rename_into_place(staging: Path, final: Path, complete: Callable[[Path], bool]) -> None:
+    """Rename the fully written folder ``staging`` to ``final``. When another process put a
+    complete one there first (``complete(final)``), keep theirs and delete ``staging``."""
+    try:
+        staging.rename(final)
+    except OSError:
+        shutil.rmtree(staging, ignore_errors=True)
+        if not complete(final):
+            raise
 
 
 def sha256_bytes(data: bytes) -> str:

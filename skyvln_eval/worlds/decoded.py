@@ -16,7 +16,6 @@ dataset's maps take 63 MB each); the entries used least recently go first.
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import json
 import os
 import shutil
@@ -32,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyvln_eval.errors import ConfigError
+from skyvln_eval.fileio import rename_into_place, sha256_bytes
 from skyvln_eval.paths import cache_root
 
 DECODED_DIR = "decoded-maps"
@@ -59,7 +59,7 @@ def entry_key(sources: Sequence[Path], recipe: Mapping[str, Any]) -> str:
         sort_keys=True,
         default=repr,
     )
-    return hashlib.sha256(text.encode("utf-8")).hexdigest()[:32]
+    return sha256_bytes(text.encode("utf-8"))[:32]
 
 
 def decoded_rasters(
@@ -71,12 +71,15 @@ def decoded_rasters(
     """The arrays ``decode()`` makes from ``sources``, read-only, from the cache when it
     holds them (``decode`` is then not called).
 
-    A missing source raises ``FileNotFoundError`` here; callers that want their own error
-    for it check the files first.
+    When a source cannot be read (missing, say), ``decode()`` runs without the cache, so
+    that the error it raises for that file is the one reported.
     """
     budget = budget_bytes()  # a bad setting is reported before any work
     root = cache_dir or cache_root() / DECODED_DIR
-    folder = root / entry_key(sources, recipe)
+    try:
+        folder = root / entry_key(sources, recipe)
+    except OSError:
+        return decode()
     cached = _read_entry(folder)
     if cached is not None:
         return cached
@@ -133,11 +136,7 @@ def _write_entry(folder: Path, rasters: Rasters) -> None:
             np.save(staging / f"{name}.npy", np.ascontiguousarray(array), allow_pickle=False)
         # Written last: an entry without it is incomplete and is never read.
         (staging / "names.json").write_text(json.dumps(sorted(rasters)), encoding="utf-8")
-        try:
-            staging.rename(folder)
-        except OSError:
-            if not (folder / "names.json").is_file():  # not another process's copy
-                raise
+        rename_into_place(staging, folder, lambda entry: (entry / "names.json").is_file())
     finally:
         if staging.exists():
             shutil.rmtree(staging, ignore_errors=True)

@@ -27,15 +27,10 @@ def load_world(data_dir: str | Path, map_name: str, georef: MapGeoref) -> WorldT
     arrays; see :mod:`skyvln_eval.worlds.decoded`).
     """
     path = map_image_path(Path(data_dir) / IMAGES_DIR, map_name)
-    if not path.is_file():
-        raise MapImageError(str(path), "map image not found")
     landmarks = read_landmarks(data_dir, map_name)
     sources = [path]
     if landmarks is not None:
         sources += [layers_dir(data_dir, map_name) / name for name in LAYER_FILES]
-        for source in sources[1:]:
-            if not source.is_file():
-                raise MapImageError(str(source), "missing or unreadable layer image")
 
     def decode() -> Rasters:
         bgr = load_map_bgr(path, georef)

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from skyvln_eval.avdn import load_split
-from skyvln_eval.errors import ConfigError
+from skyvln_eval.avdn import AvdnRecord, load_split
+from skyvln_eval.errors import ConfigError, MapImageError
 from skyvln_eval.worlds import decoded, load_world
 from skyvln_eval.worlds.decoded import BUDGET_ENV, budget_bytes, decoded_rasters
 from skyvln_eval.worlds.layers import read_layer_rasters
@@ -107,13 +107,21 @@ def test_budget_must_be_a_non_negative_number(monkeypatch: pytest.MonkeyPatch) -
         budget_bytes()
 
 
-def test_cached_world_equals_a_fresh_decode(
-    sample_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    record = load_split(sample_dir, "val_seen").records[0]
+_SampleCopy = tuple[Path, AvdnRecord]
+
+
+@pytest.fixture
+def sample_copy(sample_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> _SampleCopy:
+    """A copy of the sample (its files may be changed) with a map's first record, and a
+    cache of its own under ``tmp_path / "cache"``."""
     data = tmp_path / "data"
     shutil.copytree(sample_dir, data)
     monkeypatch.setenv("SKYVLN_EVAL_CACHE", str(tmp_path / "cache"))
+    return data, load_split(data, "val_seen").records[0]
+
+
+def test_cached_world_equals_a_fresh_decode(sample_copy: _SampleCopy) -> None:
+    data, record = sample_copy
     fresh = load_world(data, record.map_name, record.georef)  # decoded and stored
     cached = load_world(data, record.map_name, record.georef)  # mapped from the store
     semantic, instance, height_m = read_layer_rasters(data, record.map_name)
@@ -162,3 +170,18 @@ def test_a_read_only_cache_is_still_read(tmp_path: Path, monkeypatch: pytest.Mon
     decode = _Decoder(source)
     rasters = decoded_rasters([source], {}, decode, cache_dir=cache)
     assert decode.calls == 0 and int(rasters["a"][0, 0]) == 3
+
+
+def test_a_missing_file_is_reported_by_the_decoder_naming_it(
+    sample_copy: _SampleCopy, tmp_path: Path
+) -> None:
+    data, record = sample_copy
+    instance_png = data / "world_layers" / record.map_name / "instance.png"
+    instance_png.unlink()
+    with pytest.raises(MapImageError, match=r"instance\.png: missing or unreadable layer image"):
+        load_world(data, record.map_name, record.georef)
+    map_tif = data / "train_images" / f"{record.map_name}.tif"
+    map_tif.unlink()
+    with pytest.raises(MapImageError, match=rf"{record.map_name}\.tif: map image not found"):
+        load_world(data, record.map_name, record.georef)
+    assert not (tmp_path / "cache" / "decoded-maps").exists()  # nothing stored for them

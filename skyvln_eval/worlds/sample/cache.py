@@ -16,6 +16,7 @@ from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
 
+from skyvln_eval.fileio import rename_into_place
 from skyvln_eval.paths import cache_root
 from skyvln_eval.worlds.city.generate import GENERATOR_VERSION
 from skyvln_eval.worlds.sample.build import DATASET_INFO, SPECS, DatasetSpec, build_dataset
@@ -52,12 +53,7 @@ def ensure_dataset(
     build_dataset(spec, staging, workers=workers, on_map_done=on_map_done)
     if final.exists() and (force or not is_complete(final)):
         shutil.rmtree(final)
-    try:
-        staging.rename(final)
-    except OSError:  # another process finished first: keep theirs
-        shutil.rmtree(staging, ignore_errors=True)
-        if not is_complete(final):
-            raise
+    rename_into_place(staging, final, is_complete)  # another process's, if first: theirs
     return final
 
 
