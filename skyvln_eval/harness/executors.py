@@ -82,13 +82,14 @@ class SerialExecutor:
 
 
 def _drain(
-    pool: cf.Executor, fn: Callable[[T], R], tasks: Sequence[T], workers: int
+    pool: cf.Executor, fn: Callable[[T], R], tasks: Sequence[T], workers: int, queued: int = 0
 ) -> Iterator[tuple[T, R | BaseException]]:
-    """Yield each task's outcome as it finishes, with at most ``workers`` tasks submitted.
+    """Yield each task's outcome as it finishes, with at most ``workers + queued`` tasks
+    submitted (``queued`` wait for the next free worker).
 
     The next task is submitted only once the caller has taken an outcome and asked for
     more, so a caller that stops (a fatal error: refused credentials, a full disk) starts
-    no further episode: only those already running finish.
+    no further episode: only those already running, and the ``queued`` ones, finish.
     """
     waiting = list(reversed(tasks))  # popped from the end: in the given order
     running: dict[cf.Future[R], T] = {}
@@ -98,7 +99,7 @@ def _drain(
             task = waiting.pop()
             running[pool.submit(fn, task)] = task
 
-    for _ in range(workers):
+    for _ in range(workers + queued):
         submit_next()
     try:
         while running:
@@ -130,7 +131,10 @@ class ProcessExecutor:
             mp_context=context,
             initializer=episodes_are_the_parallelism if self.workers > 1 else None,
         ) as pool:
-            yield from _drain(pool, fn, tasks, self.workers)
+            # One task waits in the pool's queue: a worker that finishes takes it at once,
+            # instead of idling while this process records the result and sends the next
+            # (4 ms per episode, 2% of an official run's time).
+            yield from _drain(pool, fn, tasks, self.workers, queued=1)
 
 
 @dataclass(frozen=True)

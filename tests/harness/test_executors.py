@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import time
+from pathlib import Path
 
 import pytest
 
@@ -31,7 +33,6 @@ def test_results_do_not_depend_on_the_executor(kind: str, workers: int) -> None:
 
 def slow_pid(x: int) -> tuple[int, int, str]:
     import threading
-    import time
 
     time.sleep(0.3)  # waits as an LLM call would: threads of one process overlap
     return x, os.getpid(), threading.current_thread().name
@@ -55,6 +56,30 @@ def test_a_crashed_worker_process_is_reported_not_raised() -> None:
     results = dict(make_executor("processes", 2).map_unordered(crash_worker, [0, 1, 2]))
     assert isinstance(results[2], Exception)
     assert len(results) == 3
+
+
+def mark_started(task: tuple[str, int]) -> int:
+    folder, x = task
+    (Path(folder) / str(x)).touch()
+    time.sleep(0.3)
+    return x
+
+
+def test_worker_processes_keep_one_task_queued_and_a_caller_that_stops_starts_no_more(
+    tmp_path: Path,
+) -> None:
+    """Each free worker takes the queued task at once; when the caller stops after the
+    first outcome (a fatal error), only the tasks running and the one queued are run."""
+    outcomes = make_executor("processes", 2).map_unordered(
+        mark_started, [(str(tmp_path), x) for x in range(8)]
+    )
+    for task, outcome in outcomes:
+        assert outcome == task[1]
+        time.sleep(1.0)  # the caller is busy (recording the result): the queued task runs
+        break
+    outcomes.close()  # as the harness's loop does when it breaks: the pool shuts down
+    started = sorted(int(p.name) for p in tmp_path.iterdir())
+    assert started == [0, 1, 2], started
 
 
 def test_bad_executor_settings() -> None:
