@@ -181,14 +181,24 @@ class CameraImages:
         """
         ui = np.asarray(u, dtype=np.int64)
         vi = np.asarray(v, dtype=np.int64)
-        rays = pixel_rays(self.pose, self.config, ui + 0.5, vi + 0.5)
+        forward, right, up = camera_basis(self.pose)
+        a, b = plane_coordinates(self.config, ui + 0.5, vi + 0.5)
         origin = np.array([self.pose.x_m, self.pose.y_m, self.pose.z_m])
+        # One component at a time, the operations of pixel_rays and of
+        # ``origin + depth * rays`` (so the same floats): numpy is slow on an innermost
+        # axis of 3. The result is a (..., 3) view whose components are contiguous.
+        rays = [forward[c] + a * right[c] - b * up[c] for c in range(3)]
         if self.depth_m is not None:
             depth = self.depth_m[vi, ui].astype(np.float64)
         else:
-            down = rays[..., 2] < -1e-9
-            depth = np.where(down, -origin[2] / np.where(down, rays[..., 2], -1.0), np.inf)
-        return origin + depth[..., None] * rays
+            down = rays[2] < -1e-9
+            depth = np.where(down, -origin[2] / np.where(down, rays[2], -1.0), np.inf)
+        points = np.empty((3, *np.shape(ui)))
+        for c in range(3):
+            component = points[c, ...]  # a view, also for a single point
+            np.multiply(depth, rays[c], out=component)
+            component += origin[c]
+        return np.moveaxis(points, 0, -1)
 
     def finite_depth(self) -> NDArray[np.bool_]:
         """Pixels whose ground point is known (a depth return, or a ray to the ground);

@@ -10,6 +10,7 @@ import pytest
 from skyvln_eval.avdn import observe_view
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.frames import ViewPose, latlng_to_enu, pose_to_view
+from skyvln_eval.sensing import CameraImages
 from skyvln_eval.sim.camera import (
     SEMANTIC_NONE,
     SKY_BGR,
@@ -51,6 +52,35 @@ def test_depth_on_flat_ground_comes_from_the_altitude() -> None:
     assert centre == pytest.approx(80.0 / math.sin(math.radians(60.0)), rel=0.02)
     point = pitched.points_enu(np.array([112]), np.array([112]))[0]
     assert point[2] == pytest.approx(0.0, abs=0.05)
+
+
+@pytest.mark.parametrize("with_depth", [True, False])
+def test_points_are_the_pixel_rays_scaled_by_depth_bit_for_bit(with_depth: bool) -> None:
+    """points_enu works one component at a time; its floats are those of the plain
+    ``origin + depth * pixel_rays(...)`` (and, without depth, of the rays' meeting with
+    the ground), at every pitch, for points in any array shape."""
+    rng = np.random.default_rng(7)
+    config = CameraConfig()
+    for pitch in (0.0, 30.0, 60.0, 90.0, 47.3):
+        pose = CameraPose(-120.5, 310.25, 75.0, 2.2, pitch)
+        depth = rng.uniform(0.0, 600.0, (224, 224)).astype(np.float32)
+        depth[rng.random((224, 224)) < 0.1] = np.inf
+        images = CameraImages(pose, config, np.zeros((224, 224, 3), np.uint8))
+        if with_depth:
+            images = CameraImages(pose, config, images.rgb, depth)
+        for shape in ((), (500,), (7, 9)):
+            u, v = rng.integers(0, 224, shape), rng.integers(0, 224, shape)
+            rays = pixel_rays(pose, config, u + 0.5, v + 0.5)
+            origin = np.array([pose.x_m, pose.y_m, pose.z_m])
+            if with_depth:
+                along = depth[v, u].astype(np.float64)
+            else:
+                down = rays[..., 2] < -1e-9
+                along = np.where(down, -origin[2] / np.where(down, rays[..., 2], -1.0), np.inf)
+            expected = origin + along[..., None] * rays
+            points = images.points_enu(u, v)
+            assert points.shape == expected.shape
+            assert np.ascontiguousarray(points).tobytes() == expected.tobytes()
 
 
 def test_rays_above_the_horizon_see_sky_and_get_no_depth() -> None:
