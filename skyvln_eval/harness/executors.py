@@ -1,8 +1,9 @@
 """Executors: run one function over many episode tasks and yield results as they finish.
 
 - ``serial``: in this process, one at a time (debugging, tiny runs).
-- ``processes``: a local process pool; the default for CPU-bound runs (rule backend,
-  NMPC). Results do not depend on the worker count: each task is seeded by itself.
+- ``processes``: worker processes, each with its own pipe; the default for CPU-bound runs
+  (rule backend, NMPC). Results do not depend on the worker count: each task is seeded
+  by itself. A process that dies costs only the episodes it was running.
 - ``threads``: a thread pool in this process, for runs that mostly wait on a remote LLM:
   while one episode waits on its LLM, the others proceed.
 - ``processes`` with ``threads_per_worker > 1``: worker processes that each run several
@@ -21,6 +22,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import contextlib
 import multiprocessing
+import pickle
 import queue
 import threading
 from collections.abc import Callable, Iterator, Sequence
@@ -82,14 +84,13 @@ class SerialExecutor:
 
 
 def _drain(
-    pool: cf.Executor, fn: Callable[[T], R], tasks: Sequence[T], workers: int, queued: int = 0
+    pool: cf.Executor, fn: Callable[[T], R], tasks: Sequence[T], workers: int
 ) -> Iterator[tuple[T, R | BaseException]]:
-    """Yield each task's outcome as it finishes, with at most ``workers + queued`` tasks
-    submitted (``queued`` wait for the next free worker).
+    """Yield each task's outcome as it finishes, with at most ``workers`` tasks submitted.
 
     The next task is submitted only once the caller has taken an outcome and asked for
     more, so a caller that stops (a fatal error: refused credentials, a full disk) starts
-    no further episode: only those already running, and the ``queued`` ones, finish.
+    no further episode: only those already running finish.
     """
     waiting = list(reversed(tasks))  # popped from the end: in the given order
     running: dict[cf.Future[R], T] = {}
@@ -99,7 +100,7 @@ def _drain(
             task = waiting.pop()
             running[pool.submit(fn, task)] = task
 
-    for _ in range(workers + queued):
+    for _ in range(workers):
         submit_next()
     try:
         while running:
@@ -108,33 +109,13 @@ def _drain(
                 task = running.pop(future)
                 try:
                     outcome: R | BaseException = future.result()
-                except Exception as exc:  # e.g. BrokenProcessPool: the caller records it
+                except Exception as exc:  # the caller records it
                     outcome = exc
                 yield task, outcome
                 submit_next()
     finally:
         for future in running:
             future.cancel()
-
-
-@dataclass(frozen=True)
-class ProcessExecutor:
-    workers: int
-
-    def map_unordered(
-        self, fn: Callable[[T], R], tasks: Sequence[T]
-    ) -> Iterator[tuple[T, R | BaseException]]:
-        # "spawn": fresh interpreters, safe with threads in the parent (progress bars, solvers).
-        context = multiprocessing.get_context("spawn")
-        with cf.ProcessPoolExecutor(
-            max_workers=self.workers,
-            mp_context=context,
-            initializer=episodes_are_the_parallelism if self.workers > 1 else None,
-        ) as pool:
-            # One task waits in the pool's queue: a worker that finishes takes it at once,
-            # instead of idling while this process records the result and sends the next
-            # (4 ms per episode, 2% of an official run's time).
-            yield from _drain(pool, fn, tasks, self.workers, queued=1)
 
 
 @dataclass(frozen=True)
@@ -151,11 +132,21 @@ class ThreadExecutor:
             yield from _drain(pool, fn, tasks, self.workers)
 
 
-def _thread_worker(
+def _sendable(exc: Exception) -> Exception:
+    """``exc`` if it survives pickling, else a RuntimeError with its type and message."""
+    try:
+        pickle.loads(pickle.dumps(exc))
+    except Exception:
+        return RuntimeError(f"{type(exc).__name__}: {exc}")
+    return exc
+
+
+def _process_worker(
     fn: Callable[[Any], Any], conn: Any, threads: int
 ) -> None:  # pragma: no cover - runs in a child process (covered through the executor's tests)
     """A worker process: ``threads`` threads run the tasks the parent sends down ``conn``
-    (its own pipe) and send each result back; ``None`` ends the work."""
+    (its own pipe), each announced (``start``) before it runs and its result sent back;
+    ``None`` ends the work, and the tasks still waiting are then dropped, not run."""
     episodes_are_the_parallelism()
     sending = threading.Lock()
     inbox: queue.Queue[Any] = queue.Queue()
@@ -167,16 +158,20 @@ def _thread_worker(
     def loop() -> None:
         while (item := inbox.get()) is not None:
             index, task = item
+            send(("start", index, None))
             try:
                 send(("done", index, fn(task)))
             except Exception as exc:  # the caller records it as a failed episode
-                send(("error", index, f"{type(exc).__name__}: {exc}"))
+                send(("error", index, _sendable(exc)))
 
     pool = [threading.Thread(target=loop, name=f"episode-{k}") for k in range(threads)]
     for thread in pool:
         thread.start()
     while (message := conn.recv()) is not None:
         inbox.put(message)
+    with contextlib.suppress(queue.Empty):  # the parent stopped: start nothing more
+        while True:
+            inbox.get_nowait()
     for _ in pool:
         inbox.put(None)
     for thread in pool:
@@ -184,35 +179,36 @@ def _thread_worker(
 
 
 @dataclass(frozen=True)
-class ProcessThreadExecutor:
+class ProcessExecutor:
     """``workers`` processes, each running ``threads`` episodes at a time in threads.
 
     Each process has its own pipe (no lock is shared between processes, so one that dies
-    cannot block the others); the parent hands it a new episode whenever one of its threads
-    is free. Results stream back as episodes finish. A process that dies (a crash in
-    native code) takes only its episodes in flight with it: they are yielded as errors,
-    and the other processes carry on with the rest.
+    cannot block the others) and holds ``queued`` episodes beyond those its threads run:
+    a thread that finishes starts the next at once, instead of idling while the parent
+    records the result and sends another (4 ms an episode, 2% of an official run). The
+    parent refills a process as its results come back. A process that dies (a crash in
+    native code, the out-of-memory killer) takes only the episodes it had started with
+    it: they are yielded as errors; those it held but had not started go to the other
+    processes, and a new process takes its place (not for one that died before starting
+    any episode: that would only die again). A caller that stops (a fatal error) starts
+    no further episode: the processes finish the ones they are running and drop the rest.
     """
 
     workers: int
-    threads: int
+    threads: int = 1
+    queued: int = 1
 
     def map_unordered(
         self, fn: Callable[[T], R], tasks: Sequence[T]
     ) -> Iterator[tuple[T, R | BaseException]]:
+        # "spawn": fresh interpreters, safe with threads in the parent (progress bars, solvers).
         context = multiprocessing.get_context("spawn")
         todo = list(enumerate(tasks))[::-1]  # popped from the end: in order
-        workers = []
-        for _ in range(min(self.workers, max(1, len(tasks)))):
-            parent_end, child_end = context.Pipe()
-            process = context.Process(target=_thread_worker, args=(fn, child_end, self.threads))
-            process.start()
-            child_end.close()
-            workers.append(_Worker(process, parent_end))
+        workers = [self._start(context, fn) for _ in range(min(self.workers, max(1, len(tasks))))]
         try:
             # Dealt one at a time, in turn: neighbouring episodes (often the same map, of
             # similar length) go to different processes, which spreads the work.
-            for _ in range(self.threads):
+            for _ in range(self.threads + self.queued):
                 for worker in workers:
                     self._feed(worker, todo, up_to=len(worker.in_flight) + 1)
             while any(w.alive and w.in_flight for w in workers):
@@ -220,23 +216,44 @@ class ProcessThreadExecutor:
                 for worker in (w for w in workers if w.conn in ready):
                     try:
                         kind, index, payload = worker.conn.recv()
-                    except (EOFError, OSError):  # the process died: its episodes are lost
-                        yield from self._lost(worker, tasks)
+                    except (EOFError, OSError):  # the process died
+                        yield from self._lost(worker, tasks, todo)
+                        # One that died in an episode (not while starting up) is replaced.
+                        if worker.ran_episodes and todo:
+                            workers.append(self._start(context, fn))
+                        for other in workers:  # its unstarted episodes go to the others
+                            self._feed(other, todo)
+                        continue
+                    if kind == "start":
+                        worker.started.add(index)
+                        worker.ran_episodes = True
                         continue
                     worker.in_flight.discard(index)
-                    yield tasks[index], payload if kind == "done" else RuntimeError(payload)
+                    worker.started.discard(index)
+                    yield tasks[index], payload
                     self._feed(worker, todo)
                 if not any(w.alive for w in workers):
                     break
             for index, _ in reversed(todo):  # only if every process died
                 yield tasks[index], RuntimeError("no worker process left to run the episode")
         finally:
+            for worker in workers:  # all asked first: they wind down at the same time
+                worker.ask_to_stop()
             for worker in workers:
                 worker.stop()
 
+    def _start(self, context: Any, fn: Callable[[Any], Any]) -> _Worker:
+        parent_end, child_end = context.Pipe()
+        process = context.Process(target=_process_worker, args=(fn, child_end, self.threads))
+        process.start()
+        child_end.close()
+        return _Worker(process, parent_end)
+
     def _feed(self, worker: _Worker, todo: list[tuple[int, Any]], up_to: int | None = None) -> None:
-        """Give ``worker`` episodes until each of its threads has one (or it has ``up_to``)."""
-        limit = self.threads if up_to is None else min(up_to, self.threads)
+        """Give ``worker`` episodes until it holds one per thread plus ``queued`` (or
+        ``up_to``)."""
+        limit = self.threads + self.queued
+        limit = limit if up_to is None else min(up_to, limit)
         while worker.alive and todo and len(worker.in_flight) < limit:
             index, task = todo.pop()
             try:
@@ -248,28 +265,41 @@ class ProcessThreadExecutor:
             worker.in_flight.add(index)
 
     @staticmethod
-    def _lost(worker: _Worker, tasks: Sequence[T]) -> Iterator[tuple[T, BaseException]]:
+    def _lost(
+        worker: _Worker, tasks: Sequence[T], todo: list[tuple[int, Any]]
+    ) -> Iterator[tuple[T, BaseException]]:
+        """The episodes of a process that died: errors for those it had started; the
+        others back at the front of ``todo``."""
         worker.alive = False
         worker.process.join(timeout=5)
         code = worker.process.exitcode
-        for index in sorted(worker.in_flight):
+        for index in sorted(worker.in_flight - worker.started, reverse=True):
+            todo.append((index, tasks[index]))
+        for index in sorted(worker.in_flight & worker.started):
             yield tasks[index], RuntimeError(f"worker process exited with code {code}")
         worker.in_flight.clear()
+        worker.started.clear()
 
 
 @dataclass(eq=False)
 class _Worker:
-    """One worker process of :class:`ProcessThreadExecutor`, its pipe and its episodes."""
+    """One worker process of :class:`ProcessExecutor`, its pipe, the episodes it holds and
+    those of them it has started."""
 
     process: Any
     conn: Any
     in_flight: set[int] = field(default_factory=set)
+    started: set[int] = field(default_factory=set)
+    ran_episodes: bool = False
     alive: bool = True
 
-    def stop(self) -> None:
+    def ask_to_stop(self) -> None:
         if self.alive:
             with contextlib.suppress(OSError):
                 self.conn.send(None)
+
+    def stop(self) -> None:
+        """Wait for the process to end (after :meth:`ask_to_stop`), ending it if it hangs."""
         self.process.join(timeout=10)
         if self.process.is_alive():
             self.process.terminate()
@@ -332,14 +362,12 @@ def make_executor(
             f"workers and threads_per_worker must be at least 1, got {workers} and "
             f"{threads_per_worker}"
         )
-    if kind == "processes" and threads_per_worker > 1:
-        if workers == 1:
-            return ThreadExecutor(threads_per_worker)
-        return ProcessThreadExecutor(workers, threads_per_worker)
+    if kind == "processes" and threads_per_worker > 1 and workers == 1:
+        return ThreadExecutor(threads_per_worker)
     if kind == "serial" or (kind == "processes" and workers == 1):
         return SerialExecutor()
     if kind == "processes":
-        return ProcessExecutor(workers)
+        return ProcessExecutor(workers, threads_per_worker)
     if kind == "threads":
         return ThreadExecutor(workers)
     if kind == "ray":

@@ -12,6 +12,7 @@ from collections.abc import Callable
 from multiprocessing.connection import Connection
 from pathlib import Path
 
+import pytest
 import yaml
 
 from skyvln_eval.converters.validate import check_log
@@ -103,3 +104,27 @@ def test_sigkill_at_seeded_points_in_every_write_then_resume_loses_and_repeats_n
     aside = (run_dir / DAMAGED_FILE).read_text().splitlines()[1:]
     assert 0 < len(aside) <= row_kills
     assert all('"reason":"incomplete last row' in line for line in aside)
+
+
+def test_a_worker_process_killed_in_an_episode_costs_that_episode_and_the_run_goes_on(
+    tmp_path: Path, small_config: MakeConfig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Every worker process (the replacements too) is killed at the end of its second
+    episode's run MCAP: those episodes are errors that name the kill, the others are
+    recorded, the run finishes; retrying the failed ones gives the uninterrupted run."""
+    config = small_config(limit=EPISODES, agent={"name": "random"}, workers=2, executor="processes")
+    monkeypatch.setenv(CRASH_ENV, "run-log-end:2")
+    killed = run(config, tmp_path / "killed")
+    rows = read_results(tmp_path / "killed" / RESULTS_FILE)
+    assert len(rows) == EPISODES and len(killed.errors) == sum(r.status == "error" for r in rows)
+    errors = [r for r in rows if r.status == "error"]
+    assert 0 < len(errors) < EPISODES
+    assert all("worker process exited with code -9" in (r.error or "") for r in errors)
+    monkeypatch.delenv(CRASH_ENV)
+    run(config, tmp_path / "killed", retry_failed=True)
+    serial = config.model_copy(update={"workers": 1, "executor": "serial"})
+    run(serial, tmp_path / "reference")
+    same_runs(
+        read_results(tmp_path / "killed" / RESULTS_FILE),
+        read_results(tmp_path / "reference" / RESULTS_FILE),
+    )

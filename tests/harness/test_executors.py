@@ -52,10 +52,24 @@ def test_processes_with_threads_run_episodes_in_threads_in_several_processes() -
     assert sum(not isinstance(v, Exception) for v in crashed.values()) >= 5
 
 
-def test_a_crashed_worker_process_is_reported_not_raised() -> None:
-    results = dict(make_executor("processes", 2).map_unordered(crash_worker, [0, 1, 2]))
-    assert isinstance(results[2], Exception)
-    assert len(results) == 3
+def test_a_worker_process_that_dies_costs_only_the_episode_it_was_running() -> None:
+    """The process is replaced; the episode it held but had not started runs elsewhere."""
+    results = dict(make_executor("processes", 2).map_unordered(crash_worker, list(range(8))))
+    assert isinstance(results[2], RuntimeError) and "exited with code 1" in str(results[2])
+    assert {k: v for k, v in results.items() if k != 2} == {k: k for k in range(8) if k != 2}
+
+
+def test_workers_that_die_while_starting_up_are_not_started_again(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from tests.harness.dies_in_workers import PARENT_ENV, identity
+
+    monkeypatch.setenv(PARENT_ENV, str(os.getpid()))
+    results = dict(make_executor("processes", 2).map_unordered(identity, list(range(5))))
+    assert sorted(results) == list(range(5))
+    assert all(
+        isinstance(v, RuntimeError) and "no worker process left" in str(v) for v in results.values()
+    )
 
 
 def mark_started(task: tuple[str, int]) -> int:
@@ -68,8 +82,8 @@ def mark_started(task: tuple[str, int]) -> int:
 def test_worker_processes_keep_one_task_queued_and_a_caller_that_stops_starts_no_more(
     tmp_path: Path,
 ) -> None:
-    """Each free worker takes the queued task at once; when the caller stops after the
-    first outcome (a fatal error), only the tasks running and the one queued are run."""
+    """A worker that finishes takes its queued task at once; when the caller stops after
+    the first outcome (a fatal error), no task beyond those started is run."""
     outcomes = make_executor("processes", 2).map_unordered(
         mark_started, [(str(tmp_path), x) for x in range(8)]
     )
@@ -79,7 +93,7 @@ def test_worker_processes_keep_one_task_queued_and_a_caller_that_stops_starts_no
         break
     outcomes.close()  # as the harness's loop does when it breaks: the pool shuts down
     started = sorted(int(p.name) for p in tmp_path.iterdir())
-    assert started == [0, 1, 2], started
+    assert started == [0, 1, 2, 3], started  # two running, then each worker's queued one
 
 
 def test_bad_executor_settings() -> None:
