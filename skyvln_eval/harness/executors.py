@@ -258,9 +258,8 @@ class ProcessExecutor:
             index, task = todo.pop()
             try:
                 worker.conn.send((index, task))
-            except (BrokenPipeError, OSError):
+            except OSError:  # it died: its pipe reports the end, and _lost takes it from there
                 todo.append((index, task))
-                worker.alive = False
                 return
             worker.in_flight.add(index)
 
