@@ -146,7 +146,9 @@ def _process_worker(
 ) -> None:  # pragma: no cover - runs in a child process (covered through the executor's tests)
     """A worker process: ``threads`` threads run the tasks the parent sends down ``conn``
     (its own pipe), each announced (``start``) before it runs and its result sent back;
-    ``None`` ends the work, and the tasks still waiting are then dropped, not run."""
+    ``None`` (or the parent gone) ends the work, and the tasks still waiting are then
+    dropped, not run. With one thread the episodes run in the main thread and a second
+    thread receives (episodes in a thread of their own took 25 MB more per process)."""
     episodes_are_the_parallelism()
     sending = threading.Lock()
     inbox: queue.Queue[Any] = queue.Queue()
@@ -155,7 +157,7 @@ def _process_worker(
         with sending:
             conn.send(message)
 
-    def loop() -> None:
+    def run_tasks() -> None:
         while (item := inbox.get()) is not None:
             index, task = item
             send(("start", index, None))
@@ -164,16 +166,26 @@ def _process_worker(
             except Exception as exc:  # the caller records it as a failed episode
                 send(("error", index, _sendable(exc)))
 
-    pool = [threading.Thread(target=loop, name=f"episode-{k}") for k in range(threads)]
+    def receive() -> None:
+        with contextlib.suppress(EOFError, OSError):
+            while (message := conn.recv()) is not None:
+                inbox.put(message)
+        with contextlib.suppress(queue.Empty):  # the parent stopped: start nothing more
+            while True:
+                inbox.get_nowait()
+        for _ in range(threads):
+            inbox.put(None)
+
+    if threads == 1:
+        receiver = threading.Thread(target=receive, name="receiver")
+        receiver.start()
+        run_tasks()
+        receiver.join()
+        return
+    pool = [threading.Thread(target=run_tasks, name=f"episode-{k}") for k in range(threads)]
     for thread in pool:
         thread.start()
-    while (message := conn.recv()) is not None:
-        inbox.put(message)
-    with contextlib.suppress(queue.Empty):  # the parent stopped: start nothing more
-        while True:
-            inbox.get_nowait()
-    for _ in pool:
-        inbox.put(None)
+    receive()
     for thread in pool:
         thread.join()
 
