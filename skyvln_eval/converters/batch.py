@@ -18,9 +18,7 @@ converted again.
 from __future__ import annotations
 
 import json
-import multiprocessing
-from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -229,13 +227,6 @@ def _first_id(raw: Sequence[dict[str, Any]]) -> str:
     return f"{first.get('map_name', '?')}__{first.get('route_index', '?')}"
 
 
-def _worker_init() -> None:
-    # One OpenCV thread per process: the processes already use every core.
-    import cv2
-
-    cv2.setNumThreads(1)
-
-
 def _jobs(
     episodes: Sequence[Episode],
     data_dir: Path,
@@ -315,17 +306,25 @@ def convert_split(
     return report
 
 
-def _run(jobs: list[MapJob], workers: int) -> Any:
+def _run(jobs: list[MapJob], workers: int) -> Iterable[list[EpisodeOutcome]]:
+    """Each map job's outcomes, as jobs finish; with ``workers`` processes, a job whose
+    process died (a crash, the out-of-memory killer) fails its episodes with that note
+    and the others go on."""
     if workers <= 1 or len(jobs) <= 1:
         return map(run_map_job, jobs)
-    # spawn, not fork: the parent may hold threads (progress display, OpenCV pools).
-    context = multiprocessing.get_context("spawn")
-    executor = ProcessPoolExecutor(min(workers, len(jobs)), context, initializer=_worker_init)
+    # Imported here: the harness package imports this module.
+    from skyvln_eval.harness.executors import ProcessExecutor, WorkerDied
 
-    def results() -> Any:
-        with executor:
-            futures = [executor.submit(run_map_job, job) for job in jobs]
-            for future in as_completed(futures):
-                yield future.result()
+    def results() -> Iterator[list[EpisodeOutcome]]:
+        for job, outcome in ProcessExecutor(min(workers, len(jobs))).map_unordered(
+            run_map_job, jobs
+        ):
+            if isinstance(outcome, WorkerDied):
+                note = f"the process converting map {job.map_name} ended: {outcome}"
+                yield [EpisodeOutcome(_first_id(raw), "failed", note=note) for raw in job.episodes]
+            elif isinstance(outcome, BaseException):
+                raise outcome
+            else:
+                yield outcome
 
     return results()

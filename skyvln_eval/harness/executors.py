@@ -132,6 +132,11 @@ class ThreadExecutor:
             yield from _drain(pool, fn, tasks, self.workers)
 
 
+class WorkerDied(RuntimeError):
+    """The worker process running a task ended before the task did (a crash in native
+    code, a kill), or none was left to run it."""
+
+
 def _sendable(exc: Exception) -> Exception:
     """``exc`` if it survives pickling, else a RuntimeError with its type and message."""
     try:
@@ -247,7 +252,7 @@ class ProcessExecutor:
                 if not any(w.alive for w in workers):
                     break
             for index, _ in reversed(todo):  # only if every process died
-                yield tasks[index], RuntimeError("no worker process left to run the episode")
+                yield tasks[index], WorkerDied("no worker process left to run the episode")
         finally:
             for worker in workers:  # all asked first: they wind down at the same time
                 worker.ask_to_stop()
@@ -287,7 +292,7 @@ class ProcessExecutor:
         for index in sorted(worker.in_flight - worker.started, reverse=True):
             todo.append((index, tasks[index]))
         for index in sorted(worker.in_flight & worker.started):
-            yield tasks[index], RuntimeError(f"worker process exited with code {code}")
+            yield tasks[index], WorkerDied(f"worker process exited with code {code}")
         worker.in_flight.clear()
         worker.started.clear()
 

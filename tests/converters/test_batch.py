@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 from collections.abc import Callable
 from dataclasses import replace
@@ -157,6 +158,39 @@ def test_failures_and_invalid_records_are_reported_not_lost(
     ]
     assert "77.tif" in (report.failed[0].note or "")
     assert [r.episode_id for r in read_manifest(report.manifest_path)] == ["1913__1_1"]
+
+
+_convert_map = batch.run_map_job  # the real one, also in worker processes
+
+
+def dies_on_map_77(job: batch.MapJob) -> list[batch.EpisodeOutcome]:
+    if job.map_name == "77":
+        os._exit(9)  # as a crash in native code or the out-of-memory killer would
+    return _convert_map(job)
+
+
+def test_a_worker_process_that_dies_fails_only_its_maps_episodes(
+    dataset_factory: Callable[..., Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    records = [
+        make_record(route_index="1_1"),
+        make_record(map_name="77", route_index="3_1"),
+        make_record(route_index="2_1"),
+    ]
+    root = dataset_factory({"val_seen": records}, maps=("1913", "77"))
+    monkeypatch.setattr(batch, "run_map_job", dies_on_map_77)
+    report = convert_split(root, "val_seen", tmp_path, workers=2)
+    assert [(o.episode_id, o.status) for o in report.outcomes] == [
+        ("1913__1_1", "converted"),
+        ("77__3_1", "failed"),
+        ("1913__2_1", "converted"),
+    ]
+    note = report.failed[0].note or ""
+    assert "map 77" in note and "worker process exited with code 9" in note
+    assert [r.episode_id for r in read_manifest(report.manifest_path)] == [
+        "1913__1_1",
+        "1913__2_1",
+    ]
 
 
 def test_incomplete_trajectories_are_refused_in_full_mode(
