@@ -70,14 +70,15 @@ def renderer(method: RenderMethod) -> Callable[[Decision], object]:
 
 def marcher(fn: Callable[..., np.ndarray]) -> Callable[[Decision], object]:
     """The march alone, on the decision's rays as render_views builds them."""
-    from skyvln_eval.sim.camera import CameraConfig, _image_plane, _rays
+    from skyvln_eval.sensing import plane_rays
+    from skyvln_eval.sim.camera import CameraConfig, _image_plane
 
     config = CameraConfig()
     plane = _image_plane(config)
 
     def run(case: Decision) -> object:
         world, poses = case
-        rays = np.stack([np.moveaxis(_rays(pose, *plane), -1, 0) for pose in poses], axis=1)
+        rays = np.stack([np.moveaxis(plane_rays(pose, *plane), -1, 0) for pose in poses], axis=1)
         origin = np.array([poses[0].x_m, poses[0].y_m, poses[0].z_m])
         return fn(world, origin, np.moveaxis(rays, 0, -1), config.height_levels)
 

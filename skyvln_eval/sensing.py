@@ -127,13 +127,30 @@ def plane_coordinates(
     return a, b
 
 
+def plane_rays(
+    pose: CameraPose, a: NDArray[np.float64], b: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """``forward + a right - b up`` (the rays through image-plane offsets ``a``, ``b``),
+    computed one component at a time (numpy is slow on an innermost axis of 3; the
+    operations, and so the values, are the same), returned as a ``(..., 3)`` view whose
+    components are contiguous."""
+    forward, right, up = camera_basis(pose)
+    rays = np.empty((3, *np.shape(a)))
+    scratch = np.empty(np.shape(b))
+    for c in range(3):
+        component = rays[c, ...]  # a view, also for a single point
+        np.multiply(a, right[c], out=component)
+        component += forward[c]
+        component -= np.multiply(b, up[c], out=scratch)
+    return np.moveaxis(rays, 0, -1)
+
+
 def pixel_rays(
     pose: CameraPose, config: CameraConfig, u: NDArray[Any], v: NDArray[Any]
 ) -> NDArray[np.float64]:
-    """Ray directions (ENU, ``(..., 3)``) through image points ``(u, v)``, unit planar depth."""
-    forward, right, up = camera_basis(pose)
-    a, b = plane_coordinates(config, u, v)
-    return forward + a[..., None] * right - b[..., None] * up
+    """Ray directions (ENU, ``(..., 3)``, components contiguous) through image points
+    ``(u, v)``, unit planar depth."""
+    return plane_rays(pose, *plane_coordinates(config, u, v))
 
 
 def instance_pixel_counts(
@@ -181,22 +198,19 @@ class CameraImages:
         """
         ui = np.asarray(u, dtype=np.int64)
         vi = np.asarray(v, dtype=np.int64)
-        forward, right, up = camera_basis(self.pose)
-        a, b = plane_coordinates(self.config, ui + 0.5, vi + 0.5)
+        rays = pixel_rays(self.pose, self.config, ui + 0.5, vi + 0.5)
         origin = np.array([self.pose.x_m, self.pose.y_m, self.pose.z_m])
-        # One component at a time, the operations of pixel_rays and of
-        # ``origin + depth * rays`` (so the same floats): numpy is slow on an innermost
-        # axis of 3. The result is a (..., 3) view whose components are contiguous.
-        rays = [forward[c] + a * right[c] - b * up[c] for c in range(3)]
         if self.depth_m is not None:
             depth = self.depth_m[vi, ui].astype(np.float64)
         else:
-            down = rays[2] < -1e-9
-            depth = np.where(down, -origin[2] / np.where(down, rays[2], -1.0), np.inf)
+            down = rays[..., 2] < -1e-9
+            depth = np.where(down, -origin[2] / np.where(down, rays[..., 2], -1.0), np.inf)
+        # ``origin + depth * rays`` one component at a time, as pixel_rays makes the rays
+        # (the same floats; a (..., 3) view whose components are contiguous).
         points = np.empty((3, *np.shape(ui)))
         for c in range(3):
             component = points[c, ...]  # a view, also for a single point
-            np.multiply(depth, rays[c], out=component)
+            np.multiply(depth, rays[..., c], out=component)
             component += origin[c]
         return np.moveaxis(points, 0, -1)
 

@@ -42,6 +42,7 @@ from skyvln_eval.sensing import (
     camera_basis,
     pixel_rays,
     plane_coordinates,
+    plane_rays,
 )
 from skyvln_eval.sim.march import map_scale, march, march_reference, sample_layer
 from skyvln_eval.sim.native_march import march_native, native_hit_coords, native_rays
@@ -68,21 +69,6 @@ FloatImage = NDArray[np.float32]
 #: ``reference``: every ray at every level (:func:`~skyvln_eval.sim.march.march_reference`).
 #: Same images.
 RenderMethod = Literal["native", "fast", "reference"]
-
-
-def _rays(pose: CameraPose, a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``forward + a right - b up``, computed one component at a time (numpy is slow on an
-    innermost axis of 3; the operations, and so the values, are the same), returned as a
-    ``(..., 3)`` view whose components are contiguous."""
-    forward, right, up = camera_basis(pose)
-    rays = np.empty((3, *np.shape(a)))
-    scratch = np.empty(np.shape(b))
-    for c in range(3):
-        component = rays[c, ...]  # a view, also for a single point
-        np.multiply(a, right[c], out=component)
-        component += forward[c]
-        component -= np.multiply(b, up[c], out=scratch)
-    return np.moveaxis(rays, 0, -1)
 
 
 @functools.lru_cache(maxsize=8)
@@ -191,7 +177,7 @@ def render_views(
     if rays is None:
         rays = np.empty((3, len(poses), config.height_px, config.width_px))
         for index, pose in enumerate(poses):
-            rays[:, index] = np.moveaxis(_rays(pose, *plane), -1, 0)
+            rays[:, index] = np.moveaxis(plane_rays(pose, *plane), -1, 0)
     along_last = np.moveaxis(rays, 0, -1)  # (views, H, W, 3), as the marches take them
     if native:
         depth = march_native(world, origin, along_last, config.height_levels)

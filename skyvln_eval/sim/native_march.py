@@ -233,7 +233,7 @@ def native_rays(
     bases: NDArray[np.float64], a: NDArray[np.float64], b: NDArray[np.float64]
 ) -> NDArray[np.float64] | None:
     """The camera rays ``(3, V, H, W)`` of views with ``bases`` ``(V, 3, 3)`` (forward,
-    right, up) over the image plane ``a``, ``b`` ``(H, W)``, as ``camera._rays`` computes
+    right, up) over the image plane ``a``, ``b`` ``(H, W)``, as ``sensing.plane_rays`` computes
     them, bit for bit; ``None`` without the library."""
     if bases.shape[1:] not in ((3, 3), (9,)) or a.shape != b.shape:
         raise ValueError(f"native_rays: bases {bases.shape}, a {a.shape}, b {b.shape}")

@@ -10,7 +10,7 @@ import pytest
 from skyvln_eval.avdn import observe_view
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.frames import ViewPose, latlng_to_enu, pose_to_view
-from skyvln_eval.sensing import CameraImages
+from skyvln_eval.sensing import CameraImages, camera_basis, plane_coordinates
 from skyvln_eval.sim.camera import (
     SEMANTIC_NONE,
     SKY_BGR,
@@ -57,8 +57,8 @@ def test_depth_on_flat_ground_comes_from_the_altitude() -> None:
 @pytest.mark.parametrize("with_depth", [True, False])
 def test_points_are_the_pixel_rays_scaled_by_depth_bit_for_bit(with_depth: bool) -> None:
     """points_enu works one component at a time; its floats are those of the plain
-    ``origin + depth * pixel_rays(...)`` (and, without depth, of the rays' meeting with
-    the ground), at every pitch, for points in any array shape."""
+    ``origin + depth * (forward + a right - b up)`` (and, without depth, of the rays'
+    meeting with the ground), at every pitch, for points in any array shape."""
     rng = np.random.default_rng(7)
     config = CameraConfig()
     for pitch in (0.0, 30.0, 60.0, 90.0, 47.3):
@@ -70,7 +70,10 @@ def test_points_are_the_pixel_rays_scaled_by_depth_bit_for_bit(with_depth: bool)
             images = CameraImages(pose, config, images.rgb, depth)
         for shape in ((), (500,), (7, 9)):
             u, v = rng.integers(0, 224, shape), rng.integers(0, 224, shape)
-            rays = pixel_rays(pose, config, u + 0.5, v + 0.5)
+            # The plain expressions, with no component-wise work: the reference.
+            forward, right, up = camera_basis(pose)
+            a, b = plane_coordinates(config, u + 0.5, v + 0.5)
+            rays = forward + a[..., None] * right - b[..., None] * up
             origin = np.array([pose.x_m, pose.y_m, pose.z_m])
             if with_depth:
                 along = depth[v, u].astype(np.float64)

@@ -15,13 +15,13 @@ import pytest
 
 from skyvln_eval import cbuild
 from skyvln_eval.cbuild import compiler
+from skyvln_eval.sensing import plane_rays
 from skyvln_eval.sim import native_march
 from skyvln_eval.sim.camera import (
     CameraConfig,
     CameraPose,
     _image_plane,
     _nudges,
-    _rays,
     camera_basis,
     hit_coordinates,
     render_views,
@@ -53,7 +53,7 @@ def decision(
         for k, pitch in enumerate((0, 20, 45, 60, 90))
     ]
     plane = _image_plane(config)
-    rays = np.stack([np.moveaxis(_rays(pose, *plane), -1, 0) for pose in poses], axis=1)
+    rays = np.stack([np.moveaxis(plane_rays(pose, *plane), -1, 0) for pose in poses], axis=1)
     return np.array([x, y, z]), np.moveaxis(rays, 0, -1)
 
 
@@ -139,7 +139,9 @@ def test_rays_and_hit_coordinates_in_c_are_numpys_bit_for_bit(max_depth_m: float
             for pitch in (0, 20, 45, 60, 90)
         ]
         bases = np.array([np.concatenate(camera_basis(pose)) for pose in poses])
-        expected = np.stack([np.moveaxis(_rays(pose, *plane), -1, 0) for pose in poses], axis=1)
+        expected = np.stack(
+            [np.moveaxis(plane_rays(pose, *plane), -1, 0) for pose in poses], axis=1
+        )
         in_c = native_march.native_rays(bases, *plane)
         assert in_c is not None and same(in_c, expected)
         depth = native_march.march_native(world, origin, along_last, config.height_levels)
@@ -160,7 +162,7 @@ def test_a_rays_nudge_does_not_depend_on_the_yaw() -> None:
     for pitch in (0.0, 33.0, 60.0, 90.0):
         nudge = _nudges(config, pitch, mpp)
         for yaw in np.linspace(-math.pi, math.pi, 7):
-            rays = _rays(CameraPose(0.0, 0.0, 50.0, float(yaw), pitch), *_image_plane(config))
+            rays = plane_rays(CameraPose(0.0, 0.0, 50.0, float(yaw), pitch), *_image_plane(config))
             horizontal = np.maximum(np.hypot(rays[..., 0], rays[..., 1]), 1e-6)
             np.testing.assert_allclose(nudge, np.minimum(mpp / horizontal, 2.0), rtol=1e-12)
 

@@ -577,7 +577,7 @@ int skyvln_sample(const float *heights, int64_t rows, int64_t cols, const float 
     return 0;
 }
 
-/* The camera rays of camera._rays for each view: component c of view v at pixel i is
+/* The camera rays of sensing.plane_rays for each view: component c of view v at pixel i is
  * (a[i] right[c] + forward[c]) - b[i] up[c], the operations numpy does there. `bases`
  * holds per view forward, right and up (9 doubles); `rays` is (3, views, n). Returns 0. */
 int skyvln_rays(const double *a, const double *b, int64_t n, const double *bases, int64_t views,
