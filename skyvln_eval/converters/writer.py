@@ -8,9 +8,10 @@ Given a binary stream (e.g. ``io.BytesIO``), it writes there directly (tests, pi
 Files are deterministic: fixed header strings, no wall clock, schemas and channels
 registered lazily in first-use order with ids counted from 1, messages serialised as
 compact JSON in insertion order, zstd chunks (deterministic at a fixed level), every
-index, chunk CRCs and the data-section CRC. Log times are integer nanoseconds on the
-caller's deterministic clock and must never decrease: static content (log time 0) goes
-first, then time-ordered messages.
+index, chunk CRCs and the data-section CRC: the layout of ``mcap.writer.Writer`` with
+those options, written by :mod:`.mcap_file` (faster per message). Log times are integer
+nanoseconds on the caller's deterministic clock and must never decrease: static content
+(log time 0) goes first, then time-ordered messages.
 """
 
 from __future__ import annotations
@@ -24,9 +25,9 @@ from types import TracebackType
 from typing import Any, BinaryIO
 
 import numpy as np
-from mcap.writer import CompressionType, IndexType, Writer
 
 from skyvln_eval.converters import topics
+from skyvln_eval.converters.mcap_file import McapFileWriter
 from skyvln_eval.errors import ConfigError, McapLogError
 
 #: Chunks of this many uncompressed bytes; an episode log usually fits in one or two.
@@ -69,7 +70,7 @@ class McapLogWriter:
         else:
             self._stream = target
         self._chunk_size_bytes = chunk_size_bytes
-        self._writer: Writer | None = None
+        self._writer: McapFileWriter | None = None
         self._schema_ids: dict[str, int] = {}
         self._channel_ids: dict[str, int] = {}
         self._last_log_time_ns = 0
@@ -93,20 +94,10 @@ class McapLogWriter:
             self._tmp_path = Path(tmp)
             self._stream = os.fdopen(fd, "wb")
         assert self._stream is not None  # one of the two branches above set it
-        self._writer = Writer(
-            self._stream,
-            chunk_size=self._chunk_size_bytes,
-            compression=CompressionType.ZSTD,
-            index_types=IndexType.ALL,
-            repeat_channels=True,
-            repeat_schemas=True,
-            use_chunking=True,
-            use_statistics=True,
-            use_summary_offsets=True,
-            enable_crcs=True,
-            enable_data_crcs=True,
+        self._writer = McapFileWriter(
+            self._stream, self._chunk_size_bytes, topics.MCAP_PROFILE, topics.MCAP_LIBRARY
         )
-        self._writer.start(profile=topics.MCAP_PROFILE, library=topics.MCAP_LIBRARY)
+        self._writer.start()
         return self
 
     def __exit__(
@@ -139,7 +130,7 @@ class McapLogWriter:
             self._tmp_path.unlink(missing_ok=True)
             self._tmp_path = None
 
-    def _live(self) -> Writer:
+    def _live(self) -> McapFileWriter:
         if self._writer is None:
             raise ConfigError("McapLogWriter is not open: use it as `with McapLogWriter(...)`")
         return self._writer
@@ -206,12 +197,6 @@ class McapLogWriter:
                 raise McapLogError(
                     self.name, f"message on {topic!r} at {log_time_ns} ns cannot be encoded: {exc}"
                 ) from exc
-        self._live().add_message(
-            channel_id=channel_id,
-            log_time=log_time_ns,
-            data=data,
-            publish_time=log_time_ns,
-            sequence=self._sequence,
-        )
+        self._live().add_message(channel_id, log_time_ns, data, self._sequence)
         self._sequence += 1
         self._last_log_time_ns = log_time_ns
