@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
+import gc
 import multiprocessing
 import pickle
 import queue
@@ -52,6 +53,21 @@ def episodes_are_the_parallelism() -> None:
     import cv2
 
     cv2.setNumThreads(1)
+
+
+#: A worker process's collection thresholds: a young collection every 10,000 net container
+#: allocations, not Python's 700 (the older generations keep their ratios of 10).
+WORKER_GC_THRESHOLDS = (10_000, 10, 10)
+
+
+def collect_for_a_worker() -> None:
+    """Tune the garbage collector of a process that only runs tasks: what it has loaded
+    (modules, the task function) is frozen out of every collection, and young collections
+    are rarer. Episodes allocate many short-lived dicts and lists, so Python collected
+    hundreds of times per episode, each older collection walking all 115,000 objects the
+    process had loaded: on dynamics episodes 4.8 ms of collection per episode, 0.2 after."""
+    gc.freeze()
+    gc.set_threshold(*WORKER_GC_THRESHOLDS)
 
 
 @contextlib.contextmanager
@@ -155,6 +171,7 @@ def _process_worker(
     dropped, not run. With one thread the episodes run in the main thread and a second
     thread receives (episodes in a thread of their own took 25 MB more per process)."""
     episodes_are_the_parallelism()
+    collect_for_a_worker()
     sending = threading.Lock()
     inbox: queue.Queue[Any] = queue.Queue()
 

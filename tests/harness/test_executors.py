@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from skyvln_eval.errors import ConfigError, UnknownNameError
-from skyvln_eval.harness.executors import make_executor
+from skyvln_eval.harness.executors import WORKER_GC_THRESHOLDS, make_executor
 
 
 def square_or_fail(x: int) -> int:
@@ -29,6 +29,25 @@ def test_results_do_not_depend_on_the_executor(kind: str, workers: int) -> None:
     results = dict(make_executor(kind, workers).map_unordered(square_or_fail, list(range(6))))
     assert {k: v for k, v in results.items() if k != 3} == {0: 0, 1: 1, 2: 4, 4: 16, 5: 25}
     assert isinstance(results[3], ValueError)
+
+
+def collector(_: int) -> tuple[tuple[int, int, int], int]:
+    import gc
+
+    return gc.get_threshold(), gc.get_freeze_count()
+
+
+def test_worker_processes_collect_less_and_leave_this_process_alone() -> None:
+    import gc
+
+    before = gc.get_threshold()
+    results = dict(make_executor("processes", 2).map_unordered(collector, [0, 1, 2]))
+    for thresholds, frozen in results.values():
+        assert thresholds == WORKER_GC_THRESHOLDS
+        assert frozen > 1000  # the modules the worker loaded
+    assert gc.get_threshold() == before
+    serial = dict(make_executor("serial", 1).map_unordered(collector, [0]))
+    assert serial[0][0] == before
 
 
 def slow_pid(x: int) -> tuple[int, int, str]:
