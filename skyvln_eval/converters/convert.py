@@ -257,7 +257,7 @@ def convert_episode(
         if world is not None and options.observations:
             image = observe_view(world.bgr, corners, georef)
             data = encode_image(image, options.image_format, options.jpeg_quality)
-            msg = fx.compressed_image(t_ns, t.CAMERA_FRAME, data, options.image_format)
+            msg = fx.compressed_image_json(t_ns, t.CAMERA_FRAME, data, options.image_format)
             writer.write(t.TOPIC_GT_OBSERVATION, t.COMPRESSED_IMAGE, msg, t_ns)
         for turn in dialog.get(k, []):
             write_dialog_turn(writer, episode.episode_id, turn, turn_index, t_ns)

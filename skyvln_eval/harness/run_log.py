@@ -49,9 +49,11 @@ from skyvln_eval.converters.convert import (
     write_dialog_turn,
     write_static_content,
 )
+from skyvln_eval.converters.float_text import float_texts
+from skyvln_eval.converters.json_template import JsonTemplate, slot
 from skyvln_eval.converters.writer import McapLogWriter
 from skyvln_eval.frames import ViewPose, latlng_to_enu, view_to_pose
-from skyvln_eval.harness.control_messages import control_messages, drone_tf, ns
+from skyvln_eval.harness.control_messages import NS, control_messages, drone_tf, ns
 from skyvln_eval.harness.crashpoints import crash_point
 from skyvln_eval.sim.obstacles import ObstacleScenario
 from skyvln_eval.sim.sensors import Capture
@@ -175,7 +177,7 @@ def _agent_messages(
             out.add(
                 t_ns,
                 t.TOPIC_OBSERVATION,
-                fx.compressed_image(t_ns, t.CAMERA_FRAME, image, options.image_format),
+                fx.compressed_image_json(t_ns, t.CAMERA_FRAME, image, options.image_format),
             )
         if observations:
             for name, rgb in step.camera_views:
@@ -183,7 +185,7 @@ def _agent_messages(
                 out.add(
                     t_ns,
                     t.TOPIC_CAMERA_VIEWS,
-                    fx.compressed_image(
+                    fx.compressed_image_json(
                         t_ns, f"{t.CAMERA_VIEW_FRAME_PREFIX}{name}", jpeg, options.image_format
                     ),
                 )
@@ -244,6 +246,27 @@ def _control_messages(out: _Messages, log: pd.DataFrame) -> None:
         out.add(t_ns, topic, message)
 
 
+def obstacle_message(t_ns: int, scenario: ObstacleScenario, centres: Sequence[Any]) -> Any:
+    """The ``/sim/obstacles`` message at ``t_ns``: a sphere per obstacle at its centre."""
+    spheres = [
+        fx.sphere(list(centre), 2.0 * ob.radius_m, OBSTACLE_RGBA)
+        for centre, ob in zip(centres, scenario.obstacles, strict=True)
+    ]
+    return fx.scene_update(t_ns, t.MAP_FRAME, "obstacles", [], {"scenario": scenario.name}, spheres)
+
+
+def _obstacle_template(scenario: ObstacleScenario) -> JsonTemplate:
+    """:func:`obstacle_message` with slots: the time's seconds and nanoseconds, then each
+    centre's x, y and z."""
+    message = obstacle_message(0, scenario, [(0.0, 0.0, 0.0)] * len(scenario.obstacles))
+    entity = message["entities"][0]
+    entity["timestamp"] = {"sec": slot(0), "nsec": slot(1)}
+    for k, sphere in enumerate(entity["spheres"]):
+        first = 2 + 3 * k
+        sphere["pose"]["position"] = {"x": slot(first), "y": slot(first + 1), "z": slot(first + 2)}
+    return JsonTemplate(message)
+
+
 def _obstacle_messages(
     out: _Messages, segments: Sequence[tuple[float, float, ObstacleScenario]]
 ) -> None:
@@ -251,20 +274,20 @@ def _obstacle_messages(
         if not scenario.obstacles:
             continue
         times = np.arange(start_s, end_s + 1e-9, OBSTACLE_SAMPLE_S)
-        tracks = [ob.motion.position_m(times) for ob in scenario.obstacles]
-        for i, t_s in enumerate(times):
-            t_ns = ns(float(t_s))
-            spheres = [
-                fx.sphere(track[i].tolist(), 2.0 * ob.radius_m, OBSTACLE_RGBA)
-                for track, ob in zip(tracks, scenario.obstacles, strict=True)
-            ]
-            out.add(
-                t_ns,
-                t.TOPIC_OBSTACLES,
-                fx.scene_update(
-                    t_ns, t.MAP_FRAME, "obstacles", [], {"scenario": scenario.name}, spheres
-                ),
-            )
+        # (times, obstacles, 3): every centre at every time.
+        centres = np.stack([ob.motion.position_m(times) for ob in scenario.obstacles], axis=1)
+        times_ns = [ns(float(t_s)) for t_s in times]
+        if not np.isfinite(centres).all():  # the writer refuses them, as the dicts
+            for t_ns, at in zip(times_ns, centres.tolist(), strict=True):
+                out.add(t_ns, t.TOPIC_OBSTACLES, obstacle_message(t_ns, scenario, at))
+            continue
+        template = _obstacle_template(scenario)
+        texts = float_texts(centres.ravel())
+        per_time = centres.shape[1] * 3
+        for i, t_ns in enumerate(times_ns):
+            sec, nsec = divmod(t_ns, NS)
+            row = texts[i * per_time : (i + 1) * per_time]
+            out.add(t_ns, t.TOPIC_OBSTACLES, template.fill(str(sec), str(nsec), *row))
 
 
 def write_run_log(

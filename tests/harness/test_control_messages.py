@@ -125,3 +125,30 @@ def test_any_finite_row_gives_the_writers_bytes(
     row |= {"t_s": abs(values[0]) % 1e6, "min_clearance_m": clearance}
     row[PREDICTED_PATH_COLUMN] = predicted
     _assert_fast_and_equal(log_frame([row]))
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    centres=st.lists(st.sampled_from(TRICKY) | finite, min_size=6, max_size=6),
+    start_s=st.floats(0.0, 1e5),
+)
+def test_obstacle_messages_are_the_writers_bytes_of_their_dicts(
+    centres: list[float], start_s: float
+) -> None:
+    """The /sim/obstacles texts filled in from a template are the encoded dicts."""
+    from skyvln_eval.harness import run_log
+    from skyvln_eval.sim.obstacles import ConstantVelocity, ObstacleScenario, SphereObstacle
+
+    obstacles = tuple(
+        SphereObstacle(ConstantVelocity(tuple(centres[3 * k : 3 * k + 3]), (0.5, -1e-5, 0.0)))
+        for k in range(2)
+    )
+    scenario = ObstacleScenario("crossing ü", obstacles)
+    out = run_log._Messages()
+    run_log._obstacle_messages(out, [(start_s, start_s + 2.0, scenario)])
+    times = np.arange(start_s, start_s + 2.0 + 1e-9, run_log.OBSTACLE_SAMPLE_S)
+    assert len(out.items) == len(times)
+    for (t_ns, _, topic, _, text), t_s in zip(out.items, times, strict=True):
+        at = [ob.motion.position_m(np.array([t_s]))[0].tolist() for ob in obstacles]
+        assert topic == t.TOPIC_OBSTACLES and t_ns == cm.ns(float(t_s))
+        assert text == encode_json(run_log.obstacle_message(t_ns, scenario, at))
