@@ -51,7 +51,7 @@ from skyvln_eval.converters.convert import (
 )
 from skyvln_eval.converters.float_text import float_texts
 from skyvln_eval.converters.json_template import JsonTemplate, slot
-from skyvln_eval.converters.writer import McapLogWriter
+from skyvln_eval.converters.writer import McapLogWriter, encode_json
 from skyvln_eval.frames import ViewPose, latlng_to_enu, view_to_pose
 from skyvln_eval.harness.control_messages import NS, control_messages, drone_tf, ns
 from skyvln_eval.harness.crashpoints import crash_point
@@ -128,7 +128,48 @@ def _view_loop(view: NDArray[np.float64], episode: Episode) -> list[list[float]]
 
 
 def _trace_without_exchanges(trace: Mapping[str, Any]) -> dict[str, Any]:
+    """The trace as JSON values (what is not JSON as its ``str``), without the exchanges
+    (they have a topic of their own)."""
     return json.loads(json.dumps({k: v for k, v in trace.items() if k != "exchanges"}, default=str))
+
+
+def _agent_step_fields(
+    t_ns: int, episode_id: str, step: Step, record: Mapping[str, Any]
+) -> dict[str, Any]:
+    return {
+        "timestamp": fx.timestamp(t_ns),
+        "episode_id": episode_id,
+        "step_index": step.step_index,
+        "thought": step.thought,
+        "action": record,
+        "feedback": step.feedback,
+    }
+
+
+def agent_step_message(
+    t_ns: int, episode_id: str, step: Step, record: Mapping[str, Any]
+) -> dict[str, Any]:
+    """The ``/agent/step`` message (the reference for :func:`agent_step_json`)."""
+    fields = _agent_step_fields(t_ns, episode_id, step, record)
+    return fields | {"trace": _trace_without_exchanges(step.trace)}
+
+
+def agent_step_json(
+    t_ns: int, episode_id: str, step: Step, record: Mapping[str, Any]
+) -> bytes | dict[str, Any]:
+    """:func:`agent_step_message` as the writer encodes it, with the trace encoded once,
+    not encoded, decoded and encoded again: it is the message's last field, and encoding
+    it with what is not JSON as its ``str`` writes the text the round trip gave. A message
+    the writer would refuse (a NaN) stays the dict, so the writer fails on it as before."""
+    trace = {k: v for k, v in step.trace.items() if k != "exchanges"}
+    try:
+        text = json.dumps(
+            trace, separators=(",", ":"), ensure_ascii=False, allow_nan=False, default=str
+        )
+        head = encode_json(_agent_step_fields(t_ns, episode_id, step, record) | {"trace": 0})
+    except (TypeError, ValueError):
+        return agent_step_message(t_ns, episode_id, step, record)
+    return head[: -len(b"0}")] + text.encode("utf-8") + b"}"
 
 
 class _ImageEncoder:
@@ -190,19 +231,7 @@ def _agent_messages(
                     ),
                 )
         record = action_record(step.action)
-        out.add(
-            t_ns,
-            t.TOPIC_AGENT_STEP,
-            {
-                "timestamp": fx.timestamp(t_ns),
-                "episode_id": episode.episode_id,
-                "step_index": step.step_index,
-                "thought": step.thought,
-                "action": record,
-                "feedback": step.feedback,
-                "trace": _trace_without_exchanges(step.trace),
-            },
-        )
+        out.add(t_ns, t.TOPIC_AGENT_STEP, agent_step_json(t_ns, episode.episode_id, step, record))
         out.add(
             t_ns,
             t.TOPIC_AGENT_LOG,

@@ -152,3 +152,39 @@ def test_obstacle_messages_are_the_writers_bytes_of_their_dicts(
         at = [ob.motion.position_m(np.array([t_s]))[0].tolist() for ob in obstacles]
         assert topic == t.TOPIC_OBSTACLES and t_ns == cm.ns(float(t_s))
         assert text == encode_json(run_log.obstacle_message(t_ns, scenario, at))
+
+
+class _Odd:
+    def __str__(self) -> str:
+        return "odd ü"
+
+
+@pytest.mark.parametrize(
+    "trace",
+    [
+        {"subgoals": [{"kind": "turn", "deg": -0.0}], "exchanges": [{"x": 1}], "é": "ü\n"},
+        {1: (1, 2.5e-7, None), "f32": np.float32(1.5), "f64": np.float64(1e16), "o": _Odd()},
+        {"nested": {"a": [True, {"b": 1e22}]}, "empty": {}, "odd": [_Odd(), b"bytes"]},
+    ],
+)
+def test_agent_step_text_is_the_writers_bytes_of_its_dict(trace: dict[Any, Any]) -> None:
+    from skyvln_eval.agent.actions import Stop, action_record
+    from skyvln_eval.harness import run_log
+
+    step = run_log.Step(3.5, 2, np.zeros((4, 2)), "thinking ü", Stop(), "fine", trace)
+    record = action_record(step.action)
+    text = run_log.agent_step_json(3_500_000_000, "ep_1", step, record)
+    reference = run_log.agent_step_message(3_500_000_000, "ep_1", step, record)
+    assert text == encode_json(reference)
+    assert b"exchanges" not in text  # they have a topic of their own
+
+
+def test_an_agent_step_the_writer_refuses_stays_a_dict() -> None:
+    from skyvln_eval.agent.actions import Stop, action_record
+    from skyvln_eval.harness import run_log
+
+    step = run_log.Step(1.0, 0, np.zeros((4, 2)), "", Stop(), None, {"score": math.nan})
+    message = run_log.agent_step_json(10, "ep", step, action_record(step.action))
+    assert isinstance(message, dict)
+    with pytest.raises(ValueError):
+        encode_json(message)
