@@ -8,14 +8,15 @@ The text must be byte for byte what :func:`~skyvln_eval.converters.writer.encode
 writes for the dicts :func:`control_step_message` and :func:`drone_tf` build (the
 reference; the tests compare the two). That holds because the JSON encoder writes a
 float as ``float.__repr__``, an int as ``int.__repr__``, a bool as ``true``/``false``
-and a string by ``json.dumps`` rules, and the templates below repeat the dicts' keys in
-their order with the compact separators. A row the encoder would refuse or treat
+and a string by ``json.dumps`` rules, and the templates are the reference dicts with
+slots, encoded once (:class:`~skyvln_eval.converters.json_template.JsonTemplate`). A row the encoder would refuse or treat
 differently (a NaN or infinite value, an odd column type) keeps its dicts, so the writer
 fails on it exactly as before.
 """
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from typing import Any
@@ -28,6 +29,7 @@ from skyvln_eval.control.flight_log import PREDICTED_PATH_COLUMN
 from skyvln_eval.converters import messages as fx
 from skyvln_eval.converters import topics as t
 from skyvln_eval.converters.float_text import float_texts, point_list_texts
+from skyvln_eval.converters.json_template import JsonTemplate, slot
 from skyvln_eval.frames import ViewPose
 
 NS = 1_000_000_000
@@ -116,23 +118,49 @@ def _row_dicts(columns: dict[str, Any], i: int) -> list[Message]:
     ]
 
 
-_TF = (
-    '{{"timestamp":{{"sec":{sec},"nsec":{nsec}}},'
-    f'"parent_frame_id":{json.dumps(t.MAP_FRAME)},"child_frame_id":{json.dumps(t.DRONE_FRAME)},'
-    '"translation":{{"x":{x},"y":{y},"z":{z}}},'
-    '"rotation":{{"x":0.0,"y":0.0,"z":{qz},"w":{qw}}}}}'
-)
-_CONTROL_STEP = (
-    '{{"timestamp":{{"sec":{sec},"nsec":{nsec}}},"controller":{controller},'
-    '"position_m":[{x},{y},{z}],"velocity_m_s":[{vx_m_s},{vy_m_s},{vz_m_s}],'
-    '"attitude_rad":[{roll_rad},{pitch_rad},{yaw_rad}],'
-    '"reference_position_m":[{ref_x_m},{ref_y_m},{ref_z_m}],"reference_yaw_rad":{ref_yaw_rad},'
-    '"command":{{"thrust_m_s2":{cmd_thrust_m_s2},"roll_rad":{cmd_roll_rad},'
-    '"pitch_rad":{cmd_pitch_rad}}},"solve_time_ms":{solve_time_ms},"iterations":{iterations},'
-    '"status":{status},"solve_failed":{solve_failed},"min_clearance_m":{min_clearance_m},'
-    '"collision":{collision},"constraint_violation":{constraint_violation},'
-    '"predicted_positions_m":{predicted}}}'
-)
+@functools.cache
+def _tf_template() -> JsonTemplate:
+    """:func:`drone_tf` with slots: seconds, nanoseconds, x, y, z, then the quaternion's z
+    and w."""
+    message = drone_tf(0, ViewPose(0.0, 0.0, 0.0, 0.0))
+    message["timestamp"] = {"sec": slot(0), "nsec": slot(1)}
+    message["translation"] = {"x": slot(2), "y": slot(3), "z": slot(4)}
+    message["rotation"] = message["rotation"] | {"z": slot(5), "w": slot(6)}
+    return JsonTemplate(message)
+
+
+@functools.cache
+def _control_step_template() -> JsonTemplate:
+    """:func:`control_step_message` with a slot for every field: seconds, nanoseconds,
+    controller, the 17 floats of :data:`FLOAT_COLUMNS` after the time (in that order),
+    iterations, status, solve_failed, min_clearance_m, collision, constraint_violation,
+    predicted_positions_m. Every field is replaced in the reference's own dict, so its
+    order is the reference's (a field left out would keep a dummy value: the tests
+    compare the two)."""
+    columns: dict[str, Any] = {c: np.zeros(1) for c in (*FLOAT_COLUMNS, "min_clearance_m")}
+    columns |= {c: np.array(["-"]) for c in _STRING_COLUMNS}
+    columns |= {c: np.zeros(1, dtype=bool) for c in _BOOL_COLUMNS} | {"iterations": [0]}
+    message = control_step_message(columns, 0, 0, ViewPose(0.0, 0.0, 0.0, 0.0))
+    floats = [slot(3 + k) for k in range(len(FLOAT_COLUMNS) - 1)]
+    message.update(
+        timestamp={"sec": slot(0), "nsec": slot(1)},
+        controller=slot(2),
+        position_m=floats[0:3],
+        velocity_m_s=floats[3:6],
+        attitude_rad=floats[6:9],
+        reference_position_m=floats[9:12],
+        reference_yaw_rad=floats[12],
+        command=dict(zip(("thrust_m_s2", "roll_rad", "pitch_rad"), floats[13:16], strict=True)),
+        solve_time_ms=floats[16],
+        iterations=slot(20),
+        status=slot(21),
+        solve_failed=slot(22),
+        min_clearance_m=slot(23),
+        collision=slot(24),
+        constraint_violation=slot(25),
+        predicted_positions_m=slot(26),
+    )
+    return JsonTemplate(message)
 
 
 def _json_string(value: Any) -> str:
@@ -209,34 +237,29 @@ def control_messages(log: pd.DataFrame) -> list[Message]:
     iterations = columns["iterations"].tolist()
     strings = {c: [_json_string(v) for v in columns[c].tolist()] for c in _STRING_COLUMNS}
     bools = {c: [_json_bool(v) for v in columns[c].tolist()] for c in _BOOL_COLUMNS}
+    tf, step = _tf_template(), _control_step_template()
     messages: list[Message] = []
     for i in range(n_rows):
         if not fast_rows[i]:
             messages += _row_dicts(columns, i)
             continue
         t_ns = ns(times[i])
-        sec, nsec = divmod(t_ns, NS)
+        sec, nsec = (str(part) for part in divmod(t_ns, NS))
         row = flat[i * width : (i + 1) * width]
-        text = dict(zip(FLOAT_COLUMNS[1:], row[:named], strict=True))
         clearance_text, qz, qw = row[named:]
-        x, y, z = text["x_m"], text["y_m"], text["z_m"]
-        tf = _TF.format(sec=sec, nsec=nsec, x=x, y=y, z=z, qz=qz, qw=qw)
-        step = _CONTROL_STEP.format(
-            sec=sec,
-            nsec=nsec,
-            x=x,
-            y=y,
-            z=z,
-            controller=strings["controller"][i],
-            status=strings["status"][i],
-            iterations=int(iterations[i]),
-            min_clearance_m=clearance_text if clearance_finite[i] else "null",
-            solve_failed=bools["solve_failed"][i],
-            collision=bools["collision"][i],
-            constraint_violation=bools["constraint_violation"][i],
-            predicted=predicted_texts[i],
-            **text,
+        messages.append((t_ns, t.TOPIC_TF, tf.fill(sec, nsec, row[0], row[1], row[2], qz, qw)))
+        text = step.fill(
+            sec,
+            nsec,
+            strings["controller"][i],
+            *row[:named],
+            str(int(iterations[i])),
+            strings["status"][i],
+            bools["solve_failed"][i],
+            clearance_text if clearance_finite[i] else "null",
+            bools["collision"][i],
+            bools["constraint_violation"][i],
+            predicted_texts[i],
         )
-        messages.append((t_ns, t.TOPIC_TF, tf.encode("utf-8")))
-        messages.append((t_ns, t.TOPIC_CONTROL_STEP, step.encode("utf-8")))
+        messages.append((t_ns, t.TOPIC_CONTROL_STEP, text))
     return messages
