@@ -85,7 +85,8 @@ class McapFileWriter:
     Log times must never decrease (the log writer checks), so a chunk's and the file's
     time range run from their first message to their last.
 
-    Offsets are counted from the stream's position at construction.
+    Offsets are counted from the stream's position at construction (0 on a stream that
+    cannot tell it, such as a pipe: the library's writer fails there).
     """
 
     def __init__(
@@ -98,7 +99,10 @@ class McapFileWriter:
     ) -> None:
         self._stream = stream
         self._compressor = zstandard.ZstdCompressor(level=zstd_level)
-        self._offset = stream.tell()
+        try:
+            self._offset = stream.tell()
+        except OSError:  # io.UnsupportedOperation included: a pipe, a socket
+            self._offset = 0
         self._chunk_size = chunk_size_bytes
         self._profile, self._library = profile, library
         self._data_crc = 0

@@ -55,12 +55,18 @@ class _Library:
 
 
 def _write(
-    kind: str, seed: int, chunk_size: int, messages: int, prefix: bytes = b"", level: int = 0
+    kind: str,
+    seed: int,
+    chunk_size: int,
+    messages: int,
+    prefix: bytes = b"",
+    level: int = 0,
+    stream: io.BytesIO | None = None,
 ) -> bytes:
     """A seeded mix of schemas, channels, messages (times never decreasing, as the log
     writer requires) and metadata, written by either writer after ``prefix``."""
     rng = random.Random(seed)
-    stream = io.BytesIO()
+    stream = stream or io.BytesIO()
     stream.write(prefix)
     writer: Any = (
         McapFileWriter(stream, chunk_size, PROFILE, LIBRARY, level or LIBRARY_ZSTD_LEVEL)
@@ -142,3 +148,14 @@ def test_offsets_count_from_where_the_stream_was() -> None:
     prefix = b"not part of the file"
     ours = _write("ours", 5, 3000, 200, prefix)
     assert ours == _write("library", 5, 3000, 200, prefix)
+
+
+class _Pipe(io.BytesIO):
+    """A stream that cannot tell its position, as a pipe."""
+
+    def tell(self) -> int:
+        raise io.UnsupportedOperation("not seekable")
+
+
+def test_a_stream_without_a_position_gets_the_file_as_from_offset_zero() -> None:
+    assert _write("ours", 7, 3000, 100, stream=_Pipe()) == _write("ours", 7, 3000, 100)
