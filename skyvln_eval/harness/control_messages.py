@@ -9,9 +9,9 @@ writes for the dicts :func:`control_step_message` and :func:`drone_tf` build (th
 reference; the tests compare the two). That holds because the JSON encoder writes a
 float as ``float.__repr__``, an int as ``int.__repr__``, a bool as ``true``/``false``
 and a string by ``json.dumps`` rules, and the templates are the reference dicts with
-slots, encoded once (:class:`~skyvln_eval.converters.json_template.JsonTemplate`). A row the encoder would refuse or treat
-differently (a NaN or infinite value, an odd column type) keeps its dicts, so the writer
-fails on it exactly as before.
+slots, encoded once (:class:`~skyvln_eval.converters.json_template.JsonTemplate`). A
+row the encoder would refuse or treat differently (a NaN or infinite value, an odd
+column type) keeps its dicts, so the writer fails on it exactly as before.
 """
 
 from __future__ import annotations
