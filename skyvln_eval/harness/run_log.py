@@ -162,14 +162,14 @@ def agent_step_json(
     it with what is not JSON as its ``str`` writes the text the round trip gave. A message
     the writer would refuse (a NaN) stays the dict, so the writer fails on it as before."""
     trace = {k: v for k, v in step.trace.items() if k != "exchanges"}
-    try:
+    try:  # (a string that is not UTF-8, a lone surrogate, is a ValueError too)
         text = json.dumps(
             trace, separators=(",", ":"), ensure_ascii=False, allow_nan=False, default=str
-        )
+        ).encode("utf-8")
         head = encode_json(_agent_step_fields(t_ns, episode_id, step, record) | {"trace": 0})
     except (TypeError, ValueError):
         return agent_step_message(t_ns, episode_id, step, record)
-    return head[: -len(b"0}")] + text.encode("utf-8") + b"}"
+    return head[: -len(b"0}")] + text + b"}"
 
 
 class _ImageEncoder:

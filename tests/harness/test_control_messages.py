@@ -183,8 +183,9 @@ def test_an_agent_step_the_writer_refuses_stays_a_dict() -> None:
     from skyvln_eval.agent.actions import Stop, action_record
     from skyvln_eval.harness import run_log
 
-    step = run_log.Step(1.0, 0, np.zeros((4, 2)), "", Stop(), None, {"score": math.nan})
-    message = run_log.agent_step_json(10, "ep", step, action_record(step.action))
-    assert isinstance(message, dict)
-    with pytest.raises(ValueError):
-        encode_json(message)
+    for trace in ({"score": math.nan}, {"name": "lone \udc80"}):
+        step = run_log.Step(1.0, 0, np.zeros((4, 2)), "", Stop(), None, trace)
+        message = run_log.agent_step_json(10, "ep", step, action_record(step.action))
+        assert isinstance(message, dict)
+        with pytest.raises(ValueError):
+            encode_json(message)
