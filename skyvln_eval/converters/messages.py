@@ -14,6 +14,8 @@ import math
 from collections.abc import Iterable, Sequence
 from typing import Any, Final
 
+from skyvln_eval.converters.json_template import JsonTemplate, slot
+
 Json = dict[str, Any]
 Rgba = tuple[float, float, float, float]
 
@@ -142,9 +144,7 @@ def compressed_image(t_ns: int, frame_id: str, data: bytes, image_format: str) -
 
 
 @functools.cache
-def _compressed_image_template() -> Any:
-    from skyvln_eval.converters.json_template import JsonTemplate, slot
-
+def _compressed_image_template() -> JsonTemplate:
     message = compressed_image(0, slot(2), b"", slot(4))
     message["timestamp"] = {"sec": slot(0), "nsec": slot(1)}
     message["data"] = slot(3)
@@ -156,14 +156,13 @@ def compressed_image_json(t_ns: int, frame_id: str, data: bytes, image_format: s
     most of a log's bytes, and the encoder scans every character of their base64 text
     (which needs no escaping) for characters to escape."""
     sec, nsec = divmod(t_ns, NS_PER_S)
-    filled: bytes = _compressed_image_template().fill(
+    return _compressed_image_template().fill(
         str(sec),
         str(nsec),
         json.dumps(frame_id, ensure_ascii=False),
         f'"{base64.b64encode(data).decode("ascii")}"',
         json.dumps(image_format, ensure_ascii=False),
     )
-    return filled
 
 
 def location_fix(
