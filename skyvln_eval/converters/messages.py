@@ -35,6 +35,18 @@ def timestamp(t_ns: int) -> Json:
     return {"sec": sec, "nsec": nsec}
 
 
+def timestamp_slots() -> Json:
+    """:func:`timestamp` as slots 0 (seconds) and 1 (nanoseconds) of a message template
+    (:mod:`.json_template`): every template of the logs has the time first."""
+    return {"sec": slot(0), "nsec": slot(1)}
+
+
+def timestamp_texts(t_ns: int) -> tuple[str, str]:
+    """The JSON texts that fill :func:`timestamp_slots` for ``t_ns``."""
+    sec, nsec = divmod(t_ns, NS_PER_S)
+    return str(sec), str(nsec)
+
+
 def vector3(x: float, y: float, z: float) -> Json:
     return {"x": float(x), "y": float(y), "z": float(z)}
 
@@ -146,7 +158,7 @@ def compressed_image(t_ns: int, frame_id: str, data: bytes, image_format: str) -
 @functools.cache
 def _compressed_image_template() -> JsonTemplate:
     message = compressed_image(0, slot(2), b"", slot(4))
-    message["timestamp"] = {"sec": slot(0), "nsec": slot(1)}
+    message["timestamp"] = timestamp_slots()
     message["data"] = slot(3)
     return JsonTemplate(message)
 
@@ -155,10 +167,8 @@ def compressed_image_json(t_ns: int, frame_id: str, data: bytes, image_format: s
     """:func:`compressed_image` as the log writer encodes it, without the dict: images are
     most of a log's bytes, and the encoder scans every character of their base64 text
     (which needs no escaping) for characters to escape."""
-    sec, nsec = divmod(t_ns, NS_PER_S)
     return _compressed_image_template().fill(
-        str(sec),
-        str(nsec),
+        *timestamp_texts(t_ns),
         json.dumps(frame_id, ensure_ascii=False),
         f'"{base64.b64encode(data).decode("ascii")}"',
         json.dumps(image_format, ensure_ascii=False),

@@ -32,7 +32,7 @@ from skyvln_eval.converters.float_text import float_texts, point_list_texts
 from skyvln_eval.converters.json_template import JsonTemplate, slot
 from skyvln_eval.frames import ViewPose
 
-NS = 1_000_000_000
+NS = fx.NS_PER_S
 
 _POSITION = ("x_m", "y_m", "z_m")
 _VELOCITY = ("vx_m_s", "vy_m_s", "vz_m_s")
@@ -123,7 +123,7 @@ def _tf_template() -> JsonTemplate:
     """:func:`drone_tf` with slots: seconds, nanoseconds, x, y, z, then the quaternion's z
     and w."""
     message = drone_tf(0, ViewPose(0.0, 0.0, 0.0, 0.0))
-    message["timestamp"] = {"sec": slot(0), "nsec": slot(1)}
+    message["timestamp"] = fx.timestamp_slots()
     message["translation"] = {"x": slot(2), "y": slot(3), "z": slot(4)}
     message["rotation"] = message["rotation"] | {"z": slot(5), "w": slot(6)}
     return JsonTemplate(message)
@@ -143,7 +143,7 @@ def _control_step_template() -> JsonTemplate:
     message = control_step_message(columns, 0, 0, ViewPose(0.0, 0.0, 0.0, 0.0))
     floats = [slot(3 + k) for k in range(len(FLOAT_COLUMNS) - 1)]
     message.update(
-        timestamp={"sec": slot(0), "nsec": slot(1)},
+        timestamp=fx.timestamp_slots(),
         controller=slot(2),
         position_m=floats[0:3],
         velocity_m_s=floats[3:6],
@@ -244,7 +244,7 @@ def control_messages(log: pd.DataFrame) -> list[Message]:
             messages += _row_dicts(columns, i)
             continue
         t_ns = ns(times[i])
-        sec, nsec = (str(part) for part in divmod(t_ns, NS))
+        sec, nsec = fx.timestamp_texts(t_ns)
         row = flat[i * width : (i + 1) * width]
         clearance_text, qz, qw = row[named:]
         messages.append((t_ns, t.TOPIC_TF, tf.fill(sec, nsec, row[0], row[1], row[2], qz, qw)))

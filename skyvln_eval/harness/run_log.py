@@ -51,9 +51,9 @@ from skyvln_eval.converters.convert import (
 )
 from skyvln_eval.converters.float_text import float_texts
 from skyvln_eval.converters.json_template import JsonTemplate, slot
-from skyvln_eval.converters.writer import McapLogWriter, encode_json
+from skyvln_eval.converters.writer import McapLogWriter
 from skyvln_eval.frames import ViewPose, latlng_to_enu, view_to_pose
-from skyvln_eval.harness.control_messages import NS, control_messages, drone_tf, ns
+from skyvln_eval.harness.control_messages import control_messages, drone_tf, ns
 from skyvln_eval.harness.crashpoints import crash_point
 from skyvln_eval.sim.obstacles import ObstacleScenario
 from skyvln_eval.sim.sensors import Capture
@@ -158,18 +158,19 @@ def agent_step_json(
     t_ns: int, episode_id: str, step: Step, record: Mapping[str, Any]
 ) -> bytes | dict[str, Any]:
     """:func:`agent_step_message` as the writer encodes it, with the trace encoded once,
-    not encoded, decoded and encoded again: it is the message's last field, and encoding
-    it with what is not JSON as its ``str`` writes the text the round trip gave. A message
-    the writer would refuse (a NaN) stays the dict, so the writer fails on it as before."""
+    not encoded, decoded and encoded again: encoding it with what is not JSON as its
+    ``str`` writes the text the round trip gave, filled in the message's template. A
+    message the writer would refuse (a NaN) stays the dict, so the writer fails on it as
+    before."""
     trace = {k: v for k, v in step.trace.items() if k != "exchanges"}
+    fields = _agent_step_fields(t_ns, episode_id, step, record)
     try:  # (a string that is not UTF-8, a lone surrogate, is a ValueError too)
         text = json.dumps(
             trace, separators=(",", ":"), ensure_ascii=False, allow_nan=False, default=str
-        ).encode("utf-8")
-        head = encode_json(_agent_step_fields(t_ns, episode_id, step, record) | {"trace": 0})
+        )
+        return JsonTemplate(fields | {"trace": slot(0)}).fill(text)
     except (TypeError, ValueError):
         return agent_step_message(t_ns, episode_id, step, record)
-    return head[: -len(b"0}")] + text + b"}"
 
 
 class _ImageEncoder:
@@ -289,7 +290,7 @@ def _obstacle_template(scenario: ObstacleScenario) -> JsonTemplate:
     centre's x, y and z."""
     message = obstacle_message(0, scenario, [(0.0, 0.0, 0.0)] * len(scenario.obstacles))
     entity = message["entities"][0]
-    entity["timestamp"] = {"sec": slot(0), "nsec": slot(1)}
+    entity["timestamp"] = fx.timestamp_slots()
     for k, sphere in enumerate(entity["spheres"]):
         first = 2 + 3 * k
         sphere["pose"]["position"] = {"x": slot(first), "y": slot(first + 1), "z": slot(first + 2)}
@@ -314,9 +315,8 @@ def _obstacle_messages(
         texts = float_texts(centres.ravel())
         per_time = centres.shape[1] * 3
         for i, t_ns in enumerate(times_ns):
-            sec, nsec = divmod(t_ns, NS)
             row = texts[i * per_time : (i + 1) * per_time]
-            out.add(t_ns, t.TOPIC_OBSTACLES, template.fill(str(sec), str(nsec), *row))
+            out.add(t_ns, t.TOPIC_OBSTACLES, template.fill(*fx.timestamp_texts(t_ns), *row))
 
 
 def write_run_log(
