@@ -349,8 +349,9 @@ class SpatialDescriptor:
         return result
 
     def _at_once(self, fn: Callable[[Any], T], items: Sequence[Any]) -> list[T]:
-        """``fn`` of each item, in threads up to the client's concurrency limit; in order."""
-        if len(items) <= 1:
+        """``fn`` of each item, in threads up to the client's concurrency limit; in order
+        (one after another for a backend that answers in this process)."""
+        if len(items) <= 1 or self.client.backend.answers_in_process:
             return [fn(item) for item in items]
         workers = min(self.client.max_concurrency, len(items))
         with ThreadPoolExecutor(max_workers=workers) as pool:

@@ -35,6 +35,10 @@ class LLMBackend(ABC):
     kind: BackendKind = "llm"
     model: str = ""
     takes_images: bool = False
+    #: Whether answers are computed by Python in this process (no server to wait for):
+    #: the agent then makes its independent calls one after another, as threads would
+    #: only take turns on the interpreter's lock (and cost a pool per decision).
+    answers_in_process: bool = False
 
     @abstractmethod
     def generate(self, messages: Sequence[Message], config: GenerationConfig) -> Completion:

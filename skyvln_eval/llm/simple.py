@@ -65,6 +65,7 @@ class RandomBackend(LLMBackend):
 
     name = "random"
     kind = "random"
+    answers_in_process = True
 
     def __init__(self, model: str | None = None) -> None:
         self.model = model or "uniform"
@@ -126,6 +127,7 @@ class ReplayBackend(LLMBackend):
 
     name = "replay"
     kind = "replay"
+    answers_in_process = True
 
     def __init__(
         self, model: str | None = None, base_url: str | None = None, system_role: bool = True

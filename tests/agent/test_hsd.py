@@ -27,6 +27,7 @@ from skyvln_eval.llm import (
     Message,
     create_backend,
 )
+from skyvln_eval.llm.rule import RuleBackend
 from skyvln_eval.llm.simple import ScriptedBackend
 from skyvln_eval.llm.taskdata import read_task_data
 
@@ -248,3 +249,33 @@ def test_hsd_asks_for_every_phrase_at_once_describing_then_ranking() -> None:
     # The same matches as the serial rule backend gives.
     serial = SpatialDescriptor(LLMClient(create_backend("rule"), max_concurrency=1), LLMConfig())
     assert serial.match(goals, PANORAMA, 0.0, None).matches == result.matches
+
+
+class _ThreadNotingRule(RuleBackend):
+    """The rule backend, noting the thread each call is made in."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.threads: list[str] = []
+
+    def generate(self, messages, config):  # type: ignore[no-untyped-def]
+        self.threads.append(threading.current_thread().name)
+        return super().generate(messages, config)
+
+
+def test_hsd_calls_a_backend_that_answers_in_process_one_after_another() -> None:
+    # The rule backend computes its answers under the interpreter's lock: threads would
+    # only take turns, so HSD's calls stay in the calling thread (no pool per decision),
+    # with the same matches as the threaded round of a server.
+    goals = [
+        SubGoal("destination", landmark="a small restaurant with a red roof"),
+        SubGoal("pass", landmark="a church with a cross-shaped red roof"),
+    ]
+    backend = _ThreadNotingRule()
+    assert backend.answers_in_process and not ScriptedBackend().answers_in_process
+    result = SpatialDescriptor(LLMClient(backend, max_concurrency=8), LLMConfig(), top_k=3).match(
+        goals, PANORAMA, 0.0, None
+    )
+    assert len(backend.threads) > len(goals)  # several descriptions, then the rankings
+    assert set(backend.threads) == {threading.current_thread().name}
+    assert [m.phrase for m in result.matches] == [g.landmark for g in goals]

@@ -47,6 +47,7 @@ class RuleBackend(LLMBackend):
 
     name = "rule"
     kind = "rule"
+    answers_in_process = True
 
     def __init__(self, model: str | None = None) -> None:
         if model not in (None, RULE_MODEL):
