@@ -13,8 +13,9 @@ reference row.
     python benchmarks/real_llm.py [--episodes 10] [--max-steps 10] [--base-url URL]
 
 Gemma 3 270M is a small base model: expect a low SR. Measured on 2 cores (10 episodes of
-test_unseen): 139 calls, 12.4 s each on average, 29 minutes in all; 90 of 90 decisions
-parsed (no fallback), 11 unusable answers (7 rankings, 4 sub-goal answers), 9 repairs;
+test_unseen; two runs a day apart, the same counts): 139 calls, 10.7-12.4 s each on
+average, 25-29 minutes in all; 90 of 90 decisions parsed (no fallback), 11 unusable
+answers (7 rankings, 4 sub-goal answers), 9 repairs;
 8 episodes "ok", 2 "degraded" (their sub-goals not extracted); SR 0%, NE 196.8 m. Each
 module's unusable answers are counted by reason (values blanked). Before the sub-goal
 schema was made per dialog (phrases a pattern of the dialog's words) its sub-goals were
