@@ -6,8 +6,9 @@
    episodes/s, wall time (aim: at most 60 s on 2 cores) and the simulated-to-wall-clock
    time ratio.
 
-Each row gives the peak resident memory of every worker process (``ru_maxrss`` read in
-the worker after each episode).
+Each row gives the CPU time of the run (its worker processes and this one) and the peak
+resident memory of every worker process (``ru_maxrss`` read in the worker after each
+episode).
 3. LLM concurrency, against a loopback OpenAI-compatible server (in a process of its
    own, as a remote model is) that answers after 200 ms: 64 raw calls one after another
    vs 16 at a time (aim: at least 10x); 16 episodes of the agent with the ``openai``
@@ -80,15 +81,20 @@ class PeakMemory:
 def harness_row(label: str, config: RunConfig, run_dir: Path) -> None:
     prepare_job(config, run_dir)  # episode logs converted once, not timed
     executor = PeakMemory(make_executor(config.executor, config.workers))
+    cpu_before = cpu_seconds()
     start = time.perf_counter()
     report = run(config, run_dir, executor=executor)
     wall = time.perf_counter() - start
+    # The workers' CPU time as well: on a shared machine the wall time also measures the
+    # neighbours, the CPU time much less so.
+    cpu = cpu_seconds() - cpu_before
     n = len(report.expected)
     ratio = report.simulated_s / wall if wall else float("nan")
     peaks = ", ".join(f"{kib / 1024:.0f}" for kib in sorted(executor.peak_kib.values()))
     print(
         f"{label:<28} {n:>5} episodes {wall:>7.1f} s  {n / wall:>6.2f} episodes/s  "
         f"simulated {report.simulated_s:>8.0f} s  ({ratio:>5.1f}x real time)  "
+        f"CPU {cpu:.0f} s ({1000 * cpu / n:.0f} ms per episode)  "
         f"errors {len(report.errors)}  peak RSS per worker (MiB): {peaks}"
     )
 
