@@ -8,7 +8,9 @@ varying values are :func:`slot` markers: it encodes it once, and :meth:`JsonTemp
 puts the JSON texts of the values where the markers were. The result is the writer's
 encoding of the message with those values as long as each text is what the encoder writes
 for the value (``float_texts`` for floats, ``str`` for ints, ``json.dumps(...,
-ensure_ascii=False)`` for strings); the tests compare the two.
+ensure_ascii=False)`` for strings); the tests compare the two. A template made from
+text that is not the toolkit's own (a model's words) must check :attr:`JsonTemplate.slots`:
+such text may spell a marker.
 """
 
 from __future__ import annotations

@@ -168,7 +168,12 @@ def agent_step_json(
         text = json.dumps(
             trace, separators=(",", ":"), ensure_ascii=False, allow_nan=False, default=str
         )
-        return JsonTemplate(fields | {"trace": slot(0)}).fill(text)
+        template = JsonTemplate(fields | {"trace": slot(0)})
+        # The fields hold the model's words: a thought that spells a slot marker would
+        # be taken for one, so only the template with the trace's slot alone is used.
+        if template.slots != 1:
+            raise ValueError("a field holds a slot marker")
+        return template.fill(text)
     except (TypeError, ValueError):
         return agent_step_message(t_ns, episode_id, step, record)
 

@@ -265,8 +265,7 @@ class _ThreadNotingRule(RuleBackend):
 
 def test_hsd_calls_a_backend_that_answers_in_process_one_after_another() -> None:
     # The rule backend computes its answers under the interpreter's lock: threads would
-    # only take turns, so HSD's calls stay in the calling thread (no pool per decision),
-    # with the same matches as the threaded round of a server.
+    # only take turns, so HSD's calls stay in the calling thread (no pool per decision).
     goals = [
         SubGoal("destination", landmark="a small restaurant with a red roof"),
         SubGoal("pass", landmark="a church with a cross-shaped red roof"),

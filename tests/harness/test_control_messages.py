@@ -3,6 +3,7 @@ reference dicts, byte for byte, and rows the text does not cover keep their dict
 
 from __future__ import annotations
 
+import json
 import math
 from typing import Any
 
@@ -177,6 +178,20 @@ def test_agent_step_text_is_the_writers_bytes_of_its_dict(trace: dict[Any, Any])
     reference = run_log.agent_step_message(3_500_000_000, "ep_1", step, record)
     assert text == encode_json(reference)
     assert b"exchanges" not in text  # they have a topic of their own
+
+
+def test_an_agent_step_whose_thought_spells_a_slot_marker_is_written_as_its_dict() -> None:
+    from skyvln_eval.agent.actions import Stop, action_record
+    from skyvln_eval.converters.json_template import slot
+    from skyvln_eval.harness import run_log
+
+    for thought in (slot(0), slot(1), f"{slot(1)} and {slot(0)}"):
+        step = run_log.Step(1.0, 0, np.zeros((4, 2)), thought, Stop(), None, {"k": 1})
+        record = action_record(step.action)
+        message = run_log.agent_step_json(10, "ep", step, record)
+        text = message if isinstance(message, bytes) else encode_json(message)
+        assert text == encode_json(run_log.agent_step_message(10, "ep", step, record))
+        assert json.loads(text)["thought"] == thought
 
 
 def test_an_agent_step_the_writer_refuses_stays_a_dict() -> None:
