@@ -101,6 +101,52 @@ def test_a_layer_with_heights_below_the_ground_gets_the_reference_depths() -> No
             assert same(native, reference), (origin, lanes)
 
 
+def in_decimetres(world: WorldTile) -> WorldTile:
+    """The world with its heights as the dataset stores them: whole decimetres, read back
+    as ``float32(d) / 10`` (``worlds.layers``)."""
+    decimetres = np.rint(world.height_m * 10.0).astype(np.uint16)
+    return dataclasses.replace(world, height_m=decimetres.astype(np.float32) / 10.0)
+
+
+@needs_cc
+@pytest.mark.parametrize("seed", [3, 4])
+def test_a_layer_of_whole_decimetres_is_marched_from_them_to_the_reference_depths(
+    seed: int,
+) -> None:
+    """Heights of whole decimetres are gathered as 16 bits and divided by 10 in C: the
+    depths are the reference's, and those of the same march reading the float heights."""
+    world = in_decimetres(seeded_city(seed))
+    assert native_march.decimetres(world) is not None
+    rng = np.random.default_rng(300 + seed)
+    for config in [CameraConfig(width_px=96, height_px=80)] * 4 + [CameraConfig()]:
+        origin, rays = decision(world, rng, config)
+        levels = config.height_levels
+        from_decimetres = native_march.march_native(world, origin, rays, levels)
+        reference = np.stack([march_reference(world, origin, r, levels) for r in rays])
+        assert same(from_decimetres, reference), (seed, origin)
+        native_march._DECIMETRES[world] = None  # the same march on the float layer
+        assert same(native_march.march_native(world, origin, rays, levels), reference)
+        del native_march._DECIMETRES[world]
+
+
+def test_only_heights_that_are_whole_decimetres_bit_for_bit_are_read_as_decimetres() -> None:
+    """The decimetres are padded by one element each side; a height between decimetres, a
+    negative zero (equal to 0, not the same bits), a negative, NaN or one beyond 16 bits
+    keeps the float layer."""
+    world = in_decimetres(seeded_city(5))
+    padded = native_march.decimetres(world)
+    assert padded is not None and padded.dtype == np.uint16
+    assert padded[0] == 0 and padded[-1] == 0
+    np.testing.assert_array_equal(padded[1:-1].astype(np.float32) / 10.0, world.height_m.ravel())
+    assert padded[1:-1].max() > 1000  # the 150 m blocks: beyond 8 bits
+    assert native_march.decimetres(seeded_city(5)) is None  # uniform draws, not decimetres
+    for bad in (0.05, -0.0, -0.1, np.nan, 6553.6):
+        heights = world.height_m.copy()
+        heights[17, 23] = bad
+        assert native_march._whole_decimetres(heights) is None, bad
+    assert native_march._whole_decimetres(np.full((3, 3), 6553.5, np.float32)) is not None
+
+
 @needs_cc
 def test_native_views_are_the_numpy_views_in_every_layer() -> None:
     world = seeded_city(4)

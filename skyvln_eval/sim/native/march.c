@@ -9,7 +9,10 @@
  * the layer is the border value 0, a point whose four neighbours are all outside is 0.
  * The eight-lane code does the same IEEE operations lane by lane (the vector instructions
  * round as the scalar ones do); only its conservative bounds may differ, which decide
- * which samples to skip, never a sample's value.
+ * which samples to skip, never a sample's value. A height layer of whole decimetres (the
+ * dataset's height_dm.png, read as float32(d) / 10) is read there as its 16-bit decimetres,
+ * converted with the same division: the same heights from half the bytes, two neighbours
+ * per gather.
  *
  * Reentrant: no globals, no allocation; Python calls it with the GIL released.
  */
@@ -25,6 +28,9 @@
 typedef struct {
     const float *data;
     int64_t rows, cols;
+    /* The same heights as whole decimetres (data[i] is decimetres[i] / 10.0f, bit for bit),
+     * with one readable element before the first and after the last; NULL if they are not. */
+    const uint16_t *decimetres;
 } Layer;
 
 /* The max-pyramid of march._pyramid: `levels` arrays of cells_y x cells_x cells, level l
@@ -306,6 +312,11 @@ INLINE float march_ray(const March *m, const Ray *ray, int64_t start) {
 #define LANES 8
 #define AVX2 __attribute__((target("avx2,fma")))
 
+/* Heights from whole decimetres, as numpy makes the layer (float32(d) / 10, one rounding). */
+AVX2 static inline __m256 decimetres_m(__m256i decimetres) {
+    return _mm256_div_ps(_mm256_cvtepi32_ps(decimetres), _mm256_set1_ps(10.0f));
+}
+
 /* lerp() on eight lanes: the same operations, lane by lane. */
 AVX2 static inline __m256 lerp8(__m256 a, __m256 b, __m256 t, int fused) {
     __m256 d = _mm256_sub_ps(b, a);
@@ -401,16 +412,33 @@ AVX2 static inline __m256 level_gaps(const March *m, __m256 sx, __m256 sy, int64
         __m256 bottom = as_mask(_mm256_cmpgt_epi32(rows, _mm256_add_epi32(iy, one)));
         __m256i at = _mm256_add_epi32(_mm256_mullo_epi32(iy, cols), ix);
         __m256i under = _mm256_add_epi32(at, cols);
-        const float *data = m->layer.data;
         __m256 up_left = _mm256_and_ps(read, _mm256_and_ps(top, left));
         __m256 up_right = _mm256_and_ps(read, _mm256_and_ps(top, right));
         __m256 down_left = _mm256_and_ps(read, _mm256_and_ps(bottom, left));
         __m256 down_right = _mm256_and_ps(read, _mm256_and_ps(bottom, right));
-        __m256 p00 = _mm256_mask_i32gather_ps(zero, data, at, up_left, 4);
-        __m256 p01 = _mm256_mask_i32gather_ps(zero, data, _mm256_add_epi32(at, one), up_right, 4);
-        __m256 p10 = _mm256_mask_i32gather_ps(zero, data, under, down_left, 4);
-        __m256 p11 =
-            _mm256_mask_i32gather_ps(zero, data, _mm256_add_epi32(under, one), down_right, 4);
+        __m256 p00, p01, p10, p11;
+        if (m->layer.decimetres) {
+            /* Each read takes a neighbour and the one to its right (16 bits each), from a
+             * layer half the size: gathers are what this loop waits for. The padding makes
+             * both reads valid for ix = -1 and ix + 1 = cols, whose outside halves are
+             * masked below. */
+            const int *pairs = (const int *)m->layer.decimetres;
+            const __m256i none = _mm256_setzero_si256(), low = _mm256_set1_epi32(0xFFFF);
+            __m256i above = _mm256_mask_i32gather_epi32(
+                none, pairs, at, _mm256_castps_si256(_mm256_and_ps(read, top)), 2);
+            __m256i beneath = _mm256_mask_i32gather_epi32(
+                none, pairs, under, _mm256_castps_si256(_mm256_and_ps(read, bottom)), 2);
+            p00 = _mm256_and_ps(up_left, decimetres_m(_mm256_and_si256(above, low)));
+            p01 = _mm256_and_ps(up_right, decimetres_m(_mm256_srli_epi32(above, 16)));
+            p10 = _mm256_and_ps(down_left, decimetres_m(_mm256_and_si256(beneath, low)));
+            p11 = _mm256_and_ps(down_right, decimetres_m(_mm256_srli_epi32(beneath, 16)));
+        } else {
+            const float *data = m->layer.data;
+            p00 = _mm256_mask_i32gather_ps(zero, data, at, up_left, 4);
+            p01 = _mm256_mask_i32gather_ps(zero, data, _mm256_add_epi32(at, one), up_right, 4);
+            p10 = _mm256_mask_i32gather_ps(zero, data, under, down_left, 4);
+            p11 = _mm256_mask_i32gather_ps(zero, data, _mm256_add_epi32(under, one), down_right, 4);
+        }
         __m256 upper = lerp8(p00, p01, fx, m->fused), lower = lerp8(p10, p11, fx, m->fused);
         sample = _mm256_and_ps(read, lerp8(upper, lower, fy, m->fused));
     }
@@ -536,12 +564,13 @@ AVX2 static void march_views_avx2(const March *m, const double *rays, int64_t vi
  * go up. Returns 0. */
 int skyvln_march(const double *rays, int64_t views, int64_t height, int64_t width,
                  double origin_x, double origin_y, double origin_z, double mpp, double top_m,
-                 const float *heights, int64_t rows, int64_t cols, const float *pyramid,
+                 const float *heights, int64_t rows, int64_t cols, const uint16_t *decimetres,
+                 const float *pyramid,
                  int64_t pyramid_levels, int64_t cells_y, int64_t cells_x, const float *pairs,
                  const double *z_levels, const float *ks, const float *zs, int64_t levels,
                  int fused, int nonnegative, int lanes, float *depth) {
     March m;
-    m.layer = (Layer){heights, rows, cols};
+    m.layer = (Layer){heights, rows, cols, decimetres};
     m.pyramid = (Pyramid){pyramid, pyramid_levels, cells_y, cells_x};
     m.pairs = (CellPairs){pairs, cells_x + 1};
     m.z_levels = z_levels;
@@ -572,7 +601,7 @@ int skyvln_march(const double *rays, int64_t views, int64_t height, int64_t widt
 /* The layer at n points, as bilinear() samples it: checked against cv2.remap on load. */
 int skyvln_sample(const float *heights, int64_t rows, int64_t cols, const float *px,
                   const float *py, int64_t n, int fused, float *out) {
-    Layer layer = {heights, rows, cols};
+    Layer layer = {heights, rows, cols, NULL};
     for (int64_t i = 0; i < n; ++i) out[i] = bilinear(&layer, px[i], py[i], fused);
     return 0;
 }
