@@ -258,10 +258,11 @@ def march_native(
     zs = z_levels.astype(np.float32)
     mpp, top_m = map_scale(world)
     depth = np.empty((views, height, width), np.float32)
+    decimetre_layer = decimetres(world)  # referenced here until the C code has read it
     loaded.march(
         components, views, height, width,
         float(origin[0]), float(origin[1]), float(origin[2]), mpp, top_m,
-        heights, *heights.shape, _address_of_first(decimetres(world)),
+        heights, *heights.shape, _address_of_first(decimetre_layer),
         pyramid, *pyramid.shape, _cell_pairs(world),
         z_levels, ks, zs, len(z_levels),
         int(loaded.fused), int(min_height_m(world) >= 0.0), int(lanes), depth,
