@@ -26,7 +26,7 @@ episode).
 Run directories go to a temporary folder; episode logs and the dataset to the cache.
 
     python benchmarks/harness.py [--workers 2] [--limit N] [--skip-official] [--skip-dynamics]
-        [--skip-llm] [--repeats 10] [--scale 64]
+        [--skip-llm] [--repeats 10] [--scale 64] [--rounds 1]
 """
 
 from __future__ import annotations
@@ -36,6 +36,7 @@ import contextlib
 import functools
 import os
 import resource
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -78,7 +79,22 @@ class PeakMemory:
                 yield task, outcome
 
 
-def harness_row(label: str, config: RunConfig, run_dir: Path) -> None:
+def harness_rows(label: str, config: RunConfig, run_dir: Path, rounds: int) -> None:
+    """``rounds`` runs of ``config``, a row each, then (for several) the median wall time
+    and the range: on a shared machine one run also measures the neighbours (the same
+    code has measured 59 s and 69 s on one afternoon)."""
+    runs = [harness_row(label, config, run_dir / f"round-{k}") for k in range(rounds)]
+    if rounds > 1:
+        walls, n = [wall for wall, _ in runs], runs[0][1]
+        median = statistics.median(walls)
+        print(
+            f"{label:<28} median of {rounds} runs {median:.1f} s ({n / median:.2f} episodes/s), "
+            f"range {min(walls):.1f}-{max(walls):.1f} s"
+        )
+
+
+def harness_row(label: str, config: RunConfig, run_dir: Path) -> tuple[float, int]:
+    """One run of ``config`` and its row; returns the wall time and the episodes."""
     prepare_job(config, run_dir)  # episode logs converted once, not timed
     executor = PeakMemory(make_executor(config.executor, config.workers))
     cpu_before = cpu_seconds()
@@ -97,6 +113,7 @@ def harness_row(label: str, config: RunConfig, run_dir: Path) -> None:
         f"CPU {cpu:.0f} s ({1000 * cpu / n:.0f} ms per episode)  "
         f"errors {len(report.errors)}  peak RSS per worker (MiB): {peaks}"
     )
+    return wall, n
 
 
 def llm_calls(base_url: str, calls: int, concurrency: int) -> float:
@@ -132,6 +149,9 @@ def main() -> None:
     parser.add_argument("--skip-llm", action="store_true")
     parser.add_argument("--repeats", type=int, default=10, help="repeated threads runs")
     parser.add_argument(
+        "--rounds", type=int, default=1, help="runs of each AVDN-scale row (median printed)"
+    )
+    parser.add_argument(
         "--scale", type=int, default=64, help="episodes per executor at scale (0: skip)"
     )
     args = parser.parse_args()
@@ -146,12 +166,11 @@ def main() -> None:
     }
     print(f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}; run folders under {out}")
     if not args.skip_official:
-        harness_row(
-            "official, full agent", RunConfig(system="official", **common), out / "official"
-        )
+        config = RunConfig(system="official", **common)
+        harness_rows("official, full agent", config, out / "official", args.rounds)
     if not args.skip_dynamics:
         config = RunConfig(system="dynamics", mode="dynamics", **common)
-        harness_row("dynamics, full agent, NMPC", config, out / "dynamics")
+        harness_rows("dynamics, full agent, NMPC", config, out / "dynamics", args.rounds)
     if args.skip_llm:
         return
     os.environ.setdefault("BENCH_KEY", "sk-bench")
