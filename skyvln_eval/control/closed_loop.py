@@ -265,10 +265,12 @@ class Flight:
             "constraint_violation": violation,
             "ref_roll_rad": reference[6],
             "ref_pitch_rad": reference[7],
+            # The command's own array, flattened (a view): the run log's messages and the
+            # Parquet writer take arrays, so no step makes a list of 63 Python floats.
             PREDICTED_PATH_COLUMN: (
                 None
                 if command.predicted_positions_m is None
-                else command.predicted_positions_m.ravel().tolist()
+                else command.predicted_positions_m.reshape(-1)
             ),
         }
 

@@ -168,6 +168,13 @@ def _json_string(value: Any) -> str:
     return json.dumps(str(value), ensure_ascii=False)
 
 
+def _json_strings(values: list[Any]) -> list[str]:
+    """:func:`_json_string` of each value, encoded once per distinct value (a log's
+    controller and status columns hold a few values over hundreds of rows)."""
+    texts: dict[Any, str] = {}
+    return [texts[v] if v in texts else texts.setdefault(v, _json_string(v)) for v in values]
+
+
 def _json_bool(value: Any) -> str:
     return "true" if bool(value) else "false"
 
@@ -235,7 +242,7 @@ def control_messages(log: pd.DataFrame) -> list[Message]:
     width, named = table.shape[1], len(FLOAT_COLUMNS) - 1
     flat = float_texts(table.ravel())
     iterations = columns["iterations"].tolist()
-    strings = {c: [_json_string(v) for v in columns[c].tolist()] for c in _STRING_COLUMNS}
+    strings = {c: _json_strings(columns[c].tolist()) for c in _STRING_COLUMNS}
     bools = {c: [_json_bool(v) for v in columns[c].tolist()] for c in _BOOL_COLUMNS}
     tf, step = _tf_template(), _control_step_template()
     messages: list[Message] = []
