@@ -19,6 +19,7 @@ from skyvln_eval.agent.detectors import (
     _PALETTE,
     _KnownBuildings,
     _nearest_colours,
+    _nearest_colours_by_box,
     colour_name,
     episode_seed,
 )
@@ -136,6 +137,17 @@ def test_camera_pixels_get_the_colour_the_float_path_gives() -> None:
         assert (
             colour_name(pixels.astype(np.uint8)) == colour_name(pixels) == reference_colour(pixels)
         )
+
+
+def test_colours_read_by_box_are_the_computed_ones_for_every_24_bit_colour() -> None:
+    """The box table (a box's colour known from its corners) against the computation, for
+    all 2**24 colours: ties included, no box is taken for pure that is not."""
+    every = np.arange(1 << 24, dtype=np.uint32)
+    for start in range(0, 1 << 24, 1 << 21):
+        colours = every[start : start + (1 << 21)]
+        rgb = np.stack([colours >> 16, (colours >> 8) & 255, colours & 255], axis=-1)
+        rgb = rgb.astype(np.uint8)
+        assert np.array_equal(_nearest_colours_by_box(rgb), _nearest_colours(rgb)), start
 
 
 def test_instance_pixel_counts_are_numpys_unique_counts() -> None:
