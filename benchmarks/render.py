@@ -21,11 +21,11 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from skyvln_eval.sim import native_march
 from skyvln_eval.sim.camera import CameraPose, RenderMethod, render_views
 from skyvln_eval.sim.march import march
 from skyvln_eval.sim.native_march import march_native, native
 from skyvln_eval.worlds.city import generate_city
+from skyvln_eval.worlds.layers import height_decimetres, height_from_decimetres
 from skyvln_eval.worlds.sample.build import SAMPLE_SPEC, map_georef
 from skyvln_eval.worlds.tile import WorldTile
 
@@ -40,8 +40,7 @@ def city_world(index: int) -> WorldTile:
     height_px, width_px = city.canvas.height.shape
     georef, _ = map_georef(spec, index, height_px, width_px)
     canvas = city.canvas
-    decimetres = np.clip(np.round(canvas.height * 10.0), 0, 65535).astype(np.uint16)
-    heights = decimetres.astype(np.float32) / 10.0
+    heights = height_from_decimetres(height_decimetres(canvas.height))
     return WorldTile(f"city{index}", georef, canvas.bgr, canvas.semantic, canvas.instance, heights)
 
 
@@ -98,12 +97,7 @@ def float_heights(
 ) -> np.ndarray:
     """The compiled march reading the float heights, not the decimetres (as for a layer
     that is not whole decimetres)."""
-    kept = native_march._DECIMETRES.get(world)
-    native_march._DECIMETRES[world] = None
-    try:
-        return march_native(world, origin, rays, levels)
-    finally:
-        native_march._DECIMETRES[world] = kept
+    return march_native(world, origin, rays, levels, whole_decimetres=False)
 
 
 def main() -> None:

@@ -52,6 +52,7 @@ from skyvln_eval.sim.march import (
     max_height_m,
     min_height_m,
 )
+from skyvln_eval.worlds.layers import height_from_decimetres
 from skyvln_eval.worlds.tile import WorldTile
 
 log = logging.getLogger(__name__)
@@ -205,7 +206,8 @@ def decimetres(world: WorldTile) -> NDArray[np.uint16] | None:
     """The height layer as whole decimetres, padded with one element before and after (the
     C code's pair reads at the layer's first and last pixel), if every height is
     ``float32(d) / 10`` bit for bit for a ``d`` in 0..65535, as a layer read from the
-    dataset's ``height_dm.png`` is; else ``None``. Made once per world (a few ms) and held
+    dataset's ``height_dm.png`` is (:func:`~skyvln_eval.worlds.layers.height_from_decimetres`);
+    else ``None``. Made once per world (a few ms) and held
     while the world is (12.5 MB for a 2500 x 2500 map)."""
     if world not in _DECIMETRES:
         _DECIMETRES[world] = _whole_decimetres(world.height_m)
@@ -226,7 +228,7 @@ def _whole_decimetres(height_m: NDArray[np.float32] | None) -> NDArray[np.uint16
         codes = rounded.astype(np.uint16)
         # Compared as bits: -0.0 or a height between decimetres is not one.
         if not np.array_equal(
-            (codes.astype(np.float32) / ten).view(np.uint32), heights.view(np.uint32)
+            height_from_decimetres(codes).view(np.uint32), heights.view(np.uint32)
         ):
             return None
         padded[1 + start : 1 + start + len(codes)] = codes
@@ -239,11 +241,14 @@ def march_native(
     rays: NDArray[np.float64],
     levels: int,
     lanes: bool = True,
+    whole_decimetres: bool = True,
 ) -> FloatImage:
     """The depths of :func:`~.march.march_reference` for rays ``(V, H, W, 3)`` seen from one
     ``origin``, marched in C (in numpy by :func:`~.march.march` if the library is missing).
     ``lanes``: eight rays at a time on CPUs with AVX2 (the same depths; ``False`` marches
-    one ray at a time, as on other CPUs)."""
+    one ray at a time, as on other CPUs). ``whole_decimetres``: the eight-ray march reads
+    a layer of whole decimetres as its 16-bit :func:`decimetres` (the same depths;
+    ``False`` reads the float heights)."""
     loaded = native()
     if loaded is None or world.height_m is None or max_height_m(world) <= 0.0:
         return march(world, origin, rays, levels)
@@ -258,7 +263,8 @@ def march_native(
     zs = z_levels.astype(np.float32)
     mpp, top_m = map_scale(world)
     depth = np.empty((views, height, width), np.float32)
-    decimetre_layer = decimetres(world)  # referenced here until the C code has read it
+    # Only the eight-ray march reads it; referenced here until the C code has.
+    decimetre_layer = decimetres(world) if lanes and whole_decimetres else None
     loaded.march(
         components, views, height, width,
         float(origin[0]), float(origin[1]), float(origin[2]), mpp, top_m,

@@ -29,6 +29,16 @@ def layers_dir(data_dir: str | Path, map_name: str) -> Path:
     return Path(data_dir) / LAYERS_DIR / map_name
 
 
+def height_decimetres(height_m: NDArray[Any]) -> NDArray[np.uint16]:
+    """Heights in metres as ``height_dm.png`` stores them: whole decimetres, 0..65535."""
+    return np.clip(np.round(height_m * 10.0), 0, 65535).astype(np.uint16)
+
+
+def height_from_decimetres(decimetres: NDArray[Any]) -> NDArray[np.float32]:
+    """Heights in metres as ``height_dm.png`` is read: ``float32(d) / 10`` (one rounding)."""
+    return decimetres.astype(np.float32) / 10.0
+
+
 def _png(array: NDArray[Any]) -> bytes:
     ok, buf = cv2.imencode(".png", array, [cv2.IMWRITE_PNG_COMPRESSION, 6])
     if not ok:  # pragma: no cover - OpenCV always encodes these dtypes
@@ -48,8 +58,7 @@ def write_world_layers(
     folder = layers_dir(data_dir, map_name)
     atomic_write_bytes(folder / "semantic.png", _png(semantic.astype(np.uint8)))
     atomic_write_bytes(folder / "instance.png", _png(instance.astype(np.uint16)))
-    height_dm = np.clip(np.round(height_m * 10.0), 0, 65535).astype(np.uint16)
-    atomic_write_bytes(folder / "height_dm.png", _png(height_dm))
+    atomic_write_bytes(folder / "height_dm.png", _png(height_decimetres(height_m)))
     atomic_write_json(
         folder / "landmarks.json",
         {
@@ -121,7 +130,7 @@ def read_layer_rasters(
     )
     semantic = _read_png(semantic_png, cv2.IMREAD_UNCHANGED).astype(np.uint8)
     instance = _read_png(instance_png, cv2.IMREAD_UNCHANGED).astype(np.uint16)
-    height = _read_png(height_png, cv2.IMREAD_UNCHANGED).astype(np.float32) / 10.0
+    height = height_from_decimetres(_read_png(height_png, cv2.IMREAD_UNCHANGED))
     return semantic, instance, height
 
 

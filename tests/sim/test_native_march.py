@@ -27,6 +27,7 @@ from skyvln_eval.sim.camera import (
     render_views,
 )
 from skyvln_eval.sim.march import march, march_reference
+from skyvln_eval.worlds.layers import height_decimetres, height_from_decimetres
 from skyvln_eval.worlds.tile import WorldTile
 from tests.sim.test_camera_equivalence import seeded_city
 
@@ -104,8 +105,8 @@ def test_a_layer_with_heights_below_the_ground_gets_the_reference_depths() -> No
 def in_decimetres(world: WorldTile) -> WorldTile:
     """The world with its heights as the dataset stores them: whole decimetres, read back
     as ``float32(d) / 10`` (``worlds.layers``)."""
-    decimetres = np.rint(world.height_m * 10.0).astype(np.uint16)
-    return dataclasses.replace(world, height_m=decimetres.astype(np.float32) / 10.0)
+    heights = height_from_decimetres(height_decimetres(world.height_m))
+    return dataclasses.replace(world, height_m=heights)
 
 
 @needs_cc
@@ -124,9 +125,8 @@ def test_a_layer_of_whole_decimetres_is_marched_from_them_to_the_reference_depth
         from_decimetres = native_march.march_native(world, origin, rays, levels)
         reference = np.stack([march_reference(world, origin, r, levels) for r in rays])
         assert same(from_decimetres, reference), (seed, origin)
-        native_march._DECIMETRES[world] = None  # the same march on the float layer
-        assert same(native_march.march_native(world, origin, rays, levels), reference)
-        del native_march._DECIMETRES[world]
+        from_floats = native_march.march_native(world, origin, rays, levels, whole_decimetres=False)
+        assert same(from_floats, reference)
 
 
 def test_only_heights_that_are_whole_decimetres_bit_for_bit_are_read_as_decimetres() -> None:
