@@ -8,10 +8,13 @@ work and are usable from Python too.
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import tempfile
+import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
 import typer
@@ -106,6 +109,25 @@ def _serve(paths: Sequence[Path], port: int) -> None:
         raise typer.Exit(1)
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+@contextmanager
+def _terminate_like_ctrl_c() -> Iterator[None]:
+    """SIGTERM (``kill``, a service manager, a test) stops the command as Ctrl-C does, so
+    the rerun server is stopped and the temporary recordings are removed: Python's own
+    SIGTERM action ends the process at once and would leave both behind."""
+    if threading.current_thread() is not threading.main_thread():
+        yield  # only the main thread may set a handler; a caller's thread keeps its own
+        return
+    previous = signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def run_view(
     target: Path,
     episodes: Sequence[str],
@@ -114,6 +136,11 @@ def run_view(
     port: int,
 ) -> None:
     """The ``view`` command (see ``skyvln-eval view --help``)."""
+    with _terminate_like_ctrl_c():
+        _view(target, episodes, save, serve, port)
+
+
+def _view(target: Path, episodes: Sequence[str], save: Path | None, serve: bool, port: int) -> None:
     if target.suffix == ".rrd":
         if episodes or save:
             raise ConfigError(f"{target} is already a recording: --episode and --save do not apply")

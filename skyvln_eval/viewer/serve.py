@@ -247,6 +247,7 @@ def serve_recordings(
             process.kill()
             process.wait(timeout=10)
         log_file.close()
+        shutil.rmtree(log_path.parent, ignore_errors=True)  # the error carries the log's tail
         raise
     thread = threading.Thread(target=proxy.serve_forever, name="viewer-proxy", daemon=True)
     thread.start()

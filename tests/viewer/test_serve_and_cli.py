@@ -60,9 +60,10 @@ def test_the_served_viewer_listens_on_the_loopback_only_with_a_policy(
 
 
 def test_a_taken_port_is_a_clear_error_and_leaves_no_process(
-    flown_run: Path, rerun_cli: Path, tmp_path: Path
+    flown_run: Path, rerun_cli: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     import socket
+    import tempfile
 
     import psutil
 
@@ -71,6 +72,9 @@ def test_a_taken_port_is_a_clear_error_and_leaves_no_process(
 
     (ref,) = find_episode_logs(flown_run)
     summary = write_recording(ref, tmp_path / "episode.rrd")
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
         taken.listen()
@@ -83,6 +87,7 @@ def test_a_taken_port_is_a_clear_error_and_leaves_no_process(
         if c.name() == rerun_cli.name and c.status() != psutil.STATUS_ZOMBIE
     ]
     assert not rerun_children
+    assert list(scratch.iterdir()) == []  # nor its log
 
 
 def test_view_saves_one_episode_and_names_unknown_ones(flown_run: Path, tmp_path: Path) -> None:
@@ -104,9 +109,11 @@ def _sigint_default() -> None:
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
-def _start_view(flown_run: Path) -> tuple[subprocess.Popen[str], str]:
-    """``skyvln-eval view`` on the run's episode, and the URL it printed once serving."""
+def _start_view(flown_run: Path, scratch: Path) -> tuple[subprocess.Popen[str], str]:
+    """``skyvln-eval view`` on the run's episode, and the URL it printed once serving; its
+    temporary files go to ``scratch``."""
     (ref,) = find_episode_logs(flown_run)
+    scratch.mkdir()
     command = skyvln_eval_command("view", str(flown_run), "--episode", ref.key, "--port", "0")
     process = subprocess.Popen(
         command,
@@ -114,6 +121,7 @@ def _start_view(flown_run: Path) -> tuple[subprocess.Popen[str], str]:
         stderr=subprocess.PIPE,
         text=True,
         cwd=REPO,
+        env={**os.environ, "TMPDIR": str(scratch)},
         # Ctrl-C as in a terminal: a test run started in the background (CI scripts often
         # are) ignores SIGINT, and a child would inherit that and never see the signal.
         preexec_fn=_sigint_default,
@@ -128,12 +136,18 @@ def _start_view(flown_run: Path) -> tuple[subprocess.Popen[str], str]:
     raise AssertionError("the command printed no viewer URL")
 
 
-def test_view_serves_until_interrupted(flown_run: Path, rerun_cli: Path) -> None:
-    process, url = _start_view(flown_run)
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_view_serves_until_stopped_and_cleans_up(
+    flown_run: Path, rerun_cli: Path, tmp_path: Path, stop: signal.Signals
+) -> None:
+    scratch = tmp_path / "tmp"
+    process, url = _start_view(flown_run, scratch)
+    servers = _children(process.pid)
     try:
         with urllib.request.urlopen(url, timeout=30) as response:
             assert response.status == 200
-        process.send_signal(signal.SIGINT)
+        assert list(scratch.iterdir())  # the recording being served and the server's log
+        process.send_signal(stop)
         out, _ = process.communicate(timeout=60)
     finally:
         if process.poll() is None:
@@ -141,6 +155,8 @@ def test_view_serves_until_interrupted(flown_run: Path, rerun_cli: Path) -> None
             process.wait(timeout=10)
     assert process.returncode == 0
     assert "stopped" in out
+    assert list(scratch.iterdir()) == []
+    assert servers and not any(_alive(pid) for pid in servers)
 
 
 def test_several_episodes_saved_as_one_file_keep_one_recording_each(
@@ -185,8 +201,10 @@ def _alive(pid: int) -> bool:
 
 
 @pytest.mark.skipif(sys.platform != "linux", reason="the parent-death signal is Linux's")
-def test_a_killed_view_command_leaves_no_rerun_server(flown_run: Path, rerun_cli: Path) -> None:
-    process, _ = _start_view(flown_run)
+def test_a_killed_view_command_leaves_no_rerun_server(
+    flown_run: Path, rerun_cli: Path, tmp_path: Path
+) -> None:
+    process, _ = _start_view(flown_run, tmp_path / "tmp")  # what SIGKILL leaves stays there
     servers = _children(process.pid)
     try:
         assert servers, "the view command started no rerun server"
