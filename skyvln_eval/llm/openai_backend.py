@@ -37,9 +37,12 @@ from __future__ import annotations
 import base64
 import contextlib
 import dataclasses
+import datetime
+import email.utils
 import functools
 import json
 import logging
+import math
 import os
 import re
 import ssl
@@ -82,12 +85,28 @@ _FORMAT_WORDS = re.compile(r"response_format|json_schema|schema|grammar", re.IGN
 TASK_DATA_FIELD: Final = "skyvln_task_data"
 
 
-def _retry_after_s(headers: Any) -> float | None:
-    value = None if headers is None else headers.get("retry-after")
-    try:
-        return None if value is None else float(value)
-    except ValueError:  # an HTTP date: fall back to our own backoff
+def retry_after_s(headers: Any, now: float | None = None) -> float | None:
+    """How long the server asks us to wait, from its headers: OpenAI's ``retry-after-ms``,
+    else ``Retry-After`` in seconds or as an HTTP date (RFC 9110; a date in the past is 0);
+    ``None`` when it says nothing readable (our own backoff then decides)."""
+    if headers is None:
         return None
+    with contextlib.suppress(TypeError, ValueError):
+        milliseconds = headers.get("retry-after-ms")
+        if milliseconds is not None and math.isfinite(float(milliseconds)):
+            return float(milliseconds) / 1000.0
+    value = headers.get("retry-after")
+    if value is None:
+        return None
+    with contextlib.suppress(TypeError, ValueError):
+        seconds = float(value)
+        return seconds if math.isfinite(seconds) else None
+    with contextlib.suppress(TypeError, ValueError, IndexError, OverflowError):
+        when = email.utils.parsedate_to_datetime(value)
+        if when.tzinfo is None:  # "-0000": HTTP dates are in GMT
+            when = when.replace(tzinfo=datetime.UTC)
+        return max(0.0, when.timestamp() - (time.time() if now is None else now))
+    return None
 
 
 def _body_text(error: Any) -> str:
@@ -382,7 +401,7 @@ class OpenAIBackend(LLMBackend):
         except openai.RateLimitError as error:
             raise LLMTransientError(
                 f"rate limited (HTTP 429): {self._scrub(_body_text(error))[:200]}",
-                _retry_after_s(error.response.headers),
+                retry_after_s(error.response.headers),
             ) from None
         except openai.APITimeoutError:
             raise _timed_out(timeout_s) from None
@@ -414,7 +433,7 @@ class OpenAIBackend(LLMBackend):
             return _FormatRefused(status, body)
         if status >= 500:
             return LLMTransientError(
-                f"server error (HTTP {status}: {excerpt})", _retry_after_s(error.response.headers)
+                f"server error (HTTP {status}: {excerpt})", retry_after_s(error.response.headers)
             )
         return LLMError(f"request refused (HTTP {status}: {excerpt})")
 

@@ -24,7 +24,7 @@ from skyvln_eval.llm.loopback import (
     status,
     truncated,
 )
-from skyvln_eval.llm.openai_backend import without_system_role
+from skyvln_eval.llm.openai_backend import retry_after_s, without_system_role
 
 FAST_RETRY = RetryPolicy(max_attempts=8, initial_delay_s=0.01, max_delay_s=0.05, jitter=0.5)
 CONFIG = GenerationConfig(timeout_s=0.5)
@@ -227,3 +227,32 @@ def test_threads_that_start_clients_at_once_make_one_tls_context() -> None:
         contexts = list(pool.map(make, range(6)))
     assert openai_backend._made_tls_context.cache_info().misses == 1
     assert all(c is contexts[0] for c in contexts)
+
+
+def test_every_form_of_the_servers_wait_is_read() -> None:
+    import email.utils
+
+    now = 1_800_000_000.0
+    in_90_s = email.utils.formatdate(now + 90, usegmt=True)
+    assert retry_after_s({"retry-after": "2.5"}) == 2.5
+    assert retry_after_s({"retry-after-ms": "250", "retry-after": "9"}) == 0.25  # OpenAI's
+    assert retry_after_s({"retry-after": in_90_s}, now=now) == pytest.approx(90.0)
+    assert retry_after_s({"retry-after": email.utils.formatdate(now - 5)}, now=now) == 0.0
+    # Nothing readable: our own backoff decides.
+    for unreadable in ({}, {"retry-after": "soon"}, {"retry-after": "nan"}, None):
+        assert retry_after_s(unreadable) is None
+    assert retry_after_s({"retry-after-ms": "x", "retry-after": "3"}) == 3.0
+
+
+def test_a_retry_after_date_is_honoured() -> None:
+    import email.utils
+    import time
+
+    in_2_s = email.utils.formatdate(time.time() + 2.0, usegmt=True)
+    delays: list[float] = []
+    with LoopbackOpenAIServer(
+        [status(429, Retry_After=in_2_s), answer('{"greeting": "hello"}')]
+    ) as server:
+        result = _client(server, delays).call("motion", HELLO, CONFIG)
+    assert result.completion is not None
+    assert len(delays) == 1 and 0.5 < delays[0] <= 2.0  # an HTTP date has whole seconds
