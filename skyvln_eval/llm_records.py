@@ -73,7 +73,9 @@ class LlmCall:
     excluding ``queue_s``, the wait for a free slot under the client's concurrency limit.
     ``temperature``, ``max_tokens`` and ``structured_output`` (the level of structured
     output the request used: ``json_schema``, ``json_object_schema``, ``json_object`` or
-    ``prompt``) are the decoding settings actually sent. ``repair`` marks a call that
+    ``prompt``) are the decoding settings actually sent; ``server_defaults`` names those the
+    model refused, which were not sent (``temperature`` is then ``None``: the server's
+    default). ``repair`` marks a call that
     asked again after an unusable answer. A cache hit has ``cached=True`` and the
     original call's tokens, cost and latency.
     """
@@ -96,6 +98,7 @@ class LlmCall:
     temperature: float | None = None
     max_tokens: int | None = None
     structured_output: str | None = None
+    server_defaults: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         for name in ("module", "backend"):
@@ -113,6 +116,12 @@ class LlmCall:
         _check_amount(self.cost_usd, "cost_usd", optional=True)
         _check_amount(self.latency_s, "latency_s", optional=False)
         _check_amount(self.queue_s, "queue_s", optional=False)
+        if not isinstance(self.server_defaults, list | tuple) or not all(
+            isinstance(p, str) for p in self.server_defaults
+        ):
+            got = self.server_defaults
+            raise _issue(f"must be a list of names, got {got!r}", "server_defaults")
+        object.__setattr__(self, "server_defaults", tuple(self.server_defaults))  # JSON: a list
 
     @property
     def tokens(self) -> int | None:

@@ -28,6 +28,9 @@ def describe_report(report: RunReport) -> list[str]:
     if report.structured_output:
         levels = ", ".join(f"{m}: {level}" for m, level in report.structured_output.items())
         lines.append(f"structured output: {levels}")
+    if report.server_defaults:
+        unsent = ", ".join(f"{m}: {names}" for m, names in report.server_defaults.items())
+        lines.append(f"not sent (the model refuses them; its defaults applied): {unsent}")
     for (split, episode_id), message in report.errors.items():
         lines.append(f"error: {split}/{episode_id}: {message}")
     if report.missing:

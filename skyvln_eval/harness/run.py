@@ -42,6 +42,7 @@ from skyvln_eval.harness.preflight import preflight
 from skyvln_eval.harness.provenance import provenance
 from skyvln_eval.harness.runner import EpisodeTask, failed_result, run_episode_task
 from skyvln_eval.harness.store import ResultStore, RowKey, key_of
+from skyvln_eval.llm_records import LlmCall
 from skyvln_eval.metrics.records import EpisodeResult
 from skyvln_eval.paths import cache_root
 
@@ -131,6 +132,7 @@ class RunReport:
     simulated_s: float = 0.0
     notes: list[str] = field(default_factory=list)
     structured_output: dict[str, str] = field(default_factory=dict)
+    server_defaults: dict[str, str] = field(default_factory=dict)
     stopped: str | None = None
 
     @property
@@ -167,6 +169,7 @@ class RunReport:
             "wall_s": round(self.wall_s, 3),
             "simulated_s": round(self.simulated_s, 3),
             "structured_output": self.structured_output,
+            "server_defaults": self.server_defaults,
             "stopped": self.stopped,
             "notes": self.notes,
         }
@@ -175,12 +178,28 @@ class RunReport:
 def structured_levels(results: Iterable[EpisodeResult]) -> dict[str, str]:
     """Per model, the structured-output levels its answered calls used (negotiated with the
     server, or pinned), e.g. ``{"openai:gemma-3-270m": "json_object_schema"}``."""
-    levels: dict[str, set[str]] = {}
+    return _per_model(
+        results, lambda call: () if call.structured_output is None else (call.structured_output,)
+    )
+
+
+def unsent_parameters(results: Iterable[EpisodeResult]) -> dict[str, str]:
+    """Per model whose server refused some decoding parameters, those its answered calls
+    went without (it decoded at its own defaults), e.g. ``{"openai:o3": "temperature"}``."""
+    return _per_model(results, lambda call: call.server_defaults)
+
+
+def _per_model(
+    results: Iterable[EpisodeResult], values: Callable[[LlmCall], Iterable[str]]
+) -> dict[str, str]:
+    """Per model (``backend:model``), the values its answered calls had, listed once."""
+    found: dict[str, set[str]] = {}
     for result in results:
         for call in result.llm_calls:
-            if call.outcome != "failed" and call.structured_output is not None:
-                levels.setdefault(f"{call.backend}:{call.model}", set()).add(call.structured_output)
-    return {model: ", ".join(sorted(found)) for model, found in sorted(levels.items())}
+            if call.outcome != "failed":
+                for value in values(call):
+                    found.setdefault(f"{call.backend}:{call.model}", set()).add(value)
+    return {model: ", ".join(sorted(names)) for model, names in sorted(found.items())}
 
 
 def error_verdict(reports: Sequence[RunReport], fail_on_error: float) -> str | None:
@@ -296,6 +315,7 @@ def _finish(job: RunJob, wall_s: float) -> None:
         float(results[k].extra.get("simulated_s", 0.0)) for k in report.expected if k in results
     )
     report.structured_output = structured_levels(results.values())
+    report.server_defaults = unsent_parameters(results.values())
     atomic_write_json(job.run_dir / REPORT_FILE, report.to_json(), indent=1)
 
 

@@ -50,6 +50,10 @@ def _runs(report: ReproduceReport) -> list[str]:
         splits = sorted({split for split, _ in r.expected})
         counts = " | ".join(str(r.statuses.get(s, 0)) for s in ("ok", "degraded", "error"))
         levels = "; ".join(f"{m}: {lvl}" for m, lvl in r.structured_output.items()) or "-"
+        if r.server_defaults:  # decoding parameters the model refused: its defaults applied
+            levels += "; at the server's default: " + "; ".join(
+                f"{m}: {names}" for m, names in r.server_defaults.items()
+            )
         lines.append(
             f"| {r.system} | {', '.join(splits)} | {len(r.expected)} | {counts} "
             f"| {len(r.missing)} | {r.ran_now} | {r.simulated_s:.0f} | {levels} |"

@@ -48,6 +48,8 @@ _FIELDS: Final = (
     "finish_reason",
     "structured_output",
 )
+#: Fields added since the first cache format (entries written before have none).
+_LATER_FIELDS: Final = ("server_defaults",)
 
 
 def cache_key(
@@ -206,7 +208,8 @@ class ResponseCache:
                 raise ValueError("checksum mismatch")
             data = json.loads(payload)
             values = {name: data[name] for name in _FIELDS}
-            return Completion(**values, cached=True)
+            unsent = tuple(data.get("server_defaults", ()))
+            return Completion(**values, server_defaults=unsent, cached=True)
         except (ValueError, KeyError, TypeError) as error:
             log.warning(
                 "LLM cache %s: entry %s is corrupt (%s); ignored", self.path, key[:12], error
@@ -217,7 +220,9 @@ class ResponseCache:
         """Store ``completion`` under ``key`` (replacing any corrupt entry); never raises."""
         if self._conn is None:
             return
-        payload = json.dumps({name: getattr(completion, name) for name in _FIELDS})
+        payload = json.dumps(
+            {name: getattr(completion, name) for name in (*_FIELDS, *_LATER_FIELDS)}
+        )
         try:
             with self._lock:
                 self._conn.execute(

@@ -131,6 +131,8 @@ class LLMClient:
             cached=completion.cached,
             finish_reason=completion.finish_reason,
             structured_output=completion.structured_output,
+            server_defaults=completion.server_defaults,
+            temperature=None if "temperature" in completion.server_defaults else base.temperature,
         )
 
     def call(

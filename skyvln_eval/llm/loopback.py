@@ -24,7 +24,10 @@ model does.
 ``structured`` makes the server treat ``response_format`` as real servers do: ``"all"``
 accepts every form, ``"llama_cpp"`` answers the ``json_schema`` form with HTTP 500 naming
 ``response_format`` (as llama.cpp's server does) and accepts ``json_object``, ``"none"``
-refuses any ``response_format`` with HTTP 400.
+refuses any ``response_format`` with HTTP 400. ``parameters="openai_reasoning"`` makes
+it refuse decoding parameters as OpenAI's reasoning models (o1, o3, gpt-5) do, with their
+error bodies (HTTP 400 with ``param`` and ``code``): ``max_tokens`` (they take
+``max_completion_tokens``), a ``temperature`` or ``top_p`` other than 1, and ``stop``.
 """
 
 from __future__ import annotations
@@ -52,6 +55,7 @@ ReplyKind = Literal[
     "answer", "status", "hang", "malformed", "truncated", "trickle", "refuse_schema", "rule"
 ]
 StructuredMimic = Literal["all", "llama_cpp", "none"]
+ParameterMimic = Literal["all", "openai_reasoning"]
 
 
 @dataclass(frozen=True)
@@ -146,6 +150,37 @@ def _format_refusal(body: dict[str, Any], structured: StructuredMimic) -> tuple[
     return None
 
 
+def _parameter_refusal(body: dict[str, Any], parameters: ParameterMimic) -> dict[str, Any] | None:
+    """The HTTP 400 error object an OpenAI reasoning model gives the request, if any."""
+    if parameters == "all":
+        return None
+    if "max_tokens" in body:
+        return {
+            "message": "Unsupported parameter: 'max_tokens' is not supported with this model. "
+            "Use 'max_completion_tokens' instead.",
+            "type": "invalid_request_error",
+            "param": "max_tokens",
+            "code": "unsupported_parameter",
+        }
+    for name in ("temperature", "top_p"):
+        if name in body and body[name] != 1:
+            return {
+                "message": f"Unsupported value: '{name}' does not support {body[name]} with "
+                "this model. Only the default (1) value is supported.",
+                "type": "invalid_request_error",
+                "param": name,
+                "code": "unsupported_value",
+            }
+    if "stop" in body:
+        return {
+            "message": "Unsupported parameter: 'stop' is not supported with this model.",
+            "type": "invalid_request_error",
+            "param": "stop",
+            "code": "unsupported_parameter",
+        }
+    return None
+
+
 def _completion_body(content: str, model: str, finish_reason: str = "stop") -> bytes:
     body = {
         "id": "chatcmpl-fake",
@@ -173,11 +208,13 @@ class LoopbackOpenAIServer:
         error_message: str = "injected",
         latency_s: float = 0.0,
         structured: StructuredMimic = "all",
+        parameters: ParameterMimic = "all",
     ) -> None:
         """``latency_s`` delays every answer, as a remote model's response time would."""
         self.script = list(script or [])
         self.latency_s = latency_s
         self.structured = structured
+        self.parameters = parameters
         self.requests: list[dict[str, Any]] = []
         self._lock = threading.Lock()
         outer = self
@@ -202,11 +239,15 @@ class LoopbackOpenAIServer:
                 self.wfile.write(body)
 
             def _error(
-                self, code: int, headers: dict[str, str] | None = None, message: str = ""
+                self,
+                code: int,
+                headers: dict[str, str] | None = None,
+                message: str = "",
+                error: dict[str, Any] | None = None,
             ) -> None:
                 text = message or f"{error_message} HTTP {code}"
-                error = {"error": {"message": text, "type": "test"}}
-                self._send(code, json.dumps(error).encode(), headers)
+                body = {"error": error or {"message": text, "type": "test"}}
+                self._send(code, json.dumps(body).encode(), headers)
 
             def _trickle(self, body: bytes, seconds_per_byte: float) -> None:
                 head = (
@@ -235,15 +276,24 @@ class LoopbackOpenAIServer:
                         }
                     )
                     head = outer.script[0] if outer.script else None
+                    reply = Reply("rule")
                     if head is not None and head.task in (None, task):
-                        reply = outer.script.pop(0)
-                    else:
-                        reply = Reply("rule")
+                        reply = head
+                    # A request the model refuses (its format, a parameter) is turned down
+                    # before any answer is made: the scripted answer waits for the next.
+                    refusal = _format_refusal(body, outer.structured)
+                    refused = _parameter_refusal(body, outer.parameters)
+                    refusing = reply.kind in ("rule", "answer") and (
+                        refusal is not None or refused is not None
+                    )
+                    if reply is head and not refusing:
+                        outer.script.pop(0)
                 model = str(body.get("model", "fake"))
                 if outer.latency_s:
                     time.sleep(outer.latency_s)
-                refusal = _format_refusal(body, outer.structured)
-                if refusal is not None and reply.kind in ("rule", "answer"):
+                if refusing and refused is not None:
+                    self._error(400, error=refused)
+                elif refusing and refusal is not None:
                     self._error(refusal[0], message=refusal[1])
                 elif reply.kind == "rule":
                     if data is None:  # nothing to answer from: a plain answer

@@ -1,4 +1,4 @@
-"""Structured-output levels: what each sends, which comes next, which an endpoint accepted.
+"""What an endpoint accepts: structured-output levels, and decoding parameters it refuses.
 
 OpenAI-compatible servers differ in what ``response_format`` they accept: OpenAI takes
 the strict ``json_schema`` form; llama.cpp's server answers it with HTTP 500 but
@@ -7,11 +7,20 @@ others know only ``json_object`` or nothing at all. A backend tries the levels i
 :data:`~skyvln_eval.llm.types.STRUCTURED_LEVELS` order and keeps, per endpoint and for
 the rest of the process, the first level that was answered; :func:`negotiated_levels`
 gives them for a run's provenance.
+
+Models differ in the decoding parameters they take too: OpenAI's reasoning models (o1,
+o3, gpt-5) answer ``max_tokens`` with HTTP 400 "Unsupported parameter: 'max_tokens' ...
+Use 'max_completion_tokens' instead", and a ``temperature`` other than their default with
+"Unsupported value: 'temperature' ...". A backend then sends the budget as
+``max_completion_tokens``, or leaves the refused parameter to the server's default, and
+keeps that per endpoint (:class:`RequestAdaptation`); each call's record says which
+parameters went unsent, so no table claims a temperature the model did not decode at.
 """
 
 from __future__ import annotations
 
 import threading
+from dataclasses import dataclass, replace
 from typing import Any, Final, Literal, get_args
 
 from skyvln_eval.llm.types import STRUCTURED_LEVELS, StructuredLevel
@@ -22,6 +31,10 @@ STRUCTURED_SETTINGS: Final = get_args(StructuredSetting)
 
 _levels: dict[str, StructuredLevel] = {}
 _lock = threading.Lock()
+
+#: Decoding parameters a server may refuse and a request can go without (the server's
+#: default applies); the budget is never dropped, only renamed.
+OPTIONAL_PARAMETERS: Final = ("temperature", "top_p", "seed", "stop")
 
 
 #: Keywords OpenAI's strict mode does not take (string lengths): left out of the
@@ -81,6 +94,51 @@ def negotiated_levels() -> dict[str, StructuredLevel]:
 
 
 def forget_levels() -> None:
-    """Forget every endpoint's level (tests; a long-lived process whose servers changed)."""
+    """Forget every endpoint's level and adaptation (tests; a long-lived process whose
+    servers changed)."""
     with _lock:
         _levels.clear()
+        _adaptations.clear()
+
+
+@dataclass(frozen=True)
+class RequestAdaptation:
+    """How an endpoint's requests differ from the standard ones, after it refused some:
+    the budget sent as ``max_completion_tokens``, and parameters left to its defaults."""
+
+    completion_tokens_field: bool = False
+    server_defaults: frozenset[str] = frozenset()
+
+    def refusing(self, parameter: str) -> RequestAdaptation | None:
+        """This adaptation after the server refused ``parameter`` (``None``: nothing left
+        to change, the request cannot be sent in a form the server takes)."""
+        if parameter == "max_tokens" and not self.completion_tokens_field:
+            return replace(self, completion_tokens_field=True)
+        if parameter in OPTIONAL_PARAMETERS and parameter not in self.server_defaults:
+            return replace(self, server_defaults=self.server_defaults | {parameter})
+        return None
+
+    def apply(self, request: dict[str, Any]) -> dict[str, Any]:
+        """``request`` (the keyword arguments of a chat completion) as this endpoint takes it."""
+        out = {k: v for k, v in request.items() if k not in self.server_defaults}
+        if self.completion_tokens_field and "max_tokens" in out:
+            out["max_completion_tokens"] = out.pop("max_tokens")
+        return out
+
+
+_adaptations: dict[str, RequestAdaptation] = {}
+
+
+def adaptation(endpoint: str) -> RequestAdaptation:
+    with _lock:
+        return _adaptations.get(endpoint, RequestAdaptation())
+
+
+def remember_adaptation(endpoint: str, found: RequestAdaptation) -> None:
+    """Keep what ``endpoint`` refused (with what it refused before, from other threads)."""
+    with _lock:
+        known = _adaptations.get(endpoint, RequestAdaptation())
+        _adaptations[endpoint] = RequestAdaptation(
+            known.completion_tokens_field or found.completion_tokens_field,
+            known.server_defaults | found.server_defaults,
+        )

@@ -14,6 +14,12 @@ then none: the prompt asks for JSON and the parser checks it). A refusal (HTTP 4
 at once; the level that answers is remembered for the endpoint for the rest of the
 process and recorded with every call. ``structured_output`` pins a level instead.
 
+A model that refuses a decoding parameter (HTTP 400 naming it, as OpenAI's reasoning
+models do for ``max_tokens``, ``temperature``, ``top_p``, ``stop``) gets the request again
+at once without it: the budget as ``max_completion_tokens``, the others left to the
+server's defaults. The endpoint keeps that for the rest of the process (:mod:`.negotiation`)
+and every answer records which parameters were not sent.
+
 Errors are told apart by what the server says: 401 / 403 (:class:`LLMAuthError`), a
 context overflow (:class:`LLMContextOverflowError`, not retried), 429 and 5xx
 (transient, retried by the client), other 4xx (refused). The client's own retries are off
@@ -62,9 +68,12 @@ from skyvln_eval.errors import (
 from skyvln_eval.llm.base import LLMBackend
 from skyvln_eval.llm.negotiation import (
     STRUCTURED_SETTINGS,
+    RequestAdaptation,
     StructuredSetting,
+    adaptation,
     negotiated_level,
     next_level,
+    remember_adaptation,
     remember_level,
     response_format,
 )
@@ -81,6 +90,9 @@ _CONTEXT_OVERFLOW = re.compile(
 )
 #: Words in an error body that say the server cannot do the requested response format.
 _FORMAT_WORDS = re.compile(r"response_format|json_schema|schema|grammar", re.IGNORECASE)
+#: How OpenAI (and servers that copy its errors) names a parameter the model does not take,
+#: for bodies without the ``param`` field.
+_UNSUPPORTED = re.compile(r"unsupported (?:parameter|value):\s*'(\w+)'", re.IGNORECASE)
 #: Where the loopback test server finds the task data of a request (only when asked for).
 TASK_DATA_FIELD: Final = "skyvln_task_data"
 
@@ -179,6 +191,27 @@ class _FormatRefused(Exception):
 
     def __init__(self, status: int, body: str) -> None:
         super().__init__(f"HTTP {status}: {body[:300]}")
+
+
+class _ParameterRefused(Exception):
+    """The model does not take one decoding parameter of this request (HTTP 400)."""
+
+    def __init__(self, parameter: str, body: str) -> None:
+        super().__init__(f"HTTP 400: {body[:300]}")
+        self.parameter = parameter
+
+
+def _refused_parameter(error: Any, body: str, request: dict[str, Any]) -> str | None:
+    """The decoding parameter of ``request`` a 400 says the model does not take, if any:
+    named in an "Unsupported parameter / value" message, or in OpenAI's ``param`` field of
+    an ``unsupported_*`` error (not, say, a budget too large, which no renaming fixes)."""
+    found = _UNSUPPORTED.search(body)
+    named = found.group(1) if found else None
+    if named is None and str(getattr(error, "code", "") or "").startswith("unsupported_"):
+        named = getattr(error, "param", None)
+    if isinstance(named, str) and named in request and named != "response_format":
+        return named
+    return None
 
 
 class OpenAIBackend(LLMBackend):
@@ -325,8 +358,9 @@ class OpenAIBackend(LLMBackend):
             level = self.structured_level()
         started = time.perf_counter()
         ends_at = time.monotonic() + config.timeout_s
+        adapted = known = adaptation(self.endpoint)
         while True:
-            request = dict(kwargs)
+            request = adapted.apply(kwargs)
             if level is not None:
                 fmt = response_format(level, config.json_schema or {}, config.schema_name)
                 if fmt is not None:
@@ -336,10 +370,33 @@ class OpenAIBackend(LLMBackend):
                 break
             except _FormatRefused as refusal:
                 level = self._step_down(level, refusal)
+            except _ParameterRefused as refusal:
+                adapted = self._adapt(adapted, refusal)
         if level is not None and self.structured_output == "auto":
             remember_level(self.endpoint, level)
+        if adapted != known:
+            remember_adaptation(self.endpoint, adapted)
         latency = time.perf_counter() - started
-        return self._completion(response, latency, level)
+        unsent = tuple(sorted(p for p in adapted.server_defaults if p in kwargs))
+        return self._completion(response, latency, level, unsent)
+
+    def _adapt(self, adapted: RequestAdaptation, refusal: _ParameterRefused) -> RequestAdaptation:
+        found = adapted.refusing(refusal.parameter)
+        if found is None:
+            raise LLMError(self._scrub(f"{self.endpoint}: request refused ({refusal})"))
+        change = (
+            "the budget goes as max_completion_tokens"
+            if found.completion_tokens_field != adapted.completion_tokens_field
+            else "calls go without it, at the server's default (recorded with each call)"
+        )
+        log.warning(
+            "%s does not take %s (%s); %s",
+            self.endpoint,
+            refusal.parameter,
+            self._scrub(str(refusal)),
+            change,
+        )
+        return found
 
     def _step_down(self, level: StructuredLevel | None, refusal: _FormatRefused) -> StructuredLevel:
         if level is None:  # pragma: no cover - no format was sent, so none can be refused
@@ -410,15 +467,16 @@ class OpenAIBackend(LLMBackend):
                 self._scrub(f"connection failed or body cut short: {error}")
             ) from None
         except openai.APIStatusError as error:
-            raise self._status_error(error, "response_format" in kwargs) from None
+            raise self._status_error(error, kwargs) from None
         except (openai.APIResponseValidationError, json.JSONDecodeError, ValueError) as error:
             raise LLMTransientError(
                 self._scrub(f"malformed response: {type(error).__name__}")
             ) from None
 
-    def _status_error(self, error: Any, has_format: bool) -> Exception:
+    def _status_error(self, error: Any, request: dict[str, Any]) -> Exception:
         status = int(error.status_code)
         body = self._scrub(_body_text(error))
+        has_format = "response_format" in request
         excerpt = body[:300]
         if status in (401, 403):
             return LLMAuthError(
@@ -429,6 +487,9 @@ class OpenAIBackend(LLMBackend):
             return LLMContextOverflowError(
                 f"the prompt does not fit the model's context (HTTP {status}: {excerpt})"
             )
+        refused = _refused_parameter(error, body, request) if status == 400 else None
+        if refused is not None:
+            return _ParameterRefused(refused, body)
         if has_format and (status == 400 or (status >= 500 and _FORMAT_WORDS.search(body))):
             return _FormatRefused(status, body)
         if status >= 500:
@@ -438,7 +499,11 @@ class OpenAIBackend(LLMBackend):
         return LLMError(f"request refused (HTTP {status}: {excerpt})")
 
     def _completion(
-        self, response: Any, latency_s: float, level: StructuredLevel | None
+        self,
+        response: Any,
+        latency_s: float,
+        level: StructuredLevel | None,
+        server_defaults: tuple[str, ...],
     ) -> Completion:
         try:
             choice = response.choices[0]
@@ -460,4 +525,5 @@ class OpenAIBackend(LLMBackend):
             latency_s=latency_s,
             finish_reason=finish,
             structured_output=level,
+            server_defaults=server_defaults,
         )

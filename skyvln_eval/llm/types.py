@@ -94,7 +94,8 @@ class Completion:
 
     Token counts are ``None`` when the server did not report them. ``structured_output``
     is the level of structured output the request used (``None``: the call asked for
-    free text).
+    free text); ``server_defaults`` the decoding parameters of the call that were not sent
+    because the model refuses them (it decoded at the server's defaults).
     """
 
     text: str
@@ -106,3 +107,4 @@ class Completion:
     finish_reason: str = "stop"
     cached: bool = False
     structured_output: StructuredLevel | None = None
+    server_defaults: tuple[str, ...] = ()

@@ -162,3 +162,38 @@ def test_run_exits_non_zero_when_episodes_err_unless_allowed(
     assert allowed.exit_code == 0, allowed.output
     [row] = read_results(tmp_path / "run" / RESULTS_FILE)
     assert row.status == "error" and row.llm_modules()["navgpt"]["failed_calls"] == 1
+
+
+def test_a_model_refusing_decoding_parameters_runs_and_the_run_says_what_went_unsent(
+    tmp_path: Path, sample_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("SKYVLN_TEST_KEY", "sk-test")
+    with LoopbackOpenAIServer(parameters="openai_reasoning") as reasoning:
+        config = {
+            "system": "reasoning",
+            "data": str(sample_dir),
+            "splits": ["val_unseen"],
+            "limit": 1,
+            "executor": "serial",
+            "agent": {
+                "name": "skyvln",
+                "llm": _llm(reasoning.base_url, "o-model", send_task_data=True),
+            },
+        }
+        path = tmp_path / "reasoning.yaml"
+        path.write_text(yaml.safe_dump(config))
+        result = CliRunner().invoke(app, ["run", str(path), "--out", str(tmp_path / "run")])
+        bodies = [r["body"] for r in reasoning.requests]
+    assert result.exit_code == 0, result.output
+    assert "not sent (the model refuses them; its defaults applied): " in result.output
+    assert "openai:o-model: temperature" in result.output
+    # Every call after the first refusals went in the form the model takes.
+    assert "max_tokens" not in bodies[-1] and "temperature" not in bodies[-1]
+    assert bodies[-1]["max_completion_tokens"] >= 16
+    [row] = read_results(tmp_path / "run" / RESULTS_FILE)
+    assert row.status == "ok" and row.llm_calls
+    answered = [c for c in row.llm_calls if c.outcome == "ok"]
+    assert answered and all(c.server_defaults == ("temperature",) for c in answered)
+    assert all(c.temperature is None for c in answered)
+    report = json.loads((tmp_path / "run" / "run.json").read_text())
+    assert report["server_defaults"] == {"openai:o-model": "temperature"}

@@ -148,6 +148,7 @@ def test_call_records_have_exactly_the_agreed_fields() -> None:
         "temperature",
         "max_tokens",
         "structured_output",
+        "server_defaults",
     ]
     assert record.module == "hsd_rank" and record.error is None and record.cached is False
     assert (record.outcome, record.attempt, record.final) == ("ok", 1, True)
