@@ -8,7 +8,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from skyvln_eval.errors import UnknownNameError
+from skyvln_eval.errors import ConfigError, UnknownNameError
 from skyvln_eval.llm.cache import ResponseCache
 from skyvln_eval.llm.client import LLMClient
 from skyvln_eval.llm.negotiation import StructuredSetting
@@ -92,6 +92,11 @@ class LLMConfig(BaseModel):
         description="false for models without a system role (Gemma): the system prompt "
         "opens the first user message",
     )
+    extra_body: dict[str, Any] = Field(
+        default_factory=dict,
+        description="fields added to every request body, e.g. {reasoning_effort: low} "
+        "(openai backend); part of the cache key",
+    )
     temperature: float = Field(default=0.0, ge=0.0, le=2.0)
     top_p: float = Field(default=1.0, gt=0.0, le=1.0)
     max_tokens: int = Field(default=512, ge=16, le=32768)
@@ -114,6 +119,17 @@ class LLMConfig(BaseModel):
         if name not in known_backends():
             raise ValueError(str(UnknownNameError("LLM backend", name, known_backends())))
         return spec
+
+    @field_validator("extra_body")
+    @classmethod
+    def _extra_body_fields(cls, extra_body: dict[str, Any]) -> dict[str, Any]:
+        # Checked on load, as the backend is: a run stops before its first episode.
+        from skyvln_eval.llm.openai_backend import checked_extra_body
+
+        try:
+            return checked_extra_body(extra_body)
+        except ConfigError as error:
+            raise ValueError(str(error)) from None
 
     @field_validator("budgets")
     @classmethod
@@ -153,9 +169,14 @@ class LLMConfig(BaseModel):
                 "structured_output": self.structured_output,
                 "send_task_data": self.send_task_data,
                 "system_role": self.system_role,
+                "extra_body": self.extra_body,
             }
         if name == "replay":
-            return {"base_url": self.base_url, "system_role": self.system_role}
+            return {
+                "base_url": self.base_url,
+                "system_role": self.system_role,
+                "extra_body": self.extra_body,
+            }
         return {}
 
 

@@ -32,6 +32,11 @@ time, each within them, could hold a call for as long as it likes: the request t
 runs in a helper thread, and the caller stops waiting when the time is up. The abandoned
 request's client is closed (its next read fails) and never used again.
 
+``extra_body`` adds fields of the user's to every request body (``reasoning_effort`` of
+OpenAI's reasoning models, a server's sampling options); they are part of the backend's
+identity, so answers cached with other fields are not reused. The fields the toolkit
+sets itself (model, messages, decoding, response format) cannot be given there.
+
 Some models have no system role (Gemma), and some servers drop a system message without
 a word: llama-cpp-python's ``gemma`` chat format leaves it out of the prompt. With
 ``system_role=False`` the system text opens the first user message instead, as Gemma's
@@ -95,6 +100,42 @@ _FORMAT_WORDS = re.compile(r"response_format|json_schema|schema|grammar", re.IGN
 _UNSUPPORTED = re.compile(r"unsupported (?:parameter|value):\s*'(\w+)'", re.IGNORECASE)
 #: Where the loopback test server finds the task data of a request (only when asked for).
 TASK_DATA_FIELD: Final = "skyvln_task_data"
+#: Request fields the toolkit sets (decoding settings have their own config fields); a
+#: ``stream`` or ``n`` of the user's would break the answer's parsing.
+RESERVED_FIELDS: Final = frozenset(
+    {
+        "model",
+        "messages",
+        "temperature",
+        "top_p",
+        "max_tokens",
+        "max_completion_tokens",
+        "seed",
+        "stop",
+        "response_format",
+        "stream",
+        "n",
+        "timeout",
+        TASK_DATA_FIELD,
+    }
+)
+
+
+def checked_extra_body(extra_body: Any) -> dict[str, Any]:
+    """``extra_body`` as a plain JSON object, or a :class:`ConfigError` saying what is wrong."""
+    if not isinstance(extra_body, dict):
+        raise ConfigError(f"extra_body must be a mapping of request fields, got {extra_body!r}")
+    taken = sorted(set(extra_body) & RESERVED_FIELDS)
+    if taken:
+        raise ConfigError(
+            f"extra_body cannot set {', '.join(taken)}: the toolkit sets these fields "
+            "(decoding settings have their own config fields: temperature, top_p, max_tokens, "
+            "budgets, seed)"
+        )
+    try:
+        return dict(json.loads(json.dumps(extra_body, sort_keys=True, allow_nan=False)))
+    except (TypeError, ValueError) as error:
+        raise ConfigError(f"extra_body must be plain JSON: {error}") from None
 
 
 def retry_after_s(headers: Any, now: float | None = None) -> float | None:
@@ -239,6 +280,7 @@ class OpenAIBackend(LLMBackend):
         structured_output: StructuredSetting = "auto",
         send_task_data: bool = False,
         system_role: bool = True,
+        extra_body: dict[str, Any] | None = None,
     ) -> None:
         if not model:
             raise ConfigError(
@@ -256,6 +298,7 @@ class OpenAIBackend(LLMBackend):
         self.structured_output = structured_output
         self.send_task_data = send_task_data
         self.system_role = system_role
+        self.extra_body = checked_extra_body(extra_body or {})
         # Imported now, not in the first call, whose deadline would pay for it (~0.5 s).
         try:
             import openai  # noqa: F401
@@ -270,6 +313,8 @@ class OpenAIBackend(LLMBackend):
         }
         if not self.system_role:  # the model sees other prompts: other cache keys
             identity["system_role"] = False
+        if self.extra_body:  # other request fields, other answers
+            identity["extra_body"] = self.extra_body
         return identity
 
     @property
@@ -345,10 +390,13 @@ class OpenAIBackend(LLMBackend):
             kwargs["seed"] = config.seed
         if config.stop:
             kwargs["stop"] = list(config.stop)
+        extra = dict(self.extra_body)
         if self.send_task_data:
             data = next((m.task_data for m in reversed(messages) if m.task_data), None)
             if data is not None:
-                kwargs["extra_body"] = {TASK_DATA_FIELD: data}
+                extra[TASK_DATA_FIELD] = data
+        if extra:
+            kwargs["extra_body"] = extra
         return kwargs
 
     def generate(self, messages: Sequence[Message], config: GenerationConfig) -> Completion:

@@ -120,7 +120,8 @@ class ReplayBackend(LLMBackend):
     """Answers only from the response cache, as the replayed backend answered.
 
     ``of`` is the replayed registry spec (``"openai:gpt-4o"``), ``base_url`` its server
-    and ``system_role`` its setting, so the cache keys match the original run's. The cache
+    and ``system_role`` and ``extra_body`` its settings, so the cache keys match the
+    original run's. The cache
     lookup happens in :class:`~skyvln_eval.llm.client.LLMClient`; reaching
     :meth:`generate` means a miss.
     """
@@ -130,7 +131,11 @@ class ReplayBackend(LLMBackend):
     answers_in_process = True
 
     def __init__(
-        self, model: str | None = None, base_url: str | None = None, system_role: bool = True
+        self,
+        model: str | None = None,
+        base_url: str | None = None,
+        system_role: bool = True,
+        extra_body: dict[str, Any] | None = None,
     ) -> None:
         if not model:
             raise ConfigError(
@@ -140,7 +145,9 @@ class ReplayBackend(LLMBackend):
         from skyvln_eval.llm.registry import backend_identity
 
         self.model = model
-        options = {} if system_role else {"system_role": False}  # openai's option only
+        options: dict[str, Any] = {} if system_role else {"system_role": False}  # openai's
+        if extra_body:
+            options["extra_body"] = extra_body
         self._identity = backend_identity(model, base_url=base_url, **options)
 
     def identity(self) -> dict[str, Any]:

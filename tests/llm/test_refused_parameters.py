@@ -94,3 +94,32 @@ def test_a_budget_refused_for_its_size_is_not_taken_for_an_unsupported_parameter
         bodies = [r["body"] for r in server.requests]
     assert len(bodies) == 1 and "max_tokens" in bodies[0]  # not renamed, not retried
     assert result.completion is None and "too large" in (result.error or "")
+
+
+def test_fields_of_the_users_go_in_every_request_and_in_the_cache_identity() -> None:
+    import pytest
+
+    from skyvln_eval.errors import ConfigError
+    from skyvln_eval.llm import LLMConfig, build_client
+
+    with LoopbackOpenAIServer([answer("{}")]) as server:
+        config = LLMConfig(
+            backend="openai:o-model",
+            base_url=server.base_url,
+            extra_body={"reasoning_effort": "low"},
+        )
+        client = build_client(config)
+        assert client.call("motion", HELLO, CONFIG).completion is not None
+        (body,) = (r["body"] for r in server.requests)
+    assert body["reasoning_effort"] == "low"
+    plain = build_client(config.model_copy(update={"extra_body": {}}))
+    assert client.backend.identity()["extra_body"] == {"reasoning_effort": "low"}
+    assert "extra_body" not in plain.backend.identity()  # other fields: other cache keys
+    replay = create_backend(
+        "replay:openai:o-model", base_url=server.base_url, extra_body={"reasoning_effort": "low"}
+    )
+    assert replay.identity() == client.backend.identity()  # a replay finds the answers
+    with pytest.raises(ValueError, match="extra_body cannot set max_tokens, stream"):
+        LLMConfig(backend="openai:o-model", extra_body={"stream": True, "max_tokens": 5})
+    with pytest.raises(ConfigError, match="plain JSON"):
+        create_backend("openai:o-model", extra_body={"when": object()})
