@@ -4,8 +4,8 @@ The model is small and weak; what this checks is the protocol against a real ser
 structured output negotiated down to what llama.cpp takes, every call answered, actions
 parsed (with repair) rather than replaced by the fallback, and the counts on record.
 
-It takes about 7 minutes on 2 cores (410 s measured: calls of 1,500-2,600 prompt tokens,
-20-90 s each), more than a test run can spend, so it runs when
+It takes 4-7 minutes on 2 cores (254 s and 410 s measured: calls of 1,000-3,600 prompt
+tokens, about 10-40 s each), more than a test run can spend, so it runs when
 ``$SKYVLN_EVAL_REAL_LLM_EPISODES`` is 1; the server's answers to the agent's calls are
 checked on every run by ``test_local_server.py``, with short prompts.
 """
@@ -28,7 +28,7 @@ OPT_IN = "SKYVLN_EVAL_REAL_LLM_EPISODES"
 
 @pytest.mark.skipif(
     os.environ.get(OPT_IN) != "1",
-    reason=f"whole episodes on the real model take ~7 min on 2 cores: set {OPT_IN}=1",
+    reason=f"whole episodes on the real model take 4-7 min on 2 cores: set {OPT_IN}=1",
 )
 def test_the_full_agent_runs_on_a_real_local_model(
     local_llm_url: str, sample_dir: Path, tmp_path: Path
