@@ -95,6 +95,12 @@ _CONTEXT_OVERFLOW = re.compile(
 )
 #: Words in an error body that say the server cannot do the requested response format.
 _FORMAT_WORDS = re.compile(r"response_format|json_schema|schema|grammar", re.IGNORECASE)
+#: A server refusing the system message (OpenAI's o1-mini: "Unsupported value:
+#: 'messages[0].role' does not support 'system' with this model"; Gemma chat templates:
+#: "System role not supported").
+_SYSTEM_ROLE_REFUSED = re.compile(
+    r"role'? does not support 'system'|system role (?:is )?not supported", re.IGNORECASE
+)
 #: How OpenAI (and servers that copy its errors) names a parameter the model does not take,
 #: for bodies without the ``param`` field.
 _UNSUPPORTED = re.compile(r"unsupported (?:parameter|value):\s*'(\w+)'", re.IGNORECASE)
@@ -538,6 +544,11 @@ class OpenAIBackend(LLMBackend):
         refused = _refused_parameter(error, body, request) if status == 400 else None
         if refused is not None:
             return _ParameterRefused(refused, body)
+        if status < 500 and self.system_role and _SYSTEM_ROLE_REFUSED.search(body):
+            return LLMError(
+                f"request refused (HTTP {status}: {excerpt}); this model takes no system "
+                "role: set system_role: false in its backend config"
+            )
         if has_format and (status == 400 or (status >= 500 and _FORMAT_WORDS.search(body))):
             return _FormatRefused(status, body)
         if status >= 500:

@@ -123,3 +123,11 @@ def test_fields_of_the_users_go_in_every_request_and_in_the_cache_identity() -> 
         LLMConfig(backend="openai:o-model", extra_body={"stream": True, "max_tokens": 5})
     with pytest.raises(ConfigError, match="plain JSON"):
         create_backend("openai:o-model", extra_body={"when": object()})
+
+
+def test_a_refused_system_role_points_to_the_setting() -> None:
+    message = "Unsupported value: 'messages[0].role' does not support 'system' with this model."
+    with LoopbackOpenAIServer([status(400, message=message)] * 2) as server:
+        refused = _client(server).call("motion", HELLO, CONFIG)
+        assert len(server.requests) == 1  # not a parameter the request can go without
+    assert refused.error is not None and "set system_role: false" in refused.error
