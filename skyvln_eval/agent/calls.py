@@ -1,7 +1,8 @@
 """LLM calls whose answer must be JSON: parse, record failures, and repair.
 
 Every call the agent makes goes through :func:`call_json`. An answer the parser rejects,
-or one cut off at its token budget (``finish_reason == "length"``), is an ``invalid``
+one cut off at its token budget (``finish_reason == "length"``), or one the server's
+content filter stopped (``"content_filter"``, Azure OpenAI's and others'), is an ``invalid``
 attempt: its record says why, and the call is asked again (``repair``): the invalid
 answer and the parser's reason go back to the model, at the repair temperature (higher
 than the first try's, so the same answer is not simply repeated) and, for a cut-off
@@ -127,6 +128,13 @@ def call_json(
             )
             follow_up = CUT_OFF_REQUEST.format(tokens=current.max_tokens)
             budget = min(MAX_BUDGET_TOKENS, math.ceil(current.max_tokens * repair.budget_factor))
+        elif completion.finish_reason == "content_filter":
+            # What the server's filter let through is not the model's answer, even if it parses.
+            reason = (
+                "the server's content filter stopped the answer (finish_reason 'content_filter')"
+            )
+            follow_up = REPAIR_REQUEST.format(reason=reason)
+            budget = current.max_tokens
         else:
             try:
                 out.value = parse(text)

@@ -35,6 +35,27 @@ def _llm(base_url: str, **extra: object) -> LLMConfig:
     )
 
 
+def test_a_filtered_answer_is_never_taken_for_the_models_even_when_it_parses() -> None:
+    script = [answer(GOOD, finish_reason="content_filter"), answer(GOOD)]
+    with LoopbackOpenAIServer(script) as server:
+        llm = _llm(server.base_url)
+        dialog = DialogText((), None, "Go north.")
+        config = llm.generation("subgoals", json_schema=subgoals_json_schema(dialog))
+        call = call_json(
+            build_client(llm),
+            "subgoals",
+            [Message("user", "Decompose: go north.")],
+            config,
+            functools.partial(parse_subgoals, dialog=dialog),
+            llm.repair_policy(),
+        )
+    assert call.value is not None and call.repaired
+    first, second = call.records
+    assert (first.outcome, first.finish_reason) == ("invalid", "content_filter")
+    assert "content filter stopped the answer" in (first.error or "")
+    assert second.outcome == "ok" and second.repair
+
+
 def test_a_cut_off_answer_is_asked_again_with_a_larger_budget() -> None:
     script = [answer('{"subgoals": [{"kind": "he', finish_reason="length"), answer(GOOD)]
     with LoopbackOpenAIServer(script) as server:
