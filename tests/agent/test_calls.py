@@ -10,8 +10,13 @@ from pathlib import Path
 import pytest
 
 from skyvln_eval.agent import AgentConfig, build_agent
-from skyvln_eval.agent.calls import call_json
-from skyvln_eval.agent.subgoals import DialogText, parse_subgoals, subgoals_json_schema
+from skyvln_eval.agent.calls import JsonCall, call_json
+from skyvln_eval.agent.subgoals import (
+    DialogText,
+    SubGoalPlan,
+    parse_subgoals,
+    subgoals_json_schema,
+)
 from skyvln_eval.converters import topics as t
 from skyvln_eval.converters.reader import read_log
 from skyvln_eval.converters.validate import check_log
@@ -35,20 +40,24 @@ def _llm(base_url: str, **extra: object) -> LLMConfig:
     )
 
 
+def _go_north(llm: LLMConfig) -> JsonCall[SubGoalPlan]:
+    """The sub-goals of "Go north." asked of ``llm``, repaired as its config says."""
+    dialog = DialogText((), None, "Go north.")
+    schema = subgoals_json_schema(dialog)
+    return call_json(
+        build_client(llm),
+        "subgoals",
+        [Message("user", "Decompose: go north.")],
+        llm.generation("subgoals", json_schema=schema, schema_name="subgoals"),
+        functools.partial(parse_subgoals, dialog=dialog),
+        llm.repair_policy(),
+    )
+
+
 def test_a_filtered_answer_is_never_taken_for_the_models_even_when_it_parses() -> None:
     script = [answer(GOOD, finish_reason="content_filter"), answer(GOOD)]
     with LoopbackOpenAIServer(script) as server:
-        llm = _llm(server.base_url)
-        dialog = DialogText((), None, "Go north.")
-        config = llm.generation("subgoals", json_schema=subgoals_json_schema(dialog))
-        call = call_json(
-            build_client(llm),
-            "subgoals",
-            [Message("user", "Decompose: go north.")],
-            config,
-            functools.partial(parse_subgoals, dialog=dialog),
-            llm.repair_policy(),
-        )
+        call = _go_north(_llm(server.base_url))
     assert call.value is not None and call.repaired
     first, second = call.records
     assert (first.outcome, first.finish_reason) == ("invalid", "content_filter")
@@ -59,18 +68,7 @@ def test_a_filtered_answer_is_never_taken_for_the_models_even_when_it_parses() -
 def test_a_cut_off_answer_is_asked_again_with_a_larger_budget() -> None:
     script = [answer('{"subgoals": [{"kind": "he', finish_reason="length"), answer(GOOD)]
     with LoopbackOpenAIServer(script) as server:
-        llm = _llm(server.base_url, budgets={"subgoals": 100}, repair_temperature=0.9)
-        dialog = DialogText((), None, "Go north.")
-        schema = subgoals_json_schema(dialog)
-        config = llm.generation("subgoals", json_schema=schema, schema_name="subgoals")
-        call = call_json(
-            build_client(llm),
-            "subgoals",
-            [Message("user", "Decompose: go north.")],
-            config,
-            functools.partial(parse_subgoals, dialog=dialog),
-            llm.repair_policy(),
-        )
+        call = _go_north(_llm(server.base_url, budgets={"subgoals": 100}, repair_temperature=0.9))
         bodies = [r["body"] for r in server.requests]
     assert call.value is not None and call.repaired
     assert [(b["max_tokens"], b["temperature"]) for b in bodies] == [(100, 0.0), (200, 0.9)]
