@@ -110,17 +110,50 @@ class ConfigError(SkyvlnError):
     """A configuration value or command-line option is invalid."""
 
 
-def describe_validation_error(error: Any) -> str:
+def describe_validation_error(error: Any, model: Any = None) -> str:
     """A pydantic ``ValidationError`` as ``"field.path: message; ..."`` (for ConfigError texts).
 
     Our own validators' messages are complete sentences: pydantic's "Value error, " prefix
-    is dropped from them.
+    is dropped from them. Given the validated ``model`` (class), a field it does not know
+    gets the close names it does (``temperatur``: did you mean 'temperature'?).
     """
-    return "; ".join(  # a sentence's own full stop would read ".;"
-        f"{'.'.join(str(p) for p in e['loc']) or '(top level)'}: "
-        + str(e["msg"]).removeprefix("Value error, ").rstrip(".")
-        for e in error.errors()
-    )
+    import difflib
+
+    parts = []
+    for e in error.errors():
+        text = str(e["msg"]).removeprefix("Value error, ").rstrip(".")
+        if e.get("type") == "extra_forbidden" and e["loc"]:
+            known = _field_names_at(model, e["loc"][:-1])
+            close = difflib.get_close_matches(str(e["loc"][-1]), known, n=3)
+            if close:
+                text += f" (did you mean {', '.join(repr(c) for c in close)}?)"
+            elif known:
+                text += f" (known: {', '.join(known)})"
+        parts.append(f"{'.'.join(str(p) for p in e['loc']) or '(top level)'}: {text}")
+    return "; ".join(parts)  # a sentence's own full stop would read ".;"
+
+
+def _field_names_at(model: Any, loc: Sequence[Any]) -> list[str]:
+    """The fields of the pydantic model found at ``loc`` inside ``model`` (through
+    optional, list and mapping fields, whose indexes and keys ``loc`` holds), or none."""
+    import typing
+
+    from pydantic import BaseModel
+
+    def models_in(annotation: Any) -> list[Any]:
+        if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+            return [annotation]
+        return [m for arg in typing.get_args(annotation) for m in models_in(arg)]
+
+    current: list[Any] = [model] if model is not None else []
+    for part in loc:
+        fields = [m.model_fields[part] for m in current if part in m.model_fields]
+        if fields:
+            current = models_in(fields[0].annotation)
+        elif not isinstance(part, int | str) or not current:
+            return []
+        # else: an index or key into a list or mapping of the models in hand
+    return list(current[0].model_fields) if current else []
 
 
 class UnknownNameError(ConfigError):

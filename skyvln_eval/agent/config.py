@@ -119,7 +119,8 @@ class AgentConfig(BaseModel):
         try:
             return cls.model_validate(data)
         except ValidationError as error:
-            raise ConfigError(f"agent config {file}: {describe_validation_error(error)}") from None
+            problems = describe_validation_error(error, cls)
+            raise ConfigError(f"agent config {file}: {problems}") from None
 
 
 def _perception(config: AgentConfig) -> Perception:

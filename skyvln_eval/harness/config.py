@@ -150,7 +150,7 @@ def run_config_from_mapping(data: Any, source: str) -> RunConfig:
     try:
         return RunConfig.model_validate(data)
     except ValidationError as error:
-        raise ConfigError(f"{source}: {describe_validation_error(error)}") from None
+        raise ConfigError(f"{source}: {describe_validation_error(error, RunConfig)}") from None
 
 
 def load_run_config(path: str | Path, **overrides: Any) -> RunConfig:

@@ -117,7 +117,8 @@ def load_plan(name_or_path: str | Path = DEFAULT_PLAN, **overrides: Any) -> Repr
     try:
         return ReproducePlan.model_validate(data)
     except ValidationError as error:
-        raise ConfigError(f"reproduce plan {path}: {describe_validation_error(error)}") from None
+        problems = describe_validation_error(error, ReproducePlan)
+        raise ConfigError(f"reproduce plan {path}: {problems}") from None
 
 
 def environment_backends(
@@ -153,9 +154,8 @@ def _agent(system: PlanSystem, llm: dict[str, Any] | None = None) -> AgentConfig
     try:
         return AgentConfig.model_validate(data)
     except ValidationError as error:
-        raise ConfigError(
-            f"system {system.label!r}: agent settings: {describe_validation_error(error)}"
-        ) from None
+        problems = describe_validation_error(error, AgentConfig)
+        raise ConfigError(f"system {system.label!r}: agent settings: {problems}") from None
 
 
 def planned_runs(

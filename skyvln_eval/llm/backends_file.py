@@ -54,7 +54,7 @@ def _config(data: dict[str, Any], where: str) -> LLMConfig:
     try:
         return LLMConfig.model_validate(data)
     except ValidationError as error:
-        raise ConfigError(f"{where}: {describe_validation_error(error)}") from None
+        raise ConfigError(f"{where}: {describe_validation_error(error, LLMConfig)}") from None
 
 
 def load_backends_file(path: str | Path) -> BackendsFile:
