@@ -9,6 +9,8 @@ status 2; validation problems exit with status 1.
 from __future__ import annotations
 
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -44,6 +46,22 @@ FAIL_ON_ERROR_HELP = (
 def _echo_problem(text: str, colour: str = "red") -> None:
     """One problem per line on stderr: plain text (no wrapping, no markup), easy to grep."""
     typer.echo(typer.style(text, fg=colour), err=True)
+
+
+@contextmanager
+def _stoppable() -> Iterator[None]:
+    """A long job that Ctrl-C or SIGTERM stops: its workers ended, what finished kept, a
+    line that says so, exit code 130 (as a shell reports an interrupted command)."""
+    from skyvln_eval.interrupts import terminate_like_ctrl_c
+
+    try:
+        with terminate_like_ctrl_c():
+            yield
+    except KeyboardInterrupt:
+        _echo_problem(
+            "interrupted: the episodes that finished are kept; the same command runs the rest"
+        )
+        raise typer.Exit(130) from None
 
 
 def _progress(verb: str) -> Progress:
@@ -294,9 +312,10 @@ def run_(
     from skyvln_eval.harness.commands import run_command
     from skyvln_eval.harness.run import error_verdict
 
-    report = run_command(
-        config, out, workers, executor, ray_address, retry_failed, threads_per_worker
-    )
+    with _stoppable():
+        report = run_command(
+            config, out, workers, executor, ray_address, retry_failed, threads_per_worker
+        )
     verdict = error_verdict([report], fail_on_error)
     if verdict:
         _echo_problem(verdict)
@@ -341,15 +360,16 @@ def reproduce(
     chosen = load_plan(plan, limit=limit, recordings=None if recordings else 0)
     if data_dir is None and chosen.data == "sample":
         _build_dataset("sample", None, False, 1)  # with a progress bar on first use
-    report = run_plan(
-        chosen,
-        out,
-        workers,
-        executor,  # type: ignore[arg-type]
-        str(data_dir) if data_dir else None,
-        RichRunProgress(err_console),
-        threads_per_worker=threads_per_worker,
-    )
+    with _stoppable():
+        report = run_plan(
+            chosen,
+            out,
+            workers,
+            executor,  # type: ignore[arg-type]
+            str(data_dir) if data_dir else None,
+            RichRunProgress(err_console),
+            threads_per_worker=threads_per_worker,
+        )
     for name in ("table1.md", "table2.md"):
         console.print(report.files[name].read_text(encoding="utf-8"))
     console.print(f"wrote {report.files['SUMMARY.md']} ({report.wall_s:.0f} s)")

@@ -25,6 +25,7 @@ import gc
 import multiprocessing
 import pickle
 import queue
+import signal
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -169,7 +170,12 @@ def _process_worker(
     (its own pipe), each announced (``start``) before it runs and its result sent back;
     ``None`` (or the parent gone) ends the work, and the tasks still waiting are then
     dropped, not run. With one thread the episodes run in the main thread and a second
-    thread receives (episodes in a thread of their own took 25 MB more per process)."""
+    thread receives (episodes in a thread of their own took 25 MB more per process).
+
+    Ctrl-C is the parent's to handle (it reaches the whole process group in a terminal):
+    the parent ends its workers. A parent gone without a word ends the worker quietly
+    once its episode is done: there is no one to send the result to."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     episodes_are_the_parallelism()
     collect_for_a_worker()
     sending = threading.Lock()
@@ -180,13 +186,15 @@ def _process_worker(
             conn.send(message)
 
     def run_tasks() -> None:
-        while (item := inbox.get()) is not None:
-            index, task = item
-            send(("start", index, None))
-            try:
-                send(("done", index, fn(task)))
-            except Exception as exc:  # the caller records it as a failed episode
-                send(("error", index, _sendable(exc)))
+        with contextlib.suppress(OSError):  # the parent is gone (its end of the pipe closed)
+            while (item := inbox.get()) is not None:
+                index, task = item
+                send(("start", index, None))
+                try:
+                    outcome: tuple[str, int, Any] = ("done", index, fn(task))
+                except Exception as exc:  # the caller records it as a failed episode
+                    outcome = ("error", index, _sendable(exc))
+                send(outcome)
 
     def receive() -> None:
         with contextlib.suppress(EOFError, OSError):
@@ -270,6 +278,12 @@ class ProcessExecutor:
                     break
             for index, _ in reversed(todo):  # only if every process died
                 yield tasks[index], WorkerDied("no worker process left to run the episode")
+        except KeyboardInterrupt:
+            # Ctrl-C (or SIGTERM, see skyvln_eval.interrupts): the episodes under way are
+            # dropped at once, not waited for; a resumed run runs them again.
+            for worker in workers:
+                worker.end_now()
+            raise
         finally:
             for worker in workers:  # all asked first: they wind down at the same time
                 worker.ask_to_stop()
@@ -330,6 +344,13 @@ class _Worker:
         if self.alive:
             with contextlib.suppress(OSError):
                 self.conn.send(None)
+
+    def end_now(self) -> None:
+        """End the process without waiting for its episodes."""
+        self.alive = False
+        if self.process.is_alive():
+            self.process.terminate()
+            self.process.join(timeout=5)
 
     def stop(self) -> None:
         """Wait for the process to end (after :meth:`ask_to_stop`), ending it if it hangs."""

@@ -8,18 +8,16 @@ work and are usable from Python too.
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import tempfile
-import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import typer
 
 from skyvln_eval.errors import ConfigError
+from skyvln_eval.interrupts import terminate_like_ctrl_c
 from skyvln_eval.viewer.deps import rerun_cli_path
 from skyvln_eval.viewer.logs import EpisodeLogRef, find_episode_logs
 from skyvln_eval.viewer.privacy import USER_OPT_OUT, rerun_environment
@@ -109,25 +107,6 @@ def _serve(paths: Sequence[Path], port: int) -> None:
         raise typer.Exit(1)
 
 
-def _interrupt(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt
-
-
-@contextmanager
-def _terminate_like_ctrl_c() -> Iterator[None]:
-    """SIGTERM (``kill``, a service manager, a test) stops the command as Ctrl-C does, so
-    the rerun server is stopped and the temporary recordings are removed: Python's own
-    SIGTERM action ends the process at once and would leave both behind."""
-    if threading.current_thread() is not threading.main_thread():
-        yield  # only the main thread may set a handler; a caller's thread keeps its own
-        return
-    previous = signal.signal(signal.SIGTERM, _interrupt)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
 def run_view(
     target: Path,
     episodes: Sequence[str],
@@ -136,7 +115,7 @@ def run_view(
     port: int,
 ) -> None:
     """The ``view`` command (see ``skyvln-eval view --help``)."""
-    with _terminate_like_ctrl_c():
+    with terminate_like_ctrl_c():  # the server stopped, the temporary recordings removed
         _view(target, episodes, save, serve, port)
 
 

@@ -1,0 +1,108 @@
+"""Ctrl-C or SIGTERM stops a run at once and cleanly: the workers ended without a
+traceback, the finished episodes kept, exit code 130, and the same command runs the rest."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from skyvln_eval.harness import RunConfig
+from skyvln_eval.harness.store import RESULTS_FILE, ResultStore
+from tests.conftest import REPO
+from tests.viewer.tools import skyvln_eval_command
+
+EPISODES = 30
+
+
+def _own_group_with_ctrl_c() -> None:
+    # Ctrl-C as in a terminal: the signal reaches the whole process group, and a test run
+    # started in the background (CI scripts often are) would have it ignored.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    os.setsid()
+
+
+def _children(pid: int) -> list[int]:
+    """Processes whose parent is ``pid`` (Linux /proc), zombies left out."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            state, parent = stat.read_text().rsplit(")", 1)[1].split()[:2]
+        except OSError:
+            continue
+        if int(parent) == pid and state != "Z":
+            found.append(int(stat.parent.name))
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def _rows(run_dir: Path) -> int:
+    return len(ResultStore(run_dir, repair=False)) if (run_dir / RESULTS_FILE).is_file() else 0
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="reads the process tree from Linux /proc")
+@pytest.mark.parametrize("stop", ["ctrl-c", "sigterm"])
+def test_a_run_stopped_from_outside_ends_its_workers_and_resumes(
+    tmp_path: Path, small_config: Callable[..., RunConfig], stop: str
+) -> None:
+    config = small_config(limit=EPISODES, workers=2, executor="processes", write_logs=False)
+    path = tmp_path / "run.yaml"
+    path.write_text(config.to_yaml())
+    run_dir = tmp_path / "run"
+    command = skyvln_eval_command("run", str(path), "--out", str(run_dir))
+    process = subprocess.Popen(
+        command,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=REPO,
+        preexec_fn=_own_group_with_ctrl_c,
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and process.poll() is None:
+            if _rows(run_dir) >= 2:  # the workers are under way
+                break
+            time.sleep(0.05)
+        workers = _children(process.pid)
+        assert workers and process.poll() is None, "the run ended before it could be stopped"
+        if stop == "ctrl-c":
+            os.killpg(process.pid, signal.SIGINT)
+        else:
+            process.send_signal(signal.SIGTERM)
+        out, err = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait(timeout=10)
+    assert process.returncode == 130, err
+    assert "interrupted: the episodes that finished are kept" in err
+    assert "Traceback" not in out + err
+    # The workers end with the run (and multiprocessing's resource tracker as soon as it
+    # sees the run's end of its pipe close).
+    deadline = time.monotonic() + 10
+    while any(_alive(pid) for pid in workers) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(_alive(pid) for pid in workers)
+    kept = _rows(run_dir)
+    assert 2 <= kept < EPISODES
+    resumed = subprocess.run(
+        command, stdin=subprocess.DEVNULL, capture_output=True, text=True, cwd=REPO, timeout=300
+    )
+    assert resumed.returncode == 0, resumed.stderr
+    assert f"{kept} already done, {EPISODES - kept} run now" in resumed.stdout
+    assert (run_dir / RESULTS_FILE).is_file()
