@@ -16,6 +16,7 @@ import pytest
 from skyvln_eval.harness import RunConfig
 from skyvln_eval.harness.store import RESULTS_FILE, ResultStore
 from tests.conftest import REPO
+from tests.processes import alive, children
 from tests.viewer.tools import skyvln_eval_command
 
 EPISODES = 30
@@ -26,27 +27,6 @@ def _own_group_with_ctrl_c() -> None:
     # started in the background (CI scripts often are) would have it ignored.
     signal.signal(signal.SIGINT, signal.SIG_DFL)
     os.setsid()
-
-
-def _children(pid: int) -> list[int]:
-    """Processes whose parent is ``pid`` (Linux /proc), zombies left out."""
-    found = []
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            state, parent = stat.read_text().rsplit(")", 1)[1].split()[:2]
-        except OSError:
-            continue
-        if int(parent) == pid and state != "Z":
-            found.append(int(stat.parent.name))
-    return found
-
-
-def _alive(pid: int) -> bool:
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state != "Z"
 
 
 def _rows(run_dir: Path) -> int:
@@ -78,7 +58,7 @@ def test_a_run_stopped_from_outside_ends_its_workers_and_resumes(
             if _rows(run_dir) >= 2:  # the workers are under way
                 break
             time.sleep(0.05)
-        workers = _children(process.pid)
+        workers = children(process.pid)
         assert workers and process.poll() is None, "the run ended before it could be stopped"
         if stop == "ctrl-c":
             os.killpg(process.pid, signal.SIGINT)
@@ -95,9 +75,9 @@ def test_a_run_stopped_from_outside_ends_its_workers_and_resumes(
     # The workers end with the run (and multiprocessing's resource tracker as soon as it
     # sees the run's end of its pipe close).
     deadline = time.monotonic() + 10
-    while any(_alive(pid) for pid in workers) and time.monotonic() < deadline:
+    while any(alive(pid) for pid in workers) and time.monotonic() < deadline:
         time.sleep(0.05)
-    assert not any(_alive(pid) for pid in workers)
+    assert not any(alive(pid) for pid in workers)
     kept = _rows(run_dir)
     assert 2 <= kept < EPISODES
     resumed = subprocess.run(

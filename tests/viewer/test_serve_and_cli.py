@@ -16,6 +16,7 @@ import pytest
 from skyvln_eval.viewer.logs import find_episode_logs
 from skyvln_eval.viewer.privacy import rerun_environment
 from tests.conftest import REPO
+from tests.processes import alive, children
 from tests.viewer.tools import rerun_tool, run_skyvln_eval, skyvln_eval_command
 
 
@@ -142,7 +143,7 @@ def test_view_serves_until_stopped_and_cleans_up(
 ) -> None:
     scratch = tmp_path / "tmp"
     process, url = _start_view(flown_run, scratch)
-    servers = _children(process.pid)
+    servers = children(process.pid)
     try:
         with urllib.request.urlopen(url, timeout=30) as response:
             assert response.status == 200
@@ -156,7 +157,7 @@ def test_view_serves_until_stopped_and_cleans_up(
     assert process.returncode == 0
     assert "stopped" in out
     assert list(scratch.iterdir()) == []
-    assert servers and not any(_alive(pid) for pid in servers)
+    assert servers and not any(alive(pid) for pid in servers)
 
 
 def test_several_episodes_saved_as_one_file_keep_one_recording_each(
@@ -179,42 +180,21 @@ def test_several_episodes_saved_as_one_file_keep_one_recording_each(
     assert refused.returncode == 2 and "already a recording" in refused.stderr
 
 
-def _children(pid: int) -> list[int]:
-    """Processes whose parent is ``pid`` (Linux /proc)."""
-    found = []
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[1]) == pid:
-            found.append(int(stat.parent.name))
-    return found
-
-
-def _alive(pid: int) -> bool:
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state != "Z"  # a zombie has ended; only its parent's reaping is left
-
-
 @pytest.mark.skipif(sys.platform != "linux", reason="the parent-death signal is Linux's")
 def test_a_killed_view_command_leaves_no_rerun_server(
     flown_run: Path, rerun_cli: Path, tmp_path: Path
 ) -> None:
     process, _ = _start_view(flown_run, tmp_path / "tmp")  # what SIGKILL leaves stays there
-    servers = _children(process.pid)
+    servers = children(process.pid)
     try:
         assert servers, "the view command started no rerun server"
         process.kill()  # SIGKILL: no clean-up of the toolkit's runs
         process.wait(timeout=10)
         deadline = time.monotonic() + 30
-        while any(_alive(pid) for pid in servers) and time.monotonic() < deadline:
+        while any(alive(pid) for pid in servers) and time.monotonic() < deadline:
             time.sleep(0.1)
-        assert not any(_alive(pid) for pid in servers), "the rerun server outlived the viewer"
+        assert not any(alive(pid) for pid in servers), "the rerun server outlived the viewer"
     finally:
         for pid in servers:
-            if _alive(pid):
+            if alive(pid):
                 os.kill(pid, signal.SIGKILL)

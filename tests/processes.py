@@ -1,0 +1,29 @@
+"""The process tree as Linux's /proc shows it, for tests of what a command leaves running."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def _state_and_parent(pid_dir: Path) -> tuple[str, int] | None:
+    try:
+        state, parent = (pid_dir / "stat").read_text().rsplit(")", 1)[1].split()[:2]
+    except (OSError, ValueError):
+        return None
+    return state, int(parent)
+
+
+def children(pid: int) -> list[int]:
+    """Processes whose parent is ``pid``, zombies left out."""
+    found = []
+    for pid_dir in Path("/proc").glob("[0-9]*"):
+        known = _state_and_parent(pid_dir)
+        if known is not None and known[1] == pid and known[0] != "Z":
+            found.append(int(pid_dir.name))
+    return found
+
+
+def alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie has ended; only its parent's reaping is left)."""
+    known = _state_and_parent(Path(f"/proc/{pid}"))
+    return known is not None and known[0] != "Z"
