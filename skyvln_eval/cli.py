@@ -8,6 +8,7 @@ status 2; validation problems exit with status 1.
 
 from __future__ import annotations
 
+import os
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -61,7 +62,12 @@ def _stoppable() -> Iterator[None]:
         _echo_problem(
             "interrupted: the episodes that finished are kept; the same command runs the rest"
         )
-        raise typer.Exit(130) from None
+        sys.stdout.flush()
+        sys.stderr.flush()
+        # Ended here, not by returning: episodes running in threads cannot be stopped, and
+        # Python's exit would wait for them (a minute and more against a remote LLM). What
+        # finished is on disk, and a run killed at any point resumes (see the crash tests).
+        os._exit(130)
 
 
 def _progress(verb: str) -> Progress:

@@ -142,11 +142,18 @@ class ThreadExecutor:
     def map_unordered(
         self, fn: Callable[[T], R], tasks: Sequence[T]
     ) -> Iterator[tuple[T, R | BaseException]]:
-        with (
-            _native_threads_off(self.workers > 1),
-            cf.ThreadPoolExecutor(max_workers=self.workers, thread_name_prefix="episode") as pool,
-        ):
-            yield from _drain(pool, fn, tasks, self.workers)
+        with _native_threads_off(self.workers > 1):
+            pool = cf.ThreadPoolExecutor(max_workers=self.workers, thread_name_prefix="episode")
+            wait = True
+            try:
+                yield from _drain(pool, fn, tasks, self.workers)
+            except KeyboardInterrupt:
+                # Ctrl-C: running episodes cannot be stopped in their threads; the caller
+                # ends the process (see cli._stoppable) instead of waiting for them.
+                wait = False
+                raise
+            finally:
+                pool.shutdown(wait=wait, cancel_futures=True)
 
 
 class WorkerDied(RuntimeError):

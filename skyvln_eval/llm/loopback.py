@@ -199,6 +199,14 @@ def _completion_body(content: str, model: str, finish_reason: str = "stop") -> b
     return json.dumps(body).encode()
 
 
+class _QuietServer(ThreadingHTTPServer):
+    """A client that went away mid-request (timed out, interrupted) is no server fault."""
+
+    def handle_error(self, request: Any, client_address: Any) -> None:
+        if not isinstance(sys.exc_info()[1], ConnectionError):
+            super().handle_error(request, client_address)
+
+
 class LoopbackOpenAIServer:
     """``with LoopbackOpenAIServer(script) as server:``; ``server.base_url`` ends in /v1."""
 
@@ -330,7 +338,7 @@ class LoopbackOpenAIServer:
                     self.close_connection = True
                     self.connection.shutdown(2)
 
-        self._server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self._server = _QuietServer(("127.0.0.1", 0), Handler)
         self._server.daemon_threads = True
         self._thread = threading.Thread(target=self._server.serve_forever, daemon=True)
 

@@ -1,5 +1,6 @@
 """Ctrl-C or SIGTERM stops a run at once and cleanly: the workers ended without a
-traceback, the finished episodes kept, exit code 130, and the same command runs the rest."""
+traceback (processes) or left behind (threads waiting on a model), the finished episodes
+kept, exit code 130, and the same command runs the rest."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ import pytest
 
 from skyvln_eval.harness import RunConfig
 from skyvln_eval.harness.store import RESULTS_FILE, ResultStore
+from skyvln_eval.llm.loopback import LoopbackOpenAIServer
 from tests.conftest import REPO
 from tests.processes import alive, children
 from tests.viewer.tools import skyvln_eval_command
@@ -86,3 +88,55 @@ def test_a_run_stopped_from_outside_ends_its_workers_and_resumes(
     assert resumed.returncode == 0, resumed.stderr
     assert f"{kept} already done, {EPISODES - kept} run now" in resumed.stdout
     assert (run_dir / RESULTS_FILE).is_file()
+
+
+def test_ctrl_c_stops_episodes_waiting_on_a_slow_llm_in_threads_at_once(
+    tmp_path: Path, small_config: Callable[..., RunConfig]
+) -> None:
+    threads = 4
+    with LoopbackOpenAIServer(latency_s=1.0) as slow:
+        llm = {
+            "backend": "openai:slow-model",
+            "base_url": slow.base_url,
+            "api_key_env": "SKYVLN_TEST_KEY",
+            "send_task_data": True,
+        }
+        config = small_config(
+            limit=8,
+            workers=threads,
+            executor="threads",
+            write_logs=False,
+            agent={"name": "skyvln", "llm": llm},
+        )
+        path = tmp_path / "run.yaml"
+        path.write_text(config.to_yaml())
+        process = subprocess.Popen(
+            skyvln_eval_command("run", str(path), "--out", str(tmp_path / "run")),
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            cwd=REPO,
+            env={**os.environ, "SKYVLN_TEST_KEY": "sk-test"},
+            preexec_fn=_own_group_with_ctrl_c,
+        )
+        try:
+            deadline = time.monotonic() + 120
+            while len(slow.requests) < 2 * threads and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert process.poll() is None, "the run ended before it could be stopped"
+            os.killpg(process.pid, signal.SIGINT)
+            sent_before = len(slow.requests)
+            _, err = process.communicate(timeout=60)
+            time.sleep(1.5)  # longer than an answer takes: a call made now would show
+            sent_after = len(slow.requests) - sent_before
+        finally:
+            if process.poll() is None:
+                os.killpg(process.pid, signal.SIGKILL)
+                process.wait(timeout=10)
+    assert process.returncode == 130, err
+    assert "interrupted: the episodes that finished are kept" in err
+    assert "Traceback" not in err
+    # The episodes did not go on calling the model until they ended (each has many calls
+    # left): at most the calls already on their way when Ctrl-C came.
+    assert sent_after <= threads
