@@ -4,12 +4,13 @@ kept, exit code 130, and the same command runs the rest."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -35,6 +36,30 @@ def _rows(run_dir: Path) -> int:
     return len(ResultStore(run_dir, repair=False)) if (run_dir / RESULTS_FILE).is_file() else 0
 
 
+@contextlib.contextmanager
+def _running(
+    command: list[str], env: dict[str, str] | None = None
+) -> Iterator[subprocess.Popen[str]]:
+    """``command`` in a process group of its own, as a terminal's job; killed with its
+    group if the test leaves it running."""
+    process = subprocess.Popen(
+        command,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=REPO,
+        env=env,
+        preexec_fn=_own_group_with_ctrl_c,
+    )
+    try:
+        yield process
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait(timeout=10)
+
+
 @pytest.mark.skipif(sys.platform != "linux", reason="reads the process tree from Linux /proc")
 @pytest.mark.parametrize("stop", ["ctrl-c", "sigterm"])
 def test_a_run_stopped_from_outside_ends_its_workers_and_resumes(
@@ -45,16 +70,7 @@ def test_a_run_stopped_from_outside_ends_its_workers_and_resumes(
     path.write_text(config.to_yaml())
     run_dir = tmp_path / "run"
     command = skyvln_eval_command("run", str(path), "--out", str(run_dir))
-    process = subprocess.Popen(
-        command,
-        stdin=subprocess.DEVNULL,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        cwd=REPO,
-        preexec_fn=_own_group_with_ctrl_c,
-    )
-    try:
+    with _running(command) as process:
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline and process.poll() is None:
             if _rows(run_dir) >= 2:  # the workers are under way
@@ -67,10 +83,6 @@ def test_a_run_stopped_from_outside_ends_its_workers_and_resumes(
         else:
             process.send_signal(signal.SIGTERM)
         out, err = process.communicate(timeout=60)
-    finally:
-        if process.poll() is None:
-            os.killpg(process.pid, signal.SIGKILL)
-            process.wait(timeout=10)
     assert process.returncode == 130, err
     assert "interrupted: the episodes that finished are kept" in err
     assert "Traceback" not in out + err
@@ -110,17 +122,8 @@ def test_ctrl_c_stops_episodes_waiting_on_a_slow_llm_in_threads_at_once(
         )
         path = tmp_path / "run.yaml"
         path.write_text(config.to_yaml())
-        process = subprocess.Popen(
-            skyvln_eval_command("run", str(path), "--out", str(tmp_path / "run")),
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-            cwd=REPO,
-            env={**os.environ, "SKYVLN_TEST_KEY": "sk-test"},
-            preexec_fn=_own_group_with_ctrl_c,
-        )
-        try:
+        command = skyvln_eval_command("run", str(path), "--out", str(tmp_path / "run"))
+        with _running(command, env={**os.environ, "SKYVLN_TEST_KEY": "sk-test"}) as process:
             deadline = time.monotonic() + 120
             while len(slow.requests) < 2 * threads and time.monotonic() < deadline:
                 time.sleep(0.05)
@@ -130,10 +133,6 @@ def test_ctrl_c_stops_episodes_waiting_on_a_slow_llm_in_threads_at_once(
             _, err = process.communicate(timeout=60)
             time.sleep(1.5)  # longer than an answer takes: a call made now would show
             sent_after = len(slow.requests) - sent_before
-        finally:
-            if process.poll() is None:
-                os.killpg(process.pid, signal.SIGKILL)
-                process.wait(timeout=10)
     assert process.returncode == 130, err
     assert "interrupted: the episodes that finished are kept" in err
     assert "Traceback" not in err
