@@ -1,10 +1,11 @@
 """LLM calls whose answer must be JSON: parse, record failures, and repair.
 
 Every call the agent makes goes through :func:`call_json`. An answer the parser rejects,
-one cut off at its token budget (``finish_reason == "length"``), or one the server's
-content filter stopped (``"content_filter"``, Azure OpenAI's and others'), is an ``invalid``
-attempt: its record says why, and the call is asked again (``repair``): the invalid
-answer and the parser's reason go back to the model, at the repair temperature (higher
+one cut off at its token budget (``finish_reason == "length"``), one the server's content
+filter stopped (``"content_filter"``, Azure OpenAI's and others'), or the model's refusal
+(OpenAI's structured outputs; the backend gives ``finish_reason == "refusal"``) is an
+``invalid`` attempt: its record says why, and the call is asked again (``repair``): the
+invalid answer and the parser's reason go back to the model, at the repair temperature (higher
 than the first try's, so the same answer is not simply repeated) and, for a cut-off
 answer, with a larger budget. The exchange of every request (prompt, answer, error, the
 records of its attempts with tokens, latency, decoding settings and finish reason) is
@@ -128,6 +129,10 @@ def call_json(
             )
             follow_up = CUT_OFF_REQUEST.format(tokens=current.max_tokens)
             budget = min(MAX_BUDGET_TOKENS, math.ceil(current.max_tokens * repair.budget_factor))
+        elif completion.finish_reason == "refusal":
+            reason = f"the model declined to answer: {text[:200]!r}"
+            follow_up = REPAIR_REQUEST.format(reason=reason)
+            budget = current.max_tokens
         elif completion.finish_reason == "content_filter":
             # What the server's filter let through is not the model's answer, even if it parses.
             reason = (

@@ -52,7 +52,15 @@ from skyvln_eval.llm.rule import RuleBackend
 from skyvln_eval.llm.types import GenerationConfig, Message
 
 ReplyKind = Literal[
-    "answer", "status", "hang", "malformed", "truncated", "trickle", "refuse_schema", "rule"
+    "answer",
+    "status",
+    "hang",
+    "malformed",
+    "truncated",
+    "trickle",
+    "refuse_schema",
+    "refusal",
+    "rule",
 ]
 StructuredMimic = Literal["all", "llama_cpp", "none"]
 ParameterMimic = Literal["all", "openai_reasoning"]
@@ -72,6 +80,12 @@ class Reply:
 def answer(content: str, task: str | None = None, finish_reason: str = "stop") -> Reply:
     """An answer; ``finish_reason="length"`` says it was cut off at ``max_tokens``."""
     return Reply("answer", content=content, task=task, finish_reason=finish_reason)
+
+
+def refusal(text: str, task: str | None = None) -> Reply:
+    """The model declines, as OpenAI's structured outputs report it: no content, the
+    reason in the message's ``refusal``."""
+    return Reply("refusal", content=text, task=task)
 
 
 def status(code: int, task: str | None = None, message: str = "", **headers: str) -> Reply:
@@ -181,7 +195,12 @@ def _parameter_refusal(body: dict[str, Any], parameters: ParameterMimic) -> dict
     return None
 
 
-def _completion_body(content: str, model: str, finish_reason: str = "stop") -> bytes:
+def _completion_body(
+    content: str | None, model: str, finish_reason: str = "stop", refused: str | None = None
+) -> bytes:
+    message: dict[str, Any] = {"role": "assistant", "content": content}
+    if refused is not None:
+        message["refusal"] = refused
     body = {
         "id": "chatcmpl-fake",
         "object": "chat.completion",
@@ -190,7 +209,7 @@ def _completion_body(content: str, model: str, finish_reason: str = "stop") -> b
         "choices": [
             {
                 "index": 0,
-                "message": {"role": "assistant", "content": content},
+                "message": message,
                 "finish_reason": finish_reason,
             }
         ],
@@ -291,7 +310,7 @@ class LoopbackOpenAIServer:
                     # before any answer is made: the scripted answer waits for the next.
                     refusal = _format_refusal(body, outer.structured)
                     refused = _parameter_refusal(body, outer.parameters)
-                    refusing = reply.kind in ("rule", "answer") and (
+                    refusing = reply.kind in ("rule", "answer", "refusal") and (
                         refusal is not None or refused is not None
                     )
                     if reply is head and not refusing:
@@ -310,6 +329,8 @@ class LoopbackOpenAIServer:
                         request = [Message("user", "", task_data=data)]
                         text = RuleBackend().generate(request, GenerationConfig()).text
                     self._send(200, _completion_body(text, model))
+                elif reply.kind == "refusal":
+                    self._send(200, _completion_body(None, model, refused=reply.content))
                 elif reply.kind == "answer":
                     self._send(200, _completion_body(reply.content, model, reply.finish_reason))
                 elif reply.kind == "refuse_schema":

@@ -568,6 +568,10 @@ class OpenAIBackend(LLMBackend):
             choice = response.choices[0]
             text = choice.message.content or ""
             finish = str(choice.finish_reason or "stop")
+            declined = getattr(choice.message, "refusal", None)
+            if not text and isinstance(declined, str) and declined:
+                # OpenAI's structured outputs: the model declined; its reason is the answer.
+                text, finish = declined, "refusal"
         except (AttributeError, IndexError, TypeError) as error:
             raise LLMTransientError(
                 f"malformed response: no choices ({type(error).__name__})"

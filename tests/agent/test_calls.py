@@ -22,7 +22,7 @@ from skyvln_eval.converters.reader import read_log
 from skyvln_eval.converters.validate import check_log
 from skyvln_eval.harness import RunConfig, run, run_official_episode
 from skyvln_eval.llm import LLMConfig, Message, RetryConfig, build_client
-from skyvln_eval.llm.loopback import LoopbackOpenAIServer, answer, rule
+from skyvln_eval.llm.loopback import LoopbackOpenAIServer, Reply, answer, refusal, rule
 from tests.toy_worlds import town_episode, town_world
 
 RED = "Go north. The destination is a small restaurant with a red roof."
@@ -54,14 +54,25 @@ def _go_north(llm: LLMConfig) -> JsonCall[SubGoalPlan]:
     )
 
 
-def test_a_filtered_answer_is_never_taken_for_the_models_even_when_it_parses() -> None:
-    script = [answer(GOOD, finish_reason="content_filter"), answer(GOOD)]
-    with LoopbackOpenAIServer(script) as server:
+@pytest.mark.parametrize(
+    ("first_reply", "finish", "reason"),
+    [
+        # What the server's filter let through is not the model's answer, even if it parses.
+        (answer(GOOD, finish_reason="content_filter"), "content_filter", "content filter"),
+        # OpenAI's structured outputs: no content, the model's reason in ``refusal``.
+        (refusal("I cannot help with drones."), "refusal", "declined to answer: 'I cannot"),
+    ],
+    ids=["content-filter", "refusal"],
+)
+def test_a_filtered_or_refused_answer_is_invalid_with_its_reason_and_repaired(
+    first_reply: Reply, finish: str, reason: str
+) -> None:
+    with LoopbackOpenAIServer([first_reply, answer(GOOD)]) as server:
         call = _go_north(_llm(server.base_url))
     assert call.value is not None and call.repaired
     first, second = call.records
-    assert (first.outcome, first.finish_reason) == ("invalid", "content_filter")
-    assert "content filter stopped the answer" in (first.error or "")
+    assert (first.outcome, first.finish_reason) == ("invalid", finish)
+    assert reason in (first.error or "")
     assert second.outcome == "ok" and second.repair
 
 
