@@ -60,6 +60,7 @@ ReplyKind = Literal[
     "trickle",
     "refuse_schema",
     "refusal",
+    "error_body",
     "rule",
 ]
 StructuredMimic = Literal["all", "llama_cpp", "none"]
@@ -86,6 +87,12 @@ def refusal(text: str, task: str | None = None) -> Reply:
     """The model declines, as OpenAI's structured outputs report it: no content, the
     reason in the message's ``refusal``."""
     return Reply("refusal", content=text, task=task)
+
+
+def error_body(message: str, task: str | None = None) -> Reply:
+    """HTTP 200 with an error object and no choices, as gateways (OpenRouter) answer when
+    the model behind them failed."""
+    return Reply("error_body", content=message, task=task)
 
 
 def status(code: int, task: str | None = None, message: str = "", **headers: str) -> Reply:
@@ -329,6 +336,9 @@ class LoopbackOpenAIServer:
                         request = [Message("user", "", task_data=data)]
                         text = RuleBackend().generate(request, GenerationConfig()).text
                     self._send(200, _completion_body(text, model))
+                elif reply.kind == "error_body":
+                    failed = {"error": {"message": reply.content, "code": 502}}
+                    self._send(200, json.dumps(failed).encode())
                 elif reply.kind == "refusal":
                     self._send(200, _completion_body(None, model, refused=reply.content))
                 elif reply.kind == "answer":

@@ -573,8 +573,12 @@ class OpenAIBackend(LLMBackend):
                 # OpenAI's structured outputs: the model declined; its reason is the answer.
                 text, finish = declined, "refusal"
         except (AttributeError, IndexError, TypeError) as error:
+            # Gateways (OpenRouter) answer HTTP 200 with an error object when the model
+            # behind them failed: what it says is the reason.
+            said = getattr(response, "error", None)
+            detail = f": {self._scrub(json.dumps(said, default=str))[:300]}" if said else ""
             raise LLMTransientError(
-                f"malformed response: no choices ({type(error).__name__})"
+                f"malformed response: no choices ({type(error).__name__}){detail}"
             ) from None
         usage = getattr(response, "usage", None)
         prompt_tokens = getattr(usage, "prompt_tokens", None) if usage is not None else None

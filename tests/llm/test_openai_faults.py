@@ -19,6 +19,7 @@ from skyvln_eval.llm import (
 from skyvln_eval.llm.loopback import (
     LoopbackOpenAIServer,
     answer,
+    error_body,
     hang,
     malformed,
     status,
@@ -256,3 +257,15 @@ def test_a_retry_after_date_is_honoured() -> None:
         result = _client(server, delays).call("motion", HELLO, CONFIG)
     assert result.completion is not None
     assert len(delays) == 1 and 0.5 < delays[0] <= 2.0  # an HTTP date has whole seconds
+
+
+def test_a_gateways_error_object_in_a_200_is_a_retried_fault_that_says_why() -> None:
+    delays: list[float] = []
+    script = [error_body("upstream model overloaded"), answer('{"greeting": "hello"}')]
+    with LoopbackOpenAIServer(script) as server:
+        result = _client(server, delays).call("motion", HELLO, CONFIG)
+    assert result.completion is not None
+    failed, answered = result.records
+    assert failed.outcome == "failed" and "no choices" in (failed.error or "")
+    assert "upstream model overloaded" in (failed.error or "")  # what the gateway said
+    assert answered.outcome == "ok" and answered.attempt == 2
