@@ -299,7 +299,10 @@ def _what_to_do(found: object, expected: object) -> str:
         newer = False
     if newer:
         return "It was written by a newer skyvln-eval: upgrade skyvln-eval to read it."
-    return "Convert the episodes again with this version: `skyvln-eval convert ...`."
+    return (
+        "Write it again with this version: an episode log with `skyvln-eval convert ...`, "
+        "a run's logs by running it again into a new run directory."
+    )
 
 
 def episode_from_log(log: McapLog) -> Episode:

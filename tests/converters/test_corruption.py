@@ -93,8 +93,9 @@ def test_wrong_format_version(tmp_path: Path) -> None:
     with pytest.raises(FormatVersionError, match="upgrade skyvln-eval") as info:
         read_episode(path)
     assert str(path) in str(info.value) and "'2'" in str(info.value)
-    with pytest.raises(FormatVersionError, match="skyvln-eval convert"):
+    with pytest.raises(FormatVersionError, match="skyvln-eval convert") as old:
         read_episode(_write(tmp_path, _with_episode_metadata(format_version="0"), "old.mcap"))
+    assert "a run's logs by running it again into a new run directory" in str(old.value)
 
 
 def test_own_schema_version_is_checked(tmp_path: Path) -> None:
