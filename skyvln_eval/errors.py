@@ -150,7 +150,7 @@ def _field_names_at(model: Any, loc: Sequence[Any]) -> list[str]:
         fields = [m.model_fields[part] for m in current if part in m.model_fields]
         if fields:
             current = models_in(fields[0].annotation)
-        elif not isinstance(part, int | str) or not current:
+        elif not current:
             return []
         # else: an index or key into a list or mapping of the models in hand
     return list(current[0].model_fields) if current else []

@@ -2,7 +2,18 @@
 
 from __future__ import annotations
 
+import os
+import signal
 from pathlib import Path
+
+
+def as_a_terminal_job() -> None:
+    """``preexec_fn`` of a command started as a terminal starts one: Ctrl-C acts (a test
+    run started in the background, as CI scripts often are, ignores SIGINT, and a child
+    would inherit that and never see the signal), and the command has a process group of
+    its own, which a terminal's Ctrl-C reaches as a whole."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    os.setsid()
 
 
 def _state_and_parent(pid_dir: Path) -> tuple[str, int] | None:

@@ -5,9 +5,9 @@ one cut off at its token budget (``finish_reason == "length"``), one the server'
 filter stopped (``"content_filter"``, Azure OpenAI's and others'), or the model's refusal
 (OpenAI's structured outputs; the backend gives ``finish_reason == "refusal"``) is an
 ``invalid`` attempt: its record says why, and the call is asked again (``repair``): the
-invalid answer and the parser's reason go back to the model, at the repair temperature (higher
-than the first try's, so the same answer is not simply repeated) and, for a cut-off
-answer, with a larger budget. The exchange of every request (prompt, answer, error, the
+invalid answer and the parser's reason go back to the model, at the repair temperature
+(higher than the first try's, so the same answer is not simply repeated) and, for a
+cut-off answer, with a larger budget. The exchange of every request (prompt, answer, error, the
 records of its attempts with tokens, latency, decoding settings and finish reason) is
 kept for the run log.
 

@@ -48,7 +48,8 @@ _FIELDS: Final = (
     "finish_reason",
     "structured_output",
 )
-#: Fields added since the first cache format (entries written before have none).
+#: Fields added since the first cache format, all tuples (entries written before have
+#: none: empty).
 _LATER_FIELDS: Final = ("server_defaults",)
 
 
@@ -207,9 +208,9 @@ class ResponseCache:
             if not isinstance(payload, str) or _checksum(payload) != checksum:
                 raise ValueError("checksum mismatch")
             data = json.loads(payload)
-            values = {name: data[name] for name in _FIELDS}
-            unsent = tuple(data.get("server_defaults", ()))
-            return Completion(**values, server_defaults=unsent, cached=True)
+            values: dict[str, Any] = {name: data[name] for name in _FIELDS}
+            values |= {name: tuple(data.get(name, ())) for name in _LATER_FIELDS}
+            return Completion(**values, cached=True)
         except (ValueError, KeyError, TypeError) as error:
             log.warning(
                 "LLM cache %s: entry %s is corrupt (%s); ignored", self.path, key[:12], error

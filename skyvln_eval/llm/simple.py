@@ -121,9 +121,8 @@ class ReplayBackend(LLMBackend):
 
     ``of`` is the replayed registry spec (``"openai:gpt-4o"``), ``base_url`` its server
     and ``system_role`` and ``extra_body`` its settings, so the cache keys match the
-    original run's. The cache
-    lookup happens in :class:`~skyvln_eval.llm.client.LLMClient`; reaching
-    :meth:`generate` means a miss.
+    original run's. The cache lookup happens in
+    :class:`~skyvln_eval.llm.client.LLMClient`; reaching :meth:`generate` means a miss.
     """
 
     name = "replay"

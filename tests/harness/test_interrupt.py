@@ -19,17 +19,10 @@ from skyvln_eval.harness import RunConfig
 from skyvln_eval.harness.store import RESULTS_FILE, ResultStore
 from skyvln_eval.llm.loopback import LoopbackOpenAIServer
 from tests.conftest import REPO
-from tests.processes import alive, children
+from tests.processes import alive, as_a_terminal_job, children
 from tests.viewer.tools import skyvln_eval_command
 
 EPISODES = 30
-
-
-def _own_group_with_ctrl_c() -> None:
-    # Ctrl-C as in a terminal: the signal reaches the whole process group, and a test run
-    # started in the background (CI scripts often are) would have it ignored.
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-    os.setsid()
 
 
 def _rows(run_dir: Path) -> int:
@@ -50,7 +43,7 @@ def _running(
         text=True,
         cwd=REPO,
         env=env,
-        preexec_fn=_own_group_with_ctrl_c,
+        preexec_fn=as_a_terminal_job,
     )
     try:
         yield process

@@ -6,6 +6,8 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+import pytest
+
 from skyvln_eval.llm import GenerationConfig, LLMClient, Message, RetryPolicy, create_backend
 from skyvln_eval.llm.cache import ResponseCache
 from skyvln_eval.llm.loopback import LoopbackOpenAIServer, answer, status
@@ -97,8 +99,6 @@ def test_a_budget_refused_for_its_size_is_not_taken_for_an_unsupported_parameter
 
 
 def test_fields_of_the_users_go_in_every_request_and_in_the_cache_identity() -> None:
-    import pytest
-
     from skyvln_eval.errors import ConfigError
     from skyvln_eval.llm import LLMConfig, build_client
 

@@ -16,7 +16,7 @@ import pytest
 from skyvln_eval.viewer.logs import find_episode_logs
 from skyvln_eval.viewer.privacy import rerun_environment
 from tests.conftest import REPO
-from tests.processes import alive, children
+from tests.processes import alive, as_a_terminal_job, children
 from tests.viewer.tools import rerun_tool, run_skyvln_eval, skyvln_eval_command
 
 
@@ -106,10 +106,6 @@ def test_view_saves_one_episode_and_names_unknown_ones(flown_run: Path, tmp_path
     assert "no run MCAP for episode 'nope'" in bad.stderr
 
 
-def _sigint_default() -> None:
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
 def _start_view(flown_run: Path, scratch: Path) -> tuple[subprocess.Popen[str], str]:
     """``skyvln-eval view`` on the run's episode, and the URL it printed once serving; its
     temporary files go to ``scratch``."""
@@ -123,9 +119,7 @@ def _start_view(flown_run: Path, scratch: Path) -> tuple[subprocess.Popen[str], 
         text=True,
         cwd=REPO,
         env={**os.environ, "TMPDIR": str(scratch)},
-        # Ctrl-C as in a terminal: a test run started in the background (CI scripts often
-        # are) ignores SIGINT, and a child would inherit that and never see the signal.
-        preexec_fn=_sigint_default,
+        preexec_fn=as_a_terminal_job,
     )
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and process.stdout is not None:
