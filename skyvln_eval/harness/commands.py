@@ -21,7 +21,7 @@ def describe_report(report: RunReport) -> list[str]:
         f"{report.already_done} already done, {report.ran_now} run now in {report.wall_s:.1f} s"
         + (
             f" ({report.simulated_s / report.wall_s:.0f}x real time)"
-            if report.wall_s and report.simulated_s
+            if report.wall_s and report.simulated_s  # flown in dynamics mode, run now
             else ""
         )
     )

@@ -28,18 +28,21 @@ class RichRunProgress(RunProgress):
         self._bar: Progress | None = None
         self._task: TaskID | None = None
         self.successes = 0
+        self.scored = 0  # episodes with a ground truth to score against
         self.finished = 0
         self.errors = 0
         self.degraded = 0
         self.cost_usd: float | None = 0.0
 
     def _stats(self) -> str:
-        rate = 100.0 * self.successes / self.finished if self.finished else 0.0
+        rate = f"{100.0 * self.successes / self.scored:5.1f}%" if self.scored else "  n/a"
+        if self.finished and not self.scored:
+            rate = "n/a (no ground truth)"
         cost = "n/a" if self.cost_usd is None else f"${self.cost_usd:.4f}"
         health = (f", {self.errors} error" if self.errors else "") + (
             f", {self.degraded} degraded" if self.degraded else ""
         )
-        return f"SR {rate:5.1f}% | LLM {cost}{health}"
+        return f"SR {rate} | LLM {cost}{health}"
 
     def start(self, description: str, total: int, already_done: int) -> None:
         self._bar = Progress(
@@ -58,9 +61,10 @@ class RichRunProgress(RunProgress):
             description, total=total, completed=already_done, stats=self._stats()
         )
 
-    def episode_done(self, result: EpisodeResult, success: bool) -> None:
+    def episode_done(self, result: EpisodeResult, success: bool | None) -> None:
         self.finished += 1
-        self.successes += int(success)
+        self.scored += int(success is not None)
+        self.successes += int(bool(success))
         self.errors += int(result.status == "error")
         self.degraded += int(result.status == "degraded")
         costs = [c.cost_usd for c in result.llm_calls]

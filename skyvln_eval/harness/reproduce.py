@@ -18,10 +18,12 @@ Interrupted, it resumes: finished episodes are not run again.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import pandas as pd
 
@@ -55,16 +57,23 @@ HEALTH_METRICS = (
     "llm_call_failure_rate",
     "wall_s",
 )
-CONTROL_METRICS = (
-    "collided",
-    "min_clearance_m",
-    "solve_failures",
-    "rmse_x_m",
-    "rmse_y_m",
-    "rmse_z_m",
-    "solve_time_p50_ms",
-    "solve_time_max_ms",
+#: How a table column combines its episodes' values.
+Aggregate = Literal["mean", "min", "max", "share"]
+#: The control table's columns: (score column, header, how episodes are combined). A
+#: header says how: a mean over episodes of their minimum clearance would hide the one
+#: that collided, so the worst episode has its own column.
+CONTROL_COLUMNS: tuple[tuple[str, str, Aggregate], ...] = (
+    ("collided", "collided episodes/%", "share"),
+    ("min_clearance_m", "min clearance/m, worst episode", "min"),
+    ("min_clearance_m", "min clearance/m, episode mean", "mean"),
+    ("solve_failures", "solve failures per episode", "mean"),
+    ("rmse_x_m", "RMSE x/m, episode mean", "mean"),
+    ("rmse_y_m", "RMSE y/m, episode mean", "mean"),
+    ("rmse_z_m", "RMSE z/m, episode mean", "mean"),
+    ("solve_time_mean_ms", "solve time/ms, episode mean", "mean"),
+    ("solve_time_p95_ms", "solve time p95/ms, worst episode", "max"),
 )
+CONTROL_METRICS = tuple(dict.fromkeys(metric for metric, _, _ in CONTROL_COLUMNS))
 COST_METRICS = (
     "llm_calls",
     "llm_failed_calls",
@@ -144,22 +153,32 @@ def _write_tables(
     table2_rows: list[str],
     conventions: MetricConventions,
     tables_dir: Path,
+    withheld: Sequence[str] = (),
 ) -> dict[str, Path]:
     files: dict[str, Path] = {}
     table1_rows, table1_notes = table1
     setting = [setting_note(plan)]
+    # The ground-truth replay is a reference: it reaches every goal and is never "best".
+    references = {
+        label
+        for label, system in zip(table1_rows, plan.table1.systems, strict=True)
+        if system.agent.get("name") == "ground_truth"
+    }
     for name, spec, rows, notes in (
         ("table1", TABLE_I, table1_rows, [*setting, *table1_notes]),
         ("table2", TABLE_II, table2_rows, setting),
     ):
-        table = build_table(summary, spec, conventions, rows=rows, notes=notes)
+        shape = functools.partial(
+            build_table, rows=rows, notes=notes, unranked=references, withheld=withheld
+        )
+        table = shape(summary, spec, conventions)
         for suffix, render in (("md", to_markdown), ("tex", to_latex), ("csv", to_csv)):
             path = tables_dir / f"{name}.{suffix}"
             atomic_write_text(path, render(table))
             files[f"{name}.{suffix}"] = path
         if "ci_low" in summary.columns:
             path = tables_dir / f"{name}_ci.md"
-            with_ci = build_table(summary, spec, conventions, rows=rows, show_ci=True, notes=notes)
+            with_ci = shape(summary, spec, conventions, show_ci=True)
             atomic_write_text(path, to_markdown(with_ci))
             files[f"{name}_ci.md"] = path
     return files
@@ -190,15 +209,19 @@ def _table1_rows(runs: Sequence[PlannedRun], plan: ReproducePlan) -> tuple[list[
 
 
 def _metric_table(
-    scores: pd.DataFrame, systems: Sequence[str], metrics: Sequence[str], title: str
+    scores: pd.DataFrame,
+    systems: Sequence[str],
+    columns: Sequence[tuple[str, str, Aggregate]],
+    title: str,
 ) -> str:
-    present = [m for m in metrics if m in scores.columns]
+    """A Markdown table of ``columns`` (score column, header, how its episodes combine)."""
+    present = [c for c in columns if c[0] in scores.columns]
     sel = scores[scores["system"].isin(systems)]
     unknown_if_any = UNKNOWN_IF_ANY_UNKNOWN
     lines = [
         f"### {title}",
         "",
-        "| system | episodes | " + " | ".join(present) + " |",
+        "| system | episodes | " + " | ".join(header for _, header, _ in present) + " |",
         "|---|---|" + "---|" * len(present),
     ]
     for system in systems:
@@ -206,12 +229,20 @@ def _metric_table(
         if group.empty:
             continue
         cells = []
-        for metric in present:
-            values = group[metric].dropna()
+        for metric, _, how in present:
+            values = group[metric].dropna().astype(float)
             if metric in unknown_if_any and len(values) < len(group):
                 cells.append("n/a")  # some episode's value is unknown: so is the mean
+            elif not len(values):
+                cells.append("-")
             else:
-                cells.append(f"{values.mean():.3f}" if len(values) else "-")
+                value = {
+                    "mean": values.mean,
+                    "min": values.min,
+                    "max": values.max,
+                    "share": lambda v=values: 100.0 * v.mean(),
+                }[how]()
+                cells.append(f"{value:.3f}")
         lines.append(f"| {system} | {len(group)} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
@@ -347,7 +378,11 @@ def reproduce(
         results += _labelled(planned, stored, "table1") + _labelled(planned, stored, "table2")
         table2_rows += [label for table, label in planned.rows if table == "table2"]
     conventions = MetricConventions()
-    scores = score_results(results, conventions)
+    # Episodes whose ground truth is withheld ran (their routes are in the run logs) but
+    # cannot be scored: their splits show "withheld" (all of them: score_results says why).
+    withheld = sorted({r.split for r in results if not r.has_ground_truth})
+    scored = [r for r in results if r.has_ground_truth]
+    scores = score_results(scored or results, conventions)
     metrics = dict.fromkeys((*TABLE_METRICS, *HEALTH_METRICS, *CONTROL_METRICS, *COST_METRICS))
     summary = summarise(scores, [m for m in metrics if m in scores], plan.resamples, seed=plan.seed)
     write_scores(out_dir / "scores" / "scores.csv", scores, conventions)
@@ -359,7 +394,9 @@ def reproduce(
     tables_dir = out_dir / "tables"
     table1 = _table1_rows(runs, plan)
     featured = _featured_row(plan, table1[0])
-    report.files |= _write_tables(summary, plan, table1, table2_rows, conventions, tables_dir)
+    report.files |= _write_tables(
+        summary, plan, table1, table2_rows, conventions, tables_dir, withheld
+    )
     table1_rows = table1[0]
     flown = [
         label
@@ -368,12 +405,15 @@ def reproduce(
     ]
     atomic_write_text(
         tables_dir / "control.md",
-        _metric_table(scores, flown, CONTROL_METRICS, "Safety and control (flown systems)"),
+        _metric_table(scores, flown, CONTROL_COLUMNS, "Safety and control (flown systems)"),
     )
     atomic_write_text(
         tables_dir / "cost.md",
         _metric_table(
-            scores, table2_rows, COST_METRICS, f"LLM cost per episode ({plan.table2.split})"
+            scores,
+            table2_rows,
+            [(metric, metric, "mean") for metric in COST_METRICS],
+            f"LLM cost per episode, mean over episodes ({plan.table2.split})",
         ),
     )
     report.files |= {"control.md": tables_dir / "control.md", "cost.md": tables_dir / "cost.md"}

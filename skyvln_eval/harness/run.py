@@ -118,6 +118,7 @@ class RunReport:
     ``statuses`` counts the latest row of every expected episode by status (``ok``,
     ``degraded``, ``error``); ``errors`` holds the first line of each error episode's error.
     ``stopped`` says why the run stopped before its end (e.g. refused credentials).
+    ``simulated_s`` is the time flown by the episodes run now (dynamics mode only).
     """
 
     run_dir: Path
@@ -226,13 +227,17 @@ class Progress:
 
     def start(self, description: str, total: int, already_done: int) -> None: ...
 
-    def episode_done(self, result: EpisodeResult, success: bool) -> None: ...
+    def episode_done(self, result: EpisodeResult, success: bool | None) -> None:
+        """``success`` is ``None`` for an episode that cannot be scored (no ground truth)."""
 
     def finish(self, reports: Sequence[RunReport]) -> None: ...
 
 
-def _success(result: EpisodeResult) -> bool:
-    if len(result.visited_views) == 0 or len(result.gt_path_corners) < 2:
+def _success(result: EpisodeResult) -> bool | None:
+    """Whether the episode reached its goal; ``None`` when its ground truth is withheld."""
+    if not result.has_ground_truth:
+        return None
+    if len(result.visited_views) == 0:
         return False
     return official_success(result.visited_views[-1], result.gt_path_corners[-1])
 
@@ -311,9 +316,13 @@ def _finish(job: RunJob, wall_s: float) -> None:
         for key in report.expected
         if key in results and results[key].status == "error"
     }
-    report.simulated_s = sum(
-        float(results[k].extra.get("simulated_s", 0.0)) for k in report.expected if k in results
-    )
+    withheld = [k for k in report.expected if k in results and not results[k].has_ground_truth]
+    if withheld:
+        splits = ", ".join(sorted({split for split, _ in withheld}))
+        report.notes.append(
+            f"{len(withheld)} episode(s) of {splits} have no ground truth (withheld, as in the "
+            "real AVDN test_unseen): their routes are recorded but cannot be scored"
+        )
     report.structured_output = structured_levels(results.values())
     report.server_defaults = unsent_parameters(results.values())
     atomic_write_json(job.run_dir / REPORT_FILE, report.to_json(), indent=1)
@@ -364,6 +373,8 @@ def _execute_jobs(
         )
         job.store.append(result)
         job.report.ran_now += 1
+        if job.config.mode == "dynamics":  # flown time; an official step's second is nominal
+            job.report.simulated_s += float(result.extra.get("simulated_s", 0.0))
         progress.episode_done(result, _success(result))
         if "fatal" in result.extra:  # e.g. refused credentials: no later episode can succeed
             job.report.stopped = str(result.extra["fatal"])

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from skyvln_eval.agent.base import Agent
 from skyvln_eval.agent.config import LLM_AGENTS, build_agent
@@ -275,7 +276,7 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
             system=config.system,
             status=status,
             visited_views=np.stack(rollout.views),
-            gt_path_corners=episode.gt_path_corners,
+            gt_path_corners=ground_truth(episode),
             error=error,
             control=control,
             control_log=control_log,
@@ -289,6 +290,14 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
         error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
         fatal = stops_the_run(exc)
         return failed_result(config, task, episode, error, time.perf_counter() - started, fatal)
+
+
+def ground_truth(episode: Episode) -> NDArray[np.float64]:
+    """The route a result is scored against: the episode's, or its start view alone when
+    the ground truth is withheld (the real AVDN test_unseen; a multi-round episode would
+    otherwise concatenate each round's start into something that looks like a route)."""
+    corners = episode.gt_path_corners
+    return corners if episode.has_ground_truth else corners[:1]
 
 
 def failed_result(
@@ -318,7 +327,7 @@ def failed_result(
         system=config.system,
         status="error",
         visited_views=np.zeros((0, 4, 2)),
-        gt_path_corners=episode.gt_path_corners,
+        gt_path_corners=ground_truth(episode),
         error=error,
         extra=extra,
     )

@@ -109,7 +109,10 @@ def write_summary_page(
     figures = sorted(name for name in report.files if name.endswith((".png", ".pdf")))
     wall = report.reports[0].wall_s if report.reports else 0.0  # one pass ran every run
     simulated = sum(r.simulated_s for r in report.reports)
+    errors = sum(r.statuses.get("error", 0) for r in report.reports)
     status = "complete" if report.complete else "INCOMPLETE: see the runs below"
+    if errors:  # every episode has a row, but some rows are failures of the run
+        status += f", {errors} episode(s) ended in error (the tables mark them)"
     rule_note = (
         "Rows marked *not an LLM* (and Table I rows marked with a dagger) use offline "
         "stand-ins: the rule-based backend reads the requests' task data (the prompt's content "
@@ -120,8 +123,8 @@ def write_summary_page(
         [
             f"# Reproduce: plan `{plan.name}`",
             "",
-            f"Status: {status}. {int(scores.shape[0])} scored episode rows; episodes ran in "
-            f"{wall:.0f} s of wall time for {simulated:.0f} s of simulated flight; "
+            f"Status: {status}. {int(scores.shape[0])} scored episode rows; the episodes run now "
+            f"took {wall:.0f} s of wall time for {simulated:.0f} s of simulated flight; "
             f"everything took {report.wall_s:.0f} s.",
             "",
             _status_line(report),

@@ -142,7 +142,8 @@ class EpisodeResult:
     - ``visited_views``: ``(K, 4, 2)``, the start view first, in visiting order; ``K = 0``
       only when the episode failed before its first view.
     - ``gt_path_corners``: ``(N, 4, 2)``, ``N >= 1``, the ground truth (start first).
-      ``N = 1`` gives ``D_net = 0`` (SPL 0), as for fixtures scored against their start.
+      ``N = 1`` is the start view alone: the ground truth is withheld (the real AVDN
+      test_unseen), and the episode cannot be scored (:attr:`has_ground_truth`).
     - ``system``: the run / configuration label shown in tables (e.g. ``"SkyVLN full"``,
       ``"rule-based backend"``); rows are labelled by it.
     - ``control_log``: where the episode's control log (parquet) lives, relative to the
@@ -166,6 +167,11 @@ class EpisodeResult:
     decisions: int = 0
     module_failures: tuple[ModuleFailure, ...] = ()
     extra: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def has_ground_truth(self) -> bool:
+        """Whether there is a route to score against (more than the start view)."""
+        return len(self.gt_path_corners) >= 2
 
     @property
     def fallback_decisions(self) -> int:

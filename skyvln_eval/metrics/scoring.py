@@ -13,7 +13,7 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
-from skyvln_eval.errors import MetricInputError
+from skyvln_eval.errors import MetricInputError, NoGroundTruthError
 from skyvln_eval.metrics.batch import pack_views
 from skyvln_eval.metrics.conventions import MetricConventions
 from skyvln_eval.metrics.cost import COST_COLUMNS, episode_costs
@@ -65,13 +65,19 @@ def score_results(
 ) -> pd.DataFrame:
     """Every per-episode metric of ``results``, one row each, in input order.
 
-    Raises :class:`MetricInputError` on empty input, and
-    :class:`~skyvln_eval.errors.ResultRecordError` on duplicate episodes.
+    Raises :class:`MetricInputError` on empty input,
+    :class:`~skyvln_eval.errors.ResultRecordError` on duplicate episodes and
+    :class:`~skyvln_eval.errors.NoGroundTruthError` on episodes whose ground truth is
+    withheld (scored, they would be failures with a negative progress).
     """
     conventions = conventions or MetricConventions()
     if not results:
         raise MetricInputError("no episode results to score")
     check_unique(results)
+    withheld = [r for r in results if not r.has_ground_truth]
+    if withheld:
+        split = withheld[0].split
+        raise NoGroundTruthError(split, [r.episode_id for r in withheld if r.split == split])
     gt = pack_views([r.gt_path_corners for r in results])
     visited = pack_views(
         [r.visited_views for r in results], stand_ins=[r.gt_path_corners[0] for r in results]

@@ -9,9 +9,17 @@ caller), in the order given. Column groups are splits, each with a few metrics:
 - :data:`TABLE_II`: Unseen Testing x SPL, SR, NE (rows are LLM backends).
 
 In every column the best value is bold and the second best underlined (higher is better
-except NE); ranks use the displayed (rounded) values, so tied values share a mark, and
-a column where every row shows the same value has no mark. Every rendering
-carries the metric conventions (a comment in LaTeX and CSV, a footnote in Markdown).
+except NE, errors, costs and times); ranks use the displayed (rounded) values, so tied
+values share a mark, a column where every row shows the same value has no mark, and the
+second best is marked only when it is not also the worst. Reference rows (an oracle) and
+cells whose every episode ended in error are never ranked.
+
+A failure never reads as a score: a path metric's cell (SR, SPL, NE, ...) whose every
+episode ended in error shows ``error``, not the 0 its episodes score as failures; one where
+some did carries ``⋄`` and a note says how many (the health columns, Error/% and the like,
+show their numbers); a split whose ground truth is withheld shows ``withheld``.
+Every rendering carries the metric conventions (a comment in LaTeX and CSV, a footnote
+in Markdown).
 """
 
 from __future__ import annotations
@@ -19,7 +27,7 @@ from __future__ import annotations
 import csv
 import io
 import math
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 
 import pandas as pd
@@ -91,6 +99,31 @@ class Cell:
     ci_low: float | None = None
     ci_high: float | None = None
     rank: int | None = None  # 1 = best, 2 = second best, None = neither
+    episodes: int = 0  # how many episodes the mean is over (0: not known)
+    errors: int = 0  # how many of them ended in error (scored as failures)
+
+    @property
+    def all_errors(self) -> bool:
+        """Every episode ended in error: the mean only repeats the failures' score."""
+        return self.episodes > 0 and self.errors == self.episodes
+
+
+#: The marker of a cell where some episodes ended in error.
+SOME_ERRORS = "⋄"
+#: Columns that describe the run's health, not the agent's path: measured whatever the
+#: episodes' status, so they always show their numbers (a dead endpoint's Error/% is 100).
+HEALTH_METRICS = frozenset(
+    {
+        "status_ok",
+        "status_degraded",
+        "status_error",
+        "fallback_rate",
+        "llm_call_failure_rate",
+        "llm_cost_usd",
+        "llm_latency_s",
+        "wall_s",
+    }
+)
 
 
 @dataclass(frozen=True)
@@ -104,6 +137,7 @@ class Table:
     digits: int
     show_ci: bool
     notes: tuple[str, ...] = ()
+    withheld: tuple[str, ...] = ()  # splits whose ground truth is withheld (not scored)
 
     @property
     def columns(self) -> list[tuple[str, str]]:
@@ -114,14 +148,11 @@ class Table:
 
 
 def _ranks(values: dict[str, float], lower_is_better: bool, digits: int) -> dict[str, int]:
+    """Best (1) and second best (2) by the shown values; no second when it is the worst."""
     shown = {row: round(v, digits) for row, v in values.items() if not math.isnan(v)}
     distinct = sorted(set(shown.values()), reverse=not lower_is_better)
-    ranks = {}
-    for row, v in shown.items():
-        position = distinct.index(v) + 1
-        if position <= 2 and len(distinct) > 1:
-            ranks[row] = position
-    return ranks
+    marked = 2 if len(distinct) > 2 else 1 if len(distinct) == 2 else 0
+    return {row: distinct.index(v) + 1 for row, v in shown.items() if v in distinct[:marked]}
 
 
 def build_table(
@@ -133,9 +164,15 @@ def build_table(
     digits: int = 2,
     show_ci: bool = False,
     notes: Sequence[str] = (),
+    *,
+    unranked: Collection[str] = (),
+    withheld: Collection[str] = (),
 ) -> Table:
     """Arrange a summary into ``spec``'s shape. ``rows``: systems in order (default: all);
-    ``notes``: footnotes every rendering carries (e.g. what a row marker means)."""
+    ``notes``: footnotes every rendering carries (e.g. what a row marker means);
+    ``unranked``: reference rows never marked best (an oracle); ``withheld``: splits whose
+    ground truth is withheld, shown as such. Error counts come from the summary's
+    ``status_error`` rows, where it has them."""
     sel = summary[summary["mode"] == mode]
     if sel.empty:
         raise MetricInputError(f"the summary has no {mode!r} episodes")
@@ -143,11 +180,12 @@ def build_table(
         raise MetricInputError("confidence intervals were asked for but the summary has none")
     row_names = tuple(rows) if rows else tuple(dict.fromkeys(sel["system"]))
     unknown = [r for r in row_names if r not in set(sel["system"])]
-    if unknown:
+    if unknown and not withheld:  # a row that ran only withheld splits has no scores
         raise MetricInputError(
             f"no scores for system(s) {unknown}; have {sorted(set(sel['system']))}"
         )
     index = sel.set_index(["system", "split", "metric"])
+    errors = _error_counts(index, row_names, [split for split, _ in spec.groups])
     cells: dict[str, dict[tuple[str, str], Cell | None]] = {r: {} for r in row_names}
     for split, _ in spec.groups:
         for metric, _ in spec.metrics:
@@ -155,7 +193,16 @@ def build_table(
             for row in row_names:
                 key = (row, split, metric)
                 present[row] = index.loc[key] if key in index.index else None
-            means = {r: float(v["mean"]) for r, v in present.items() if v is not None}
+            episodes, failed = {}, {}
+            for row in row_names:
+                # A path metric scores an error episode as a failure; health ones measure it.
+                known = metric not in HEALTH_METRICS
+                episodes[row], failed[row] = errors.get((row, split), (0, 0)) if known else (0, 0)
+            means = {
+                r: float(v["mean"])
+                for r, v in present.items()
+                if v is not None and r not in unranked and not 0 < episodes[r] == failed[r]
+            }
             ranks = _ranks(means, metric in LOWER_IS_BETTER, spec.digits_of(metric, digits))
             for row, v in present.items():
                 if v is None:
@@ -163,19 +210,69 @@ def build_table(
                     continue
                 low = float(v["ci_low"]) if show_ci else None
                 high = float(v["ci_high"]) if show_ci else None
-                cells[row][(split, metric)] = Cell(float(v["mean"]), low, high, ranks.get(row))
-    return Table(spec, row_names, cells, conventions, digits, show_ci, tuple(notes))
+                cells[row][(split, metric)] = Cell(
+                    float(v["mean"]), low, high, ranks.get(row), episodes[row], failed[row]
+                )
+    titles = dict(spec.groups)
+    notes = [*notes, *_error_notes(errors, row_names, spec, titles)]
+    if unranked:
+        shown = ", ".join(r for r in row_names if r in unranked)
+        notes.append(f"Not ranked (a reference, not a competitor): {shown}.")
+    shown_withheld = tuple(split for split, _ in spec.groups if split in withheld)
+    if shown_withheld:
+        names = ", ".join(titles[split] for split in shown_withheld)
+        notes.append(f"withheld: the ground truth of {names} is withheld, so it is not scored.")
+    return Table(spec, row_names, cells, conventions, digits, show_ci, tuple(notes), shown_withheld)
 
 
-def _number(cell: Cell | None, digits: int, with_ci: bool) -> str:
+def _error_counts(
+    index: pd.DataFrame, rows: Sequence[str], splits: Sequence[str]
+) -> dict[tuple[str, str], tuple[int, int]]:
+    """Per (row, split) with a ``status_error`` summary row: (episodes, episodes in error)."""
+    counts = {}
+    for row in rows:
+        for split in splits:
+            key = (row, split, "status_error")
+            if key in index.index:
+                v = index.loc[key]
+                n = int(v["n"])
+                counts[(row, split)] = (n, round(float(v["mean"]) / 100.0 * n))
+    return counts
+
+
+def _error_notes(
+    errors: dict[tuple[str, str], tuple[int, int]],
+    rows: Sequence[str],
+    spec: TableSpec,
+    titles: dict[str, str],
+) -> list[str]:
+    """What ``error`` and ``‡`` mean, with the counts, when some cell has errors."""
+    some = [
+        f"{row} on {titles[split]}: {failed} of {n}"
+        for row in rows
+        for split, _ in spec.groups
+        for n, failed in [errors.get((row, split), (0, 0))]
+        if failed
+    ]
+    if not some:
+        return []
+    return [
+        f"{SOME_ERRORS} some episodes ended in error (no usable LLM answer, or the episode "
+        f"raised) and count as failures; 'error': all of them did: {'; '.join(some)}."
+    ]
+
+
+def _number(cell: Cell | None, digits: int, with_ci: bool, withheld: bool = False) -> str:
     if cell is None:
-        return "-"
+        return "withheld" if withheld else "-"
+    if cell.all_errors:
+        return "error"  # its episodes score as failures: a 0 here would read as a result
     if math.isnan(cell.mean):
         return "n/a"  # unknown (e.g. a cost without a price), never shown as a number
     text = f"{cell.mean:.{digits}f}"
     if with_ci and cell.ci_low is not None:
         text += f" [{cell.ci_low:.{digits}f}, {cell.ci_high:.{digits}f}]"
-    return text
+    return text + (SOME_ERRORS if cell.errors else "")
 
 
 def _arrow(metric: str) -> str:
@@ -197,7 +294,8 @@ def to_markdown(table: Table) -> str:
         out = [row.replace("|", "\\|")]
         for column in table.columns:
             cell = table.cells[row][column]
-            text = _number(cell, table.digits_of(column), table.show_ci)
+            withheld = column[0] in table.withheld
+            text = _number(cell, table.digits_of(column), table.show_ci, withheld)
             if cell is not None and cell.rank == 1:
                 text = f"**{text}**"
             elif cell is not None and cell.rank == 2:
@@ -216,7 +314,7 @@ def to_markdown(table: Table) -> str:
 
 _LATEX_SPECIALS = {"&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_", "{": r"\{",
                    "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}",
-                   "\\": r"\textbackslash{}"}  # fmt: skip
+                   "\\": r"\textbackslash{}", SOME_ERRORS: r"$\diamond$"}  # fmt: skip
 
 
 def latex_escape(text: str) -> str:
@@ -260,12 +358,18 @@ def to_latex(table: Table) -> str:
         for column in table.columns:
             cell = table.cells[row][column]
             digits = table.digits_of(column)
-            text = _number(cell, digits, False)
+            text = _number(cell, digits, False, column[0] in table.withheld)
+            text = text.replace(SOME_ERRORS, r"$^\diamond$")
             if cell is not None and cell.rank == 1:
                 text = f"\\textbf{{{text}}}"
             elif cell is not None and cell.rank == 2:
                 text = f"\\underline{{{text}}}"
-            if table.show_ci and cell is not None and cell.ci_low is not None:
+            if (
+                table.show_ci
+                and cell is not None
+                and cell.ci_low is not None
+                and not cell.all_errors
+            ):
                 low, high = f"{cell.ci_low:.{digits}f}", f"{cell.ci_high:.{digits}f}"
                 text += f"\\,{{\\scriptsize[{low}, {high}]}}"
             out.append(text)
@@ -292,7 +396,9 @@ def to_csv(table: Table) -> str:
         for column in table.columns:
             cell = table.cells[row][column]
             if cell is None:
-                out.append("")
+                out.append("withheld" if column[0] in table.withheld else "")
+            elif cell.all_errors:
+                out.append("error")
             else:  # unknown means (pandas reads "n/a" back as NaN)
                 out.append("n/a" if math.isnan(cell.mean) else repr(cell.mean))
             if table.show_ci:

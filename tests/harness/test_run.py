@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -59,6 +60,9 @@ def test_official_run_writes_results_and_run_logs_then_resumes_nothing(
     assert log.topic(t.TOPIC_LLM_EXCHANGE) and log.topic(t.TOPIC_RUN_VIEWS)
     assert log.metadata[t.RUN_METADATA]["system"] == "test system"
 
+    # An official step's second is nominal: no "x real time" claim (nor on resume).
+    first = json.loads((run_dir / "run.json").read_text())
+    assert first["simulated_s"] == 0.0
     again = run(config, run_dir)
     assert again.ran_now == 0 and again.already_done == 4
     assert len(read_results(run_dir / RESULTS_FILE)) == 4
@@ -78,6 +82,8 @@ def test_dynamics_run_flies_with_a_controller_and_logs_it(
     assert result.control.controller == "nmpc" and result.control.scenario == "crossing"
     assert result.control_log is not None and (run_dir / result.control_log).is_file()
     assert result.extra["simulated_s"] > 5.0
+    assert report.simulated_s == result.extra["simulated_s"]  # flown now
+    assert run(config, run_dir).simulated_s == 0.0  # nothing flown on resume
     log = read_log(run_dir / "logs" / "val_unseen" / f"{result.episode_id}.mcap")
     assert len(log.topic(t.TOPIC_CONTROL_STEP)) == result.control.steps
     assert log.topic(t.TOPIC_OBSTACLES) and log.topic(t.TOPIC_AGENT_TARGET)

@@ -9,7 +9,7 @@ import pytest
 import shapely
 
 from skyvln_eval.avdn import METERS_PER_DEGREE, hull_iou, view_from_pose
-from skyvln_eval.errors import MetricInputError, ResultRecordError
+from skyvln_eval.errors import MetricInputError, NoGroundTruthError, ResultRecordError
 from skyvln_eval.metrics import MetricConventions, score_results, sparse_hull_iou
 from skyvln_eval.metrics.official import official_success
 from tests.metrics.helpers import LAT0, LNG0, box, result, square
@@ -149,7 +149,7 @@ def test_gp_may_be_negative_and_legacy_gp_uses_the_second_last_view() -> None:
 def test_d_net_zero_gives_spl_zero_even_on_success() -> None:
     g0 = square(0, 0)
     scores = score_results(
-        [result([g0], [g0]), result([g0], [g0, square(50, 0), g0], episode_id="b")]
+        [result([g0], [g0, g0]), result([g0], [g0, square(50, 0), g0], episode_id="b")]
     )
     assert scores.success.tolist() == [1.0, 1.0]
     assert scores.d_net_m.tolist() == [0.0, 0.0]
@@ -227,3 +227,11 @@ def test_the_iou_upper_bound_holds_and_oracle_success_matches_a_dense_computatio
     scores = score_results(results)
     assert scores.oracle_success.tolist() == dense
     assert 0 < sum(dense) < len(dense)
+
+
+def test_a_result_without_ground_truth_is_refused_not_scored_as_a_failure() -> None:
+    g0, g1 = square(0, 0), square(100, 0)
+    withheld = result([g0, g1], [g0], episode_id="w")  # the start view alone
+    assert not withheld.has_ground_truth
+    with pytest.raises(NoGroundTruthError, match=r"no ground truth for 1 episode\(s\) \(w"):
+        score_results([result([g0, g1], [g0, g1]), withheld])

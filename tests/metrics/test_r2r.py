@@ -101,7 +101,8 @@ def test_spl_uses_the_gt_path_length_and_is_zero_for_a_zero_length_reference() -
     row = score_results([result(path, ref)]).iloc[0]
     assert row.r2r_spl == pytest.approx(1.0)  # 140 / max(100, 140)
     assert row.spl == pytest.approx(1.0)  # official: D_net / max(L_pred, D_net)
-    still = score_results([result([square(0, 0)], [square(0, 0)])]).iloc[0]
+    # A route that ends where it starts (a start view alone means no ground truth).
+    still = score_results([result([square(0, 0)], [square(0, 0), square(0, 0)])]).iloc[0]
     assert still.r2r_sr == 1.0 and still.r2r_spl == 0.0
 
 
@@ -131,7 +132,7 @@ view = st.builds(
     episodes=st.lists(
         st.tuples(
             st.lists(view, min_size=0, max_size=6),
-            st.lists(view, min_size=1, max_size=6),
+            st.lists(view, min_size=2, max_size=6),  # a ground truth: start and more
             st.sampled_from(["ok", "error"]),
             st.booleans(),
         ),

@@ -60,7 +60,8 @@ def test_best_is_bold_and_second_underlined_per_column() -> None:
     assert cell["w/o TMA & co_1"][("val_seen", "spl")].rank == 2
     assert cell["Random"][("val_seen", "spl")].rank is None
     assert cell["w/o TMA & co_1"][("test_unseen", "spl")] is None
-    assert cell["Random"][("test_unseen", "spl")].rank == 2  # two rows ran it
+    # Two rows ran it: the other is the worst too, and is not marked second best.
+    assert cell["Random"][("test_unseen", "spl")].rank is None
     md = to_markdown(table)
     assert (
         "| Ours Full | **14.70** | **17.30** | <u>16.62</u> | **20.44** | **28.11** | **42.37** |"
@@ -77,7 +78,7 @@ def test_lower_is_better_for_ne_and_ties_share_a_rank() -> None:
     ] = 42.371
     table = build_table(data, TABLE_II, MetricConventions(), rows=["Ours Full", "Random"], digits=2)
     assert table.cells["Ours Full"][("test_unseen", "ne_m")].rank == 1
-    assert table.cells["Random"][("test_unseen", "ne_m")].rank == 2
+    assert table.cells["Random"][("test_unseen", "ne_m")].rank is None  # second and worst
     # 42.37 is shown for both rows: when every row ties, nothing is marked.
     assert table.cells["Random"][("test_unseen", "success")].rank is None
     assert table.cells["Ours Full"][("test_unseen", "success")].rank is None
@@ -89,7 +90,8 @@ def test_lower_is_better_for_ne_and_ties_share_a_rank() -> None:
         tied["Random"][("val_seen", "spl")].rank == 1
         and tied["Ours Full"][("val_seen", "spl")].rank == 1
     )
-    assert tied["w/o TMA & co_1"][("val_seen", "spl")].rank == 2
+    # Two values shown: the lower is both second best and the worst, so it is not marked.
+    assert tied["w/o TMA & co_1"][("val_seen", "spl")].rank is None
     assert "NE/m ↓" in to_markdown(table) and r"$\downarrow$" in to_latex(table)
 
 
@@ -112,3 +114,54 @@ def test_rows_follow_the_caller_and_unknown_rows_fail() -> None:
     assert table.rows == ("Random", "Ours Full")
     with pytest.raises(MetricInputError, match="GPT-5"):
         build_table(summary(), TABLE_I, MetricConventions(), rows=["GPT-5"])
+
+
+def with_errors(data: pd.DataFrame, errors: dict[tuple[str, str], float]) -> pd.DataFrame:
+    """``data`` with status_error rows (% of 100 episodes) for some (system, split)."""
+    rows = [
+        {"system": system, "split": split, "mode": "andh", "metric": "status_error",
+         "unit": "%", "n": 100, "mean": share}
+        for (system, split), share in errors.items()
+    ]  # fmt: skip
+    return pd.concat([data, pd.DataFrame(rows)], ignore_index=True)
+
+
+def test_a_cell_whose_every_episode_failed_says_error_and_is_not_ranked() -> None:
+    # Ours Full's val_seen episodes all ended in error (a dead LLM endpoint): its scores
+    # are those of failures; some of Random's val_unseen ones did.
+    data = with_errors(summary(), {("Ours Full", "val_seen"): 100.0, ("Random", "val_unseen"): 3.0})
+    table = build_table(data, TABLE_I, MetricConventions())
+    dead = table.cells["Ours Full"][("val_seen", "spl")]
+    assert dead.all_errors and dead.rank is None
+    # The best left is w/o TMA; Random is the worst of the two and not marked.
+    assert table.cells["w/o TMA & co_1"][("val_seen", "spl")].rank == 1
+    md = to_markdown(table)
+    assert "| Ours Full | error | error | <u>16.62</u> |" in md
+    assert "| Random | 0.50 | 1.60 | 0.20⋄ | 1.00⋄ |" in md
+    assert "Random on Unseen Validation: 3 of 100; Ours Full on Seen Validation: 100 of 100" in md
+    rows = list(csv.reader(io.StringIO(to_csv(table)), delimiter=","))
+    assert rows[-1][:3] == ["Ours Full", "error", "error"]
+    latex = to_latex(table)
+    assert r"0.20$^\diamond$" in latex and "error & error" in latex
+
+
+def test_reference_rows_are_not_ranked_and_withheld_splits_say_so() -> None:
+    data = summary()
+    data = data[data.split != "test_unseen"]
+    oracle = data[data.system == "Ours Full"].assign(system="GT replay (oracle)", mean=100.0)
+    data = pd.concat([data, oracle], ignore_index=True)
+    table = build_table(
+        data,
+        TABLE_I,
+        MetricConventions(),
+        unranked={"GT replay (oracle)"},
+        withheld={"test_unseen"},
+    )
+    assert table.cells["GT replay (oracle)"][("val_seen", "spl")].rank is None
+    assert table.cells["Ours Full"][("val_seen", "spl")].rank == 1
+    md = to_markdown(table)
+    assert "| GT replay (oracle) | 100.00 | 100.00 | 100.00 | 100.00 | withheld | withheld |" in md
+    assert "Not ranked (a reference, not a competitor): GT replay (oracle)." in md
+    assert "the ground truth of Unseen Testing is withheld" in md
+    assert to_csv(table).splitlines()[-1].endswith(",withheld,withheld")
+    assert "withheld & withheld" in to_latex(table)
