@@ -215,8 +215,9 @@ def build_table(
                 )
     titles = dict(spec.groups)
     notes = [*notes, *_error_notes(errors, row_names, spec, titles)]
-    if unranked:
-        shown = ", ".join(r for r in row_names if r in unranked)
+    references = [r for r in row_names if r in unranked]
+    if references:
+        shown = ", ".join(references)
         notes.append(f"Not ranked (a reference, not a competitor): {shown}.")
     shown_withheld = tuple(split for split, _ in spec.groups if split in withheld)
     if shown_withheld:
