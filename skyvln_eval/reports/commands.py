@@ -14,10 +14,10 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from skyvln_eval.avdn.constants import EpisodeMode
-from skyvln_eval.errors import ConfigError
+from skyvln_eval.errors import ConfigError, DataError
 
 if TYPE_CHECKING:
-    from skyvln_eval.metrics import MetricConventions
+    from skyvln_eval.metrics import EpisodeResult, MetricConventions
 
 plot_app = typer.Typer(
     help="Figures: control curves, SR vs threshold, NE distribution, maps.", no_args_is_help=True
@@ -62,20 +62,58 @@ def _conventions(
     )
 
 
+#: Files of a run directory that are not its results, and what they are.
+_RUN_METADATA = {
+    "run.json": "the report of a run (episodes by status, errors), not its results",
+    "config.yaml": "the configuration of a run, not its results",
+    "versions.json": "the library versions of a run, not its results",
+}
+
+
+def _input_file(path: Path) -> Path:
+    """The file to score for ``path``: a run directory's results.jsonl, else ``path``;
+    refuses what cannot be scored, saying what it is and what to give instead."""
+    from skyvln_eval.harness.store import RESULTS_FILE
+
+    if path.is_dir():
+        if (path / RESULTS_FILE).is_file():
+            return path / RESULTS_FILE
+        raise DataError(
+            f"{path}: a directory without {RESULTS_FILE}, so not a run directory (or a run "
+            "that recorded no episode yet); give a run directory, a results file "
+            "(.jsonl, .parquet) or a predictions file (.npy, .json)"
+        )
+    if not path.exists():
+        raise DataError(f"{path}: no such file or directory")
+    if path.name in _RUN_METADATA:
+        raise DataError(
+            f"{path}: {_RUN_METADATA[path.name]}; score the run directory {path.parent} "
+            f"(or {path.parent / RESULTS_FILE})"
+        )
+    if path.suffix not in (".jsonl", ".parquet", ".npy", ".json"):
+        raise DataError(
+            f"{path}: neither a results file (.jsonl, .parquet), a predictions file "
+            "(.npy official, .json) nor a run directory"
+        )
+    return path
+
+
 def _load_results(
     paths: list[Path], data_dir: Path | None, split: str | None, mode: str, system: str | None
-) -> list:
+) -> list[tuple[str, list[EpisodeResult]]]:
+    """Each input's name and rows; no episode of a system, split and mode in two of them."""
     from skyvln_eval.metrics import (
         ground_truth_episodes,
         read_predictions,
         read_results,
         results_from_predictions,
     )
+    from skyvln_eval.metrics.results_io import check_unique_files
 
-    results = []
-    for path in paths:
+    sources = []
+    for path in map(_input_file, paths):
         if path.suffix in (".jsonl", ".parquet"):
-            results.extend(read_results(path))
+            sources.append((str(path), read_results(path)))
             continue
         if data_dir is None or split is None:
             raise ConfigError(
@@ -84,14 +122,19 @@ def _load_results(
         episodes = ground_truth_episodes(data_dir, split, _mode(mode))
         predictions = read_predictions(path)
         label = system or path.stem
-        results.extend(results_from_predictions(predictions, episodes, label, split, _mode(mode)))
-    return results
+        rows = results_from_predictions(predictions, episodes, label, split, _mode(mode))
+        sources.append((str(path), rows))
+    check_unique_files(sources)
+    return sources
 
 
 def score(
     results: Annotated[
         list[Path],
-        typer.Argument(help="Result rows (.jsonl/.parquet) or predictions (.npy official, .json)"),
+        typer.Argument(
+            help="Run directories, result rows (.jsonl/.parquet) or predictions "
+            "(.npy official, .json)"
+        ),
     ],
     out: Annotated[Path, typer.Option(help="Folder for scores.csv and summary.csv")] = Path(
         "scores"
@@ -140,7 +183,8 @@ def score(
     from skyvln_eval.metrics.scores_io import summary_csv_text, write_scores
 
     conventions = _conventions(threshold_m, distance, non_strict, legacy_gp)
-    loaded = _load_results(results, data_dir, split, mode, system)
+    sources = _load_results(results, data_dir, split, mode, system)
+    loaded = [row for _, rows in sources for row in rows]
     scores = score_results(loaded, conventions)
     if data_dir is not None:
         for (split_name, mode_name), group in scores.groupby(["split", "mode"]):

@@ -10,7 +10,12 @@ import numpy as np
 from typer.testing import CliRunner
 
 from skyvln_eval.cli import app
-from skyvln_eval.errors import IncompleteRunError, NoGroundTruthError, ResultRecordError
+from skyvln_eval.errors import (
+    DataError,
+    IncompleteRunError,
+    NoGroundTruthError,
+    ResultRecordError,
+)
 from skyvln_eval.metrics import RESULTS_VERSION, Prediction, write_predictions_json, write_results
 from skyvln_eval.metrics.scores_io import read_scores
 from tests.conftest import make_record
@@ -191,3 +196,36 @@ def test_table_refuses_an_episode_given_twice(tmp_path: Path) -> None:
     pasted = runner.invoke(app, ["table", paths[1]])
     assert isinstance(pasted.exception, ResultRecordError)
     assert "line 12 duplicates record 2 of this file (line 6)" in str(pasted.exception)
+
+
+def test_score_takes_a_run_directory_and_names_what_it_cannot_score(tmp_path: Path) -> None:
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    write_run(run_dir / "results.jsonl")
+    out = tmp_path / "scores"
+    scored = runner.invoke(app, ["score", str(run_dir), "--out", str(out)])
+    assert scored.exit_code == 0, scored.output
+    assert len(read_scores(out / "scores.csv")[0]) == 36
+
+    (run_dir / "run.json").write_text('{"system": "Ours Full", "expected": 18}')
+    report = runner.invoke(app, ["score", str(run_dir / "run.json")])
+    assert isinstance(report.exception, DataError)
+    assert str(report.exception) == (
+        f"{run_dir / 'run.json'}: the report of a run (episodes by status, errors), not its "
+        f"results; score the run directory {run_dir} (or {run_dir / 'results.jsonl'})"
+    )
+    empty = runner.invoke(app, ["score", str(tmp_path / "scores")])
+    assert isinstance(empty.exception, DataError)
+    assert "a directory without results.jsonl, so not a run directory" in str(empty.exception)
+    absent = runner.invoke(app, ["score", str(tmp_path / "preds.npy")])
+    assert str(absent.exception) == f"{tmp_path / 'preds.npy'}: no such file or directory"
+
+    # The same rows in two files: the error names both files (not '<results>').
+    copy = tmp_path / "copy.jsonl"
+    copy.write_bytes((run_dir / "results.jsonl").read_bytes())
+    twice = runner.invoke(app, ["score", str(run_dir), str(copy)])
+    assert isinstance(twice.exception, ResultRecordError)
+    message = str(twice.exception)
+    assert message.startswith(f"{copy}, record 0 (episode m__0_1), field 'episode_id'")
+    assert f"duplicate of record 0 of {run_dir / 'results.jsonl'}" in message
+    assert "different system labels" in message
