@@ -46,12 +46,15 @@ def write_scores(path: str | Path, scores: pd.DataFrame, conventions: MetricConv
     atomic_write_text(path, scores_to_csv_text(scores, conventions))
 
 
-def summary_csv_text(summary: pd.DataFrame, conventions: MetricConventions) -> str:
-    """A summary (from :func:`~skyvln_eval.metrics.summarise`) as CSV with its conventions;
-    unknown means (a cost without a price) are written "n/a", which pandas reads as NaN."""
-    return f"# conventions: {conventions.to_json()}\n" + summary.to_csv(
-        index=False, lineterminator="\n", na_rep="n/a"
-    )
+def summary_csv_text(
+    summary: pd.DataFrame, conventions: MetricConventions, warnings: Sequence[str] = ()
+) -> str:
+    """A summary (from :func:`~skyvln_eval.metrics.summarise`) as CSV with its conventions
+    and a ``# warning:`` line per warning (e.g. an incomplete run's scores); unknown means
+    (a cost without a price) are written "n/a", which pandas reads as NaN."""
+    head = f"# conventions: {conventions.to_json()}\n"
+    head += "".join(f"# warning: {' '.join(w.split())}\n" for w in warnings)
+    return head + summary.to_csv(index=False, lineterminator="\n", na_rep="n/a")
 
 
 def read_scores(path: str | Path) -> tuple[pd.DataFrame, MetricConventions]:

@@ -62,19 +62,17 @@ def _conventions(
     )
 
 
-#: Files of a run directory that are not its results, and what they are.
-_RUN_METADATA = {
-    "run.json": "the report of a run (episodes by status, errors), not its results",
-    "config.yaml": "the configuration of a run, not its results",
-    "versions.json": "the library versions of a run, not its results",
-}
-
-
 def _input_file(path: Path) -> Path:
     """The file to score for ``path``: a run directory's results.jsonl, else ``path``;
     refuses what cannot be scored, saying what it is and what to give instead."""
+    from skyvln_eval.harness.run import CONFIG_FILE, REPORT_FILE, VERSIONS_FILE
     from skyvln_eval.harness.store import RESULTS_FILE
 
+    run_files = {
+        REPORT_FILE: "the report of a run (episodes by status, errors), not its results",
+        CONFIG_FILE: "the configuration of a run, not its results",
+        VERSIONS_FILE: "the library versions of a run, not its results",
+    }
     if path.is_dir():
         if (path / RESULTS_FILE).is_file():
             return path / RESULTS_FILE
@@ -85,9 +83,9 @@ def _input_file(path: Path) -> Path:
         )
     if not path.exists():
         raise DataError(f"{path}: no such file or directory")
-    if path.name in _RUN_METADATA:
+    if path.name in run_files:
         raise DataError(
-            f"{path}: {_RUN_METADATA[path.name]}; score the run directory {path.parent} "
+            f"{path}: {run_files[path.name]}; score the run directory {path.parent} "
             f"(or {path.parent / RESULTS_FILE})"
         )
     if path.suffix not in (".jsonl", ".parquet", ".npy", ".json"):
@@ -128,6 +126,59 @@ def _load_results(
     return sources
 
 
+def _covered(
+    sources: list[tuple[str, list[EpisodeResult]]], data_dir: Path | None, allow_incomplete: bool
+) -> tuple[list[EpisodeResult], list[str]]:
+    """The rows to score and a warning per incomplete input (with ``allow_incomplete``;
+    else an incomplete input raises).
+
+    The rows of a run directory must cover the episodes its config selects (from
+    ``data_dir`` if given, else from the data it ran on); other results, given
+    ``data_dir``, every episode of their split. Rows of episodes outside those always raise.
+    """
+    from skyvln_eval.errors import IncompleteRunError
+    from skyvln_eval.metrics import check_complete, ground_truth_episodes
+    from skyvln_eval.reports.run_coverage import run_coverage, run_dir_of
+
+    rows: list[EpisodeResult] = []
+    warnings: list[str] = []
+    plain: dict[tuple[str, str, str], list[str]] = {}  # (system, split, mode) -> episodes
+    for name, results in sources:
+        try:
+            run_dir = run_dir_of(Path(name))
+            coverage = None if run_dir is None else run_coverage(run_dir, results, data_dir)
+        except (ConfigError, DataError) as error:  # which episodes the run covers is unknown
+            if not allow_incomplete:
+                raise
+            warnings.append(f"NOT CHECKED whether {name} is complete: {error}")
+            rows += results
+            continue
+        if coverage is None:
+            rows += results
+            for r in results:
+                plain.setdefault((r.system, r.split, r.mode), []).append(r.episode_id)
+            continue
+        if not coverage.complete:
+            if coverage.unexpected or not allow_incomplete:
+                raise coverage.error()
+            warnings.append(coverage.warning())
+        rows += [r for r in results if (r.split, r.episode_id) not in coverage.stopped]
+    if data_dir is not None:
+        for system, split, mode in sorted(plain):
+            episodes = ground_truth_episodes(data_dir, split, _mode(mode))
+            what = f"run {system}/{split}/{mode}"
+            try:
+                check_complete(plain[system, split, mode], [e.episode_id for e in episodes], what)
+            except IncompleteRunError as error:
+                if error.unexpected or not allow_incomplete:
+                    raise
+                warnings.append(
+                    f"INCOMPLETE: {error}. Its scores cover only the "
+                    f"{len(plain[system, split, mode])} episode(s) it has."
+                )
+    return rows, warnings
+
+
 def score(
     results: Annotated[
         list[Path],
@@ -142,7 +193,8 @@ def score(
     data_dir: Annotated[
         Path | None,
         typer.Option(
-            help="AVDN-format dataset: GT for predictions; completeness check for results"
+            help="AVDN-format dataset: GT for predictions; completeness check for results "
+            "(a run directory's: the episodes its config selects, from this dataset)"
         ),
     ] = None,
     split: Annotated[
@@ -168,34 +220,41 @@ def score(
         int, typer.Option(min=0, help="Bootstrap resamples for 95% CIs (0: none)")
     ] = 1000,
     seed: Annotated[int, typer.Option(help="Bootstrap seed")] = 0,
+    allow_incomplete: Annotated[
+        bool,
+        typer.Option(
+            "--allow-incomplete",
+            help="Score a run that lacks some of its episodes (saying how many), instead of "
+            "refusing it",
+        ),
+    ] = False,
 ) -> None:
-    """Score results or predictions: per-episode scores and a per-system summary with CIs."""
+    """Score results or predictions: per-episode scores and a per-system summary with CIs.
+
+    The results of a run directory must cover every episode its config selects (its
+    splits, episodes and limit); other results, given --data-dir, every episode of their
+    split. An incomplete run is refused unless --allow-incomplete.
+    """
     from rich.console import Console
     from rich.table import Table
 
     from skyvln_eval.fileio import atomic_write_text
-    from skyvln_eval.metrics import (
-        check_scores_complete,
-        ground_truth_episodes,
-        score_results,
-        summarise,
-    )
+    from skyvln_eval.metrics import score_results, summarise
     from skyvln_eval.metrics.scores_io import summary_csv_text, write_scores
 
     conventions = _conventions(threshold_m, distance, non_strict, legacy_gp)
     sources = _load_results(results, data_dir, split, mode, system)
-    loaded = [row for _, rows in sources for row in rows]
+    loaded, warnings = _covered(sources, data_dir, allow_incomplete)
     scores = score_results(loaded, conventions)
-    if data_dir is not None:
-        for (split_name, mode_name), group in scores.groupby(["split", "mode"]):
-            episodes = ground_truth_episodes(data_dir, str(split_name), _mode(str(mode_name)))
-            ids = [e.episode_id for e in episodes]
-            check_scores_complete(group, ids)
     summary = summarise(scores, [m for m in SUMMARY_METRICS if m in scores], resamples, seed=seed)
     out.mkdir(parents=True, exist_ok=True)
     write_scores(out / "scores.csv", scores, conventions)
-    atomic_write_text(out / "summary.csv", summary_csv_text(summary, conventions))
-    table = Table(title="scores", caption=conventions.describe())
+    atomic_write_text(out / "summary.csv", summary_csv_text(summary, conventions, warnings))
+    title = "scores"
+    if warnings:
+        incomplete = any(w.startswith("INCOMPLETE") for w in warnings)
+        title += (" OF INCOMPLETE RESULTS" if incomplete else "") + " (see the warnings)"
+    table = Table(title=title, caption=conventions.describe())
     shown = [m for m in PRINTED_METRICS if m in set(summary.metric)]
     for column in ("system", "split", "n", *shown):
         table.add_column(column, justify="left" if column in ("system", "split") else "right")
@@ -204,7 +263,11 @@ def score(
         cells = [_cell(by_metric, m) for m in shown]
         table.add_row(str(sys_name), str(split_name), str(int(group.n.max())), *cells)
     console = Console(width=160)
+    for warning in warnings:
+        console.print(f"WARNING: {warning}", style="bold red", markup=False, highlight=False)
     console.print(table)
+    for warning in warnings:  # again below the table, where the eye lands
+        console.print(f"WARNING: {warning}", style="bold red", markup=False, highlight=False)
     console.print(f"wrote {out / 'scores.csv'} and {out / 'summary.csv'}")
 
 
