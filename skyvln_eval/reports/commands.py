@@ -126,59 +126,6 @@ def _load_results(
     return sources
 
 
-def _covered(
-    sources: list[tuple[str, list[EpisodeResult]]], data_dir: Path | None, allow_incomplete: bool
-) -> tuple[list[EpisodeResult], list[str]]:
-    """The rows to score and a warning per incomplete input (with ``allow_incomplete``;
-    else an incomplete input raises).
-
-    The rows of a run directory must cover the episodes its config selects (from
-    ``data_dir`` if given, else from the data it ran on); other results, given
-    ``data_dir``, every episode of their split. Rows of episodes outside those always raise.
-    """
-    from skyvln_eval.errors import IncompleteRunError
-    from skyvln_eval.metrics import check_complete, ground_truth_episodes
-    from skyvln_eval.reports.run_coverage import run_coverage, run_dir_of
-
-    rows: list[EpisodeResult] = []
-    warnings: list[str] = []
-    plain: dict[tuple[str, str, str], list[str]] = {}  # (system, split, mode) -> episodes
-    for name, results in sources:
-        try:
-            run_dir = run_dir_of(Path(name))
-            coverage = None if run_dir is None else run_coverage(run_dir, results, data_dir)
-        except (ConfigError, DataError) as error:  # which episodes the run covers is unknown
-            if not allow_incomplete:
-                raise
-            warnings.append(f"NOT CHECKED whether {name} is complete: {error}")
-            rows += results
-            continue
-        if coverage is None:
-            rows += results
-            for r in results:
-                plain.setdefault((r.system, r.split, r.mode), []).append(r.episode_id)
-            continue
-        if not coverage.complete:
-            if coverage.unexpected or not allow_incomplete:
-                raise coverage.error()
-            warnings.append(coverage.warning())
-        rows += [r for r in results if (r.split, r.episode_id) not in coverage.stopped]
-    if data_dir is not None:
-        for system, split, mode in sorted(plain):
-            episodes = ground_truth_episodes(data_dir, split, _mode(mode))
-            what = f"run {system}/{split}/{mode}"
-            try:
-                check_complete(plain[system, split, mode], [e.episode_id for e in episodes], what)
-            except IncompleteRunError as error:
-                if error.unexpected or not allow_incomplete:
-                    raise
-                warnings.append(
-                    f"INCOMPLETE: {error}. Its scores cover only the "
-                    f"{len(plain[system, split, mode])} episode(s) it has."
-                )
-    return rows, warnings
-
-
 def score(
     results: Annotated[
         list[Path],
@@ -241,10 +188,11 @@ def score(
     from skyvln_eval.fileio import atomic_write_text
     from skyvln_eval.metrics import score_results, summarise
     from skyvln_eval.metrics.scores_io import summary_csv_text, write_scores
+    from skyvln_eval.reports.run_coverage import covered_results
 
     conventions = _conventions(threshold_m, distance, non_strict, legacy_gp)
     sources = _load_results(results, data_dir, split, mode, system)
-    loaded, warnings = _covered(sources, data_dir, allow_incomplete)
+    loaded, warnings = covered_results(sources, data_dir, allow_incomplete)
     scores = score_results(loaded, conventions)
     summary = summarise(scores, [m for m in SUMMARY_METRICS if m in scores], resamples, seed=seed)
     out.mkdir(parents=True, exist_ok=True)

@@ -15,7 +15,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from skyvln_eval.errors import DataError, IncompleteRunError, SkyvlnError
+from skyvln_eval.avdn.constants import EpisodeMode
+from skyvln_eval.errors import ConfigError, DataError, IncompleteRunError, SkyvlnError
 from skyvln_eval.harness.config import RunConfig, run_config_from_mapping
 from skyvln_eval.harness.run import CONFIG_FILE, REPORT_FILE
 from skyvln_eval.harness.store import RESULTS_FILE, RowKey
@@ -180,3 +181,62 @@ def run_coverage(
         stopped=tuple(stopped),
         unexpected=tuple(sorted(set(rows) - set(expected))),
     )
+
+
+def covered_results(
+    sources: list[tuple[str, list[EpisodeResult]]], data_dir: Path | None, allow_incomplete: bool
+) -> tuple[list[EpisodeResult], list[str]]:
+    """The rows to score and a warning per incomplete input (with ``allow_incomplete``;
+    else an incomplete input raises).
+
+    The rows of a run directory must cover the episodes its config selects (from
+    ``data_dir`` if given, else from the data it ran on); other results, given
+    ``data_dir``, every episode of their split. Rows of episodes outside those always raise.
+    """
+    rows: list[EpisodeResult] = []
+    warnings: list[str] = []
+    plain: dict[tuple[str, str, EpisodeMode], list[str]] = {}  # (system, split, mode) -> episodes
+    for name, results in sources:
+        try:
+            run_dir = run_dir_of(Path(name))
+            coverage = None if run_dir is None else run_coverage(run_dir, results, data_dir)
+        except (ConfigError, DataError) as error:  # which episodes the run covers is unknown
+            if not allow_incomplete:
+                raise
+            warnings.append(f"NOT CHECKED whether {name} is complete: {error}")
+            rows += results
+            continue
+        if coverage is None:
+            rows += results
+            for r in results:
+                plain.setdefault((r.system, r.split, r.mode), []).append(r.episode_id)
+            continue
+        if not coverage.complete:
+            if coverage.unexpected or not allow_incomplete:
+                raise coverage.error()
+            warnings.append(coverage.warning())
+        rows += [r for r in results if (r.split, r.episode_id) not in coverage.stopped]
+    if data_dir is not None:
+        warnings += _split_coverage(plain, data_dir, allow_incomplete)
+    return rows, warnings
+
+
+def _split_coverage(
+    plain: dict[tuple[str, str, EpisodeMode], list[str]], data_dir: Path, allow_incomplete: bool
+) -> list[str]:
+    """A warning per (system, split, mode) of ``plain`` (its episode ids) that lacks some
+    episodes of its split in ``data_dir`` (with ``allow_incomplete``, else it raises)."""
+    from skyvln_eval.metrics import check_complete, ground_truth_episodes
+
+    warnings = []
+    for (system, split, mode), ids in sorted(plain.items()):
+        episodes = ground_truth_episodes(data_dir, split, mode)
+        try:
+            check_complete(ids, [e.episode_id for e in episodes], f"run {system}/{split}/{mode}")
+        except IncompleteRunError as error:
+            if error.unexpected or not allow_incomplete:
+                raise
+            warnings.append(
+                f"INCOMPLETE: {error}. Its scores cover only the {len(ids)} episode(s) it has."
+            )
+    return warnings
