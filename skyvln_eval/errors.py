@@ -180,11 +180,21 @@ class ResultRecordError(DataError):
 
 
 class IncompleteRunError(DataError):
-    """A run does not cover every episode of its split (or covers unknown ones)."""
+    """A run does not cover every episode of its split (or covers unknown ones).
+
+    ``outside`` names what the unexpected episodes are not part of; ``hint`` says what to do.
+    """
 
     max_listed = 20
 
-    def __init__(self, what: str, missing: Sequence[str], unexpected: Sequence[str] = ()) -> None:
+    def __init__(
+        self,
+        what: str,
+        missing: Sequence[str],
+        unexpected: Sequence[str] = (),
+        hint: str = "",
+        outside: str = "the split",
+    ) -> None:
         self.missing = tuple(missing)
         self.unexpected = tuple(unexpected)
         parts = []
@@ -197,8 +207,9 @@ class IncompleteRunError(DataError):
             )
         if self.unexpected:
             shown = ", ".join(self.unexpected[: self.max_listed])
-            parts.append(f"{len(self.unexpected)} episode(s) not in the split: {shown}")
-        super().__init__(f"{what} is incomplete: " + "; ".join(parts))
+            parts.append(f"{len(self.unexpected)} episode(s) not in {outside}: {shown}")
+        end = f". {hint}" if hint else ""
+        super().__init__(f"{what} is incomplete: " + "; ".join(parts) + end)
 
 
 class RunDirBusyError(SkyvlnError):

@@ -1,9 +1,9 @@
 """The result store of a run: ``results.jsonl``, one :class:`EpisodeResult` per line.
 
 The file is a results file of :mod:`skyvln_eval.metrics.results_io` (a header line, then
-one row per episode), so ``skyvln-eval score RUN_DIR/results.jsonl`` scores a run, even
-one still in progress. Only the coordinating process writes, under the run directory's
-lock (:mod:`.lock`). Each row is one ``write`` of a complete line, flushed and fsynced
+one row per episode), so ``skyvln-eval score RUN_DIR`` scores a run (one still in progress
+with ``--allow-incomplete``). Only the coordinating process writes, under the run
+directory's lock (:mod:`.lock`). Each row is one ``write`` of a complete line, flushed and fsynced
 before the next episode is recorded, so a run killed at any moment (even with SIGKILL)
 leaves whole rows plus at most one partial last line.
 

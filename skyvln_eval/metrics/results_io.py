@@ -154,17 +154,29 @@ def result_from_json_dict(data: Any, file: str = "<json>", row: int = 0) -> Epis
 
 def check_unique(results: Sequence[EpisodeResult], file: str = "<results>") -> None:
     """Raise if two rows share ``(system, split, mode, episode_id)``."""
-    seen: dict[tuple[str, str, str, str], int] = {}
-    for row, result in enumerate(results):
-        if result.key in seen:
-            raise _where(
-                file,
-                row,
-                result.episode_id,
-                "episode_id",
-                f"duplicate of row {seen[result.key]} (same system, split and mode)",
-            )
-        seen[result.key] = row
+    check_unique_files([(file, results)])
+
+
+def check_unique_files(files: Sequence[tuple[str, Sequence[EpisodeResult]]]) -> None:
+    """Raise if two rows of ``files`` (name, rows) share ``(system, split, mode,
+    episode_id)``, naming the file and row of both: scored together, an episode would
+    count twice, or two runs that share a system label would be averaged as one."""
+    seen: dict[tuple[str, str, str, str], tuple[int, int]] = {}  # key -> (file index, row)
+    for index, (file, results) in enumerate(files):
+        for row, result in enumerate(results):
+            first = seen.setdefault(result.key, (index, row))
+            if first == (index, row):
+                continue
+            where = "this file" if first[0] == index else files[first[0]][0]
+            message = f"duplicate of record {first[1]} of {where} (same system, split and mode)"
+            if first[0] != index:
+                message += (
+                    f"; scored together they would be averaged as one system "
+                    f"({result.system!r}): different runs need different system labels (the "
+                    "`system` of their run configs, or `score --system` for predictions), "
+                    "and a file must be given once"
+                )
+            raise _where(file, row, result.episode_id, "episode_id", message)
 
 
 def results_to_jsonl_bytes(results: Iterable[EpisodeResult]) -> bytes:

@@ -22,13 +22,15 @@ from pathlib import Path
 
 import pandas as pd
 
-from skyvln_eval.errors import DataError, FormatVersionError
+from skyvln_eval.errors import DataError, FormatVersionError, ResultRecordError, ValidationIssue
 from skyvln_eval.fileio import atomic_write_text
 from skyvln_eval.metrics.conventions import MetricConventions
 from skyvln_eval.metrics.scoring import CONTROL_COLUMNS, KEY_COLUMNS
 
 SCORES_FORMAT = "skyvln-eval.scores"
 SCORES_VERSION = 1
+#: Lines before the first row of a scores file: the format, the conventions, the CSV header.
+_LINES_BEFORE_ROWS = 3
 
 
 def scores_to_csv_text(scores: pd.DataFrame, conventions: MetricConventions) -> str:
@@ -44,12 +46,15 @@ def write_scores(path: str | Path, scores: pd.DataFrame, conventions: MetricConv
     atomic_write_text(path, scores_to_csv_text(scores, conventions))
 
 
-def summary_csv_text(summary: pd.DataFrame, conventions: MetricConventions) -> str:
-    """A summary (from :func:`~skyvln_eval.metrics.summarise`) as CSV with its conventions;
-    unknown means (a cost without a price) are written "n/a", which pandas reads as NaN."""
-    return f"# conventions: {conventions.to_json()}\n" + summary.to_csv(
-        index=False, lineterminator="\n", na_rep="n/a"
-    )
+def summary_csv_text(
+    summary: pd.DataFrame, conventions: MetricConventions, warnings: Sequence[str] = ()
+) -> str:
+    """A summary (from :func:`~skyvln_eval.metrics.summarise`) as CSV with its conventions
+    and a ``# warning:`` line per warning (e.g. an incomplete run's scores); unknown means
+    (a cost without a price) are written "n/a", which pandas reads as NaN."""
+    head = f"# conventions: {conventions.to_json()}\n"
+    head += "".join(f"# warning: {' '.join(w.split())}\n" for w in warnings)
+    return head + summary.to_csv(index=False, lineterminator="\n", na_rep="n/a")
 
 
 def read_scores(path: str | Path) -> tuple[pd.DataFrame, MetricConventions]:
@@ -77,16 +82,49 @@ def read_scores(path: str | Path) -> tuple[pd.DataFrame, MetricConventions]:
     except json.JSONDecodeError as exc:
         raise DataError(f"{path}: conventions line is not JSON ({exc.msg})") from None
     frame = pd.read_csv(
-        io.StringIO(lines[2]), dtype={"episode_id": str, "split": str, "system": str}
+        io.StringIO(lines[2]), dtype={"episode_id": str, "split": str, "mode": str, "system": str}
     )
+    missing = [c for c in KEY_COLUMNS if c not in frame.columns]
+    if missing:
+        raise DataError(f"{path}: no {', '.join(missing)} column(s); rescore the results")
     for column in CONTROL_COLUMNS:
         if column in frame.columns:
             frame[column] = frame[column].astype("Float64")
+    check_unique_scores([(str(path), frame)])
     return frame, conventions
 
 
+def _row_name(file: str, row: int) -> str:
+    return f"record {row} of {file} (line {row + 1 + _LINES_BEFORE_ROWS})"
+
+
+def check_unique_scores(files: Sequence[tuple[str, pd.DataFrame]]) -> None:
+    """Raise if two rows of ``files`` (name, scores frame) share ``(system, split, mode,
+    episode_id)``, naming both files and rows: concatenated, they would be averaged as
+    one system (an episode counted twice, or two runs that share a label merged)."""
+    seen: dict[tuple[str, ...], tuple[int, int]] = {}  # key -> (file index, row)
+    for index, (file, frame) in enumerate(files):
+        keys = frame[list(KEY_COLUMNS)].astype(str).itertuples(index=False, name=None)
+        for row, key in enumerate(keys):
+            first = seen.setdefault(key, (index, row))
+            if first == (index, row):
+                continue
+            system, split, mode, episode_id = key
+            first_file = "this file" if first[0] == index else files[first[0]][0]
+            message = (
+                f"line {row + 1 + _LINES_BEFORE_ROWS} duplicates "
+                f"{_row_name(first_file, first[1])}: same system {system!r}, split "
+                f"{split} and mode {mode}, which a table would average as one. Different runs "
+                "need different system labels (the `system` of their run configs, or "
+                "`score --system` for predictions); the same scores must be given once."
+            )
+            issue = ValidationIssue(file, message, row, episode_id, "episode_id")
+            raise ResultRecordError(issue)
+
+
 def read_many_scores(paths: Sequence[str | Path]) -> tuple[pd.DataFrame, MetricConventions]:
-    """Concatenate scores files made under the same conventions (else raise, naming both)."""
+    """Concatenate scores files made under the same conventions (else raise, naming both)
+    that share no episode of a system, split and mode (else raise, naming both rows)."""
     if not paths:
         raise DataError("no scores files given")
     frames = []
@@ -99,6 +137,7 @@ def read_many_scores(paths: Sequence[str | Path]) -> tuple[pd.DataFrame, MetricC
                 f"{paths[0]} ({first.describe()}); rescore one of them"
             )
         first = conventions
-        frames.append(frame)
+        frames.append((str(path), frame))
     assert first is not None  # paths is non-empty
-    return pd.concat(frames, ignore_index=True), first
+    check_unique_scores(frames)
+    return pd.concat([frame for _, frame in frames], ignore_index=True), first

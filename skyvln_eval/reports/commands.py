@@ -14,10 +14,10 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from skyvln_eval.avdn.constants import EpisodeMode
-from skyvln_eval.errors import ConfigError
+from skyvln_eval.errors import ConfigError, DataError
 
 if TYPE_CHECKING:
-    from skyvln_eval.metrics import MetricConventions
+    from skyvln_eval.metrics import EpisodeResult, MetricConventions
 
 plot_app = typer.Typer(
     help="Figures: control curves, SR vs threshold, NE distribution, maps.", no_args_is_help=True
@@ -62,20 +62,56 @@ def _conventions(
     )
 
 
+def _input_file(path: Path) -> Path:
+    """The file to score for ``path``: a run directory's results.jsonl, else ``path``;
+    refuses what cannot be scored, saying what it is and what to give instead."""
+    from skyvln_eval.harness.run import CONFIG_FILE, REPORT_FILE, VERSIONS_FILE
+    from skyvln_eval.harness.store import RESULTS_FILE
+
+    run_files = {
+        REPORT_FILE: "the report of a run (episodes by status, errors), not its results",
+        CONFIG_FILE: "the configuration of a run, not its results",
+        VERSIONS_FILE: "the library versions of a run, not its results",
+    }
+    if path.is_dir():
+        if (path / RESULTS_FILE).is_file():
+            return path / RESULTS_FILE
+        raise DataError(
+            f"{path}: a directory without {RESULTS_FILE}, so not a run directory (or a run "
+            "that recorded no episode yet); give a run directory, a results file "
+            "(.jsonl, .parquet) or a predictions file (.npy, .json)"
+        )
+    if not path.exists():
+        raise DataError(f"{path}: no such file or directory")
+    if path.name in run_files:
+        raise DataError(
+            f"{path}: {run_files[path.name]}; score the run directory {path.parent} "
+            f"(or {path.parent / RESULTS_FILE})"
+        )
+    if path.suffix not in (".jsonl", ".parquet", ".npy", ".json"):
+        raise DataError(
+            f"{path}: neither a results file (.jsonl, .parquet), a predictions file "
+            "(.npy official, .json) nor a run directory"
+        )
+    return path
+
+
 def _load_results(
     paths: list[Path], data_dir: Path | None, split: str | None, mode: str, system: str | None
-) -> list:
+) -> list[tuple[str, list[EpisodeResult]]]:
+    """Each input's name and rows; no episode of a system, split and mode in two of them."""
     from skyvln_eval.metrics import (
         ground_truth_episodes,
         read_predictions,
         read_results,
         results_from_predictions,
     )
+    from skyvln_eval.metrics.results_io import check_unique_files
 
-    results = []
-    for path in paths:
+    sources = []
+    for path in map(_input_file, paths):
         if path.suffix in (".jsonl", ".parquet"):
-            results.extend(read_results(path))
+            sources.append((str(path), read_results(path)))
             continue
         if data_dir is None or split is None:
             raise ConfigError(
@@ -84,14 +120,19 @@ def _load_results(
         episodes = ground_truth_episodes(data_dir, split, _mode(mode))
         predictions = read_predictions(path)
         label = system or path.stem
-        results.extend(results_from_predictions(predictions, episodes, label, split, _mode(mode)))
-    return results
+        rows = results_from_predictions(predictions, episodes, label, split, _mode(mode))
+        sources.append((str(path), rows))
+    check_unique_files(sources)
+    return sources
 
 
 def score(
     results: Annotated[
         list[Path],
-        typer.Argument(help="Result rows (.jsonl/.parquet) or predictions (.npy official, .json)"),
+        typer.Argument(
+            help="Run directories, result rows (.jsonl/.parquet) or predictions "
+            "(.npy official, .json)"
+        ),
     ],
     out: Annotated[Path, typer.Option(help="Folder for scores.csv and summary.csv")] = Path(
         "scores"
@@ -99,7 +140,8 @@ def score(
     data_dir: Annotated[
         Path | None,
         typer.Option(
-            help="AVDN-format dataset: GT for predictions; completeness check for results"
+            help="AVDN-format dataset: GT for predictions; completeness check for results "
+            "(a run directory's: the episodes its config selects, from this dataset)"
         ),
     ] = None,
     split: Annotated[
@@ -125,33 +167,42 @@ def score(
         int, typer.Option(min=0, help="Bootstrap resamples for 95% CIs (0: none)")
     ] = 1000,
     seed: Annotated[int, typer.Option(help="Bootstrap seed")] = 0,
+    allow_incomplete: Annotated[
+        bool,
+        typer.Option(
+            "--allow-incomplete",
+            help="Score a run that lacks some of its episodes (saying how many), instead of "
+            "refusing it",
+        ),
+    ] = False,
 ) -> None:
-    """Score results or predictions: per-episode scores and a per-system summary with CIs."""
+    """Score results or predictions: per-episode scores and a per-system summary with CIs.
+
+    The results of a run directory must cover every episode its config selects (its
+    splits, episodes and limit); other results, given --data-dir, every episode of their
+    split. An incomplete run is refused unless --allow-incomplete.
+    """
     from rich.console import Console
     from rich.table import Table
 
     from skyvln_eval.fileio import atomic_write_text
-    from skyvln_eval.metrics import (
-        check_scores_complete,
-        ground_truth_episodes,
-        score_results,
-        summarise,
-    )
+    from skyvln_eval.metrics import score_results, summarise
     from skyvln_eval.metrics.scores_io import summary_csv_text, write_scores
+    from skyvln_eval.reports.run_coverage import covered_results
 
     conventions = _conventions(threshold_m, distance, non_strict, legacy_gp)
-    loaded = _load_results(results, data_dir, split, mode, system)
+    sources = _load_results(results, data_dir, split, mode, system)
+    loaded, warnings = covered_results(sources, data_dir, allow_incomplete)
     scores = score_results(loaded, conventions)
-    if data_dir is not None:
-        for (split_name, mode_name), group in scores.groupby(["split", "mode"]):
-            episodes = ground_truth_episodes(data_dir, str(split_name), _mode(str(mode_name)))
-            ids = [e.episode_id for e in episodes]
-            check_scores_complete(group, ids)
     summary = summarise(scores, [m for m in SUMMARY_METRICS if m in scores], resamples, seed=seed)
     out.mkdir(parents=True, exist_ok=True)
     write_scores(out / "scores.csv", scores, conventions)
-    atomic_write_text(out / "summary.csv", summary_csv_text(summary, conventions))
-    table = Table(title="scores", caption=conventions.describe())
+    atomic_write_text(out / "summary.csv", summary_csv_text(summary, conventions, warnings))
+    title = "scores"
+    if warnings:
+        incomplete = any(w.startswith("INCOMPLETE") for w in warnings)
+        title += (" OF INCOMPLETE RESULTS" if incomplete else "") + " (see the warnings)"
+    table = Table(title=title, caption=conventions.describe())
     shown = [m for m in PRINTED_METRICS if m in set(summary.metric)]
     for column in ("system", "split", "n", *shown):
         table.add_column(column, justify="left" if column in ("system", "split") else "right")
@@ -160,7 +211,11 @@ def score(
         cells = [_cell(by_metric, m) for m in shown]
         table.add_row(str(sys_name), str(split_name), str(int(group.n.max())), *cells)
     console = Console(width=160)
+    for warning in warnings:
+        console.print(f"WARNING: {warning}", style="bold red", markup=False, highlight=False)
     console.print(table)
+    for warning in warnings:  # again below the table, where the eye lands
+        console.print(f"WARNING: {warning}", style="bold red", markup=False, highlight=False)
     console.print(f"wrote {out / 'scores.csv'} and {out / 'summary.csv'}")
 
 

@@ -10,7 +10,12 @@ import numpy as np
 from typer.testing import CliRunner
 
 from skyvln_eval.cli import app
-from skyvln_eval.errors import IncompleteRunError, NoGroundTruthError
+from skyvln_eval.errors import (
+    DataError,
+    IncompleteRunError,
+    NoGroundTruthError,
+    ResultRecordError,
+)
 from skyvln_eval.metrics import RESULTS_VERSION, Prediction, write_predictions_json, write_results
 from skyvln_eval.metrics.scores_io import read_scores
 from tests.conftest import make_record
@@ -156,3 +161,71 @@ def test_score_refuses_an_incomplete_run(
     assert expected in str(failed.exception)
     assert not (tmp_path / "o" / "scores.csv").exists()  # nothing written for a partial run
     assert json.loads(run.read_text().splitlines()[0])["version"] == RESULTS_VERSION
+
+
+def test_table_refuses_an_episode_given_twice(tmp_path: Path) -> None:
+    """Two scores files (or one file twice) holding an episode of the same system, split
+    and mode would be averaged as one row: refused, naming both files and rows."""
+    g = [square(0, 0), square(100, 0)]
+    short = [result([g[0], square(100, 0)], g, episode_id=f"m__{k}_1") for k in range(3)]
+    long = [result([g[0], square(100, 9 * k)], g, episode_id=f"m__{k}_1") for k in range(8)]
+    paths = []
+    for name, rows in (("short", short), ("long", long)):
+        write_results(tmp_path / f"{name}.jsonl", rows)
+        scored = runner.invoke(
+            app, ["score", str(tmp_path / f"{name}.jsonl"), "--out", str(tmp_path / name)]
+        )
+        assert scored.exit_code == 0, scored.output
+        paths.append(str(tmp_path / name / "scores.csv"))
+
+    twice = runner.invoke(app, ["table", paths[0], paths[0], "--ci"])
+    assert isinstance(twice.exception, ResultRecordError)
+    assert str(twice.exception).startswith(f"{paths[0]}, record 0 (episode m__0_1)")
+    assert f"duplicates record 0 of {paths[0]} (line 4)" in str(twice.exception)
+
+    merged = runner.invoke(app, ["table", paths[0], paths[1]])
+    assert isinstance(merged.exception, ResultRecordError)
+    message = str(merged.exception)
+    assert message.startswith(f"{paths[1]}, record 0 (episode m__0_1), field 'episode_id'")
+    assert f"record 0 of {paths[0]} (line 4)" in message and "same system 'agent'" in message
+    assert "different system labels" in message
+
+    # One file holding an episode twice (e.g. two files pasted together) is refused on reading.
+    lines = Path(paths[1]).read_text().splitlines(keepends=True)
+    Path(paths[1]).write_text("".join([*lines, lines[5]]))
+    pasted = runner.invoke(app, ["table", paths[1]])
+    assert isinstance(pasted.exception, ResultRecordError)
+    assert "line 12 duplicates record 2 of this file (line 6)" in str(pasted.exception)
+
+
+def test_score_takes_a_run_directory_and_names_what_it_cannot_score(tmp_path: Path) -> None:
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    write_run(run_dir / "results.jsonl")
+    out = tmp_path / "scores"
+    scored = runner.invoke(app, ["score", str(run_dir), "--out", str(out)])
+    assert scored.exit_code == 0, scored.output
+    assert len(read_scores(out / "scores.csv")[0]) == 36
+
+    (run_dir / "run.json").write_text('{"system": "Ours Full", "expected": 18}')
+    report = runner.invoke(app, ["score", str(run_dir / "run.json")])
+    assert isinstance(report.exception, DataError)
+    assert str(report.exception) == (
+        f"{run_dir / 'run.json'}: the report of a run (episodes by status, errors), not its "
+        f"results; score the run directory {run_dir} (or {run_dir / 'results.jsonl'})"
+    )
+    empty = runner.invoke(app, ["score", str(tmp_path / "scores")])
+    assert isinstance(empty.exception, DataError)
+    assert "a directory without results.jsonl, so not a run directory" in str(empty.exception)
+    absent = runner.invoke(app, ["score", str(tmp_path / "preds.npy")])
+    assert str(absent.exception) == f"{tmp_path / 'preds.npy'}: no such file or directory"
+
+    # The same rows in two files: the error names both files (not '<results>').
+    copy = tmp_path / "copy.jsonl"
+    copy.write_bytes((run_dir / "results.jsonl").read_bytes())
+    twice = runner.invoke(app, ["score", str(run_dir), str(copy)])
+    assert isinstance(twice.exception, ResultRecordError)
+    message = str(twice.exception)
+    assert message.startswith(f"{copy}, record 0 (episode m__0_1), field 'episode_id'")
+    assert f"duplicate of record 0 of {run_dir / 'results.jsonl'}" in message
+    assert "different system labels" in message

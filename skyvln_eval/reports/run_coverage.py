@@ -1,0 +1,242 @@
+"""Which episodes a run directory was set to run, and whether its results cover them.
+
+A ``results.jsonl`` beside a ``config.yaml`` is a run directory's
+(:mod:`skyvln_eval.harness.run`). Its config selects the episodes the run covers: of each
+of its splits, the episodes of its episode mode in file order, only those listed in
+``episodes`` when it lists some, the first ``limit`` of them when it sets one, as
+:func:`~skyvln_eval.harness.run.episode_logs` selects them for the run. ``score`` compares
+the run's rows with that selection, so an interrupted run is never scored as a finished
+one, and a limited run is not compared with its whole split.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from skyvln_eval.avdn.constants import EpisodeMode
+from skyvln_eval.errors import ConfigError, DataError, IncompleteRunError, SkyvlnError
+from skyvln_eval.harness.config import RunConfig, run_config_from_mapping
+from skyvln_eval.harness.run import CONFIG_FILE, REPORT_FILE
+from skyvln_eval.harness.store import RESULTS_FILE, RowKey
+from skyvln_eval.metrics.records import EpisodeResult
+
+
+def run_dir_of(results_file: Path) -> Path | None:
+    """The run directory ``results_file`` is the results of, or ``None`` for another file."""
+    folder = results_file.parent
+    if results_file.name != RESULTS_FILE:
+        return None
+    if (folder / CONFIG_FILE).is_file():
+        return folder
+    if (folder / REPORT_FILE).is_file():
+        raise DataError(
+            f"{folder} has a run report ({REPORT_FILE}) but no {CONFIG_FILE}, so which "
+            f"episodes the run was to cover is unknown; put its {CONFIG_FILE} back, or pass "
+            "--allow-incomplete to score the rows it has without checking"
+        )
+    return None
+
+
+def read_run_config(run_dir: Path) -> RunConfig:
+    from skyvln_eval.fileio import read_yaml_mapping
+
+    path = run_dir / CONFIG_FILE
+    return run_config_from_mapping(read_yaml_mapping(path, "run config"), str(path))
+
+
+def run_data_dir(config: RunConfig, run_dir: Path) -> Path:
+    """The dataset the run ran on (``sample`` / ``full``: the cached copy, never built here)."""
+    data = config.data
+    if data in ("sample", "full"):
+        from skyvln_eval.paths import cache_root
+        from skyvln_eval.worlds.sample.build import SPECS
+        from skyvln_eval.worlds.sample.cache import dataset_dir_name, is_complete
+
+        path = cache_root() / dataset_dir_name(SPECS[data])
+        found = is_complete(path)
+    else:
+        path = Path(data).expanduser()
+        found = (path / "annotations").is_dir()
+    if not found:
+        raise DataError(
+            f"the data of run {run_dir} ({data!r}) is not at {path}, so which episodes the "
+            "run was to cover is unknown; pass --data-dir with the dataset it ran on, or "
+            "--allow-incomplete to score the rows it has without checking"
+        )
+    return path
+
+
+def selected_episodes(config: RunConfig, data_dir: Path) -> list[RowKey]:
+    """The episodes ``config`` runs on ``data_dir``, in run order (see the module docstring)."""
+    from skyvln_eval.avdn import load_split
+
+    wanted = set(config.episodes) if config.episodes is not None else None
+    keys: list[RowKey] = []
+    for split in config.splits:
+        episodes = load_split(data_dir, split, check_map_images=False).episodes(config.episode_mode)
+        ids = [e.episode_id for e in episodes if wanted is None or e.episode_id in wanted]
+        keys += [(split, episode_id) for episode_id in ids[: config.limit]]
+    return keys
+
+
+@dataclass(frozen=True)
+class RunCoverage:
+    """How the rows of a run directory cover the episodes its config selects.
+
+    ``stopped`` rows only record that the run stopped there (refused credentials, a full
+    disk: ``extra["fatal"]``); the run runs their episodes again, so they count as missing.
+    """
+
+    run_dir: Path
+    system: str
+    data_dir: Path
+    expected: tuple[RowKey, ...]
+    missing: tuple[RowKey, ...]
+    stopped: tuple[RowKey, ...]
+    unexpected: tuple[RowKey, ...]
+
+    @property
+    def complete(self) -> bool:
+        return not self.missing and not self.unexpected
+
+    @property
+    def recorded(self) -> int:
+        return len(self.expected) - len(self.missing)
+
+    def _what(self) -> str:
+        return (
+            f"run {self.run_dir} (system {self.system!r}: {len(self.expected)} episode(s) "
+            f"selected by its {CONFIG_FILE}, {self.recorded} recorded)"
+        )
+
+    def _finish_it(self) -> str:
+        config = self.run_dir / CONFIG_FILE
+        stopped = (
+            f" ({len(self.stopped)} of the missing have a row that only records the run "
+            "stopping there, e.g. refused credentials)"
+            if self.stopped
+            else ""
+        )
+        return (
+            f"Finish it with `skyvln-eval run {config} --out {self.run_dir}`, which runs only "
+            f"the missing episodes{stopped}"
+        )
+
+    def error(self) -> IncompleteRunError:
+        if self.unexpected:
+            hint = f"Is {self.data_dir} the dataset the run ran on? (--data-dir gives another)"
+        else:
+            hint = (
+                f"{self._finish_it()}, or pass --allow-incomplete to score the "
+                f"{self.recorded} recorded episode(s) as they are"
+            )
+        return IncompleteRunError(
+            self._what(),
+            [f"{split}/{episode_id}" for split, episode_id in self.missing],
+            [f"{split}/{episode_id}" for split, episode_id in self.unexpected],
+            hint=hint,
+            outside=f"the run's selection from {self.data_dir}",
+        )
+
+    def warning(self) -> str:
+        """What ``--allow-incomplete`` says about the scores of an incomplete run."""
+        shown = ", ".join(f"{s}/{e}" for s, e in self.missing[:5])
+        more = " ..." if len(self.missing) > 5 else ""
+        left_out = (
+            f"; the {len(self.stopped)} row(s) that only record the run stopping are left out"
+            if self.stopped
+            else ""
+        )
+        return (
+            f"INCOMPLETE: {self._what()}: {len(self.missing)} episode(s) missing ({shown}{more})"
+            f"{left_out}. Its scores cover only the {self.recorded} recorded episode(s). "
+            f"{self._finish_it()}."
+        )
+
+
+def run_coverage(
+    run_dir: Path, results: Sequence[EpisodeResult], data_dir: Path | None = None
+) -> RunCoverage:
+    """How ``results`` (the rows of ``run_dir``) cover the episodes its config selects,
+    from ``data_dir`` or, by default, the dataset the run ran on."""
+    config = read_run_config(run_dir)
+    data_dir = data_dir if data_dir is not None else run_data_dir(config, run_dir)
+    try:
+        expected = selected_episodes(config, data_dir)
+    except SkyvlnError as error:  # e.g. a split the dataset does not have
+        raise DataError(
+            f"cannot tell which episodes run {run_dir} covers from {data_dir}: {error}"
+        ) from None
+    rows = {(r.split, r.episode_id): r for r in results}
+    stopped = [key for key in expected if key in rows and "fatal" in rows[key].extra]
+    missing = [key for key in expected if key not in rows or "fatal" in rows[key].extra]
+    return RunCoverage(
+        run_dir=run_dir,
+        system=config.system,
+        data_dir=data_dir,
+        expected=tuple(expected),
+        missing=tuple(missing),
+        stopped=tuple(stopped),
+        unexpected=tuple(sorted(set(rows) - set(expected))),
+    )
+
+
+def covered_results(
+    sources: list[tuple[str, list[EpisodeResult]]], data_dir: Path | None, allow_incomplete: bool
+) -> tuple[list[EpisodeResult], list[str]]:
+    """The rows to score and a warning per incomplete input (with ``allow_incomplete``;
+    else an incomplete input raises).
+
+    The rows of a run directory must cover the episodes its config selects (from
+    ``data_dir`` if given, else from the data it ran on); other results, given
+    ``data_dir``, every episode of their split. Rows of episodes outside those always raise.
+    """
+    rows: list[EpisodeResult] = []
+    warnings: list[str] = []
+    plain: dict[tuple[str, str, EpisodeMode], list[str]] = {}  # (system, split, mode) -> episodes
+    for name, results in sources:
+        try:
+            run_dir = run_dir_of(Path(name))
+            coverage = None if run_dir is None else run_coverage(run_dir, results, data_dir)
+        except (ConfigError, DataError) as error:  # which episodes the run covers is unknown
+            if not allow_incomplete:
+                raise
+            warnings.append(f"NOT CHECKED whether {name} is complete: {error}")
+            rows += results
+            continue
+        if coverage is None:
+            rows += results
+            for r in results:
+                plain.setdefault((r.system, r.split, r.mode), []).append(r.episode_id)
+            continue
+        if not coverage.complete:
+            if coverage.unexpected or not allow_incomplete:
+                raise coverage.error()
+            warnings.append(coverage.warning())
+        rows += [r for r in results if (r.split, r.episode_id) not in coverage.stopped]
+    if data_dir is not None:
+        warnings += _split_coverage(plain, data_dir, allow_incomplete)
+    return rows, warnings
+
+
+def _split_coverage(
+    plain: dict[tuple[str, str, EpisodeMode], list[str]], data_dir: Path, allow_incomplete: bool
+) -> list[str]:
+    """A warning per (system, split, mode) of ``plain`` (its episode ids) that lacks some
+    episodes of its split in ``data_dir`` (with ``allow_incomplete``, else it raises)."""
+    from skyvln_eval.metrics import check_complete, ground_truth_episodes
+
+    warnings = []
+    for (system, split, mode), ids in sorted(plain.items()):
+        episodes = ground_truth_episodes(data_dir, split, mode)
+        try:
+            check_complete(ids, [e.episode_id for e in episodes], f"run {system}/{split}/{mode}")
+        except IncompleteRunError as error:
+            if error.unexpected or not allow_incomplete:
+                raise
+            warnings.append(
+                f"INCOMPLETE: {error}. Its scores cover only the {len(ids)} episode(s) it has."
+            )
+    return warnings
