@@ -67,7 +67,8 @@ def run_command(
     )
     for line in describe_report(report):
         typer.echo(line, err=line.startswith(("error", "missing", "dropped")))
-    typer.echo(
-        f"results: {run_dir / 'results.jsonl'}  (skyvln-eval score {run_dir / 'results.jsonl'})"
-    )
+    score = f"skyvln-eval score {run_dir}"
+    if report.missing:  # score refuses an incomplete run unless told otherwise
+        score += " --allow-incomplete; run this command again to finish the run"
+    typer.echo(f"results: {run_dir / 'results.jsonl'}  ({score})")
     return report

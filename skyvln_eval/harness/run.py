@@ -75,6 +75,7 @@ def episode_logs(config: RunConfig, data_dir: Path) -> dict[RowKey, Path]:
     one process at a time: the cache is shared by every run on the data)."""
     out: dict[RowKey, Path] = {}
     wanted = set(config.episodes) if config.episodes is not None else None
+    found: set[str] = set()  # before the limit: a listed episode past it exists all the same
     root = episode_logs_root(data_dir)
     for split in config.splits:
         # The cache is shared by every run on this data: one process converts a split at a
@@ -84,12 +85,13 @@ def episode_logs(config: RunConfig, data_dir: Path) -> dict[RowKey, Path]:
                 data_dir, split, root, config.episode_mode, options=EPISODE_LOG_OPTIONS
             )
         rows = [r for r in report.rows if wanted is None or r.episode_id in wanted]
+        found.update(row.episode_id for row in rows)
         if config.limit is not None:
             rows = rows[: config.limit]
         for row in rows:
             out[(split, row.episode_id)] = report.out_dir / row.file_name
     if wanted is not None:
-        unknown = wanted - {episode_id for _, episode_id in out}
+        unknown = wanted - found
         if unknown:
             shown = ", ".join(sorted(unknown)[:10])
             raise ConfigError(f"episodes not found in {', '.join(config.splits)}: {shown}")

@@ -255,3 +255,15 @@ def test_run_configs_are_validated_with_the_field_named(tmp_path: Path) -> None:
         load_run_config(path)
     for shipped in sorted((REPO / "skyvln_eval" / "configs" / "runs").glob("*.yaml")):
         assert load_run_config(shipped).system
+
+
+def test_listed_episodes_past_the_limit_are_found_and_cut_by_it(
+    sample_dir: Path, small_config: MakeConfig
+) -> None:
+    from skyvln_eval.harness.run import episode_logs
+
+    ids = [e.episode_id for e in load_split(sample_dir, "val_unseen").episodes()][:3]
+    logs = episode_logs(small_config(episodes=ids, limit=1), sample_dir)
+    assert list(logs) == [("val_unseen", ids[0])]  # was: 'episodes not found' for the other two
+    with pytest.raises(ConfigError, match="episodes not found in val_unseen: nope"):
+        episode_logs(small_config(episodes=[*ids, "nope"], limit=1), sample_dir)
