@@ -6,9 +6,14 @@ Inputs are the :class:`~skyvln_eval.llm_records.LlmCall` and
 scores frame (:data:`COST_COLUMNS`); :func:`module_costs` gives one row per (episode,
 module) and :func:`summarise_costs` aggregates either over episodes.
 
-Unknown stays unknown: an episode's cost (and token count) is NaN when any of its calls
-had no price or no token count, and every mean over such an episode is NaN too, shown as
-"n/a" (:data:`UNKNOWN_IF_ANY_UNKNOWN`). An episode without calls costs a known 0.
+Unknown stays unknown: an episode's cost is NaN when any of its attempts had no price or
+no token count, its token counts when any answered attempt reported none, and every mean
+over such an episode is NaN too, shown as "n/a" (:data:`UNKNOWN_IF_ANY_UNKNOWN`). A failed
+attempt (no answer) adds the tokens it reported, usually none, so a dead endpoint shows 0
+tokens; but its cost is unknown, since a provider may bill a request it never answered
+(one cut off mid-generation). ``llm_calls`` counts calls (a call's retries and repairs are
+attempts of it); ``llm_unpriced_calls`` counts attempts whose cost is unknown.
+An episode without calls costs a known 0.
 Rates (call failure rate, fallback rate) are NaN for an episode with nothing to rate (no
 call, no decision) and left out of their means.
 """
@@ -51,6 +56,12 @@ def _sum_known(values: Sequence[float | int | None]) -> float:
     return math.nan if any(v is None for v in values) else float(sum(v for v in values if v))
 
 
+def _reported(call: LlmCall, tokens: int | None) -> int | None:
+    """An attempt's token count: unknown only for an answered attempt that reported none (a
+    failed one that reported none adds 0; one that reported some adds them)."""
+    return 0 if tokens is None and call.outcome == "failed" else tokens
+
+
 def call_totals(
     calls: Sequence[LlmCall], failures: Sequence[ModuleFailure] = (), decisions: int = 0
 ) -> dict[str, float]:
@@ -65,10 +76,8 @@ def call_totals(
         "llm_parse_failures": float(sum(c.outcome == "invalid" for c in calls)),
         "llm_repairs": float(sum(c.repair for c in finals)),
         "llm_cached_calls": float(sum(c.cached for c in finals)),
-        "llm_prompt_tokens": _sum_known([c.prompt_tokens for c in calls if c.outcome != "failed"]),
-        "llm_completion_tokens": _sum_known(
-            [c.completion_tokens for c in calls if c.outcome != "failed"]
-        ),
+        "llm_prompt_tokens": _sum_known([_reported(c, c.prompt_tokens) for c in calls]),
+        "llm_completion_tokens": _sum_known([_reported(c, c.completion_tokens) for c in calls]),
         "llm_cost_usd": _sum_known([c.cost_usd for c in calls]),
         "llm_unpriced_calls": float(sum(c.cost_usd is None for c in calls)),
         "llm_latency_s": float(sum(c.latency_s for c in calls)),

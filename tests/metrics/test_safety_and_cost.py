@@ -120,3 +120,22 @@ def test_llm_costs_per_episode_and_module() -> None:
     assert costs.loc["motion", "llm_prompt_tokens_per_episode"] == pytest.approx(1000 / 2)
     assert costs.loc["subgoals", "latency_per_call_s"] == pytest.approx(2.0)
     assert costs.loc["all", "episodes"] == 2
+
+
+def test_failed_attempts_add_the_tokens_they_reported_and_leave_the_cost_unknown() -> None:
+    g = [square(0, 0), square(50, 0)]
+    answered = _call("motion", prompt_tokens=500, completion_tokens=50, cost_usd=0.005)
+    refused = _call("motion", outcome="failed", error="connection refused")  # no report
+    billed = _call("motion", outcome="failed", error="timeout", prompt_tokens=300)
+    mute = _call("motion", cost_usd=0.0)  # answered, but the server reported no usage
+    scores = score_results(
+        [
+            result(g, g, llm_calls=[answered, refused]),
+            result(g, g, episode_id="b", llm_calls=[answered, billed]),
+            result(g, g, episode_id="c", llm_calls=[answered, mute]),
+        ]
+    )
+    assert scores.llm_prompt_tokens.tolist()[:2] == [500.0, 800.0]
+    assert np.isnan(scores.llm_prompt_tokens[2])  # an answer without a count: unknown
+    assert np.isnan(scores.llm_cost_usd[0]) and np.isnan(scores.llm_cost_usd[1])
+    assert scores.llm_unpriced_calls.tolist() == [1.0, 1.0, 0.0]
