@@ -110,6 +110,12 @@ class ConfigError(SkyvlnError):
     """A configuration value or command-line option is invalid."""
 
 
+#: The context key (of a ``PydanticCustomError``) by which a validator that checks a
+#: free-form mapping (a controller's settings) names the field inside it, as a dotted path
+#: below the error's location: :func:`describe_validation_error` appends it.
+FIELD_PATH_CONTEXT = "field_path"
+
+
 def describe_validation_error(error: Any, model: Any = None) -> str:
     """A pydantic ``ValidationError`` as ``"field.path: message; ..."`` (for ConfigError texts).
 
@@ -129,7 +135,11 @@ def describe_validation_error(error: Any, model: Any = None) -> str:
                 text += f" (did you mean {', '.join(repr(c) for c in close)}?)"
             elif known:
                 text += f" (known: {', '.join(known)})"
-        parts.append(f"{'.'.join(str(p) for p in e['loc']) or '(top level)'}: {text}")
+        loc = [str(p) for p in e["loc"]]
+        inside = (e.get("ctx") or {}).get(FIELD_PATH_CONTEXT)
+        if inside:  # a validator of a free-form mapping named the key inside it
+            loc.append(str(inside))
+        parts.append(f"{'.'.join(loc) or '(top level)'}: {text}")
     return "; ".join(parts)  # a sentence's own full stop would read ".;"
 
 
@@ -154,6 +164,20 @@ def _field_names_at(model: Any, loc: Sequence[Any]) -> list[str]:
             return []
         # else: an index or key into a list or mapping of the models in hand
     return list(current[0].model_fields) if current else []
+
+
+class SettingsError(ConfigError):
+    """A component's settings mapping (a controller's) holds an unknown or invalid field.
+
+    ``field`` is its dotted path inside the mapping (``weights.input``; empty for the
+    mapping as a whole) and ``problem`` what is wrong with it, so a config loader can name
+    the field by its own path (``dynamics.controller_settings.weights.input``).
+    """
+
+    def __init__(self, message: str, field: str, problem: str) -> None:
+        super().__init__(message)
+        self.field = field
+        self.problem = problem
 
 
 class UnknownNameError(ConfigError):

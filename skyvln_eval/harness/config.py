@@ -13,12 +13,19 @@ from pathlib import Path
 from typing import Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic_core import PydanticCustomError
 
 from skyvln_eval.agent.config import AGENTS, AgentConfig
 from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN, EpisodeMode, Split
-from skyvln_eval.control.registry import controller_names, make_controller
-from skyvln_eval.errors import ConfigError, UnknownNameError, describe_validation_error
+from skyvln_eval.control.registry import controller_config, controller_names, make_controller
+from skyvln_eval.errors import (
+    FIELD_PATH_CONTEXT,
+    ConfigError,
+    SettingsError,
+    UnknownNameError,
+    describe_validation_error,
+)
 from skyvln_eval.fileio import read_yaml_mapping
 from skyvln_eval.harness.executors import ExecutorKind
 from skyvln_eval.sensing import SensorConfig
@@ -121,6 +128,18 @@ class RunConfig(_Strict):
             raise ValueError(str(UnknownNameError("agent", agent.name, list(AGENTS))))
         return agent
 
+    @model_validator(mode="after")
+    def _valid_controller_settings(self) -> RunConfig:
+        # Checked on load like the controller's name: every episode would fail on a bad
+        # setting. Here, not in DynamicsSettings: a reproduce plan's dynamics settings go to
+        # each system's own controller (checked by the plan).
+        check_controller_settings(
+            self.dynamics.controller,
+            self.dynamics.controller_settings,
+            "dynamics.controller_settings",
+        )
+        return self
+
     @field_validator("splits")
     @classmethod
     def _known_splits(cls, splits: tuple[str, ...]) -> tuple[str, ...]:
@@ -141,6 +160,20 @@ class RunConfig(_Strict):
 
     def to_yaml(self) -> str:
         return yaml.safe_dump(self.model_dump(mode="json"), sort_keys=False, allow_unicode=True)
+
+
+def check_controller_settings(controller: str, settings: dict[str, Any], field: str) -> None:
+    """Check ``settings`` against controller ``controller``'s settings (no solver is built);
+    in a pydantic validator, a bad one is an error at ``field`` plus its path inside."""
+    try:
+        controller_config(controller, settings)
+    except SettingsError as error:
+        inside = ".".join(part for part in (field, error.field) if part)
+        raise PydanticCustomError(
+            "controller_settings",
+            "{problem}",
+            {"problem": error.problem, FIELD_PATH_CONTEXT: inside},
+        ) from None
 
 
 def run_config_from_mapping(data: Any, source: str) -> RunConfig:
@@ -167,6 +200,7 @@ __all__ = [
     "ExecutionMode",
     "ObstacleSettings",
     "RunConfig",
+    "check_controller_settings",
     "load_run_config",
     "run_config_from_mapping",
 ]

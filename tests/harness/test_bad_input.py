@@ -156,3 +156,69 @@ def test_load_run_config_raises_config_errors_only(tmp_path: Path) -> None:
         path.write_bytes(text)
         with pytest.raises(ConfigError, match=str(path)):
             load_run_config(path)
+
+
+@pytest.mark.parametrize(
+    ("dynamics", "needle"),
+    [
+        (
+            {"controller": "pid", "controller_settings": {"horizn": 5}},
+            "dynamics.controller_settings.horizn: unknown field of the pid settings (known: dt_s,",
+        ),
+        (
+            {"controller": "mpc", "controller_settings": {"max_obstacle": 1}},
+            "dynamics.controller_settings.max_obstacle: unknown field of the mpc settings "
+            "(did you mean 'max_obstacles'?)",
+        ),
+        (
+            {"controller": "nmpc", "controller_settings": {"weights": {"input": "big"}}},
+            "dynamics.controller_settings.weights.input: must be a list, got 'big'",
+        ),
+        (
+            {"controller": "nmpc", "controller_settings": {"horizon_steps": 0}},
+            "dynamics.controller_settings: MpcConfig.horizon_steps must be an integer >= 1",
+        ),
+    ],
+    ids=["pid-unknown", "mpc-misspelt", "nmpc-type", "nmpc-range"],
+)
+def test_bad_controller_settings_are_refused_on_load(
+    tmp_path: Path, sample_dir: Path, cli: Cli, dynamics: dict[str, Any], needle: str
+) -> None:
+    path = tmp_path / "settings.yaml"
+    path.write_text(yaml.safe_dump(_config(sample_dir, mode="dynamics", dynamics=dynamics)))
+    _refused(cli("run", str(path), "--out", str(tmp_path / "run")), f"run config {path}: {needle}")
+    assert not (tmp_path / "run").exists(), "no episode may run"
+
+
+def test_bad_controller_settings_in_a_plan_are_refused_on_load(tmp_path: Path, cli: Cli) -> None:
+    from tests.harness.test_reproduce import TINY_PLAN
+
+    plan = tmp_path / "plan.yaml"
+    systems = [
+        {"label": "w PID", "controller": "pid", "controller_settings": {"max_speed": 3}},
+        {"label": "w MPC", "controller": "mpc", "agent": {"name": "skyvln"}},
+    ]
+    data = TINY_PLAN | {"dynamics": {}, "table1": {"splits": ["val_unseen"], "systems": systems}}
+    plan.write_text(yaml.safe_dump(data))
+    out = tmp_path / "out"
+    _refused(
+        cli("reproduce", "--plan", str(plan), "--out", str(out)),
+        f"reproduce plan {plan}: table1.systems.0.controller_settings.max_speed: unknown field "
+        "of the pid settings (did you mean 'max_speed_m_s'?)",
+    )
+    # The plan's settings go to every system: a PID has no such field.
+    systems[0] = {"label": "w PID", "controller": "pid"}
+    data["dynamics"] = {"controller_settings": {"compile": "never"}}
+    plan.write_text(yaml.safe_dump(data))
+    _refused(
+        cli("reproduce", "--plan", str(plan), "--out", str(out)),
+        "dynamics.controller_settings.compile: unknown field of the pid settings",
+        "system 'w PID' flies pid",
+    )
+    systems[0] = {"label": "w PID", "controller": "pdi"}
+    plan.write_text(yaml.safe_dump(data))
+    _refused(
+        cli("reproduce", "--plan", str(plan), "--out", str(out)),
+        "table1.systems.0.controller: unknown controller 'pdi'. Did you mean 'pid'?",
+    )
+    assert not out.exists(), "no episode may run"
