@@ -199,7 +199,9 @@ def summary(
 def validate(
     paths: Annotated[
         list[Path],
-        typer.Argument(help="Dataset folders, MCAP files, or folders of converted MCAP logs"),
+        typer.Argument(
+            help="Dataset folders, MCAP files, folders of converted MCAP logs, or run directories"
+        ),
     ],
     no_images: Annotated[
         bool, typer.Option("--no-images", help="Do not check that map images exist")
@@ -208,7 +210,8 @@ def validate(
     """Report every problem in the given datasets or MCAP logs; exit 1 if there is any.
 
     MCAP files are checked byte by byte (CRCs), message by message (JSON schema of their
-    channel) and for their format version; folders of logs also against their manifest.
+    channel) and for their format version; folders of converted logs also against their
+    manifest (a run directory's logs have none: only their files are checked).
     """
     from skyvln_eval.avdn import SPLITS, annotation_file_name, check_split
     from skyvln_eval.converters.commands import is_mcap_target, run_validate_mcap
