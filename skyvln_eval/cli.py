@@ -118,6 +118,21 @@ def sample(
     console.print(str(path))
 
 
+DATA_DIR_HELP = (
+    "AVDN-format dataset folder (annotations/, train_images/), or 'sample' / 'full': the "
+    "synthetic datasets, built on first use (as a run config's data:)"
+)
+
+
+def data_dir_argument(value: str) -> Path:
+    """A ``--data-dir`` / ``DATA_DIR`` value: ``sample`` or ``full`` (the synthetic
+    datasets, built on first use with a progress bar, as a run config's ``data:``), else a
+    folder (``./sample`` for a folder of that name)."""
+    if value in DATASET_SIZES:
+        return _build_dataset(value, None, False, 1)
+    return Path(value)
+
+
 def _split_table(summaries: list[SplitSummary]) -> Table:
     table = Table(
         title="AVDN-format dataset",
@@ -163,10 +178,21 @@ def _split_table(summaries: list[SplitSummary]) -> Table:
 
 def _summarise(data_dir: Path, skip_invalid: bool) -> list[SplitSummary]:
     from skyvln_eval.avdn import SPLITS, annotation_file_name, load_split, summarise_split
+    from skyvln_eval.errors import DataError
 
+    expected = ", ".join(f"annotations/{annotation_file_name(s)}" for s in SPLITS)
+    if not data_dir.is_dir():
+        what = "is a file, not" if data_dir.exists() else "does not exist; expected"
+        raise DataError(
+            f"{data_dir} {what} a dataset folder with {expected} (one split or more), or "
+            "'sample' / 'full' for the synthetic datasets"
+        )
+    found = [s for s in SPLITS if (data_dir / "annotations" / annotation_file_name(s)).is_file()]
+    if not found:
+        raise DataError(f"{data_dir}: no annotation file of any split; expected {expected}")
     summaries = []
     for split in SPLITS:
-        if not (data_dir / "annotations" / annotation_file_name(split)).is_file():
+        if split not in found:
             _echo_problem(f"{split}: no annotation file, skipped", "yellow")
             continue
         loaded = load_split(data_dir, split, skip_invalid=skip_invalid)
@@ -184,15 +210,14 @@ def _summarise(data_dir: Path, skip_invalid: bool) -> list[SplitSummary]:
 
 @app.command()
 def summary(
-    data_dir: Annotated[
-        Path, typer.Argument(help="Dataset folder with annotations/ and train_images/")
-    ],
+    data_dir: Annotated[str, typer.Argument(help=DATA_DIR_HELP, show_default=False)],
     skip_invalid: Annotated[
         bool, typer.Option(help="Skip invalid records (each is reported) instead of failing")
     ] = False,
 ) -> None:
-    """Load every split of a dataset and print its figures."""
-    console.print(_split_table(_summarise(data_dir, skip_invalid)))
+    """Load every split of a dataset and print its figures; a folder without any split's
+    annotation file is an error."""
+    console.print(_split_table(_summarise(data_dir_argument(data_dir), skip_invalid)))
 
 
 @app.command()
@@ -247,7 +272,7 @@ def validate(
 
 @app.command()
 def convert(
-    data_dir: Annotated[Path, typer.Option(help="AVDN-format dataset folder")],
+    data_dir: Annotated[str, typer.Option(help=DATA_DIR_HELP)],
     split: Annotated[str, typer.Option(help="Split to convert, e.g. val_unseen")],
     out: Annotated[Path, typer.Option(help="Output folder (logs go to OUT/SPLIT/MODE/)")],
     mode: Annotated[str, typer.Option(help="'andh' (one per record) or 'andh-full'")] = "andh",
@@ -269,10 +294,11 @@ def convert(
 
     if mode not in EPISODE_MODES:
         raise typer.BadParameter(f"--mode must be one of {', '.join(EPISODE_MODES)}")
+    dataset = data_dir_argument(data_dir)
     with _progress("converting") as progress:
         task = progress.add_task(split, total=None)
         failures = run_convert(
-            data_dir,
+            dataset,
             split,
             out,
             mode,

@@ -6,10 +6,13 @@ import math
 from collections.abc import Callable
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from skyvln_eval.cli import app
-from tests.conftest import make_record
+from tests.conftest import CliOutcome, make_record
+
+Cli = Callable[..., CliOutcome]
 
 runner = CliRunner()
 
@@ -49,3 +52,36 @@ def test_summary_skip_invalid_reports_what_it_skipped(dataset_factory: Callable[
     assert result.exit_code == 0, result.output
     assert "skipped: " in result.output and "field 'angle'" in result.output
     assert "skipped 1 invalid record(s), loaded 1" in result.output
+
+
+def test_summary_of_a_folder_without_a_dataset_is_an_error(tmp_path: Path, cli: Cli) -> None:
+    missing = tmp_path / "nonexistent"
+    outcome = cli("summary", str(missing))
+    assert outcome.code == 2 and not outcome.out
+    assert f"error: {missing} does not exist; expected a dataset folder with " in outcome.err
+    assert "annotations/val_seen_data.json" in outcome.err
+    outcome = cli("summary", str(tmp_path))
+    assert outcome.code == 2 and not outcome.out
+    assert f"error: {tmp_path}: no annotation file of any split; expected " in outcome.err
+
+
+def test_sample_names_the_synthetic_dataset_in_summary_and_convert(
+    sample_dir: Path, tmp_path: Path, cli: Cli, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import skyvln_eval.converters.commands as commands
+
+    monkeypatch.setenv("SKYVLN_EVAL_CACHE", str(sample_dir.parent))
+    outcome = cli("summary", "sample")
+    assert outcome.code == 0, outcome
+    assert "val_unseen" in outcome.out and "no annotation file" not in outcome.err
+    converted: list[Path] = []
+    monkeypatch.setattr(
+        commands, "run_convert", lambda data_dir, *_, **__: converted.append(data_dir) or 0
+    )
+    outcome = cli("convert", "--data-dir", "sample", "--split", "val_seen", "--out", str(tmp_path))
+    assert outcome.code == 0, outcome
+    assert converted == [sample_dir]
+    # A folder of that name is still reachable by a path that is not the bare word.
+    monkeypatch.chdir(tmp_path)
+    outcome = cli("summary", "./sample")
+    assert outcome.code == 2 and "sample does not exist" in outcome.err
