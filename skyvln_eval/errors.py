@@ -57,20 +57,26 @@ class AvdnFileError(DataError):
 class AvdnValidationError(DataError):
     """One or more records of an annotation file are invalid.
 
-    ``issues`` holds every problem found, so a caller can report them all at once.
+    ``issues`` holds every problem found, so a caller can report them all at once; ``hint``
+    says what to do about them where the error is met (default: :data:`LOAD_HINT`).
     """
 
     max_listed = 20
+    #: Where records are loaded: the ways to leave the invalid ones out.
+    LOAD_HINT = (
+        "fix them, or leave them out: `--skip-invalid` with `skyvln-eval summary` or "
+        "`convert`, `skip_invalid=True` with load_split"
+    )
 
-    def __init__(self, issues: Sequence[ValidationIssue]) -> None:
+    def __init__(self, issues: Sequence[ValidationIssue], hint: str | None = None) -> None:
         self.issues = tuple(issues)
         lines = [str(issue) for issue in self.issues[: self.max_listed]]
         more = len(self.issues) - len(lines)
         if more > 0:
             lines.append(f"... and {more} more problem(s); `skyvln-eval validate` lists them all")
-        hint = "(load with skip_invalid=True / --skip-invalid to skip the invalid records)"
         super().__init__(
-            f"{len(self.issues)} invalid record(s) {hint}:\n" + "\n".join("  " + x for x in lines)
+            f"{len(self.issues)} invalid record(s) ({hint or self.LOAD_HINT}):\n"
+            + "\n".join("  " + x for x in lines)
         )
 
 

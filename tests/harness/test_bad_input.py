@@ -222,3 +222,24 @@ def test_bad_controller_settings_in_a_plan_are_refused_on_load(tmp_path: Path, c
         "table1.systems.0.controller: unknown controller 'pdi'. Did you mean 'pid'?",
     )
     assert not out.exists(), "no episode may run"
+
+
+def test_an_invalid_record_is_named_with_what_a_run_can_do_about_it(
+    tmp_path: Path, dataset_factory: Callable[..., Path], cli: Cli
+) -> None:
+    from tests.conftest import make_record
+
+    bad = make_record(route_index="1_1", angle="x")
+    data = dataset_factory({"val_unseen": [make_record(), bad]})
+    path = tmp_path / "run.yaml"
+    path.write_text(yaml.safe_dump({**_config(data), "data": str(data)}))
+    message = _refused(
+        cli("run", str(path), "--out", str(tmp_path / "run")),
+        "1 invalid record(s) (a run needs every record of its splits: fix them; "
+        "`skyvln-eval validate DATA_DIR` lists every problem",
+        "record 1 (episode 1913__1_1), field 'angle'",
+    )
+    assert "skip_invalid" not in message and "--skip-invalid to skip" not in message
+    # Where records are loaded, the hint names the options that do leave them out.
+    outcome = cli("summary", str(data))
+    assert outcome.code == 2 and "`--skip-invalid` with `skyvln-eval summary`" in outcome.err
