@@ -13,13 +13,15 @@ import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
+import typer.core
 from rich import box
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
+from typer.core import TyperCommand
 
 from skyvln_eval.errors import SkyvlnError
 
@@ -215,8 +217,10 @@ def summary(
         bool, typer.Option(help="Skip invalid records (each is reported) instead of failing")
     ] = False,
 ) -> None:
-    """Load every split of a dataset and print its figures; a folder without any split's
-    annotation file is an error."""
+    """Load every split of a dataset and print its figures.
+
+    A folder without the annotation file of any split is an error (exit 2).
+    """
     console.print(_split_table(_summarise(data_dir_argument(data_dir), skip_invalid)))
 
 
@@ -455,6 +459,44 @@ def _register_report_commands() -> None:
 
 
 _register_report_commands()
+
+
+class _PlainHelpCommand(TyperCommand):
+    """A command whose help texts read as written: Rich markup escaped (``[viewer]`` would
+    vanish as a style tag), and the paragraphs of its docstring unwrapped so that the
+    terminal wraps them (Typer keeps the docstring's line breaks, which then break
+    sentences in the middle of a narrower line)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        rich = typer.core.HAS_RICH and self.rich_markup_mode == "rich"
+        self.help = _plain_text(self.help, rich, unwrap=True)
+        for param in self.params:
+            if isinstance(param, typer.core.TyperOption | typer.core.TyperArgument):
+                param.help = _plain_text(param.help, rich, unwrap=False)
+
+
+def _plain_text(text: str | None, rich: bool, unwrap: bool) -> str | None:
+    from rich.markup import escape
+
+    if text is None:
+        return None
+    if unwrap:  # paragraphs (blank-line separated) become one line each
+        text = "\n\n".join(" ".join(p.split()) for p in text.split("\n\n"))
+    return escape(text) if rich else text
+
+
+def _plain_help_everywhere(group: typer.Typer) -> None:
+    """Every command of ``group`` and of its sub-groups shows plain help (see above)."""
+    for info in group.registered_commands:
+        if info.cls in (None, TyperCommand):  # not a command class of its own
+            info.cls = _PlainHelpCommand
+    for sub in group.registered_groups:
+        if sub.typer_instance is not None:
+            _plain_help_everywhere(sub.typer_instance)
+
+
+_plain_help_everywhere(app)
 
 
 def main() -> None:

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from typer.testing import CliRunner
@@ -85,3 +86,27 @@ def test_sample_names_the_synthetic_dataset_in_summary_and_convert(
     monkeypatch.chdir(tmp_path)
     outcome = cli("summary", "./sample")
     assert outcome.code == 2 and "sample does not exist" in outcome.err
+
+
+def test_help_texts_read_as_written() -> None:
+    """Rich markup does not eat bracketed words, and docstring paragraphs are unwrapped
+    (Typer would keep their line breaks, which break sentences on a narrower terminal)."""
+    import typer.main
+
+    wide = {"COLUMNS": "400"}
+    view = runner.invoke(app, ["view", "--help"], env=wide)
+    assert "Needs `pip install 'skyvln-eval[viewer]'`." in view.output
+    text = runner.invoke(app, ["reproduce", "--help"], env=wide).output
+    assert "has more than --fail-on-error of its episodes in error (the tables" in text
+
+    def commands(command: Any, path: list[str]) -> Iterator[tuple[list[str], Any]]:
+        yield path, command
+        for name, sub in getattr(command, "commands", {}).items():
+            yield from commands(sub, [*path, name])
+
+    for path, command in commands(typer.main.get_command(app), []):
+        shown = " ".join(runner.invoke(app, [*path, "--help"], env=wide).output.split())
+        for param in command.params:
+            for word in (getattr(param, "help", None) or "").split():
+                if "[" in word:  # e.g. G[N-2]: escaped for Rich, shown as written
+                    assert word.replace("\\[", "[") in shown, (path, word)
