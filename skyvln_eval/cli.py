@@ -23,7 +23,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 from typer.core import TyperCommand
 
-from skyvln_eval.errors import SkyvlnError
+from skyvln_eval.errors import ConfigError, SkyvlnError, UnknownNameError
 
 if TYPE_CHECKING:
     from skyvln_eval.avdn import SplitSummary
@@ -391,11 +391,14 @@ def reproduce(
     Exits 1 when a run is incomplete, stopped early, or has more than --fail-on-error of
     its episodes in error (the tables are written either way, with the error rates).
     """
+    from skyvln_eval.harness.executors import EXECUTOR_KINDS
     from skyvln_eval.harness.plan import load_plan
     from skyvln_eval.harness.progress import RichRunProgress
     from skyvln_eval.harness.reproduce import reproduce as run_plan
     from skyvln_eval.harness.run import error_verdict
 
+    if executor not in EXECUTOR_KINDS:  # checked before anything is written
+        raise ConfigError(f"--executor: {UnknownNameError('executor', executor, EXECUTOR_KINDS)}")
     chosen = load_plan(plan, limit=limit, recordings=None if recordings else 0)
     if data_dir is None and chosen.data == "sample":
         _build_dataset("sample", None, False, 1)  # with a progress bar on first use
@@ -404,7 +407,7 @@ def reproduce(
             chosen,
             out,
             workers,
-            executor,  # type: ignore[arg-type]
+            executor,
             str(data_dir) if data_dir else None,
             RichRunProgress(err_console),
             threads_per_worker=threads_per_worker,

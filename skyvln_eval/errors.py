@@ -123,7 +123,8 @@ FIELD_PATH_CONTEXT = "field_path"
 
 
 def describe_validation_error(error: Any, model: Any = None) -> str:
-    """A pydantic ``ValidationError`` as ``"field.path: message; ..."`` (for ConfigError texts).
+    """A pydantic ``ValidationError`` (or some of its ``errors()``) as ``"field.path: message;
+    ..."`` (for ConfigError texts).
 
     Our own validators' messages are complete sentences: pydantic's "Value error, " prefix
     is dropped from them. Given the validated ``model`` (class), a field it does not know
@@ -132,7 +133,7 @@ def describe_validation_error(error: Any, model: Any = None) -> str:
     import difflib
 
     parts = []
-    for e in error.errors():
+    for e in error.errors() if hasattr(error, "errors") else error:
         text = str(e["msg"]).removeprefix("Value error, ").rstrip(".")
         if e.get("type") == "extra_forbidden" and e["loc"]:
             known = _field_names_at(model, e["loc"][:-1])

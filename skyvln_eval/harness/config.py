@@ -187,11 +187,25 @@ def run_config_from_mapping(data: Any, source: str) -> RunConfig:
 
 
 def load_run_config(path: str | Path, **overrides: Any) -> RunConfig:
-    """Read a YAML run config; ``overrides`` (e.g. ``workers=4``) replace top-level fields."""
+    """Read a YAML run config; ``overrides``, the command line's options (``workers=4`` for
+    ``--workers 4``), replace top-level fields. A bad value is named where it came from:
+    the file and field, or the option (``--executor``)."""
     file = Path(path)
     data = read_yaml_mapping(file, "run config")
-    data |= {k: v for k, v in overrides.items() if v is not None}
-    return run_config_from_mapping(data, f"run config {file}")
+    given = {k: v for k, v in overrides.items() if v is not None}
+    try:
+        return RunConfig.model_validate(data | given)
+    except ValidationError as error:
+        from_options = [e for e in error.errors() if e["loc"] and e["loc"][0] in given]
+        from_file = [e for e in error.errors() if e not in from_options]
+        parts = [  # top-level fields: the option and its value say it all
+            f"--{str(e['loc'][0]).replace('_', '-')} {given[str(e['loc'][0])]!r}: "
+            + str(e["msg"]).removeprefix("Value error, ").rstrip(".")
+            for e in from_options
+        ]
+        if from_file:
+            parts.insert(0, f"run config {file}: {describe_validation_error(from_file, RunConfig)}")
+        raise ConfigError("; ".join(parts)) from None
 
 
 __all__ = [

@@ -243,3 +243,23 @@ def test_an_invalid_record_is_named_with_what_a_run_can_do_about_it(
     # Where records are loaded, the hint names the options that do leave them out.
     outcome = cli("summary", str(data))
     assert outcome.code == 2 and "`--skip-invalid` with `skyvln-eval summary`" in outcome.err
+
+
+def test_a_bad_option_is_named_as_the_option_not_as_the_config(
+    tmp_path: Path, sample_dir: Path, cli: Cli
+) -> None:
+    path = tmp_path / "run.yaml"
+    path.write_text(yaml.safe_dump(_config(sample_dir, workers=0)))
+    message = _refused(
+        cli("run", str(path), "--executor", "bogus", "--threads-per-worker", "100"),
+        f"run config {path}: workers: Input should be greater than or equal to 1",
+        "--executor 'bogus': Input should be 'serial', 'processes', 'threads' or 'ray'",
+        "--threads-per-worker 100: Input should be less than or equal to 64",
+    )
+    assert "executor:" not in message  # not as if the file said it
+    out = tmp_path / "out"
+    _refused(
+        cli("reproduce", "--executor", "bogus", "--out", str(out)),
+        "--executor: unknown executor 'bogus'. Known: processes, ray, serial, threads",
+    )
+    assert not out.exists()
