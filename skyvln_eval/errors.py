@@ -142,12 +142,23 @@ def describe_validation_error(error: Any, model: Any = None) -> str:
                 text += f" (did you mean {', '.join(repr(c) for c in close)}?)"
             elif known:
                 text += f" (known: {', '.join(known)})"
+        if e.get("type") == "string_type" and isinstance(e.get("input"), bool | int | float):
+            text += f" ({_unquoted_yaml(e['input'])})"
         loc = [str(p) for p in e["loc"]]
         inside = (e.get("ctx") or {}).get(FIELD_PATH_CONTEXT)
         if inside:  # a validator of a free-form mapping named the key inside it
             loc.append(str(inside))
         parts.append(f"{'.'.join(loc) or '(top level)'}: {text}")
     return "; ".join(parts)  # a sentence's own full stop would read ".;"
+
+
+def _unquoted_yaml(value: bool | int | float) -> str:
+    """Why YAML gave a text field a boolean or a number, and the cure."""
+    if isinstance(value, bool):
+        read = f"unquoted yes / no / on / off / true / false as {str(value).lower()}"
+    else:
+        read = f"the unquoted text as the number {value!r}, an underscore in digits as a separator"
+    return f"YAML reads {read}: put the text in quotes"
 
 
 def _field_names_at(model: Any, loc: Sequence[Any]) -> list[str]:

@@ -140,6 +140,19 @@ class RunConfig(_Strict):
         )
         return self
 
+    @field_validator("episodes", mode="before")
+    @classmethod
+    def _ids_are_text(cls, ids: Any) -> Any:
+        # YAML 1.1 reads an unquoted 9101__6_1 as the number 910161: the id is lost, and
+        # "should be a valid string" would not say why.
+        numbers = [i for i in ids if isinstance(i, int | float)] if isinstance(ids, list) else []
+        if numbers:
+            raise ValueError(
+                f"episode ids are text, but {numbers[0]!r} is a number: YAML reads an unquoted "
+                'id such as 9101__6_1 as the number 910161; quote each id: ["9101__6_1", ...]'
+            )
+        return ids
+
     @field_validator("splits")
     @classmethod
     def _known_splits(cls, splits: tuple[str, ...]) -> tuple[str, ...]:
