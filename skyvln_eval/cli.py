@@ -13,15 +13,17 @@ import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
+import typer.core
 from rich import box
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
+from typer.core import TyperCommand
 
-from skyvln_eval.errors import SkyvlnError
+from skyvln_eval.errors import ConfigError, SkyvlnError, UnknownNameError
 
 if TYPE_CHECKING:
     from skyvln_eval.avdn import SplitSummary
@@ -118,6 +120,21 @@ def sample(
     console.print(str(path))
 
 
+DATA_DIR_HELP = (
+    "AVDN-format dataset folder (annotations/, train_images/), or 'sample' / 'full': the "
+    "synthetic datasets, built on first use (as a run config's data:)"
+)
+
+
+def data_dir_argument(value: str) -> Path:
+    """A ``--data-dir`` / ``DATA_DIR`` value: ``sample`` or ``full`` (the synthetic
+    datasets, built on first use with a progress bar, as a run config's ``data:``), else a
+    folder (``./sample`` for a folder of that name)."""
+    if value in DATASET_SIZES:
+        return _build_dataset(value, None, False, 1)
+    return Path(value)
+
+
 def _split_table(summaries: list[SplitSummary]) -> Table:
     table = Table(
         title="AVDN-format dataset",
@@ -163,10 +180,21 @@ def _split_table(summaries: list[SplitSummary]) -> Table:
 
 def _summarise(data_dir: Path, skip_invalid: bool) -> list[SplitSummary]:
     from skyvln_eval.avdn import SPLITS, annotation_file_name, load_split, summarise_split
+    from skyvln_eval.errors import DataError
 
+    expected = ", ".join(f"annotations/{annotation_file_name(s)}" for s in SPLITS)
+    if not data_dir.is_dir():
+        what = "is a file, not" if data_dir.exists() else "does not exist; expected"
+        raise DataError(
+            f"{data_dir} {what} a dataset folder with {expected} (one split or more), or "
+            "'sample' / 'full' for the synthetic datasets"
+        )
+    found = [s for s in SPLITS if (data_dir / "annotations" / annotation_file_name(s)).is_file()]
+    if not found:
+        raise DataError(f"{data_dir}: no annotation file of any split; expected {expected}")
     summaries = []
     for split in SPLITS:
-        if not (data_dir / "annotations" / annotation_file_name(split)).is_file():
+        if split not in found:
             _echo_problem(f"{split}: no annotation file, skipped", "yellow")
             continue
         loaded = load_split(data_dir, split, skip_invalid=skip_invalid)
@@ -184,22 +212,25 @@ def _summarise(data_dir: Path, skip_invalid: bool) -> list[SplitSummary]:
 
 @app.command()
 def summary(
-    data_dir: Annotated[
-        Path, typer.Argument(help="Dataset folder with annotations/ and train_images/")
-    ],
+    data_dir: Annotated[str, typer.Argument(help=DATA_DIR_HELP, show_default=False)],
     skip_invalid: Annotated[
         bool, typer.Option(help="Skip invalid records (each is reported) instead of failing")
     ] = False,
 ) -> None:
-    """Load every split of a dataset and print its figures."""
-    console.print(_split_table(_summarise(data_dir, skip_invalid)))
+    """Load every split of a dataset and print its figures.
+
+    A folder without the annotation file of any split is an error (exit 2).
+    """
+    console.print(_split_table(_summarise(data_dir_argument(data_dir), skip_invalid)))
 
 
 @app.command()
 def validate(
     paths: Annotated[
         list[Path],
-        typer.Argument(help="Dataset folders, MCAP files, or folders of converted MCAP logs"),
+        typer.Argument(
+            help="Dataset folders, MCAP files, folders of converted MCAP logs, or run directories"
+        ),
     ],
     no_images: Annotated[
         bool, typer.Option("--no-images", help="Do not check that map images exist")
@@ -208,7 +239,8 @@ def validate(
     """Report every problem in the given datasets or MCAP logs; exit 1 if there is any.
 
     MCAP files are checked byte by byte (CRCs), message by message (JSON schema of their
-    channel) and for their format version; folders of logs also against their manifest.
+    channel) and for their format version; folders of converted logs also against their
+    manifest (a run directory's logs have none: only their files are checked).
     """
     from skyvln_eval.avdn import SPLITS, annotation_file_name, check_split
     from skyvln_eval.converters.commands import is_mcap_target, run_validate_mcap
@@ -244,7 +276,7 @@ def validate(
 
 @app.command()
 def convert(
-    data_dir: Annotated[Path, typer.Option(help="AVDN-format dataset folder")],
+    data_dir: Annotated[str, typer.Option(help=DATA_DIR_HELP)],
     split: Annotated[str, typer.Option(help="Split to convert, e.g. val_unseen")],
     out: Annotated[Path, typer.Option(help="Output folder (logs go to OUT/SPLIT/MODE/)")],
     mode: Annotated[str, typer.Option(help="'andh' (one per record) or 'andh-full'")] = "andh",
@@ -266,10 +298,11 @@ def convert(
 
     if mode not in EPISODE_MODES:
         raise typer.BadParameter(f"--mode must be one of {', '.join(EPISODE_MODES)}")
+    dataset = data_dir_argument(data_dir)
     with _progress("converting") as progress:
         task = progress.add_task(split, total=None)
         failures = run_convert(
-            data_dir,
+            dataset,
             split,
             out,
             mode,
@@ -358,11 +391,14 @@ def reproduce(
     Exits 1 when a run is incomplete, stopped early, or has more than --fail-on-error of
     its episodes in error (the tables are written either way, with the error rates).
     """
+    from skyvln_eval.harness.executors import EXECUTOR_KINDS
     from skyvln_eval.harness.plan import load_plan
     from skyvln_eval.harness.progress import RichRunProgress
     from skyvln_eval.harness.reproduce import reproduce as run_plan
     from skyvln_eval.harness.run import error_verdict
 
+    if executor not in EXECUTOR_KINDS:  # checked before anything is written
+        raise ConfigError(f"--executor: {UnknownNameError('executor', executor, EXECUTOR_KINDS)}")
     chosen = load_plan(plan, limit=limit, recordings=None if recordings else 0)
     if data_dir is None and chosen.data == "sample":
         _build_dataset("sample", None, False, 1)  # with a progress bar on first use
@@ -371,7 +407,7 @@ def reproduce(
             chosen,
             out,
             workers,
-            executor,  # type: ignore[arg-type]
+            executor,
             str(data_dir) if data_dir else None,
             RichRunProgress(err_console),
             threads_per_worker=threads_per_worker,
@@ -426,6 +462,44 @@ def _register_report_commands() -> None:
 
 
 _register_report_commands()
+
+
+class _PlainHelpCommand(TyperCommand):
+    """A command whose help texts read as written: Rich markup escaped (``[viewer]`` would
+    vanish as a style tag), and the paragraphs of its docstring unwrapped so that the
+    terminal wraps them (Typer keeps the docstring's line breaks, which then break
+    sentences in the middle of a narrower line)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        rich = typer.core.HAS_RICH and self.rich_markup_mode == "rich"
+        self.help = _plain_text(self.help, rich, unwrap=True)
+        for param in self.params:
+            if isinstance(param, typer.core.TyperOption | typer.core.TyperArgument):
+                param.help = _plain_text(param.help, rich, unwrap=False)
+
+
+def _plain_text(text: str | None, rich: bool, unwrap: bool) -> str | None:
+    from rich.markup import escape
+
+    if text is None:
+        return None
+    if unwrap:  # paragraphs (blank-line separated) become one line each
+        text = "\n\n".join(" ".join(p.split()) for p in text.split("\n\n"))
+    return escape(text) if rich else text
+
+
+def _plain_help_everywhere(group: typer.Typer) -> None:
+    """Every command of ``group`` and of its sub-groups shows plain help (see above)."""
+    for info in group.registered_commands:
+        if info.cls in (None, TyperCommand):  # not a command class of its own
+            info.cls = _PlainHelpCommand
+    for sub in group.registered_groups:
+        if sub.typer_instance is not None:
+            _plain_help_everywhere(sub.typer_instance)
+
+
+_plain_help_everywhere(app)
 
 
 def main() -> None:

@@ -57,20 +57,26 @@ class AvdnFileError(DataError):
 class AvdnValidationError(DataError):
     """One or more records of an annotation file are invalid.
 
-    ``issues`` holds every problem found, so a caller can report them all at once.
+    ``issues`` holds every problem found, so a caller can report them all at once; ``hint``
+    says what to do about them where the error is met (default: :data:`LOAD_HINT`).
     """
 
     max_listed = 20
+    #: Where records are loaded: the ways to leave the invalid ones out.
+    LOAD_HINT = (
+        "fix them, or leave them out: `--skip-invalid` with `skyvln-eval summary` or "
+        "`convert`, `skip_invalid=True` with load_split"
+    )
 
-    def __init__(self, issues: Sequence[ValidationIssue]) -> None:
+    def __init__(self, issues: Sequence[ValidationIssue], hint: str | None = None) -> None:
         self.issues = tuple(issues)
         lines = [str(issue) for issue in self.issues[: self.max_listed]]
         more = len(self.issues) - len(lines)
         if more > 0:
             lines.append(f"... and {more} more problem(s); `skyvln-eval validate` lists them all")
-        hint = "(load with skip_invalid=True / --skip-invalid to skip the invalid records)"
         super().__init__(
-            f"{len(self.issues)} invalid record(s) {hint}:\n" + "\n".join("  " + x for x in lines)
+            f"{len(self.issues)} invalid record(s) ({hint or self.LOAD_HINT}):\n"
+            + "\n".join("  " + x for x in lines)
         )
 
 
@@ -110,8 +116,15 @@ class ConfigError(SkyvlnError):
     """A configuration value or command-line option is invalid."""
 
 
+#: The context key (of a ``PydanticCustomError``) by which a validator that checks a
+#: free-form mapping (a controller's settings) names the field inside it, as a dotted path
+#: below the error's location: :func:`describe_validation_error` appends it.
+FIELD_PATH_CONTEXT = "field_path"
+
+
 def describe_validation_error(error: Any, model: Any = None) -> str:
-    """A pydantic ``ValidationError`` as ``"field.path: message; ..."`` (for ConfigError texts).
+    """A pydantic ``ValidationError`` (or some of its ``errors()``) as ``"field.path: message;
+    ..."`` (for ConfigError texts).
 
     Our own validators' messages are complete sentences: pydantic's "Value error, " prefix
     is dropped from them. Given the validated ``model`` (class), a field it does not know
@@ -120,7 +133,7 @@ def describe_validation_error(error: Any, model: Any = None) -> str:
     import difflib
 
     parts = []
-    for e in error.errors():
+    for e in error.errors() if hasattr(error, "errors") else error:
         text = str(e["msg"]).removeprefix("Value error, ").rstrip(".")
         if e.get("type") == "extra_forbidden" and e["loc"]:
             known = _field_names_at(model, e["loc"][:-1])
@@ -129,8 +142,23 @@ def describe_validation_error(error: Any, model: Any = None) -> str:
                 text += f" (did you mean {', '.join(repr(c) for c in close)}?)"
             elif known:
                 text += f" (known: {', '.join(known)})"
-        parts.append(f"{'.'.join(str(p) for p in e['loc']) or '(top level)'}: {text}")
+        if e.get("type") == "string_type" and isinstance(e.get("input"), bool | int | float):
+            text += f" ({_unquoted_yaml(e['input'])})"
+        loc = [str(p) for p in e["loc"]]
+        inside = (e.get("ctx") or {}).get(FIELD_PATH_CONTEXT)
+        if inside:  # a validator of a free-form mapping named the key inside it
+            loc.append(str(inside))
+        parts.append(f"{'.'.join(loc) or '(top level)'}: {text}")
     return "; ".join(parts)  # a sentence's own full stop would read ".;"
+
+
+def _unquoted_yaml(value: bool | int | float) -> str:
+    """Why YAML gave a text field a boolean or a number, and the cure."""
+    if isinstance(value, bool):
+        read = f"unquoted yes / no / on / off / true / false as {str(value).lower()}"
+    else:
+        read = f"the unquoted text as the number {value!r}, an underscore in digits as a separator"
+    return f"YAML reads {read}: put the text in quotes"
 
 
 def _field_names_at(model: Any, loc: Sequence[Any]) -> list[str]:
@@ -154,6 +182,20 @@ def _field_names_at(model: Any, loc: Sequence[Any]) -> list[str]:
             return []
         # else: an index or key into a list or mapping of the models in hand
     return list(current[0].model_fields) if current else []
+
+
+class SettingsError(ConfigError):
+    """A component's settings mapping (a controller's) holds an unknown or invalid field.
+
+    ``field`` is its dotted path inside the mapping (``weights.input``; empty for the
+    mapping as a whole) and ``problem`` what is wrong with it, so a config loader can name
+    the field by its own path (``dynamics.controller_settings.weights.input``).
+    """
+
+    def __init__(self, message: str, field: str, problem: str) -> None:
+        super().__init__(message)
+        self.field = field
+        self.problem = problem
 
 
 class UnknownNameError(ConfigError):

@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
+import pytest
 from typer.testing import CliRunner
 
 from skyvln_eval.cli import app
-from tests.conftest import make_record
+from tests.conftest import CliOutcome, make_record
+
+Cli = Callable[..., CliOutcome]
 
 runner = CliRunner()
 
@@ -49,3 +53,60 @@ def test_summary_skip_invalid_reports_what_it_skipped(dataset_factory: Callable[
     assert result.exit_code == 0, result.output
     assert "skipped: " in result.output and "field 'angle'" in result.output
     assert "skipped 1 invalid record(s), loaded 1" in result.output
+
+
+def test_summary_of_a_folder_without_a_dataset_is_an_error(tmp_path: Path, cli: Cli) -> None:
+    missing = tmp_path / "nonexistent"
+    outcome = cli("summary", str(missing))
+    assert outcome.code == 2 and not outcome.out
+    assert f"error: {missing} does not exist; expected a dataset folder with " in outcome.err
+    assert "annotations/val_seen_data.json" in outcome.err
+    outcome = cli("summary", str(tmp_path))
+    assert outcome.code == 2 and not outcome.out
+    assert f"error: {tmp_path}: no annotation file of any split; expected " in outcome.err
+
+
+def test_sample_names_the_synthetic_dataset_in_summary_and_convert(
+    sample_dir: Path, tmp_path: Path, cli: Cli, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import skyvln_eval.converters.commands as commands
+
+    monkeypatch.setenv("SKYVLN_EVAL_CACHE", str(sample_dir.parent))
+    outcome = cli("summary", "sample")
+    assert outcome.code == 0, outcome
+    assert "val_unseen" in outcome.out and "no annotation file" not in outcome.err
+    converted: list[Path] = []
+    monkeypatch.setattr(
+        commands, "run_convert", lambda data_dir, *_, **__: converted.append(data_dir) or 0
+    )
+    outcome = cli("convert", "--data-dir", "sample", "--split", "val_seen", "--out", str(tmp_path))
+    assert outcome.code == 0, outcome
+    assert converted == [sample_dir]
+    # A folder of that name is still reachable by a path that is not the bare word.
+    monkeypatch.chdir(tmp_path)
+    outcome = cli("summary", "./sample")
+    assert outcome.code == 2 and "sample does not exist" in outcome.err
+
+
+def test_help_texts_read_as_written() -> None:
+    """Rich markup does not eat bracketed words, and docstring paragraphs are unwrapped
+    (Typer would keep their line breaks, which break sentences on a narrower terminal)."""
+    import typer.main
+
+    wide = {"COLUMNS": "400"}
+    view = runner.invoke(app, ["view", "--help"], env=wide)
+    assert "Needs `pip install 'skyvln-eval[viewer]'`." in view.output
+    text = runner.invoke(app, ["reproduce", "--help"], env=wide).output
+    assert "has more than --fail-on-error of its episodes in error (the tables" in text
+
+    def commands(command: Any, path: list[str]) -> Iterator[tuple[list[str], Any]]:
+        yield path, command
+        for name, sub in getattr(command, "commands", {}).items():
+            yield from commands(sub, [*path, name])
+
+    for path, command in commands(typer.main.get_command(app), []):
+        shown = " ".join(runner.invoke(app, [*path, "--help"], env=wide).output.split())
+        for param in command.params:
+            for word in (getattr(param, "help", None) or "").split():
+                if "[" in word:  # e.g. G[N-2]: escaped for Rich, shown as written
+                    assert word.replace("\\[", "[") in shown, (path, word)

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 from pydantic import ValidationError
 
-from skyvln_eval.errors import describe_validation_error
-from skyvln_eval.harness.config import RunConfig
+from skyvln_eval.errors import ConfigError, describe_validation_error
+from skyvln_eval.harness.config import RunConfig, load_run_config
 from skyvln_eval.harness.plan import ReproducePlan
 
 
@@ -40,3 +42,36 @@ def test_without_the_model_the_message_is_pydantics() -> None:
     with pytest.raises(ValidationError) as caught:
         RunConfig.model_validate({"system": "x", "temperatur": 1})
     assert describe_validation_error(caught.value).endswith("Extra inputs are not permitted")
+
+
+def test_an_unquoted_episode_id_read_as_a_number_says_to_quote_it(tmp_path: Path) -> None:
+    path = tmp_path / "run.yaml"
+    path.write_text('system: x\nepisodes: [9101__6_1, "9101__5_1"]\n')
+    with pytest.raises(ConfigError) as caught:
+        load_run_config(path)
+    assert str(caught.value) == (
+        f"run config {path}: episodes: episode ids are text, but 910161 is a number: YAML "
+        "reads an unquoted id such as 9101__6_1 as the number 910161; quote each id: "
+        '["9101__6_1", ...]'
+    )
+    path.write_text('system: x\nepisodes: ["9101__6_1"]\n')
+    assert load_run_config(path).episodes == ("9101__6_1",)
+
+
+@pytest.mark.parametrize(
+    ("value", "read"),
+    [
+        ("off", "YAML reads unquoted yes / no / on / off / true / false as false"),
+        ("1_5", "YAML reads the unquoted text as the number 15, an underscore in digits"),
+    ],
+)
+def test_text_that_yaml_reads_as_a_scalar_says_to_quote_it(
+    tmp_path: Path, value: str, read: str
+) -> None:
+    path = tmp_path / "run.yaml"
+    path.write_text(f"system: {value}\n")
+    with pytest.raises(ConfigError, match="system: Input should be a valid string") as caught:
+        load_run_config(path)
+    assert f"({read}" in str(caught.value) and "put the text in quotes)" in str(caught.value)
+    plan = {"table1": {"systems": [{"label": 1.5}]}}
+    assert "YAML reads the unquoted text as the number 1.5" in _problems(ReproducePlan, plan)

@@ -26,6 +26,7 @@ from skyvln_eval.control.pid import PidConfig, PidController
 from skyvln_eval.control.recordings import PAPER_CASES, record_paper_runs
 from skyvln_eval.control.registry import (
     config_from_mapping,
+    controller_config,
     controller_names,
     load_controller,
     make_controller,
@@ -48,6 +49,7 @@ __all__ = [
     "SegmentResult",
     "SolveStats",
     "config_from_mapping",
+    "controller_config",
     "controller_names",
     "fly_to",
     "load_controller",

@@ -29,7 +29,7 @@ import yaml
 from skyvln_eval.control.base import Controller
 from skyvln_eval.control.mpc_config import MpcConfig
 from skyvln_eval.control.pid import PidConfig
-from skyvln_eval.errors import ConfigError, UnknownNameError
+from skyvln_eval.errors import ConfigError, SettingsError, UnknownNameError
 
 T = TypeVar("T")
 
@@ -68,11 +68,20 @@ def controller_names() -> list[str]:
 
 def make_controller(name: str, settings: Mapping[str, Any] | None = None) -> Controller:
     """A new controller ``name`` with ``settings`` overriding its config's defaults."""
+    config = controller_config(name, settings)
+    return _REGISTRY[_ALIASES.get(name, name)][1](config)
+
+
+def controller_config(name: str, settings: Mapping[str, Any] | None = None) -> Any:
+    """The settings of controller ``name`` (its config dataclass, ``settings`` over the
+    defaults), checked without building the controller: no solver is made or compiled.
+
+    An unknown name is an :class:`UnknownNameError`, a bad field a :class:`SettingsError`.
+    """
     key = _ALIASES.get(name, name)
     if key not in _REGISTRY:
         raise UnknownNameError("controller", name, [*_REGISTRY, *_ALIASES])
-    config_class, factory = _REGISTRY[key]
-    return factory(config_from_mapping(config_class, settings or {}, f"{key} settings"))
+    return config_from_mapping(_REGISTRY[key][0], settings or {}, f"{key} settings")
 
 
 def load_controller(path: str | Path) -> Controller:
@@ -96,11 +105,17 @@ def load_controller(path: str | Path) -> Controller:
 def config_from_mapping(cls: type[T], values: Mapping[str, Any], where: str = "settings") -> T:
     """An instance of dataclass ``cls`` from ``values``, nested dataclasses included.
 
-    Lists become tuples; unknown fields and wrong types raise :class:`ConfigError` naming
+    Lists become tuples; unknown fields and wrong types raise :class:`SettingsError` naming
     the field path (e.g. ``nmpc settings.weights.state``).
     """
+    return _from_mapping(cls, values, where, ())
+
+
+def _from_mapping(cls: type[T], values: Any, where: str, path: tuple[str, ...]) -> T:
+    here = ".".join((where, *path))
     if not isinstance(values, Mapping):
-        raise ConfigError(f"{where} must be a mapping, got {type(values).__name__}")
+        problem = f"must be a mapping, got {type(values).__name__}"
+        raise SettingsError(f"{here} {problem}", ".".join(path), problem)
     fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
     hints = typing.get_type_hints(cls)
     kwargs: dict[str, Any] = {}
@@ -108,35 +123,46 @@ def config_from_mapping(cls: type[T], values: Mapping[str, Any], where: str = "s
         if key not in fields:
             close = difflib.get_close_matches(str(key), list(fields), n=3)
             hint = f" Did you mean {', '.join(repr(c) for c in close)}?" if close else ""
-            raise ConfigError(f"{where}: unknown field {key!r}.{hint}")
-        kwargs[key] = _convert(hints[key], value, f"{where}.{key}")
+            known = f"did you mean {', '.join(repr(c) for c in close)}?" if close else ""
+            problem = f"unknown field of the {where} ({known or 'known: ' + ', '.join(fields)})"
+            raise SettingsError(
+                f"{here}: unknown field {key!r}.{hint}", ".".join((*path, str(key))), problem
+            )
+        kwargs[key] = _convert(hints[key], value, where, (*path, key))
     try:
         return cls(**kwargs)
-    except TypeError as error:
-        raise ConfigError(f"{where}: {error}") from error
+    except (TypeError, ConfigError) as error:
+        # The dataclass's own checks (``MpcConfig.horizon_steps must be ...``).
+        raise SettingsError(f"{here}: {error}", ".".join(path), str(error)) from error
 
 
-def _convert(hint: Any, value: Any, where: str) -> Any:
+def _convert(hint: Any, value: Any, where: str, path: tuple[str, ...]) -> Any:
+    def fail(problem: str) -> SettingsError:
+        return SettingsError(f"{'.'.join((where, *path))} {problem}", ".".join(path), problem)
+
     if dataclasses.is_dataclass(hint) and isinstance(hint, type):
-        return config_from_mapping(hint, value, where)
+        return _from_mapping(hint, value, where, path)
     origin = typing.get_origin(hint)
     if origin is tuple:
         if not isinstance(value, list | tuple):
-            raise ConfigError(f"{where} must be a list, got {value!r}")
-        return tuple(_number(v, f"{where}[{i}]") for i, v in enumerate(value))
+            raise fail(f"must be a list, got {value!r}")
+        return tuple(
+            _number(v, where, (*path[:-1], f"{path[-1]}[{i}]")) for i, v in enumerate(value)
+        )
     if hint is float:
-        return _number(value, where)
+        return _number(value, where, path)
     if hint is int and (isinstance(value, bool) or not isinstance(value, int)):
-        raise ConfigError(f"{where} must be an integer, got {value!r}")
+        raise fail(f"must be an integer, got {value!r}")
     if hint is bool and not isinstance(value, bool):
-        raise ConfigError(f"{where} must be true or false, got {value!r}")
+        raise fail(f"must be true or false, got {value!r}")
     if origin is typing.Literal and value not in typing.get_args(hint):
         allowed = ", ".join(repr(a) for a in typing.get_args(hint))
-        raise ConfigError(f"{where} must be one of {allowed}, got {value!r}")
+        raise fail(f"must be one of {allowed}, got {value!r}")
     return value
 
 
-def _number(value: Any, where: str) -> float:
+def _number(value: Any, where: str, path: tuple[str, ...]) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ConfigError(f"{where} must be a number, got {value!r}")
+        problem = f"must be a number, got {value!r}"
+        raise SettingsError(f"{'.'.join((where, *path))} {problem}", ".".join(path), problem)
     return float(value)

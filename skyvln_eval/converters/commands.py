@@ -13,7 +13,12 @@ from skyvln_eval.avdn import EpisodeMode
 from skyvln_eval.converters.batch import convert_split
 from skyvln_eval.converters.convert import ConvertOptions
 from skyvln_eval.converters.manifest import MANIFEST_NAME
-from skyvln_eval.converters.validate import check_paths
+from skyvln_eval.converters.validate import (
+    check_log,
+    check_manifest_folder,
+    is_run_logs_folder,
+    mcap_targets,
+)
 
 Echo = Callable[[str], None]
 
@@ -61,17 +66,31 @@ def run_convert(
 
 
 def run_validate_mcap(path: Path, echo: Echo, problem: Echo) -> int:
-    """Check MCAP files / converted folders; print each problem; return how many."""
-    checks, folder_issues = check_paths([path])
-    for issue in folder_issues:
-        problem(str(issue))
-    bad_files = 0
-    for check in checks:
+    """Check MCAP files / converted folders / a run's logs; print each problem; return how
+    many. The summary counts the problems in the files and in the folders (manifests)."""
+    folders, files = mcap_targets(path)
+    folder_problems = bad_folders = 0
+    for folder in folders:
+        issues = check_manifest_folder(folder)
+        for issue in issues:
+            problem(str(issue))
+        folder_problems += len(issues)
+        bad_folders += bool(issues)
+        files.extend(sorted(folder.glob("*.mcap")))
+    file_problems = bad_files = messages = 0
+    for check in map(check_log, files):
         for issue in check.issues:
             problem(str(issue))
+        file_problems += len(check.issues)
         bad_files += bool(check.issues)
-    total = len(folder_issues) + sum(len(c.issues) for c in checks)
-    messages = sum(c.messages for c in checks)
-    status = "ok" if not total else f"{total} problem(s) in {bad_files} file(s)"
-    echo(f"{path}: {len(checks)} MCAP file(s), {messages} message(s) checked, {status}")
+        messages += check.messages
+    where = [
+        f"{file_problems} in {bad_files} file(s)" if file_problems else "",
+        f"{folder_problems} in {bad_folders} folder(s)" if folder_problems else "",
+    ]
+    total = file_problems + folder_problems
+    status = f"{total} problem(s): {', '.join(w for w in where if w)}" if total else "ok"
+    runs = sum(is_run_logs_folder(folder) for folder in folders)
+    kind = f" ({runs} folder(s) of a run's logs)" if runs else ""
+    echo(f"{path}: {len(files)} MCAP file(s){kind}, {messages} message(s) checked, {status}")
     return total

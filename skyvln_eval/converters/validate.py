@@ -6,7 +6,9 @@ re-parsed, each topic written with its declared schema, and every message decode
 and validated against the JSON schema stored in its own channel (plus: ``timestamp``
 equals the log time, base64 image data decodes). For a folder with a manifest: every
 listed file present, named after its episode id, with the listed content hash (so it is
-the very file the conversion wrote), and no unlisted logs.
+the very file the conversion wrote), and no unlisted logs. A run directory's logs
+(``RUN_DIR/logs/SPLIT/``, beside the run's ``run.json``) have no manifest: their files are
+checked one by one.
 """
 
 from __future__ import annotations
@@ -36,6 +38,10 @@ from skyvln_eval.fileio import sha256_file
 
 #: Problems listed per channel before the rest are summarised in one line.
 MAX_ISSUES_PER_CHANNEL: Final = 5
+#: A run directory's layout (``harness.run.REPORT_FILE``, ``harness.runner.LOGS_DIR``;
+#: not imported: the harness imports the converters).
+RUN_REPORT_FILE: Final = "run.json"
+RUN_LOGS_DIR: Final = "logs"
 
 _validators: dict[bytes, Any] = {}
 
@@ -155,8 +161,13 @@ def check_log(path: str | Path) -> LogCheck:
     try:
         log = read_log(path)
     except SkyvlnError as exc:
-        return LogCheck(str(path), 0, (ValidationIssue(str(path), str(exc)),))
+        return LogCheck(str(path), 0, (_unreadable(str(path), exc),))
     return check_loaded_log(log)
+
+
+def _unreadable(name: str, error: SkyvlnError) -> ValidationIssue:
+    # The reader's errors start with the file's name, which the issue shows already.
+    return ValidationIssue(name, str(error).removeprefix(f"{name}: "))
 
 
 def check_log_bytes(data: bytes, name: str = "<bytes>") -> LogCheck:
@@ -164,7 +175,7 @@ def check_log_bytes(data: bytes, name: str = "<bytes>") -> LogCheck:
     try:
         log = read_log_bytes(data, name)
     except SkyvlnError as exc:
-        return LogCheck(name, 0, (ValidationIssue(name, str(exc)),))
+        return LogCheck(name, 0, (_unreadable(name, exc),))
     return check_loaded_log(log)
 
 
@@ -185,13 +196,29 @@ def check_loaded_log(log: McapLog) -> LogCheck:
     return LogCheck(log.path, len(log.messages), tuple(issues))
 
 
+def is_run_logs_folder(folder: str | Path) -> bool:
+    """A run's logs of one split (``RUN_DIR/logs/SPLIT/`` with ``RUN_DIR/run.json``)."""
+    folder = Path(folder)
+    return folder.parent.name == RUN_LOGS_DIR and (folder.parent.parent / RUN_REPORT_FILE).is_file()
+
+
 def check_manifest_folder(folder: str | Path) -> list[ValidationIssue]:
-    """Completeness of a converted folder against its manifest (files, hashes, ids)."""
+    """Completeness of a converted folder against its manifest (files, hashes, ids); none
+    for a run's logs, which have no manifest (unless one was put there)."""
     folder = Path(folder)
     manifest = folder / MANIFEST_NAME
     logs = {p.name for p in folder.glob("*.mcap")}
     if not manifest.is_file():
-        return [ValidationIssue(str(folder), f"{len(logs)} MCAP file(s) but no {MANIFEST_NAME}")]
+        if is_run_logs_folder(folder):
+            return []
+        return [
+            ValidationIssue(
+                str(folder),
+                f"{len(logs)} MCAP file(s) but no {MANIFEST_NAME}: a folder of converted logs "
+                "has one (`skyvln-eval convert` writes it), and a run's logs sit in "
+                f"RUN_DIR/{RUN_LOGS_DIR}/SPLIT/ beside its {RUN_REPORT_FILE}",
+            )
+        ]
     try:
         rows = read_manifest(manifest)
     except SkyvlnError as exc:

@@ -13,12 +13,19 @@ from pathlib import Path
 from typing import Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic_core import PydanticCustomError
 
 from skyvln_eval.agent.config import AGENTS, AgentConfig
 from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN, EpisodeMode, Split
-from skyvln_eval.control.registry import controller_names, make_controller
-from skyvln_eval.errors import ConfigError, UnknownNameError, describe_validation_error
+from skyvln_eval.control.registry import controller_config, controller_names, make_controller
+from skyvln_eval.errors import (
+    FIELD_PATH_CONTEXT,
+    ConfigError,
+    SettingsError,
+    UnknownNameError,
+    describe_validation_error,
+)
 from skyvln_eval.fileio import read_yaml_mapping
 from skyvln_eval.harness.executors import ExecutorKind
 from skyvln_eval.sensing import SensorConfig
@@ -121,6 +128,31 @@ class RunConfig(_Strict):
             raise ValueError(str(UnknownNameError("agent", agent.name, list(AGENTS))))
         return agent
 
+    @model_validator(mode="after")
+    def _valid_controller_settings(self) -> RunConfig:
+        # Checked on load like the controller's name: every episode would fail on a bad
+        # setting. Here, not in DynamicsSettings: a reproduce plan's dynamics settings go to
+        # each system's own controller (checked by the plan).
+        check_controller_settings(
+            self.dynamics.controller,
+            self.dynamics.controller_settings,
+            "dynamics.controller_settings",
+        )
+        return self
+
+    @field_validator("episodes", mode="before")
+    @classmethod
+    def _ids_are_text(cls, ids: Any) -> Any:
+        # YAML 1.1 reads an unquoted 9101__6_1 as the number 910161: the id is lost, and
+        # "should be a valid string" would not say why.
+        numbers = [i for i in ids if isinstance(i, int | float)] if isinstance(ids, list) else []
+        if numbers:
+            raise ValueError(
+                f"episode ids are text, but {numbers[0]!r} is a number: YAML reads an unquoted "
+                'id such as 9101__6_1 as the number 910161; quote each id: ["9101__6_1", ...]'
+            )
+        return ids
+
     @field_validator("splits")
     @classmethod
     def _known_splits(cls, splits: tuple[str, ...]) -> tuple[str, ...]:
@@ -143,6 +175,20 @@ class RunConfig(_Strict):
         return yaml.safe_dump(self.model_dump(mode="json"), sort_keys=False, allow_unicode=True)
 
 
+def check_controller_settings(controller: str, settings: dict[str, Any], field: str) -> None:
+    """Check ``settings`` against controller ``controller``'s settings (no solver is built);
+    in a pydantic validator, a bad one is an error at ``field`` plus its path inside."""
+    try:
+        controller_config(controller, settings)
+    except SettingsError as error:
+        inside = ".".join(part for part in (field, error.field) if part)
+        raise PydanticCustomError(
+            "controller_settings",
+            "{problem}",
+            {"problem": error.problem, FIELD_PATH_CONTEXT: inside},
+        ) from None
+
+
 def run_config_from_mapping(data: Any, source: str) -> RunConfig:
     """Validate a mapping as a run config; errors name ``source`` and the field path."""
     if not isinstance(data, dict):
@@ -154,11 +200,25 @@ def run_config_from_mapping(data: Any, source: str) -> RunConfig:
 
 
 def load_run_config(path: str | Path, **overrides: Any) -> RunConfig:
-    """Read a YAML run config; ``overrides`` (e.g. ``workers=4``) replace top-level fields."""
+    """Read a YAML run config; ``overrides``, the command line's options (``workers=4`` for
+    ``--workers 4``), replace top-level fields. A bad value is named where it came from:
+    the file and field, or the option (``--executor``)."""
     file = Path(path)
     data = read_yaml_mapping(file, "run config")
-    data |= {k: v for k, v in overrides.items() if v is not None}
-    return run_config_from_mapping(data, f"run config {file}")
+    given = {k: v for k, v in overrides.items() if v is not None}
+    try:
+        return RunConfig.model_validate(data | given)
+    except ValidationError as error:
+        from_options = [e for e in error.errors() if e["loc"] and e["loc"][0] in given]
+        from_file = [e for e in error.errors() if e not in from_options]
+        parts = [  # top-level fields: the option and its value say it all
+            f"--{str(e['loc'][0]).replace('_', '-')} {given[str(e['loc'][0])]!r}: "
+            + str(e["msg"]).removeprefix("Value error, ").rstrip(".")
+            for e in from_options
+        ]
+        if from_file:
+            parts.insert(0, f"run config {file}: {describe_validation_error(from_file, RunConfig)}")
+        raise ConfigError("; ".join(parts)) from None
 
 
 __all__ = [
@@ -167,6 +227,7 @@ __all__ = [
     "ExecutionMode",
     "ObstacleSettings",
     "RunConfig",
+    "check_controller_settings",
     "load_run_config",
     "run_config_from_mapping",
 ]

@@ -15,12 +15,20 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic_core import PydanticCustomError
 
 from skyvln_eval.agent.config import AgentConfig
 from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN, EpisodeMode, Split
 from skyvln_eval.configs import config_path
-from skyvln_eval.errors import ConfigError, describe_validation_error
+from skyvln_eval.control.registry import controller_config
+from skyvln_eval.errors import (
+    FIELD_PATH_CONTEXT,
+    ConfigError,
+    SettingsError,
+    UnknownNameError,
+    describe_validation_error,
+)
 from skyvln_eval.fileio import read_yaml_mapping
 from skyvln_eval.harness.config import (
     CommanderSettings,
@@ -105,6 +113,37 @@ class ReproducePlan(_Strict):
         default=True,
         description="images in the run MCAPs (the default plan: about 700 MB with, 270 without)",
     )
+
+    @model_validator(mode="after")
+    def _valid_controllers(self) -> ReproducePlan:
+        # Each system's controller gets the plan's controller settings under its own: both
+        # are checked here, on load, against that controller (no solver is built).
+        systems = [(f"table1.systems.{i}", s) for i, s in enumerate(self.table1.systems)]
+        for where, system in [*systems, ("table2.system", self.table2.system)]:
+            settings = {**self.dynamics.controller_settings, **system.controller_settings}
+            try:
+                controller_config(system.controller, settings)
+            except UnknownNameError as error:
+                field, problem = f"{where}.controller", str(error)
+            except SettingsError as error:
+                first = error.field.split(".")[0]
+                own = first in system.controller_settings or (
+                    not first and bool(system.controller_settings)
+                )
+                field = f"{where}.controller_settings" if own else "dynamics.controller_settings"
+                field = ".".join(part for part in (field, error.field) if part)
+                problem = error.problem
+                if not own:
+                    problem += (
+                        "; the plan's controller settings go to every system's controller, "
+                        f"and system {system.label!r} flies {system.controller}"
+                    )
+            else:
+                continue
+            raise PydanticCustomError(
+                "controller", "{problem}", {"problem": problem, FIELD_PATH_CONTEXT: field}
+            )
+        return self
 
 
 def load_plan(name_or_path: str | Path = DEFAULT_PLAN, **overrides: Any) -> ReproducePlan:

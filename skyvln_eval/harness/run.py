@@ -27,7 +27,7 @@ from pathlib import Path
 from skyvln_eval.converters.batch import convert_split
 from skyvln_eval.converters.convert import ConvertOptions
 from skyvln_eval.converters.reader import read_episode
-from skyvln_eval.errors import ConfigError
+from skyvln_eval.errors import AvdnValidationError, ConfigError
 from skyvln_eval.fileio import (
     atomic_write_json,
     atomic_write_text,
@@ -70,6 +70,15 @@ def episode_logs_root(data_dir: Path) -> Path:
     return cache_root() / "episode-logs" / digest
 
 
+#: What to do about invalid records met by a run (or reproduce): it runs every episode of
+#: its splits, so the dataset has to be fixed (deliberately: a run that skipped records
+#: would be scored on another episode set than the split's).
+RUN_INVALID_HINT = (
+    "a run needs every record of its splits: fix them; `skyvln-eval validate DATA_DIR` lists "
+    "every problem, `skyvln-eval summary DATA_DIR --skip-invalid` shows the splits without them"
+)
+
+
 def episode_logs(config: RunConfig, data_dir: Path) -> dict[RowKey, Path]:
     """The episode MCAP of every episode the run covers, in run order (converted if needed,
     one process at a time: the cache is shared by every run on the data)."""
@@ -81,9 +90,12 @@ def episode_logs(config: RunConfig, data_dir: Path) -> dict[RowKey, Path]:
         # The cache is shared by every run on this data: one process converts a split at a
         # time (a converter clears what it takes for another's stale temporary files).
         with exclusive_lock(root / f".{split}-{config.episode_mode}.lock"):
-            report = convert_split(
-                data_dir, split, root, config.episode_mode, options=EPISODE_LOG_OPTIONS
-            )
+            try:
+                report = convert_split(
+                    data_dir, split, root, config.episode_mode, options=EPISODE_LOG_OPTIONS
+                )
+            except AvdnValidationError as error:  # a run has no way to leave records out
+                raise AvdnValidationError(error.issues, RUN_INVALID_HINT) from None
         rows = [r for r in report.rows if wanted is None or r.episode_id in wanted]
         found.update(row.episode_id for row in rows)
         if config.limit is not None:

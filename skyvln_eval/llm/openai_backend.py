@@ -59,6 +59,7 @@ import re
 import ssl
 import threading
 import time
+import urllib.parse
 from collections.abc import Sequence
 from typing import Any, Final
 
@@ -177,9 +178,9 @@ def _body_text(error: Any) -> str:
     return " ".join(p for p in parts if p)
 
 
-def _timed_out(timeout_s: float) -> LLMTransientError:
+def _timed_out(endpoint: str, timeout_s: float) -> LLMTransientError:
     return LLMTransientError(
-        f"no complete answer within {timeout_s:.3g} s (timeout, connect to last byte)"
+        f"{endpoint}: no complete answer within {timeout_s:.3g} s (timeout, connect to last byte)"
     )
 
 
@@ -341,6 +342,16 @@ class OpenAIBackend(LLMBackend):
         secret = self._secret()
         return text.replace(secret, "[API key]") if secret else text
 
+    def _where(self) -> str:
+        """:attr:`endpoint` for messages: a password or query in the URL left out, the API
+        key never in it."""
+        url = urllib.parse.urlsplit(self.base_url)
+        netloc = url.netloc
+        if url.password:
+            netloc = netloc.replace(f":{url.password}@", ":[password]@", 1)
+        shown = urllib.parse.urlunsplit((url.scheme, netloc, url.path, "", ""))
+        return self._scrub(f"openai:{self.model}@{shown}{'?[query]' if url.query else ''}")
+
     def _checkout(self) -> Any:
         """An idle client, or a new one: a client serves one request at a time, so that
         one abandoned at its deadline can be closed without touching another's."""
@@ -355,7 +366,7 @@ class OpenAIBackend(LLMBackend):
             raise MissingExtraError("the openai backend", "openai", str(error)) from error
         if secret is None and self.base_url == OPENAI_BASE_URL:
             raise LLMAuthError(
-                f"{self.endpoint}: set the environment variable {self.api_key_env} to the API key"
+                f"{self._where()}: set the environment variable {self.api_key_env} to the API key"
             )
         # Local servers usually accept any key; the client insists on one.
         return openai.OpenAI(
@@ -437,7 +448,7 @@ class OpenAIBackend(LLMBackend):
     def _adapt(self, adapted: RequestAdaptation, refusal: _ParameterRefused) -> RequestAdaptation:
         found = adapted.refusing(refusal.parameter)
         if found is None:
-            raise LLMError(self._scrub(f"{self.endpoint}: request refused ({refusal})"))
+            raise LLMError(self._scrub(f"{self._where()}: request refused ({refusal})"))
         change = (
             "the budget goes as max_completion_tokens"
             if found.completion_tokens_field != adapted.completion_tokens_field
@@ -445,7 +456,7 @@ class OpenAIBackend(LLMBackend):
         )
         log.warning(
             "%s does not take %s (%s); %s",
-            self.endpoint,
+            self._where(),
             refusal.parameter,
             self._scrub(str(refusal)),
             change,
@@ -454,21 +465,21 @@ class OpenAIBackend(LLMBackend):
 
     def _step_down(self, level: StructuredLevel | None, refusal: _FormatRefused) -> StructuredLevel:
         if level is None:  # pragma: no cover - no format was sent, so none can be refused
-            raise LLMError(self._scrub(f"{self.endpoint}: request refused ({refusal})"))
+            raise LLMError(self._scrub(f"{self._where()}: request refused ({refusal})"))
         if self.structured_output != "auto":
             raise LLMError(
                 self._scrub(
-                    f"{self.endpoint} refused structured output level {level!r}, pinned by "
+                    f"{self._where()} refused structured output level {level!r}, pinned by "
                     f"structured_output in the backend config ({refusal}); use 'auto' to "
                     "negotiate a level the server accepts"
                 )
             )
         lower = next_level(level)
         if lower is None:  # pragma: no cover - the last level sends no format
-            raise LLMError(self._scrub(f"{self.endpoint}: request refused ({refusal})"))
+            raise LLMError(self._scrub(f"{self._where()}: request refused ({refusal})"))
         log.warning(
             "%s refused structured output level %s (%s); trying %s",
-            self.endpoint,
+            self._where(),
             level,
             self._scrub(str(refusal)),
             lower,
@@ -482,7 +493,7 @@ class OpenAIBackend(LLMBackend):
         left = ends_at - time.monotonic()
         if left <= 0.0:
             self._checkin(client)
-            raise _timed_out(timeout_s)
+            raise _timed_out(self._where(), timeout_s)
         outcome: dict[str, Any] = {}
         done = threading.Event()
 
@@ -498,7 +509,7 @@ class OpenAIBackend(LLMBackend):
         if not done.wait(left):
             # Closing may wait for the stuck read, so it is done aside, never waited for.
             threading.Thread(target=client.close, name="skyvln-llm-close", daemon=True).start()
-            raise _timed_out(timeout_s)
+            raise _timed_out(self._where(), timeout_s)
         self._checkin(client)
         if "error" in outcome:
             raise outcome["error"]
@@ -515,10 +526,11 @@ class OpenAIBackend(LLMBackend):
                 retry_after_s(error.response.headers),
             ) from None
         except openai.APITimeoutError:
-            raise _timed_out(timeout_s) from None
+            raise _timed_out(self._where(), timeout_s) from None
         except openai.APIConnectionError as error:
+            # A dead or unreachable endpoint: named, since a run may call several.
             raise LLMTransientError(
-                self._scrub(f"connection failed or body cut short: {error}")
+                self._scrub(f"{self._where()}: connection failed or body cut short: {error}")
             ) from None
         except openai.APIStatusError as error:
             raise self._status_error(error, kwargs) from None
@@ -534,7 +546,7 @@ class OpenAIBackend(LLMBackend):
         excerpt = body[:300]
         if status in (401, 403):
             return LLMAuthError(
-                f"{self.endpoint} refused the credentials (HTTP {status}: {excerpt}); check "
+                f"{self._where()} refused the credentials (HTTP {status}: {excerpt}); check "
                 f"the API key in the environment variable {self.api_key_env}"
             )
         if _CONTEXT_OVERFLOW.search(body) and status < 500:

@@ -199,7 +199,14 @@ def _check_header(header: Any, file: str) -> None:
 
 
 def results_from_jsonl_bytes(data: bytes, file: str = "<jsonl>") -> list[EpisodeResult]:
-    lines = data.decode("utf-8").splitlines()
+    try:
+        lines = data.decode("utf-8").splitlines()
+    except UnicodeDecodeError as exc:
+        line_no = data.count(b"\n", 0, exc.start) + 1
+        raise DataError(
+            f"{file}: not an episode-results file (not UTF-8 text: byte 0x{data[exc.start]:02x} "
+            f"on line {line_no})"
+        ) from None
     if not lines:
         raise DataError(f"{file}: empty file (no header line)")
     try:

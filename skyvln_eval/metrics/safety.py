@@ -102,17 +102,36 @@ def check_control_log(log: pd.DataFrame, source: str = "<control log>") -> None:
             raise DataError(f"{source}: row {row}, column '{column}': missing value")
 
 
+#: What a control log is and where one comes from, for the errors of a file that is not one.
+CONTROL_LOG_HINT = (
+    "a control log is a table (.parquet or .csv) with one row per control step and the "
+    "columns controller, scenario, t_s, x_m, ..., constraint_violation; a run in dynamics "
+    "mode writes one per episode to RUN_DIR/control/<split>/<episode_id>.parquet, and "
+    "`skyvln-eval reproduce` the paper's cases to OUT/control_runs/<case>_<controller>.parquet"
+)
+
+
 def read_control_log(path: str | Path) -> pd.DataFrame:
-    """Read a control log from parquet or CSV and check it."""
+    """Read a control log from parquet or CSV and check it; a file that is not one (not a
+    table, or a table of something else) is a :class:`DataError` naming it and saying what
+    a control log is."""
     path = Path(path)
     if not path.is_file():
         raise DataError(f"{path}: control log not found")
-    if path.suffix == ".parquet":
-        log = pd.read_parquet(path)
-    elif path.suffix == ".csv":
-        log = pd.read_csv(path)
-    else:
+    if path.suffix not in (".parquet", ".csv"):
         raise DataError(f"{path}: unknown control log format; use .parquet or .csv")
+    try:
+        log = pd.read_parquet(path) if path.suffix == ".parquet" else pd.read_csv(path)
+    except (ValueError, UnicodeDecodeError) as error:
+        # pandas' ParserError and EmptyDataError and pyarrow's ArrowInvalid are ValueErrors.
+        reason = (str(error).strip().splitlines() or [type(error).__name__])[0]
+        kind = "a parquet file" if path.suffix == ".parquet" else "CSV"
+        raise DataError(
+            f"{path}: not a control log (not {kind}: {reason}); {CONTROL_LOG_HINT}"
+        ) from None
+    if not {"controller", "t_s", "x_m"} & set(log.columns):  # some other table
+        shown = ", ".join(str(c) for c in log.columns[:6]) + ("..." if len(log.columns) > 6 else "")
+        raise DataError(f"{path}: not a control log (its columns: {shown}); {CONTROL_LOG_HINT}")
     check_control_log(log, str(path))
     return log
 

@@ -25,7 +25,7 @@ import pandas as pd
 from skyvln_eval.errors import DataError, FormatVersionError, ResultRecordError, ValidationIssue
 from skyvln_eval.fileio import atomic_write_text
 from skyvln_eval.metrics.conventions import MetricConventions
-from skyvln_eval.metrics.scoring import CONTROL_COLUMNS, KEY_COLUMNS
+from skyvln_eval.metrics.scoring import CONTROL_COLUMNS, KEY_COLUMNS, METRIC_UNITS
 
 SCORES_FORMAT = "skyvln-eval.scores"
 SCORES_VERSION = 1
@@ -62,11 +62,15 @@ def read_scores(path: str | Path) -> tuple[pd.DataFrame, MetricConventions]:
     path = Path(path)
     if not path.is_file():
         raise DataError(f"{path}: scores file not found")
-    text = path.read_text(encoding="utf-8")
+    what = "`skyvln-eval score` writes one as OUT/scores.csv (--out, default scores/)"
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise DataError(f"{path}: not a scores file (not UTF-8 text); {what}") from None
     lines = text.split("\n", 2)
     if len(lines) < 3 or not lines[0].startswith(f"# {SCORES_FORMAT} v"):
         raise DataError(
-            f"{path}: not a scores file (its first line must be '# {SCORES_FORMAT} v1')"
+            f"{path}: not a scores file (its first line must be '# {SCORES_FORMAT} v1'); {what}"
         )
     version = lines[0].rsplit("v", 1)[1]
     if version != str(SCORES_VERSION):
@@ -81,12 +85,23 @@ def read_scores(path: str | Path) -> tuple[pd.DataFrame, MetricConventions]:
         )
     except json.JSONDecodeError as exc:
         raise DataError(f"{path}: conventions line is not JSON ({exc.msg})") from None
-    frame = pd.read_csv(
-        io.StringIO(lines[2]), dtype={"episode_id": str, "split": str, "mode": str, "system": str}
-    )
-    missing = [c for c in KEY_COLUMNS if c not in frame.columns]
+    try:
+        frame = pd.read_csv(
+            io.StringIO(lines[2]),
+            dtype={"episode_id": str, "split": str, "mode": str, "system": str},
+        )
+    except ValueError as exc:  # pandas' ParserError and EmptyDataError among them
+        reason = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        raise DataError(f"{path}: the scores table is not valid CSV ({reason})") from None
+    missing = [c for c in (*KEY_COLUMNS, "status", *METRIC_UNITS) if c not in frame.columns]
     if missing:
-        raise DataError(f"{path}: no {', '.join(missing)} column(s); rescore the results")
+        shown = ", ".join(missing[:8]) + (
+            f" ... ({len(missing)} in all)" if len(missing) > 8 else ""
+        )
+        raise DataError(
+            f"{path}: the scores table lacks column(s) {shown}; score the results again "
+            "with `skyvln-eval score`"
+        )
     for column in CONTROL_COLUMNS:
         if column in frame.columns:
             frame[column] = frame[column].astype("Float64")

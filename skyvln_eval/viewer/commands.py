@@ -8,6 +8,7 @@ work and are usable from Python too.
 from __future__ import annotations
 
 import os
+import shlex
 import subprocess
 import tempfile
 import time
@@ -139,7 +140,16 @@ def _view(target: Path, episodes: Sequence[str], save: Path | None, serve: bool,
                 typer.echo(f"serving {len(paths)} recordings; --episode picks a few", err=True)
             _serve(paths, port)
         else:
-            typer.echo(
-                f"open with: skyvln-eval view {paths[0]}  (or `rerun FILE.rrd`; "
-                f"`{USER_OPT_OUT}` turns Rerun's analytics off for that)"
-            )
+            typer.echo(open_hint(paths, save))
+
+
+def open_hint(paths: Sequence[Path], save: Path) -> str:
+    """How to open what ``--save`` wrote: the file, or one of a folder's files (``view``
+    takes one recording, ``rerun`` several), named as a shell would need them."""
+    first = shlex.quote(str(paths[0]))
+    if len(paths) == 1:
+        how = f"open with: skyvln-eval view {first}  (or `rerun {first}`"
+    else:
+        every = f"{shlex.quote(str(save))}/*.rrd"
+        how = f"open one with: skyvln-eval view {first}  (or all: `rerun {every}`"
+    return f"{how}; `{USER_OPT_OUT}` turns Rerun's analytics off for that)"

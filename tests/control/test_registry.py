@@ -15,11 +15,12 @@ from skyvln_eval.control import (
     NmpcController,
     PidController,
     config_from_mapping,
+    controller_config,
     controller_names,
     load_controller,
     make_controller,
 )
-from skyvln_eval.errors import ConfigError, UnknownNameError
+from skyvln_eval.errors import ConfigError, SettingsError, UnknownNameError
 from tests.conftest import REPO
 
 CONFIGS = sorted((REPO / "configs" / "controllers").glob("*.yaml"))
@@ -118,3 +119,23 @@ def test_importing_control_imports_no_optional_heavy_dependency() -> None:
         [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO
     )
     assert out.stdout.strip() == "[]"
+
+
+def test_controller_config_checks_settings_without_building_a_solver(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import skyvln_eval.control.mpc as mpc
+
+    def no_solver(*args: object, **kwargs: object) -> None:
+        raise AssertionError("a solver was built")
+
+    monkeypatch.setattr(mpc.NmpcController, "__init__", no_solver)
+    assert controller_config("nmpc", {"horizon_steps": 5}).horizon_steps == 5
+    with pytest.raises(SettingsError) as caught:
+        controller_config("nmpc", {"weights": {"state": [1, "x"]}})
+    assert caught.value.field == "weights.state[1]"
+    assert caught.value.problem == "must be a number, got 'x'"
+    with pytest.raises(SettingsError) as caught:
+        controller_config("lmpc", {"max_obstacle": 1})
+    assert caught.value.field == "max_obstacle"
+    assert caught.value.problem.endswith("(did you mean 'max_obstacles'?)")

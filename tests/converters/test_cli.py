@@ -71,3 +71,34 @@ def test_convert_rejects_an_unknown_mode(converted_sample: ConvertedSample, tmp_
         ],
     )
     assert result.exit_code != 0 and "--mode must be one of" in result.output
+
+
+def test_validate_checks_a_run_directorys_logs_without_a_manifest(
+    sample_dir: Path, tmp_path: Path
+) -> None:
+    from skyvln_eval.converters.validate import RUN_LOGS_DIR, RUN_REPORT_FILE
+    from skyvln_eval.harness import RunConfig, make_executor, run
+    from skyvln_eval.harness.run import REPORT_FILE
+    from skyvln_eval.harness.runner import LOGS_DIR
+
+    assert (RUN_LOGS_DIR, RUN_REPORT_FILE) == (LOGS_DIR, REPORT_FILE)  # the same layout
+    config = RunConfig(system="validated", data=str(sample_dir), splits=("val_unseen",), limit=2)
+    run_dir = tmp_path / "run"
+    run(config, run_dir, executor=make_executor("serial", 1))
+    for target in (run_dir, run_dir / "logs" / "val_unseen"):
+        result = runner.invoke(app, ["validate", str(target)])
+        assert result.exit_code == 0, result.output
+        assert "2 MCAP file(s) (1 folder(s) of a run's logs)" in result.output
+        assert result.output.rstrip().endswith("message(s) checked, ok")
+
+    # The same logs elsewhere are not a run's: their manifest is missing, and the summary
+    # counts that problem where it is (a folder), not in "0 file(s)".
+    loose = tmp_path / "loose"
+    (run_dir / "logs" / "val_unseen").rename(loose)
+    one = sorted(loose.glob("*.mcap"))[0]
+    one.write_bytes(one.read_bytes()[:-3])
+    result = runner.invoke(app, ["validate", str(loose)])
+    assert result.exit_code == 1
+    assert f"{loose}: 2 MCAP file(s) but no {MANIFEST_NAME}" in result.output
+    assert f"{one}: truncated" in result.output  # named once, not twice
+    assert "2 problem(s): 1 in 1 file(s), 1 in 1 folder(s)" in result.output

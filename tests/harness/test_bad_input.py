@@ -156,3 +156,110 @@ def test_load_run_config_raises_config_errors_only(tmp_path: Path) -> None:
         path.write_bytes(text)
         with pytest.raises(ConfigError, match=str(path)):
             load_run_config(path)
+
+
+@pytest.mark.parametrize(
+    ("dynamics", "needle"),
+    [
+        (
+            {"controller": "pid", "controller_settings": {"horizn": 5}},
+            "dynamics.controller_settings.horizn: unknown field of the pid settings (known: dt_s,",
+        ),
+        (
+            {"controller": "mpc", "controller_settings": {"max_obstacle": 1}},
+            "dynamics.controller_settings.max_obstacle: unknown field of the mpc settings "
+            "(did you mean 'max_obstacles'?)",
+        ),
+        (
+            {"controller": "nmpc", "controller_settings": {"weights": {"input": "big"}}},
+            "dynamics.controller_settings.weights.input: must be a list, got 'big'",
+        ),
+        (
+            {"controller": "nmpc", "controller_settings": {"horizon_steps": 0}},
+            "dynamics.controller_settings: MpcConfig.horizon_steps must be an integer >= 1",
+        ),
+    ],
+    ids=["pid-unknown", "mpc-misspelt", "nmpc-type", "nmpc-range"],
+)
+def test_bad_controller_settings_are_refused_on_load(
+    tmp_path: Path, sample_dir: Path, cli: Cli, dynamics: dict[str, Any], needle: str
+) -> None:
+    path = tmp_path / "settings.yaml"
+    path.write_text(yaml.safe_dump(_config(sample_dir, mode="dynamics", dynamics=dynamics)))
+    _refused(cli("run", str(path), "--out", str(tmp_path / "run")), f"run config {path}: {needle}")
+    assert not (tmp_path / "run").exists(), "no episode may run"
+
+
+def test_bad_controller_settings_in_a_plan_are_refused_on_load(tmp_path: Path, cli: Cli) -> None:
+    from tests.harness.test_reproduce import TINY_PLAN
+
+    plan = tmp_path / "plan.yaml"
+    systems = [
+        {"label": "w PID", "controller": "pid", "controller_settings": {"max_speed": 3}},
+        {"label": "w MPC", "controller": "mpc", "agent": {"name": "skyvln"}},
+    ]
+    data = TINY_PLAN | {"dynamics": {}, "table1": {"splits": ["val_unseen"], "systems": systems}}
+    plan.write_text(yaml.safe_dump(data))
+    out = tmp_path / "out"
+    _refused(
+        cli("reproduce", "--plan", str(plan), "--out", str(out)),
+        f"reproduce plan {plan}: table1.systems.0.controller_settings.max_speed: unknown field "
+        "of the pid settings (did you mean 'max_speed_m_s'?)",
+    )
+    # The plan's settings go to every system: a PID has no such field.
+    systems[0] = {"label": "w PID", "controller": "pid"}
+    data["dynamics"] = {"controller_settings": {"compile": "never"}}
+    plan.write_text(yaml.safe_dump(data))
+    _refused(
+        cli("reproduce", "--plan", str(plan), "--out", str(out)),
+        "dynamics.controller_settings.compile: unknown field of the pid settings",
+        "system 'w PID' flies pid",
+    )
+    systems[0] = {"label": "w PID", "controller": "pdi"}
+    plan.write_text(yaml.safe_dump(data))
+    _refused(
+        cli("reproduce", "--plan", str(plan), "--out", str(out)),
+        "table1.systems.0.controller: unknown controller 'pdi'. Did you mean 'pid'?",
+    )
+    assert not out.exists(), "no episode may run"
+
+
+def test_an_invalid_record_is_named_with_what_a_run_can_do_about_it(
+    tmp_path: Path, dataset_factory: Callable[..., Path], cli: Cli
+) -> None:
+    from tests.conftest import make_record
+
+    bad = make_record(route_index="1_1", angle="x")
+    data = dataset_factory({"val_unseen": [make_record(), bad]})
+    path = tmp_path / "run.yaml"
+    path.write_text(yaml.safe_dump({**_config(data), "data": str(data)}))
+    message = _refused(
+        cli("run", str(path), "--out", str(tmp_path / "run")),
+        "1 invalid record(s) (a run needs every record of its splits: fix them; "
+        "`skyvln-eval validate DATA_DIR` lists every problem",
+        "record 1 (episode 1913__1_1), field 'angle'",
+    )
+    assert "skip_invalid" not in message and "--skip-invalid to skip" not in message
+    # Where records are loaded, the hint names the options that do leave them out.
+    outcome = cli("summary", str(data))
+    assert outcome.code == 2 and "`--skip-invalid` with `skyvln-eval summary`" in outcome.err
+
+
+def test_a_bad_option_is_named_as_the_option_not_as_the_config(
+    tmp_path: Path, sample_dir: Path, cli: Cli
+) -> None:
+    path = tmp_path / "run.yaml"
+    path.write_text(yaml.safe_dump(_config(sample_dir, workers=0)))
+    message = _refused(
+        cli("run", str(path), "--executor", "bogus", "--threads-per-worker", "100"),
+        f"run config {path}: workers: Input should be greater than or equal to 1",
+        "--executor 'bogus': Input should be 'serial', 'processes', 'threads' or 'ray'",
+        "--threads-per-worker 100: Input should be less than or equal to 64",
+    )
+    assert "executor:" not in message  # not as if the file said it
+    out = tmp_path / "out"
+    _refused(
+        cli("reproduce", "--executor", "bogus", "--out", str(out)),
+        "--executor: unknown executor 'bogus'. Known: processes, ray, serial, threads",
+    )
+    assert not out.exists()

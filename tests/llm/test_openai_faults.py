@@ -94,6 +94,24 @@ def test_refused_credentials_stop_at_once_naming_the_key_variable() -> None:
     assert "HTTP 401" in str(refused.value)
 
 
+def test_a_dead_endpoint_is_named_without_its_secrets(monkeypatch: pytest.MonkeyPatch) -> None:
+    import socket
+
+    with socket.socket() as probe:  # a port nothing listens on
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    monkeypatch.setenv("DEAD_KEY", "sk-very-secret")
+    base_url = f"http://user:hunter2@127.0.0.1:{port}/v1?api-key=sk-in-the-url"
+    backend = create_backend("openai:gpt-4o-mini", base_url=base_url, api_key_env="DEAD_KEY")
+    retry = RetryPolicy(max_attempts=2, initial_delay_s=0.0, max_delay_s=0.0)
+    result = LLMClient(backend, retry=retry, sleep=lambda _: None).call("motion", HELLO, CONFIG)
+    assert result.completion is None and result.error is not None
+    where = f"openai:gpt-4o-mini@http://user:[password]@127.0.0.1:{port}/v1?[query]"
+    assert f"{where}: connection failed or body cut short" in result.error
+    for text in [result.error, *(r.error or "" for r in result.records)]:
+        assert "hunter2" not in text and "sk-" not in text
+
+
 def test_a_context_overflow_is_its_own_failure_and_keeps_structured_output() -> None:
     schema = {"type": "object", "properties": {"greeting": {"type": "string"}}}
     config = GenerationConfig(timeout_s=2.0, json_schema=schema, schema_name="greeting")

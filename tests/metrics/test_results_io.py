@@ -99,6 +99,9 @@ def test_version_and_format_are_checked(tmp_path: Path) -> None:
     path.write_text("{}\n")
     with pytest.raises(DataError, match="not an episode-results file"):
         read_results(path)
+    path.write_bytes(b'{"format": 1}\n\x89PNG\r\n')  # not text: a message, not a traceback
+    with pytest.raises(DataError, match=r"not UTF-8 text: byte 0x89 on line 2"):
+        read_results(path)
 
 
 def test_bad_rows_are_located(tmp_path: Path) -> None:

@@ -18,11 +18,12 @@ from skyvln_eval.errors import (
 )
 from skyvln_eval.metrics import RESULTS_VERSION, Prediction, write_predictions_json, write_results
 from skyvln_eval.metrics.scores_io import read_scores
-from tests.conftest import make_record
+from tests.conftest import CliOutcome, make_record
 from tests.metrics.helpers import result, square
 from tests.reports.test_figures import two_controller_log
 
 runner = CliRunner()
+Cli = Callable[..., CliOutcome]
 
 
 def write_run(path: Path) -> Path:
@@ -229,3 +230,34 @@ def test_score_takes_a_run_directory_and_names_what_it_cannot_score(tmp_path: Pa
     assert message.startswith(f"{copy}, record 0 (episode m__0_1), field 'episode_id'")
     assert f"duplicate of record 0 of {run_dir / 'results.jsonl'}" in message
     assert "different system labels" in message
+
+
+def test_plots_of_the_wrong_file_say_what_it_should_be(tmp_path: Path, cli: Cli) -> None:
+    run = write_run(tmp_path / "run.jsonl")
+    scores = tmp_path / "scores" / "scores.csv"
+    assert cli("score", str(run), "--out", str(scores.parent), "--resamples", "0").code == 0
+    log = tmp_path / "log.parquet"
+    two_controller_log().to_parquet(log)
+    binary_csv = tmp_path / "image.csv"
+    binary_csv.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00")
+    (tmp_path / "empty.csv").write_text("")
+    torn = tmp_path / "torn.csv"
+    torn.write_text("\n".join(scores.read_text().split("\n")[:3]) + '\n"unclosed\n')
+    results = tmp_path / "results.parquet"
+    write_results(results, [result([square(0, 0)], [square(0, 0)])])
+    cases = [
+        (("control", scores), f"{scores}: not a control log (not CSV: Error tokenizing data"),
+        (("control", binary_csv), f"{binary_csv}: not a control log (not CSV: 'utf-8' codec"),
+        (("control", tmp_path / "empty.csv"), "not a control log (not CSV: No columns to parse"),
+        (("control", results), f"{results}: not a control log (its columns: episode_id, "),
+        (("sr-threshold", log), f"{log}: not a scores file (not UTF-8 text)"),
+        (("ne", binary_csv), f"{binary_csv}: not a scores file (not UTF-8 text)"),
+        (("ne", torn), f"{torn}: the scores table is not valid CSV (Error tokenizing data"),
+    ]
+    for (kind, path), needle in cases:
+        outcome = cli("plot", kind, str(path), "--out", str(tmp_path / "figure.png"))
+        assert outcome.code == 2, (kind, path, outcome)
+        assert "Traceback" not in outcome.err and needle in outcome.err, (needle, outcome.err)
+        if kind == "control":
+            assert "RUN_DIR/control/<split>/<episode_id>.parquet" in outcome.err
+    assert not (tmp_path / "figure.png").exists()

@@ -101,9 +101,24 @@ def test_view_saves_one_episode_and_names_unknown_ones(flown_run: Path, tmp_path
     assert result.returncode == 0, result.stderr
     assert out.is_file() and out.stat().st_size > 10_000
     assert f"{ref.key}: " in result.stdout and "decision(s)" in result.stdout
+    assert f"open with: skyvln-eval view {out}  (or `rerun {out}`;" in result.stdout
+    assert "FILE.rrd" not in result.stdout  # the file saved, not a placeholder
     bad = run_skyvln_eval("view", str(flown_run), "--episode", "nope", "--save", str(out))
     assert bad.returncode == 2
     assert "no run MCAP for episode 'nope'" in bad.stderr
+
+
+def test_the_open_hint_names_what_was_saved() -> None:
+    from skyvln_eval.viewer.commands import open_hint
+
+    one = open_hint([Path("my run/ep.rrd")], Path("my run/ep.rrd"))
+    assert one.startswith(
+        "open with: skyvln-eval view 'my run/ep.rrd'  (or `rerun 'my run/ep.rrd'`;"
+    )
+    several = open_hint([Path("out/a.rrd"), Path("out/b.rrd")], Path("out"))
+    assert several.startswith(
+        "open one with: skyvln-eval view out/a.rrd  (or all: `rerun out/*.rrd`;"
+    )
 
 
 def _start_view(flown_run: Path, scratch: Path) -> tuple[subprocess.Popen[str], str]:
