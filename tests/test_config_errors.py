@@ -75,3 +75,16 @@ def test_text_that_yaml_reads_as_a_scalar_says_to_quote_it(
     assert f"({read}" in str(caught.value) and "put the text in quotes)" in str(caught.value)
     plan = {"table1": {"systems": [{"label": 1.5}]}}
     assert "YAML reads the unquoted text as the number 1.5" in _problems(ReproducePlan, plan)
+
+
+def test_a_server_in_the_backend_is_its_base_url_as_in_the_environment_form() -> None:
+    from skyvln_eval.llm import LLMConfig
+
+    config = LLMConfig(backend="openai:gpt-4o-mini@http://127.0.0.1:8080/v1")
+    # Read as a model name, the server went to api.openai.com with the key of the user.
+    assert (config.backend, config.base_url) == ("openai:gpt-4o-mini", "http://127.0.0.1:8080/v1")
+    assert config == LLMConfig(backend="openai:gpt-4o-mini", base_url="http://127.0.0.1:8080/v1")
+    # A model id may hold '@' (a version): without a URL after it, it stays the model's.
+    assert LLMConfig(backend="openai:claude-3-5@20240620").base_url is None
+    with pytest.raises(ValidationError, match=r"names the server .* give it once"):
+        LLMConfig(backend="openai:m@http://a/v1", base_url="http://b/v1")

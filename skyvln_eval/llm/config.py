@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from skyvln_eval.errors import ConfigError, UnknownNameError
 from skyvln_eval.llm.cache import ResponseCache
@@ -110,6 +110,27 @@ class LLMConfig(BaseModel):
     retry: RetryConfig = RetryConfig()
     cache_path: str | None = None
     prices_path: str | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _server_in_backend(cls, data: Any) -> Any:
+        """``backend: openai:<model>@<base_url>`` (the form ``$SKYVLN_EVAL_BACKENDS`` takes)
+        as ``backend: openai:<model>`` with that ``base_url``: read as a model name, the
+        server part was sent to api.openai.com."""
+        if not isinstance(data, dict) or not isinstance(data.get("backend"), str):
+            return data
+        spec, at, url = data["backend"].rpartition("@")
+        if not at or not url.startswith(("http://", "https://")):
+            return data  # no server named ('@' may be part of a model id: 'model@2024')
+        if not spec.partition(":")[2]:
+            raise ValueError(f"backend {data['backend']!r}: expected '<backend>:<model>@<url>'")
+        given = data.get("base_url")
+        if given is not None and given != url:
+            raise ValueError(
+                f"backend {data['backend']!r} names the server {url!r} and base_url is "
+                f"{given!r}: give it once"
+            )
+        return {**data, "backend": spec, "base_url": url}
 
     @field_validator("backend")
     @classmethod
