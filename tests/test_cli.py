@@ -82,6 +82,18 @@ def test_sample_names_the_synthetic_dataset_in_summary_and_convert(
     outcome = cli("convert", "--data-dir", "sample", "--split", "val_seen", "--out", str(tmp_path))
     assert outcome.code == 0, outcome
     assert converted == [sample_dir]
+    # score too: predictions of the sample, scored against its ground truth.
+    from skyvln_eval.avdn import load_split
+    from skyvln_eval.metrics import Prediction, write_predictions_json
+
+    episodes = load_split(sample_dir, "val_seen").episodes()
+    predictions = {e.episode_id: Prediction(e.episode_id, e.gt_path_corners) for e in episodes}
+    write_predictions_json(tmp_path / "preds.json", predictions)
+    args = ("--split", "val_seen", "--out", str(tmp_path / "s"))
+    outcome = cli("score", str(tmp_path / "preds.json"), "--data-dir", "sample", *args)
+    assert outcome.code == 0, outcome  # the ground truth replayed: every episode succeeds
+    scores = (tmp_path / "s" / "scores.csv").read_text().splitlines()
+    assert len(scores) == 3 + len(episodes)  # format, conventions and header lines
     # A folder of that name is still reachable by a path that is not the bare word.
     monkeypatch.chdir(tmp_path)
     outcome = cli("summary", "./sample")

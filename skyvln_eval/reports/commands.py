@@ -137,11 +137,13 @@ def score(
     out: Annotated[Path, typer.Option(help="Folder for scores.csv and summary.csv")] = Path(
         "scores"
     ),
-    data_dir: Annotated[
-        Path | None,
+    data_dir_text: Annotated[
+        str | None,
         typer.Option(
-            help="AVDN-format dataset: GT for predictions; completeness check for results "
-            "(a run directory's: the episodes its config selects, from this dataset)"
+            "--data-dir",
+            help="AVDN-format dataset (or sample / full): GT for predictions; completeness "
+            "check for results (a run directory's: the episodes its config selects, from "
+            "this dataset)",
         ),
     ] = None,
     split: Annotated[
@@ -190,6 +192,7 @@ def score(
     from skyvln_eval.metrics.scores_io import summary_csv_text, write_scores
     from skyvln_eval.reports.run_coverage import covered_results
 
+    data_dir = None if data_dir_text is None else _data_dir(data_dir_text)
     conventions = _conventions(threshold_m, distance, non_strict, legacy_gp)
     sources = _load_results(results, data_dir, split, mode, system)
     loaded, warnings = covered_results(sources, data_dir, allow_incomplete)
@@ -315,12 +318,22 @@ def plot_ne(
     typer.echo(f"wrote {save_figure(ne_distribution_figure(frame), out)}")
 
 
+def _data_dir(value: str) -> Path:
+    """``--data-dir``: ``sample`` / ``full`` as a run config's ``data:``, else a folder."""
+    from skyvln_eval.cli import data_dir_argument  # here: the CLI imports this module
+
+    return data_dir_argument(value)
+
+
 @plot_app.command("trajectory")
 def plot_trajectory(
     results: Annotated[Path, typer.Argument(help="Result rows (.jsonl or .parquet)")],
     episode: Annotated[str, typer.Option(help="Episode id, e.g. 1913__3_1")],
-    data_dir: Annotated[
-        Path, typer.Option(help="The dataset the episode comes from (for its map)")
+    data_dir_text: Annotated[
+        str,
+        typer.Option(
+            "--data-dir", help="The dataset the episode comes from, for its map (or sample / full)"
+        ),
     ],
     system: Annotated[str | None, typer.Option(help="Which system's row, if several")] = None,
     out: Annotated[Path, typer.Option(help="Figure file (.png, .pdf, .svg)")] = Path(
@@ -345,6 +358,7 @@ def plot_trajectory(
             f"{results}: {len(rows)} rows for episode {episode!r} (systems {systems}); use --system"
         )
     row = rows[0]
+    data_dir = _data_dir(data_dir_text)
     records = [r for r in load_split(data_dir, row.split).records if r.episode_id == episode]
     if not records:
         raise ConfigError(f"{data_dir}: split {row.split} has no episode {episode!r}")
