@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import os
 import sys
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
@@ -26,7 +26,7 @@ from typer.core import TyperCommand
 from skyvln_eval.errors import ConfigError, SkyvlnError, UnknownNameError
 
 if TYPE_CHECKING:
-    from skyvln_eval.avdn import SplitSummary
+    from skyvln_eval.avdn import AvdnRecord, SplitSummary
 
 app = typer.Typer(
     name="skyvln-eval",
@@ -224,6 +224,30 @@ def summary(
     console.print(_split_table(_summarise(data_dir_argument(data_dir), skip_invalid)))
 
 
+def _undecodable_maps(
+    data_dir: Path, records: Sequence[AvdnRecord], checked: set[tuple[Path, str]]
+) -> list[str]:
+    """The map images (and world layers) of ``records`` that exist but do not decode (a
+    truncated download), each named once with how many records use it; ``checked``
+    holds the maps already decoded (another split's)."""
+    from skyvln_eval.errors import MapImageError
+    from skyvln_eval.worlds.loading import load_world
+
+    users: dict[str, list[AvdnRecord]] = {}
+    for record in records:
+        users.setdefault(record.map_name, []).append(record)
+    problems = []
+    for map_name, using in users.items():
+        if (data_dir, map_name) in checked:
+            continue
+        checked.add((data_dir, map_name))
+        try:
+            load_world(data_dir, map_name, using[0].georef)
+        except MapImageError as exc:
+            problems.append(f"{exc} ({len(using)} record(s) use map {map_name})")
+    return problems
+
+
 @app.command()
 def validate(
     paths: Annotated[
@@ -233,7 +257,8 @@ def validate(
         ),
     ],
     no_images: Annotated[
-        bool, typer.Option("--no-images", help="Do not check that map images exist")
+        bool,
+        typer.Option("--no-images", help="Do not check that map images exist and decode"),
     ] = False,
 ) -> None:
     """Report every problem in the given datasets or MCAP logs; exit 1 if there is any.
@@ -246,6 +271,7 @@ def validate(
     from skyvln_eval.converters.commands import is_mcap_target, run_validate_mcap
 
     problems = 0
+    checked_maps: set[tuple[Path, str]] = set()
     for path in paths:
         if is_mcap_target(path):
             problems += run_validate_mcap(path, typer.echo, _echo_problem)
@@ -267,6 +293,10 @@ def validate(
             bad = len({i.record_index for i in issues})
             status = "ok" if not issues else f"{len(issues)} problem(s) in {bad} record(s)"
             typer.echo(f"{path} {split}: {len(records)} valid record(s), {status}")
+            if not no_images:
+                for problem in _undecodable_maps(path, records, checked_maps):
+                    _echo_problem(problem)
+                    problems += 1
         if not found:
             _echo_problem(f"{path}: no annotations/<split>_data.json found")
             problems += 1

@@ -39,6 +39,16 @@ def test_validate_passes_on_a_clean_dataset(dataset_factory: Callable[..., Path]
     assert result.exit_code == 0, result.output
 
 
+def test_validate_decodes_the_map_images(dataset_factory: Callable[..., Path]) -> None:
+    root = dataset_factory({"val_unseen": [make_record(), make_record(route_index="1_1")]})
+    image = root / "train_images" / "1913.tif"
+    image.write_bytes(image.read_bytes()[:200])  # a download cut short: the file is there
+    result = runner.invoke(app, ["validate", str(root)])
+    assert result.exit_code == 1, result.output
+    assert str(image) in result.output and "(2 record(s) use map 1913)" in result.output
+    assert runner.invoke(app, ["validate", str(root), "--no-images"]).exit_code == 0
+
+
 def test_validate_a_folder_without_annotations(tmp_path: Path) -> None:
     result = runner.invoke(app, ["validate", str(tmp_path)])
     assert result.exit_code == 1
