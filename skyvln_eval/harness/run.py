@@ -111,18 +111,37 @@ def episode_logs(config: RunConfig, data_dir: Path) -> dict[RowKey, Path]:
 
 
 def prepare_run_dir(config: RunConfig, run_dir: Path) -> None:
-    """Create the run directory, or check that it holds a run of this same configuration."""
+    """Create the run directory, or check that it holds a run of this same configuration,
+    or of one that selected fewer of the same episodes (:func:`grows`): a quick look with
+    ``limit: 3`` goes on to the whole split in place, its episodes kept."""
     path = run_dir / CONFIG_FILE
     if path.exists():
         existing = run_config_from_mapping(read_yaml_mapping(path, "run config"), str(path))
-        if existing.digest() != config.digest():
+        if existing.digest() != config.digest() and not grows(existing, config):
             raise ConfigError(
                 f"{run_dir} holds a run of another configuration ({existing.system!r}, "
-                f"{existing.digest()}); resume it with that config or use a new run directory"
+                f"{existing.digest()}); resume it with that config or use a new run "
+                "directory (in place, a run may only grow: a larger or no limit, more "
+                "episodes listed, all else the same)"
             )
     run_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_text(path, config.to_yaml())
     atomic_write_json(run_dir / VERSIONS_FILE, provenance(), indent=1)
+
+
+def grows(before: RunConfig, after: RunConfig) -> bool:
+    """Whether ``after`` is ``before`` with a selection holding all of its episodes: the same
+    settings but a larger (or no) limit with the same episode list, or a longer (or no)
+    episode list without a limit. (Both changed at once, the first N of the longer list
+    may leave out an episode of the shorter one's first N.)"""
+    selection = {"limit": after.limit, "episodes": after.episodes}
+    if before.model_copy(update=selection).digest() != after.digest():
+        return False  # something besides the selection differs
+    if before.episodes == after.episodes:
+        return after.limit is None or (before.limit is not None and after.limit >= before.limit)
+    if before.limit is not None or after.limit is not None or before.episodes is None:
+        return False
+    return after.episodes is None or set(before.episodes) <= set(after.episodes)
 
 
 @dataclass

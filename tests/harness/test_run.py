@@ -68,6 +68,14 @@ def test_official_run_writes_results_and_run_logs_then_resumes_nothing(
     assert len(read_results(run_dir / RESULTS_FILE)) == 4
     with pytest.raises(ConfigError, match="another configuration"):
         run(small_config(splits=("val_seen", "val_unseen"), max_action_len=3), run_dir)
+    # A quick look grows in place into a larger one, its episodes kept; it never shrinks.
+    grown = config.model_copy(update={"limit": 3})
+    more = run(grown, run_dir)
+    assert (more.ran_now, more.already_done, more.complete) == (2, 4, True)
+    assert len(read_results(run_dir / RESULTS_FILE)) == 6
+    assert "limit: 3" in (run_dir / "config.yaml").read_text()
+    with pytest.raises(ConfigError, match="may only grow"):
+        run(config, run_dir)
 
 
 def test_dynamics_run_flies_with_a_controller_and_logs_it(
@@ -267,3 +275,21 @@ def test_listed_episodes_past_the_limit_are_found_and_cut_by_it(
     assert list(logs) == [("val_unseen", ids[0])]  # was: 'episodes not found' for the other two
     with pytest.raises(ConfigError, match="episodes not found in val_unseen: nope"):
         episode_logs(small_config(episodes=[*ids, "nope"], limit=1), sample_dir)
+
+
+def test_a_run_grows_in_place_only_to_a_selection_holding_its_episodes(
+    small_config: MakeConfig,
+) -> None:
+    from skyvln_eval.harness.run import grows
+
+    base = small_config(limit=2)
+    assert grows(base, small_config(limit=5)) and grows(base, small_config(limit=None))
+    assert not grows(base, small_config(limit=1))
+    assert not grows(base, small_config(limit=5, max_action_len=3))  # another setting too
+    listed = small_config(limit=None, episodes=["a", "b"])
+    assert grows(listed, small_config(limit=None, episodes=["b", "a", "c"]))
+    assert grows(listed, small_config(limit=None))
+    assert not grows(listed, small_config(limit=None, episodes=["a"]))
+    # A limit as well: the first one of the longer list may not be one of the shorter's.
+    assert not grows(listed, small_config(limit=1, episodes=["a", "b", "c"]))
+    assert not grows(small_config(limit=None), small_config(limit=None, episodes=["a"]))
