@@ -124,6 +124,12 @@ def sha256_file(path: str | Path, chunk: int = 1 << 20) -> str:
 _YAML_KINDS = {list: "a list", str: "a single string", int: "a number", float: "a number"}
 
 
+def undecodable_at(raw: bytes, error: UnicodeDecodeError) -> str:
+    """Where ``raw`` stopped being UTF-8: the byte, its line and its offset."""
+    line = raw.count(b"\n", 0, error.start) + 1
+    return f"byte 0x{raw[error.start]:02x} on line {line}, byte offset {error.start}"
+
+
 def read_yaml_mapping(path: str | Path, what: str) -> dict[str, Any]:
     """The mapping at the top of the YAML file ``path`` (an empty file gives ``{}``).
 
@@ -139,11 +145,8 @@ def read_yaml_mapping(path: str | Path, what: str) -> dict[str, Any]:
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as error:
-        line = raw.count(b"\n", 0, error.start) + 1
-        raise ConfigError(
-            f"{what} {file}: not UTF-8 text (byte 0x{raw[error.start]:02x} on line {line}, "
-            f"byte offset {error.start}); save it as UTF-8"
-        ) from None
+        where = undecodable_at(raw, error)
+        raise ConfigError(f"{what} {file}: not UTF-8 text ({where}); save it as UTF-8") from None
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as error:

@@ -33,7 +33,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from skyvln_eval.errors import DataError, FormatVersionError, ResultRecordError, ValidationIssue
-from skyvln_eval.fileio import atomic_write_bytes
+from skyvln_eval.fileio import atomic_write_bytes, undecodable_at
 from skyvln_eval.llm_records import LlmCall, ModuleFailure
 from skyvln_eval.metrics.records import ControlSummary, EpisodeResult
 
@@ -202,11 +202,8 @@ def results_from_jsonl_bytes(data: bytes, file: str = "<jsonl>") -> list[Episode
     try:
         lines = data.decode("utf-8").splitlines()
     except UnicodeDecodeError as exc:
-        line_no = data.count(b"\n", 0, exc.start) + 1
-        raise DataError(
-            f"{file}: not an episode-results file (not UTF-8 text: byte 0x{data[exc.start]:02x} "
-            f"on line {line_no})"
-        ) from None
+        where = undecodable_at(data, exc)
+        raise DataError(f"{file}: not an episode-results file (not UTF-8 text: {where})") from None
     if not lines:
         raise DataError(f"{file}: empty file (no header line)")
     try:
