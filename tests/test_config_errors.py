@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+import yaml
 from pydantic import ValidationError
 
 from skyvln_eval.errors import ConfigError, describe_validation_error
@@ -88,3 +89,26 @@ def test_a_server_in_the_backend_is_its_base_url_as_in_the_environment_form() ->
     assert LLMConfig(backend="openai:claude-3-5@20240620").base_url is None
     with pytest.raises(ValidationError, match=r"names the server .* give it once"):
         LLMConfig(backend="openai:m@http://a/v1", base_url="http://b/v1")
+
+
+def test_a_plans_agent_settings_are_checked_on_load_naming_their_place(tmp_path: Path) -> None:
+    from skyvln_eval.harness.plan import load_plan
+
+    full = {"label": "Full", "mode": "official", "agent": {"name": "skyvln"}}
+    plan = {
+        "table1": {"splits": ["val_unseen"], "systems": [full, {**full, "label": "typo"}]},
+        "table2": {"system": full, "backends": [{"label": "x", "llm": {"backend": "rule"}}]},
+    }
+    path = tmp_path / "plan.yaml"
+    plan["table1"]["systems"][1]["agent"] = {"name": "skyvln", "llm": {"backend": "rulee"}}
+    path.write_text(yaml.safe_dump(plan))
+    with pytest.raises(ConfigError) as caught:
+        load_plan(path)
+    assert str(caught.value).startswith(
+        f"reproduce plan {path}: table1.systems.1.agent.llm.backend: unknown LLM backend 'rulee'"
+    )
+    plan["table1"]["systems"][1]["agent"] = {"name": "skyvln"}
+    plan["table2"]["backends"][0]["llm"] = {"backend": "rule", "temperatur": 0.2}
+    path.write_text(yaml.safe_dump(plan))
+    with pytest.raises(ConfigError, match=r"table2\.backends\.0\.llm\.temperatur: .*'temperature'"):
+        load_plan(path)

@@ -145,6 +145,30 @@ class ReproducePlan(_Strict):
             )
         return self
 
+    @model_validator(mode="after")
+    def _valid_agents(self) -> ReproducePlan:
+        # Each system's agent (and each listed backend with Table II's agent) is checked on
+        # load, naming its place in the plan, before any output folder is made.
+        checks = [(f"table1.systems.{i}.agent", s.agent) for i, s in enumerate(self.table1.systems)]
+        checks.append(("table2.system.agent", self.table2.system.agent))
+        for i, backend in enumerate(self.table2.backends):
+            llm = {**dict(self.table2.system.agent.get("llm") or {}), **backend.llm}
+            checks.append((f"table2.backends.{i}", {**self.table2.system.agent, "llm": llm}))
+        for where, agent in checks:
+            try:
+                AgentConfig.model_validate(agent)
+            except ValidationError as error:
+                first = error.errors()[0]
+                inside, _, problem = describe_validation_error([first], AgentConfig).partition(": ")
+                if where.startswith("table2.backends") and not inside.startswith("llm"):
+                    where = "table2.system.agent"  # the backend's agent is Table II's
+                raise PydanticCustomError(
+                    "agent",
+                    "{problem}",
+                    {"problem": problem, FIELD_PATH_CONTEXT: f"{where}.{inside}"},
+                ) from None
+        return self
+
 
 def load_plan(name_or_path: str | Path = DEFAULT_PLAN, **overrides: Any) -> ReproducePlan:
     """A shipped plan by name (``default``) or a plan file; errors name the file and field."""
