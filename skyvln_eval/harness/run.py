@@ -79,12 +79,20 @@ RUN_INVALID_HINT = (
 )
 
 
+def selected(config: RunConfig, episode_ids: Sequence[str]) -> list[str]:
+    """Of one split's episodes (in file order), those the run covers: the listed ones when
+    ``episodes`` lists some, the first ``limit`` of them when it sets one. ``score`` checks
+    a run's rows against the same selection (:mod:`skyvln_eval.reports.run_coverage`)."""
+    wanted = set(config.episodes) if config.episodes is not None else None
+    return [e for e in episode_ids if wanted is None or e in wanted][: config.limit]
+
+
 def episode_logs(config: RunConfig, data_dir: Path) -> dict[RowKey, Path]:
     """The episode MCAP of every episode the run covers, in run order (converted if needed,
     one process at a time: the cache is shared by every run on the data)."""
     out: dict[RowKey, Path] = {}
     wanted = set(config.episodes) if config.episodes is not None else None
-    found: set[str] = set()  # before the limit: a listed episode past it exists all the same
+    found: set[str] = set()  # all of them: a listed episode past the limit exists all the same
     root = episode_logs_root(data_dir)
     for split in config.splits:
         # The cache is shared by every run on this data: one process converts a split at a
@@ -96,12 +104,10 @@ def episode_logs(config: RunConfig, data_dir: Path) -> dict[RowKey, Path]:
                 )
             except AvdnValidationError as error:  # a run has no way to leave records out
                 raise AvdnValidationError(error.issues, RUN_INVALID_HINT) from None
-        rows = [r for r in report.rows if wanted is None or r.episode_id in wanted]
-        found.update(row.episode_id for row in rows)
-        if config.limit is not None:
-            rows = rows[: config.limit]
-        for row in rows:
-            out[(split, row.episode_id)] = report.out_dir / row.file_name
+        files = {row.episode_id: row.file_name for row in report.rows}
+        found.update(files)
+        for episode_id in selected(config, list(files)):
+            out[(split, episode_id)] = report.out_dir / files[episode_id]
     if wanted is not None:
         unknown = wanted - found
         if unknown:

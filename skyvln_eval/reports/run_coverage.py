@@ -18,7 +18,7 @@ from pathlib import Path
 from skyvln_eval.avdn.constants import EpisodeMode
 from skyvln_eval.errors import ConfigError, DataError, IncompleteRunError, SkyvlnError
 from skyvln_eval.harness.config import RunConfig, run_config_from_mapping
-from skyvln_eval.harness.run import CONFIG_FILE, REPORT_FILE
+from skyvln_eval.harness.run import CONFIG_FILE, REPORT_FILE, selected
 from skyvln_eval.harness.store import RESULTS_FILE, RowKey
 from skyvln_eval.metrics.records import EpisodeResult
 
@@ -72,12 +72,10 @@ def selected_episodes(config: RunConfig, data_dir: Path) -> list[RowKey]:
     """The episodes ``config`` runs on ``data_dir``, in run order (see the module docstring)."""
     from skyvln_eval.avdn import load_split
 
-    wanted = set(config.episodes) if config.episodes is not None else None
     keys: list[RowKey] = []
     for split in config.splits:
         episodes = load_split(data_dir, split, check_map_images=False).episodes(config.episode_mode)
-        ids = [e.episode_id for e in episodes if wanted is None or e.episode_id in wanted]
-        keys += [(split, episode_id) for episode_id in ids[: config.limit]]
+        keys += [(split, e) for e in selected(config, [e.episode_id for e in episodes])]
     return keys
 
 
