@@ -64,8 +64,8 @@ Aggregate = Literal["mean", "min", "max", "share"]
 #: that collided, so the worst episode has its own column.
 CONTROL_COLUMNS: tuple[tuple[str, str, Aggregate], ...] = (
     ("collided", "collided episodes/%", "share"),
-    ("min_clearance_m", "min clearance/m, worst episode", "min"),
-    ("min_clearance_m", "min clearance/m, episode mean", "mean"),
+    ("min_clearance_m", "min keep-out clearance/m, worst episode", "min"),
+    ("min_clearance_m", "min keep-out clearance/m, episode mean", "mean"),
     ("solve_failures", "solve failures per episode", "mean"),
     ("rmse_x_m", "RMSE x/m, episode mean", "mean"),
     ("rmse_y_m", "RMSE y/m, episode mean", "mean"),
@@ -213,6 +213,7 @@ def _metric_table(
     systems: Sequence[str],
     columns: Sequence[tuple[str, str, Aggregate]],
     title: str,
+    note: str = "",
 ) -> str:
     """A Markdown table of ``columns`` (score column, header, how its episodes combine)."""
     present = [c for c in columns if c[0] in scores.columns]
@@ -244,7 +245,7 @@ def _metric_table(
                 }[how]()
                 cells.append(f"{value:.3f}")
         lines.append(f"| {system} | {len(group)} | " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n"
+    return "\n".join([*lines, *(["", note] if note else [])]) + "\n"
 
 
 def _control_figures(plan: ReproducePlan, out_dir: Path) -> dict[str, Path]:
@@ -405,7 +406,15 @@ def reproduce(
     ]
     atomic_write_text(
         tables_dir / "control.md",
-        _metric_table(scores, flown, CONTROL_COLUMNS, "Safety and control (flown systems)"),
+        _metric_table(
+            scores,
+            flown,
+            CONTROL_COLUMNS,
+            "Safety and control (flown systems)",
+            "Keep-out clearance: how far the drone stayed outside the nearest obstacle's "
+            "keep-out sphere (its radius plus the safety margin); below 0 it was inside that "
+            "sphere, a collision is inside the obstacle itself.",
+        ),
     )
     atomic_write_text(
         tables_dir / "cost.md",

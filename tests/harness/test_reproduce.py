@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 from skyvln_eval.cli import app
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.harness.plan import environment_backends, load_plan, planned_runs, slug
-from skyvln_eval.harness.reproduce import reproduce
+from skyvln_eval.harness.reproduce import CONTROL_COLUMNS, reproduce
 from skyvln_eval.llm import LLMConfig
 
 TINY_PLAN = {
@@ -88,6 +88,16 @@ def test_a_small_plan_writes_tables_figures_and_summary_and_resumes(
     table2 = report.files["table2.md"].read_text()
     assert "rule-based (not an LLM)" in table2 and "random (not an LLM)" in table2
     assert "\\toprule" in report.files["table1.tex"].read_text()
+    # Every control column the table asks for is in the scores (none silently dropped), and
+    # each header says how the episodes combine.
+    control = report.files["control.md"].read_text().splitlines()
+    header = [cell.strip() for cell in control[2].strip("|").split("|")]
+    assert len(header) == 2 + len(CONTROL_COLUMNS), header
+    assert (
+        "min keep-out clearance/m, worst episode" in header and "Keep-out clearance" in control[-1]
+    )
+    full = next(line for line in control if line.startswith("| Full"))
+    assert "-" not in full.split("|")[3:]  # a flown system has every control figure
     assert any(name.startswith("trajectory_") for name in report.files)
     summary = report.files["SUMMARY.md"].read_text()
     assert "Table I" in summary and "Table II" in summary and "control_static.png" in summary
