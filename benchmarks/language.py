@@ -6,8 +6,9 @@ sample, three times per split, on the same routes and ground truth:
 
 - as generated: each split in its own families of sentence frames;
 - seen-style: every dialog rephrased by the families of the seen splits (train, val_seen);
-- held-out: every dialog rephrased by the families of the unseen splits, which nothing
-  in the toolkit was written or tuned on.
+- held-out: every dialog rephrased by the families of the unseen splits: val_unseen's
+  (validation phrasings, which the reader's tests read) and test_unseen's (held out: no
+  test reads them, and the idioms only they use are not in the reader's vocabulary).
 
 It prints the success rate of each (AVDN success: hull-IoU >= 0.4 and both centres
 strictly inside the other view), the gap seen-style minus held-out, and the number of

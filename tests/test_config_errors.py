@@ -112,3 +112,14 @@ def test_a_plans_agent_settings_are_checked_on_load_naming_their_place(tmp_path:
     path.write_text(yaml.safe_dump(plan))
     with pytest.raises(ConfigError, match=r"table2\.backends\.0\.llm\.temperatur: .*'temperature'"):
         load_plan(path)
+
+
+def test_a_modules_budget_is_set_over_the_other_modules_defaults() -> None:
+    from skyvln_eval.llm import LLMConfig
+    from skyvln_eval.llm.config import DEFAULT_BUDGETS
+
+    config = LLMConfig(budgets={"motion": 4096})
+    assert config.generation("motion").max_tokens == 4096
+    # The others keep theirs (they fell back to max_tokens: sub-goals 1024 -> 512).
+    assert config.generation("subgoals").max_tokens == DEFAULT_BUDGETS["subgoals"] == 1024
+    assert LLMConfig().budgets == DEFAULT_BUDGETS

@@ -70,7 +70,8 @@ class LLMConfig(BaseModel):
     (a server that answers a byte at a time cannot stretch it), ``retry.deadline_s`` the
     whole call with its retries (default ``timeout_s`` times ``retry.max_attempts``).
     ``max_tokens`` is the budget of a call; ``budgets`` gives
-    agent modules their own (e.g. ``{subgoals: 1024}``). An unusable answer is asked for
+    agent modules their own, over :data:`DEFAULT_BUDGETS` (e.g. ``{motion: 1024}`` changes
+    only the motion module's). An unusable answer is asked for
     again ``repairs`` times, at ``repair_temperature`` (above the first try's, so that the
     same mistake is not simply repeated) and, when the answer was cut off at the budget,
     with ``repair_budget_factor`` times the budget.
@@ -158,7 +159,8 @@ class LLMConfig(BaseModel):
         for module, tokens in budgets.items():
             if not 16 <= tokens <= 32768:
                 raise ValueError(f"budget of {module!r} must be in [16, 32768], got {tokens}")
-        return budgets
+        # Over the defaults: {motion: 4096} alone left the other modules at max_tokens.
+        return {**DEFAULT_BUDGETS, **budgets}
 
     def generation(self, module: str | None = None, **overrides: Any) -> GenerationConfig:
         """Decoding settings for ``module``'s calls (``json_schema`` etc. as overrides)."""

@@ -51,6 +51,8 @@ from skyvln_eval.metrics.records import RESULT_STATUSES, EpisodeResult, ResultSt
 
 PREDICTIONS_FORMAT = "skyvln-eval.predictions"
 PREDICTIONS_VERSION = 1
+#: How far (degrees, about a centimetre) a path's first view may be from the start view.
+START_TOLERANCE_DEG = 1e-7
 
 
 @dataclass(frozen=True)
@@ -241,19 +243,35 @@ def results_from_predictions(
     system: str,
     split: str,
     mode: EpisodeMode = "andh",
+    allow_missing: bool = False,
 ) -> list[EpisodeResult]:
     """Join predictions with ground truth into results, in ground-truth order.
 
     ``ground_truth`` is either the split's episodes (their ``gt_path_corners``) or a
-    mapping of episode id to GT views. Every GT episode must have a prediction and every
-    prediction a GT episode; otherwise :class:`~skyvln_eval.errors.IncompleteRunError`
-    names them.
+    mapping of episode id to GT views. Every GT episode must have a prediction (unless
+    ``allow_missing``: then only the predicted ones are joined) and every prediction a GT
+    episode; otherwise :class:`~skyvln_eval.errors.IncompleteRunError` names them. A
+    path must begin with its episode's start view (AVDN's P_0), else
+    :class:`~skyvln_eval.errors.DataError`: without it the path would be shorter and its
+    SPL higher.
     """
     if isinstance(ground_truth, Mapping):
         gt = dict(ground_truth)
     else:
         gt = {ep.episode_id: ep.gt_path_corners for ep in ground_truth}
-    check_complete(predictions, gt, f"predictions of {system!r} on {split}")
+    what = f"predictions of {system!r} on {split}"
+    if allow_missing:
+        gt = {eid: views for eid, views in gt.items() if eid in predictions}
+    check_complete(predictions, gt, what)
+    for eid, views in gt.items():
+        path = predictions[eid].path_corners
+        if len(path) and not np.allclose(path[0], views[0], rtol=0.0, atol=START_TOLERANCE_DEG):
+            first, start = np.asarray(path[0]).tolist(), np.asarray(views[0]).tolist()
+            raise DataError(
+                f"{what}, episode {eid}: the path does not begin with the episode's start view "
+                f"(first view {first}, start {start}); a path lists every view from the start "
+                "on, as the official agent's path_corners do"
+            )
     return [
         EpisodeResult(
             episode_id=eid,

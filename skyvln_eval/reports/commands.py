@@ -97,9 +97,15 @@ def _input_file(path: Path) -> Path:
 
 
 def _load_results(
-    paths: list[Path], data_dir: Path | None, split: str | None, mode: str, system: str | None
-) -> list[tuple[str, list[EpisodeResult]]]:
-    """Each input's name and rows; no episode of a system, split and mode in two of them."""
+    paths: list[Path],
+    data_dir: Path | None,
+    split: str | None,
+    mode: str,
+    system: str | None,
+    allow_incomplete: bool = False,
+) -> tuple[list[tuple[str, list[EpisodeResult]]], list[str]]:
+    """Each input's name and rows (no episode of a system, split and mode in two of them),
+    and a warning per predictions file that misses episodes (with ``allow_incomplete``)."""
     from skyvln_eval.metrics import (
         ground_truth_episodes,
         read_predictions,
@@ -108,7 +114,7 @@ def _load_results(
     )
     from skyvln_eval.metrics.results_io import check_unique_files
 
-    sources = []
+    sources, warnings = [], []
     for path in map(_input_file, paths):
         if path.suffix in (".jsonl", ".parquet"):
             sources.append((str(path), read_results(path)))
@@ -120,10 +126,17 @@ def _load_results(
         episodes = ground_truth_episodes(data_dir, split, _mode(mode))
         predictions = read_predictions(path)
         label = system or path.stem
-        rows = results_from_predictions(predictions, episodes, label, split, _mode(mode))
+        rows = results_from_predictions(
+            predictions, episodes, label, split, _mode(mode), allow_missing=allow_incomplete
+        )
+        if len(rows) < len(episodes):
+            warnings.append(
+                f"INCOMPLETE: {path} predicts {len(rows)} of the {len(episodes)} episodes of "
+                f"{split}; scored on those only"
+            )
         sources.append((str(path), rows))
     check_unique_files(sources)
-    return sources
+    return sources, warnings
 
 
 def score(
@@ -194,8 +207,9 @@ def score(
 
     data_dir = None if data_dir_text is None else _data_dir(data_dir_text)
     conventions = _conventions(threshold_m, distance, non_strict, legacy_gp)
-    sources = _load_results(results, data_dir, split, mode, system)
+    sources, missing = _load_results(results, data_dir, split, mode, system, allow_incomplete)
     loaded, warnings = covered_results(sources, data_dir, allow_incomplete)
+    warnings = [*missing, *warnings]
     scores = score_results(loaded, conventions)
     summary = summarise(scores, [m for m in SUMMARY_METRICS if m in scores], resamples, seed=seed)
     out.mkdir(parents=True, exist_ok=True)

@@ -2,7 +2,12 @@
 a pass, a negation; what ends a landmark's description.
 
 Multi-word cues are tuples of lower-case words. These are words of the language, listed
-from how people give directions, not from any generator's sentences.
+from how people give directions, not from any generator's sentences. A review found
+idioms here that only the synthetic sample's held-out phrasings use (radio talk: "vector",
+"hang a left", "hold position", "hold your heading"; a storyteller's "what you are looking
+for", "where your journey ends"; "dead ahead" in directions.py): with them the stand-in
+read 100% of the held-out frames. They were taken out, and the reader's tests read only
+the seen splits' phrasings; ``benchmarks/language.py`` measures the held-out ones.
 """
 
 from __future__ import annotations
@@ -11,9 +16,9 @@ from typing import Final
 
 Cue = tuple[str, ...]
 
-#: Verbs of turning ("take a left", "hang a right", "bear left", "exit to the right").
+#: Verbs of turning ("take a left", "bear left", "exit to the right").
 TURN_VERBS: Final = frozenset(
-    {"turn", "turns", "turning", "take", "make", "hang", "bear", "veer", "swing", "exit", "fork"}
+    {"turn", "turns", "turning", "take", "make", "bear", "veer", "swing", "exit", "fork"}
 )
 #: Verbs of flying somewhere.
 MOTION_VERBS: Final = frozenset(
@@ -31,7 +36,6 @@ MOTION_VERBS: Final = frozenset(
         "carry",
         "steer",
         "cruise",
-        "vector",
         "climb",
         "descend",
     }
@@ -61,7 +65,6 @@ STOP_CUES: Final[tuple[Cue, ...]] = (
     ("wait",),
     ("land",),
     ("pause",),
-    ("hold", "position"),
     ("hold", "there"),
     ("hold", "here"),
     ("reach",),
@@ -82,10 +85,7 @@ DESTINATION_CUES: Final[tuple[Cue, ...]] = (
     ("final", "stop"),
     ("end", "point"),
     ("endpoint",),
-    ("looking", "for"),
     ("searching", "for"),
-    ("journey", "ends"),
-    ("journey", "end"),
     ("trip", "ends"),
     ("where", "you", "finish"),
 )
@@ -255,7 +255,6 @@ CLAUSE_OPENERS: Final = (
             "hover",
             "wait",
             "land",
-            "hold",
             "when",
             "once",
         }

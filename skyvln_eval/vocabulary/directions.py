@@ -43,7 +43,6 @@ SIDE_PREPOSITIONS: Final = frozenset({"on", "to", "off", "at", "by", "from", "al
 AHEAD_PHRASES: Final = (
     ("in", "front"),
     ("straight", "ahead"),
-    ("dead", "ahead"),
     ("directly", "ahead"),
     ("ahead",),
 )

@@ -4,8 +4,10 @@ Hand-written instructions (no generator wrote them) in many forms of the same co
 numbers as digits and words, compass points bare, hyphenated, abbreviated, as adverbs or
 colloquially, clause order either way, corrections, sides and turns, names. Then every
 sub-goal the synthetic sample's facts imply, read back from the words of the seen
-families and of val_unseen's families. test_unseen's families are deliberately in no
-reader test: they stay held out for benchmarks/language.py.
+families and of val_unseen's families (validation phrasings: the reader was developed on
+them). test_unseen's families are deliberately in no reader test, and idioms only they use
+were taken out of the vocabulary (see vocabulary/cues.py): they stay held out for
+benchmarks/language.py, where the reader reads them less well.
 """
 
 from __future__ import annotations
@@ -80,7 +82,7 @@ PACKAGE = REPO / "skyvln_eval"
         ),
         (
             "Bearing SW. At the third crossroads, swing right. Two hundred and fifty meters "
-            'later, you are looking for a stadium with a green pitch, "Memorial Stadium".',
+            'later, you are searching for a stadium with a green pitch, "Memorial Stadium".',
             None,
             [
                 {"kind": "head", "direction": "southwest"},

@@ -261,3 +261,27 @@ def test_plots_of_the_wrong_file_say_what_it_should_be(tmp_path: Path, cli: Cli)
         if kind == "control":
             assert "RUN_DIR/control/<split>/<episode_id>.parquet" in outcome.err
     assert not (tmp_path / "figure.png").exists()
+
+
+def test_predictions_start_at_the_start_view_and_may_be_scored_incomplete_when_allowed(
+    dataset_factory: Callable[..., Path], tmp_path: Path
+) -> None:
+    records = [make_record(route_index="0_1"), make_record(route_index="1_1", heading=90.0)]
+    root = dataset_factory({"val_seen": records})
+    gt = {f"1913__{r['route_index']}": np.array(r["gt_path_corners"]) for r in records}
+    path = tmp_path / "preds.json"
+    args = ["--data-dir", str(root), "--split", "val_seen", "--out", str(tmp_path / "s")]
+    # The start view left out: a shorter path, a higher SPL. Refused, naming the episode.
+    write_predictions_json(path, {eid: Prediction(eid, views[1:]) for eid, views in gt.items()})
+    cut = runner.invoke(app, ["score", str(path), *args])
+    assert isinstance(cut.exception, DataError)
+    assert "episode 1913__0_1: the path does not begin with the episode's start view" in str(
+        cut.exception
+    )
+    # One episode predicted: refused, unless --allow-incomplete, which says so and scores it.
+    write_predictions_json(path, {"1913__0_1": Prediction("1913__0_1", gt["1913__0_1"])})
+    assert isinstance(runner.invoke(app, ["score", str(path), *args]).exception, IncompleteRunError)
+    allowed = runner.invoke(app, ["score", str(path), *args, "--allow-incomplete"])
+    assert allowed.exit_code == 0, allowed.output
+    assert "predicts 1 of the 2 episodes of val_seen" in allowed.output
+    assert len(read_scores(tmp_path / "s" / "scores.csv")[0]) == 1

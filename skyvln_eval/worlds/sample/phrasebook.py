@@ -4,8 +4,10 @@ A frame is one way of saying one thing (a *slot*: a heading, a turn at the n-th
 intersection, the destination with its distance, an answer to the follower's question,
 ...). A family is one commander's manner of speaking: a frame for every slot plus a
 :class:`~.wording.Style` for numbers, compass points, sides and names. The seen splits
-(train, val_seen) and the unseen ones (val_unseen, test_unseen) speak disjoint families,
-so an unseen split tests phrasings nothing was tuned on (:data:`SPLIT_FAMILIES`).
+(train, val_seen) and the unseen ones (val_unseen, test_unseen) speak disjoint families
+(:data:`SPLIT_FAMILIES`). val_unseen's are validation phrasings (the rule stand-in was
+developed with them in its tests); test_unseen's are held out: no test reads them and
+the idioms only they use are not in the stand-in's vocabulary.
 
 Placeholders: ``{dir}`` / ``{dir_erly}`` / ``{dir_ward}`` the compass point to fly,
 ``{old}`` / ``{old_erly}`` / ``{old_ward}`` the one the follower flew, ``{lr}`` left or
