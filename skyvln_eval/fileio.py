@@ -7,6 +7,7 @@ renamed into place, so an interrupted write never leaves a half file under the f
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import json
 import os
@@ -21,10 +22,19 @@ import yaml
 from skyvln_eval.errors import ConfigError
 
 
+@functools.cache
 def _umask() -> int:
+    """The process's umask, read once (reading it means setting it: not on every write,
+    where another thread's file could be created in between)."""
     mask = os.umask(0)
     os.umask(mask)
     return mask
+
+
+def usual_permissions(path: str | Path) -> None:
+    """Give a file made by ``tempfile.mkstemp`` (0600) the permissions of one made by
+    ``open`` (0666 minus the umask), before it is renamed into place."""
+    Path(path).chmod(0o666 & ~_umask())
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
@@ -39,7 +49,7 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
     try:
         with os.fdopen(fd, "wb") as handle:
             handle.write(data)
-        Path(tmp).chmod(0o666 & ~_umask())
+        usual_permissions(tmp)
         Path(tmp).replace(path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -18,6 +18,13 @@ def test_written_files_get_normal_permissions(tmp_path: Path) -> None:
     os.umask(mask)
     assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~mask
     assert path.read_text() == '{"x": 1}\n'
+    # MCAP logs too (they were 0600, the temporary file's mode, unlike the rest of a run).
+    from skyvln_eval.converters.writer import McapLogWriter
+
+    log = tmp_path / "logs" / "e.mcap"
+    with McapLogWriter(log) as writer:
+        writer.add_metadata("m", {"k": "v"})
+    assert stat.S_IMODE(log.stat().st_mode) == 0o666 & ~mask
 
 
 def test_a_failed_write_leaves_the_old_file_and_no_temporary(tmp_path: Path) -> None:

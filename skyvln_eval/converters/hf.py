@@ -22,6 +22,7 @@ import numpy as np
 from skyvln_eval.converters import topics
 from skyvln_eval.converters.manifest import gt_lengths_m
 from skyvln_eval.converters.reader import episode_from_log, read_log
+from skyvln_eval.fileio import usual_permissions
 from skyvln_eval.frames import view_to_pose
 
 if TYPE_CHECKING:
@@ -139,6 +140,7 @@ def export_parquet(dataset: datasets.Dataset, path: str | Path) -> Path:
     os.close(fd)
     try:
         dataset.to_parquet(tmp)
+        usual_permissions(tmp)
         Path(tmp).replace(path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

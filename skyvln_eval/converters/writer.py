@@ -29,6 +29,7 @@ import numpy as np
 from skyvln_eval.converters import topics
 from skyvln_eval.converters.mcap_file import McapFileWriter
 from skyvln_eval.errors import ConfigError, McapLogError
+from skyvln_eval.fileio import usual_permissions
 
 #: Chunks of this many uncompressed bytes; an episode log usually fits in one or two.
 DEFAULT_CHUNK_SIZE_BYTES = 1 << 20
@@ -116,6 +117,7 @@ class McapLogWriter:
             if self._tmp_path is not None and self._final_path is not None:
                 assert self._stream is not None
                 self._stream.close()
+                usual_permissions(self._tmp_path)  # as the other files of a run, not 0600
                 self._tmp_path.replace(self._final_path)
                 self._tmp_path = None
             return

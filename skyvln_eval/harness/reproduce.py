@@ -98,7 +98,8 @@ def setting_note(plan: ReproducePlan) -> str:
     """What the agents could sense and ask, for the tables' captions."""
     asks = plan.commander.max_questions
     commander = (
-        f"a simulated commander answers up to {asks} clarification question(s) per episode"
+        f"a simulated commander who knows the goal (as AVDN's human one does) answers up to "
+        f"{asks} clarification question(s) per episode with the way and distance to it"
         if asks
         else "no commander answers questions"
     )

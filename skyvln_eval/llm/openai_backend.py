@@ -423,7 +423,7 @@ class OpenAIBackend(LLMBackend):
             level = self.structured_level()
         started = time.perf_counter()
         ends_at = time.monotonic() + config.timeout_s
-        adapted = known = adaptation(self.endpoint)
+        adapted = adaptation(self.endpoint)
         while True:
             request = adapted.apply(kwargs)
             if level is not None:
@@ -435,12 +435,10 @@ class OpenAIBackend(LLMBackend):
                 break
             except _FormatRefused as refusal:
                 level = self._step_down(level, refusal)
+                remember_level(self.endpoint, level)  # known now, whatever the next try does
             except _ParameterRefused as refusal:
                 adapted = self._adapt(adapted, refusal)
-        if level is not None and self.structured_output == "auto":
-            remember_level(self.endpoint, level)
-        if adapted != known:
-            remember_adaptation(self.endpoint, adapted)
+                remember_adaptation(self.endpoint, adapted)
         latency = time.perf_counter() - started
         unsent = tuple(sorted(p for p in adapted.server_defaults if p in kwargs))
         return self._completion(response, latency, level, unsent)

@@ -85,7 +85,8 @@ TABLE_II = TableSpec(
         "Ablation over LLM backends. Fallback: decisions that used the fallback action; "
         "Call fail: LLM calls with no answer after retries; Degraded: episodes where an "
         "answer could not be used (a fallback action, no sub-goals, ...); Error: episodes "
-        "with no usable LLM answer or that raised; Cost and LLM s: per episode (n/a: unknown)."
+        "with no usable LLM answer or that raised; Cost and LLM s: per episode (n/a: unknown; "
+        "an answer from the response cache counts the cost and time of the call that made it)."
     ),
     label="tab:results_backends",
     digits=(("llm_cost_usd", 4),),

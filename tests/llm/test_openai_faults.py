@@ -151,6 +151,23 @@ def test_structured_output_is_negotiated_down_to_what_a_llama_cpp_server_takes()
     assert second.records[0].structured_output == "json_object_schema"
 
 
+def test_a_refused_level_is_remembered_even_when_the_next_attempt_fails() -> None:
+    # Refused, then the lower level times out: the refusal is still known for the endpoint
+    # (it was learnt only from an answer, so every call tried json_schema again first).
+    # Every answer takes 0.4 s and a call 0.6: the refusal leaves too little for the next try.
+    quick = GenerationConfig(timeout_s=0.6, json_schema=SCHEMA, schema_name="greeting")
+    with LoopbackOpenAIServer([answer("{}")], structured="llama_cpp", latency_s=0.4) as server:
+        backend = create_backend("openai:fake-model", base_url=server.base_url)
+        once = RetryPolicy(max_attempts=1, initial_delay_s=0.0, max_delay_s=0.0)
+        client = LLMClient(backend, retry=once, sleep=lambda _: None)
+        failed = client.call("motion", HELLO, quick)
+        assert failed.completion is None
+        again = client.call("motion", [*HELLO, Message("user", "again")], quick)
+        formats = [r["body"].get("response_format") for r in server.requests]
+    assert [f["type"] for f in formats] == ["json_schema", "json_object", "json_object"]
+    assert again.completion is not None  # straight at the level the server takes
+
+
 def test_a_server_without_any_response_format_is_prompted_plainly() -> None:
     with LoopbackOpenAIServer([answer("{}")], structured="none") as server:
         result = _client(server, []).call("motion", HELLO, STRUCTURED)
