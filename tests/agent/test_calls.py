@@ -109,7 +109,8 @@ def test_sub_goals_that_stay_unusable_are_a_recorded_failure_not_an_empty_plan()
 def test_budgets_come_from_the_config_per_module() -> None:
     llm = LLMConfig(max_tokens=300, budgets={"subgoals": 2000})
     assert llm.generation("subgoals").max_tokens == 2000
-    assert llm.generation("hsd_rank").max_tokens == 300  # not listed: the default budget
+    assert llm.generation("hsd_rank").max_tokens == 256  # not listed: its default budget
+    assert llm.generation("detect").max_tokens == 300  # no default budget: max_tokens
     with pytest.raises(ValueError, match="budget of 'motion'"):
         LLMConfig(budgets={"motion": 5})
 
