@@ -227,6 +227,27 @@ def _process_worker(
         thread.join()
 
 
+@contextlib.contextmanager
+def _born_ignoring_ctrl_c() -> Iterator[None]:
+    """Processes started in this block ignore SIGINT from their first instruction.
+
+    Ctrl-C reaches a terminal's whole process group: a worker still importing, before its
+    own code ignores SIGINT, printed a KeyboardInterrupt traceback. An ignored signal stays
+    ignored across fork and exec (a blocked one does not here: multiprocessing's start
+    clears the mask) and Python then installs no handler of its own. The price: a Ctrl-C
+    in the few milliseconds of a start is not seen by the parent either (press it again).
+    Only the main thread may change a handler; elsewhere nothing changes.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous if previous is not None else signal.SIG_DFL)
+
+
 @dataclass(frozen=True)
 class ProcessExecutor:
     """``workers`` processes, each running ``threads`` episodes at a time in threads.
@@ -300,7 +321,8 @@ class ProcessExecutor:
     def _start(self, context: Any, fn: Callable[[Any], Any]) -> _Worker:
         parent_end, child_end = context.Pipe()
         process = context.Process(target=_process_worker, args=(fn, child_end, self.threads))
-        process.start()
+        with _born_ignoring_ctrl_c():
+            process.start()
         child_end.close()
         return _Worker(process, parent_end)
 
