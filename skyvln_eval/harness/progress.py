@@ -35,9 +35,10 @@ class RichRunProgress(RunProgress):
         self.cost_usd: float | None = 0.0
 
     def _stats(self) -> str:
-        rate = f"{100.0 * self.successes / self.scored:5.1f}%" if self.scored else "  n/a"
-        if self.finished and not self.scored:
-            rate = "n/a (no ground truth)"
+        if self.scored:
+            rate = f"{100.0 * self.successes / self.scored:5.1f}%"
+        else:  # nothing finished yet, or nothing with a ground truth to score against
+            rate = "n/a (no ground truth)" if self.finished else "  n/a"
         cost = "n/a" if self.cost_usd is None else f"${self.cost_usd:.4f}"
         health = (f", {self.errors} error" if self.errors else "") + (
             f", {self.degraded} degraded" if self.degraded else ""

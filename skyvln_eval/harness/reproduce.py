@@ -238,12 +238,8 @@ def _metric_table(
             elif not len(values):
                 cells.append("-")
             else:
-                value = {
-                    "mean": values.mean,
-                    "min": values.min,
-                    "max": values.max,
-                    "share": lambda v=values: 100.0 * v.mean(),
-                }[how]()
+                # A share is the mean of 0/1 values, in percent.
+                value = 100.0 * values.mean() if how == "share" else getattr(values, how)()
                 cells.append(f"{value:.3f}")
         lines.append(f"| {system} | {len(group)} | " + " | ".join(cells) + " |")
     return "\n".join([*lines, *(["", note] if note else [])]) + "\n"
