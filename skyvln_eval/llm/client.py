@@ -28,7 +28,7 @@ from dataclasses import dataclass, field, replace
 from skyvln_eval.errors import ConfigError, LLMAuthError, LLMError, LLMTransientError
 from skyvln_eval.llm.base import LLMBackend
 from skyvln_eval.llm.cache import ResponseCache, cache_key
-from skyvln_eval.llm.prices import PriceTable
+from skyvln_eval.llm.prices import PriceTable, price_key
 from skyvln_eval.llm.retry import RetryPolicy, call_with_retries
 from skyvln_eval.llm.types import Completion, GenerationConfig, Message
 from skyvln_eval.llm_records import LlmCall
@@ -97,10 +97,8 @@ class LLMClient:
             return 0.0
         if completion.prompt_tokens is None or completion.completion_tokens is None:
             return None  # the server did not say how many tokens it billed
-        identity = self.backend.identity()
         return self.prices.cost_usd(
-            str(identity["backend"]),
-            str(identity["model"]),
+            price_key(self.backend.identity()),
             completion.prompt_tokens,
             completion.completion_tokens,
         )

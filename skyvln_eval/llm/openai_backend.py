@@ -83,11 +83,12 @@ from skyvln_eval.llm.negotiation import (
     remember_level,
     response_format,
 )
+from skyvln_eval.llm.prices import VENDOR_SERVERS
 from skyvln_eval.llm.types import Completion, GenerationConfig, Message, StructuredLevel
 
 log = logging.getLogger(__name__)
 
-OPENAI_BASE_URL: Final = "https://api.openai.com/v1"
+OPENAI_BASE_URL: Final = VENDOR_SERVERS["openai"]
 #: Words in an error body that say the request is longer than the model's context.
 _CONTEXT_OVERFLOW = re.compile(
     r"context length|context window|maximum context|context_length_exceeded|too many tokens"

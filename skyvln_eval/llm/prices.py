@@ -23,6 +23,21 @@ PRICES_VERSION: Final = 1
 #: Shipped inside the package (``skyvln_eval/configs``, also reachable as ``configs/`` in
 #: a checkout), so an installed toolkit prices calls too.
 DEFAULT_PRICES_PATH: Final = Path(__file__).resolve().parents[1] / "configs" / "llm" / "prices.yaml"
+#: The vendors' own servers: a price listed as ``<backend>:<model>`` is the vendor's
+#: price, for calls to this server. Any other server (a local llama.cpp that calls its
+#: model "gpt-4o-mini", a proxy, another provider) is priced only under its own key,
+#: ``<backend>:<model>@<base_url>``: a model's name does not say who serves it at what cost.
+VENDOR_SERVERS: Final[Mapping[str, str]] = {"openai": "https://api.openai.com/v1"}
+
+
+def price_key(identity: Mapping[str, Any]) -> str:
+    """The price table's key of a backend's calls, from its ``identity()``: ``backend:model``
+    on the vendor's server (or for a backend without one), else ``backend:model@base_url``."""
+    backend, model = str(identity["backend"]), str(identity["model"])
+    server = identity.get("base_url")
+    if server is None or str(server).rstrip("/") == VENDOR_SERVERS.get(backend):
+        return f"{backend}:{model}"
+    return f"{backend}:{model}@{str(server).rstrip('/')}"
 
 
 @dataclass(frozen=True)
@@ -43,22 +58,26 @@ _WARNED_UNPRICED: set[str] = set()
 
 @dataclass(frozen=True)
 class PriceTable:
-    """Prices by ``"<backend>:<model>"``; ``as_of`` says when they were checked."""
+    """Prices by :func:`price_key` (``"<backend>:<model>"`` for the vendor's server,
+    ``"<backend>:<model>@<base_url>"`` for any other); ``as_of`` says when they were checked."""
 
     prices: Mapping[str, Price] = field(default_factory=dict)
     as_of: str = ""
 
-    def cost_usd(
-        self, backend: str, model: str, prompt_tokens: int, completion_tokens: int
-    ) -> float | None:
-        """Cost of one call, or ``None`` when the model is not in the table (logged once)."""
-        spec = f"{backend}:{model}"
-        price = self.prices.get(spec)
+    def cost_usd(self, key: str, prompt_tokens: int, completion_tokens: int) -> float | None:
+        """Cost of one call priced under ``key`` (:func:`price_key`), or ``None`` when the
+        table has no such key (logged once)."""
+        price = self.prices.get(key)
         if price is None:
-            if spec not in _WARNED_UNPRICED:  # once per process: agents are built per episode
-                _WARNED_UNPRICED.add(spec)
+            if key not in _WARNED_UNPRICED:  # once per process: agents are built per episode
+                _WARNED_UNPRICED.add(key)
+                elsewhere = "@" in key.partition(":")[2]
                 log.warning(
-                    "no price for %s in the price table: its cost_usd is recorded as unknown", spec
+                    "no price for %s in the price table: its cost_usd is recorded as unknown%s",
+                    key,
+                    " (a server other than the vendor's is priced only under its own key)"
+                    if elsewhere
+                    else "",
                 )
             return None
         return price.cost_usd(prompt_tokens, completion_tokens)

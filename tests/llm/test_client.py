@@ -25,6 +25,7 @@ from skyvln_eval.llm import (
     register_backend,
     registry,
 )
+from skyvln_eval.llm.prices import price_key
 from skyvln_eval.llm.simple import ScriptedBackend
 from skyvln_eval.llm_records import LlmCall
 from tests.conftest import REPO
@@ -106,10 +107,29 @@ def test_the_concurrency_limit_holds_across_threads() -> None:
     assert peak == 2
 
 
+def test_a_model_name_is_priced_only_on_its_vendors_server(tmp_path: Path) -> None:
+    """A local server that calls its model "gpt-4o-mini" is not OpenAI: its calls are not
+    priced at OpenAI's rates, only under the server's own key, which a user may add."""
+    vendor = {"backend": "openai", "model": "gpt-4o-mini", "base_url": "https://api.openai.com/v1/"}
+    local = {**vendor, "base_url": "http://127.0.0.1:8080/v1"}
+    assert price_key(vendor) == "openai:gpt-4o-mini"
+    assert price_key(local) == "openai:gpt-4o-mini@http://127.0.0.1:8080/v1"
+    assert price_key({"backend": "rule", "model": ""}) == "rule:"
+    shipped = load_prices()
+    assert shipped.cost_usd(price_key(vendor), 1_000_000, 0) == pytest.approx(0.15)
+    assert shipped.cost_usd(price_key(local), 1_000_000, 0) is None
+    table = tmp_path / "prices.yaml"
+    table.write_text(
+        "format: skyvln-eval/llm-prices\nversion: 1\nusd_per_million_tokens:\n"
+        "  openai:gpt-4o-mini@http://127.0.0.1:8080/v1: {input: 0.0, output: 0.0}\n"
+    )
+    assert load_prices(table).cost_usd(price_key(local), 1_000_000, 0) == 0.0
+
+
 def test_costs_come_from_the_price_table(tmp_path: Path) -> None:
     prices = load_prices()  # the shipped table
-    assert prices.cost_usd("openai", "gpt-4o", 1_000_000, 0) == pytest.approx(2.5)
-    assert prices.cost_usd("openai", "not-listed", 10, 10) is None
+    assert prices.cost_usd("openai:gpt-4o", 1_000_000, 0) == pytest.approx(2.5)
+    assert prices.cost_usd("openai:not-listed", 10, 10) is None
     table = tmp_path / "prices.yaml"
     table.write_text(
         "format: skyvln-eval/llm-prices\nversion: 1\nusd_per_million_tokens:\n"
