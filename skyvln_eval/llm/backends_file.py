@@ -38,7 +38,9 @@ BACKENDS_FORMAT: Final = "skyvln-eval/llm-backends"
 BACKENDS_VERSION: Final = 1
 #: The environment variable that names a backends file for ``$SKYVLN_EVAL_BACKENDS``.
 BACKENDS_FILE_ENV: Final = "SKYVLN_EVAL_BACKENDS_FILE"
-_SPEC = re.compile(r"(openai:[^@\s,]+)(?:@(\S+))?")
+#: An ``openai:<model>[@<base_url>]`` entry; :class:`LLMConfig` itself parses it (the
+#: server is what follows the last '@' when it is a URL: '@' may be part of a model id).
+_SPEC = re.compile(r"openai:\S+")
 
 
 @dataclass(frozen=True)
@@ -97,8 +99,7 @@ def resolve_backend(entry: str, backends: BackendsFile) -> tuple[str, LLMConfig]
     """A table label and the full configuration of one backend entry (name or spec)."""
     if entry in backends.backends:
         return entry, backends.backends[entry]
-    match = _SPEC.fullmatch(entry)
-    if match is None:
+    if _SPEC.fullmatch(entry) is None:
         if backends.backends:
             raise UnknownNameError(
                 f"backend (in {backends.path})", entry, sorted(backends.backends)
@@ -107,10 +108,11 @@ def resolve_backend(entry: str, backends: BackendsFile) -> tuple[str, LLMConfig]
             f"{entry!r} is not 'openai:<model>' or 'openai:<model>@<base_url>', and no "
             f"backends file names it (set ${BACKENDS_FILE_ENV})"
         )
-    spec, base_url = match.group(1), match.group(2)
-    label = spec.split(":", 1)[1] + (f" @ {base_url}" if base_url else "")
     where = f"backend {entry!r} with the defaults of {backends.path or 'the toolkit'}"
-    return label, _config({**backends.defaults, "backend": spec, "base_url": base_url}, where)
+    # The server is the entry's (none: OpenAI's), whatever the defaults say.
+    config = _config({**backends.defaults, "backend": entry, "base_url": None}, where)
+    label = config.backend.split(":", 1)[1] + (f" @ {config.base_url}" if config.base_url else "")
+    return label, config
 
 
 def environment_backends(

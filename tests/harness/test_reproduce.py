@@ -194,6 +194,21 @@ def test_endpoints_from_the_environment(monkeypatch: pytest.MonkeyPatch) -> None
     backends = environment_backends("SKYVLN_TEST_BACKENDS")
     assert [b.llm["backend"] for b in backends] == ["openai:gpt-4o", "openai:llama3"]
     assert backends[1].llm["base_url"] == "http://127.0.0.1:11434/v1"
+    # Read as a run config reads it: '@' in a model id is the id's, the server follows
+    # the last '@' (the entry used to be cut at the first, the id's, giving no server).
+    monkeypatch.setenv(
+        "SKYVLN_TEST_BACKENDS", "openai:m@2024, openai:m@2024@http://127.0.0.1:11434/v1"
+    )
+    bare, served = environment_backends("SKYVLN_TEST_BACKENDS")
+    assert (bare.llm["backend"], bare.llm.get("base_url"), bare.label) == (
+        "openai:m@2024",
+        None,
+        "m@2024",
+    )
+    assert (served.llm["backend"], served.llm["base_url"]) == (
+        "openai:m@2024",
+        "http://127.0.0.1:11434/v1",
+    )
     monkeypatch.setenv("SKYVLN_TEST_BACKENDS", "gpt-4o")
     with pytest.raises(ConfigError, match="SKYVLN_TEST_BACKENDS"):
         environment_backends("SKYVLN_TEST_BACKENDS")
