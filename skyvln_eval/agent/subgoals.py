@@ -20,6 +20,7 @@ from skyvln_eval.avdn.records import DialogTurn
 from skyvln_eval.errors import ActionParseError
 from skyvln_eval.llm.taskdata import task_message
 from skyvln_eval.llm.types import Message
+from skyvln_eval.vocabulary.directions import compass_point
 from skyvln_eval.vocabulary.words import WORD, phrase_words
 
 #: Fields of one sub-goal in the LLM's JSON (``null`` where they do not apply).
@@ -80,6 +81,19 @@ MAX_SUBGOALS: Final = 10  # an instruction rarely has more than 6; bounds a deco
 MAX_PHRASE_CHARS: Final = 300
 MAX_PHRASE_WORDS: Final = 20
 SIDES: Final = ("left", "right", "ahead")
+#: Words that say where or how, not what: a landmark phrase made only of them (Gemma 3
+#: 270M filled a plan with ten sub-goals "pass 'left'") names nothing a detector can find.
+NOT_LANDMARK_WORDS: Final = frozenset(
+    (
+        *DIRECTIONS,
+        *("straight", "forward", "front", "side", "way", "direction", "turn", "go", "fly"),
+        *("head", "the", "a", "an", "this", "that", "its", "your", "my", "it", "you", "to"),
+        *("on", "at", "of", "in", "by", "from", "towards", "toward", "into", "past", "and"),
+        *("then", "there", "here"),
+    )
+)
+#: The same sub-goal this many times in a row is a decoder's loop, not an instruction.
+MAX_REPEATS: Final = 2
 
 
 SUBGOALS_SYSTEM: Final = (
@@ -189,6 +203,31 @@ def _check_copied(phrase: str | None, dialog_words: frozenset[str], where: str) 
             f"{where} {phrase!r} is not in the dialog (it has no "
             f"{', '.join(repr(w) for w in missing)}): copy phrases word for word"
         )
+
+
+def _check_names_a_landmark(phrase: str | None, where: str) -> None:
+    """A landmark phrase must have a word that names something (:data:`NOT_LANDMARK_WORDS`,
+    compass points in any form); the refusal says so, for the repair."""
+    if phrase is None:
+        return
+    words = phrase_words(phrase)
+    if all(w in NOT_LANDMARK_WORDS or compass_point(w) is not None for w in words):
+        raise ActionParseError(
+            f"{where} {phrase!r} names no landmark, only a direction or filler words: copy "
+            "the landmark's own words (what it is, its name or look), or use a head or turn "
+            "sub-goal for a direction"
+        )
+
+
+def _check_no_loop(goals: Sequence[SubGoal]) -> None:
+    """More than :data:`MAX_REPEATS` equal sub-goals in a row are refused."""
+    for i in range(MAX_REPEATS, len(goals)):
+        if all(goals[j] == goals[i] for j in range(i - MAX_REPEATS, i)):
+            raise ActionParseError(
+                f"subgoals[{i - MAX_REPEATS}] to subgoals[{i}] are the same sub-goal "
+                f"{goals[i].to_dict()} {MAX_REPEATS + 1} times in a row: give each step of "
+                "the instruction once"
+            )
 
 
 def _nullable(schema: dict[str, Any]) -> dict[str, Any]:
@@ -330,6 +369,7 @@ def parse_subgoals(text: str, dialog: DialogText) -> SubGoalPlan:
             raise ActionParseError(f"{where} of kind {kind} needs a landmark phrase")
         name = _optional_str(item, "name", where)
         _check_copied(landmark, dialog_words, f"{where}.landmark")
+        _check_names_a_landmark(landmark, f"{where}.landmark")
         _check_copied(name, dialog_words, f"{where}.name")
         side = _optional_str(item, "side", where)
         if side is not None and side.lower() not in SIDES:
@@ -345,6 +385,7 @@ def parse_subgoals(text: str, dialog: DialogText) -> SubGoalPlan:
                 ordinal=ordinal,
             )
         )
+    _check_no_loop(goals)
     context = data.get("context_landmarks", [])
     if not isinstance(context, list) or not all(isinstance(c, str) for c in context):
         raise ActionParseError("'context_landmarks' must be a list of strings")
@@ -356,6 +397,7 @@ def parse_subgoals(text: str, dialog: DialogText) -> SubGoalPlan:
     context = [c.strip() for c in context if c.strip()]
     for i, phrase in enumerate(context):
         _check_copied(phrase, dialog_words, f"context_landmarks[{i}]")
+        _check_names_a_landmark(phrase, f"context_landmarks[{i}]")
     return SubGoalPlan(tuple(goals), tuple(context))
 
 

@@ -130,6 +130,17 @@ def test_the_prompt_carries_earlier_rounds_and_the_current_one() -> None:
         ),
         # The instruction has words, so a plan without sub-goals is a failed extraction.
         ({"subgoals": [], "context_landmarks": []}, "'subgoals' is empty"),
+        # Copied, but only where, not what (Gemma 3 270M: ten sub-goals "pass 'left'").
+        ({"subgoals": [{"kind": "pass", "landmark": "the west"}]}, "'the west' names no landmark"),
+        (
+            {"subgoals": [{"kind": "head", "direction": "west"}], "context_landmarks": ["west"]},
+            r"context_landmarks\[0\] 'west' names no landmark",
+        ),
+        # A decoder's loop: the same sub-goal three times in a row.
+        (
+            {"subgoals": [{"kind": "stop_at", "landmark": "the church"}] * 3},
+            r"subgoals\[0\] to subgoals\[2\] are the same sub-goal",
+        ),
     ],
 )
 def test_invalid_subgoals_are_rejected_with_a_reason(
@@ -138,6 +149,19 @@ def test_invalid_subgoals_are_rejected_with_a_reason(
     dialog = DialogText(("commander: Go west.",), None, "Stop when you reach the church.")
     with pytest.raises(ActionParseError, match=reason):
         parse_subgoals(json.dumps(payload), dialog)
+
+
+def test_a_step_said_twice_and_a_landmark_with_a_direction_are_plans() -> None:
+    dialog = DialogText((), None, "Turn left, then turn left again at the church on the left.")
+    answer = {
+        "subgoals": [
+            {"kind": "turn", "direction": "left"},
+            {"kind": "turn", "direction": "left"},
+            {"kind": "stop_at", "landmark": "the church on the left"},
+        ]
+    }
+    plan = parse_subgoals(json.dumps(answer), dialog)
+    assert plan.landmark_phrases == ["the church on the left"]
 
 
 def test_speaker_labels_of_earlier_rounds_are_not_dialog_words() -> None:
