@@ -13,11 +13,13 @@ reference row.
     python benchmarks/real_llm.py [--episodes 10] [--max-steps 10] [--base-url URL]
 
 Gemma 3 270M is a small base model: expect a low SR. Measured on 2 cores (10 episodes of
-test_unseen; two runs a day apart, the same counts): 139 calls, 10.7-12.4 s each on
-average, 25-29 minutes in all; 90 of 90 decisions parsed (no fallback), 11 unusable
-answers (7 rankings, 4 sub-goal answers), 9 repairs;
-8 episodes "ok", 2 "degraded" (their sub-goals not extracted); SR 0%, NE 196.8 m. Each
-module's unusable answers are counted by reason (values blanked). Before the sub-goal
+test_unseen): 145 calls, 12.4 s each on average, 30 minutes in all; 90 of 90 decisions
+parsed (no fallback), 23 unusable answers (7 rankings, all repaired; 16 sub-goal answers,
+12 of them a "landmark" that is only a direction such as "northeast", 4 a distance out
+of range), 15 repairs; 2 episodes "ok", 8 "degraded" (their sub-goals not extracted);
+SR 0%, NE 187.9 m. Each module's unusable answers are counted by reason (values
+blanked). Before direction-only landmarks were refused, the same model's plans (e.g. ten
+sub-goals "pass 'left'") were taken: 8 episodes "ok", NE 196.8 m. Before the sub-goal
 schema was made per dialog (phrases a pattern of the dialog's words) its sub-goals were
 refused in every episode ("}, {" for a landmark).
 The server reuses the previous prompt's computed prefix: of a decision prompt, the

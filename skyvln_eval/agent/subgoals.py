@@ -83,6 +83,10 @@ MAX_PHRASE_WORDS: Final = 20
 SIDES: Final = ("left", "right", "ahead")
 #: Words that say where or how, not what: a landmark phrase made only of them (Gemma 3
 #: 270M filled a plan with ten sub-goals "pass 'left'") names nothing a detector can find.
+#: The schema's phrase pattern does not forbid such a phrase (a pattern that needs one
+#: naming word and counts every word to :data:`MAX_PHRASE_WORDS` would hold the dialog's
+#: words once per position of that word): a grammar lets it through, and the parser refuses
+#: it with the reason the repair shows the model.
 NOT_LANDMARK_WORDS: Final = frozenset(
     (
         *DIRECTIONS,
