@@ -6,7 +6,9 @@ interval. Rules: a group with no value for a metric (e.g. no control summary) ha
 row for it; NaN / inf never reach a mean (they raise); a metric that can be unknown
 (cost, tokens: :data:`~skyvln_eval.metrics.cost.UNKNOWN_IF_ANY_UNKNOWN`) has a NaN mean,
 shown as "n/a", when any episode's value is unknown; other missing values (a rate with
-nothing to rate) are left out. A run that misses episodes of its split fails
+nothing to rate) are left out. The call failure and fallback rates are pooled
+(:data:`POOLED_RATES`): failed calls of all the group's calls, not a mean of per-episode
+rates. A run that misses episodes of its split fails
 :func:`check_complete` with the missing ids.
 """
 
@@ -94,6 +96,16 @@ LOWER_IS_BETTER = frozenset(
 )
 
 
+#: Rates whose summary is the share over all the group's episodes pooled (failed calls of
+#: all calls, fallback decisions of all decisions), not the mean of per-episode rates, in
+#: which an episode of one failed call weighed as much as one of twenty answered ones.
+#: Their intervals resample episodes, the ratio of sums of each resample.
+POOLED_RATES: dict[str, tuple[str, str]] = {
+    "llm_call_failure_rate": ("llm_failed_calls", "llm_calls"),
+    "fallback_rate": ("fallback_decisions", "decisions"),
+}
+
+
 def unit_of(metric: str) -> str:
     return "%" if metric in PERCENT_METRICS else METRIC_UNITS.get(metric, "")
 
@@ -132,13 +144,26 @@ def summarise(
             if not present.any():
                 continue
             scale = 100.0 if metric in PERCENT_METRICS else 1.0
+            tail = (1.0 - confidence) / 2.0 * 100.0
+            if metric in POOLED_RATES and set(POOLED_RATES[metric]) <= set(group.columns):
+                # Numerator and denominator of the episodes with something to rate.
+                parts = group.loc[present, list(POOLED_RATES[metric])]
+                pairs = finite_values(parts.to_numpy(np.float64), f"{key} {metric}")
+                ratio = scale * pairs[:, 0].sum() / pairs[:, 1].sum()
+                row.update(metric=metric, unit=unit_of(metric), n=len(pairs), mean=float(ratio))
+                if n_resamples:  # the means' ratio is the sums' ratio
+                    means = bootstrap_means(pairs, n_resamples, seed)
+                    ratios = scale * means[:, 0] / means[:, 1]
+                    low, high = np.percentile(ratios, [tail, 100.0 - tail])
+                    row.update(ci_low=float(low), ci_high=float(high), confidence=confidence)
+                rows.append(row)
+                continue
             values = finite_values(column[present].to_numpy(np.float64), f"{key} {metric}") * scale
             row.update(
                 metric=metric, unit=unit_of(metric), n=len(values), mean=float(values.mean())
             )
             if n_resamples:
                 means = bootstrap_means(values, n_resamples, seed)
-                tail = (1.0 - confidence) / 2.0 * 100.0
                 low, high = np.percentile(means, [tail, 100.0 - tail])
                 row.update(ci_low=float(low), ci_high=float(high), confidence=confidence)
             rows.append(row)

@@ -15,7 +15,8 @@ tokens; but its cost is unknown, since a provider may bill a request it never an
 attempts of it); ``llm_unpriced_calls`` counts attempts whose cost is unknown.
 An episode without calls costs a known 0.
 Rates (call failure rate, fallback rate) are NaN for an episode with nothing to rate (no
-call, no decision) and left out of their means.
+call, no decision); over episodes they are pooled (failed calls of all calls: see
+:data:`~skyvln_eval.metrics.aggregate.POOLED_RATES`).
 """
 
 from __future__ import annotations

@@ -143,3 +143,31 @@ def test_a_scores_file_is_the_same_whatever_order_the_rows_came_in(tmp_path: Pat
     assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
     back, _ = read_scores(tmp_path / "a.csv")
     assert list(back.system) == sorted(scores.system)  # sorted by system, then episode
+
+
+def test_call_failure_and_fallback_rates_are_shares_of_all_calls_and_decisions() -> None:
+    # One episode whose only call failed, one of 19 answered calls, one without any: the
+    # share of failed calls is 1 of 20 (the mean of per-episode rates said 50%).
+    nan = float("nan")
+    scores = pd.DataFrame(
+        {
+            "system": "A",
+            "split": "test_unseen",
+            "mode": "andh",
+            "episode_id": ["e0", "e1", "e2"],
+            "llm_calls": [1.0, 19.0, 0.0],
+            "llm_failed_calls": [1.0, 0.0, 0.0],
+            "llm_call_failure_rate": [1.0, 0.0, nan],
+            "decisions": [1.0, 9.0, 0.0],
+            "fallback_decisions": [1.0, 0.0, 0.0],
+            "fallback_rate": [1.0, 0.0, nan],
+        }
+    )
+    rates = ["llm_call_failure_rate", "fallback_rate"]
+    summary = summarise(scores, rates, n_resamples=200, seed=1).set_index("metric")
+    assert summary.loc["llm_call_failure_rate", "mean"] == pytest.approx(5.0)
+    assert summary.loc["fallback_rate", "mean"] == pytest.approx(10.0)
+    assert list(summary["n"]) == [2, 2] and list(summary["unit"]) == ["%", "%"]
+    # Resampling the two episodes gives 0%, 5% or 100% of the calls.
+    low, high = summary.loc["llm_call_failure_rate", ["ci_low", "ci_high"]]
+    assert 0.0 <= low <= 5.0 <= high <= 100.0
