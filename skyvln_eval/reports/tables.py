@@ -82,8 +82,9 @@ TABLE_II = TableSpec(
         ("llm_latency_s", "LLM s"),
     ),
     caption=(
-        "Ablation over LLM backends. Fallback: decisions that used the fallback action; "
-        "Call fail: LLM calls with no answer after retries; Degraded: episodes where an "
+        "Ablation over LLM backends. Fallback: share of all decisions that used the "
+        "fallback action; Call fail: share of all LLM calls with no answer after retries; "
+        "Degraded: episodes where an "
         "answer could not be used (a fallback action, no sub-goals, ...); Error: episodes "
         "with no usable LLM answer or that raised; Cost and LLM s: per episode (n/a: unknown; "
         "an answer from the response cache counts the cost and time of the call that made it)."
@@ -194,15 +195,15 @@ def build_table(
             for row in row_names:
                 key = (row, split, metric)
                 present[row] = index.loc[key] if key in index.index else None
-            episodes, failed = {}, {}
-            for row in row_names:
-                # A path metric scores an error episode as a failure; health ones measure it.
-                known = metric not in HEALTH_METRICS
-                episodes[row], failed[row] = errors.get((row, split), (0, 0)) if known else (0, 0)
+            counts = {row: errors.get((row, split), (0, 0)) for row in row_names}
+            # A path metric scores an error episode as a failure, so its cell says so; a
+            # health metric measures it and shows its number. Neither is ranked for a row
+            # whose every episode ended in error: a dead endpoint is not the "fastest".
+            shown = {row: counts[row] if metric not in HEALTH_METRICS else (0, 0) for row in counts}
             means = {
                 r: float(v["mean"])
                 for r, v in present.items()
-                if v is not None and r not in unranked and not 0 < episodes[r] == failed[r]
+                if v is not None and r not in unranked and not 0 < counts[r][0] == counts[r][1]
             }
             ranks = _ranks(means, metric in LOWER_IS_BETTER, spec.digits_of(metric, digits))
             for row, v in present.items():
@@ -212,7 +213,7 @@ def build_table(
                 low = float(v["ci_low"]) if show_ci else None
                 high = float(v["ci_high"]) if show_ci else None
                 cells[row][(split, metric)] = Cell(
-                    float(v["mean"]), low, high, ranks.get(row), episodes[row], failed[row]
+                    float(v["mean"]), low, high, ranks.get(row), *shown[row]
                 )
     titles = dict(spec.groups)
     notes = [*notes, *_error_notes(errors, row_names, spec, titles)]

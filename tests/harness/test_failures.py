@@ -121,6 +121,11 @@ def test_a_dead_endpoint_is_an_error_in_every_table_and_fails_the_command(
     assert unpriced["Unseen Testing Error/% ↓"].strip("*<u>/") == "0.00"
     rule = dict(zip(header, _row(table2, "rule-based (not an LLM)"), strict=True))
     assert rule["Unseen Testing Cost/$ ↓"].strip("*<u>/") == "0.0000"  # known to be free
+    # Neither the dead endpoint (it fails fast) nor the stand-in (no network, not an LLM)
+    # is marked the best or second of the backends on any column.
+    for row in (dead_row, rule):
+        assert not [cell for cell in row.values() if "**" in cell or "<u>" in cell], row
+    assert "Not ranked (a reference, not a competitor): rule-based (not an LLM)." in table2
     cost_table = (out / "tables" / "cost.md").read_text()
     cost_header = [c.strip() for c in cost_table.splitlines()[2].strip("|").split("|")]
     cost_row = dict(zip(cost_header, _row(cost_table, "unpriced model"), strict=True))

@@ -145,6 +145,32 @@ def test_a_cell_whose_every_episode_failed_says_error_and_is_not_ranked() -> Non
     assert r"0.20$^\diamond$" in latex and "error & error" in latex
 
 
+def test_a_dead_endpoint_shows_its_health_numbers_but_is_never_ranked_on_them() -> None:
+    # Ours Full's test_unseen episodes all errored fast: its LLM time is the lowest, yet it
+    # is not the "fastest" (nor the best on any column) as it would be had they not.
+    health = [
+        {"system": system, "split": "test_unseen", "mode": "andh", "metric": "llm_latency_s",
+         "unit": "s", "n": 100, "mean": seconds}
+        for system, seconds in (("Ours Full", 0.3), ("Random", 5.0))
+    ]  # fmt: skip
+    measured = pd.concat([summary(), pd.DataFrame(health)], ignore_index=True)
+    data = with_errors(
+        measured, {("Ours Full", "test_unseen"): 100.0, ("Random", "test_unseen"): 0}
+    )
+    table = build_table(data, TABLE_II, MetricConventions())
+    dead, alive = table.cells["Ours Full"], table.cells["Random"]
+    assert dead[("test_unseen", "llm_latency_s")].mean == 0.3  # shown, as measured
+    assert not dead[("test_unseen", "llm_latency_s")].all_errors
+    assert {cell.rank for cell in dead.values() if cell is not None} == {None}
+    assert alive[("test_unseen", "status_error")].rank is None  # nothing left to rank against
+    assert "| Ours Full | error | error | error | - | - | - | 100.00 | - | 0.30 |" in to_markdown(
+        table
+    )
+    healthy = with_errors(measured, {("Ours Full", "test_unseen"): 0, ("Random", "test_unseen"): 0})
+    table = build_table(healthy, TABLE_II, MetricConventions())
+    assert table.cells["Ours Full"][("test_unseen", "llm_latency_s")].rank == 1
+
+
 def test_reference_rows_are_not_ranked_and_withheld_splits_say_so() -> None:
     data = summary()
     data = data[data.split != "test_unseen"]
