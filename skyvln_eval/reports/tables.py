@@ -199,7 +199,7 @@ def build_table(
             # A path metric scores an error episode as a failure, so its cell says so; a
             # health metric measures it and shows its number. Neither is ranked for a row
             # whose every episode ended in error: a dead endpoint is not the "fastest".
-            shown = {row: counts[row] if metric not in HEALTH_METRICS else (0, 0) for row in counts}
+            in_cell = {row: counts[row] if metric not in HEALTH_METRICS else (0, 0) for row in counts}
             means = {
                 r: float(v["mean"])
                 for r, v in present.items()
@@ -213,7 +213,7 @@ def build_table(
                 low = float(v["ci_low"]) if show_ci else None
                 high = float(v["ci_high"]) if show_ci else None
                 cells[row][(split, metric)] = Cell(
-                    float(v["mean"]), low, high, ranks.get(row), *shown[row]
+                    float(v["mean"]), low, high, ranks.get(row), *in_cell[row]
                 )
     titles = dict(spec.groups)
     notes = [*notes, *_error_notes(errors, row_names, spec, titles)]
