@@ -199,7 +199,9 @@ def build_table(
             # A path metric scores an error episode as a failure, so its cell says so; a
             # health metric measures it and shows its number. Neither is ranked for a row
             # whose every episode ended in error: a dead endpoint is not the "fastest".
-            in_cell = {row: counts[row] if metric not in HEALTH_METRICS else (0, 0) for row in counts}
+            in_cell = {
+                row: counts[row] if metric not in HEALTH_METRICS else (0, 0) for row in counts
+            }
             means = {
                 r: float(v["mean"])
                 for r, v in present.items()
