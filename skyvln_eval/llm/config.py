@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+import urllib.parse
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -59,6 +61,26 @@ DEFAULT_BUDGETS: dict[str, int] = {
     "navgpt": 512,
     "clarify": 192,
 }
+
+
+#: What follows an '@' of a backend spec and is a server written without its scheme: a
+#: host with a port or a path, localhost or an IPv4 address ('model@2024' is a model id).
+_SERVER_WITHOUT_SCHEME = re.compile(
+    r"(localhost|\d{1,3}(\.\d{1,3}){3})(:\d+)?(/\S*)?|[\w.-]+:\d+(/\S*)?|[\w-]+(\.[\w-]+)+/\S*"
+)
+
+
+def _checked_server(url: str, where: str) -> str:
+    """``url`` if it is an http(s) URL with a host; else the error says how to write it (a
+    server without its scheme went to OpenAI's as a model name, or failed every call)."""
+    parts = urllib.parse.urlsplit(url)
+    if parts.scheme in ("http", "https") and parts.netloc:
+        return url
+    if not parts.scheme or _SERVER_WITHOUT_SCHEME.fullmatch(url):
+        hint = f": write http://{url} (or https://)"
+    else:
+        hint = ": a server is an http:// or https:// URL"
+    raise ValueError(f"{where} {url!r} is not an http(s) URL with a host{hint}")
 
 
 class LLMConfig(BaseModel):
@@ -121,6 +143,8 @@ class LLMConfig(BaseModel):
         if not isinstance(data, dict) or not isinstance(data.get("backend"), str):
             return data
         spec, at, url = data["backend"].rpartition("@")
+        if at and _SERVER_WITHOUT_SCHEME.fullmatch(url):
+            _checked_server(url, f"backend {data['backend']!r}: the server")
         if not at or not url.startswith(("http://", "https://")):
             return data  # no server named ('@' may be part of a model id: 'model@2024')
         if not spec.partition(":")[2]:
@@ -132,6 +156,11 @@ class LLMConfig(BaseModel):
                 f"{given!r}: give it once"
             )
         return {**data, "backend": spec, "base_url": url}
+
+    @field_validator("base_url")
+    @classmethod
+    def _server_url(cls, url: str | None) -> str | None:
+        return None if url is None else _checked_server(url, "base_url")
 
     @field_validator("backend")
     @classmethod

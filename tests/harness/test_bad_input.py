@@ -127,6 +127,33 @@ def test_unknown_backend_controller_and_agent_fail_before_any_episode(
     assert not (tmp_path / "run").exists(), "no episode may run"
 
 
+def test_a_server_without_its_scheme_is_refused_on_load(
+    tmp_path: Path, sample_dir: Path, cli: Cli
+) -> None:
+    # As base_url, every call failed to connect; after '@', it was read as part of the
+    # model's name and the calls (with the key) went to api.openai.com.
+    path = tmp_path / "no-scheme.yaml"
+    for llm, field in (
+        ({"backend": "openai:m", "base_url": "127.0.0.1:8080/v1"}, "agent.llm.base_url"),
+        ({"backend": "openai:m@127.0.0.1:8080/v1"}, "agent.llm"),
+    ):
+        path.write_text(yaml.safe_dump(_config(sample_dir, agent={"name": "skyvln", "llm": llm})))
+        _refused(
+            cli("run", str(path), "--out", str(tmp_path / "run")),
+            field,
+            "'127.0.0.1:8080/v1' is not an http(s) URL with a host: write "
+            "http://127.0.0.1:8080/v1 (or https://)",
+        )
+    assert not (tmp_path / "run").exists(), "no episode may run"
+    # A model id may hold an '@' of its own; a server with its scheme is taken.
+    assert LLMConfig(backend="openai:m@2024").backend == "openai:m@2024"
+    assert LLMConfig(backend="openai:m@v1.2").base_url is None
+    served = LLMConfig(backend="openai:m@https://api.example.com/v1")
+    assert (served.backend, served.base_url) == ("openai:m", "https://api.example.com/v1")
+    with pytest.raises(Exception, match="a server is an http:// or https:// URL"):
+        LLMConfig(base_url="ftp://example.com/v1")
+
+
 def test_known_names_and_aliases_still_load(tmp_path: Path) -> None:
     path = tmp_path / "alias.yaml"
     path.write_text("system: x\ndynamics: {controller: lmpc}\nagent: {llm: {backend: rule}}\n")
