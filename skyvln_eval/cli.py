@@ -23,7 +23,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 from typer.core import TyperCommand
 
-from skyvln_eval.errors import ConfigError, SkyvlnError, UnknownNameError
+from skyvln_eval.errors import ConfigError, RunStoppedError, SkyvlnError, UnknownNameError
 
 if TYPE_CHECKING:
     from skyvln_eval.avdn import AvdnRecord, SplitSummary
@@ -433,15 +433,19 @@ def reproduce(
     if data_dir is None and chosen.data == "sample":
         _build_dataset("sample", None, False, 1)  # with a progress bar on first use
     with _stoppable():
-        report = run_plan(
-            chosen,
-            out,
-            workers,
-            executor,
-            str(data_dir) if data_dir else None,
-            RichRunProgress(err_console),
-            threads_per_worker=threads_per_worker,
-        )
+        try:
+            report = run_plan(
+                chosen,
+                out,
+                workers,
+                executor,
+                str(data_dir) if data_dir else None,
+                RichRunProgress(err_console),
+                threads_per_worker=threads_per_worker,
+            )
+        except RunStoppedError as stopped:  # a run's verdict, as `run` gives it: exit 1
+            _echo_problem(f"error: {stopped}")
+            raise typer.Exit(1) from None
     for name in ("table1.md", "table2.md"):
         console.print(report.files[name].read_text(encoding="utf-8"))
     console.print(f"wrote {report.files['SUMMARY.md']} ({report.wall_s:.0f} s)")

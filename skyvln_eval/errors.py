@@ -275,6 +275,12 @@ class RunDirBusyError(SkyvlnError):
         )
 
 
+class RunStoppedError(SkyvlnError):
+    """A run stopped before its end (e.g. refused credentials: no later episode could
+    succeed), so what needs all of its episodes (a reproduce plan's tables) is not made.
+    The episodes already recorded are kept; the same command resumes."""
+
+
 class ResultsWriteError(DataError):
     """An episode's result row could not be written (a full disk, a quota, an I/O error).
 

@@ -31,6 +31,7 @@ from skyvln_eval.agent.config import LLM_AGENTS, AgentConfig
 from skyvln_eval.avdn.constants import SPLITS, annotation_file_name
 from skyvln_eval.avdn.loader import load_split
 from skyvln_eval.avdn.summary import SplitSummary, summarise_split
+from skyvln_eval.errors import RunStoppedError
 from skyvln_eval.fileio import atomic_write_json, atomic_write_text, ensure_directory
 from skyvln_eval.harness.executors import ExecutorKind, make_executor
 from skyvln_eval.harness.plan import PlannedRun, ReproducePlan, planned_runs
@@ -372,6 +373,14 @@ def reproduce(
         progress,
         f"reproduce ({plan.name})",
     )
+    stopped = [f"{r.system}: {r.stopped}" for r in reports if r.stopped]
+    if stopped:  # the tables need every run's episodes: say why, not what is missing
+        raise RunStoppedError(
+            f"reproduce ({plan.name}) stopped before its tables, as a run did: "
+            + "; ".join(stopped)
+            + f". The episodes recorded are kept under {out_dir / 'runs'}: the same command "
+            "goes on from them once that is fixed."
+        )
     report = ReproduceReport(out_dir, reports)
     results: list[EpisodeResult] = []
     table2_rows: list[str] = []

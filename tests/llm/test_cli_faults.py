@@ -126,3 +126,43 @@ def test_a_400_digit_distance_is_refused_with_a_reason_and_repaired(
     repair = requests[1]["body"]["messages"]
     assert huge in repair[-2]["content"] and reason in repair[-1]["content"]
     assert row.status == "ok"
+
+
+def test_refused_credentials_stop_reproduce_with_the_reason_not_a_missing_table(
+    tmp_path: Path, sample_dir: Path, cli: Cli, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The stop used to surface as "no scores for system(s) [...]" from the tables.
+    monkeypatch.setenv("SKYVLN_TEST_KEY", SENTINEL)
+    full = {"label": "Full", "mode": "official", "agent": {"name": "skyvln"}}
+    with LoopbackOpenAIServer([status(401) for _ in range(20)]) as server:
+        llm = {
+            "backend": "openai:test-model",
+            "base_url": server.base_url,
+            "api_key_env": "SKYVLN_TEST_KEY",
+            "retry": FAST_RETRY,
+        }
+        plan = {
+            "name": "refused",
+            "data": str(sample_dir),
+            "limit": 1,
+            "resamples": 0,
+            "table1": {"splits": ["test_unseen"], "systems": [full]},
+            "table2": {
+                "split": "test_unseen",
+                "system": full,
+                "backends": [{"label": "refused key", "llm": llm}],
+                "environment_variable": None,
+            },
+            "control_figures": {"controllers": [], "cases": []},
+            "trajectory_figures": 0,
+            "recordings": 0,
+        }
+        path = tmp_path / "plan.yaml"
+        path.write_text(yaml.safe_dump(plan))
+        out = tmp_path / "out"
+        stopped = cli("reproduce", "--plan", str(path), "--out", str(out), "--executor", "serial")
+    assert stopped.code == 1, stopped
+    assert "reproduce (refused) stopped before its tables" in stopped.err
+    assert "refused the credentials (HTTP 401" in stopped.err
+    assert "SKYVLN_TEST_KEY" in stopped.err and "no scores for" not in stopped.err
+    assert not (out / "SUMMARY.md").exists()
