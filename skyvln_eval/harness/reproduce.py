@@ -84,6 +84,7 @@ COST_METRICS = (
     "llm_prompt_tokens",
     "llm_completion_tokens",
     "llm_cost_usd",
+    "llm_cost_lower_usd",
     "llm_latency_s",
     "wall_s",
 )

@@ -13,6 +13,9 @@ attempt (no answer) adds the tokens it reported, usually none, so a dead endpoin
 tokens; but its cost is unknown, since a provider may bill a request it never answered
 (one cut off mid-generation). ``llm_calls`` counts calls (a call's retries and repairs are
 attempts of it); ``llm_unpriced_calls`` counts attempts whose cost is unknown.
+``llm_cost_lower_usd`` is a known lower bound where only failed attempts are unpriced (a
+single HTTP 429 would otherwise leave nothing of a backend's cost): Table II shows it as
+"≥x" in place of "n/a".
 An episode without calls costs a known 0.
 Rates (call failure rate, fallback rate) are NaN for an episode with nothing to rate (no
 call, no decision); over episodes they are pooled (failed calls of all calls: see
@@ -40,6 +43,7 @@ COST_COLUMNS: dict[str, str] = {
     "llm_prompt_tokens": "tokens",
     "llm_completion_tokens": "tokens",
     "llm_cost_usd": "USD",
+    "llm_cost_lower_usd": "USD",
     "llm_unpriced_calls": "calls",
     "llm_latency_s": "s",
     "llm_queue_s": "s",
@@ -49,7 +53,9 @@ COST_COLUMNS: dict[str, str] = {
     "module_failures": "failures",
 }
 #: Columns whose mean is unknown (NaN, "n/a") as soon as one episode's value is.
-UNKNOWN_IF_ANY_UNKNOWN = frozenset({"llm_cost_usd", "llm_prompt_tokens", "llm_completion_tokens"})
+UNKNOWN_IF_ANY_UNKNOWN = frozenset(
+    {"llm_cost_usd", "llm_cost_lower_usd", "llm_prompt_tokens", "llm_completion_tokens"}
+)
 
 
 def _sum_known(values: Sequence[float | int | None]) -> float:
@@ -61,6 +67,15 @@ def _reported(call: LlmCall, tokens: int | None) -> int | None:
     """An attempt's token count: unknown only for an answered attempt that reported none (a
     failed one that reported none adds 0; one that reported some adds them)."""
     return 0 if tokens is None and call.outcome == "failed" else tokens
+
+
+def _cost_lower_bound(calls: Sequence[LlmCall]) -> float:
+    """What the calls cost at least: the priced attempts' sum, when only failed attempts
+    (no answer, no token count: a provider may or may not bill them) are unpriced; NaN
+    when an answered attempt is (no price for the model, or no token count)."""
+    if any(c.cost_usd is None and c.outcome != "failed" for c in calls):
+        return math.nan
+    return float(sum(c.cost_usd for c in calls if c.cost_usd is not None))
 
 
 def call_totals(
@@ -80,6 +95,7 @@ def call_totals(
         "llm_prompt_tokens": _sum_known([_reported(c, c.prompt_tokens) for c in calls]),
         "llm_completion_tokens": _sum_known([_reported(c, c.completion_tokens) for c in calls]),
         "llm_cost_usd": _sum_known([c.cost_usd for c in calls]),
+        "llm_cost_lower_usd": _cost_lower_bound(calls),
         "llm_unpriced_calls": float(sum(c.cost_usd is None for c in calls)),
         "llm_latency_s": float(sum(c.latency_s for c in calls)),
         "llm_queue_s": float(sum(c.queue_s for c in calls)),

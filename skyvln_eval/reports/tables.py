@@ -103,6 +103,7 @@ class Cell:
     rank: int | None = None  # 1 = best, 2 = second best, None = neither
     episodes: int = 0  # how many episodes the mean is over (0: not known)
     errors: int = 0  # how many of them ended in error (scored as failures)
+    lower_bound: bool = False  # the mean is unknown; ``mean`` is a known lower bound of it
 
     @property
     def all_errors(self) -> bool:
@@ -112,6 +113,10 @@ class Cell:
 
 #: The marker of a cell where some episodes ended in error.
 SOME_ERRORS = "⋄"
+#: Metrics shown as "≥ x" from a known lower bound (another summary metric) when their
+#: mean is unknown: a backend's cost when only failed attempts have none.
+LOWER_BOUNDS: dict[str, str] = {"llm_cost_usd": "llm_cost_lower_usd"}
+AT_LEAST = "≥"
 #: Columns that describe the run's health, not the agent's path: measured whatever the
 #: episodes' status, so they always show their numbers (a dead endpoint's Error/% is 100).
 HEALTH_METRICS = frozenset(
@@ -189,6 +194,7 @@ def build_table(
     index = sel.set_index(["system", "split", "metric"])
     errors = _error_counts(index, row_names, [split for split, _ in spec.groups])
     cells: dict[str, dict[tuple[str, str], Cell | None]] = {r: {} for r in row_names}
+    bounded: list[str] = []  # cells shown as a lower bound
     for split, _ in spec.groups:
         for metric, _ in spec.metrics:
             present = {}
@@ -214,11 +220,22 @@ def build_table(
                     continue
                 low = float(v["ci_low"]) if show_ci else None
                 high = float(v["ci_high"]) if show_ci else None
-                cells[row][(split, metric)] = Cell(
-                    float(v["mean"]), low, high, ranks.get(row), *in_cell[row]
-                )
+                cell = Cell(float(v["mean"]), low, high, ranks.get(row), *in_cell[row])
+                bound_key = (row, split, LOWER_BOUNDS.get(metric, ""))
+                if math.isnan(cell.mean) and bound_key in index.index:
+                    bound = float(index.loc[bound_key]["mean"])
+                    if not math.isnan(bound):  # never ranked: the true value is unknown
+                        cell = Cell(bound, None, None, None, *in_cell[row], lower_bound=True)
+                        bounded.append(f"{row} on {dict(spec.groups)[split]}")
+                cells[row][(split, metric)] = cell
     titles = dict(spec.groups)
     notes = [*notes, *_error_notes(errors, row_names, spec, titles)]
+    if bounded:
+        notes.append(
+            f"{AT_LEAST}: at least this much (its exact value is unknown, 'n/a' in the CSV): "
+            "every answered call is priced, but some failed attempts reported no token count "
+            f"and a provider may bill them: {'; '.join(bounded)}."
+        )
     references = [r for r in row_names if r in unranked]
     if references:
         shown = ", ".join(references)
@@ -274,6 +291,8 @@ def _number(cell: Cell | None, digits: int, with_ci: bool, withheld: bool = Fals
         return "error"  # its episodes score as failures: a 0 here would read as a result
     if math.isnan(cell.mean):
         return "n/a"  # unknown (e.g. a cost without a price), never shown as a number
+    if cell.lower_bound:
+        return f"{AT_LEAST}{cell.mean:.{digits}f}" + (SOME_ERRORS if cell.errors else "")
     text = f"{cell.mean:.{digits}f}"
     if with_ci and cell.ci_low is not None:
         text += f" [{cell.ci_low:.{digits}f}, {cell.ci_high:.{digits}f}]"
@@ -319,7 +338,8 @@ def to_markdown(table: Table) -> str:
 
 _LATEX_SPECIALS = {"&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_", "{": r"\{",
                    "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}",
-                   "\\": r"\textbackslash{}", SOME_ERRORS: r"$\diamond$"}  # fmt: skip
+                   "\\": r"\textbackslash{}", SOME_ERRORS: r"$\diamond$",
+                   AT_LEAST: r"$\geq$"}  # fmt: skip
 
 
 def latex_escape(text: str) -> str:
@@ -364,7 +384,7 @@ def to_latex(table: Table) -> str:
             cell = table.cells[row][column]
             digits = table.digits_of(column)
             text = _number(cell, digits, False, column[0] in table.withheld)
-            text = text.replace(SOME_ERRORS, r"$^\diamond$")
+            text = text.replace(SOME_ERRORS, r"$^\diamond$").replace(AT_LEAST, r"$\geq$")
             if cell is not None and cell.rank == 1:
                 text = f"\\textbf{{{text}}}"
             elif cell is not None and cell.rank == 2:
@@ -404,8 +424,9 @@ def to_csv(table: Table) -> str:
                 out.append("withheld" if column[0] in table.withheld else "")
             elif cell.all_errors:
                 out.append("error")
-            else:  # unknown means (pandas reads "n/a" back as NaN)
-                out.append("n/a" if math.isnan(cell.mean) else repr(cell.mean))
+            else:  # unknown means (pandas reads "n/a" back as NaN), a lower bound's too
+                unknown = math.isnan(cell.mean) or cell.lower_bound
+                out.append("n/a" if unknown else repr(cell.mean))
             if table.show_ci:
                 out += ["", ""] if cell is None else [repr(cell.ci_low), repr(cell.ci_high)]
         writer.writerow(out)

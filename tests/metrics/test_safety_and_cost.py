@@ -139,3 +139,8 @@ def test_failed_attempts_add_the_tokens_they_reported_and_leave_the_cost_unknown
     assert np.isnan(scores.llm_prompt_tokens[2])  # an answer without a count: unknown
     assert np.isnan(scores.llm_cost_usd[0]) and np.isnan(scores.llm_cost_usd[1])
     assert scores.llm_unpriced_calls.tolist() == [1.0, 1.0, 0.0]
+    # Only failed attempts unpriced: what the answered calls cost is a known lower bound.
+    assert scores.llm_cost_lower_usd.tolist() == pytest.approx([0.005, 0.005, 0.005])
+    unpriced = _call("motion", prompt_tokens=500, completion_tokens=50)  # answered, no price
+    alone = score_results([result(g, g, episode_id="d", llm_calls=[answered, unpriced])])
+    assert np.isnan(alone.llm_cost_lower_usd[0]) and np.isnan(alone.llm_cost_usd[0])

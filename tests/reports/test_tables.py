@@ -171,6 +171,31 @@ def test_a_dead_endpoint_shows_its_health_numbers_but_is_never_ranked_on_them() 
     assert table.cells["Ours Full"][("test_unseen", "llm_latency_s")].rank == 1
 
 
+def test_a_cost_known_only_from_below_shows_its_bound_and_is_not_ranked() -> None:
+    # Ours Full's cost is unknown (failed attempts without a token count) but at least
+    # 0.0014; Random's is known, 0.0020; neither is n/a, neither a ranked value.
+    costs = [
+        {"system": system, "split": "test_unseen", "mode": "andh", "metric": metric,
+         "unit": "USD", "n": 100, "mean": value}
+        for system, metric, value in (
+            ("Ours Full", "llm_cost_usd", float("nan")),
+            ("Ours Full", "llm_cost_lower_usd", 0.0014),
+            ("Random", "llm_cost_usd", 0.002),
+            ("Random", "llm_cost_lower_usd", 0.002),
+        )
+    ]  # fmt: skip
+    data = pd.concat([summary(), pd.DataFrame(costs)], ignore_index=True)
+    table = build_table(data, TABLE_II, MetricConventions())
+    bounded = table.cells["Ours Full"][("test_unseen", "llm_cost_usd")]
+    assert bounded is not None and bounded.lower_bound and bounded.rank is None
+    md = to_markdown(table)
+    assert "| ≥0.0014 |" in md and "| 0.0020 |" in md
+    assert "≥: at least this much" in md and "Ours Full on Unseen Testing" in md
+    assert r"$\geq$0.0014" in to_latex(table)
+    row = next(r for r in csv.reader(io.StringIO(to_csv(table))) if r[0] == "Ours Full")
+    assert "n/a" in row and not any("0.0014" in cell for cell in row)
+
+
 def test_reference_rows_are_not_ranked_and_withheld_splits_say_so() -> None:
     data = summary()
     data = data[data.split != "test_unseen"]
