@@ -438,6 +438,11 @@ def reproduce(
             table2_rows,
             [(metric, metric, "mean") for metric in COST_METRICS],
             f"LLM cost per episode, mean over episodes ({plan.table2.split})",
+            # A stand-in has no tokenizer: its counts are not comparable with a model's.
+            f"Tokens of {', '.join(stand_ins)}: estimates (four characters a token), not "
+            "counted by a model; a stand-in costs nothing."
+            if stand_ins
+            else "",
         ),
     )
     report.files |= {"control.md": tables_dir / "control.md", "cost.md": tables_dir / "cost.md"}

@@ -253,8 +253,8 @@ def error_verdict(reports: Sequence[RunReport], fail_on_error: float) -> str | N
         if report.errors and report.error_share > fail_on_error:
             lines.append(
                 f"{report.system}: {len(report.errors)} of {report.recorded} episode(s) ended "
-                f"in error ({100 * report.error_share:.0f}%, more than the allowed "
-                f"{100 * fail_on_error:.0f}%; --fail-on-error sets it)"
+                f"in error ({100 * report.error_share:.1f}%, more than the allowed "
+                f"{100 * fail_on_error:g}%; --fail-on-error sets it)"
             )
             for count, first in report.error_kinds().values():
                 lines.append(f"  {count} x {first}")  # the first text starts with its kind

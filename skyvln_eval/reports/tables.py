@@ -230,6 +230,20 @@ def build_table(
                 cells[row][(split, metric)] = cell
     titles = dict(spec.groups)
     notes = [*notes, *_error_notes(errors, row_names, spec, titles)]
+    not_run = []  # a split no row ran is named once; else the rows that did not
+    for split, title in spec.groups:
+        missing = [
+            row
+            for row in row_names
+            if split not in withheld
+            and all(cells[row][(split, m)] is None for m, _ in spec.metrics)
+        ]
+        if missing:
+            not_run.append(
+                title if len(missing) == len(row_names) else f"{', '.join(missing)} on {title}"
+            )
+    if not_run:
+        notes.append(f"-: no scores (not run): {'; '.join(not_run)}.")
     if bounded:
         notes.append(
             f"{AT_LEAST}: at least this much (its exact value is unknown, 'n/a' in the CSV): "

@@ -101,7 +101,8 @@ def test_confidence_intervals_in_every_format() -> None:
     assert r"\textbf{28.11}\,{\scriptsize[27.11, 29.61]}" in to_latex(table)
     lines = to_csv(table).splitlines()
     assert lines[0].startswith("# conventions: {") and '"threshold_m":3.0' in lines[0]
-    rows = list(csv.DictReader(io.StringIO("\n".join(lines[1:]))))
+    data = [line for line in lines if not line.startswith("#")]  # conventions and notes
+    rows = list(csv.DictReader(io.StringIO("\n".join(data))))
     full = next(r for r in rows if r["LLM"] == "Ours Full")
     assert float(full["test_unseen:spl"]) == 28.11
     assert float(full["test_unseen:spl:ci_high"]) == pytest.approx(29.61)
@@ -216,3 +217,11 @@ def test_reference_rows_are_not_ranked_and_withheld_splits_say_so() -> None:
     assert "the ground truth of Unseen Testing is withheld" in md
     assert to_csv(table).splitlines()[-1].endswith(",withheld,withheld")
     assert "withheld & withheld" in to_latex(table)
+
+
+def test_a_split_or_row_that_did_not_run_is_named_in_a_note() -> None:
+    only_seen = summary()[lambda d: d.split == "val_seen"]
+    table = build_table(only_seen, TABLE_I, MetricConventions())
+    assert "-: no scores (not run): Unseen Validation; Unseen Testing." in to_markdown(table)
+    table = build_table(summary(), TABLE_I, MetricConventions())
+    assert "-: no scores (not run): w/o TMA & co_1 on Unseen Testing." in to_markdown(table)
