@@ -2,14 +2,15 @@
 
 The summary is a long table, one row per (system, split, mode, metric): ``n`` episodes,
 ``mean`` (rates in percent, lengths in metres) and, when asked, a seeded bootstrap
-interval. Rules: a group with no value for a metric (e.g. no control summary) has no
-row for it; NaN / inf never reach a mean (they raise); a metric that can be unknown
-(cost, tokens: :data:`~skyvln_eval.metrics.cost.UNKNOWN_IF_ANY_UNKNOWN`) has a NaN mean,
-shown as "n/a", when any episode's value is unknown; other missing values (a rate with
-nothing to rate) are left out. The call failure and fallback rates are pooled
-(:data:`POOLED_RATES`): failed calls of all the group's calls, not a mean of per-episode
-rates. A run that misses episodes of its split fails
-:func:`check_complete` with the missing ids.
+interval. Rules: a frame that repeats an episode, or misses an official metric's value,
+is refused (:func:`checked_scores`); a group with no value for a metric (e.g. no control
+summary) has no row for it; NaN / inf never reach a mean (they raise); a metric that
+can be unknown (cost, tokens: :data:`~skyvln_eval.metrics.cost.UNKNOWN_IF_ANY_UNKNOWN`)
+has a NaN mean, shown as "n/a", when any episode's value is unknown; other missing values
+(a rate with nothing to rate) are left out. The call failure and fallback rates are
+pooled (:data:`POOLED_RATES`): failed calls of all the group's calls, not a mean of
+per-episode rates. A run that misses episodes of its split fails :func:`check_complete`
+with the missing ids.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import pandas as pd
 
 from skyvln_eval.errors import IncompleteRunError, MetricInputError
 from skyvln_eval.metrics.cost import UNKNOWN_IF_ANY_UNKNOWN
+from skyvln_eval.metrics.official import OFFICIAL_COLUMNS
 from skyvln_eval.metrics.scoring import METRIC_UNITS
 from skyvln_eval.metrics.stats import bootstrap_means, finite_values, paired_comparison
 
@@ -106,6 +108,45 @@ POOLED_RATES: dict[str, tuple[str, str]] = {
 }
 
 
+#: Metrics every scored episode has (official AVDN, from its path and ground truth): a
+#: missing value is a damaged frame, not "nothing to rate".
+ALWAYS_SCORED = frozenset(OFFICIAL_COLUMNS)
+
+
+def checked_scores(scores: pd.DataFrame, metrics: Sequence[str]) -> None:
+    """Refuse a scores frame that would give a wrong number without a word: key columns or
+    metrics missing (named, with the metrics it has), an episode in it twice (a notebook
+    cell that concatenated a frame again counts it twice), or an always-scored metric with
+    a missing value (it would be left out of the mean as if it had nothing to rate)."""
+    missing = [c for c in (*GROUP_KEYS, "episode_id") if c not in scores.columns]
+    if missing:
+        raise MetricInputError(
+            f"the scores frame lacks the column(s) {missing} (a frame of score_results or "
+            "read_scores has them)"
+        )
+    unknown = [m for m in metrics if m not in scores.columns]
+    if unknown:
+        known = [m for m in METRIC_UNITS if m in scores.columns]
+        raise MetricInputError(f"no metric {unknown} in the scores frame; it has {known}")
+    twice = scores.duplicated([*GROUP_KEYS, "episode_id"], keep="first")
+    if twice.any():
+        first = scores.loc[twice, [*GROUP_KEYS, "episode_id"]].iloc[0].tolist()
+        raise MetricInputError(
+            f"{int(twice.sum())} rows of the scores frame repeat an episode, e.g. "
+            f"{'/'.join(map(str, first))}: each would count more than once (concatenated "
+            "twice?)"
+        )
+    for metric in (m for m in metrics if m in ALWAYS_SCORED):
+        gaps = scores[metric].isna()
+        if gaps.any():
+            row = scores.loc[gaps].iloc[0]
+            where = "/".join(str(row[k]) for k in (*GROUP_KEYS, "episode_id"))
+            raise MetricInputError(
+                f"{int(gaps.sum())} episode(s) have no {metric}, e.g. {where}: every scored "
+                "episode has one (a damaged scores frame?)"
+            )
+
+
 def unit_of(metric: str) -> str:
     return "%" if metric in PERCENT_METRICS else METRIC_UNITS.get(metric, "")
 
@@ -127,6 +168,7 @@ def summarise(
     if scores.empty:
         raise MetricInputError("no scores to summarise")
     metrics = list(metrics or [m for m in METRIC_UNITS if m in scores.columns])
+    checked_scores(scores, metrics)
     rows = []
     for key, unordered in scores.groupby(GROUP_KEYS, sort=True):
         group = unordered.sort_values("episode_id", kind="stable")
@@ -209,6 +251,8 @@ def compare_systems(
     (it is too narrow on small samples), so an interval that excludes 0 with a p-value
     above 0.05 is not a significant difference.
     """
+
+    checked_scores(scores, [metric])
 
     def values(system: str) -> pd.Series:
         sel = scores[(scores.system == system) & (scores.split == split) & (scores["mode"] == mode)]

@@ -19,8 +19,8 @@ from skyvln_eval.avdn import load_split
 from skyvln_eval.converters import topics as t
 from skyvln_eval.converters.reader import read_episode, read_log
 from skyvln_eval.converters.validate import check_log
-from skyvln_eval.errors import ConfigError
-from skyvln_eval.harness import RunConfig, load_run_config, make_executor, run
+from skyvln_eval.errors import ConfigError, IncompleteRunError
+from skyvln_eval.harness import RunConfig, load_run_config, make_executor, run, run_results
 from skyvln_eval.harness.run import error_verdict
 from skyvln_eval.harness.store import RESULTS_FILE
 from skyvln_eval.metrics import MetricConventions, read_results, score_results
@@ -76,6 +76,22 @@ def test_official_run_writes_results_and_run_logs_then_resumes_nothing(
     assert "limit: 3" in (run_dir / "config.yaml").read_text()
     with pytest.raises(ConfigError, match="may only grow"):
         run(config, run_dir)
+
+
+def test_the_results_of_a_run_from_python_are_all_of_its_episodes_or_refused(
+    tmp_path: Path, small_config: MakeConfig
+) -> None:
+    run_dir = tmp_path / "run"
+    run(small_config(write_logs=False), run_dir)
+    assert len(run_results(run_dir)) == 2
+    # A run still going (or stopped) is not read as a finished one: half a run's mean
+    # would pass for the run's.
+    results = run_dir / RESULTS_FILE
+    lines = results.read_text().splitlines(keepends=True)
+    results.write_text("".join(lines[:-1]))
+    with pytest.raises(IncompleteRunError, match=r"1 recorded\).*1 missing episode"):
+        run_results(run_dir)
+    assert len(run_results(run_dir, allow_incomplete=True)) == 1
 
 
 def test_dynamics_run_flies_with_a_controller_and_logs_it(

@@ -171,3 +171,20 @@ def test_call_failure_and_fallback_rates_are_shares_of_all_calls_and_decisions()
     # Resampling the two episodes gives 0%, 5% or 100% of the calls.
     low, high = summary.loc["llm_call_failure_rate", ["ci_low", "ci_high"]]
     assert 0.0 <= low <= 5.0 <= high <= 100.0
+
+
+def test_a_frame_that_would_give_a_wrong_number_is_refused_with_the_reason() -> None:
+    scores = scores_of_two_systems()
+    again = pd.concat([scores, scores[scores.system == "A"].iloc[:3]])  # a cell run twice
+    with pytest.raises(MetricInputError, match="3 rows of the scores frame repeat an episode"):
+        summarise(again, ["success"])
+    with pytest.raises(MetricInputError, match="repeat an episode"):
+        compare_systems(again, "A", "B", "success", "val_seen", n_resamples=10)
+    with pytest.raises(MetricInputError, match=r"no metric \['sr'\] in the scores frame"):
+        summarise(scores, ["sr"])
+    with pytest.raises(MetricInputError, match=r"lacks the column\(s\) \['mode'\]"):
+        summarise(scores.drop(columns=["mode"]), ["success"])
+    damaged = scores.copy()
+    damaged.loc[damaged.index[0], "ne_m"] = np.nan  # not left out as "nothing to rate"
+    with pytest.raises(MetricInputError, match="1 episode\\(s\\) have no ne_m"):
+        summarise(damaged, ["ne_m"])
