@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 
 from skyvln_eval.errors import IncompleteRunError, MetricInputError
+from skyvln_eval.metrics.conventions import CONVENTIONS_ATTR
 from skyvln_eval.metrics.cost import UNKNOWN_IF_ANY_UNKNOWN
 from skyvln_eval.metrics.official import OFFICIAL_COLUMNS
 from skyvln_eval.metrics.scoring import METRIC_UNITS
@@ -209,7 +210,10 @@ def summarise(
                 low, high = np.percentile(means, [tail, 100.0 - tail])
                 row.update(ci_low=float(low), ci_high=float(high), confidence=confidence)
             rows.append(row)
-    return pd.DataFrame(rows)
+    summary = pd.DataFrame(rows)
+    if CONVENTIONS_ATTR in scores.attrs:  # which conventions scored it goes along
+        summary.attrs[CONVENTIONS_ATTR] = scores.attrs[CONVENTIONS_ATTR]
+    return summary
 
 
 def check_complete(

@@ -13,10 +13,13 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import asdict, dataclass, fields
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from skyvln_eval.avdn.constants import SUCCESS_IOU
-from skyvln_eval.errors import ConfigError
+from skyvln_eval.errors import ConfigError, MetricInputError
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 DistanceMode = Literal["2d", "3d"]
 
@@ -97,3 +100,20 @@ class MetricConventions:
         if unknown:
             raise ConfigError(f"{where}: unknown field(s) {unknown}; known: {sorted(known)}")
         return cls(**data)
+
+
+#: Where a scores frame (and its summary) keeps the :class:`MetricConventions` that
+#: scored it (``frame.attrs``).
+CONVENTIONS_ATTR = "skyvln_conventions"
+
+
+def check_conventions(frame: pd.DataFrame, conventions: MetricConventions, what: str) -> None:
+    """Refuse to label ``frame`` with other conventions than those that scored it, when it
+    says (pandas keeps ``attrs`` through most operations; a frame that lost them is not
+    checked)."""
+    scored = frame.attrs.get(CONVENTIONS_ATTR)
+    if isinstance(scored, MetricConventions) and scored != conventions:
+        raise MetricInputError(
+            f"{what} would say the conventions {conventions.describe()}, but its scores were "
+            f"made with {scored.describe()}: pass the conventions that scored them"
+        )

@@ -24,7 +24,7 @@ import pandas as pd
 
 from skyvln_eval.errors import DataError, FormatVersionError, ResultRecordError, ValidationIssue
 from skyvln_eval.fileio import atomic_write_text
-from skyvln_eval.metrics.conventions import MetricConventions
+from skyvln_eval.metrics.conventions import CONVENTIONS_ATTR, MetricConventions, check_conventions
 from skyvln_eval.metrics.scoring import CONTROL_COLUMNS, KEY_COLUMNS, METRIC_UNITS
 
 SCORES_FORMAT = "skyvln-eval.scores"
@@ -52,6 +52,7 @@ def summary_csv_text(
     """A summary (from :func:`~skyvln_eval.metrics.summarise`) as CSV with its conventions
     and a ``# warning:`` line per warning (e.g. an incomplete run's scores); unknown means
     (a cost without a price) are written "n/a", which pandas reads as NaN."""
+    check_conventions(summary, conventions, "the summary CSV")
     head = f"# conventions: {conventions.to_json()}\n"
     head += "".join(f"# warning: {' '.join(w.split())}\n" for w in warnings)
     return head + summary.to_csv(index=False, lineterminator="\n", na_rep="n/a")
@@ -106,6 +107,7 @@ def read_scores(path: str | Path) -> tuple[pd.DataFrame, MetricConventions]:
         if column in frame.columns:
             frame[column] = frame[column].astype("Float64")
     check_unique_scores([(str(path), frame)])
+    frame.attrs[CONVENTIONS_ATTR] = conventions
     return frame, conventions
 
 

@@ -15,7 +15,7 @@ import pandas as pd
 
 from skyvln_eval.errors import MetricInputError, NoGroundTruthError
 from skyvln_eval.metrics.batch import pack_views
-from skyvln_eval.metrics.conventions import MetricConventions
+from skyvln_eval.metrics.conventions import CONVENTIONS_ATTR, MetricConventions
 from skyvln_eval.metrics.cost import COST_COLUMNS, episode_costs
 from skyvln_eval.metrics.official import OFFICIAL_COLUMNS, official_metrics
 from skyvln_eval.metrics.r2r import R2R_COLUMNS, r2r_metrics
@@ -123,4 +123,6 @@ def score_results(
     bad = [c for c in metrics if not np.isfinite(frame[c].to_numpy(np.float64)).all()]
     if bad:  # a bug, never user input (inputs are checked finite): fail loudly
         raise MetricInputError(f"non-finite per-episode values in {bad}")
+    # The frame says which conventions scored it, so a table of it cannot say others.
+    frame.attrs[CONVENTIONS_ATTR] = conventions
     return frame

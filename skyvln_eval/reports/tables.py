@@ -34,7 +34,7 @@ import pandas as pd
 
 from skyvln_eval.errors import MetricInputError
 from skyvln_eval.metrics.aggregate import LOWER_IS_BETTER
-from skyvln_eval.metrics.conventions import MetricConventions
+from skyvln_eval.metrics.conventions import MetricConventions, check_conventions
 
 
 @dataclass(frozen=True)
@@ -180,6 +180,7 @@ def build_table(
     ``unranked``: reference rows never marked best (an oracle); ``withheld``: splits whose
     ground truth is withheld, shown as such. Error counts come from the summary's
     ``status_error`` rows, where it has them."""
+    check_conventions(summary, conventions, f"table {spec.name}")
     sel = summary[summary["mode"] == mode]
     if sel.empty:
         raise MetricInputError(f"the summary has no {mode!r} episodes")

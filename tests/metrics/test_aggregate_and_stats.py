@@ -12,6 +12,7 @@ from skyvln_eval.avdn import load_split, replay_ground_truth
 from skyvln_eval.errors import IncompleteRunError, MetricInputError
 from skyvln_eval.metrics import (
     EpisodeResult,
+    MetricConventions,
     bootstrap_ci,
     check_complete,
     check_scores_complete,
@@ -20,6 +21,8 @@ from skyvln_eval.metrics import (
     score_results,
     summarise,
 )
+from skyvln_eval.metrics.scores_io import read_scores, summary_csv_text, write_scores
+from skyvln_eval.reports import TABLE_I, build_table
 from tests.metrics.helpers import result, square
 
 
@@ -188,3 +191,25 @@ def test_a_frame_that_would_give_a_wrong_number_is_refused_with_the_reason() -> 
     damaged.loc[damaged.index[0], "ne_m"] = np.nan  # not left out as "nothing to rate"
     with pytest.raises(MetricInputError, match="1 episode\\(s\\) have no ne_m"):
         summarise(damaged, ["ne_m"])
+
+
+def test_a_table_or_summary_cannot_name_conventions_other_than_those_that_scored_it(
+    tmp_path: Path,
+) -> None:
+    results = [
+        result([square(0, 0), square(100, 0)], [square(0, 0), square(100, 0)], episode_id=f"e{k}")
+        for k in range(3)
+    ]
+    legacy = MetricConventions(legacy_gp=True)
+    scores = score_results(results, legacy)
+    summary = summarise(scores, ["success", "spl", "gp_m"])
+    with pytest.raises(MetricInputError, match="but its scores were made with"):
+        build_table(summary, TABLE_I, MetricConventions())
+    with pytest.raises(MetricInputError, match="the summary CSV would say"):
+        summary_csv_text(summary, MetricConventions())
+    assert build_table(summary, TABLE_I, legacy).conventions == legacy
+    write_scores(tmp_path / "scores.csv", scores, legacy)
+    again, read_back = read_scores(tmp_path / "scores.csv")
+    assert read_back == legacy
+    with pytest.raises(MetricInputError, match="but its scores were made with"):
+        build_table(summarise(again, ["success"]), TABLE_I, MetricConventions())
