@@ -64,6 +64,12 @@ def as_views(
     try:
         arr = np.array(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
+        for k, view in enumerate(value if isinstance(value, list | tuple) else ()):
+            if not isinstance(view, list | tuple) or len(view) != 4:  # a ragged view
+                shown = len(view) if isinstance(view, list | tuple) else type(view).__name__
+                raise _issue(
+                    f"a view is 4 [lat, lng] corners, got {shown}", f"{field_name}[{k}]", episode_id
+                ) from None
         raise _issue(f"not an array of numbers ({exc})", field_name, episode_id) from None
     if arr.size == 0 and min_len == 0:
         arr = arr.reshape(0, 4, 2)
@@ -81,6 +87,16 @@ def as_views(
             f"{field_name}[{k}][{c}][{a}]",
             episode_id,
         )
+    for axis, (name, limit) in enumerate((("latitude", 90.0), ("longitude", 180.0))):
+        outside = np.argwhere(np.abs(arr[..., axis]) > limit)
+        if len(outside):
+            k, c = (int(v) for v in outside[0])
+            raise _issue(
+                f"{name} {arr[k, c, axis]!r} is outside [-{limit:g}, {limit:g}] (corners are "
+                "[lat, lng]: swapped?)",
+                f"{field_name}[{k}][{c}][{axis}]",
+                episode_id,
+            )
     arr.setflags(write=False)
     return arr
 

@@ -123,6 +123,21 @@ def test_bad_rows_are_located(tmp_path: Path) -> None:
     path.write_text("\n".join(lines))
     with pytest.raises(ResultRecordError, match=r"llm_calls\[0\]\.prompt_tokens"):
         read_results(path)
+    row["llm_calls"] = []
+    # [lng, lat] for [lat, lng] (San Francisco): scored, NE was 25,215 km.
+    row["gt_path_corners"][0] = [[-122.4, 37.7], [-122.4, 37.8], [-122.3, 37.8], [-122.3, 37.7]]
+    lines[2] = json.dumps(row)
+    path.write_text("\n".join(lines))
+    with pytest.raises(ResultRecordError, match=r"gt_path_corners\[0\]\[0\]\[0\].*swapped"):
+        read_results(path)
+    square = [[37.7, -122.4], [37.8, -122.4], [37.8, -122.3], [37.7, -122.3]]
+    row["gt_path_corners"] = [square, square[:3]]  # its second view has three corners
+    lines[2] = json.dumps(row)
+    path.write_text("\n".join(lines))
+    with pytest.raises(
+        ResultRecordError, match=r"gt_path_corners\[1\].*4 \[lat, lng\] corners, got 3"
+    ):
+        read_results(path)
 
 
 def test_duplicates_and_unknown_suffixes_are_refused(tmp_path: Path) -> None:
