@@ -96,6 +96,13 @@ STAND_IN_MARKERS = {
 }
 
 
+def stand_in_kind(backend: str) -> str | None:
+    """The kind of stand-in (a key of :data:`STAND_IN_MARKERS`) a backend spec names, or
+    ``None`` for a model."""
+    kind = backend.partition(":")[0]
+    return kind if kind in STAND_IN_MARKERS else None
+
+
 def setting_note(plan: ReproducePlan) -> str:
     """What the agents could sense and ask, for the tables' captions."""
     asks = plan.commander.max_questions
@@ -117,8 +124,8 @@ def table1_label(label: str, agent: AgentConfig) -> tuple[str, str | None]:
     if agent.name not in LLM_AGENTS:
         return label, None
     backend = agent.llm.backend
-    kind = backend.partition(":")[0]
-    if kind in STAND_IN_MARKERS:
+    kind = stand_in_kind(backend)
+    if kind is not None:
         marker, note = STAND_IN_MARKERS[kind]
         return f"{label} {marker}", note
     model = backend.partition(":")[2]
@@ -391,7 +398,7 @@ def reproduce(
         results += _labelled(planned, stored, "table1") + _labelled(planned, stored, "table2")
         labels = [label for table, label in planned.rows if table == "table2"]
         table2_rows += labels
-        if planned.config.agent.llm.backend.partition(":")[0] in STAND_IN_MARKERS:
+        if stand_in_kind(planned.config.agent.llm.backend) is not None:
             stand_ins += labels
     conventions = MetricConventions()
     # Episodes whose ground truth is withheld ran (their routes are in the run logs) but

@@ -143,7 +143,7 @@ class LLMConfig(BaseModel):
         if not isinstance(data, dict) or not isinstance(data.get("backend"), str):
             return data
         spec, at, url = data["backend"].rpartition("@")
-        if at and _SERVER_WITHOUT_SCHEME.fullmatch(url):
+        if at and _SERVER_WITHOUT_SCHEME.fullmatch(url):  # raises, saying how to write it
             _checked_server(url, f"backend {data['backend']!r}: the server")
         if not at or not url.startswith(("http://", "https://")):
             return data  # no server named ('@' may be part of a model id: 'model@2024')

@@ -34,10 +34,10 @@ def price_key(identity: Mapping[str, Any]) -> str:
     """The price table's key of a backend's calls, from its ``identity()``: ``backend:model``
     on the vendor's server (or for a backend without one), else ``backend:model@base_url``."""
     backend, model = str(identity["backend"]), str(identity["model"])
-    server = identity.get("base_url")
-    if server is None or str(server).rstrip("/") == VENDOR_SERVERS.get(backend):
+    server = str(identity.get("base_url") or "").rstrip("/")
+    if not server or server == VENDOR_SERVERS.get(backend):
         return f"{backend}:{model}"
-    return f"{backend}:{model}@{str(server).rstrip('/')}"
+    return f"{backend}:{model}@{server}"
 
 
 @dataclass(frozen=True)

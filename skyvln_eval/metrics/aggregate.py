@@ -125,7 +125,8 @@ def checked_scores(scores: pd.DataFrame, metrics: Sequence[str]) -> None:
             f"the scores frame lacks the column(s) {missing} (a frame of score_results or "
             "read_scores has them)"
         )
-    unknown = [m for m in metrics if m not in scores.columns]
+    needed = [part for m in metrics for part in (m, *POOLED_RATES.get(m, ()))]
+    unknown = [m for m in dict.fromkeys(needed) if m not in scores.columns]
     if unknown:
         known = [m for m in METRIC_UNITS if m in scores.columns]
         raise MetricInputError(f"no metric {unknown} in the scores frame; it has {known}")
@@ -187,33 +188,36 @@ def summarise(
             if not present.any():
                 continue
             scale = 100.0 if metric in PERCENT_METRICS else 1.0
-            tail = (1.0 - confidence) / 2.0 * 100.0
-            if metric in POOLED_RATES and set(POOLED_RATES[metric]) <= set(group.columns):
-                # Numerator and denominator of the episodes with something to rate.
+            if metric in POOLED_RATES:  # checked_scores made sure of both parts
+                # Numerator and denominator of the episodes with something to rate; the
+                # ratio of their sums (of each resample: the means' ratio is the sums').
                 parts = group.loc[present, list(POOLED_RATES[metric])]
                 pairs = finite_values(parts.to_numpy(np.float64), f"{key} {metric}")
-                ratio = scale * pairs[:, 0].sum() / pairs[:, 1].sum()
-                row.update(metric=metric, unit=unit_of(metric), n=len(pairs), mean=float(ratio))
-                if n_resamples:  # the means' ratio is the sums' ratio
+                mean = scale * pairs[:, 0].sum() / pairs[:, 1].sum()
+                row.update(metric=metric, unit=unit_of(metric), n=len(pairs), mean=float(mean))
+                if n_resamples:
                     means = bootstrap_means(pairs, n_resamples, seed)
-                    ratios = scale * means[:, 0] / means[:, 1]
-                    low, high = np.percentile(ratios, [tail, 100.0 - tail])
-                    row.update(ci_low=float(low), ci_high=float(high), confidence=confidence)
-                rows.append(row)
-                continue
-            values = finite_values(column[present].to_numpy(np.float64), f"{key} {metric}") * scale
-            row.update(
-                metric=metric, unit=unit_of(metric), n=len(values), mean=float(values.mean())
-            )
-            if n_resamples:
-                means = bootstrap_means(values, n_resamples, seed)
-                low, high = np.percentile(means, [tail, 100.0 - tail])
-                row.update(ci_low=float(low), ci_high=float(high), confidence=confidence)
+                    row.update(_interval(scale * means[:, 0] / means[:, 1], confidence))
+            else:
+                values = column[present].to_numpy(np.float64)
+                values = finite_values(values, f"{key} {metric}") * scale
+                row.update(
+                    metric=metric, unit=unit_of(metric), n=len(values), mean=float(values.mean())
+                )
+                if n_resamples:
+                    row.update(_interval(bootstrap_means(values, n_resamples, seed), confidence))
             rows.append(row)
     summary = pd.DataFrame(rows)
     if CONVENTIONS_ATTR in scores.attrs:  # which conventions scored it goes along
         summary.attrs[CONVENTIONS_ATTR] = scores.attrs[CONVENTIONS_ATTR]
     return summary
+
+
+def _interval(estimates: np.ndarray, confidence: float) -> dict[str, float]:
+    """The percentile interval of bootstrap ``estimates``, as summary columns."""
+    tail = (1.0 - confidence) / 2.0 * 100.0
+    low, high = np.percentile(estimates, [tail, 100.0 - tail])
+    return {"ci_low": float(low), "ci_high": float(high), "confidence": confidence}
 
 
 def check_complete(

@@ -28,7 +28,7 @@ import csv
 import io
 import math
 from collections.abc import Collection, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import pandas as pd
 
@@ -195,6 +195,7 @@ def build_table(
     index = sel.set_index(["system", "split", "metric"])
     errors = _error_counts(index, row_names, [split for split, _ in spec.groups])
     cells: dict[str, dict[tuple[str, str], Cell | None]] = {r: {} for r in row_names}
+    titles = dict(spec.groups)
     bounded: list[str] = []  # cells shown as a lower bound
     for split, _ in spec.groups:
         for metric, _ in spec.metrics:
@@ -222,29 +223,14 @@ def build_table(
                 low = float(v["ci_low"]) if show_ci else None
                 high = float(v["ci_high"]) if show_ci else None
                 cell = Cell(float(v["mean"]), low, high, ranks.get(row), *in_cell[row])
-                bound_key = (row, split, LOWER_BOUNDS.get(metric, ""))
-                if math.isnan(cell.mean) and bound_key in index.index:
-                    bound = float(index.loc[bound_key]["mean"])
-                    if not math.isnan(bound):  # never ranked: the true value is unknown
-                        cell = Cell(bound, None, None, None, *in_cell[row], lower_bound=True)
-                        bounded.append(f"{row} on {dict(spec.groups)[split]}")
+                bound = _lower_bound(index, (row, split, LOWER_BOUNDS.get(metric, "")))
+                if math.isnan(cell.mean) and bound is not None:
+                    # Never ranked: the true value is unknown (its CI too).
+                    cell = replace(cell, mean=bound, rank=None, lower_bound=True)
+                    bounded.append(f"{row} on {titles[split]}")
                 cells[row][(split, metric)] = cell
-    titles = dict(spec.groups)
     notes = [*notes, *_error_notes(errors, row_names, spec, titles)]
-    not_run = []  # a split no row ran is named once; else the rows that did not
-    for split, title in spec.groups:
-        missing = [
-            row
-            for row in row_names
-            if split not in withheld
-            and all(cells[row][(split, m)] is None for m, _ in spec.metrics)
-        ]
-        if missing:
-            not_run.append(
-                title if len(missing) == len(row_names) else f"{', '.join(missing)} on {title}"
-            )
-    if not_run:
-        notes.append(f"-: no scores (not run): {'; '.join(not_run)}.")
+    notes += _not_run_notes(cells, row_names, spec, titles, withheld)
     if bounded:
         notes.append(
             f"{AT_LEAST}: at least this much (its exact value is unknown, 'n/a' in the CSV): "
@@ -260,6 +246,38 @@ def build_table(
         names = ", ".join(titles[split] for split in shown_withheld)
         notes.append(f"withheld: the ground truth of {names} is withheld, so it is not scored.")
     return Table(spec, row_names, cells, conventions, digits, show_ci, tuple(notes), shown_withheld)
+
+
+def _lower_bound(index: pd.DataFrame, key: tuple[str, str, str]) -> float | None:
+    """The known lower bound the summary has at ``key`` (row, split, bound metric)."""
+    if key not in index.index:
+        return None
+    bound = float(index.loc[key]["mean"])
+    return None if math.isnan(bound) else bound
+
+
+def _not_run_notes(
+    cells: dict[str, dict[tuple[str, str], Cell | None]],
+    rows: Sequence[str],
+    spec: TableSpec,
+    titles: dict[str, str],
+    withheld: Collection[str],
+) -> list[str]:
+    """What '-' means, when some row has no scores on a split: a split no row ran is
+    named once, else the rows that did not run it."""
+    not_run = []
+    for split, title in spec.groups:
+        missing = [
+            row
+            for row in rows
+            if split not in withheld
+            and all(cells[row][(split, m)] is None for m, _ in spec.metrics)
+        ]
+        if missing:
+            not_run.append(
+                title if len(missing) == len(rows) else f"{', '.join(missing)} on {title}"
+            )
+    return [f"-: no scores (not run): {'; '.join(not_run)}."] if not_run else []
 
 
 def _error_counts(
@@ -408,7 +426,7 @@ def to_latex(table: Table) -> str:
                 table.show_ci
                 and cell is not None
                 and cell.ci_low is not None
-                and not cell.all_errors
+                and not (cell.all_errors or cell.lower_bound or math.isnan(cell.mean))
             ):
                 low, high = f"{cell.ci_low:.{digits}f}", f"{cell.ci_high:.{digits}f}"
                 text += f"\\,{{\\scriptsize[{low}, {high}]}}"
