@@ -137,7 +137,7 @@ def write_summary_page(
             "",
             f"Also as {_link(report, 'table1.tex')} (LaTeX) and {_link(report, 'table1.csv')}; "
             + (
-                f"with 95% bootstrap intervals: {_link(report, 'table1_ci.md')}."
+                f"with 95% intervals: {_link(report, 'table1_ci.md')}."
                 if "table1_ci.md" in report.files
                 else ""
             ),

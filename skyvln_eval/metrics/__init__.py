@@ -1,17 +1,19 @@
-"""Metrics: pure functions over per-episode records, aggregation, bootstrap and paired tests.
+"""Metrics: pure functions over per-episode records, aggregation, intervals and paired tests.
 
 Follow a run: its :class:`EpisodeResult` rows (visited views, ground truth, status,
 optional control summary and LLM calls; files in :mod:`.results_io`) go through
 :func:`score_results` under a :class:`MetricConventions`, giving one row of official
 AVDN, R2R-family, cost and control metrics per episode; :func:`summarise` averages them
-per system and split (with seeded bootstrap intervals), :func:`check_complete` refuses
-runs that miss episodes, :func:`compare_systems` tests two systems on the same episodes.
+per system and split (with Wilson or seeded bootstrap intervals), :func:`check_complete`
+refuses runs that miss episodes, :func:`compare_systems` tests two systems on the same episodes.
 Predictions made elsewhere (the official ``.npy`` output, a JSON format) are read by
 :func:`read_predictions` and joined with ground truth by :func:`results_from_predictions`.
 Control logs give safety metrics through :func:`control_metrics`.
 """
 
 from skyvln_eval.metrics.aggregate import (
+    BINARY_METRICS,
+    CI_METHODS,
     DISPLAY_NAMES,
     LOWER_IS_BETTER,
     PERCENT_METRICS,
@@ -63,10 +65,13 @@ from skyvln_eval.metrics.stats import (
     bootstrap_ci,
     bootstrap_means,
     paired_comparison,
+    wilson_interval,
 )
 from skyvln_eval.metrics.view_overlap import sparse_hull_iou
 
 __all__ = [
+    "BINARY_METRICS",
+    "CI_METHODS",
     "CONTROL_LOG_COLUMNS",
     "COST_COLUMNS",
     "DISPLAY_NAMES",
@@ -116,6 +121,7 @@ __all__ = [
     "summarise_costs",
     "tracking_errors",
     "unit_of",
+    "wilson_interval",
     "write_predictions_json",
     "write_results",
 ]

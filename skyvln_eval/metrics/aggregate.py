@@ -1,13 +1,16 @@
 """Aggregate per-episode scores per system and split, check completeness, compare systems.
 
 The summary is a long table, one row per (system, split, mode, metric): ``n`` episodes,
-``mean`` (rates in percent, lengths in metres) and, when asked, a seeded bootstrap
-interval. Rules: a frame that repeats an episode, or misses an official metric's value,
-is refused (:func:`checked_scores`); a group with no value for a metric (e.g. no control
-summary) has no row for it; NaN / inf never reach a mean (they raise); a metric that
-can be unknown (cost, tokens: :data:`~skyvln_eval.metrics.cost.UNKNOWN_IF_ANY_UNKNOWN`)
-has a NaN mean, shown as "n/a", when any episode's value is unknown; other missing values
-(a rate with nothing to rate) are left out. The call failure and fallback rates are
+``mean`` (rates in percent, lengths in metres) and, when asked, an interval made as
+``ci_method`` says (:data:`CI_METHODS`): the Wilson score interval for a rate of 0/1
+values (:data:`BINARY_METRICS`), a seeded percentile bootstrap over episodes for the rest,
+NaN (shown "n/a") where a bootstrap has fewer than 2 episodes to resample. Rules: a frame
+that repeats an episode, or misses an official metric's value, is refused
+(:func:`checked_scores`); a group with no value for a metric (e.g. no control summary)
+has no row for it; NaN / inf never reach a mean (they raise); a metric that can be
+unknown (cost, tokens: :data:`~skyvln_eval.metrics.cost.UNKNOWN_IF_ANY_UNKNOWN`) has a
+NaN mean, shown as "n/a", when any episode's value is unknown; other missing values (a
+rate with nothing to rate) are left out. The call failure and fallback rates are
 pooled (:data:`POOLED_RATES`): failed calls of all the group's calls, not a mean of
 per-episode rates. A run that misses episodes of its split fails :func:`check_complete`
 with the missing ids.
@@ -17,6 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
+from typing import Literal
 
 import numpy as np
 import pandas as pd
@@ -26,7 +30,12 @@ from skyvln_eval.metrics.conventions import CONVENTIONS_ATTR
 from skyvln_eval.metrics.cost import UNKNOWN_IF_ANY_UNKNOWN
 from skyvln_eval.metrics.official import OFFICIAL_COLUMNS
 from skyvln_eval.metrics.scoring import METRIC_UNITS
-from skyvln_eval.metrics.stats import bootstrap_means, finite_values, paired_comparison
+from skyvln_eval.metrics.stats import (
+    bootstrap_means,
+    finite_values,
+    paired_comparison,
+    wilson_interval,
+)
 
 GROUP_KEYS = ["system", "split", "mode"]
 
@@ -99,10 +108,27 @@ LOWER_IS_BETTER = frozenset(
 )
 
 
+#: Metrics whose per-episode values are 0 or 1 by definition (unit "0/1": success, a
+#: status, a collision): their rate's interval is the Wilson score interval, which a
+#: bootstrap of ten zeros (every resample 0) would give as [0, 0].
+BINARY_METRICS = frozenset(m for m, unit in METRIC_UNITS.items() if unit == "0/1")
+
+#: How a summary's interval was made (its ``ci_method``), as a table's note says it.
+CiMethod = Literal["wilson", "bootstrap"]
+CI_METHODS: dict[str, str] = {
+    "wilson": "Wilson score interval, the episodes as trials",
+    "bootstrap": "percentile bootstrap of the episodes",
+}
+
 #: Rates whose summary is the share over all the group's episodes pooled (failed calls of
 #: all calls, fallback decisions of all decisions), not the mean of per-episode rates, in
 #: which an episode of one failed call weighed as much as one of twenty answered ones.
-#: Their intervals resample episodes, the ratio of sums of each resample.
+#: Their intervals resample episodes, the ratio of sums of each resample. When no episode
+#: had a failure (or every call of every episode failed) each resample gives the same 0%
+#: (100%), so the interval is instead the Wilson one of "0 of n episodes had one" (n of
+#: n): the episodes, not the calls, are the trials, since the calls of an episode fail
+#: together (a dead endpoint fails them all). It bounds the share of episodes with a
+#: failure, which bounds the share of calls as far as episodes are alike in size.
 POOLED_RATES: dict[str, tuple[str, str]] = {
     "llm_call_failure_rate": ("llm_failed_calls", "llm_calls"),
     "fallback_rate": ("fallback_decisions", "decisions"),
@@ -160,12 +186,13 @@ def summarise(
     confidence: float = 0.95,
     seed: int = 0,
 ) -> pd.DataFrame:
-    """Per (system, split, mode, metric): n, mean and, if ``n_resamples``, a CI.
+    """Per (system, split, mode, metric): n, mean and, if ``n_resamples``, an interval
+    (``ci_low``, ``ci_high``, ``confidence``, ``ci_method``: see the module docstring).
 
-    Every metric of a group is resampled with the same ``seed``, so metrics defined on
-    the same episodes share their resamples (their intervals agree with each other).
-    Episodes are taken in episode-id order, so the result does not depend on the order of
-    the rows (a parallel run records episodes in the order they finish).
+    Every bootstrapped metric of a group is resampled with the same ``seed``, so metrics
+    defined on the same episodes share their resamples. Episodes are taken in episode-id
+    order, so the result does not depend on the order of the rows (a parallel run records
+    episodes in the order they finish).
     """
     if scores.empty:
         raise MetricInputError("no scores to summarise")
@@ -178,34 +205,34 @@ def summarise(
             column = group[metric]
             present = column.notna().to_numpy()
             row = dict(zip(GROUP_KEYS, key, strict=True))
+            row.update(metric=metric, unit=unit_of(metric))
+            what = f"{'/'.join(map(str, key))} {metric}"
             if metric in UNKNOWN_IF_ANY_UNKNOWN and not present.all():
                 # A mean over the known part would pass for the whole: it is unknown.
-                row.update(metric=metric, unit=unit_of(metric), n=len(column), mean=math.nan)
+                row.update(n=len(column), mean=math.nan)
                 if n_resamples:
-                    row.update(ci_low=math.nan, ci_high=math.nan, confidence=confidence)
+                    row.update(_interval(math.nan, math.nan, "bootstrap", confidence))
                 rows.append(row)
                 continue
             if not present.any():
                 continue
-            scale = 100.0 if metric in PERCENT_METRICS else 1.0
             if metric in POOLED_RATES:  # checked_scores made sure of both parts
-                # Numerator and denominator of the episodes with something to rate; the
-                # ratio of their sums (of each resample: the means' ratio is the sums').
+                # Numerator and denominator of the episodes with something to rate.
                 parts = group.loc[present, list(POOLED_RATES[metric])]
-                pairs = finite_values(parts.to_numpy(np.float64), f"{key} {metric}")
-                mean = scale * pairs[:, 0].sum() / pairs[:, 1].sum()
-                row.update(metric=metric, unit=unit_of(metric), n=len(pairs), mean=float(mean))
+                pairs = finite_values(parts.to_numpy(np.float64), what)
+                mean = 100.0 * pairs[:, 0].sum() / pairs[:, 1].sum()
+                row.update(n=len(pairs), mean=float(mean))
                 if n_resamples:
-                    means = bootstrap_means(pairs, n_resamples, seed)
-                    row.update(_interval(scale * means[:, 0] / means[:, 1], confidence))
+                    row.update(_pooled_interval(pairs, n_resamples, confidence, seed))
             else:
-                values = column[present].to_numpy(np.float64)
-                values = finite_values(values, f"{key} {metric}") * scale
-                row.update(
-                    metric=metric, unit=unit_of(metric), n=len(values), mean=float(values.mean())
-                )
-                if n_resamples:
-                    row.update(_interval(bootstrap_means(values, n_resamples, seed), confidence))
+                values = finite_values(column[present].to_numpy(np.float64), what)
+                scaled = values * (100.0 if metric in PERCENT_METRICS else 1.0)
+                row.update(n=len(values), mean=float(scaled.mean()))
+                if n_resamples and metric in BINARY_METRICS:
+                    successes = _successes(values, group.loc[present, "episode_id"], what)
+                    row.update(_wilson(successes, len(values), confidence))
+                elif n_resamples:
+                    row.update(_bootstrap(scaled, n_resamples, confidence, seed))
             rows.append(row)
     summary = pd.DataFrame(rows)
     if CONVENTIONS_ATTR in scores.attrs:  # which conventions scored it goes along
@@ -213,11 +240,62 @@ def summarise(
     return summary
 
 
-def _interval(estimates: np.ndarray, confidence: float) -> dict[str, float]:
-    """The percentile interval of bootstrap ``estimates``, as summary columns."""
+def _interval(low: float, high: float, method: CiMethod, confidence: float) -> dict[str, object]:
+    """An interval as summary columns."""
+    return {"ci_low": low, "ci_high": high, "confidence": confidence, "ci_method": method}
+
+
+def _bootstrap(
+    values: np.ndarray, n_resamples: int, confidence: float, seed: int
+) -> dict[str, object]:
+    """The percentile bootstrap interval of the mean of ``values``; NaN for fewer than 2
+    values, whose every resample is the one value (a zero-width interval would claim
+    certainty)."""
+    if len(values) < 2:
+        return _interval(math.nan, math.nan, "bootstrap", confidence)
+    return _percentiles(bootstrap_means(values, n_resamples, seed), confidence)
+
+
+def _percentiles(estimates: np.ndarray, confidence: float) -> dict[str, object]:
     tail = (1.0 - confidence) / 2.0 * 100.0
     low, high = np.percentile(estimates, [tail, 100.0 - tail])
-    return {"ci_low": float(low), "ci_high": float(high), "confidence": confidence}
+    return _interval(float(low), float(high), "bootstrap", confidence)
+
+
+def _wilson(successes: int, n: int, confidence: float) -> dict[str, object]:
+    """The Wilson score interval of ``successes`` of ``n``, in percent."""
+    low, high = wilson_interval(successes, n, confidence)
+    return _interval(100.0 * low, 100.0 * high, "wilson", confidence)
+
+
+def _successes(values: np.ndarray, episode_ids: pd.Series, what: str) -> int:
+    """How many of a 0/1 metric's ``values`` are 1 (refusing any other value: the Wilson
+    interval counts trials)."""
+    other = np.flatnonzero((values != 0.0) & (values != 1.0))
+    if len(other):
+        raise MetricInputError(
+            f"{what}: a 0/1 metric has {len(other)} value(s) other than 0 and 1, e.g. "
+            f"{float(values[other[0]])!r} in episode {episode_ids.iloc[other[0]]} (a damaged "
+            "scores frame?)"
+        )
+    return int(values.sum())
+
+
+def _pooled_interval(
+    pairs: np.ndarray, n_resamples: int, confidence: float, seed: int
+) -> dict[str, object]:
+    """Interval of a pooled share from the episodes' (numerator, denominator) ``pairs``:
+    the ratio of sums of each bootstrap resample, or Wilson over the episodes when every
+    resample would give the same 0% or 100% (see :data:`POOLED_RATES`)."""
+    failed, total = pairs[:, 0], pairs[:, 1]
+    if not failed.any():
+        return _wilson(0, len(pairs), confidence)
+    if (failed == total).all():
+        return _wilson(len(pairs), len(pairs), confidence)
+    if len(pairs) < 2:
+        return _interval(math.nan, math.nan, "bootstrap", confidence)
+    means = bootstrap_means(pairs, n_resamples, seed)
+    return _percentiles(100.0 * means[:, 0] / means[:, 1], confidence)
 
 
 def check_complete(

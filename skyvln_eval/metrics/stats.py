@@ -1,13 +1,16 @@
-"""Seeded bootstrap confidence intervals and paired tests between two systems.
+"""Confidence intervals (seeded bootstrap, Wilson score) and paired tests between two systems.
 
-Everything is deterministic for a given ``seed`` (numpy's PCG64 generator). Empty input
-and non-finite values raise :class:`~skyvln_eval.errors.MetricInputError`: an interval
-over nothing, or over NaN, is never returned.
+Everything is deterministic for a given ``seed`` (numpy's PCG64 generator); the Wilson
+interval is closed form. Empty input and non-finite values raise
+:class:`~skyvln_eval.errors.MetricInputError`: an interval over nothing, or over NaN, is
+never returned.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from statistics import NormalDist
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -109,6 +112,29 @@ def bootstrap_ci(
         n_resamples=n_resamples,
         seed=seed,
     )
+
+
+def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
+    """Wilson score interval of a proportion, ``successes`` of ``n`` trials (fractions).
+
+    Unlike a bootstrap it does not collapse at 0 or ``n`` successes (0 of 10 gives
+    [0, 0.2775] at 95%, where every resample of ten zeros is zero), and it needs no seed.
+    """
+    if n < 1 or not 0 <= successes <= n:
+        raise MetricInputError(
+            f"a proportion needs 0 <= successes <= n and n >= 1, got {successes} of {n}"
+        )
+    if not 0 < confidence < 1:
+        raise MetricInputError(f"confidence must be in (0, 1), got {confidence}")
+    z = NormalDist().inv_cdf(0.5 + confidence / 2.0)
+    p = successes / n
+    z2n = z * z / n
+    centre = (p + z2n / 2.0) / (1.0 + z2n)
+    half = z / (1.0 + z2n) * math.sqrt(p * (1.0 - p) / n + z2n / (4.0 * n))
+    # At 0 (or n) successes the bound is exactly 0 (or 1); the formula rounds near it.
+    low = 0.0 if successes == 0 else max(0.0, centre - half)
+    high = 1.0 if successes == n else min(1.0, centre + half)
+    return low, high
 
 
 def sign_flip_p_value(differences: FloatArray, n_resamples: int, seed: int) -> float:

@@ -179,7 +179,7 @@ def score(
         bool, typer.Option("--legacy-gp", help="Official GP against G[N-2] (pre-Nov-2023 code)")
     ] = False,
     resamples: Annotated[
-        int, typer.Option(min=0, help="Bootstrap resamples for 95% CIs (0: none)")
+        int, typer.Option(min=0, help="Bootstrap resamples for the 95% CIs (0: no CIs)")
     ] = 1000,
     seed: Annotated[int, typer.Option(help="Bootstrap seed")] = 0,
     allow_incomplete: Annotated[
@@ -248,7 +248,12 @@ def table(
     ] = None,
     mode: Annotated[str, typer.Option(help="Episode mode")] = "andh",
     ci: Annotated[
-        bool, typer.Option("--ci", help="Show 95% bootstrap confidence intervals")
+        bool,
+        typer.Option(
+            "--ci",
+            help="Show 95% confidence intervals (Wilson for 0/1 rates, bootstrap for the "
+            "rest; a note says which)",
+        ),
     ] = False,
     resamples: Annotated[int, typer.Option(min=1, help="Bootstrap resamples with --ci")] = 1000,
     seed: Annotated[int, typer.Option(help="Bootstrap seed")] = 0,

@@ -1,9 +1,11 @@
 """Paper-style tables (SkyVLN Table I and Table II) as Markdown, LaTeX and CSV.
 
 Input is a summary from :func:`skyvln_eval.metrics.summarise` (one row per system,
-split, mode and metric, with optional ``ci_low`` / ``ci_high``). Rows are the systems,
-labelled exactly as the results name them (a rule-based backend is labelled so by the
-caller), in the order given. Column groups are splits, each with a few metrics:
+split, mode and metric, with optional ``ci_low`` / ``ci_high`` and the ``ci_method`` that
+made them, which a table with intervals states in a note; a missing interval shows
+``[n/a]``). Rows are the systems, labelled exactly as the results name them (a
+rule-based backend is labelled so by the caller), in the order given. Column groups are
+splits, each with a few metrics:
 
 - :data:`TABLE_I`: Seen Validation / Unseen Validation / Unseen Testing x SPL, SR;
 - :data:`TABLE_II`: Unseen Testing x SPL, SR, NE (rows are LLM backends).
@@ -33,7 +35,7 @@ from dataclasses import dataclass, replace
 import pandas as pd
 
 from skyvln_eval.errors import MetricInputError
-from skyvln_eval.metrics.aggregate import LOWER_IS_BETTER
+from skyvln_eval.metrics.aggregate import CI_METHODS, LOWER_IS_BETTER
 from skyvln_eval.metrics.conventions import MetricConventions, check_conventions
 
 
@@ -104,11 +106,20 @@ class Cell:
     episodes: int = 0  # how many episodes the mean is over (0: not known)
     errors: int = 0  # how many of them ended in error (scored as failures)
     lower_bound: bool = False  # the mean is unknown; ``mean`` is a known lower bound of it
+    ci_method: str = ""  # how the interval was made (a key of CI_METHODS)
 
     @property
     def all_errors(self) -> bool:
         """Every episode ended in error: the mean only repeats the failures' score."""
         return self.episodes > 0 and self.errors == self.episodes
+
+    @property
+    def shows_interval(self) -> bool:
+        """The cell shows its interval (or '[n/a]') with its mean: it has one, and its
+        mean is a number of its own (not 'error', 'n/a' or a lower bound)."""
+        return self.ci_low is not None and not (
+            self.all_errors or self.lower_bound or math.isnan(self.mean)
+        )
 
 
 #: The marker of a cell where some episodes ended in error.
@@ -186,6 +197,12 @@ def build_table(
         raise MetricInputError(f"the summary has no {mode!r} episodes")
     if show_ci and "ci_low" not in sel.columns:
         raise MetricInputError("confidence intervals were asked for but the summary has none")
+    if show_ci and "ci_method" not in sel.columns:
+        # A table says how its intervals were made: a Wilson and a bootstrap one differ.
+        raise MetricInputError(
+            "the summary's intervals do not say how they were made (no ci_method column; "
+            "summarise gives one)"
+        )
     row_names = tuple(rows) if rows else tuple(dict.fromkeys(sel["system"]))
     unknown = [r for r in row_names if r not in set(sel["system"])]
     if unknown and not withheld:  # a row that ran only withheld splits has no scores
@@ -223,6 +240,8 @@ def build_table(
                 low = float(v["ci_low"]) if show_ci else None
                 high = float(v["ci_high"]) if show_ci else None
                 cell = Cell(float(v["mean"]), low, high, ranks.get(row), *in_cell[row])
+                if show_ci:
+                    cell = replace(cell, ci_method=str(v["ci_method"]))
                 bound = _lower_bound(index, (row, split, LOWER_BOUNDS.get(metric, "")))
                 if math.isnan(cell.mean) and bound is not None:
                     # Never ranked: the true value is unknown (its CI too).
@@ -245,6 +264,9 @@ def build_table(
     if shown_withheld:
         names = ", ".join(titles[split] for split in shown_withheld)
         notes.append(f"withheld: the ground truth of {names} is withheld, so it is not scored.")
+    if show_ci:
+        levels = sel.loc[sel["metric"].isin(dict(spec.metrics)), "confidence"].dropna()
+        notes += _interval_notes(cells, row_names, spec, sorted(set(levels)))
     return Table(spec, row_names, cells, conventions, digits, show_ci, tuple(notes), shown_withheld)
 
 
@@ -254,6 +276,37 @@ def _lower_bound(index: pd.DataFrame, key: tuple[str, str, str]) -> float | None
         return None
     bound = float(index.loc[key]["mean"])
     return None if math.isnan(bound) else bound
+
+
+def _interval_notes(
+    cells: dict[str, dict[tuple[str, str], Cell | None]],
+    rows: Sequence[str],
+    spec: TableSpec,
+    levels: Sequence[float],
+) -> list[str]:
+    """How the shown intervals were made, naming the columns of each method, and what
+    '[n/a]' means where a cell has none."""
+    labels = dict(spec.metrics)
+    by_method: dict[str, dict[str, None]] = {}
+    unavailable = False
+    for row in rows:
+        for (_, metric), cell in cells[row].items():
+            if cell is None or not cell.shows_interval:
+                continue
+            if cell.ci_low is not None and math.isnan(cell.ci_low):
+                unavailable = True
+                continue
+            by_method.setdefault(cell.ci_method, {})[labels[metric]] = None
+    if not by_method and not unavailable:
+        return []
+    level = ", ".join(f"{100.0 * c:g}%" for c in levels)
+    parts = [
+        f"{CI_METHODS.get(method, method)}: {', '.join(columns)}"
+        for method, columns in sorted(by_method.items())
+    ]
+    if unavailable:
+        parts.append("[n/a]: no interval (a bootstrap needs 2 episodes or more)")
+    return [f"Brackets: {level} intervals; {'; '.join(parts)}."]
 
 
 def _not_run_notes(
@@ -327,9 +380,16 @@ def _number(cell: Cell | None, digits: int, with_ci: bool, withheld: bool = Fals
     if cell.lower_bound:
         return f"{AT_LEAST}{cell.mean:.{digits}f}" + (SOME_ERRORS if cell.errors else "")
     text = f"{cell.mean:.{digits}f}"
-    if with_ci and cell.ci_low is not None:
-        text += f" [{cell.ci_low:.{digits}f}, {cell.ci_high:.{digits}f}]"
+    if with_ci and cell.shows_interval:
+        text += f" {_bracket(cell, digits)}"
     return text + (SOME_ERRORS if cell.errors else "")
+
+
+def _bracket(cell: Cell, digits: int) -> str:
+    """A cell's interval, ``[low, high]``, or ``[n/a]`` where it has none."""
+    if cell.ci_low is None or cell.ci_high is None or math.isnan(cell.ci_low):
+        return "[n/a]"
+    return f"[{cell.ci_low:.{digits}f}, {cell.ci_high:.{digits}f}]"
 
 
 def _arrow(metric: str) -> str:
@@ -359,10 +419,9 @@ def to_markdown(table: Table) -> str:
                 text = f"<u>{text}</u>"
             out.append(text)
         lines.append("| " + " | ".join(out) + " |")
-    ci = " Brackets: 95% bootstrap CI." if table.show_ci else ""
     lines += [
         "",
-        f"{spec.caption} Best in bold, second underlined.{ci} "
+        f"{spec.caption} Best in bold, second underlined. "
         f"Conventions: {table.conventions.describe()}.",
         *(["", *table.notes] if table.notes else []),
     ]
@@ -422,14 +481,8 @@ def to_latex(table: Table) -> str:
                 text = f"\\textbf{{{text}}}"
             elif cell is not None and cell.rank == 2:
                 text = f"\\underline{{{text}}}"
-            if (
-                table.show_ci
-                and cell is not None
-                and cell.ci_low is not None
-                and not (cell.all_errors or cell.lower_bound or math.isnan(cell.mean))
-            ):
-                low, high = f"{cell.ci_low:.{digits}f}", f"{cell.ci_high:.{digits}f}"
-                text += f"\\,{{\\scriptsize[{low}, {high}]}}"
+            if table.show_ci and cell is not None and cell.shows_interval:
+                text += f"\\,{{\\scriptsize{_bracket(cell, digits)}}}"
             out.append(text)
         lines.append(" & ".join(out) + r" \\")
     lines += [r"\bottomrule", r"\end{tabular}", r"\end{table}"]
@@ -461,9 +514,15 @@ def to_csv(table: Table) -> str:
                 unknown = math.isnan(cell.mean) or cell.lower_bound
                 out.append("n/a" if unknown else repr(cell.mean))
             if table.show_ci:
-                out += ["", ""] if cell is None else [repr(cell.ci_low), repr(cell.ci_high)]
+                bounds = [] if cell is None else [cell.ci_low, cell.ci_high]
+                out += [_csv_number(x) for x in bounds] or ["", ""]
         writer.writerow(out)
     return buffer.getvalue()
+
+
+def _csv_number(value: float | None) -> str:
+    """A number exactly (shortest repr), "n/a" when unknown (pandas reads it as NaN)."""
+    return "n/a" if value is None or math.isnan(value) else repr(value)
 
 
 RENDERERS = {"md": to_markdown, "latex": to_latex, "csv": to_csv}

@@ -14,8 +14,9 @@ import pandas as pd
 import pytest
 
 from skyvln_eval.errors import MetricInputError
-from skyvln_eval.metrics import MetricConventions
+from skyvln_eval.metrics import MetricConventions, score_results, summarise
 from skyvln_eval.reports import TABLE_I, TABLE_II, build_table, to_csv, to_latex, to_markdown
+from tests.metrics.helpers import result, square
 
 EXPECTED = Path(__file__).parent / "expected"
 
@@ -39,7 +40,9 @@ def summary(with_ci: bool = False) -> pd.DataFrame:
             row = {"system": system, "split": split, "mode": "andh", "metric": metric,
                    "unit": "m" if metric == "ne_m" else "%", "n": 100, "mean": value}  # fmt: skip
             if with_ci:
-                row.update(ci_low=value - 1.0, ci_high=value + 1.5, confidence=0.95)
+                row.update(
+                    ci_low=value - 1.0, ci_high=value + 1.5, confidence=0.95, ci_method="bootstrap"
+                )
             rows.append(row)
     return pd.DataFrame(rows)
 
@@ -108,6 +111,39 @@ def test_confidence_intervals_in_every_format() -> None:
     assert float(full["test_unseen:spl:ci_high"]) == pytest.approx(29.61)
     with pytest.raises(MetricInputError, match="confidence intervals"):
         build_table(summary(), TABLE_II, MetricConventions(), show_ci=True)
+    with pytest.raises(MetricInputError, match="do not say how they were made"):
+        unsaid = summary(True).drop(columns="ci_method")
+        build_table(unsaid, TABLE_II, MetricConventions(), show_ci=True)
+
+
+def test_a_table_says_how_its_intervals_were_made_and_shows_a_missing_one_as_such() -> None:
+    # One episode of "One": its SR has a Wilson interval, its SPL none (a bootstrap of
+    # one value is that value); ten of "Ten": SR 0/10 is [0, 27.75], not [0, 0].
+    g = [square(0, 0), square(100, 0)]
+    results = [result([g[0], square(100, 0)], g, episode_id="e0", system="One")]
+    results += [
+        result([g[0], square(30 + k, 0)], g, episode_id=f"e{k}", system="Ten") for k in range(10)
+    ]
+    scores = score_results(results)
+    data = summarise(scores, ["spl", "success"], n_resamples=200)
+    table = build_table(data, TABLE_I, MetricConventions(), show_ci=True)
+    md = to_markdown(table)
+    assert "| One | **100.00 [n/a]** | **100.00 [20.65, 100.00]** |" in md
+    assert "| Ten | 0.00 [0.00, 0.00] | 0.00 [0.00, 27.75] |" in md
+    note = (
+        "Brackets: 95% intervals; percentile bootstrap of the episodes: SPL/%; Wilson score "
+        "interval, the episodes as trials: SR/%; [n/a]: no interval (a bootstrap needs 2 "
+        "episodes or more)."
+    )
+    assert note in md and "bootstrap CI" not in md
+    assert r"\textbf{100.00}\,{\scriptsize[n/a]}" in to_latex(table)
+    assert note.replace("%", r"\%") in to_latex(table)
+    lines = [line for line in to_csv(table).splitlines() if not line.startswith("#")]
+    one = next(r for r in csv.DictReader(io.StringIO("\n".join(lines))) if r["Model"] == "One")
+    assert (one["val_seen:spl:ci_low"], one["val_seen:spl:ci_high"]) == ("n/a", "n/a")
+    assert float(one["val_seen:success:ci_low"]) == pytest.approx(20.65, abs=0.005)
+    # Without intervals, nothing is said of them.
+    assert "Brackets" not in to_markdown(build_table(data, TABLE_I, MetricConventions()))
 
 
 def test_rows_follow_the_caller_and_unknown_rows_fail() -> None:

@@ -1,0 +1,93 @@
+"""A summary's intervals: Wilson for 0/1 rates, bootstrap for the rest, n/a where none."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from skyvln_eval.errors import MetricInputError
+from skyvln_eval.metrics import BINARY_METRICS, bootstrap_ci, summarise, wilson_interval
+
+
+def frame(**columns: list[float]) -> pd.DataFrame:
+    """A scores frame of one system on one split, an episode per value."""
+    n = len(next(iter(columns.values())))
+    keys = {"system": "A", "split": "test_unseen", "mode": "andh"}
+    return pd.DataFrame({**keys, "episode_id": [f"e{k:02d}" for k in range(n)], **columns})
+
+
+def interval(summary: pd.DataFrame, metric: str) -> tuple[float, float, str]:
+    row = summary.set_index("metric").loc[metric]
+    return float(row["ci_low"]), float(row["ci_high"]), str(row["ci_method"])
+
+
+def test_a_rate_of_all_failures_or_all_successes_has_its_wilson_interval_not_a_point() -> None:
+    none = summarise(frame(success=[0.0] * 10), ["success"], n_resamples=200)
+    low, high, method = interval(none, "success")
+    assert (low, method) == (0.0, "wilson") and high == pytest.approx(27.75, abs=0.005)
+    every = summarise(frame(success=[1.0] * 10), ["success"], n_resamples=200)
+    low, high, method = interval(every, "success")
+    assert low == pytest.approx(72.25, abs=0.005) and (high, method) == (100.0, "wilson")
+    # Closed form: no seed or resample count changes it; other levels are other widths.
+    again = summarise(frame(success=[1.0] * 10), ["success"], n_resamples=7, seed=3)
+    assert interval(again, "success") == interval(every, "success")
+    wider = summarise(frame(success=[1.0] * 10), ["success"], n_resamples=7, confidence=0.99)
+    assert interval(wider, "success")[0] < low
+
+
+def test_wilson_interval_matches_the_textbook_values() -> None:
+    low, high = wilson_interval(3, 10)  # Newcombe (1998), method 3: 0.1078 to 0.6032
+    assert (low, high) == pytest.approx((0.1078, 0.6032), abs=5e-5)
+    assert wilson_interval(0, 1) == pytest.approx((0.0, 0.7935), abs=5e-5)
+    with pytest.raises(MetricInputError, match="got 11 of 10"):
+        wilson_interval(11, 10)
+
+
+def test_every_0_1_metric_gets_wilson_and_a_value_other_than_0_or_1_is_refused() -> None:
+    assert {"success", "oracle_success", "r2r_sr", "collided", "status_error"} <= BINARY_METRICS
+    assert not {"spl", "ndtw", "fallback_rate", "llm_call_failure_rate"} & BINARY_METRICS
+    damaged = r"A/test_unseen/andh success: .* e\.g\. 0\.5 in episode e01"
+    with pytest.raises(MetricInputError, match=damaged):
+        summarise(frame(success=[0.0, 0.5, 1.0]), ["success"], n_resamples=10)
+
+
+def test_a_continuous_metric_of_one_episode_has_no_interval() -> None:
+    summary = summarise(frame(ne_m=[12.5], success=[1.0]), ["ne_m", "success"], n_resamples=100)
+    low, high, method = interval(summary, "ne_m")
+    assert math.isnan(low) and math.isnan(high) and method == "bootstrap"
+    assert summary.set_index("metric").loc["ne_m", "mean"] == 12.5
+    # A rate of one episode still has its (wide) Wilson interval.
+    assert interval(summary, "success")[:2] == pytest.approx((20.65, 100.0), abs=0.005)
+
+
+def test_a_continuous_metric_of_many_episodes_keeps_its_bootstrap_interval() -> None:
+    ne = np.random.default_rng(3).gamma(2.0, 30.0, size=25)
+    summary = summarise(frame(ne_m=list(ne)), ["ne_m"], n_resamples=500, seed=9)
+    expected = bootstrap_ci(ne, 500, seed=9)  # the same episodes, in episode-id order
+    assert interval(summary, "ne_m") == (expected.low, expected.high, "bootstrap")
+    assert expected.low < expected.high
+
+
+def test_a_pooled_share_with_no_failure_is_wilson_over_the_episodes() -> None:
+    # 30 answered calls in 10 episodes: every resample says 0%, which the calls of one
+    # dead endpoint (failing together) would not; 0 of 10 episodes had a failed call.
+    calls = frame(
+        llm_calls=[3.0] * 10,
+        llm_failed_calls=[0.0] * 10,
+        llm_call_failure_rate=[0.0] * 10,
+        decisions=[2.0] * 10,
+        fallback_decisions=[2.0] * 10,
+        fallback_rate=[1.0] * 10,
+    )
+    rates = ["llm_call_failure_rate", "fallback_rate"]
+    summary = summarise(calls, rates, n_resamples=100)
+    low, high, method = interval(summary, "llm_call_failure_rate")
+    assert (low, method) == (0.0, "wilson") and high == pytest.approx(27.75, abs=0.005)
+    low, high, method = interval(summary, "fallback_rate")  # every decision fell back
+    assert low == pytest.approx(72.25, abs=0.005) and (high, method) == (100.0, "wilson")
+    one_failed = calls.assign(llm_failed_calls=[1.0] + [0.0] * 9)
+    low, high, method = interval(summarise(one_failed, rates, n_resamples=100), rates[0])
+    assert method == "bootstrap" and low < 100 / 30 < high
