@@ -3,7 +3,9 @@
 No agent may read the route. The replay is a baseline that does, on purpose, to bound
 what the official step and the metrics allow: at each step the AVDN waypoint from its
 current view to the next ground-truth view, then STOP. The harness builds it explicitly
-from the episode (:func:`ground_truth_oracle`) and its settings say it is an oracle.
+from the episode (:func:`ground_truth_oracle`) and its settings say it is an oracle, as
+does every result row it leaves (``extra["oracle"]``, :func:`is_oracle`), so that a table
+made from the scores alone never ranks it.
 """
 
 from __future__ import annotations
@@ -48,6 +50,11 @@ class GroundTruthOracle(Agent):
         return Decision(
             f"towards ground-truth view {self._next}", action, {"target_index": self._next}
         )
+
+
+def is_oracle(agent_name: str) -> bool:
+    """Whether a run of the agent ``agent_name`` is flown by the harness's oracle."""
+    return agent_name == GroundTruthOracle.name
 
 
 def ground_truth_oracle(episode: Episode) -> GroundTruthOracle:

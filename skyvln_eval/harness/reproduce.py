@@ -35,6 +35,7 @@ from skyvln_eval.avdn.summary import SplitSummary, summarise_split
 from skyvln_eval.errors import RunStoppedError
 from skyvln_eval.fileio import atomic_write_json, atomic_write_text, ensure_directory
 from skyvln_eval.harness.executors import ExecutorKind, make_executor
+from skyvln_eval.harness.oracle import is_oracle
 from skyvln_eval.harness.plan import PlannedRun, ReproducePlan, planned_runs
 from skyvln_eval.harness.run import (
     Progress,
@@ -175,7 +176,7 @@ def _write_tables(
     oracles = {
         label
         for label, system in zip(table1_rows, plan.table1.systems, strict=True)
-        if system.agent.get("name") == "ground_truth"
+        if is_oracle(str(system.agent.get("name")))
     }
     # Among LLM backends a stand-in (not an LLM, no network) is the reference the models
     # are measured against, not the "fastest" or "most reliable" of them.
@@ -206,7 +207,7 @@ def _featured_row(plan: ReproducePlan, shown: Sequence[str]) -> str:
     for system, label in rows:
         if system.label == plan.table2.system.label:
             return label
-    agents = [label for system, label in rows if system.agent.get("name") != "ground_truth"]
+    agents = [label for system, label in rows if not is_oracle(str(system.agent.get("name")))]
     return agents[-1] if agents else shown[-1]
 
 

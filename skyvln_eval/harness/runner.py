@@ -39,7 +39,7 @@ from skyvln_eval.harness.commander import SimulatedCommander
 from skyvln_eval.harness.config import RunConfig
 from skyvln_eval.harness.dynamics_loop import DynamicsRollout, derived_seed, run_dynamics_episode
 from skyvln_eval.harness.official_loop import OfficialRollout, run_official_episode
-from skyvln_eval.harness.oracle import ground_truth_oracle
+from skyvln_eval.harness.oracle import ground_truth_oracle, is_oracle
 from skyvln_eval.harness.run_log import RunLogContent, Step, named_views, write_run_log
 from skyvln_eval.metrics.records import EpisodeResult, judge_status
 from skyvln_eval.metrics.safety import summarise_control
@@ -116,7 +116,7 @@ def _controller(name: str, settings_json: str) -> Controller:
 def _agent(config: RunConfig, episode: Episode, seed: int) -> Agent:
     """The run's agent for ``episode``; the ground-truth replay is an oracle the harness
     builds from the episode (no agent is given the route)."""
-    if config.agent.name == "ground_truth":
+    if is_oracle(config.agent.name):
         return ground_truth_oracle(episode)
     return build_agent(config.agent.model_copy(update={"seed": seed}))
 
@@ -248,6 +248,7 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
             "seed": seed,
             "config_digest": digest,
             "execution_mode": config.mode,
+            "oracle": is_oracle(config.agent.name),
             "questions": rollout.questions,
         }
         if config.write_logs:
@@ -315,6 +316,7 @@ def failed_result(
     extra: dict[str, Any] = {
         "config_digest": _config_texts(task.config_json)[0],
         "execution_mode": config.mode,
+        "oracle": is_oracle(config.agent.name),
     }
     if wall_s is not None:
         extra["wall_s"] = round(wall_s, 6)

@@ -143,8 +143,9 @@ ALWAYS_SCORED = frozenset(OFFICIAL_COLUMNS)
 def checked_scores(scores: pd.DataFrame, metrics: Sequence[str]) -> None:
     """Refuse a scores frame that would give a wrong number without a word: key columns or
     metrics missing (named, with the metrics it has), an episode in it twice (a notebook
-    cell that concatenated a frame again counts it twice), or an always-scored metric with
-    a missing value (it would be left out of the mean as if it had nothing to rate)."""
+    cell that concatenated a frame again counts it twice), an always-scored metric with
+    a missing value (it would be left out of the mean as if it had nothing to rate), or a
+    system whose episodes an oracle flew and an agent too (one row would average both)."""
     missing = [c for c in (*GROUP_KEYS, "episode_id") if c not in scores.columns]
     if missing:
         raise MetricInputError(
@@ -164,6 +165,7 @@ def checked_scores(scores: pd.DataFrame, metrics: Sequence[str]) -> None:
             f"{'/'.join(map(str, first))}: each would count more than once (concatenated "
             "twice?)"
         )
+    _check_oracle_apart(scores)
     for metric in (m for m in metrics if m in ALWAYS_SCORED):
         gaps = scores[metric].isna()
         if gaps.any():
@@ -173,6 +175,30 @@ def checked_scores(scores: pd.DataFrame, metrics: Sequence[str]) -> None:
                 f"{int(gaps.sum())} episode(s) have no {metric}, e.g. {where}: every scored "
                 "episode has one (a damaged scores frame?)"
             )
+
+
+def _check_oracle_apart(scores: pd.DataFrame) -> None:
+    """No system has both episodes the oracle flew and episodes an agent flew."""
+    if "oracle" not in scores.columns:
+        return
+    known = scores.loc[scores["oracle"].notna(), ["system", "oracle"]]
+    kinds = known.groupby("system", sort=True)["oracle"].nunique()
+    if (kinds > 1).any():
+        system = kinds.index[kinds > 1][0]
+        raise MetricInputError(
+            f"system {system!r} has episodes flown by the ground-truth oracle and episodes "
+            "flown by an agent, which its rows would average as one: give the runs "
+            "different system labels"
+        )
+
+
+def oracle_systems(scores: pd.DataFrame) -> list[str]:
+    """The systems of ``scores`` the harness's oracle flew (references a table never
+    ranks); none where the scores do not say (no ``oracle`` column, or empty cells)."""
+    if "oracle" not in scores.columns:
+        return []
+    flown = scores["oracle"].astype("boolean").fillna(False).to_numpy(bool)
+    return sorted(set(scores.loc[flown, "system"]))
 
 
 def unit_of(metric: str) -> str:

@@ -166,7 +166,8 @@ class EpisodeResult:
       results file, so the safety metrics can be recomputed; ``control`` its summary.
     - ``decisions``: how many decisions the agent made; ``module_failures``: the modules
       whose answers could not be used, per decision (see :func:`judge_status`).
-    - ``extra``: JSON-able extra facts (seeds, config hashes, wall time), kept verbatim.
+    - ``extra``: JSON-able extra facts (seeds, config hashes, wall time, ``oracle``: whether
+      the harness's oracle flew it, absent in rows of older runs), kept verbatim.
     """
 
     episode_id: str

@@ -2,7 +2,7 @@
 
 The first two lines are comments::
 
-    # skyvln-eval.scores v1
+    # skyvln-eval.scores v2
     # conventions: {"distance":"2d",...}
 
 then a CSV header and one row per episode (the frame of
@@ -10,7 +10,11 @@ then a CSV header and one row per episode (the frame of
 episode id so that the file does not depend on the order results were recorded in.
 Floats are written with Python's shortest round-trip repr, so reading gives back the
 same values; empty cells are "not applicable" (e.g. control metrics of an episode
-without dynamics).
+without dynamics) or, in the ``oracle`` column, "not said".
+
+Version 2 added the ``oracle`` column (the harness's oracle flew the episode: a table
+never ranks it). Version 1 files still read, their ``oracle`` cells empty: not said,
+which is what they say; their rows are ranked as they always were.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ import json
 from collections.abc import Sequence
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from skyvln_eval.errors import DataError, FormatVersionError, ResultRecordError, ValidationIssue
@@ -28,7 +33,9 @@ from skyvln_eval.metrics.conventions import CONVENTIONS_ATTR, MetricConventions,
 from skyvln_eval.metrics.scoring import CONTROL_COLUMNS, KEY_COLUMNS, METRIC_UNITS
 
 SCORES_FORMAT = "skyvln-eval.scores"
-SCORES_VERSION = 1
+SCORES_VERSION = 2
+#: Versions :func:`read_scores` reads (see the module docstring).
+_READABLE_VERSIONS = ("1", "2")
 #: Lines before the first row of a scores file: the format, the conventions, the CSV header.
 _LINES_BEFORE_ROWS = 3
 
@@ -71,10 +78,11 @@ def read_scores(path: str | Path) -> tuple[pd.DataFrame, MetricConventions]:
     lines = text.split("\n", 2)
     if len(lines) < 3 or not lines[0].startswith(f"# {SCORES_FORMAT} v"):
         raise DataError(
-            f"{path}: not a scores file (its first line must be '# {SCORES_FORMAT} v1'); {what}"
+            f"{path}: not a scores file (its first line must be '# {SCORES_FORMAT} "
+            f"v{SCORES_VERSION}'); {what}"
         )
     version = lines[0].rsplit("v", 1)[1]
-    if version != str(SCORES_VERSION):
+    if version not in _READABLE_VERSIONS:
         raise FormatVersionError(
             str(path), version, SCORES_VERSION, "Rescore the results with `skyvln-eval score`."
         )
@@ -89,12 +97,13 @@ def read_scores(path: str | Path) -> tuple[pd.DataFrame, MetricConventions]:
     try:
         frame = pd.read_csv(
             io.StringIO(lines[2]),
-            dtype={"episode_id": str, "split": str, "mode": str, "system": str},
+            dtype={"episode_id": str, "split": str, "mode": str, "system": str, "oracle": str},
         )
     except ValueError as exc:  # pandas' ParserError and EmptyDataError among them
         reason = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
         raise DataError(f"{path}: the scores table is not valid CSV ({reason})") from None
-    missing = [c for c in (*KEY_COLUMNS, "status", *METRIC_UNITS) if c not in frame.columns]
+    said = ("oracle",) if version != "1" else ()
+    missing = [c for c in (*KEY_COLUMNS, "status", *said, *METRIC_UNITS) if c not in frame.columns]
     if missing:
         shown = ", ".join(missing[:8]) + (
             f" ... ({len(missing)} in all)" if len(missing) > 8 else ""
@@ -106,9 +115,27 @@ def read_scores(path: str | Path) -> tuple[pd.DataFrame, MetricConventions]:
     for column in CONTROL_COLUMNS:
         if column in frame.columns:
             frame[column] = frame[column].astype("Float64")
+    _read_oracle(frame, path)
     check_unique_scores([(str(path), frame)])
     frame.attrs[CONVENTIONS_ATTR] = conventions
     return frame, conventions
+
+
+def _read_oracle(frame: pd.DataFrame, path: Path) -> None:
+    """The ``oracle`` column as nullable booleans, after ``status``; all empty (not said)
+    in a version 1 file, which has none."""
+    if "oracle" not in frame.columns:
+        empty = pd.array([None] * len(frame), dtype="boolean")
+        frame.insert(frame.columns.get_loc("status") + 1, "oracle", empty)
+        return
+    text = frame["oracle"]  # read as text, so that a cell neither True nor False is named
+    values = text.map({"True": True, "False": False}).astype("boolean")
+    bad = text.notna() & values.isna()
+    if bad.any():
+        row = int(np.flatnonzero(bad.to_numpy())[0])
+        where = _row_name(str(path), row)
+        raise DataError(f"{where}: oracle is {text.iloc[row]!r}, not True, False or empty")
+    frame["oracle"] = values
 
 
 def _row_name(file: str, row: int) -> str:

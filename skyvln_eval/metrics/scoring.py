@@ -2,8 +2,10 @@
 
 :func:`score_results` is the one entry point: official AVDN metrics, the R2R family
 (under the given :class:`MetricConventions`), LLM cost totals and control statistics,
-as a pandas DataFrame keyed by ``system, split, mode, episode_id``. Nothing is averaged
-here (see :mod:`.aggregate`). Identical inputs give identical frames.
+as a pandas DataFrame keyed by ``system, split, mode, episode_id``, with each episode's
+``status`` and ``oracle`` (whether the harness's oracle flew it: a reference a table never
+ranks; empty where the results do not say, as those of older runs and predictions).
+Nothing is averaged here (see :mod:`.aggregate`). Identical inputs give identical frames.
 """
 
 from __future__ import annotations
@@ -92,6 +94,7 @@ def score_results(
             "mode": [r.mode for r in results],
             "episode_id": [r.episode_id for r in results],
             "status": [r.status for r in results],
+            "oracle": pd.array([_oracle(r) for r in results], dtype="boolean"),
             "n_views": visited.lengths,
             "n_gt_views": gt.lengths,
         }
@@ -126,3 +129,13 @@ def score_results(
     # The frame says which conventions scored it, so a table of it cannot say others.
     frame.attrs[CONVENTIONS_ATTR] = conventions
     return frame
+
+
+def _oracle(result: EpisodeResult) -> bool | None:
+    """Whether the harness's oracle flew ``result`` (its ``extra["oracle"]``), ``None``
+    when its run did not say (results of older runs, predictions)."""
+    value = result.extra.get("oracle")
+    if value is None or isinstance(value, bool):
+        return value
+    where = "/".join(result.key)
+    raise MetricInputError(f"{where}: extra.oracle must be true or false, got {value!r}")

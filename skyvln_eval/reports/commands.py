@@ -260,9 +260,11 @@ def table(
     digits: Annotated[int, typer.Option(min=0, max=6, help="Decimals")] = 2,
     out: Annotated[Path | None, typer.Option(help="Write here instead of printing")] = None,
 ) -> None:
-    """Render a paper-style table from scores files."""
+    """Render a paper-style table from scores files. Systems the ground-truth oracle flew
+    are references, never ranked (as in `reproduce`'s tables)."""
     from skyvln_eval.fileio import atomic_write_text
     from skyvln_eval.metrics import summarise
+    from skyvln_eval.metrics.aggregate import oracle_systems
     from skyvln_eval.metrics.scores_io import read_many_scores
     from skyvln_eval.reports.tables import RENDERERS, TABLES, build_table
 
@@ -274,7 +276,10 @@ def table(
     spec = TABLES[kind]
     metrics = [m for m, _ in spec.metrics]
     summary = summarise(frame, metrics, resamples if ci else 0, seed=seed)
-    text = RENDERERS[fmt](build_table(summary, spec, conventions, row, mode, digits, ci))
+    shaped = build_table(
+        summary, spec, conventions, row, mode, digits, ci, unranked=oracle_systems(frame)
+    )
+    text = RENDERERS[fmt](shaped)
     if out is None:
         typer.echo(text, nl=False)
     else:

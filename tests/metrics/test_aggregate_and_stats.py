@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from skyvln_eval.avdn import load_split, replay_ground_truth
-from skyvln_eval.errors import IncompleteRunError, MetricInputError
+from skyvln_eval.errors import DataError, FormatVersionError, IncompleteRunError, MetricInputError
 from skyvln_eval.metrics import (
     EpisodeResult,
     MetricConventions,
@@ -21,6 +21,7 @@ from skyvln_eval.metrics import (
     score_results,
     summarise,
 )
+from skyvln_eval.metrics.aggregate import oracle_systems
 from skyvln_eval.metrics.scores_io import read_scores, summary_csv_text, write_scores
 from skyvln_eval.reports import TABLE_I, build_table
 from tests.metrics.helpers import result, square
@@ -213,3 +214,54 @@ def test_a_table_or_summary_cannot_name_conventions_other_than_those_that_scored
     assert read_back == legacy
     with pytest.raises(MetricInputError, match="but its scores were made with"):
         build_table(summarise(again, ["success"]), TABLE_I, MetricConventions())
+
+
+def test_a_scores_file_says_which_systems_the_oracle_flew_and_an_old_one_says_nothing(
+    tmp_path: Path,
+) -> None:
+    g = [square(0, 0), square(100, 0)]
+    results = [
+        result(g, g, episode_id=f"e{k}", system="GT", extra={"oracle": True}) for k in range(2)
+    ]
+    results += [
+        result([g[0]], g, episode_id=f"e{k}", system="A", extra={"oracle": False}) for k in range(2)
+    ]
+    results += [result([g[0]], g, episode_id="e0", system="predictions")]  # nothing said
+    scores = score_results(results)
+    assert oracle_systems(scores) == ["GT"]
+    write_scores(tmp_path / "v2.csv", scores, MetricConventions())
+    back, _ = read_scores(tmp_path / "v2.csv")
+    assert back["oracle"].tolist() == [False, False, True, True, pd.NA]
+    assert oracle_systems(back) == ["GT"]
+
+    # A version 1 file (before the column) reads, every row "not said" and ranked.
+    lines = (tmp_path / "v2.csv").read_text().splitlines()
+    header = lines[2].split(",")
+    at = header.index("oracle")
+    old = ["# skyvln-eval.scores v1", lines[1]]
+    old += [",".join(c for k, c in enumerate(line.split(",")) if k != at) for line in lines[2:]]
+    (tmp_path / "v1.csv").write_text("\n".join(old) + "\n")
+    v1, _ = read_scores(tmp_path / "v1.csv")
+    assert v1["oracle"].isna().all() and oracle_systems(v1) == []
+    assert list(v1.columns) == list(back.columns)
+
+    damaged = (tmp_path / "v2.csv").read_text().replace(",True,", ",yes,", 1)
+    (tmp_path / "bad.csv").write_text(damaged)
+    with pytest.raises(DataError, match=r"record 2 of .*bad.csv \(line 6\): oracle is 'yes'"):
+        read_scores(tmp_path / "bad.csv")
+    (tmp_path / "v3.csv").write_text("# skyvln-eval.scores v3\n" + "\n".join(lines[1:]))
+    with pytest.raises(FormatVersionError, match="version '3' is not supported"):
+        read_scores(tmp_path / "v3.csv")
+
+
+def test_a_system_flown_by_the_oracle_and_by_an_agent_is_refused() -> None:
+    g = [square(0, 0), square(100, 0)]
+    results = [
+        result(g, g, episode_id="e0", system="X", extra={"oracle": True}),
+        result([g[0]], g, episode_id="e1", system="X", split="val_unseen", extra={"oracle": False}),
+    ]
+    with pytest.raises(MetricInputError, match="system 'X' has episodes flown by the ground-truth"):
+        summarise(score_results(results), ["success"])
+    wrong = [result(g, g, extra={"oracle": "yes"})]
+    with pytest.raises(MetricInputError, match=r"agent/val_seen/andh/1913__0_1: extra.oracle"):
+        score_results(wrong)

@@ -1,0 +1,48 @@
+"""The ground-truth oracle's rows say so, through results and scores, to the table command."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from skyvln_eval.cli import app
+from skyvln_eval.harness import RunConfig, run
+from skyvln_eval.harness.store import RESULTS_FILE
+from skyvln_eval.metrics import read_results
+from skyvln_eval.metrics.scores_io import read_scores
+
+MakeConfig = Callable[..., RunConfig]
+runner = CliRunner()
+
+
+def test_a_table_made_from_scores_never_ranks_the_oracle(
+    tmp_path: Path, small_config: MakeConfig
+) -> None:
+    systems = {"GT replay": "ground_truth", "Random": "random", "NavGPT-style": "navgpt"}
+    for system, agent in systems.items():
+        config = small_config(system=system, agent={"name": agent}, write_logs=False)
+        assert run(config, tmp_path / agent).complete
+    oracle_rows = read_results(tmp_path / "ground_truth" / RESULTS_FILE)
+    assert [r.extra["oracle"] for r in oracle_rows] == [True, True]
+    assert not any(r.extra["oracle"] for r in read_results(tmp_path / "random" / RESULTS_FILE))
+
+    out = tmp_path / "scores"
+    runs = [str(tmp_path / agent) for agent in systems.values()]
+    scored = runner.invoke(app, ["score", *runs, "--out", str(out), "--resamples", "0"])
+    assert scored.exit_code == 0, scored.output
+    scores, _ = read_scores(out / "scores.csv")
+    by_system = scores.groupby("system")["oracle"].agg(list).to_dict()
+    assert by_system == {"GT replay": [True, True], "NavGPT-style": [False, False],
+                         "Random": [False, False]}  # fmt: skip
+
+    table = runner.invoke(app, ["table", str(out / "scores.csv"), "--kind", "table1"])
+    assert table.exit_code == 0, table.output
+    lines = table.output.splitlines()
+    oracle = next(line for line in lines if line.startswith("| GT replay |"))
+    assert "100.00" in oracle and "**" not in oracle and "<u>" not in oracle
+    # The agents are ranked among themselves: on SR the better of two is bold.
+    agents = [line for line in lines if line.startswith(("| Random |", "| NavGPT-style |"))]
+    assert sum("**" in line for line in agents) >= 1
+    assert "Not ranked (a reference, not a competitor): GT replay." in table.output
