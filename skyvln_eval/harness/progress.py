@@ -1,4 +1,10 @@
-"""A progress bar for runs: episodes done, ETA, running success rate and LLM cost so far."""
+"""A progress bar for runs: episodes done, ETA, running success rate and LLM cost so far.
+
+The cost reads "n/a" while it is unknown: before the first episode, and for good once an
+episode had an unpriced call or raised out of its loop (refused credentials on its first
+call, a bug), whose row keeps none of the calls it made. It reads "$0.0000" only when
+known to be zero: calls priced at 0 (the rule stand-in, a free model) or no calls at all.
+"""
 
 from __future__ import annotations
 
@@ -32,7 +38,14 @@ class RichRunProgress(RunProgress):
         self.finished = 0
         self.errors = 0
         self.degraded = 0
-        self.cost_usd: float | None = 0.0
+        self._spent_usd = 0.0  # of the priced calls; the total only if nothing is unpriced
+        self._cost_unknown = False
+
+    @property
+    def cost_usd(self) -> float | None:
+        """The LLM cost of the episodes finished so far, ``None`` while unknown (see the
+        module docstring)."""
+        return None if self._cost_unknown or not self.finished else self._spent_usd
 
     def _stats(self) -> str:
         if self.scored:
@@ -68,9 +81,12 @@ class RichRunProgress(RunProgress):
         self.successes += int(bool(success))
         self.errors += int(result.status == "error")
         self.degraded += int(result.status == "degraded")
-        costs = [c.cost_usd for c in result.llm_calls]
-        if self.cost_usd is not None:  # once unknown, the total stays unknown
-            self.cost_usd = None if None in costs else self.cost_usd + sum(costs)  # type: ignore[arg-type]
+        priced = [c.cost_usd for c in result.llm_calls if c.cost_usd is not None]
+        self._spent_usd += sum(priced)
+        # No view: the episode raised before or during its flight, so its row holds none
+        # of the calls it made (a refused key raises out of the first one).
+        lost = len(result.visited_views) == 0
+        self._cost_unknown |= lost or len(priced) < len(result.llm_calls)
         if self._bar is not None and self._task is not None:
             self._bar.update(self._task, advance=1, stats=self._stats())
 

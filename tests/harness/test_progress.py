@@ -1,0 +1,49 @@
+"""The progress bar's LLM cost: a known total, a known zero, or n/a, never a $0 it does not know."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+from rich.console import Console
+
+from skyvln_eval.harness.progress import RichRunProgress
+from skyvln_eval.metrics import EpisodeResult, LlmCall
+from tests.metrics.helpers import result, square
+
+GT = [square(0, 0), square(100, 0)]
+
+
+def flown(*costs: float | None) -> EpisodeResult:
+    """An episode that flew, with one call per cost (None: not priced)."""
+    calls = tuple(LlmCall(module="action", backend="openai", model="m", cost_usd=c) for c in costs)
+    return result([GT[0], square(100, 0)], GT, llm_calls=calls)
+
+
+def refused() -> EpisodeResult:
+    """The row of an episode whose first call was refused (HTTP 401): it raised out of its
+    loop, so it has no view and none of its calls."""
+    return result(np.zeros((0, 4, 2)), GT, status="error", extra={"fatal": "HTTP 401"})
+
+
+def shown(*results: EpisodeResult) -> str:
+    progress = RichRunProgress(Console(file=io.StringIO(), width=200))
+    progress.start("run", total=len(results) + 1, already_done=0)
+    for r in results:
+        progress.episode_done(r, success=True)
+    stats = progress._stats()
+    progress.finish([])
+    return stats
+
+
+def test_a_run_stopped_before_any_priced_call_shows_no_cost() -> None:
+    assert "LLM n/a" in shown(refused())
+    assert "LLM n/a" in shown()  # nothing finished, nothing priced yet
+    assert "LLM n/a" in shown(flown(0.002), refused())  # what the refused one cost is unknown
+
+
+def test_a_known_cost_is_shown_and_a_known_zero_stays_zero() -> None:
+    assert "LLM $0.0035" in shown(flown(0.002, 0.001), flown(0.0005))
+    assert "LLM $0.0000" in shown(flown(0.0, 0.0), flown(0.0))  # the rule stand-in, a free model
+    assert "LLM $0.0000" in shown(flown())  # an agent that calls no LLM
+    assert "LLM n/a" in shown(flown(0.002), flown(None), flown(0.001))  # once unknown, stays
