@@ -4,7 +4,8 @@ The summary is a long table, one row per (system, split, mode, metric): ``n`` ep
 ``mean`` (rates in percent, lengths in metres) and, when asked, an interval made as
 ``ci_method`` says (:data:`CI_METHODS`): the Wilson score interval for a rate of 0/1
 values (:data:`BINARY_METRICS`), a seeded percentile bootstrap over episodes for the rest,
-NaN (shown "n/a") where a bootstrap has fewer than 2 episodes to resample. Rules: a frame
+NaN (shown "n/a") where a bootstrap has no spread to resample (one episode, or values
+that are all the same: SPL 0 in every episode of an SR of 0/10). Rules: a frame
 that repeats an episode, or misses an official metric's value, is refused
 (:func:`checked_scores`); a group with no value for a metric (e.g. no control summary)
 has no row for it; NaN / inf never reach a mean (they raise); a metric that can be
@@ -274,15 +275,19 @@ def _interval(low: float, high: float, method: CiMethod, confidence: float) -> d
 def _bootstrap(
     values: np.ndarray, n_resamples: int, confidence: float, seed: int
 ) -> dict[str, object]:
-    """The percentile bootstrap interval of the mean of ``values``; NaN for fewer than 2
-    values, whose every resample is the one value (a zero-width interval would claim
-    certainty)."""
-    if len(values) < 2:
+    """The percentile bootstrap interval of the mean of ``values`` (NaN without spread:
+    see :func:`_percentiles`)."""
+    if len(values) < 2:  # nothing to resample
         return _interval(math.nan, math.nan, "bootstrap", confidence)
     return _percentiles(bootstrap_means(values, n_resamples, seed), confidence)
 
 
 def _percentiles(estimates: np.ndarray, confidence: float) -> dict[str, object]:
+    """The percentile interval of bootstrap ``estimates``; NaN when they are all equal: a
+    sample without spread (one episode, or ten SPLs of 0) resamples to itself every time,
+    and the zero-width interval would claim a certainty the sample does not give."""
+    if np.all(estimates == estimates[0]):
+        return _interval(math.nan, math.nan, "bootstrap", confidence)
     tail = (1.0 - confidence) / 2.0 * 100.0
     low, high = np.percentile(estimates, [tail, 100.0 - tail])
     return _interval(float(low), float(high), "bootstrap", confidence)

@@ -305,7 +305,7 @@ def _interval_notes(
         for method, columns in sorted(by_method.items())
     ]
     if unavailable:
-        parts.append("[n/a]: no interval (a bootstrap needs 2 episodes or more)")
+        parts.append("[n/a]: no interval (a bootstrap needs episodes whose values differ)")
     return [f"Brackets: {level} intervals; {'; '.join(parts)}."]
 
 

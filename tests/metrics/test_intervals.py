@@ -91,3 +91,13 @@ def test_a_pooled_share_with_no_failure_is_wilson_over_the_episodes() -> None:
     one_failed = calls.assign(llm_failed_calls=[1.0] + [0.0] * 9)
     low, high, method = interval(summarise(one_failed, rates, n_resamples=100), rates[0])
     assert method == "bootstrap" and low < 100 / 30 < high
+
+
+def test_a_continuous_metric_without_spread_has_no_interval() -> None:
+    # SPL of 0 in each of ten failed episodes: every resample is 0, which says nothing of
+    # how far the mean may be; the SR beside it has its Wilson interval.
+    zeros = frame(spl=[0.0] * 10, success=[0.0] * 10)
+    summary = summarise(zeros, ["spl", "success"], n_resamples=200)
+    low, high, method = interval(summary, "spl")
+    assert math.isnan(low) and math.isnan(high) and method == "bootstrap"
+    assert interval(summary, "success")[1] == pytest.approx(27.75, abs=0.005)

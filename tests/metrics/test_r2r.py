@@ -161,7 +161,11 @@ def test_every_metric_is_finite_and_spl_never_exceeds_one(episodes: list) -> Non
             assert ((scores[column] >= 0) & (scores[column] <= 1 + 1e-12)).all(), column
         summary = summarise(scores, n_resamples=20)
         assert np.isfinite(summary["mean"].to_numpy()).all()
-        # Every interval is a number, but a bootstrap's over one episode: n/a, never [x, x].
-        none = ((summary.ci_method == "bootstrap") & (summary.n < 2)).to_numpy()
+        # Every interval is a number, but a bootstrap's without spread (over one episode,
+        # or equal values): n/a, never [x, x].
+        bootstrap = (summary.ci_method == "bootstrap").to_numpy()
         bounds = summary[["ci_low", "ci_high"]].to_numpy()
-        assert np.isfinite(bounds[~none]).all() and np.isnan(bounds[none]).all()
+        none = np.isnan(bounds[:, 0])
+        assert np.isnan(bounds[none]).all() and np.isfinite(bounds[~none]).all()
+        assert bootstrap[none].all() and none[bootstrap & (summary.n < 2).to_numpy()].all()
+        assert (bounds[bootstrap & ~none, 1] > bounds[bootstrap & ~none, 0]).all()

@@ -129,11 +129,11 @@ def test_a_table_says_how_its_intervals_were_made_and_shows_a_missing_one_as_suc
     table = build_table(data, TABLE_I, MetricConventions(), show_ci=True)
     md = to_markdown(table)
     assert "| One | **100.00 [n/a]** | **100.00 [20.65, 100.00]** |" in md
-    assert "| Ten | 0.00 [0.00, 0.00] | 0.00 [0.00, 27.75] |" in md
+    # Ten SPLs of 0 resample to 0 every time: no interval, not [0.00, 0.00].
+    assert "| Ten | 0.00 [n/a] | 0.00 [0.00, 27.75] |" in md
     note = (
-        "Brackets: 95% intervals; percentile bootstrap of the episodes: SPL/%; Wilson score "
-        "interval, the episodes as trials: SR/%; [n/a]: no interval (a bootstrap needs 2 "
-        "episodes or more)."
+        "Brackets: 95% intervals; Wilson score interval, the episodes as trials: SR/%; "
+        "[n/a]: no interval (a bootstrap needs episodes whose values differ)."
     )
     assert note in md and "bootstrap CI" not in md
     assert r"\textbf{100.00}\,{\scriptsize[n/a]}" in to_latex(table)
