@@ -35,6 +35,7 @@ from skyvln_eval.metrics.stats import (
     bootstrap_means,
     finite_values,
     paired_comparison,
+    percentile_interval,
     wilson_interval,
 )
 
@@ -276,21 +277,14 @@ def _bootstrap(
     values: np.ndarray, n_resamples: int, confidence: float, seed: int
 ) -> dict[str, object]:
     """The percentile bootstrap interval of the mean of ``values`` (NaN without spread:
-    see :func:`_percentiles`)."""
+    see :func:`~skyvln_eval.metrics.stats.percentile_interval`)."""
     if len(values) < 2:  # nothing to resample
         return _interval(math.nan, math.nan, "bootstrap", confidence)
     return _percentiles(bootstrap_means(values, n_resamples, seed), confidence)
 
 
 def _percentiles(estimates: np.ndarray, confidence: float) -> dict[str, object]:
-    """The percentile interval of bootstrap ``estimates``; NaN when they are all equal: a
-    sample without spread (one episode, or ten SPLs of 0) resamples to itself every time,
-    and the zero-width interval would claim a certainty the sample does not give."""
-    if np.all(estimates == estimates[0]):
-        return _interval(math.nan, math.nan, "bootstrap", confidence)
-    tail = (1.0 - confidence) / 2.0 * 100.0
-    low, high = np.percentile(estimates, [tail, 100.0 - tail])
-    return _interval(float(low), float(high), "bootstrap", confidence)
+    return _interval(*percentile_interval(estimates, confidence), "bootstrap", confidence)
 
 
 def _wilson(successes: int, n: int, confidence: float) -> dict[str, object]:
@@ -366,7 +360,8 @@ def compare_systems(
     sign-flip permutation test) are different procedures and can disagree near the 5%
     level on a few dozen episodes: the percentile interval is the less conservative there
     (it is too narrow on small samples), so an interval that excludes 0 with a p-value
-    above 0.05 is not a significant difference.
+    above 0.05 is not a significant difference. Systems that did the same on every
+    episode have no interval (NaN: the differences have no spread to resample).
     """
 
     checked_scores(scores, [metric])

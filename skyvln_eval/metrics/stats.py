@@ -26,7 +26,8 @@ _CHUNK_VALUES = 1_000_000
 
 @dataclass(frozen=True)
 class ConfidenceInterval:
-    """Mean and percentile-bootstrap interval (same units as the values)."""
+    """Mean and percentile-bootstrap interval (same units as the values); ``low`` and
+    ``high`` are NaN when the values have no spread (see :func:`percentile_interval`)."""
 
     mean: float
     low: float
@@ -100,9 +101,7 @@ def bootstrap_ci(
         raise MetricInputError(f"bootstrap_ci takes 1-D values, got shape {arr.shape}")
     if not 0 < confidence < 1:
         raise MetricInputError(f"confidence must be in (0, 1), got {confidence}")
-    means = bootstrap_means(arr, n_resamples, seed)
-    tail = (1.0 - confidence) / 2.0 * 100.0
-    low, high = np.percentile(means, [tail, 100.0 - tail])
+    low, high = percentile_interval(bootstrap_means(arr, n_resamples, seed), confidence)
     return ConfidenceInterval(
         mean=float(arr.mean()),
         low=float(low),
@@ -135,6 +134,18 @@ def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[f
     low = 0.0 if successes == 0 else max(0.0, centre - half)
     high = 1.0 if successes == n else min(1.0, centre + half)
     return low, high
+
+
+def percentile_interval(estimates: FloatArray, confidence: float) -> tuple[float, float]:
+    """The percentile interval of bootstrap ``estimates``; NaN when they are all equal: a
+    sample without spread (one episode, or ten SPLs of 0, or two systems that did the same
+    on every episode) resamples to itself every time, and a zero-width interval would
+    claim a certainty the sample does not give."""
+    if np.all(estimates == estimates[0]):
+        return math.nan, math.nan
+    tail = (1.0 - confidence) / 2.0 * 100.0
+    low, high = np.percentile(estimates, [tail, 100.0 - tail])
+    return float(low), float(high)
 
 
 def sign_flip_p_value(differences: FloatArray, n_resamples: int, seed: int) -> float:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -99,7 +100,8 @@ def test_intervals_and_paired_tests_do_not_depend_on_row_order() -> None:
 
 
 def test_bootstrap_ci_rules() -> None:
-    assert bootstrap_ci([2.0, 2.0, 2.0], 100).low == 2.0
+    constant = bootstrap_ci([2.0, 2.0, 2.0], 100)  # no spread: no interval, not [2, 2]
+    assert constant.mean == 2.0 and math.isnan(constant.low) and math.isnan(constant.high)
     with pytest.raises(MetricInputError, match="no values"):
         bootstrap_ci([])
     with pytest.raises(MetricInputError, match="non-finite"):
@@ -118,6 +120,7 @@ def test_paired_test_finds_a_real_difference_and_not_a_null_one() -> None:
     assert diff.difference > 0 and diff.ci_low > 0 and diff.p_value < 0.01
     same = paired_comparison(np.ones(30), np.ones(30), 500)
     assert same.difference == 0.0 and same.p_value == 1.0
+    assert math.isnan(same.ci_low) and math.isnan(same.ci_high)  # not a certain [0, 0]
     missing = scores[~((scores.system == "B") & (scores.episode_id == "e3"))]
     with pytest.raises(MetricInputError, match=r"only 'A': \['e3'\]"):
         compare_systems(missing, "A", "B", "success", "val_seen")
