@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,6 +23,9 @@ from skyvln_eval.avdn.records import DialogTurn
 from skyvln_eval.frames import ViewPose
 from skyvln_eval.llm_records import LlmCall, ModuleFailure
 from skyvln_eval.sensing import Sensors
+
+if TYPE_CHECKING:
+    from skyvln_eval.llm.client import LLMClient
 
 
 @dataclass(frozen=True)
@@ -111,3 +114,9 @@ class Agent(ABC):
 
     def settings(self) -> dict[str, Any]:
         return {"name": self.name}
+
+    def llm_clients(self) -> tuple[LLMClient, ...]:
+        """The LLM clients the agent calls through (its detector's too), whose records of
+        the calls made count an episode's calls when a decision raised before handing
+        them on; none for an agent that calls no LLM."""
+        return ()

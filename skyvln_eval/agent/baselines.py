@@ -77,6 +77,9 @@ class NavGPTAgent(Agent):
             module="navgpt",
         )
 
+    def llm_clients(self) -> tuple[LLMClient, ...]:
+        return (self.client, *self.perception.detector.llm_clients())
+
     def settings(self) -> dict[str, Any]:
         return llm_agent_settings(self.name, self.seed, self.client, self.llm, self.perception)
 

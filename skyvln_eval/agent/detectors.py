@@ -21,7 +21,7 @@ import zlib
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Final
+from typing import TYPE_CHECKING, Any, Final
 
 import cv2
 import numpy as np
@@ -32,6 +32,9 @@ from skyvln_eval.errors import ConfigError, PerceptionError, UnknownNameError
 from skyvln_eval.llm_records import LlmCall, ModuleFailure
 from skyvln_eval.sensing import CameraImages, SemanticClass, SensorKind, instance_pixel_counts
 from skyvln_eval.vocabulary import CATEGORY_LABELS
+
+if TYPE_CHECKING:
+    from skyvln_eval.llm.client import LLMClient
 
 Box = tuple[int, int, int, int]  # x0, y0, x1, y1 in pixels, x1 / y1 exclusive
 
@@ -102,6 +105,10 @@ class Detector(ABC):
     def take_calls(self) -> DetectorCalls:
         """The LLM calls made since the last take (none for detectors that make none)."""
         return DetectorCalls()
+
+    def llm_clients(self) -> tuple[LLMClient, ...]:
+        """The LLM clients the detector calls through (none for detectors that call none)."""
+        return ()
 
     def settings(self) -> dict[str, Any]:
         return {"name": self.name, "requires": sorted(self.requires)}

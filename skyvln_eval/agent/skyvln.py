@@ -97,6 +97,9 @@ class SkyVLNAgent(Agent):
         self.memory = TrackBackMemory(meet_radius_m) if tbma else None
         self._state: _EpisodeState | None = None
 
+    def llm_clients(self) -> tuple[LLMClient, ...]:
+        return (self.client, *self.perception.detector.llm_clients())
+
     def settings(self) -> dict[str, Any]:
         return llm_agent_settings(
             self.name,

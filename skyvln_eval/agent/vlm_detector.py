@@ -213,6 +213,9 @@ class VlmDetector(Detector):
             )
         self._calls = DetectorCalls()
 
+    def llm_clients(self) -> tuple[LLMClient, ...]:
+        return (self.client,)
+
     def settings(self) -> dict[str, Any]:
         return {
             **super().settings(),

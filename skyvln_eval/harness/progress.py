@@ -1,9 +1,10 @@
 """A progress bar for runs: episodes done, ETA, running success rate and LLM cost so far.
 
 The cost reads "n/a" while it is unknown: before the first episode, and for good once an
-episode had an unpriced call or raised out of its loop (refused credentials on its first
-call, a bug), whose row keeps none of the calls it made. It reads "$0.0000" only when
-known to be zero: calls priced at 0 (the rule stand-in, a free model) or no calls at all.
+episode had an unpriced call (a model without a price, a server that reported no tokens,
+an attempt refused for its credentials). An episode that raised keeps the calls it made
+(:class:`~skyvln_eval.harness.rollout.CallsMade`). It reads "$0.0000" only when known
+to be zero: calls priced at 0 (the rule stand-in, a free model) or no calls at all.
 """
 
 from __future__ import annotations
@@ -83,10 +84,7 @@ class RichRunProgress(RunProgress):
         self.degraded += int(result.status == "degraded")
         priced = [c.cost_usd for c in result.llm_calls if c.cost_usd is not None]
         self._spent_usd += sum(priced)
-        # No view: the episode raised before or during its flight, so its row holds none
-        # of the calls it made (a refused key raises out of the first one).
-        lost = len(result.visited_views) == 0
-        self._cost_unknown |= lost or len(priced) < len(result.llm_calls)
+        self._cost_unknown |= len(priced) < len(result.llm_calls)
         if self._bar is not None and self._task is not None:
             self._bar.update(self._task, advance=1, stats=self._stats())
 

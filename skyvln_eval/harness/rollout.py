@@ -20,6 +20,22 @@ from skyvln_eval.worlds.tile import WorldTile
 
 if TYPE_CHECKING:
     from skyvln_eval.harness.commander import SimulatedCommander
+    from skyvln_eval.llm.client import LLMClient
+
+
+class CallsMade:
+    """The LLM calls an agent's clients make from now on: how the calls of a decision that
+    raised (and handed on no records) are still counted, and paid for."""
+
+    def __init__(self, agent: Agent) -> None:
+        clients: dict[int, LLMClient] = {}
+        for client in agent.llm_clients():  # a detector may share the agent's client
+            clients.setdefault(id(client), client)
+        self._marks = [(client, len(client.calls_made())) for client in clients.values()]
+
+    def since(self) -> list[LlmCall]:
+        """The records of the calls made since this was made, client by client."""
+        return [call for client, mark in self._marks for call in client.calls_made(mark)]
 
 
 def episode_brief(episode: Episode, max_steps: int) -> EpisodeBrief:
@@ -127,13 +143,17 @@ class Rollout:
         ``None`` ends the episode: the agent said STOP, or raised an error the user can
         cause (kept in ``error``; any other exception propagates and fails the episode).
         Refused credentials and a replay's cache miss propagate: no episode can go on.
+        The calls of a decision that raised count all the same (as made: see
+        :meth:`~skyvln_eval.llm.client.LLMClient.calls_made`).
         """
+        made = CallsMade(agent)
         try:
             decision = agent.act(observation)
         except (LLMAuthError, CacheMissError):
             raise
         except SkyvlnError as error:
             self.stop_reason, self.error = "error", f"{type(error).__name__}: {error}"
+            self.llm_calls += made.since()
             return None
         self.record(decision, observation.feedback)
         if decision.question:

@@ -40,7 +40,9 @@ from skyvln_eval.harness.config import RunConfig
 from skyvln_eval.harness.dynamics_loop import DynamicsRollout, derived_seed, run_dynamics_episode
 from skyvln_eval.harness.official_loop import OfficialRollout, run_official_episode
 from skyvln_eval.harness.oracle import ground_truth_oracle, is_oracle
+from skyvln_eval.harness.rollout import CallsMade
 from skyvln_eval.harness.run_log import RunLogContent, Step, named_views, write_run_log
+from skyvln_eval.llm_records import LlmCall
 from skyvln_eval.metrics.records import EpisodeResult, judge_status
 from skyvln_eval.metrics.safety import summarise_control
 from skyvln_eval.native_calls import NATIVE_CALLS
@@ -215,6 +217,7 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
     config = _config(task.config_json)
     digest, config_yaml = _config_texts(task.config_json)
     episode: Episode | None = None
+    made: CallsMade | None = None
     started = time.perf_counter()
     try:
         episode = read_episode(task.episode_log)
@@ -226,6 +229,7 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
         world = _world(task.data_dir, episode.map_name, episode.georef)
         seed = episode_seed(config, task.split, task.episode_id)
         agent = _agent(config, episode, seed)
+        made = CallsMade(agent)  # if the episode raises, its calls still count
         control = control_log = None
         rollout: OfficialRollout | DynamicsRollout
         if config.mode == "official":
@@ -290,7 +294,9 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
         episode = episode or read_episode(task.episode_log)
         error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
         fatal = stops_the_run(exc)
-        return failed_result(config, task, episode, error, time.perf_counter() - started, fatal)
+        calls = () if made is None else tuple(made.since())
+        wall_s = time.perf_counter() - started
+        return failed_result(config, task, episode, error, wall_s, fatal, calls)
 
 
 def ground_truth(episode: Episode) -> NDArray[np.float64]:
@@ -308,11 +314,13 @@ def failed_result(
     error: str,
     wall_s: float | None = None,
     fatal: str | None = None,
+    llm_calls: tuple[LlmCall, ...] = (),
 ) -> EpisodeResult:
     """The row of an episode that raised: no views, its ground truth (so that it counts in
-    every score as a failure, never dropped) and the error with its traceback. ``fatal``
-    says why no further episode can succeed either (refused credentials, a replay's cache
-    miss): the run stops."""
+    every score as a failure, never dropped), the error with its traceback and the LLM
+    calls it made (their cost and tokens count; see :class:`~.rollout.CallsMade`).
+    ``fatal`` says why no further episode can succeed either (refused credentials, a
+    replay's cache miss): the run stops."""
     extra: dict[str, Any] = {
         "config_digest": _config_texts(task.config_json)[0],
         "execution_mode": config.mode,
@@ -331,5 +339,6 @@ def failed_result(
         visited_views=np.zeros((0, 4, 2)),
         gt_path_corners=ground_truth(episode),
         error=error,
+        llm_calls=llm_calls,
         extra=extra,
     )

@@ -16,6 +16,11 @@ Cached answers are recorded with the original call's tokens, cost and latency an
 ``cached=True``, so a run replayed from the cache reproduces its cost table exactly while
 saying it paid nothing again. Cost is ``None`` (unknown) when the model has no price or
 the server reported no tokens; only the offline stand-ins cost a known 0.
+
+The client also keeps the records of the calls it made (:meth:`LLMClient.calls_made`):
+the agent hands its calls on with its decisions, but a decision that raises hands on
+nothing, and its calls, paid for all the same, must still count (the harness takes them
+from here, see :mod:`skyvln_eval.harness.rollout`).
 """
 
 from __future__ import annotations
@@ -91,6 +96,15 @@ class LLMClient:
         if self.backend.kind == "replay" and self.cache is None:
             raise ConfigError("the replay backend answers only from a cache: set a cache path")
         self._slots = threading.BoundedSemaphore(self.max_concurrency)
+        self._made: list[LlmCall] = []
+        self._made_lock = threading.Lock()
+
+    def calls_made(self, since: int = 0) -> tuple[LlmCall, ...]:
+        """The records of the attempts this client made (from the ``since``-th on), in the
+        order their calls ended, as made: an answer the agent then found unusable is not
+        marked ``invalid`` here (the agent marks its own copy)."""
+        with self._made_lock:
+            return tuple(self._made[since:])
 
     def _cost(self, completion: Completion) -> float | None:
         if self.backend.kind in FREE_KINDS:
@@ -148,6 +162,17 @@ class LLMClient:
         and :class:`~skyvln_eval.errors.LLMAuthError`: with credentials refused, no call
         can succeed.
         """
+        result = self._call(module, messages, config, repair)
+        self._keep(result.records)
+        return result
+
+    def _keep(self, records: Sequence[LlmCall]) -> None:
+        with self._made_lock:
+            self._made.extend(records)
+
+    def _call(
+        self, module: str, messages: Sequence[Message], config: GenerationConfig, repair: bool
+    ) -> CallResult:
         base = self._base(module, config, repair)
         key = None
         if self.cache is not None:
@@ -191,7 +216,11 @@ class LLMClient:
             completion = call_with_retries(
                 attempt, self.retry, on_fault, sleep=self.sleep, time_left_s=deadline.left_s
             )
-        except LLMAuthError:
+        except LLMAuthError as error:
+            # The refused attempt is kept before the run stops: the episode's row says a
+            # call was made, at a cost not known.
+            records.append(failed(error, 0.0, final=True))
+            self._keep(records)
             raise
         except LLMTransientError as error:
             records[-1] = replace(records[-1], final=True)  # the last attempt ends the call

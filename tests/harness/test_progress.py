@@ -22,8 +22,13 @@ def flown(*costs: float | None) -> EpisodeResult:
 
 def refused() -> EpisodeResult:
     """The row of an episode whose first call was refused (HTTP 401): it raised out of its
-    loop, so it has no view and none of its calls."""
-    return result(np.zeros((0, 4, 2)), GT, status="error", extra={"fatal": "HTTP 401"})
+    loop, so it has no view, and the refused attempt, whose cost is not known."""
+    call = LlmCall(
+        module="subgoals", backend="openai", model="m", outcome="failed", error="HTTP 401"
+    )
+    return result(
+        np.zeros((0, 4, 2)), GT, status="error", llm_calls=(call,), extra={"fatal": "HTTP 401"}
+    )
 
 
 def shown(*results: EpisodeResult) -> str:

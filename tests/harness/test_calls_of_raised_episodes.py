@@ -1,0 +1,65 @@
+"""An episode that raises keeps the LLM calls it made: their count, tokens and cost."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from skyvln_eval.errors import ActionParseError
+from skyvln_eval.harness import RunConfig, run
+from skyvln_eval.harness.store import RESULTS_FILE
+from skyvln_eval.metrics import MetricConventions, read_results, score_results
+
+MakeConfig = Callable[..., RunConfig]
+
+
+@pytest.mark.parametrize(
+    ("error", "stop"),
+    [
+        (RuntimeError("a bug after the calls"), "raised"),  # out of the loop: no rollout left
+        (ActionParseError("refused after the calls"), "error"),  # kept by the loop
+    ],
+)
+def test_the_calls_of_a_decision_that_raised_still_count(
+    tmp_path: Path,
+    small_config: MakeConfig,
+    monkeypatch: pytest.MonkeyPatch,
+    error: Exception,
+    stop: str,
+) -> None:
+    from skyvln_eval.harness import runner
+
+    real_build = runner.build_agent
+    agents: list[Any] = []
+
+    def build(config: Any, *args: Any) -> Any:
+        agent = real_build(config, *args)
+        act, decisions = agent.act, []
+
+        def act_then_raise(observation: Any) -> Any:
+            decision = act(observation)  # the calls are made (and paid for)...
+            decisions.append(decision)
+            if len(decisions) == 2:
+                raise error  # ...and the decision that made them is never handed on
+            return decision
+
+        agent.act = act_then_raise  # type: ignore[method-assign]
+        agents.append(agent)
+        return agent
+
+    monkeypatch.setattr(runner, "build_agent", build)
+    report = run(small_config(limit=1), tmp_path / "run")
+    [row] = read_results(tmp_path / "run" / RESULTS_FILE)
+    made = agents[0].client.calls_made()
+    assert row.status == "error" and len(report.errors) == 1
+    assert (row.extra.get("stop_reason") or "raised") == stop
+    # Every attempt the client made is in the row (the first decision's and the second's),
+    # not only those of decisions handed on, and the scores count them.
+    assert len(made) > 0 and len(row.llm_calls) == len(made)
+    assert sorted(c.module for c in row.llm_calls) == sorted(c.module for c in made)
+    scores = score_results([row], MetricConventions())
+    assert scores.loc[0, "llm_calls"] == sum(c.final for c in made)
+    assert scores.loc[0, "llm_prompt_tokens"] == sum(c.prompt_tokens or 0 for c in made) > 0
