@@ -131,6 +131,7 @@ class Flight:
         target: ViewPose,
         max_time_s: float | None = None,
         reference: ReferenceTrajectory | None = None,
+        stop_on_collision: bool = False,
     ) -> SegmentResult:
         """Fly from the current state to ``target`` (ENU waypoint, height z_m, heading yaw_rad).
 
@@ -138,7 +139,8 @@ class Flight:
         current position at ``reference_config``'s cruise speed; the segment ends once the
         reference has ended and the drone has settled on the target
         (:class:`ArrivalCriteria`), or after ``max_time_s`` (default: the reference's
-        duration plus :data:`SETTLE_TIME_S`).
+        duration plus :data:`SETTLE_TIME_S`); with ``stop_on_collision``, at the first
+        step that finds the drone inside an obstacle (:meth:`fly`).
         """
         reference = reference or self.segment_reference(target)
         if max_time_s is None:
@@ -154,15 +156,19 @@ class Flight:
                 and abs(wrap_angle_rad(state.yaw_rad - target.yaw_rad)) <= a.yaw_tolerance_rad
             )
 
-        return self.fly(reference, max_time_s, arrived)
+        return self.fly(reference, max_time_s, arrived, stop_on_collision)
 
     def fly(
         self,
         reference: ReferenceTrajectory,
         duration_s: float,
         done: Callable[[DroneState, float], bool] | None = None,
+        stop_on_collision: bool = False,
     ) -> SegmentResult:
-        """Track ``reference`` for ``duration_s`` seconds, or until ``done(state, t_s)``."""
+        """Track ``reference`` for ``duration_s`` seconds, or until ``done(state, t_s)``;
+        with ``stop_on_collision``, until a step finds the drone inside an obstacle: a crash.
+        The flight then stays where it crashed (the state and time of that step's log row,
+        the plant not stepped on), not where the rest of the segment would have taken it."""
         if not (math.isfinite(duration_s) and duration_s > 0):
             raise ConfigError(
                 f"the flight duration must be a positive number of seconds, got {duration_s!r}"
@@ -175,7 +181,8 @@ class Flight:
             if done is not None and done(self.state, self.t_s):
                 reached = True
                 break
-            self._step(window)
+            if not self._step(window, stop_on_collision):
+                break  # crashed: not reached
         else:
             reached = done is None or bool(done(self.state, self.t_s))
         rows = self._rows[first_row:]
@@ -192,7 +199,9 @@ class Flight:
         """Every step flown so far, all segments."""
         return log_frame(self._rows)
 
-    def _step(self, window: ReferenceWindow) -> None:
+    def _step(self, window: ReferenceWindow, stop_on_collision: bool = False) -> bool:
+        """One control step, logged; ``False`` when the drone was inside an obstacle and
+        ``stop_on_collision`` holds it there (the plant and clock do not step on)."""
         truth = self.state
         forecast = self.predictor.forecast(self.scenario, window.times_s)
         # The input the rate limits start from, as floats (the controller replaces it).
@@ -211,9 +220,10 @@ class Flight:
                 True,
             )
             command = Command(thrust, roll, pitch, truth.yaw_rad, stats)
-        self._rows.append(
-            self._row(truth, window.states[0], float(window.yaw_rad[0]), command, previous_tilt)
-        )
+        row = self._row(truth, window.states[0], float(window.yaw_rad[0]), command, previous_tilt)
+        self._rows.append(row)
+        if stop_on_collision and row["collision"]:
+            return False
         with NATIVE_CALLS:
             self.plant.step(
                 command.thrust_m_s2,
@@ -223,6 +233,7 @@ class Flight:
                 self.dt_s,
             )
         self.t_s += self.dt_s
+        return True
 
     def _row(
         self,

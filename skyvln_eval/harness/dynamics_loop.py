@@ -155,7 +155,12 @@ def run_dynamics_episode(
                 # Each segment meets its own obstacles; one name keeps the log one scenario.
                 flight.scenario = ObstacleScenario(obstacles.kind, placed.obstacles, spec.seed)
         start_s = flight.t_s
-        segment = flight.fly_to(target, max_time_s=settings.max_segment_time_s, reference=reference)
+        segment = flight.fly_to(
+            target,
+            max_time_s=settings.max_segment_time_s,
+            reference=reference,
+            stop_on_collision=settings.end_on_collision,  # a crash ends the flight there
+        )
         rollout.obstacle_segments.append((start_s, segment.t_end_s, flight.scenario))
         rollout.targets.append(target)
         rollout.reached.append(segment.reached)

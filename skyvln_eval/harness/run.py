@@ -157,7 +157,10 @@ class RunReport:
     ``statuses`` counts the latest row of every expected episode by status (``ok``,
     ``degraded``, ``error``); ``errors`` holds the first line of each error episode's error.
     ``stopped`` says why the run stopped before its end (e.g. refused credentials).
-    ``simulated_s`` is the time flown by the episodes run now (dynamics mode only).
+    ``simulated_s`` is the time flown by the episodes run now (dynamics mode only);
+    ``flights`` counts, of the flown episodes recorded, those that crashed (a step inside
+    an obstacle) and those with control steps whose solve failed (the controller fell
+    back): outcomes the statuses, which judge the agent, do not show.
     """
 
     run_dir: Path
@@ -174,6 +177,7 @@ class RunReport:
     structured_output: dict[str, str] = field(default_factory=dict)
     server_defaults: dict[str, str] = field(default_factory=dict)
     stopped: str | None = None
+    flights: dict[str, int] = field(default_factory=dict)
 
     @property
     def complete(self) -> bool:
@@ -350,6 +354,14 @@ def _finish(job: RunJob, wall_s: float) -> None:
         if key in results:
             status = results[key].status
             report.statuses[status] = report.statuses.get(status, 0) + 1
+    controls = [results[k].control for k in report.expected if k in results]
+    flown = [c for c in controls if c is not None]
+    if flown:
+        report.flights = {
+            "flown": len(flown),
+            "crashed": sum(c.collided for c in flown),
+            "with failed solves": sum(c.solve_failures > 0 for c in flown),
+        }
     report.errors = {
         key: (results[key].error or "error").splitlines()[0]
         for key in report.expected

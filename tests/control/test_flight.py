@@ -179,3 +179,22 @@ def test_step_windows_come_in_growing_batches_with_the_steps_own_clock() -> None
     for a, b in zip(first + rest, whole, strict=True):
         assert np.array_equal(a.times_s, b.times_s) and np.array_equal(a.states, b.states)
         assert np.array_equal(a.inputs, b.inputs) and np.array_equal(a.yaw_rad, b.yaw_rad)
+
+
+def test_a_crash_ends_the_flight_where_it_happened() -> None:
+    # PID flies straight through what is in its way: with stop_on_collision the segment
+    # ends at the first step inside an obstacle, and the drone stays there.
+    obstacles = scenario("static", seed=1)
+    on = Flight(controller("pid"), START, scenario=obstacles)
+    crashed = on.fly_to(TARGET, 40.0, stop_on_collision=True)
+    log = crashed.log
+    assert crashed.collided and not crashed.reached
+    assert log.collision.iloc[-1] and not log.collision.iloc[:-1].any()
+    last = log.iloc[-1]
+    assert on.t_s == last.t_s
+    assert tuple(on.state.position_m) == (last.x_m, last.y_m, last.z_m)
+    # Without it the drone flies on through the obstacle to the target.
+    through = Flight(controller("pid"), START, scenario=obstacles).fly_to(TARGET, 40.0)
+    assert through.collided and len(through.log) > len(log)
+    timeless = [c for c in LOG_COLUMNS if c != "solve_time_ms"]
+    pd.testing.assert_frame_equal(through.log.iloc[: len(log)][timeless], log[timeless])
