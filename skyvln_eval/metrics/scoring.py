@@ -14,6 +14,7 @@ from collections.abc import Sequence
 
 import numpy as np
 import pandas as pd
+from numpy.typing import ArrayLike, NDArray
 
 from skyvln_eval.errors import MetricInputError, NoGroundTruthError
 from skyvln_eval.metrics.batch import pack_views
@@ -62,6 +63,13 @@ METRIC_UNITS: dict[str, str] = {
 }
 
 
+def can_succeed(statuses: ArrayLike, flew: ArrayLike) -> NDArray[np.bool_]:
+    """Which episodes a success can be counted for: an 'error' episode never succeeds,
+    whatever it flew (its distances still describe its path); a 'degraded' one is scored
+    on its views like an 'ok' one; an episode with no view flew nothing."""
+    return (np.asarray(statuses) != "error") & np.asarray(flew, dtype=bool)
+
+
 def score_results(
     results: Sequence[EpisodeResult], conventions: MetricConventions | None = None
 ) -> pd.DataFrame:
@@ -84,9 +92,7 @@ def score_results(
     visited = pack_views(
         [r.visited_views for r in results], stand_ins=[r.gt_path_corners[0] for r in results]
     )
-    # An 'error' episode never succeeds, whatever it flew (its distances still describe
-    # its path); a 'degraded' one is scored on its views like an 'ok' one.
-    ok = np.array([r.status != "error" for r in results]) & ~visited.empty
+    ok = can_succeed(np.array([r.status for r in results]), ~visited.empty)
     frame = pd.DataFrame(
         {
             "system": [r.system for r in results],

@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 
 from skyvln_eval.errors import MetricInputError
 from skyvln_eval.metrics.conventions import MetricConventions
+from skyvln_eval.metrics.scoring import can_succeed
 from skyvln_eval.reports.render import new_figure
 from skyvln_eval.worlds.tile import WorldTile
 
@@ -53,14 +54,16 @@ def sr_vs_threshold_figure(
     """R2R success rate as a function of the success radius, per system.
 
     Uses ``r2r_ne_m`` (2-D or 3-D as the conventions say); the conventions' threshold is
-    marked. Failed episodes count as failures at every radius.
+    marked. An episode that cannot succeed (:func:`~skyvln_eval.metrics.scoring.can_succeed`:
+    an 'error', or no view) counts as a failure at every radius, as in the scores; a
+    'degraded' one is scored on its views.
     """
     thresholds = np.linspace(0.0, max_threshold_m, 401)
     figure = new_figure(6.0, 4.0)
     ax = figure.subplots()
     for system in _systems(scores, systems):
         sel = scores[scores["system"] == system]
-        ne = np.where(sel["status"] == "ok", sel["r2r_ne_m"], np.inf)
+        ne = np.where(can_succeed(sel["status"], sel["n_views"] > 0), sel["r2r_ne_m"], np.inf)
         ax.plot(
             thresholds,
             success_rate_curve(ne, thresholds, conventions.strict_threshold),

@@ -109,3 +109,20 @@ def test_matplotlib_is_loaded_by_the_first_figure_not_by_the_command_line() -> N
     # re-runs the console script): matplotlib there would cost each one ~0.5 s for nothing.
     assert modules_loaded_by("skyvln_eval.cli", ("matplotlib",)) == []
     assert modules_loaded_by("skyvln_eval.reports", ("matplotlib",)) == []
+
+
+def test_the_sr_curve_counts_successes_as_the_scores_do() -> None:
+    # A degraded episode is scored on its views (its success counts), an error one never
+    # succeeds: at the conventions' threshold the curve reads the scores' SR@d.
+    g = [square(0, 0), square(100, 0)]
+    statuses = ["ok", "degraded", "error", "ok"]
+    results = [
+        result([g[0], square(100 + k, 0)], g, episode_id=f"e{k}", status=status)
+        for k, status in enumerate(statuses)
+    ]
+    scores = score_results(results)
+    conventions = MetricConventions()
+    figure = sr_vs_threshold_figure(scores, conventions, max_threshold_m=100.0)
+    thresholds, rates = figure.get_axes()[0].get_lines()[0].get_data()
+    at = int(np.searchsorted(np.asarray(thresholds), conventions.threshold_m))
+    assert np.asarray(rates)[at] == pytest.approx(100.0 * scores["r2r_sr"].mean()) == 75.0
