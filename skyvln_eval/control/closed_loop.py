@@ -204,15 +204,17 @@ class Flight:
         ``stop_on_collision`` holds it there (the plant and clock do not step on)."""
         truth = self.state
         forecast = self.predictor.forecast(self.scenario, window.times_s)
-        # The input the rate limits start from, as floats (the controller replaces it).
-        previous_tilt = (
-            float(self.controller.previous_input[1]),
-            float(self.controller.previous_input[2]),
-        )
+        # The input the rate limits start from (the controller replaces it).
+        before = self.controller.previous_input.copy()
+        previous_tilt = (float(before[1]), float(before[2]))
         with NATIVE_CALLS:
             command = self.controller.step(self.plant.measure(), window, forecast)
         if not command.is_finite():  # a controller bug must not crash the flight either
+            # Eased to hover from the input last applied, not from the non-finite one the
+            # controller kept (a hover from NaN is NaN, and so would every state be after).
+            self.controller.previous_input = before
             thrust, roll, pitch = self.controller.safe_input()
+            self.controller.previous_input = np.array([thrust, roll, pitch])
             stats = SolveStats(
                 command.stats.solve_time_ms,
                 command.stats.iterations,

@@ -14,6 +14,7 @@ import pytest
 
 from skyvln_eval.control import (
     LOG_COLUMNS,
+    Command,
     Flight,
     fly_to,
     load_flight_log,
@@ -198,3 +199,27 @@ def test_a_crash_ends_the_flight_where_it_happened() -> None:
     assert through.collided and len(through.log) > len(log)
     timeless = [c for c in LOG_COLUMNS if c != "solve_time_ms"]
     pd.testing.assert_frame_equal(through.log.iloc[: len(log)][timeless], log[timeless])
+
+
+def test_a_non_finite_command_eases_to_hover_from_the_last_applied_input() -> None:
+    pid = controller("pid")
+    real_step, steps = pid.step, []
+
+    def once_nan(*args: object) -> Command:
+        command = real_step(*args)  # type: ignore[arg-type]
+        steps.append(command)
+        if len(steps) == 5:  # a controller bug: NaN once (and kept as its last input)
+            pid.previous_input = np.full(3, np.nan)
+            return Command(np.nan, np.nan, np.nan, command.yaw_ref_rad, command.stats)
+        return command
+
+    pid.step = once_nan  # type: ignore[method-assign]
+    flight = Flight(pid, START)
+    log = flight.fly_to(TARGET, 40.0).log
+    fallback = log.iloc[4]
+    assert fallback.status == "fallback_hover:non_finite_command" and fallback.solve_failed
+    # Every number finite after it (the clearance is inf: no obstacles).
+    text = ("controller", "scenario", "status", "min_clearance_m")
+    numeric = [c for c in LOG_COLUMNS if c not in text]
+    assert np.isfinite(log[numeric].astype(float).to_numpy()).all()
+    assert np.isfinite(flight.state.position_m).all()
