@@ -166,9 +166,10 @@ class Flight:
         stop_on_collision: bool = False,
     ) -> SegmentResult:
         """Track ``reference`` for ``duration_s`` seconds, or until ``done(state, t_s)``;
-        with ``stop_on_collision``, until a step finds the drone inside an obstacle: a crash.
-        The flight then stays where it crashed (the state and time of that step's log row,
-        the plant not stepped on), not where the rest of the segment would have taken it."""
+        with ``stop_on_collision``, until a step touches an obstacle (the drone is inside
+        its radius at some point of the step, :meth:`ObstacleScenario.swept_clearance_m`): a
+        crash. The flight then ends at the end of that step (within one step of the
+        contact), not where the rest of the segment would have taken it."""
         if not (math.isfinite(duration_s) and duration_s > 0):
             raise ConfigError(
                 f"the flight duration must be a positive number of seconds, got {duration_s!r}"
@@ -200,8 +201,8 @@ class Flight:
         return log_frame(self._rows)
 
     def _step(self, window: ReferenceWindow, stop_on_collision: bool = False) -> bool:
-        """One control step, logged; ``False`` when the drone was inside an obstacle and
-        ``stop_on_collision`` holds it there (the plant and clock do not step on)."""
+        """One control step, logged; ``False`` when the step touched an obstacle and
+        ``stop_on_collision`` ends the flight there."""
         truth = self.state
         forecast = self.predictor.forecast(self.scenario, window.times_s)
         # The input the rate limits start from (the controller replaces it).
@@ -222,10 +223,6 @@ class Flight:
                 True,
             )
             command = Command(thrust, roll, pitch, truth.yaw_rad, stats)
-        row = self._row(truth, window.states[0], float(window.yaw_rad[0]), command, previous_tilt)
-        self._rows.append(row)
-        if stop_on_collision and row["collision"]:
-            return False
         with NATIVE_CALLS:
             self.plant.step(
                 command.thrust_m_s2,
@@ -234,8 +231,20 @@ class Flight:
                 command.yaw_ref_rad,
                 self.dt_s,
             )
+        after = self.state
+        # Clearance and contact over the whole step, not at its start alone.
+        clearance, collision = self.scenario.swept_clearance_m(
+            (truth.x_m, truth.y_m, truth.z_m),
+            (after.x_m, after.y_m, after.z_m),
+            self.t_s,
+            self.t_s + self.dt_s,
+        )
+        row = self._row(truth, window.states[0], float(window.yaw_rad[0]), command, previous_tilt)
+        row["min_clearance_m"], row["collision"] = clearance, collision
+        row["constraint_violation"] = clearance < 0.0 or row["constraint_violation"]
+        self._rows.append(row)
         self.t_s += self.dt_s
-        return True
+        return not (stop_on_collision and collision)
 
     def _row(
         self,
@@ -245,9 +254,7 @@ class Flight:
         command: Command,
         previous_tilt: tuple[float, float],
     ) -> dict[str, Any]:
-        position = (truth.x_m, truth.y_m, truth.z_m)
-        clearance, collision = self.scenario.clearance_m(position, self.t_s)
-        violation = clearance < 0.0 or not self._within_limits(command, previous_tilt)
+        violation = not self._within_limits(command, previous_tilt)  # clearance: _step
         reference = reference_state.tolist()  # the Python floats of the row, in one call
         return {
             "controller": self.controller.name,
@@ -273,8 +280,8 @@ class Flight:
             "iterations": command.stats.iterations,
             "status": command.stats.status,
             "solve_failed": command.stats.failed,
-            "min_clearance_m": clearance,
-            "collision": collision,
+            "min_clearance_m": math.inf,  # over the step: set by _step
+            "collision": False,
             "constraint_violation": violation,
             "ref_roll_rad": reference[6],
             "ref_pitch_rad": reference[7],

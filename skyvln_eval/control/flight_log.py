@@ -10,10 +10,12 @@ Columns (:data:`LOG_COLUMNS`; other columns may follow):
   (thrust and the roll / pitch *references* sent to the attitude loop);
 - ``solve_time_ms``, ``iterations`` (QP solver iterations; 0 for PID), ``status`` and
   ``solve_failed`` (a fallback command was used);
-- ``min_clearance_m``: over all obstacles, the distance from the drone to the obstacle
-  centre minus ``r_obs + r_s`` (negative = inside a keep-out sphere); ``inf`` without
-  obstacles;
-- ``collision``: inside some obstacle's own sphere (distance < ``r_obs``);
+- ``min_clearance_m``: over all obstacles and over the step (from ``t_s`` to the next
+  step, drone and obstacles moving in straight lines in between), the least distance from
+  the drone to an obstacle centre minus ``r_obs + r_s`` (negative = inside a keep-out
+  sphere); ``inf`` without obstacles. Not only at ``t_s``: a controller that keeps its
+  samples outside a sphere can cut through it between them;
+- ``collision``: inside some obstacle's own sphere (distance < ``r_obs``) during the step;
 - ``constraint_violation``: ``min_clearance_m < 0`` or a command outside the input bounds or
   beyond the per-step rate limit of roll_ref / pitch_ref.
 

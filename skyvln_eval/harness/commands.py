@@ -28,8 +28,9 @@ def describe_report(report: RunReport) -> list[str]:
     if report.flights:
         flights = report.flights
         lines.append(
-            f"flown: {flights['flown']} episode(s), {flights['crashed']} crashed (a step inside "
-            f"an obstacle), {flights['with failed solves']} with failed solver steps (fell back)"
+            f"flown: {flights['flown']} episode(s), {flights['crashed']} crashed (a step that "
+            f"touched an obstacle), {flights['with failed solves']} with failed solver steps "
+            "(fell back)"
         )
     if report.structured_output:
         levels = ", ".join(f"{m}: {level}" for m, level in report.structured_output.items())

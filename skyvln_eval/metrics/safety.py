@@ -2,8 +2,10 @@
 
 A control log is a pandas DataFrame with one row per control step and the columns of
 :data:`CONTROL_LOG_COLUMNS` (x east, y north, z up in metres; angles in radians; for
-roll and pitch the reference is the commanded angle). ``min_clearance_m`` is ``inf``
-when a scenario has no obstacles. Logs may hold several controllers and scenarios (and
+roll and pitch the reference is the commanded angle). ``min_clearance_m`` and
+``collision`` are each step's over its whole duration, not at its sample alone
+(:meth:`~skyvln_eval.sim.ObstacleScenario.swept_clearance_m`); ``min_clearance_m`` is
+``inf`` when a scenario has no obstacles. Logs may hold several controllers and scenarios (and
 an optional ``episode_id`` column); every metric is computed per group.
 
 Per group: steps, duration, collision steps, minimum clearance (``None`` without

@@ -38,16 +38,19 @@ def test_a_crash_ends_the_episode_where_it_happened_and_the_run_counts_it(
     for row in crashed:
         assert row.extra["stop_reason"] == "collision"
         log = load_flight_log(tmp_path / "run" / str(row.control_log))
-        # The flight ended at its first step inside an obstacle, and the last view is
-        # seen from there (its centre below the drone), not from the segment's target.
+        # The flight ended with its first step that touched an obstacle, and the last
+        # view is seen from there (its centre below the drone, within the step's 1.2 m at
+        # 12 m/s), not from the segment's target.
         assert log.collision.iloc[-1] and log.collision.sum() == 1
         seen_from = view_to_pose(row.visited_views[-1], georefs[row.episode_id])
         crash = log.iloc[-1]
-        assert np.hypot(seen_from.x_m - crash.x_m, seen_from.y_m - crash.y_m) < 0.01
+        assert np.hypot(seen_from.x_m - crash.x_m, seen_from.y_m - crash.y_m) < 1.5
     assert report.flights == {
         "flown": len(rows),
         "crashed": len(crashed),
         "with failed solves": sum(r.control.solve_failures > 0 for r in rows if r.control),
     }
-    line = f"flown: {len(rows)} episode(s), {len(crashed)} crashed (a step inside an obstacle)"
+    line = (
+        f"flown: {len(rows)} episode(s), {len(crashed)} crashed (a step that touched an obstacle)"
+    )
     assert any(text.startswith(line) for text in describe_report(report))

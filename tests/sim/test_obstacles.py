@@ -185,3 +185,25 @@ def test_bad_obstacle_settings_name_the_field(make: object, field: str) -> None:
 def test_a_route_that_does_not_move_is_refused() -> None:
     with pytest.raises(ConfigError, match="length is zero"):
         make_scenario(ScenarioSpec(), np.array([0.0, 1.0]), np.zeros((2, 3)))
+
+
+def test_the_swept_clearance_sees_what_happens_between_samples() -> None:
+    # A drone at 12 m/s steps 1.2 m in 0.1 s: straight through a sphere 0.8 m across, with
+    # both samples outside it. The samples see nothing; the step touches it.
+    sphere = SphereObstacle(ConstantVelocity((0.0, 0.0, 10.0), (0.0, 0.0, 0.0)), 0.4, 0.3)
+    scenario = ObstacleScenario("one", (sphere,))
+    start, end = (-0.6, 0.0, 10.0), (0.6, 0.0, 10.0)
+    assert scenario.clearance_m(start, 0.0) == (pytest.approx(-0.1), False)
+    assert scenario.clearance_m(end, 0.1)[1] is False
+    clearance, collision = scenario.swept_clearance_m(start, end, 0.0, 0.1)
+    assert clearance == pytest.approx(-0.7) and collision
+    # Passing 0.5 m to the side: outside the sphere, 0.2 m inside the keep-out.
+    clearance, collision = scenario.swept_clearance_m((-0.6, 0.5, 10.0), (0.6, 0.5, 10.0), 0, 0.1)
+    assert clearance == pytest.approx(-0.2) and not collision
+    # A moving obstacle: the relative motion counts (both move at the same velocity here).
+    moving = ObstacleScenario(
+        "moving", (SphereObstacle(ConstantVelocity((0.0, 2.0, 10.0), (12.0, 0.0, 0.0)), 0.4),)
+    )
+    clearance, collision = moving.swept_clearance_m((0.0, 0.0, 10.0), (1.2, 0.0, 10.0), 0, 0.1)
+    assert clearance == pytest.approx(2.0 - 0.7) and not collision
+    assert ObstacleScenario("none").swept_clearance_m(start, end, 0.0, 0.1) == (math.inf, False)
