@@ -5,8 +5,12 @@ controller, from control logs (:data:`skyvln_eval.metrics.CONTROL_LOG_COLUMNS`).
 4 rows x 3 columns: x / y / z position; x / y / z error; roll / pitch / yaw; roll /
 pitch / yaw error. The position and yaw reference is drawn once in red when every
 controller tracked the same reference (the usual case), else dashed per controller;
-roll and pitch references are each controller's commanded angles (dotted). Errors are
-flown minus reference (yaw wrapped to (-pi, pi]), angles shown in degrees.
+roll and pitch references are each controller's commanded angles (dotted), and their
+error panels say "minus command": the attitude loop's steady gain is below 1 (about 0.75
+for roll), so a steady offset there is the loop's, not a tracking fault. Errors are flown
+minus reference (yaw wrapped to (-pi, pi]); yaw itself is drawn unwrapped (no vertical
+line at +-180 degrees); angles in degrees. A figure draws one flight per controller: a
+log holding several episodes of one controller is refused (their times would interleave).
 """
 
 from __future__ import annotations
@@ -51,6 +55,14 @@ def control_figure(
     if sel.empty:
         raise DataError(f"no rows for scenario {scenario!r}; the log has {scenarios}")
     groups = {c: g.sort_values("t_s") for c, g in sel.groupby("controller", sort=True)}
+    for controller, g in groups.items():
+        episodes = sorted(g["episode_id"].unique()) if "episode_id" in g else []
+        if len(episodes) > 1:
+            raise DataError(
+                f"the log holds {len(episodes)} episodes of controller {controller!r} in "
+                f"scenario {scenario!r} ({', '.join(map(str, episodes[:5]))}...): a figure "
+                "draws one flight per controller, so pass one episode's control log"
+            )
     colours = {c: f"C{k if k < 3 else k + 1}" for k, c in enumerate(groups)}  # C3 is red-like
     figure = new_figure(12.0, 10.0)
     axes = figure.subplots(4, 3, sharex=True)
@@ -84,11 +96,13 @@ def _plot_pair(
     assert isinstance(ax_value, Axes) and isinstance(ax_error, Axes)
     is_command = ref.startswith("cmd_")
     shared = not is_command and _shared_reference(groups, ref)
+    # Yaw is drawn unwrapped: a heading through +-180 degrees is not a jump.
+    shown = np.unwrap if axis == "yaw" else np.asarray
     if shared:
         first = next(iter(groups.values()))
         ax_value.plot(
             first["t_s"],
-            first[ref] * scale,
+            shown(first[ref].to_numpy()) * scale,
             color=REFERENCE_COLOUR,
             lw=1.6,
             ls="--",
@@ -96,12 +110,14 @@ def _plot_pair(
         )
     for controller, g in groups.items():
         colour = colours[controller]
-        ax_value.plot(g["t_s"], g[flown] * scale, color=colour, lw=1.2, label=controller)
+        ax_value.plot(
+            g["t_s"], shown(g[flown].to_numpy()) * scale, color=colour, lw=1.2, label=controller
+        )
         if not shared:
             label = f"{controller} command" if is_command else f"{controller} reference"
             ax_value.plot(
                 g["t_s"],
-                g[ref] * scale,
+                shown(g[ref].to_numpy()) * scale,
                 color=colour,
                 lw=0.9,
                 ls=":" if is_command else "--",
@@ -109,9 +125,10 @@ def _plot_pair(
             )
         err_column = f"err_{axis}_{'m' if unit == 'm' else 'rad'}"
         ax_error.plot(g["t_s"], tracking_errors(g)[err_column] * scale, color=colour, lw=1.1)
-    ax_value.set_title(f"{axis} {'position' if unit == 'm' else 'angle'}")
+    what = "position" if unit == "m" else "angle" + (" (dotted: command)" if is_command else "")
+    ax_value.set_title(f"{axis} {what}")
     ax_value.set_ylabel(f"{axis} ({unit})")
-    ax_error.set_title(f"{axis} error")
+    ax_error.set_title(f"{axis} minus command" if is_command else f"{axis} error")
     ax_error.set_ylabel(f"error ({unit})")
     ax_error.axhline(0.0, color="0.6", lw=0.6)
     for ax in (ax_value, ax_error):

@@ -43,7 +43,12 @@ def test_control_figure_layout_lines_and_determinism(tmp_path: Path) -> None:
     titles = [ax.get_title() for ax in axes]
     assert titles[:3] == ["x position", "y position", "z position"]
     assert titles[3:6] == ["x error", "y error", "z error"]
-    assert titles[6:9] == ["roll angle", "pitch angle", "yaw angle"]
+    assert titles[6:9] == [
+        "roll angle (dotted: command)",
+        "pitch angle (dotted: command)",
+        "yaw angle",
+    ]
+    assert titles[9:] == ["roll minus command", "pitch minus command", "yaw error"]
     labels = [line.get_label() for line in axes[0].get_lines()]
     assert labels == ["reference", "nmpc", "pid"]  # shared reference drawn once
     roll_labels = [line.get_label() for line in axes[6].get_lines()]
@@ -56,6 +61,22 @@ def test_control_figure_layout_lines_and_determinism(tmp_path: Path) -> None:
         assert first == again, fmt
     with pytest.raises(DataError, match="choose one"):
         control_figure(log)
+    # Two episodes of one controller would interleave in time: refused, not drawn.
+    episodes = pd.concat(
+        [control_log("nmpc", "static").assign(episode_id=e) for e in ("e1", "e2")],
+        ignore_index=True,
+    )
+    with pytest.raises(DataError, match=r"2 episodes of controller 'nmpc'.*one episode's"):
+        control_figure(episodes, "static")
+
+
+def test_yaw_is_drawn_unwrapped() -> None:
+    log = control_log("nmpc", "static")
+    turning = np.linspace(3.0, 3.4, len(log))  # through +180 degrees
+    wrapped = (turning + np.pi) % (2 * np.pi) - np.pi
+    log = log.assign(yaw_rad=wrapped, ref_yaw_rad=wrapped)
+    yaw = control_figure(log, "static").get_axes()[8].get_lines()
+    assert all(np.all(np.diff(line.get_ydata()) > 0) for line in yaw)  # no jump of -360
 
 
 def test_success_rate_curve_hand_computed() -> None:
