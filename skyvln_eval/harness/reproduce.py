@@ -70,6 +70,7 @@ CONTROL_COLUMNS: tuple[tuple[str, str, Aggregate], ...] = (
     ("min_clearance_m", "min keep-out clearance/m, worst episode", "min"),
     ("min_clearance_m", "min keep-out clearance/m, episode mean", "mean"),
     ("solve_failures", "solve failures per episode", "mean"),
+    ("soft_steps", "steps with the obstacle constraint relaxed, per episode", "mean"),
     ("rmse_x_m", "RMSE x/m, episode mean", "mean"),
     ("rmse_y_m", "RMSE y/m, episode mean", "mean"),
     ("rmse_z_m", "RMSE z/m, episode mean", "mean"),

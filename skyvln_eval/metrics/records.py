@@ -128,6 +128,10 @@ class ControlSummary:
     solve_time_p50_ms: float
     solve_time_p95_ms: float
     solve_time_max_ms: float
+    #: Steps solved only by relaxing the obstacle constraint (its soft slack used: the
+    #: controller found no path that kept out, and took the least intrusion); None in
+    #: results written before it was recorded.
+    soft_steps: int | None = None
 
     @property
     def collided(self) -> bool:
@@ -138,7 +142,7 @@ class ControlSummary:
             value = getattr(self, f.name)
             if f.name in ("controller", "scenario"):
                 continue
-            if value is None and f.name == "min_clearance_m":
+            if value is None and f.name in ("min_clearance_m", "soft_steps"):
                 continue
             if (
                 isinstance(value, bool)

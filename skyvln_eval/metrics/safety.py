@@ -171,6 +171,7 @@ def summarise_control(log: pd.DataFrame, source: str = "<control log>") -> Contr
         solve_time_p50_ms=float(np.percentile(solve, 50)),
         solve_time_p95_ms=float(np.percentile(solve, 95)),
         solve_time_max_ms=float(solve.max()),
+        soft_steps=int((log["status"] == "solved_soft").sum()),
     )
 
 

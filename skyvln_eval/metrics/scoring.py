@@ -36,6 +36,7 @@ CONTROL_COLUMNS: dict[str, str] = {
     "min_clearance_m": "m",
     "constraint_violation_steps": "steps",
     "solve_failures": "steps",
+    "soft_steps": "steps",
     "rmse_x_m": "m",
     "rmse_y_m": "m",
     "rmse_z_m": "m",

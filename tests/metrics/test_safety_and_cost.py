@@ -54,6 +54,9 @@ def test_control_summary_hand_computed() -> None:
     assert summary.rmse_pitch_rad == pytest.approx(0.02)
     assert summary.rmse_yaw_rad == pytest.approx(0.02)  # wrapped across +-pi, not 2 pi - 0.02
     assert summary.min_clearance_m is None  # no obstacles
+    assert summary.soft_steps == 0
+    soft = control_log().assign(status=["solved_soft"] * 3 + ["solved"] * 47)
+    assert summarise_control(soft).soft_steps == 3  # the obstacle constraint relaxed 3 times
     assert summary.collision_steps == 0 and not summary.collided
     assert summary.solve_failures == 1 and summary.constraint_violation_steps == 2
     assert summary.solve_time_max_ms == pytest.approx(1.2)
