@@ -44,6 +44,7 @@ from skyvln_eval.harness.run import (
     execute_jobs,
     prepare_job,
     resolve_data_dir,
+    speed_cap_note,
 )
 from skyvln_eval.metrics import MetricConventions, score_results, summarise
 from skyvln_eval.metrics.cost import UNKNOWN_IF_ANY_UNKNOWN
@@ -221,8 +222,14 @@ def _table1_rows(runs: Sequence[PlannedRun], plan: ReproducePlan) -> tuple[list[
         if table == "table1"
     }
     labelled = [table1_label(s.label, agents[s.label]) for s in plan.table1.systems]
-    notes = list(dict.fromkeys(note for _, note in labelled if note))
-    return [label for label, _ in labelled], notes
+    notes = [note for _, note in labelled if note]
+    # A controller slower than the reference is a confound a reader must see.
+    for planned in runs:
+        cap = speed_cap_note(planned.config)
+        labels = [label for table, label in planned.rows if table == "table1"]
+        if cap and labels:
+            notes.append(f"{', '.join(labels)}: {cap}")
+    return [label for label, _ in labelled], list(dict.fromkeys(notes))
 
 
 def _metric_table(

@@ -24,6 +24,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from skyvln_eval.control.registry import controller_config
 from skyvln_eval.converters.batch import convert_split
 from skyvln_eval.converters.convert import ConvertOptions
 from skyvln_eval.converters.reader import read_episode
@@ -307,6 +308,25 @@ class RunJob:
             self.lock.release()
 
 
+def speed_cap_note(config: RunConfig) -> str | None:
+    """A note when the controller cannot fly as fast as the reference asks (a PID's speed
+    cap below the cruise speed): its tracking error and flight times then measure the cap,
+    not the controller, which a comparison of controllers must know."""
+    if config.mode != "dynamics":
+        return None
+    dynamics = config.dynamics
+    settings = controller_config(dynamics.controller, dynamics.controller_settings)
+    cap = getattr(settings, "max_speed_m_s", None)
+    if cap is None or cap >= dynamics.cruise_speed_m_s:
+        return None
+    return (
+        f"{dynamics.controller}'s max_speed_m_s {cap:g} is below the cruise speed "
+        f"{dynamics.cruise_speed_m_s:g} m/s: it lags the reference, so its tracking errors "
+        "and flight times measure the cap (raise it in controller_settings for a like-for-like "
+        "comparison)"
+    )
+
+
 def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = False) -> RunJob:
     """Convert the run's episodes if needed, check the run directory, find what is left."""
     run_dir = Path(run_dir)
@@ -326,6 +346,8 @@ def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = Fal
     notes = store.recovery.messages()
     if leftovers:
         notes.append(f"removed {leftovers} temporary file(s) left by an interrupted run")
+    cap = speed_cap_note(config)
+    notes += [cap] if cap else []
     report = RunReport(run_dir, config.system, list(logs), notes=notes)
     todo = store.missing(logs, retry_failed=retry_failed)
     report.already_done = len(logs) - len(todo)
