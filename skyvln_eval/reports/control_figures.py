@@ -3,7 +3,9 @@
 One figure per scenario (e.g. static and dynamic obstacle cases), one line per
 controller, from control logs (:data:`skyvln_eval.metrics.CONTROL_LOG_COLUMNS`). Layout,
 4 rows x 3 columns: x / y / z position; x / y / z error; roll / pitch / yaw; roll /
-pitch / yaw error. The position and yaw reference is drawn once in red when every
+pitch / yaw error; then a row across of the keep-out clearance over time, collisions
+marked (tracking error alone would rank a controller that flies through obstacles
+best). The position and yaw reference is drawn once in red when every
 controller tracked the same reference (the usual case), else dashed per controller;
 roll and pitch references are each controller's commanded angles (dotted), and their
 error panels say "minus command": the attitude loop's steady gain is below 1 (about 0.75
@@ -64,20 +66,57 @@ def control_figure(
                 "draws one flight per controller, so pass one episode's control log"
             )
     colours = {c: f"C{k if k < 3 else k + 1}" for k, c in enumerate(groups)}  # C3 is red-like
-    figure = new_figure(12.0, 10.0)
-    axes = figure.subplots(4, 3, sharex=True)
+    figure = new_figure(12.0, 12.0)
+    grid = figure.add_gridspec(5, 3, height_ratios=[1, 1, 1, 1, 0.8])
+    first = figure.add_subplot(grid[0, 0])
+    axes = np.array(
+        [
+            [first if (r, c) == (0, 0) else figure.add_subplot(grid[r, c], sharex=first)
+             for c in range(3)]
+            for r in range(4)
+        ]
+    )  # fmt: skip
     for col, (axis, flown, ref) in enumerate(_POSITION):
         _plot_pair(axes[0, col], axes[1, col], groups, colours, axis, flown, ref, "m", 1.0)
     for col, (axis, flown, ref) in enumerate(_ATTITUDE):
         _plot_pair(
             axes[2, col], axes[3, col], groups, colours, axis, flown, ref, "deg", 180.0 / np.pi
         )
-    for ax in axes[3]:
-        ax.set_xlabel("time (s)")
+    _plot_clearance(figure.add_subplot(grid[4, :], sharex=first), groups, colours)
     handles, labels = axes[0, 0].get_legend_handles_labels()
     figure.legend(handles, labels, loc="outside lower center", ncols=len(labels))
     figure.suptitle(title or f"6-DOF curves and errors, scenario: {scenario}")
     return figure
+
+
+def _plot_clearance(ax: object, groups: dict[str, pd.DataFrame], colours: dict[str, str]) -> None:
+    """Keep-out clearance over time (each step's least, over the step), collisions marked:
+    a controller that tracks best by flying through the obstacles shows it here."""
+    from matplotlib.axes import Axes
+
+    assert isinstance(ax, Axes)
+    ax.axhline(0.0, color=REFERENCE_COLOUR, lw=0.8, ls="--")
+    drawn = False
+    for controller, g in groups.items():
+        clearance = g["min_clearance_m"].to_numpy(np.float64)
+        if np.isposinf(clearance).all():
+            continue  # no obstacles in this scenario
+        drawn = True
+        hits = int(g["collision"].sum())
+        label = f"{controller}: {hits} collision step(s)" if hits else f"{controller}: none"
+        ax.plot(g["t_s"], clearance, color=colours[controller], lw=1.1, label=label)
+        inside = g["collision"].to_numpy(bool)
+        ax.plot(g["t_s"][inside], clearance[inside], "x", color=colours[controller], ms=4)
+    ax.set_title(
+        "keep-out clearance (below 0: inside r_obs + r_s; x: a collision)"
+        if drawn
+        else "keep-out clearance: no obstacles in this scenario"
+    )
+    ax.set_ylabel("clearance (m)")
+    ax.set_xlabel("time (s)")
+    ax.grid(True, lw=0.3, alpha=0.6)
+    if drawn:
+        ax.legend(fontsize="small", loc="upper right")
 
 
 def _plot_pair(

@@ -39,7 +39,15 @@ def test_control_figure_layout_lines_and_determinism(tmp_path: Path) -> None:
     log = two_controller_log()
     figure = control_figure(log, "dynamic")
     axes = figure.get_axes()
-    assert len(axes) == 12
+    assert len(axes) == 13
+    clearance = axes[12]
+    assert clearance.get_title().startswith("keep-out clearance (below 0")
+    legend = [t.get_text() for t in clearance.get_legend().get_texts()]
+    dynamic = log[log.scenario == "dynamic"]
+    hits = [int(dynamic[dynamic.controller == c].collision.sum()) for c in ("nmpc", "pid")]
+    assert legend == [f"nmpc: {hits[0]} collision step(s)", f"pid: {hits[1]} collision step(s)"]
+    static = control_figure(log, "static").get_axes()[12]
+    assert static.get_title() == "keep-out clearance: no obstacles in this scenario"
     titles = [ax.get_title() for ax in axes]
     assert titles[:3] == ["x position", "y position", "z position"]
     assert titles[3:6] == ["x error", "y error", "z error"]
@@ -48,7 +56,7 @@ def test_control_figure_layout_lines_and_determinism(tmp_path: Path) -> None:
         "pitch angle (dotted: command)",
         "yaw angle",
     ]
-    assert titles[9:] == ["roll minus command", "pitch minus command", "yaw error"]
+    assert titles[9:12] == ["roll minus command", "pitch minus command", "yaw error"]
     labels = [line.get_label() for line in axes[0].get_lines()]
     assert labels == ["reference", "nmpc", "pid"]  # shared reference drawn once
     roll_labels = [line.get_label() for line in axes[6].get_lines()]
