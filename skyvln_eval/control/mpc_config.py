@@ -69,11 +69,10 @@ class MpcConfig:
     max_obstacles: int = 2
     #: Added to r_obs + r_s inside the controller: the constraint holds at the predicted
     #: samples of a one-step RK4 model, while the plant is integrated finer and may carry
-    #: wind and noise, and the drone flies on between the samples: at the harness's 12 m/s
-    #: a 0.1 s step is 1.2 m, along which a path whose samples keep out of a sphere cut
-    #: up to 0.11 m into it (60 AVDN-sized episodes at 0.05 m: 59 cut in; at 0.15 m none,
-    #: SR unchanged). The flight log measures the clearance over the whole step.
-    obstacle_margin_m: float = 0.15
+    #: wind and noise, so a few centimetres keep the true clearance at or above zero. The
+    #: controller widens it further by the step length (``_sampled_radii``: the path between
+    #: samples keeps out too), as the flight log measures clearance over whole steps.
+    obstacle_margin_m: float = 0.05
     weights: MpcWeights = field(default_factory=MpcWeights)
     limits: InputLimits = field(default_factory=InputLimits)
     params: QuadrotorParams = field(default_factory=QuadrotorParams)
