@@ -40,6 +40,7 @@ from skyvln_eval.avdn.imagery import (
 )
 from skyvln_eval.avdn.loader import (
     AvdnSplit,
+    SkippedRecord,
     build_episodes,
     check_split,
     group_trajectories,
@@ -87,6 +88,7 @@ __all__ = [
     "MapGeoref",
     "OfficialAction",
     "OfficialStepResult",
+    "SkippedRecord",
     "Split",
     "SplitSummary",
     "action_between_views",

@@ -22,7 +22,7 @@ from skyvln_eval.avdn.constants import (
 )
 from skyvln_eval.avdn.imagery import map_image_path
 from skyvln_eval.avdn.records import AvdnRecord, Episode
-from skyvln_eval.avdn.validation import parse_records_indexed
+from skyvln_eval.avdn.validation import parse_records_indexed, record_place
 from skyvln_eval.errors import (
     AvdnFileError,
     AvdnValidationError,
@@ -35,6 +35,28 @@ TrajectoryKey = tuple[str, str]
 
 
 @dataclass(frozen=True)
+class SkippedRecord:
+    """A record left out as invalid: its place in the file, the map, trajectory and round it
+    names (None where unreadable), and every issue found in it."""
+
+    record_index: int
+    map_name: str | None
+    trajectory_index: str | None
+    round_index: int | None
+    issues: tuple[ValidationIssue, ...]
+
+    @property
+    def episode_id(self) -> str | None:
+        return next((i.episode_id for i in self.issues if i.episode_id is not None), None)
+
+    @property
+    def reason(self) -> str:
+        """The first issue, without the file and record (for a line that names them)."""
+        first = self.issues[0]
+        return f"field '{first.field}': {first.message}" if first.field else first.message
+
+
+@dataclass(frozen=True)
 class AvdnSplit:
     """The valid records of one split, and the issues of any records that were skipped."""
 
@@ -42,6 +64,8 @@ class AvdnSplit:
     data_dir: Path
     records: tuple[AvdnRecord, ...]
     skipped: tuple[ValidationIssue, ...] = field(default=())
+    #: The skipped records themselves (``skipped`` holds their issues), in file order.
+    skipped_records: tuple[SkippedRecord, ...] = field(default=())
 
     @property
     def annotation_path(self) -> Path:
@@ -53,7 +77,7 @@ class AvdnSplit:
 
     @property
     def skipped_record_indices(self) -> list[int]:
-        return sorted({i.record_index for i in self.skipped if i.record_index is not None})
+        return [s.record_index for s in self.skipped_records]
 
     @property
     def ground_truth_withheld(self) -> bool:
@@ -70,10 +94,12 @@ class AvdnSplit:
     def episodes(self, mode: EpisodeMode = "andh", skip_incomplete: bool = False) -> list[Episode]:
         """ANDH: one episode per record (file order). ANDH-Full: one per trajectory.
 
-        A trajectory with missing rounds cannot form an ANDH-Full episode: it raises, or
-        with ``skip_incomplete`` is left out (see :func:`build_episodes` for the report).
+        A trajectory with missing or skipped rounds cannot form an ANDH-Full episode: it
+        raises, or with ``skip_incomplete`` is left out (see :func:`build_episodes`).
         """
-        episodes, issues = build_episodes(self.records, self.split, mode, str(self.annotation_path))
+        episodes, issues = build_episodes(
+            self.records, self.split, mode, str(self.annotation_path), self.skipped_records
+        )
         if issues and not skip_incomplete:
             raise AvdnValidationError(issues)
         return episodes
@@ -97,25 +123,43 @@ def group_trajectories(
 
 
 def build_episodes(
-    records: Sequence[AvdnRecord], split: str, mode: EpisodeMode, file: str = "<records>"
+    records: Sequence[AvdnRecord],
+    split: str,
+    mode: EpisodeMode,
+    file: str = "<records>",
+    skipped: Sequence[SkippedRecord] = (),
 ) -> tuple[list[Episode], list[ValidationIssue]]:
-    """Episodes of a split in either mode, plus issues for incomplete trajectories."""
+    """Episodes of a split in either mode, plus issues for incomplete trajectories.
+
+    ANDH-Full needs every round of a trajectory: one that is missing, or that was
+    ``skipped`` as invalid, leaves the trajectory out with an issue naming the round.
+    Without ``last_round_idx`` the final round is only known as the highest one present,
+    so an invalid record whose trajectory cannot be read (its route_index, or its map,
+    unreadable) might be that final round: such trajectories of its map (any map when the
+    map is unreadable) are left out too, rather than scored against a wrong target.
+    """
     if mode == "andh":
         return [Episode(split=split, mode="andh", records=(r,)) for r in records], []
     if mode != "andh-full":
         raise ConfigError(f"unknown episode mode {mode!r}; use 'andh' or 'andh-full'")
+    placed: dict[TrajectoryKey, list[SkippedRecord]] = defaultdict(list)
+    unplaced: list[SkippedRecord] = []
+    for s in skipped:
+        if s.map_name is not None and s.trajectory_index is not None:
+            placed[(s.map_name, s.trajectory_index)].append(s)
+        else:
+            unplaced.append(s)
     episodes: list[Episode] = []
     issues: list[ValidationIssue] = []
     for (map_name, traj), rounds in group_trajectories(records).items():
-        present = [r.round_index for r in rounds]
-        declared = [r.last_round_idx for r in rounds if r.last_round_idx is not None]
-        expected = max(declared) if declared else max(present)
-        missing = sorted(set(range(1, expected + 1)) - set(present))
-        if missing:
+        problems = _incomplete_trajectory(
+            rounds, placed.get((map_name, traj), []), unplaced, map_name
+        )
+        if problems:
             issues.append(
                 ValidationIssue(
                     file,
-                    f"trajectory {map_name}/{traj} is missing round(s) {missing}; "
+                    f"trajectory {map_name}/{traj} {'; '.join(problems)}; "
                     "it cannot form an ANDH-Full episode",
                     episode_id=rounds[0].episode_id,
                     field="route_index",
@@ -124,6 +168,35 @@ def build_episodes(
             continue
         episodes.append(Episode(split=split, mode="andh-full", records=rounds))
     return episodes, issues
+
+
+def _incomplete_trajectory(
+    rounds: Sequence[AvdnRecord],
+    invalid: Sequence[SkippedRecord],
+    unplaced: Sequence[SkippedRecord],
+    map_name: str,
+) -> list[str]:
+    """Why a trajectory's valid ``rounds`` are not the whole trajectory (none if they are)."""
+    present = {r.round_index for r in rounds}
+    invalid_rounds = {s.round_index for s in invalid if s.round_index is not None}
+    declared = [r.last_round_idx for r in rounds if r.last_round_idx is not None]
+    expected = max(declared) if declared else max(present | invalid_rounds)
+    problems = []
+    missing = sorted(set(range(1, expected + 1)) - present - invalid_rounds)
+    if missing:
+        problems.append(f"is missing round(s) {missing}")
+    for s in sorted(invalid, key=lambda s: (s.round_index or 0, s.record_index)):
+        problems.append(
+            f"round {s.round_index} (record {s.record_index}) was left out as invalid ({s.reason})"
+        )
+    if not declared:
+        unknown = [s.record_index for s in unplaced if s.map_name in (None, map_name)]
+        if unknown:
+            problems.append(
+                f"has no last_round_idx, and invalid record(s) {unknown} of unreadable "
+                "trajectory could be its final round"
+            )
+    return problems
 
 
 def read_annotation_file(path: Path) -> list[object]:
@@ -169,6 +242,13 @@ def check_split(
     data_dir: str | Path, split: str, check_map_images: bool = True
 ) -> tuple[list[AvdnRecord], list[ValidationIssue]]:
     """Every valid record of a split and every issue found, without raising on records."""
+    records, issues, _ = _check_split(data_dir, split, check_map_images)
+    return records, issues
+
+
+def _check_split(
+    data_dir: str | Path, split: str, check_map_images: bool
+) -> tuple[list[AvdnRecord], list[ValidationIssue], list[SkippedRecord]]:
     if split not in SPLITS:
         raise ConfigError(f"unknown split {split!r}; choose one of {', '.join(SPLITS)}")
     data_dir = Path(data_dir)
@@ -181,7 +261,22 @@ def check_split(
             bad = {i.record_index for i in map_issues}
             records = [r for r, i in zip(records, indices, strict=True) if i not in bad]
             issues = sorted(issues + map_issues, key=lambda i: i.record_index or 0)
-    return records, issues
+    return records, issues, _skipped_records(data, issues)
+
+
+def _skipped_records(
+    data: Sequence[object], issues: Sequence[ValidationIssue]
+) -> list[SkippedRecord]:
+    by_record: dict[int, list[ValidationIssue]] = defaultdict(list)
+    for issue in issues:
+        # Every record issue has its index; a file-level issue raises before this point.
+        if issue.record_index is not None:
+            by_record[issue.record_index].append(issue)
+    skipped = []
+    for index in sorted(by_record):
+        map_name, traj, round_index = record_place(data[index])
+        skipped.append(SkippedRecord(index, map_name, traj, round_index, tuple(by_record[index])))
+    return skipped
 
 
 def load_split(
@@ -194,11 +289,16 @@ def load_split(
     """Load and validate one split of an AVDN-format dataset.
 
     Raises :class:`AvdnValidationError` listing every problem, unless ``skip_invalid``:
-    then invalid records are left out and described in ``AvdnSplit.skipped``.
+    then invalid records are left out and described in ``AvdnSplit.skipped`` (issues) and
+    ``AvdnSplit.skipped_records``.
     """
-    records, issues = check_split(data_dir, split, check_map_images)
+    records, issues, skipped = _check_split(data_dir, split, check_map_images)
     if issues and not skip_invalid:
         raise AvdnValidationError(issues)
     return AvdnSplit(
-        split=split, data_dir=Path(data_dir), records=tuple(records), skipped=tuple(issues)
+        split=split,
+        data_dir=Path(data_dir),
+        records=tuple(records),
+        skipped=tuple(issues),
+        skipped_records=tuple(skipped),
     )

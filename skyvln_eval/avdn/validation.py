@@ -50,6 +50,22 @@ class _Pending:
     attention: tuple[AttentionCircle, ...]
 
 
+def record_place(raw: Any) -> tuple[str | None, str | None, int | None]:
+    """(map_name, trajectory index, round) a record names, each None when unreadable.
+
+    For records that fail validation: an ANDH-Full trajectory must know which of its
+    rounds were left out, even when the record is otherwise unusable.
+    """
+    if not isinstance(raw, dict):
+        return None, None, None
+    map_name, route = raw.get("map_name"), raw.get("route_index")
+    place_map = map_name if isinstance(map_name, str) and _MAP_NAME.fullmatch(map_name) else None
+    match = _ROUTE_INDEX.fullmatch(route) if isinstance(route, str) else None
+    if match is None or int(match.group(2)) < 1:
+        return place_map, None, None
+    return place_map, match.group(1), int(match.group(2))
+
+
 def _is_number(value: Any) -> bool:
     # bool is a subclass of int in Python but a different JSON type.
     return type(value) is float or type(value) is int

@@ -286,7 +286,9 @@ def convert_split(
     """Convert one split (see the module docstring); ``on_progress(n)`` after n more episodes."""
     data_dir = Path(data_dir)
     loaded = load_split(data_dir, split, skip_invalid=skip_invalid)
-    episodes, incomplete = build_episodes(loaded.records, split, mode, str(loaded.annotation_path))
+    episodes, incomplete = build_episodes(
+        loaded.records, split, mode, str(loaded.annotation_path), loaded.skipped_records
+    )
     if incomplete and not skip_invalid:
         raise AvdnValidationError(incomplete)
     target = split_output_dir(out_dir, split, mode)

@@ -87,6 +87,51 @@ def test_incomplete_trajectory_cannot_form_a_full_episode(
         loaded.episodes("full")  # type: ignore[arg-type]
 
 
+def test_a_skipped_round_makes_its_trajectory_incomplete(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    # Without last_round_idx (it may be absent), rounds 1-2 alone looked whole: the
+    # ANDH-Full episode ended at round 2's end instead of the real final view.
+    records = trajectory("7", 3) + trajectory("8", 1)
+    for record in records:
+        del record["last_round_idx"]
+    records[2]["angle"] = "north"
+    root = dataset_factory({"val_seen": records})
+    loaded = load_split(root, "val_seen", skip_invalid=True)
+    with pytest.raises(
+        AvdnValidationError, match=r"trajectory 1913/7 round 3 \(record 2\)"
+    ) as info:
+        loaded.episodes("andh-full")
+    assert "field 'angle'" in str(info.value)
+    assert [
+        (s.record_index, s.trajectory_index, s.round_index) for s in loaded.skipped_records
+    ] == [(2, "7", 3)]
+    assert [e.episode_id for e in loaded.episodes("andh-full", skip_incomplete=True)] == [
+        "1913__8_1"
+    ]
+    assert len(loaded.episodes("andh")) == 3
+
+
+def test_a_skipped_record_of_unreadable_trajectory_leaves_out_undeclared_ones(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    undeclared = trajectory("7", 2)
+    for record in undeclared:
+        del record["last_round_idx"]
+    unreadable = trajectory("7", 3)[2] | {"route_index": "7-3"}
+    other_map = trajectory("9", 1, map_name="55")
+    for record in other_map:
+        del record["last_round_idx"]
+    records = undeclared + trajectory("5", 2) + other_map + [unreadable]
+    root = dataset_factory({"val_seen": records}, maps=("1913", "55"))
+    loaded = load_split(root, "val_seen", skip_invalid=True)
+    full = loaded.episodes("andh-full", skip_incomplete=True)
+    # Trajectory 5 declares its two rounds; map 55 is not the unreadable record's map.
+    assert [e.episode_id for e in full] == ["1913__5_1", "55__9_1"]
+    with pytest.raises(AvdnValidationError, match=r"invalid record\(s\) \[5\]"):
+        loaded.episodes("andh-full")
+
+
 def test_test_split_with_only_start_views_has_no_ground_truth(
     dataset_factory: Callable[..., Path],
 ) -> None:

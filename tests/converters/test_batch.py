@@ -201,6 +201,15 @@ def test_incomplete_trajectories_are_refused_in_full_mode(
         convert_split(root, "val_seen", tmp_path, "andh-full")
     report = convert_split(root, "val_seen", tmp_path, "andh-full", skip_invalid=True)
     assert report.outcomes == [] and "missing round" in report.invalid[0].message
+    # No last_round_idx and an invalid final round: rounds 1-2 are not the trajectory.
+    rounds = [make_record(route_index=f"7_{k}") for k in (1, 2, 3)]
+    for record in rounds:
+        del record["last_round_idx"]
+    rounds[2]["angle"] = "north"
+    root = dataset_factory({"val_seen": rounds})
+    report = convert_split(root, "val_seen", tmp_path / "b", "andh-full", skip_invalid=True)
+    assert report.outcomes == [] and read_manifest(report.manifest_path) == []
+    assert any("round 3 (record 2) was left out" in i.message for i in report.invalid)
 
 
 def test_manifest_version_is_checked(tmp_path: Path) -> None:
