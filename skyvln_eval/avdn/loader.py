@@ -11,6 +11,8 @@ import json
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from itertools import count as count_from
+from itertools import islice
 from pathlib import Path
 
 from skyvln_eval.avdn.constants import (
@@ -182,9 +184,9 @@ def _incomplete_trajectory(
     declared = [r.last_round_idx for r in rounds if r.last_round_idx is not None]
     expected = max(declared) if declared else max(present | invalid_rounds)
     problems = []
-    missing = sorted(set(range(1, expected + 1)) - present - invalid_rounds)
+    missing = _missing_rounds(expected, present | invalid_rounds)
     if missing:
-        problems.append(f"is missing round(s) {missing}")
+        problems.append(f"is missing {missing}")
     for s in sorted(invalid, key=lambda s: (s.round_index or 0, s.record_index)):
         problems.append(
             f"round {s.round_index} (record {s.record_index}) was left out as invalid ({s.reason})"
@@ -199,6 +201,22 @@ def _incomplete_trajectory(
     return problems
 
 
+#: Missing rounds named in an issue; the count says how many more.
+MAX_LISTED_ROUNDS = 10
+
+
+def _missing_rounds(expected: int, have: set[int]) -> str | None:
+    """'round(s) [2, 5]' for rounds 1..expected not in ``have`` (None if none), without
+    listing every round of a trajectory that claims a billion (a wrong last_round_idx)."""
+    count = expected - sum(1 for k in have if 1 <= k <= expected)
+    if count == 0:
+        return None
+    # At most len(have) + MAX_LISTED_ROUNDS candidates are looked at.
+    first = list(islice((k for k in count_from(1) if k not in have), min(count, MAX_LISTED_ROUNDS)))
+    more = f" and {count - len(first)} more" if count > len(first) else ""
+    return f"round(s) {first}{more}"
+
+
 def read_annotation_file(path: Path) -> list[object]:
     """Decode an annotation file; raises :class:`AvdnFileError` unless it is a JSON list."""
     if not path.is_file():
@@ -211,6 +229,9 @@ def read_annotation_file(path: Path) -> list[object]:
         ) from exc
     except UnicodeDecodeError as exc:
         raise AvdnFileError(str(path), f"not UTF-8 text ({exc.reason})") from exc
+    except ValueError as exc:  # Python reads no integer of more than 4,300 digits
+        reason = str(exc).split(";")[0]  # its advice (set_int_max_str_digits) is not ours
+        raise AvdnFileError(str(path), f"cannot be read: {reason}") from exc
     if not isinstance(data, list):
         kind = type(data).__name__.replace("dict", "object")
         raise AvdnFileError(str(path), f"expected a JSON list of records, got a JSON {kind}")

@@ -14,7 +14,7 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 from numpy.typing import NDArray
@@ -71,6 +71,46 @@ def _is_number(value: Any) -> bool:
     return type(value) is float or type(value) is int
 
 
+def _number_problem(value: Any, what: str = "value") -> str | None:
+    """Why ``value`` is not a finite number a 64-bit float holds (None if it is one)."""
+    if not _is_number(value):
+        return f"expected a number, got {_type_name(value)} {value!r}"
+    try:
+        finite = math.isfinite(value)
+    except OverflowError:  # JSON allows any integer; one beyond 1.8e308 is no float
+        return f"an integer of {len(str(abs(value)))} digits is too large for a 64-bit float"
+    if not finite:
+        return f"NaN or infinite {what} ({value!r})"
+    return None
+
+
+def _unencodable(value: Any, path: str) -> tuple[str, str] | None:
+    """(path, problem) for the first string or object key in ``value`` that is not valid
+    Unicode: a lone surrogate escape such as ``"\\ud83d"`` (half an emoji) decodes from
+    JSON but cannot be written as UTF-8, so every file made from the record would fail."""
+    if isinstance(value, str):
+        try:
+            value.encode("utf-8")
+        except UnicodeEncodeError as exc:
+            bad = ascii(value[exc.start : exc.end])
+            return path, f"not valid Unicode text: lone surrogate {bad} at character {exc.start}"
+        return None
+    if isinstance(value, list):
+        for i, item in enumerate(value):
+            if found := _unencodable(item, f"{path}[{i}]"):
+                return found
+    elif isinstance(value, dict):
+        for key, item in value.items():
+            name = f"{path}[{key!a}]"
+            if found := _unencodable(key, name) or _unencodable(item, name):
+                return found
+    return None
+
+
+def _text_ok(value: Any) -> TypeGuard[str]:
+    return isinstance(value, str) and _unencodable(value, "") is None
+
+
 def _type_name(value: Any) -> str:
     if value is None:
         return "null"
@@ -87,11 +127,8 @@ def _type_name(value: Any) -> str:
 def _locate_bad_number(value: Any, path: str, depth: int) -> tuple[str, str] | None:
     """Walk a nested list and return (path, problem) for its first bad element."""
     if depth == 0:
-        if not _is_number(value):
-            return path, f"expected a number, got {_type_name(value)} {value!r}"
-        if not math.isfinite(value):
-            return path, f"NaN or infinite coordinate ({value!r})"
-        return None
+        problem = _number_problem(value, "coordinate")
+        return None if problem is None else (path, problem)
     if not isinstance(value, list):
         return path, f"expected a list, got {_type_name(value)}"
     for i, item in enumerate(value):
@@ -114,17 +151,20 @@ def _corner_array(
         arr = None
     good_shape = (
         arr is not None
-        and arr.dtype.kind in "fi"
         and arr.ndim == depth
         and arr.shape[arr.ndim - len(expected_tail) :] == expected_tail
     )
-    if arr is not None and good_shape:
-        arr = arr.astype(np.float64, copy=False)
-        if np.isfinite(arr).all():
-            return arr
+    if arr is not None and good_shape and arr.dtype.kind in "fi":
+        floats = arr.astype(np.float64, copy=False)
+        if np.isfinite(floats).all():
+            return floats
     located = _locate_bad_number(value, name, depth)
     if located is not None:
         report(located[0], located[1])
+    elif arr is not None and good_shape:
+        # Every element is a finite number a float holds, but numpy kept an integer beyond
+        # int64 as a Python int (object or uint64 array).
+        return arr.astype(np.float64)
     elif isinstance(value, list) and name == "gt_path_corners" and not value:
         report(name, "empty gt_path_corners: at least the start view is required")
     else:
@@ -139,11 +179,9 @@ def _check_latlng(value: Any, name: str, report: Any) -> bool:
         report(name, f"expected [lat, lng], got {_type_name(value)} {value!r}")
         return False
     for i, v in enumerate(value):
-        if not _is_number(v):
-            report(f"{name}[{i}]", f"expected a number, got {_type_name(v)} {v!r}")
-            return False
-        if not math.isfinite(v):
-            report(f"{name}[{i}]", f"NaN or infinite coordinate ({v!r})")
+        problem = _number_problem(v, "coordinate")
+        if problem is not None:
+            report(f"{name}[{i}]", problem)
             return False
     if not (-90.0 <= value[0] <= 90.0 and -180.0 <= value[1] <= 180.0):
         report(name, f"not a valid [lat, lng]: {value!r}")
@@ -185,13 +223,15 @@ def _check_scalars(raw: dict[str, Any], report: Any) -> bool:
             if not isinstance(item, str):
                 report(f"pre_dialogs[{i}]", f"expected a string, got {_type_name(item)}")
                 ok = False
+    for key in ("instructions", "pre_dialogs"):
+        if found := _unencodable(raw[key], key):
+            report(*found)
+            ok = False
     for key in ("lng_ratio", "lat_ratio", "angle"):
         v = raw[key]
-        if not _is_number(v):
-            report(key, f"expected a number, got {_type_name(v)} {v!r}")
-            ok = False
-        elif not math.isfinite(v):
-            report(key, f"NaN or infinite value ({v!r})")
+        problem = _number_problem(v)
+        if problem is not None:
+            report(key, problem)
             ok = False
         elif key != "angle" and v <= 0:
             report(key, f"expected degrees per pixel > 0, got {v!r}")
@@ -222,8 +262,9 @@ def _check_attention(value: Any, report: Any) -> tuple[AttentionCircle, ...] | N
         if not _check_latlng(item[0], f"{name}[0]", report):
             return None
         radius = item[1]
-        if not _is_number(radius) or not math.isfinite(radius) or radius < 0:
-            report(f"{name}[1]", f"expected a radius >= 0 in pixels, got {radius!r}")
+        problem = _number_problem(radius)
+        if problem is not None or radius < 0:
+            report(f"{name}[1]", problem or f"expected a radius >= 0 in pixels, got {radius!r}")
             return None
         circles.append(AttentionCircle((item[0][0], item[0][1]), radius))
     return tuple(circles)
@@ -239,11 +280,8 @@ def _check_record(
         )
         return None
     map_name, route = raw.get("map_name"), raw.get("route_index")
-    episode = (
-        episode_id_of(map_name, route)
-        if isinstance(map_name, str) and isinstance(route, str)
-        else None
-    )
+    # Only valid text in the id: an issue is printed, and a lone surrogate cannot be.
+    episode = episode_id_of(map_name, route) if _text_ok(map_name) and _text_ok(route) else None
     count = len(issues)
 
     def report(field: str, message: str) -> None:
@@ -255,6 +293,16 @@ def _check_record(
     if missing:
         return None
     _check_scalars(raw, report)
+    for key, value in raw.items():
+        # Unknown keys are kept and written out verbatim: their text must be writable.
+        if key in RECORD_KEYS:
+            continue
+        if not _text_ok(key):
+            report(
+                ascii(key), "not valid Unicode text: an unknown key's name holds a lone surrogate"
+            )
+        elif found := _unencodable(value, key):
+            report(*found)
     corners = _corner_array(raw["gt_path_corners"], "gt_path_corners", (4, 2), report)
     destination = None
     if "destination" in raw:

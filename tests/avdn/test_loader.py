@@ -87,6 +87,20 @@ def test_incomplete_trajectory_cannot_form_a_full_episode(
         loaded.episodes("full")  # type: ignore[arg-type]
 
 
+def test_a_trajectory_claiming_a_billion_rounds_is_reported_briefly(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    # The missing rounds were listed one by one: a set of a billion ints, the run hung.
+    records = trajectory("0", 2)
+    records[1]["last_round_idx"] = 10**9
+    loaded = load_split(dataset_factory({"val_seen": records}), "val_seen")
+    with pytest.raises(AvdnValidationError) as info:
+        loaded.episodes("andh-full")
+    assert "missing round(s) [3, 4, 5, 6, 7, 8, 9, 10, 11, 12] and 999999988 more" in str(
+        info.value
+    )
+
+
 def test_a_skipped_round_makes_its_trajectory_incomplete(
     dataset_factory: Callable[..., Path],
 ) -> None:

@@ -89,6 +89,84 @@ def test_nan_or_infinite_coordinate(dataset_factory: Callable[..., Path], value:
     assert "NaN or infinite" in issue.message
 
 
+def _with(record: dict[str, Any], path: tuple[Any, ...], value: Any) -> dict[str, Any]:
+    target: Any = record
+    for key in path[:-1]:
+        target = target[key]
+    target[path[-1]] = value
+    return record
+
+
+@pytest.mark.parametrize(
+    ("path", "field"),
+    [
+        (("angle",), "angle"),
+        (("lat_ratio",), "lat_ratio"),
+        (("gps_botm_left", 1), "gps_botm_left[1]"),
+        (("gt_path_corners", 1, 2, 0), "gt_path_corners[1][2][0]"),
+        (("destination", 3, 1), "destination[3][1]"),
+        (("attention_list", 0, 1), "attention_list[0][1]"),
+    ],
+)
+def test_an_integer_too_large_for_a_float_is_a_problem_not_a_crash(
+    dataset_factory: Callable[..., Path], path: tuple[Any, ...], field: str
+) -> None:
+    # 1 followed by 400 zeros is a JSON number, and OverflowError in math.isfinite.
+    issue = only_issue(dataset_factory, [_with(make_record(), path, 10**400)])
+    assert issue.field == field
+    assert "an integer of 401 digits is too large for a 64-bit float" in issue.message
+
+
+def test_an_integer_beyond_int64_that_a_float_holds_is_a_number(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    record = make_record(n_views=1)
+    record["gt_path_corners"][0][0][0] = 10**20  # numpy keeps it as an object
+    _, issues = check_split(dataset_factory({"val_seen": [record]}), "val_seen")
+    # Its geometry is judged (it was 'expected views of shape 4x2 ..., got 1x4x2').
+    assert [(i.field, i.message.split(" (")[0]) for i in issues] == [
+        ("gt_path_corners[0]", "view is not square"),
+        ("gt_path_corners[0]", "view lies outside the map bounds gps_botm_left..gps_top_right"),
+    ]
+
+
+def test_an_integer_longer_than_python_reads_is_a_file_error(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    root = dataset_factory({"val_seen": [make_record()]})
+    path = root / "annotations" / "val_seen_data.json"
+    path.write_text(path.read_text().replace('"angle": 30.0', '"angle": 1' + "0" * 5000))
+    with pytest.raises(AvdnFileError, match=r"cannot be read: Exceeds the limit \(4300 digits\)"):
+        check_split(root, "val_seen")
+
+
+@pytest.mark.parametrize(
+    ("path", "field"),
+    [
+        (("instructions",), "instructions"),
+        (("pre_dialogs",), "pre_dialogs[1]"),
+        (("note",), "note['text'][0]"),
+        (("\udc00",), "'\\udc00'"),
+    ],
+)
+def test_a_lone_surrogate_is_a_problem_of_its_field(
+    dataset_factory: Callable[..., Path], path: tuple[str, ...], field: str
+) -> None:
+    # "\ud83d" is half an emoji: JSON decodes it, UTF-8 cannot encode it, and the converter
+    # crashed on it (the whole batch, nothing written).
+    values = {
+        "instructions": "[INS] \ud83d fly north",
+        "pre_dialogs": ["[INS] go", "[QUE] \ud83d?"],
+        "note": {"text": ["\ud83d"]},
+        "\udc00": 1,
+    }
+    record = make_record(route_index="2_2", **{path[0]: values[path[0]]})
+    issue = only_issue(dataset_factory, [record])
+    assert (issue.field, issue.episode_id) == (field, "1913__2_2")
+    assert "not valid Unicode text" in issue.message
+    str(issue).encode("utf-8")  # the issue itself can be printed
+
+
 def test_nan_in_json_text_is_caught(tmp_path: Path, dataset_factory: Callable[..., Path]) -> None:
     root = dataset_factory({"val_seen": [make_record()]})
     path = root / "annotations" / "val_seen_data.json"

@@ -160,6 +160,27 @@ def test_failures_and_invalid_records_are_reported_not_lost(
     assert [r.episode_id for r in read_manifest(report.manifest_path)] == ["1913__1_1"]
 
 
+def test_records_that_would_crash_the_writer_are_skipped_as_invalid(
+    dataset_factory: Callable[..., Path], tmp_path: Path
+) -> None:
+    # A lone surrogate stopped the whole batch (UnicodeEncodeError, nothing written), a
+    # 401-digit angle raised OverflowError in validation.
+    records = [
+        make_record(route_index="1_1", instructions="[INS] \ud83d go"),
+        make_record(route_index="2_1", angle=10**400),
+        make_record(route_index="3_1"),
+    ]
+    root = dataset_factory({"val_seen": records})
+    with pytest.raises(AvdnValidationError, match="not valid Unicode text"):
+        convert_split(root, "val_seen", tmp_path)
+    report = convert_split(root, "val_seen", tmp_path, skip_invalid=True)
+    assert [(i.record_index, i.field) for i in report.invalid] == [
+        (0, "instructions"),
+        (1, "angle"),
+    ]
+    assert [r.episode_id for r in read_manifest(report.manifest_path)] == ["1913__3_1"]
+
+
 _convert_map = batch.run_map_job  # the real one, also in worker processes
 
 
