@@ -198,8 +198,8 @@ def _summarise(data_dir: Path, skip_invalid: bool) -> list[SplitSummary]:
             _echo_problem(f"{split}: no annotation file, skipped", "yellow")
             continue
         loaded = load_split(data_dir, split, skip_invalid=skip_invalid)
-        for issue in loaded.skipped:
-            _echo_problem(f"skipped: {issue}", "yellow")
+        for record in loaded.skipped_records:
+            _echo_problem(f"skipped: {record}", "yellow")  # one line per record
         if loaded.skipped:
             _echo_problem(
                 f"{split}: skipped {len(loaded.skipped_record_indices)} invalid record(s), "

@@ -52,10 +52,20 @@ class SkippedRecord:
         return next((i.episode_id for i in self.issues if i.episode_id is not None), None)
 
     @property
+    def reasons(self) -> tuple[str, ...]:
+        """Each issue without the file and record (for a line that names them)."""
+        return tuple(
+            f"field '{i.field}': {i.message}" if i.field else i.message for i in self.issues
+        )
+
+    @property
     def reason(self) -> str:
-        """The first issue, without the file and record (for a line that names them)."""
-        first = self.issues[0]
-        return f"field '{first.field}': {first.message}" if first.field else first.message
+        return self.reasons[0]
+
+    def __str__(self) -> str:
+        """One line: the file, record and episode, then every problem of the record."""
+        where = ValidationIssue(self.issues[0].file, "", self.record_index, self.episode_id)
+        return f"{str(where).removesuffix(': ')}: {'; '.join(self.reasons)}"
 
 
 @dataclass(frozen=True)

@@ -20,6 +20,7 @@ from skyvln_eval.converters.convert import (
     episode_metadata,
 )
 from skyvln_eval.converters.hf import export_parquet, to_hf_dataset
+from skyvln_eval.converters.left_out import LEFT_OUT_NAME, LeftOut, read_left_out
 from skyvln_eval.converters.manifest import (
     MANIFEST_NAME,
     ManifestRow,
@@ -44,10 +45,12 @@ from skyvln_eval.converters.writer import McapLogWriter, encode_json
 __all__ = [
     "CLOCK_STEP_NS",
     "DEFAULT_OPTIONS",
+    "LEFT_OUT_NAME",
     "MANIFEST_NAME",
     "ConvertOptions",
     "ConvertReport",
     "EpisodeOutcome",
+    "LeftOut",
     "LogChannel",
     "LogCheck",
     "LogMessage",
@@ -67,6 +70,7 @@ __all__ = [
     "message_digest",
     "read_episode",
     "read_episode_bytes",
+    "read_left_out",
     "read_log",
     "read_log_bytes",
     "read_manifest",

@@ -1,7 +1,8 @@
 """Convert a whole split: one episode log per episode plus the split's manifest.
 
-Output layout: ``OUT/<split>/<mode>/<episode_id>.mcap`` and
-``OUT/<split>/<mode>/manifest.parquet``. Work is grouped by map (each map image is read
+Output layout: ``OUT/<split>/<mode>/<episode_id>.mcap``,
+``OUT/<split>/<mode>/manifest.parquet`` and ``left_out.json`` beside it (the records,
+trajectories and episodes that have no log, and why). Work is grouped by map (each map image is read
 once per group) and spread over ``workers`` processes; every file is a pure function of
 its episode, its map and the options, so the output is byte-identical whatever the
 number of workers.
@@ -28,6 +29,7 @@ from skyvln_eval.avdn import (
     Episode,
     EpisodeMode,
     MapGeoref,
+    SkippedRecord,
     build_episodes,
     load_map_bgr,
     load_split,
@@ -42,6 +44,7 @@ from skyvln_eval.converters.convert import (
     convert_episode,
     episode_rounds,
 )
+from skyvln_eval.converters.left_out import LEFT_OUT_NAME, LeftOut, write_left_out
 from skyvln_eval.converters.manifest import (
     MANIFEST_NAME,
     ManifestRow,
@@ -92,14 +95,24 @@ class MapJob:
 
 @dataclass
 class ConvertReport:
-    """The result of converting a split: manifest rows, and what was skipped or failed."""
+    """The result of converting a split: manifest rows, and what was left out or failed.
+
+    ``invalid`` holds every issue of the ``skipped_records`` (several per record at
+    times); ``incomplete`` one issue per ANDH-Full trajectory left out.
+    """
 
     out_dir: Path
     manifest_path: Path
     rows: list[ManifestRow] = field(default_factory=list)
     outcomes: list[EpisodeOutcome] = field(default_factory=list)
     invalid: list[ValidationIssue] = field(default_factory=list)
+    skipped_records: list[SkippedRecord] = field(default_factory=list)
+    incomplete: list[ValidationIssue] = field(default_factory=list)
     removed_stale: list[str] = field(default_factory=list)
+
+    @property
+    def left_out_path(self) -> Path:
+        return self.out_dir / LEFT_OUT_NAME
 
     def count(self, status: Status) -> int:
         return sum(1 for o in self.outcomes if o.status == status)
@@ -107,6 +120,23 @@ class ConvertReport:
     @property
     def failed(self) -> list[EpisodeOutcome]:
         return [o for o in self.outcomes if o.status == "failed"]
+
+    def left_out(self) -> list[LeftOut]:
+        """Everything without a log: invalid records, incomplete trajectories, failures."""
+        return [
+            *(
+                LeftOut("invalid_record", s.episode_id, s.record_index, s.reasons)
+                for s in self.skipped_records
+            ),
+            *(
+                LeftOut("incomplete_trajectory", i.episode_id, None, (i.message,))
+                for i in self.incomplete
+            ),
+            *(
+                LeftOut("failed_episode", o.episode_id, None, (o.note or "failed",))
+                for o in self.failed
+            ),
+        ]
 
 
 def input_fingerprint(
@@ -293,7 +323,13 @@ def convert_split(
         raise AvdnValidationError(incomplete)
     target = split_output_dir(out_dir, split, mode)
     target.mkdir(parents=True, exist_ok=True)
-    report = ConvertReport(target, target / MANIFEST_NAME, invalid=[*loaded.skipped, *incomplete])
+    report = ConvertReport(
+        target,
+        target / MANIFEST_NAME,
+        invalid=list(loaded.skipped),
+        skipped_records=list(loaded.skipped_records),
+        incomplete=incomplete,
+    )
     jobs = _jobs(episodes, data_dir, str(loaded.annotation_path), target, options)
     results: dict[str, EpisodeOutcome] = {}
     for outcomes in _run(jobs, workers):
@@ -305,6 +341,7 @@ def convert_split(
     report.rows = [o.row for o in report.outcomes if o.row is not None]
     report.removed_stale = _remove_stale(target, {r.file_name for r in report.rows})
     write_manifest(report.manifest_path, report.rows)
+    write_left_out(report.left_out_path, split, mode, report.left_out())
     return report
 
 

@@ -12,10 +12,12 @@ from pathlib import Path
 from skyvln_eval.avdn import EpisodeMode
 from skyvln_eval.converters.batch import convert_split
 from skyvln_eval.converters.convert import ConvertOptions
+from skyvln_eval.converters.left_out import LEFT_OUT_NAME
 from skyvln_eval.converters.manifest import MANIFEST_NAME
 from skyvln_eval.converters.validate import (
     check_log,
     check_manifest_folder,
+    folder_left_out,
     is_run_logs_folder,
     mcap_targets,
 )
@@ -49,7 +51,9 @@ def run_convert(
     report = convert_split(
         data_dir, split, out, mode, workers, options, skip_invalid, on_progress=on_progress
     )
-    for issue in report.invalid:
+    for record in report.skipped_records:
+        problem(f"skipped: {record}")  # one line per record, with all its problems
+    for issue in report.incomplete:
         problem(f"skipped: {issue}")
     for outcome in report.failed:
         problem(f"failed: {outcome.episode_id}: {outcome.note}")
@@ -59,9 +63,13 @@ def run_convert(
     echo(
         f"{split} ({mode}): {report.count('converted')} converted, "
         f"{report.count('skipped')} already converted (skipped), {len(report.failed)} failed, "
-        f"{len(report.invalid)} invalid record(s) left out; {size_mb:.1f} MB in {report.out_dir}"
+        f"{len(report.skipped_records)} invalid record(s) left out"
+        + (f", {len(report.incomplete)} incomplete trajectory(ies)" if report.incomplete else "")
+        + f"; {size_mb:.1f} MB in {report.out_dir}"
     )
     echo(f"manifest: {report.manifest_path}")
+    if report.left_out():
+        echo(f"left out, and why: {report.left_out_path}")
     return len(report.failed)
 
 
@@ -69,11 +77,17 @@ def run_validate_mcap(path: Path, echo: Echo, problem: Echo) -> int:
     """Check MCAP files / converted folders / a run's logs; print each problem; return how
     many. The summary counts the problems in the files and in the folders (manifests)."""
     folders, files = mcap_targets(path)
-    folder_problems = bad_folders = 0
+    folder_problems = bad_folders = left_out = 0
     for folder in folders:
-        issues = check_manifest_folder(folder)
+        entries, left_out_issues = folder_left_out(folder)
+        issues = check_manifest_folder(folder) + left_out_issues
         for issue in issues:
             problem(str(issue))
+        # Not a problem of the folder (the conversion chose to leave them out), but told:
+        # the logs are not the whole split.
+        for entry in entries:
+            echo(f"{folder}: left out at conversion: {entry}")
+        left_out += len(entries)
         folder_problems += len(issues)
         bad_folders += bool(issues)
         files.extend(sorted(folder.glob("*.mcap")))
@@ -92,5 +106,6 @@ def run_validate_mcap(path: Path, echo: Echo, problem: Echo) -> int:
     status = f"{total} problem(s): {', '.join(w for w in where if w)}" if total else "ok"
     runs = sum(is_run_logs_folder(folder) for folder in folders)
     kind = f" ({runs} folder(s) of a run's logs)" if runs else ""
-    echo(f"{path}: {len(files)} MCAP file(s){kind}, {messages} message(s) checked, {status}")
+    told = f"; {left_out} left out at conversion ({LEFT_OUT_NAME})" if left_out else ""
+    echo(f"{path}: {len(files)} MCAP file(s){kind}, {messages} message(s) checked, {status}{told}")
     return total

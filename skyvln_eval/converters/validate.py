@@ -6,7 +6,8 @@ re-parsed, each topic written with its declared schema, and every message decode
 and validated against the JSON schema stored in its own channel (plus: ``timestamp``
 equals the log time, base64 image data decodes). For a folder with a manifest: every
 listed file present, named after its episode id, with the listed content hash (so it is
-the very file the conversion wrote), and no unlisted logs. A run directory's logs
+the very file the conversion wrote), and no unlisted logs; its ``left_out.json`` (what the
+conversion left out, and why) readable and reported, not a problem. A run directory's logs
 (``RUN_DIR/logs/SPLIT/``, beside the run's ``run.json``) have no manifest: their files are
 checked one by one.
 """
@@ -24,6 +25,7 @@ from typing import Any, Final
 import jsonschema
 
 from skyvln_eval.converters import topics
+from skyvln_eval.converters.left_out import LEFT_OUT_NAME, LeftOut, read_left_out
 from skyvln_eval.converters.manifest import MANIFEST_NAME, episode_file_name, read_manifest
 from skyvln_eval.converters.reader import (
     LogChannel,
@@ -257,6 +259,18 @@ def check_manifest_folder(folder: str | Path) -> list[ValidationIssue]:
     return issues
 
 
+def folder_left_out(folder: str | Path) -> tuple[list[LeftOut], list[ValidationIssue]]:
+    """What the conversion of a folder left out (none without a ``left_out.json``: a run's
+    logs, or a folder converted before the file existed), and an issue if it is unreadable."""
+    path = Path(folder) / LEFT_OUT_NAME
+    if not path.is_file():
+        return [], []
+    try:
+        return read_left_out(path), []
+    except SkyvlnError as exc:
+        return [], [_unreadable(str(path), exc)]
+
+
 def mcap_targets(path: Path) -> tuple[list[Path], list[Path]]:
     """(folders holding a manifest or logs, loose log files) at or below ``path``."""
     if not path.is_dir():
@@ -275,6 +289,7 @@ def check_paths(paths: Iterable[Path]) -> tuple[list[LogCheck], list[ValidationI
         folders, files = mcap_targets(path)
         for folder in folders:
             folder_issues.extend(check_manifest_folder(folder))
+            folder_issues.extend(folder_left_out(folder)[1])
             files.extend(sorted(folder.glob("*.mcap")))
         checks.extend(check_log(f) for f in files)
     return checks, folder_issues

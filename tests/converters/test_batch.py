@@ -17,6 +17,7 @@ from skyvln_eval.avdn import distance_m, load_split, view_centre
 from skyvln_eval.converters import ConvertOptions, batch, read_log
 from skyvln_eval.converters import topics as t
 from skyvln_eval.converters.batch import convert_split, episode_file_name
+from skyvln_eval.converters.left_out import LEFT_OUT_NAME, LeftOut, read_left_out
 from skyvln_eval.converters.manifest import MANIFEST_NAME, read_manifest, write_manifest
 from skyvln_eval.converters.validate import check_manifest_folder
 from skyvln_eval.errors import AvdnValidationError, FormatVersionError
@@ -48,7 +49,8 @@ def test_manifest_lists_every_episode_with_its_figures(converted_sample: Convert
             assert row.file_name == episode_file_name(episode.episode_id)
             assert row.sha256 == sha256_file(path) and row.size_bytes == path.stat().st_size
         names = {p.name for p in report.out_dir.iterdir()}
-        assert names == {r.file_name for r in rows} | {MANIFEST_NAME}
+        assert names == {r.file_name for r in rows} | {MANIFEST_NAME, LEFT_OUT_NAME}
+        assert read_left_out(report.left_out_path) == []
 
 
 def test_rerun_skips_converted_episodes_and_workers_give_identical_output(
@@ -158,6 +160,16 @@ def test_failures_and_invalid_records_are_reported_not_lost(
     ]
     assert "77.tif" in (report.failed[0].note or "")
     assert [r.episode_id for r in read_manifest(report.manifest_path)] == ["1913__1_1"]
+    # The folder says what it lacks and why, not only the conversion's stderr.
+    assert read_left_out(report.left_out_path) == [
+        LeftOut(
+            "invalid_record",
+            "1913__2_1",
+            1,
+            ("field 'angle': expected a number, got string 'north'",),
+        ),
+        LeftOut("failed_episode", "77__3_1", None, (report.failed[0].note or "",)),
+    ]
 
 
 def test_records_that_would_crash_the_writer_are_skipped_as_invalid(
@@ -221,7 +233,7 @@ def test_incomplete_trajectories_are_refused_in_full_mode(
     with pytest.raises(AvdnValidationError, match="missing round"):
         convert_split(root, "val_seen", tmp_path, "andh-full")
     report = convert_split(root, "val_seen", tmp_path, "andh-full", skip_invalid=True)
-    assert report.outcomes == [] and "missing round" in report.invalid[0].message
+    assert report.outcomes == [] and "missing round" in report.incomplete[0].message
     # No last_round_idx and an invalid final round: rounds 1-2 are not the trajectory.
     rounds = [make_record(route_index=f"7_{k}") for k in (1, 2, 3)]
     for record in rounds:
@@ -230,7 +242,12 @@ def test_incomplete_trajectories_are_refused_in_full_mode(
     root = dataset_factory({"val_seen": rounds})
     report = convert_split(root, "val_seen", tmp_path / "b", "andh-full", skip_invalid=True)
     assert report.outcomes == [] and read_manifest(report.manifest_path) == []
-    assert any("round 3 (record 2) was left out" in i.message for i in report.invalid)
+    assert [i.field for i in report.invalid] == ["angle"]
+    assert [e.kind for e in read_left_out(report.left_out_path)] == [
+        "invalid_record",
+        "incomplete_trajectory",
+    ]
+    assert "round 3 (record 2) was left out" in report.incomplete[0].message
 
 
 def test_manifest_version_is_checked(tmp_path: Path) -> None:

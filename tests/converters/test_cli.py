@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 from typer.testing import CliRunner
 
 from skyvln_eval.cli import app
+from skyvln_eval.converters.left_out import LEFT_OUT_NAME
 from skyvln_eval.converters.manifest import MANIFEST_NAME
+from tests.conftest import CliOutcome, make_record
 from tests.converters.conftest import ConvertedSample
 
 runner = CliRunner()
@@ -102,3 +105,28 @@ def test_validate_checks_a_run_directorys_logs_without_a_manifest(
     assert f"{loose}: 2 MCAP file(s) but no {MANIFEST_NAME}" in result.output
     assert f"{one}: truncated" in result.output  # named once, not twice
     assert "2 problem(s): 1 in 1 file(s), 1 in 1 folder(s)" in result.output
+
+
+def test_records_left_out_are_counted_once_and_kept_in_the_folder(
+    dataset_factory: Callable[..., Path], tmp_path: Path, cli: Callable[..., CliOutcome]
+) -> None:
+    # Three problems in one record printed three 'skipped:' lines and '3 invalid record(s)'.
+    bad = make_record(route_index="2_1", angle="north", lat_ratio=-1.0, pre_dialogs="x")
+    root = dataset_factory({"val_seen": [make_record(route_index="1_1"), bad]})
+    args = ["convert", "--data-dir", str(root), "--split", "val_seen", "--out", str(tmp_path)]
+    result = cli(*args, "--skip-invalid")
+    assert result.code == 0, result.err
+    skipped = [line for line in result.err.splitlines() if line.startswith("skipped:")]
+    assert len(skipped) == 1 and "record 1 (episode 1913__2_1)" in skipped[0]
+    assert all(f in skipped[0] for f in ("'angle'", "'lat_ratio'", "'pre_dialogs'"))
+    assert "1 converted" in result.out and "1 invalid record(s) left out" in result.out
+
+    folder = tmp_path / "val_seen" / "andh"
+    result = cli("validate", str(folder))
+    assert result.code == 0, result.err  # left out on purpose: told, not a problem
+    assert f"{folder}: left out at conversion: invalid record 1 (episode 1913__2_1)" in result.out
+    assert f"ok; 1 left out at conversion ({LEFT_OUT_NAME})" in result.out
+
+    (folder / LEFT_OUT_NAME).write_text("{")
+    result = cli("validate", str(folder))
+    assert result.code == 1 and f"{folder / LEFT_OUT_NAME}: cannot be read as JSON" in result.err
