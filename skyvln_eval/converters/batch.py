@@ -22,7 +22,7 @@ import json
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import skyvln_eval
 from skyvln_eval.avdn import (
@@ -60,6 +60,13 @@ from skyvln_eval.fileio import sha256_bytes, sha256_file
 from skyvln_eval.worlds import WorldTile
 
 Status = Literal["converted", "skipped", "failed"]
+
+
+class RemovedLog(NamedTuple):
+    """A log of an earlier conversion that this one deleted, and the true reason."""
+
+    file_name: str
+    reason: str
 
 
 def split_output_dir(out_dir: str | Path, split: str, mode: str) -> Path:
@@ -108,7 +115,7 @@ class ConvertReport:
     invalid: list[ValidationIssue] = field(default_factory=list)
     skipped_records: list[SkippedRecord] = field(default_factory=list)
     incomplete: list[ValidationIssue] = field(default_factory=list)
-    removed_stale: list[str] = field(default_factory=list)
+    removed_stale: list[RemovedLog] = field(default_factory=list)
 
     @property
     def left_out_path(self) -> Path:
@@ -291,13 +298,38 @@ def _jobs(
     return sorted(jobs, key=lambda job: (-len(job.episodes), job.map_name))
 
 
-def _remove_stale(out_dir: Path, keep: set[str]) -> list[str]:
-    """Delete episode logs of this folder that are not episodes of this run, and temp files."""
+def _removal_reasons(report: ConvertReport) -> dict[str, str]:
+    """Why a log of an earlier run that this run did not write is deleted, by file name.
+
+    It goes even when this run could not convert its episode: it was made from an input
+    that is no longer there (a record now invalid, a map image since changed), and a
+    folder whose manifest listed it would pass that episode off as this input's.
+    """
+    reasons: dict[str, str] = {}
+    for o in report.failed:
+        reasons[episode_file_name(o.episode_id)] = f"this run could not convert it ({o.note})"
+    for issue in report.incomplete:
+        if issue.episode_id is not None:
+            name = episode_file_name(issue.episode_id)
+            reasons.setdefault(name, f"its trajectory was left out ({issue.message})")
+    for record in report.skipped_records:
+        if record.episode_id is not None:
+            name = episode_file_name(record.episode_id)
+            why = "; ".join(record.reasons)
+            reasons.setdefault(
+                name, f"its record {record.record_index} was left out as invalid ({why})"
+            )
+    return reasons
+
+
+def _remove_stale(out_dir: Path, keep: set[str], reasons: dict[str, str]) -> list[RemovedLog]:
+    """Delete this folder's episode logs that this run did not write, and temp files."""
     removed = []
     for path in sorted(out_dir.glob("*.mcap")):
         if path.name not in keep:
             path.unlink()
-            removed.append(path.name)
+            reason = reasons.get(path.name, "not an episode of this split and mode")
+            removed.append(RemovedLog(path.name, reason))
     for tmp in out_dir.glob(".*.mcap.*.tmp"):
         tmp.unlink(missing_ok=True)
     return removed
@@ -339,7 +371,9 @@ def convert_split(
             on_progress(len(outcomes))
     report.outcomes = [results[e.episode_id] for e in episodes]
     report.rows = [o.row for o in report.outcomes if o.row is not None]
-    report.removed_stale = _remove_stale(target, {r.file_name for r in report.rows})
+    report.removed_stale = _remove_stale(
+        target, {r.file_name for r in report.rows}, _removal_reasons(report)
+    )
     write_manifest(report.manifest_path, report.rows)
     write_left_out(report.left_out_path, split, mode, report.left_out())
     return report

@@ -57,8 +57,8 @@ def run_convert(
         problem(f"skipped: {issue}")
     for outcome in report.failed:
         problem(f"failed: {outcome.episode_id}: {outcome.note}")
-    for name in report.removed_stale:
-        problem(f"removed {report.out_dir / name}: not an episode of this split and mode")
+    for removed in report.removed_stale:
+        problem(f"removed {report.out_dir / removed.file_name}: {removed.reason}")
     size_mb = sum(r.size_bytes for r in report.rows) / 1e6
     echo(
         f"{split} ({mode}): {report.count('converted')} converted, "

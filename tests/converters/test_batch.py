@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 from collections.abc import Callable
@@ -112,7 +113,9 @@ def test_damaged_stale_and_leftover_files_are_handled(
     (folder / ".x.mcap.123.tmp").write_bytes(b"left by a killed run")
     report = convert_split(data_dir, "test_unseen", tmp_path, "andh-full")
     assert report.count("converted") == 1 and report.count("skipped") == len(first.rows) - 1
-    assert report.removed_stale == ["9999__1_1.mcap"]
+    assert report.removed_stale == [
+        batch.RemovedLog("9999__1_1.mcap", "not an episode of this split and mode")
+    ]
     assert _tree(folder) == expected
 
 
@@ -191,6 +194,28 @@ def test_records_that_would_crash_the_writer_are_skipped_as_invalid(
         (1, "angle"),
     ]
     assert [r.episode_id for r in read_manifest(report.manifest_path)] == ["1913__3_1"]
+
+
+def test_a_log_this_run_could_not_make_again_is_removed_with_the_true_reason(
+    dataset_factory: Callable[..., Path], tmp_path: Path
+) -> None:
+    records = [make_record(route_index="1_1"), make_record(map_name="77", route_index="2_1")]
+    root = dataset_factory({"val_seen": records}, maps=("1913", "77"))
+    assert convert_split(root, "val_seen", tmp_path).count("converted") == 2
+    # Its map changed to garbage, the other's record to invalid: neither log is of this
+    # input any more. They were removed as 'not an episode of this split and mode'.
+    (root / "train_images" / "77.tif").write_bytes(b"not a tiff")
+    records[0]["angle"] = "north"
+    (root / "annotations" / "val_seen_data.json").write_text(json.dumps(records))
+    report = convert_split(root, "val_seen", tmp_path, skip_invalid=True)
+    assert [name for name, _ in report.removed_stale] == ["1913__1_1.mcap", "77__2_1.mcap"]
+    invalid, failed = (reason for _, reason in report.removed_stale)
+    assert invalid == (
+        "its record 0 was left out as invalid (field 'angle': expected a number, got string "
+        "'north')"
+    )
+    assert failed.startswith("this run could not convert it (") and "77.tif" in failed
+    assert sorted(p.name for p in report.out_dir.iterdir()) == [LEFT_OUT_NAME, MANIFEST_NAME]
 
 
 _convert_map = batch.run_map_job  # the real one, also in worker processes
