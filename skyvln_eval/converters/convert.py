@@ -111,9 +111,16 @@ def episode_rounds(episode: Episode) -> int:
     return episode.records[-1].round_index
 
 
-def episode_metadata(episode: Episode, options: ConvertOptions) -> dict[str, str]:
-    """The ``skyvln_eval.episode`` metadata record: everything needed to rebuild the episode."""
+def episode_metadata(
+    episode: Episode, options: ConvertOptions, clock_step_ns: int | None = CLOCK_STEP_NS
+) -> dict[str, str]:
+    """The ``skyvln_eval.episode`` metadata record: everything needed to rebuild the episode.
+
+    ``options`` and ``clock_step_ns`` must describe the log written: what it holds, and
+    the time between its views (None: no fixed step, the key is left out).
+    """
     records = [record.to_json_dict() for record in episode.records]
+    clock = {} if clock_step_ns is None else {"clock_step_ns": str(clock_step_ns)}
     return {
         "format": t.EPISODE_FORMAT,
         "format_version": str(t.EPISODE_FORMAT_VERSION),
@@ -124,7 +131,7 @@ def episode_metadata(episode: Episode, options: ConvertOptions) -> dict[str, str
         "map_name": episode.map_name,
         "rounds": str(episode_rounds(episode)),
         "gt_views": str(len(episode.gt_path_corners)),
-        "clock_step_ns": str(CLOCK_STEP_NS),
+        **clock,
         "foxglove_schemas": f"{t.FOXGLOVE_SCHEMAS_PACKAGE}@{t.FOXGLOVE_SCHEMAS_VERSION}",
         # Verbatim AVDN JSON: floats keep their shortest repr, so re-parsing is exact.
         # NaN (only possible in unknown extra keys) is kept as Python's json writes it.

@@ -1,9 +1,10 @@
 """Run MCAPs: one log per (run, episode), Foxglove-ready, with everything the run did.
 
-A run log holds the episode itself (its metadata, so :func:`read_episode` works on it;
-GT path, GT views, destination, attention and map tile at time 0; the dialog at time 0,
-since the agent is given it at the start) and then, on the run's clock (simulated
-seconds; one second per step in official mode):
+A run log holds the episode itself (its metadata, so :func:`read_episode` works on it,
+saying what this log holds: observations or not, the map tile's size, 0 for none, and
+``clock_step_ns`` in official mode only; GT path, GT views, destination, attention and map
+tile at time 0; the dialog at time 0, since the agent is given it at the start) and then,
+on the run's clock (simulated seconds; one second per step in official mode):
 
 - ``/tf`` and ``/run/path``: where the drone was, ``/run/views``: every visited view;
 - ``/camera/observation``: the view below the drone at each decision (224 x 224, JPEG);
@@ -27,7 +28,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -106,6 +107,9 @@ class RunLogContent:
     view_times_s: list[float]
     control_log: pd.DataFrame | None = None
     obstacle_segments: list[tuple[float, float, ObstacleScenario]] = field(default_factory=list)
+    #: The fixed time between decisions (official mode: one second), or None when each
+    #: comes at its own simulated time (dynamics mode).
+    clock_step_ns: int | None = None
 
 
 class _Messages:
@@ -345,6 +349,23 @@ def write_run_log(
         raise OSError(error.errno, error.strerror, str(path)) from error
 
 
+#: Topics whose messages are images of what the drone saw.
+_OBSERVATION_TOPICS = frozenset({t.TOPIC_OBSERVATION, t.TOPIC_CAMERA_VIEWS})
+
+
+def _written_options(
+    options: ConvertOptions, world: WorldTile | None, observations: bool, out: _Messages
+) -> ConvertOptions:
+    """The options as the log holds them: a map tile only from a world, when images are
+    logged; observations if any image of what the drone saw is in it."""
+    tile = world is not None and observations and options.map_tile_max_side_px > 0
+    return replace(
+        options,
+        observations=any(item[2] in _OBSERVATION_TOPICS for item in out.items),
+        map_tile_max_side_px=options.map_tile_max_side_px if tile else 0,
+    )
+
+
 def _write_run_log(
     path: str | Path,
     episode: Episode,
@@ -353,8 +374,19 @@ def _write_run_log(
     observations: bool,
     options: ConvertOptions,
 ) -> None:
+    out = _Messages()
+    _agent_messages(out, episode, world, content.steps, options, observations)
+    _path_messages(out, episode, content)
+    if content.control_log is not None and len(content.control_log):
+        _control_messages(out, content.control_log)
+    _obstacle_messages(out, content.obstacle_segments)
+    # Said as written, not as asked: the converter's defaults (observations, a 384 px
+    # tile, one view a second) were claimed for logs without images and for dynamics runs.
+    written = _written_options(options, world, observations, out)
     with McapLogWriter(path) as writer:
-        writer.add_metadata(t.EPISODE_METADATA, episode_metadata(episode, options))
+        writer.add_metadata(
+            t.EPISODE_METADATA, episode_metadata(episode, written, content.clock_step_ns)
+        )
         writer.add_metadata(
             t.RUN_METADATA,
             {
@@ -364,15 +396,9 @@ def _write_run_log(
             },
         )
         poses = [view_to_pose(corners, episode.georef) for corners in episode.gt_path_corners]
-        write_static_content(episode, world if observations else None, poses, writer, options)
+        write_static_content(episode, world if observations else None, poses, writer, written)
         crash_point("run-log-start")  # test hook: no-op unless $SKYVLN_EVAL_CRASH_AT says
         for index, turn in enumerate(episode.dialog()):
             write_dialog_turn(writer, episode.episode_id, turn, index, 0)
-        out = _Messages()
-        _agent_messages(out, episode, world, content.steps, options, observations)
-        _path_messages(out, episode, content)
-        if content.control_log is not None and len(content.control_log):
-            _control_messages(out, content.control_log)
-        _obstacle_messages(out, content.obstacle_segments)
         out.write(writer)
         crash_point("run-log-end")

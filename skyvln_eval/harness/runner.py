@@ -37,6 +37,7 @@ from skyvln_eval.converters.reader import read_episode
 from skyvln_eval.errors import stops_the_run
 from skyvln_eval.harness.commander import SimulatedCommander
 from skyvln_eval.harness.config import RunConfig
+from skyvln_eval.harness.control_messages import ns
 from skyvln_eval.harness.dynamics_loop import DynamicsRollout, derived_seed, run_dynamics_episode
 from skyvln_eval.harness.official_loop import OfficialRollout, run_official_episode
 from skyvln_eval.harness.oracle import ground_truth_oracle, is_oracle
@@ -52,6 +53,8 @@ from skyvln_eval.worlds.tile import WorldTile
 LOGS_DIR = "logs"
 CONTROL_DIR = "control"
 _WORLD_CACHE_SIZE = 3
+#: The run log's clock in official mode: one second per step (it has no time of its own).
+OFFICIAL_STEP_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -169,11 +172,13 @@ def _official(
     rollout = run_official_episode(
         agent, episode, world, config.max_action_len, config.sensors, commander
     )
-    times = [float(k) for k in range(len(rollout.views))]  # one second per official step
-    content = RunLogContent({}, _steps(rollout, times), rollout.views, times)
+    times = [k * OFFICIAL_STEP_S for k in range(len(rollout.views))]
+    content = RunLogContent(
+        {}, _steps(rollout, times), rollout.views, times, clock_step_ns=ns(OFFICIAL_STEP_S)
+    )
     extra = {
         "step_outcomes": list(rollout.step_outcomes),
-        "simulated_s": float(len(rollout.views) - 1),
+        "simulated_s": (len(rollout.views) - 1) * OFFICIAL_STEP_S,
     }
     return rollout, content, extra
 
