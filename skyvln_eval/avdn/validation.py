@@ -156,7 +156,9 @@ def _corner_array(
     )
     if arr is not None and good_shape and arr.dtype.kind in "fi":
         floats = arr.astype(np.float64, copy=False)
-        if np.isfinite(floats).all():
+        # numpy turns JSON true/false among numbers into 1/0: an exact 0 or 1 sends the
+        # list to the walk below, which tells a boolean from a number.
+        if np.isfinite(floats).all() and not ((floats == 0.0) | (floats == 1.0)).any():
             return floats
     located = _locate_bad_number(value, name, depth)
     if located is not None:
@@ -223,10 +225,13 @@ def _check_scalars(raw: dict[str, Any], report: Any) -> bool:
             if not isinstance(item, str):
                 report(f"pre_dialogs[{i}]", f"expected a string, got {_type_name(item)}")
                 ok = False
-    for key in ("instructions", "pre_dialogs"):
-        if found := _unencodable(raw[key], key):
-            report(*found)
-            ok = False
+    texts = [raw["instructions"], *pre] if isinstance(pre, list) else [raw["instructions"]]
+    # One check in the usual case; the walk names the field when it fails.
+    if not (all(isinstance(x, str) for x in texts) and _text_ok("".join(texts))):
+        for key in ("instructions", "pre_dialogs"):
+            if found := _unencodable(raw[key], key):
+                report(*found)
+                ok = False
     for key in ("lng_ratio", "lat_ratio", "angle"):
         v = raw[key]
         problem = _number_problem(v)
@@ -364,6 +369,43 @@ def _check_view_geometry(
     return bad
 
 
+def _check_destinations(
+    pending: list[_Pending], file: str, issues: list[ValidationIssue]
+) -> set[int]:
+    """Destination corners are [lat, lng] and the area's centre lies on its map: swapped
+    [lng, lat] corners are off the globe or, where they still read as [lat, lng], far
+    off the map. Its centre, not every corner as for the views: a destination is a
+    landmark's footprint, which may reach past the image's edge (two in the synthetic
+    sample do, by about 0.2 m)."""
+    have = [(p, p.destination) for p in pending if p.destination is not None]
+    if not have:
+        return set()
+    corners = np.stack([d for _, d in have])  # (R, 4, 2)
+    off_globe = (np.abs(corners[..., 0]) > 90.0) | (np.abs(corners[..., 1]) > 180.0)
+    centres = corners.mean(axis=1)
+    lo = np.array([p.raw["gps_botm_left"] for p, _ in have])
+    hi = np.array([p.raw["gps_top_right"] for p, _ in have])
+    off_map = ((centres < lo) | (centres > hi)).any(axis=1)
+    bad: set[int] = set()
+    for r in np.flatnonzero(off_globe.any(axis=1) | off_map):
+        p = have[r][0]
+        if off_globe[r].any():
+            k = int(np.flatnonzero(off_globe[r])[0])
+            field = f"destination[{k}]"
+            where = f"not a valid [lat, lng]: {corners[r, k].tolist()!r}"
+        else:
+            field = "destination"
+            where = (
+                f"destination centre {centres[r].tolist()!r} lies outside the map bounds "
+                "gps_botm_left..gps_top_right"
+            )
+        episode = episode_id_of(p.raw["map_name"], p.raw["route_index"])
+        message = f"{where} (corners are [lat, lng]: swapped?)"
+        issues.append(ValidationIssue(file, message, p.index, episode, field))
+        bad.add(p.index)
+    return bad
+
+
 def _check_consistency(
     pending: list[_Pending], file: str, issues: list[ValidationIssue]
 ) -> set[int]:
@@ -441,7 +483,7 @@ def parse_records_indexed(
     """:func:`parse_records`, also returning each valid record's index in ``data``."""
     issues: list[ValidationIssue] = []
     pending = [p for i, raw in enumerate(data) if (p := _check_record(raw, i, file, issues))]
-    bad = _check_view_geometry(pending, file, issues)
+    bad = _check_view_geometry(pending, file, issues) | _check_destinations(pending, file, issues)
     good = [p for p in pending if p.index not in bad]
     bad |= _check_consistency(good, file, issues)
     kept = [p for p in good if p.index not in bad]

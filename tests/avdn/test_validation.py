@@ -216,6 +216,59 @@ def test_mirrored_corner_order(dataset_factory: Callable[..., Path]) -> None:
     assert "front-left, front-right" in issue.message
 
 
+@pytest.mark.parametrize(
+    ("key", "path", "field"),
+    [
+        ("gt_path_corners", (1, 2, 0), "gt_path_corners[1][2][0]"),
+        ("destination", (0, 1), "destination[0][1]"),
+    ],
+)
+def test_a_boolean_among_coordinates_is_a_wrong_type(
+    dataset_factory: Callable[..., Path], key: str, path: tuple[int, ...], field: str
+) -> None:
+    # numpy read `true` as 1.0: a destination took it as a coordinate, a view was 'not
+    # square'.
+    record = make_record()
+    target = record[key]
+    for k in path[:-1]:
+        target = target[k]
+    target[path[-1]] = True
+    issue = only_issue(dataset_factory, [record])
+    assert (issue.field, issue.message) == (field, "expected a number, got boolean True")
+
+
+def test_coordinates_of_exactly_0_or_1_are_numbers(dataset_factory: Callable[..., Path]) -> None:
+    # The record of make_record moved to lat, lng about 1: an integer 1 is a coordinate.
+    def moved(value: Any) -> Any:
+        if isinstance(value, list) and len(value) == 2 and all(type(v) is float for v in value):
+            return [value[0] - 29.005, value[1] - 39.005]
+        return [moved(v) for v in value] if isinstance(value, list) else value
+
+    record = {k: moved(v) if k != "attention_list" else v for k, v in make_record().items()}
+    record["attention_list"] = [[[1, 1], 20]]
+    record["destination"] = [[1, 1], [1, 1.0001], [0.9999, 1.0001], [0.9999, 1]]
+    records, issues = check_split(dataset_factory({"val_seen": [record]}), "val_seen")
+    assert issues == [] and records[0].destination is not None
+    assert records[0].destination[0].tolist() == [1.0, 1.0]
+
+
+def test_a_destination_is_checked_as_the_views_are(dataset_factory: Callable[..., Path]) -> None:
+    # Swapped to [lng, lat], it passed: not checked at all beyond its shape.
+    record = make_record()
+    record["destination"] = [[lng, lat] for lat, lng in record["destination"]]
+    issue = only_issue(dataset_factory, [record])  # [40.005, 30.005]: on the globe, off the map
+    assert issue.field == "destination"
+    assert issue.message.startswith("destination centre [40.005")
+    assert "lies outside the map bounds gps_botm_left..gps_top_right" in issue.message
+    # A landmark's footprint may reach past the map's edge: its centre is on the map.
+    record["destination"] = [[lat - 0.0052, lng] for lat, lng in make_record()["destination"]]
+    assert check_split(dataset_factory({"val_seen": [record]}), "val_seen")[1] == []
+    record["destination"] = [[lat + 100.0, lng] for lat, lng in make_record()["destination"]]
+    issue = only_issue(dataset_factory, [record])
+    assert issue.field == "destination[0]"
+    assert issue.message.startswith("not a valid [lat, lng]: [130.0")
+
+
 def test_view_outside_the_map(dataset_factory: Callable[..., Path]) -> None:
     record = make_record()
     record["gt_path_corners"] = [
