@@ -84,10 +84,14 @@ def _number_problem(value: Any, what: str = "value") -> str | None:
     return None
 
 
-def _unencodable(value: Any, path: str) -> tuple[str, str] | None:
-    """(path, problem) for the first string or object key in ``value`` that is not valid
-    Unicode: a lone surrogate escape such as ``"\\ud83d"`` (half an emoji) decodes from
-    JSON but cannot be written as UTF-8, so every file made from the record would fail."""
+def _unwritable(value: Any, path: str) -> tuple[str, str] | None:
+    """(path, problem) for the first part of ``value`` that strict JSON in UTF-8 cannot
+    hold, though Python's json reads it: a string or key that is not valid Unicode (a
+    lone surrogate escape such as ``"\\ud83d"``, half an emoji) or a NaN or infinite
+    number. Records are kept verbatim in every log, as strict JSON (the viewer's
+    JSON.parse, orjson): no writing of these reads back as the same value."""
+    if type(value) is float and not math.isfinite(value):
+        return path, f"NaN or infinite value ({value!r}): strict JSON has none"
     if isinstance(value, str):
         try:
             value.encode("utf-8")
@@ -97,18 +101,18 @@ def _unencodable(value: Any, path: str) -> tuple[str, str] | None:
         return None
     if isinstance(value, list):
         for i, item in enumerate(value):
-            if found := _unencodable(item, f"{path}[{i}]"):
+            if found := _unwritable(item, f"{path}[{i}]"):
                 return found
     elif isinstance(value, dict):
         for key, item in value.items():
             name = f"{path}[{key!a}]"
-            if found := _unencodable(key, name) or _unencodable(item, name):
+            if found := _unwritable(key, name) or _unwritable(item, name):
                 return found
     return None
 
 
 def _text_ok(value: Any) -> TypeGuard[str]:
-    return isinstance(value, str) and _unencodable(value, "") is None
+    return isinstance(value, str) and _unwritable(value, "") is None
 
 
 def _type_name(value: Any) -> str:
@@ -229,7 +233,7 @@ def _check_scalars(raw: dict[str, Any], report: Any) -> bool:
     # One check in the usual case; the walk names the field when it fails.
     if not (all(isinstance(x, str) for x in texts) and _text_ok("".join(texts))):
         for key in ("instructions", "pre_dialogs"):
-            if found := _unencodable(raw[key], key):
+            if found := _unwritable(raw[key], key):
                 report(*found)
                 ok = False
     for key in ("lng_ratio", "lat_ratio", "angle"):
@@ -299,14 +303,14 @@ def _check_record(
         return None
     _check_scalars(raw, report)
     for key, value in raw.items():
-        # Unknown keys are kept and written out verbatim: their text must be writable.
+        # Unknown keys are kept and written out verbatim: they must be strict JSON.
         if key in RECORD_KEYS:
             continue
         if not _text_ok(key):
             report(
                 ascii(key), "not valid Unicode text: an unknown key's name holds a lone surrogate"
             )
-        elif found := _unencodable(value, key):
+        elif found := _unwritable(value, key):
             report(*found)
     corners = _corner_array(raw["gt_path_corners"], "gt_path_corners", (4, 2), report)
     destination = None

@@ -39,7 +39,7 @@ from skyvln_eval.avdn import (
 from skyvln_eval.converters import messages as fx
 from skyvln_eval.converters import topics as t
 from skyvln_eval.converters.writer import McapLogWriter
-from skyvln_eval.errors import ConfigError
+from skyvln_eval.errors import ConfigError, DataError
 from skyvln_eval.frames import ViewPose, latlng_to_enu, view_to_pose
 from skyvln_eval.worlds import WorldTile
 
@@ -120,6 +120,16 @@ def episode_metadata(
     the time between its views (None: no fixed step, the key is left out).
     """
     records = [record.to_json_dict() for record in episode.records]
+    try:
+        # Verbatim AVDN JSON: floats keep their shortest repr, so re-parsing is exact.
+        # Strict (no NaN): validation refuses a record that strict JSON cannot hold.
+        records_json = json.dumps(
+            records, ensure_ascii=False, separators=(",", ":"), allow_nan=False
+        )
+    except ValueError as exc:  # a record made in Python, not read by the validator
+        raise DataError(
+            f"episode {episode.episode_id}: records are not strict JSON: {exc}"
+        ) from exc
     clock = {} if clock_step_ns is None else {"clock_step_ns": str(clock_step_ns)}
     return {
         "format": t.EPISODE_FORMAT,
@@ -133,9 +143,7 @@ def episode_metadata(
         "gt_views": str(len(episode.gt_path_corners)),
         **clock,
         "foxglove_schemas": f"{t.FOXGLOVE_SCHEMAS_PACKAGE}@{t.FOXGLOVE_SCHEMAS_VERSION}",
-        # Verbatim AVDN JSON: floats keep their shortest repr, so re-parsing is exact.
-        # NaN (only possible in unknown extra keys) is kept as Python's json writes it.
-        "records": json.dumps(records, ensure_ascii=False, separators=(",", ":")),
+        "records": records_json,
         **options.as_metadata(),
     }
 

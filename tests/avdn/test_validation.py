@@ -167,6 +167,19 @@ def test_a_lone_surrogate_is_a_problem_of_its_field(
     str(issue).encode("utf-8")  # the issue itself can be printed
 
 
+def test_nan_in_an_unknown_key_is_a_problem(
+    tmp_path: Path, dataset_factory: Callable[..., Path]
+) -> None:
+    # It was kept and written as a bare NaN into every log's metadata: not JSON.
+    root = dataset_factory({"val_seen": [make_record(extra=1.5)]})
+    path = root / "annotations" / "val_seen_data.json"
+    path.write_text(path.read_text().replace('"extra": 1.5', '"extra": NaN'))
+    _, issues = check_split(root, "val_seen")
+    assert [(i.field, i.message) for i in issues] == [
+        ("extra", "NaN or infinite value (nan): strict JSON has none")
+    ]
+
+
 def test_nan_in_json_text_is_caught(tmp_path: Path, dataset_factory: Callable[..., Path]) -> None:
     root = dataset_factory({"val_seen": [make_record()]})
     path = root / "annotations" / "val_seen_data.json"

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -13,7 +15,9 @@ from hypothesis import strategies as st
 
 from skyvln_eval.avdn import SPLITS, Episode, load_split, parse_record
 from skyvln_eval.converters import (
+    DEFAULT_OPTIONS,
     ConvertOptions,
+    episode_metadata,
     read_episode,
     read_episode_bytes,
     read_log,
@@ -21,6 +25,7 @@ from skyvln_eval.converters import (
 )
 from skyvln_eval.converters import topics as t
 from skyvln_eval.converters.batch import episode_file_name
+from skyvln_eval.errors import AvdnValidationError, DataError
 from tests.conftest import make_record
 from tests.converters.conftest import ConvertedSample, convert_to_bytes, synthetic_world
 
@@ -163,6 +168,19 @@ def test_floats_survive_exactly(tmp_path: Path) -> None:
     source = back.records[0].to_json_dict()
     assert source["angle"] == 0.1 + 0.2 == 0.30000000000000004
     assert source["extra_float"] == 5e-324 and source["lng_ratio"] == raw["lng_ratio"]
+
+
+def test_the_records_in_a_log_are_strict_json() -> None:
+    """NaN in an unknown key is refused on reading (validation), and on writing too for a
+    record made in Python: the metadata's records once held a bare NaN, which JSON.parse
+    and orjson reject."""
+    raw = make_record()
+    raw["extra"] = [1.0, {"deep": math.nan}]
+    with pytest.raises(AvdnValidationError, match=r"field 'extra\[1\]\['deep'\]': NaN"):
+        parse_record(raw)
+    made = replace(parse_record(make_record()), extra={"extra": math.inf}, source=None)
+    with pytest.raises(DataError, match="episode 1913__0_1: records are not strict JSON"):
+        episode_metadata(Episode("val_seen", "andh", (made,)), DEFAULT_OPTIONS)
 
 
 def test_loaded_dataset_round_trip_through_files(dataset_factory: Any, tmp_path: Path) -> None:
