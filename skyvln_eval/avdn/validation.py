@@ -1,10 +1,12 @@
 """Parse and validate AVDN records, reporting every problem with file, record and field.
 
 Validation is split in two passes so that a whole AVDN-sized split validates in a small
-multiple of ``json.load``: a per-record pass checks keys and types and turns corner lists
+multiple of ``json.load``: a per-record pass checks keys, types and values (numbers a
+float holds, text and unknown keys that strict JSON can write) and turns corner lists
 into arrays; a vectorised pass checks the geometry of every view of the split at once
-(finite, square, corner order, inside the map). The slow, precise walk over nested lists
-runs only for the rare record whose corners fail the fast checks.
+(finite, square, corner order, inside the map) and of every destination (on the globe,
+centre on the map). The slow, precise walk over nested lists runs only for the rare
+record whose corners fail the fast checks.
 """
 
 from __future__ import annotations
@@ -14,12 +16,19 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Any, TypeGuard
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from skyvln_eval.avdn.constants import METERS_PER_DEGREE
+from skyvln_eval.avdn.json_values import (
+    locate_bad_number,
+    number_problem,
+    text_ok,
+    type_name,
+    unwritable,
+)
 from skyvln_eval.avdn.records import (
     RECORD_KEYS,
     REQUIRED_KEYS,
@@ -66,82 +75,6 @@ def record_place(raw: Any) -> tuple[str | None, str | None, int | None]:
     return place_map, match.group(1), int(match.group(2))
 
 
-def _is_number(value: Any) -> bool:
-    # bool is a subclass of int in Python but a different JSON type.
-    return type(value) is float or type(value) is int
-
-
-def _number_problem(value: Any, what: str = "value") -> str | None:
-    """Why ``value`` is not a finite number a 64-bit float holds (None if it is one)."""
-    if not _is_number(value):
-        return f"expected a number, got {_type_name(value)} {value!r}"
-    try:
-        finite = math.isfinite(value)
-    except OverflowError:  # JSON allows any integer; one beyond 1.8e308 is no float
-        return f"an integer of {len(str(abs(value)))} digits is too large for a 64-bit float"
-    if not finite:
-        return f"NaN or infinite {what} ({value!r})"
-    return None
-
-
-def _unwritable(value: Any, path: str) -> tuple[str, str] | None:
-    """(path, problem) for the first part of ``value`` that strict JSON in UTF-8 cannot
-    hold, though Python's json reads it: a string or key that is not valid Unicode (a
-    lone surrogate escape such as ``"\\ud83d"``, half an emoji) or a NaN or infinite
-    number. Records are kept verbatim in every log, as strict JSON (the viewer's
-    JSON.parse, orjson): no writing of these reads back as the same value."""
-    if type(value) is float and not math.isfinite(value):
-        return path, f"NaN or infinite value ({value!r}): strict JSON has none"
-    if isinstance(value, str):
-        try:
-            value.encode("utf-8")
-        except UnicodeEncodeError as exc:
-            bad = ascii(value[exc.start : exc.end])
-            return path, f"not valid Unicode text: lone surrogate {bad} at character {exc.start}"
-        return None
-    if isinstance(value, list):
-        for i, item in enumerate(value):
-            if found := _unwritable(item, f"{path}[{i}]"):
-                return found
-    elif isinstance(value, dict):
-        for key, item in value.items():
-            name = f"{path}[{key!a}]"
-            if found := _unwritable(key, name) or _unwritable(item, name):
-                return found
-    return None
-
-
-def _text_ok(value: Any) -> TypeGuard[str]:
-    return isinstance(value, str) and _unwritable(value, "") is None
-
-
-def _type_name(value: Any) -> str:
-    if value is None:
-        return "null"
-    return {
-        bool: "boolean",
-        int: "integer",
-        float: "number",
-        str: "string",
-        list: "list",
-        dict: "object",
-    }.get(type(value), type(value).__name__)
-
-
-def _locate_bad_number(value: Any, path: str, depth: int) -> tuple[str, str] | None:
-    """Walk a nested list and return (path, problem) for its first bad element."""
-    if depth == 0:
-        problem = _number_problem(value, "coordinate")
-        return None if problem is None else (path, problem)
-    if not isinstance(value, list):
-        return path, f"expected a list, got {_type_name(value)}"
-    for i, item in enumerate(value):
-        found = _locate_bad_number(item, f"{path}[{i}]", depth - 1)
-        if found:
-            return found
-    return None
-
-
 def _corner_array(
     value: Any, name: str, expected_tail: tuple[int, ...], report: Any
 ) -> NDArray[np.float64] | None:
@@ -164,7 +97,7 @@ def _corner_array(
         # list to the walk below, which tells a boolean from a number.
         if np.isfinite(floats).all() and not ((floats == 0.0) | (floats == 1.0)).any():
             return floats
-    located = _locate_bad_number(value, name, depth)
+    located = locate_bad_number(value, name, depth)
     if located is not None:
         report(located[0], located[1])
     elif arr is not None and good_shape:
@@ -182,10 +115,10 @@ def _corner_array(
 
 def _check_latlng(value: Any, name: str, report: Any) -> bool:
     if not (isinstance(value, list) and len(value) == 2):
-        report(name, f"expected [lat, lng], got {_type_name(value)} {value!r}")
+        report(name, f"expected [lat, lng], got {type_name(value)} {value!r}")
         return False
     for i, v in enumerate(value):
-        problem = _number_problem(v, "coordinate")
+        problem = number_problem(v, "coordinate")
         if problem is not None:
             report(f"{name}[{i}]", problem)
             return False
@@ -199,14 +132,14 @@ def _check_scalars(raw: dict[str, Any], report: Any) -> bool:
     ok = True
     map_name = raw["map_name"]
     if not isinstance(map_name, str):
-        report("map_name", f"expected a string, got {_type_name(map_name)} {map_name!r}")
+        report("map_name", f"expected a string, got {type_name(map_name)} {map_name!r}")
         ok = False
     elif not _MAP_NAME.fullmatch(map_name):
         report("map_name", f"expected an xView id such as '1913', got {map_name!r}")
         ok = False
     route = raw["route_index"]
     if not isinstance(route, str):
-        report("route_index", f"expected a string, got {_type_name(route)} {route!r}")
+        report("route_index", f"expected a string, got {type_name(route)} {route!r}")
         ok = False
     else:
         match = _ROUTE_INDEX.fullmatch(route)
@@ -215,30 +148,30 @@ def _check_scalars(raw: dict[str, Any], report: Any) -> bool:
             ok = False
     last = raw.get("last_round_idx")
     if "last_round_idx" in raw and (type(last) is not int or last < 1):
-        report("last_round_idx", f"expected an integer >= 1, got {_type_name(last)} {last!r}")
+        report("last_round_idx", f"expected an integer >= 1, got {type_name(last)} {last!r}")
         ok = False
     if not isinstance(raw["instructions"], str):
-        report("instructions", f"expected a string, got {_type_name(raw['instructions'])}")
+        report("instructions", f"expected a string, got {type_name(raw['instructions'])}")
         ok = False
     pre = raw["pre_dialogs"]
     if not isinstance(pre, list):
-        report("pre_dialogs", f"expected a list of strings, got {_type_name(pre)}")
+        report("pre_dialogs", f"expected a list of strings, got {type_name(pre)}")
         ok = False
     else:
         for i, item in enumerate(pre):
             if not isinstance(item, str):
-                report(f"pre_dialogs[{i}]", f"expected a string, got {_type_name(item)}")
+                report(f"pre_dialogs[{i}]", f"expected a string, got {type_name(item)}")
                 ok = False
     texts = [raw["instructions"], *pre] if isinstance(pre, list) else [raw["instructions"]]
     # One check in the usual case; the walk names the field when it fails.
-    if not (all(isinstance(x, str) for x in texts) and _text_ok("".join(texts))):
+    if not (all(isinstance(x, str) for x in texts) and text_ok("".join(texts))):
         for key in ("instructions", "pre_dialogs"):
-            if found := _unwritable(raw[key], key):
+            if found := unwritable(raw[key], key):
                 report(*found)
                 ok = False
     for key in ("lng_ratio", "lat_ratio", "angle"):
         v = raw[key]
-        problem = _number_problem(v)
+        problem = number_problem(v)
         if problem is not None:
             report(key, problem)
             ok = False
@@ -260,7 +193,7 @@ def _check_scalars(raw: dict[str, Any], report: Any) -> bool:
 
 def _check_attention(value: Any, report: Any) -> tuple[AttentionCircle, ...] | None:
     if not isinstance(value, list):
-        report("attention_list", f"expected a list, got {_type_name(value)}")
+        report("attention_list", f"expected a list, got {type_name(value)}")
         return None
     circles = []
     for i, item in enumerate(value):
@@ -271,7 +204,7 @@ def _check_attention(value: Any, report: Any) -> tuple[AttentionCircle, ...] | N
         if not _check_latlng(item[0], f"{name}[0]", report):
             return None
         radius = item[1]
-        problem = _number_problem(radius)
+        problem = number_problem(radius)
         if problem is not None or radius < 0:
             report(f"{name}[1]", problem or f"expected a radius >= 0 in pixels, got {radius!r}")
             return None
@@ -284,13 +217,11 @@ def _check_record(
 ) -> _Pending | None:
     """Per-record checks; appends issues and returns None when the record is invalid."""
     if not isinstance(raw, dict):
-        issues.append(
-            ValidationIssue(file, f"expected a JSON object, got {_type_name(raw)}", index)
-        )
+        issues.append(ValidationIssue(file, f"expected a JSON object, got {type_name(raw)}", index))
         return None
     map_name, route = raw.get("map_name"), raw.get("route_index")
     # Only valid text in the id: an issue is printed, and a lone surrogate cannot be.
-    episode = episode_id_of(map_name, route) if _text_ok(map_name) and _text_ok(route) else None
+    episode = episode_id_of(map_name, route) if text_ok(map_name) and text_ok(route) else None
     count = len(issues)
 
     def report(field: str, message: str) -> None:
@@ -306,11 +237,11 @@ def _check_record(
         # Unknown keys are kept and written out verbatim: they must be strict JSON.
         if key in RECORD_KEYS:
             continue
-        if not _text_ok(key):
+        if not text_ok(key):
             report(
                 ascii(key), "not valid Unicode text: an unknown key's name holds a lone surrogate"
             )
-        elif found := _unwritable(value, key):
+        elif found := unwritable(value, key):
             report(*found)
     corners = _corner_array(raw["gt_path_corners"], "gt_path_corners", (4, 2), report)
     destination = None
