@@ -113,7 +113,8 @@ class AvdnSplit:
             self.records, self.split, mode, str(self.annotation_path), self.skipped_records
         )
         if issues and not skip_incomplete:
-            raise AvdnValidationError(issues)
+            hint = "leave these trajectories out: `skip_incomplete=True` with episodes()"
+            raise AvdnValidationError(issues, hint)
         return episodes
 
     def require_ground_truth(self) -> None:

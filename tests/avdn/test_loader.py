@@ -116,7 +116,7 @@ def test_a_skipped_round_makes_its_trajectory_incomplete(
         AvdnValidationError, match=r"trajectory 1913/7 round 3 \(record 2\)"
     ) as info:
         loaded.episodes("andh-full")
-    assert "field 'angle'" in str(info.value)
+    assert "field 'angle'" in str(info.value) and "skip_incomplete=True" in str(info.value)
     assert [
         (s.record_index, s.trajectory_index, s.round_index) for s in loaded.skipped_records
     ] == [(2, "7", 3)]
