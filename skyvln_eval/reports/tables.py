@@ -490,7 +490,9 @@ def to_latex(table: Table) -> str:
 
 
 def to_csv(table: Table) -> str:
-    """One line per system: mean (and CI bounds) per split and metric; conventions first."""
+    """One line per system: mean (and CI bounds) per split and metric, then per split the
+    episodes scored and how many of them ended in error (what the other formats mark with
+    the error marker: a script reading the CSV sees it too); conventions first."""
     buffer = io.StringIO()
     buffer.write(f"# conventions: {table.conventions.to_json()}\n")
     for note in table.notes:
@@ -501,6 +503,9 @@ def to_csv(table: Table) -> str:
         header.append(f"{split}:{metric}")
         if table.show_ci:
             header += [f"{split}:{metric}:ci_low", f"{split}:{metric}:ci_high"]
+    splits = list(dict.fromkeys(split for split, _ in table.columns))
+    for split in splits:
+        header += [f"{split}:episodes", f"{split}:error_episodes"]
     writer.writerow(header)
     for row in table.rows:
         out: list[str] = [row]
@@ -516,8 +521,23 @@ def to_csv(table: Table) -> str:
             if table.show_ci:
                 bounds = [] if cell is None else [cell.ci_low, cell.ci_high]
                 out += [_csv_number(x) for x in bounds] or ["", ""]
+        for split in splits:
+            out += _episode_counts(table, row, split)
         writer.writerow(out)
     return buffer.getvalue()
+
+
+def _episode_counts(table: Table, row: str, split: str) -> list[str]:
+    """The episodes of ``row`` on ``split`` and those that ended in error, from its cells
+    that count them (a health metric's do not); empty where no cell says."""
+    counted = [
+        cell
+        for (cell_split, _), cell in table.cells[row].items()
+        if cell_split == split and cell is not None and cell.episodes > 0
+    ]
+    if not counted:
+        return ["", ""]
+    return [str(counted[0].episodes), str(counted[0].errors)]
 
 
 def _csv_number(value: float | None) -> str:
