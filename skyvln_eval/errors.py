@@ -74,8 +74,14 @@ class AvdnValidationError(DataError):
         more = len(self.issues) - len(lines)
         if more > 0:
             lines.append(f"... and {more} more problem(s); `skyvln-eval validate` lists them all")
+        # Counted as what they are: a record may have several problems, and a problem may
+        # be a trajectory's (a missing round), not one record's.
+        records = {(i.file, i.record_index) for i in self.issues if i.record_index is not None}
+        whole = len(self.issues) - sum(i.record_index is not None for i in self.issues)
+        counts = [f"{len(records)} invalid record(s)"] if records else []
+        counts += [f"{whole} other problem(s)"] if whole else []
         super().__init__(
-            f"{len(self.issues)} invalid record(s) ({hint or self.LOAD_HINT}):\n"
+            f"{', '.join(counts)} ({hint or self.LOAD_HINT}):\n"
             + "\n".join("  " + x for x in lines)
         )
 

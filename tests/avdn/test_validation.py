@@ -391,3 +391,15 @@ def test_parse_record_round_trips_the_source() -> None:
     assert parse_record(rebuilt) == record
     with pytest.raises(AvdnValidationError, match="angle"):
         parse_record(make_record(angle=math.inf))
+
+
+def test_the_error_counts_records_not_problems() -> None:
+    from skyvln_eval.errors import AvdnValidationError, ValidationIssue
+
+    issues = [
+        ValidationIssue("a.json", "bad angle", record_index=1, field="angle"),
+        ValidationIssue("a.json", "bad lat", record_index=1, field="gps_botm_left"),
+        ValidationIssue("a.json", "trajectory 7 misses round 3"),
+    ]
+    message = str(AvdnValidationError(issues))
+    assert message.startswith("1 invalid record(s), 1 other problem(s) (")
