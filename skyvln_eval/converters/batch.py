@@ -374,8 +374,10 @@ def convert_split(
     report.removed_stale = _remove_stale(
         target, {r.file_name for r in report.rows}, _removal_reasons(report)
     )
-    write_manifest(report.manifest_path, report.rows)
+    # What was left out first, the manifest last: the manifest marks a finished conversion
+    # (validate checks the folder against it), so it never stands beside an older list.
     write_left_out(report.left_out_path, split, mode, report.left_out())
+    write_manifest(report.manifest_path, report.rows)
     return report
 
 
