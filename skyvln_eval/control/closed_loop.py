@@ -139,8 +139,8 @@ class Flight:
         current position at ``reference_config``'s cruise speed; the segment ends once the
         reference has ended and the drone has settled on the target
         (:class:`ArrivalCriteria`), or after ``max_time_s`` (default: the reference's
-        duration plus :data:`SETTLE_TIME_S`); with ``stop_on_collision``, at the first
-        step that finds the drone inside an obstacle (:meth:`fly`).
+        duration plus :data:`SETTLE_TIME_S`); with ``stop_on_collision``, with the first
+        step that touches an obstacle (:meth:`fly`).
         """
         reference = reference or self.segment_reference(target)
         if max_time_s is None:
@@ -205,15 +205,15 @@ class Flight:
         ``stop_on_collision`` ends the flight there."""
         truth = self.state
         forecast = self.predictor.forecast(self.scenario, window.times_s)
-        # The input the rate limits start from (the controller replaces it).
-        before = self.controller.previous_input.copy()
-        previous_tilt = (float(before[1]), float(before[2]))
+        # The input the rate limits start from, as floats (the controller replaces it).
+        before = self.controller.previous_input.tolist()
+        previous_tilt = (before[1], before[2])
         with NATIVE_CALLS:
             command = self.controller.step(self.plant.measure(), window, forecast)
         if not command.is_finite():  # a controller bug must not crash the flight either
             # Eased to hover from the input last applied, not from the non-finite one the
             # controller kept (a hover from NaN is NaN, and so would every state be after).
-            self.controller.previous_input = before
+            self.controller.previous_input = np.array(before)
             thrust, roll, pitch = self.controller.safe_input()
             self.controller.previous_input = np.array([thrust, roll, pitch])
             stats = SolveStats(
@@ -239,23 +239,23 @@ class Flight:
             self.t_s,
             self.t_s + self.dt_s,
         )
-        row = self._row(truth, window.states[0], float(window.yaw_rad[0]), command, previous_tilt)
-        row["min_clearance_m"], row["collision"] = clearance, collision
-        row["constraint_violation"] = clearance < 0.0 or row["constraint_violation"]
-        self._rows.append(row)
+        self._rows.append(self._row(truth, window, command, previous_tilt, (clearance, collision)))
         self.t_s += self.dt_s
         return not (stop_on_collision and collision)
 
     def _row(
         self,
         truth: DroneState,
-        reference_state: np.ndarray,
-        reference_yaw: float,
+        window: ReferenceWindow,
         command: Command,
         previous_tilt: tuple[float, float],
+        swept: tuple[float, bool],
     ) -> dict[str, Any]:
-        violation = not self._within_limits(command, previous_tilt)  # clearance: _step
-        reference = reference_state.tolist()  # the Python floats of the row, in one call
+        """The log row of a step from ``truth``; ``swept``: its clearance and contact over
+        the whole step (:meth:`ObstacleScenario.swept_clearance_m`)."""
+        clearance, collision = swept
+        violation = clearance < 0.0 or not self._within_limits(command, previous_tilt)
+        reference = window.states[0].tolist()  # the Python floats of the row, in one call
         return {
             "controller": self.controller.name,
             "scenario": self.scenario.name,
@@ -272,7 +272,7 @@ class Flight:
             "ref_x_m": reference[0],
             "ref_y_m": reference[1],
             "ref_z_m": reference[2],
-            "ref_yaw_rad": reference_yaw,
+            "ref_yaw_rad": float(window.yaw_rad[0]),
             "cmd_thrust_m_s2": command.thrust_m_s2,
             "cmd_roll_rad": command.roll_ref_rad,
             "cmd_pitch_rad": command.pitch_ref_rad,
@@ -280,8 +280,8 @@ class Flight:
             "iterations": command.stats.iterations,
             "status": command.stats.status,
             "solve_failed": command.stats.failed,
-            "min_clearance_m": math.inf,  # over the step: set by _step
-            "collision": False,
+            "min_clearance_m": clearance,
+            "collision": collision,
             "constraint_violation": violation,
             "ref_roll_rad": reference[6],
             "ref_pitch_rad": reference[7],

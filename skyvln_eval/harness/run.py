@@ -159,8 +159,8 @@ class RunReport:
     ``degraded``, ``error``); ``errors`` holds the first line of each error episode's error.
     ``stopped`` says why the run stopped before its end (e.g. refused credentials).
     ``simulated_s`` is the time flown by the episodes run now (dynamics mode only);
-    ``flights`` counts, of the flown episodes recorded, those that crashed (a step inside
-    an obstacle) and those with control steps whose solve failed (the controller fell
+    ``flights`` counts, of the flown episodes recorded, those that crashed (a step that
+    touched an obstacle) and those with control steps whose solve failed (the controller fell
     back): outcomes the statuses, which judge the agent, do not show.
     """
 

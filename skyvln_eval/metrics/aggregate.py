@@ -260,7 +260,7 @@ def summarise(
                     successes = _successes(values, group.loc[present, "episode_id"], what)
                     row.update(_wilson(successes, len(values), confidence))
                 elif n_resamples:
-                    row.update(_bootstrap(scaled, n_resamples, confidence, seed))
+                    row.update(_percentiles(bootstrap_means(scaled, n_resamples, seed), confidence))
             rows.append(row)
     summary = pd.DataFrame(rows)
     if CONVENTIONS_ATTR in scores.attrs:  # which conventions scored it goes along
@@ -273,17 +273,9 @@ def _interval(low: float, high: float, method: CiMethod, confidence: float) -> d
     return {"ci_low": low, "ci_high": high, "confidence": confidence, "ci_method": method}
 
 
-def _bootstrap(
-    values: np.ndarray, n_resamples: int, confidence: float, seed: int
-) -> dict[str, object]:
-    """The percentile bootstrap interval of the mean of ``values`` (NaN without spread:
-    see :func:`~skyvln_eval.metrics.stats.percentile_interval`)."""
-    if len(values) < 2:  # nothing to resample
-        return _interval(math.nan, math.nan, "bootstrap", confidence)
-    return _percentiles(bootstrap_means(values, n_resamples, seed), confidence)
-
-
 def _percentiles(estimates: np.ndarray, confidence: float) -> dict[str, object]:
+    """The percentile interval of bootstrap ``estimates`` (NaN without spread, one episode
+    included: see :func:`~skyvln_eval.metrics.stats.percentile_interval`)."""
     return _interval(*percentile_interval(estimates, confidence), "bootstrap", confidence)
 
 
@@ -317,8 +309,6 @@ def _pooled_interval(
         return _wilson(0, len(pairs), confidence)
     if (failed == total).all():
         return _wilson(len(pairs), len(pairs), confidence)
-    if len(pairs) < 2:
-        return _interval(math.nan, math.nan, "bootstrap", confidence)
     means = bootstrap_means(pairs, n_resamples, seed)
     return _percentiles(100.0 * means[:, 0] / means[:, 1], confidence)
 

@@ -177,39 +177,20 @@ class ObstacleScenario:
 
     def clearance_m(self, position_m: Vec3, t_s: float) -> tuple[float, bool]:
         """How far ``position_m`` is outside the nearest keep-out sphere at ``t_s`` (negative:
-        inside one; inf without obstacles), and whether it is inside an obstacle's radius.
-
-        The flight loop asks once a control step. Constant-velocity obstacles are computed on
-        plain floats, with the operations of :meth:`positions_m` and :meth:`distances_m` in
-        numpy's order (left to right over x, y, z), so the values are the same bit for bit
-        (tested); NaN anywhere makes the clearance NaN, as numpy's minimum does.
-        """
-        if not self.obstacles:
-            return math.inf, False
-        linear = self._constant_velocity_floats
-        if linear is None:
-            distances = self.distances_m(position_m, t_s)
-            clearance = float((distances - self.keep_out_radii_m).min())
-            return clearance, bool((distances < self.radii_m).any())
-        x, y, z = position_m
-        clearances, collision = [], False
-        for sx, sy, sz, vx, vy, vz, start_time, keep_out, radius in linear:
-            dt = t_s - start_time
-            dx, dy, dz = sx + dt * vx - x, sy + dt * vy - y, sz + dt * vz - z
-            distance = math.sqrt(dx * dx + dy * dy + dz * dz)
-            clearances.append(distance - keep_out)
-            collision = collision or distance < radius
-        if any(map(math.isnan, clearances)):
-            return math.nan, collision
-        return min(clearances), collision
+        inside one; inf without obstacles), and whether it is inside an obstacle's radius:
+        :meth:`swept_clearance_m` of a step that stays put (the same values as numpy's
+        distances, bit for bit: tested)."""
+        return self.swept_clearance_m(position_m, position_m, t_s, t_s)
 
     def swept_clearance_m(
         self, start_m: Vec3, end_m: Vec3, t0_s: float, t1_s: float
     ) -> tuple[float, bool]:
-        """:meth:`clearance_m` over a control step, not only at its samples: the least
-        clearance while the drone goes from ``start_m`` (at ``t0_s``) to ``end_m`` (at
-        ``t1_s``), drone and obstacles moving in straight lines in between, and whether it
-        is inside an obstacle's radius at any point of it.
+        """How far the drone stays outside the nearest keep-out sphere over a control step
+        (negative: inside one; inf without obstacles), not only at its samples: the least
+        clearance while it goes from ``start_m`` (at ``t0_s``) to ``end_m`` (at ``t1_s``),
+        drone and obstacles moving in straight lines in between, and whether it is inside
+        an obstacle's radius at any point of it. NaN anywhere makes the clearance NaN, as
+        numpy's minimum does.
 
         A sampled check misses what happens between samples: at 12 m/s a 0.1 s step is
         1.2 m, more than an obstacle 0.8 m across, and a controller that keeps its samples
@@ -220,7 +201,9 @@ class ObstacleScenario:
         if not self.obstacles:
             return math.inf, False
         linear = self._constant_velocity_floats
-        if linear is not None:  # plain floats, as clearance_m: asked every control step
+        # Asked every control step: constant-velocity obstacles on plain floats, with the
+        # operations of positions_m in numpy's order (left to right over x, y, z).
+        if linear is not None:
             centres0 = [(sx + (t0_s - t) * vx, sy + (t0_s - t) * vy, sz + (t0_s - t) * vz)
                         for sx, sy, sz, vx, vy, vz, t, _, _ in linear]  # fmt: skip
             centres1 = [(sx + (t1_s - t) * vx, sy + (t1_s - t) * vy, sz + (t1_s - t) * vz)
@@ -239,7 +222,8 @@ class ObstacleScenario:
             dd = dx * dx + dy * dy + dz * dz
             along = 0.0 if dd <= 0.0 else -(rx * dx + ry * dy + rz * dz) / dd
             s = min(max(along, 0.0), 1.0)
-            distance = math.sqrt((rx + s * dx) ** 2 + (ry + s * dy) ** 2 + (rz + s * dz) ** 2)
+            px, py, pz = rx + s * dx, ry + s * dy, rz + s * dz  # nearest the centre
+            distance = math.sqrt(px * px + py * py + pz * pz)
             clearances.append(distance - keep)
             collision = collision or distance < radius
         if any(map(math.isnan, clearances)):
