@@ -31,15 +31,19 @@ class ValidationIssue:
     episode_id: str | None = None
     field: str | None = None
 
-    def __str__(self) -> str:
+    @property
+    def record_location(self) -> str:
+        """The file, record and episode (what names the record, without the field)."""
         where = self.file
         if self.record_index is not None:
             where += f", record {self.record_index}"
         if self.episode_id is not None:
             where += f" (episode {self.episode_id})"
-        if self.field is not None:
-            where += f", field '{self.field}'"
-        return f"{where}: {self.message}"
+        return where
+
+    def __str__(self) -> str:
+        field = "" if self.field is None else f", field '{self.field}'"
+        return f"{self.record_location}{field}: {self.message}"
 
 
 class DataError(SkyvlnError):

@@ -64,8 +64,9 @@ class SkippedRecord:
 
     def __str__(self) -> str:
         """One line: the file, record and episode, then every problem of the record."""
-        where = ValidationIssue(self.issues[0].file, "", self.record_index, self.episode_id)
-        return f"{str(where).removesuffix(': ')}: {'; '.join(self.reasons)}"
+        first = self.issues[0]
+        where = ValidationIssue(first.file, "", self.record_index, self.episode_id)
+        return f"{where.record_location}: {'; '.join(self.reasons)}"
 
 
 @dataclass(frozen=True)

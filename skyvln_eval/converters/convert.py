@@ -17,7 +17,6 @@ Layout of an episode log (names in :mod:`skyvln_eval.converters.topics`):
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -38,7 +37,7 @@ from skyvln_eval.avdn import (
 )
 from skyvln_eval.converters import messages as fx
 from skyvln_eval.converters import topics as t
-from skyvln_eval.converters.writer import McapLogWriter
+from skyvln_eval.converters.writer import McapLogWriter, encode_json
 from skyvln_eval.errors import ConfigError, DataError
 from skyvln_eval.frames import ViewPose, latlng_to_enu, view_to_pose
 from skyvln_eval.worlds import WorldTile
@@ -122,10 +121,9 @@ def episode_metadata(
     records = [record.to_json_dict() for record in episode.records]
     try:
         # Verbatim AVDN JSON: floats keep their shortest repr, so re-parsing is exact.
-        # Strict (no NaN): validation refuses a record that strict JSON cannot hold.
-        records_json = json.dumps(
-            records, ensure_ascii=False, separators=(",", ":"), allow_nan=False
-        )
+        # Strict (no NaN) UTF-8, as every message: validation refuses a record that strict
+        # JSON cannot hold (NaN, half a surrogate pair).
+        records_json = encode_json(records).decode("utf-8")
     except ValueError as exc:  # a record made in Python, not read by the validator
         raise DataError(
             f"episode {episode.episode_id}: records are not strict JSON: {exc}"

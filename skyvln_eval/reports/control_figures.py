@@ -62,7 +62,8 @@ def control_figure(
         if len(episodes) > 1:
             raise DataError(
                 f"the log holds {len(episodes)} episodes of controller {controller!r} in "
-                f"scenario {scenario!r} ({', '.join(map(str, episodes[:5]))}...): a figure "
+                f"scenario {scenario!r} ({', '.join(map(str, episodes[:5]))}"
+                f"{', ...' if len(episodes) > 5 else ''}): a figure "
                 "draws one flight per controller, so pass one episode's control log"
             )
     colours = {c: f"C{k if k < 3 else k + 1}" for k, c in enumerate(groups)}  # C3 is red-like
