@@ -149,8 +149,9 @@ def build_episodes(
     ``skipped`` as invalid, leaves the trajectory out with an issue naming the round.
     Without ``last_round_idx`` the final round is only known as the highest one present,
     so an invalid record whose trajectory cannot be read (its route_index, or its map,
-    unreadable) might be that final round: such trajectories of its map (any map when the
-    map is unreadable) are left out too, rather than scored against a wrong target.
+    unreadable) might be that final round: the trajectories it could belong to (of its
+    map, or any map when that is unreadable; of its trajectory number, or any when that is
+    unreadable) are left out too, rather than scored against a wrong target.
     """
     if mode == "andh":
         return [Episode(split=split, mode="andh", records=(r,)) for r in records], []
@@ -167,7 +168,7 @@ def build_episodes(
     issues: list[ValidationIssue] = []
     for (map_name, traj), rounds in group_trajectories(records).items():
         problems = _incomplete_trajectory(
-            rounds, placed.get((map_name, traj), []), unplaced, map_name
+            rounds, placed.get((map_name, traj), []), unplaced, (map_name, traj)
         )
         if problems:
             issues.append(
@@ -188,7 +189,7 @@ def _incomplete_trajectory(
     rounds: Sequence[AvdnRecord],
     invalid: Sequence[SkippedRecord],
     unplaced: Sequence[SkippedRecord],
-    map_name: str,
+    trajectory: TrajectoryKey,
 ) -> list[str]:
     """Why a trajectory's valid ``rounds`` are not the whole trajectory (none if they are)."""
     present = {r.round_index for r in rounds}
@@ -204,7 +205,14 @@ def _incomplete_trajectory(
             f"round {s.round_index} (record {s.record_index}) was left out as invalid ({s.reason})"
         )
     if not declared:
-        unknown = [s.record_index for s in unplaced if s.map_name in (None, map_name)]
+        # An invalid record could be this trajectory's final round when what it names
+        # (map, trajectory) does not rule it out.
+        map_name, traj = trajectory
+        unknown = [
+            s.record_index
+            for s in unplaced
+            if s.map_name in (None, map_name) and s.trajectory_index in (None, traj)
+        ]
         if unknown:
             problems.append(
                 f"has no last_round_idx, and invalid record(s) {unknown} of unreadable "

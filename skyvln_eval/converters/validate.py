@@ -260,15 +260,26 @@ def check_manifest_folder(folder: str | Path) -> list[ValidationIssue]:
 
 
 def folder_left_out(folder: str | Path) -> tuple[list[LeftOut], list[ValidationIssue]]:
-    """What the conversion of a folder left out (none without a ``left_out.json``: a run's
-    logs, or a folder converted before the file existed), and an issue if it is unreadable."""
+    """What the conversion of a folder chose to leave out (none without a ``left_out.json``:
+    a run's logs, or a folder converted before the file existed), and the issues: an
+    unreadable file, and each episode the conversion failed to write (a fault, not a
+    choice: the folder is not what was asked for)."""
     path = Path(folder) / LEFT_OUT_NAME
     if not path.is_file():
         return [], []
     try:
-        return read_left_out(path), []
+        entries = read_left_out(path)
     except SkyvlnError as exc:
         return [], [_unreadable(str(path), exc)]
+    chosen = [e for e in entries if e.kind != "failed_episode"]
+    failed = [
+        ValidationIssue(
+            str(path), f"its conversion failed: {'; '.join(e.reasons)}", episode_id=e.episode_id
+        )
+        for e in entries
+        if e.kind == "failed_episode"
+    ]
+    return chosen, failed
 
 
 def mcap_targets(path: Path) -> tuple[list[Path], list[Path]]:

@@ -146,6 +146,22 @@ def test_a_skipped_record_of_unreadable_trajectory_leaves_out_undeclared_ones(
         loaded.episodes("andh-full")
 
 
+def test_a_skipped_record_of_unreadable_map_leaves_out_only_its_trajectory_number(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    # Its map unreadable, its route_index '7_3' still says trajectory 7: trajectory 8,
+    # which it cannot be the final round of, stays.
+    records = trajectory("7", 2) + trajectory("8", 1)
+    for record in records:
+        del record["last_round_idx"]
+    unreadable = trajectory("7", 3)[2] | {"map_name": 1913}
+    root = dataset_factory({"val_seen": [*records, unreadable]})
+    loaded = load_split(root, "val_seen", skip_invalid=True)
+    assert [(s.map_name, s.trajectory_index) for s in loaded.skipped_records] == [(None, "7")]
+    full = loaded.episodes("andh-full", skip_incomplete=True)
+    assert [e.episode_id for e in full] == ["1913__8_1"]
+
+
 def test_test_split_with_only_start_views_has_no_ground_truth(
     dataset_factory: Callable[..., Path],
 ) -> None:

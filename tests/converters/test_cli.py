@@ -8,7 +8,7 @@ from pathlib import Path
 from typer.testing import CliRunner
 
 from skyvln_eval.cli import app
-from skyvln_eval.converters.left_out import LEFT_OUT_NAME
+from skyvln_eval.converters.left_out import LEFT_OUT_NAME, LeftOut, write_left_out
 from skyvln_eval.converters.manifest import MANIFEST_NAME
 from tests.conftest import CliOutcome, make_record
 from tests.converters.conftest import ConvertedSample
@@ -130,3 +130,20 @@ def test_records_left_out_are_counted_once_and_kept_in_the_folder(
     (folder / LEFT_OUT_NAME).write_text("{")
     result = cli("validate", str(folder))
     assert result.code == 1 and f"{folder / LEFT_OUT_NAME}: cannot be read as JSON" in result.err
+
+
+def test_an_episode_the_conversion_failed_is_a_problem_of_its_folder(
+    dataset_factory: Callable[..., Path], tmp_path: Path, cli: Callable[..., CliOutcome]
+) -> None:
+    # Left out by choice (an invalid record) is told; failed to convert is a fault: the
+    # folder is not the split asked for, and validate must not say ok.
+    root = dataset_factory({"val_seen": [make_record(route_index="1_1")]})
+    args = ["convert", "--data-dir", str(root), "--split", "val_seen", "--out", str(tmp_path)]
+    assert cli(*args).code == 0
+    folder = tmp_path / "val_seen" / "andh"
+    failed = LeftOut("failed_episode", "1913__1_1", None, ("the map image does not decode",))
+    write_left_out(folder / LEFT_OUT_NAME, "val_seen", "andh", [failed])
+    result = cli("validate", str(folder))
+    assert result.code == 1
+    expected = "(episode 1913__1_1): its conversion failed: the map image does not decode"
+    assert expected in result.out + result.err
