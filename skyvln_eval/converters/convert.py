@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import Any, Final, Literal
 
@@ -246,6 +246,9 @@ def convert_episode(
         raise ConfigError(
             f"episode {episode.episode_id} is on map {episode.map_name}, world is {world.map_name}"
         )
+    if world is None:
+        # Nothing to draw images from: the metadata must not claim what is not written.
+        options = replace(options, observations=False, map_tile_max_side_px=0)
     writer.add_metadata(t.EPISODE_METADATA, episode_metadata(episode, options))
     georef = episode.georef
     views = episode.gt_path_corners

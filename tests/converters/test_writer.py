@@ -115,3 +115,17 @@ def test_files_use_zstd_chunks_indexes_and_crcs(tmp_path: Path) -> None:
 def _data_end_offset(data: bytes) -> int:
     summary_start = struct.unpack_from("<Q", data, len(data) - 8 - 20)[0]
     return int(summary_start) - 13
+
+
+def test_metadata_says_what_the_log_holds_without_a_world() -> None:
+    # Converted without a world, the log has no map tile and no observation; its metadata
+    # claimed the defaults (observations=true, a 384 px tile).
+    log_file = read_log_bytes(convert_to_bytes(_episode(), None))
+    meta = log_file.metadata[t.EPISODE_METADATA]
+    topics = set(log_file.summary().topic_counts)
+    assert not topics & {t.TOPIC_MAP_TILE, t.TOPIC_GT_OBSERVATION}
+    assert (meta["observations"], meta["map_tile_max_side_px"]) == ("false", "0")
+    with_world = read_log_bytes(convert_to_bytes(_episode(), synthetic_world()))
+    assert {t.TOPIC_MAP_TILE, t.TOPIC_GT_OBSERVATION} <= set(with_world.summary().topic_counts)
+    meta = with_world.metadata[t.EPISODE_METADATA]
+    assert (meta["observations"], meta["map_tile_max_side_px"]) == ("true", "384")
