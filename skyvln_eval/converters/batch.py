@@ -376,8 +376,8 @@ def convert_split(
     )
     # What was left out first, the manifest last: the manifest marks a finished conversion
     # (validate checks the folder against it), so it never stands beside an older list.
-    write_left_out(report.left_out_path, split, mode, report.left_out())
-    write_manifest(report.manifest_path, report.rows)
+    left_out_sha256 = write_left_out(report.left_out_path, split, mode, report.left_out())
+    write_manifest(report.manifest_path, report.rows, left_out_sha256)
     return report
 
 

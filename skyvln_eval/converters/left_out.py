@@ -17,7 +17,7 @@ from typing import Any, Final, Literal, get_args
 
 from skyvln_eval.avdn.constants import ANNOTATIONS_DIR, annotation_file_name
 from skyvln_eval.errors import FormatVersionError, McapLogError
-from skyvln_eval.fileio import atomic_write_bytes
+from skyvln_eval.fileio import atomic_write_bytes, sha256_bytes
 
 LEFT_OUT_NAME: Final = "left_out.json"
 LEFT_OUT_VERSION: Final = 1
@@ -59,8 +59,11 @@ def left_out_bytes(split: str, mode: str, entries: Sequence[LeftOut]) -> bytes:
     return (json.dumps(document, indent=1, allow_nan=False) + "\n").encode("ascii")
 
 
-def write_left_out(path: str | Path, split: str, mode: str, entries: Sequence[LeftOut]) -> None:
-    atomic_write_bytes(path, left_out_bytes(split, mode, entries))
+def write_left_out(path: str | Path, split: str, mode: str, entries: Sequence[LeftOut]) -> str:
+    """Write the file; returns its SHA-256 (the manifest records it)."""
+    data = left_out_bytes(split, mode, entries)
+    atomic_write_bytes(path, data)
+    return sha256_bytes(data)
 
 
 def read_left_out(path: str | Path) -> list[LeftOut]:

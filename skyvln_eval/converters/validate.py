@@ -7,7 +7,8 @@ and validated against the JSON schema stored in its own channel (plus: ``timesta
 equals the log time, base64 image data decodes). For a folder with a manifest: every
 listed file present, named after its episode id, with the listed content hash (so it is
 the very file the conversion wrote), and no unlisted logs; its ``left_out.json`` (what the
-conversion left out, and why) readable and reported, not a problem. A run directory's logs
+conversion left out, and why) the one whose hash the manifest records, readable and
+reported, not a problem (an episode whose conversion failed is one). A run directory's logs
 (``RUN_DIR/logs/SPLIT/``, beside the run's ``run.json``) have no manifest: their files are
 checked one by one.
 """
@@ -26,7 +27,12 @@ import jsonschema
 
 from skyvln_eval.converters import topics
 from skyvln_eval.converters.left_out import LEFT_OUT_NAME, LeftOut, read_left_out
-from skyvln_eval.converters.manifest import MANIFEST_NAME, episode_file_name, read_manifest
+from skyvln_eval.converters.manifest import (
+    MANIFEST_NAME,
+    episode_file_name,
+    manifest_left_out_sha256,
+    read_manifest,
+)
 from skyvln_eval.converters.reader import (
     LogChannel,
     LogMessage,
@@ -223,9 +229,10 @@ def check_manifest_folder(folder: str | Path) -> list[ValidationIssue]:
         ]
     try:
         rows = read_manifest(manifest)
+        left_out_sha256 = manifest_left_out_sha256(manifest)
     except SkyvlnError as exc:
         return [ValidationIssue(str(manifest), str(exc))]
-    issues = []
+    issues = _left_out_matches(folder / LEFT_OUT_NAME, left_out_sha256)
     for index, row in enumerate(rows):
         path = folder / row.file_name
         if row.file_name != episode_file_name(row.episode_id):
@@ -257,6 +264,18 @@ def check_manifest_folder(folder: str | Path) -> list[ValidationIssue]:
     for name in sorted(logs - listed):
         issues.append(ValidationIssue(str(folder / name), f"not listed in {MANIFEST_NAME}"))
     return issues
+
+
+def _left_out_matches(path: Path, recorded_sha256: str) -> list[ValidationIssue]:
+    """The list of what was left out must be the one the conversion wrote: without it a
+    folder that lacks episodes would pass as complete."""
+    if not path.is_file():
+        what = "missing: what the conversion left out, and why, is no longer told"
+    elif sha256_file(path) != recorded_sha256:
+        what = f"differs from the one the conversion wrote (its sha256 is in {MANIFEST_NAME})"
+    else:
+        return []
+    return [ValidationIssue(str(path), what)]
 
 
 def folder_left_out(folder: str | Path) -> tuple[list[LeftOut], list[ValidationIssue]]:

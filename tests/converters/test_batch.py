@@ -19,7 +19,12 @@ from skyvln_eval.converters import ConvertOptions, batch, read_log
 from skyvln_eval.converters import topics as t
 from skyvln_eval.converters.batch import convert_split, episode_file_name
 from skyvln_eval.converters.left_out import LEFT_OUT_NAME, LeftOut, read_left_out
-from skyvln_eval.converters.manifest import MANIFEST_NAME, read_manifest, write_manifest
+from skyvln_eval.converters.manifest import (
+    MANIFEST_NAME,
+    manifest_left_out_sha256,
+    read_manifest,
+    write_manifest,
+)
 from skyvln_eval.converters.validate import check_manifest_folder
 from skyvln_eval.errors import AvdnValidationError, FormatVersionError
 from skyvln_eval.fileio import sha256_file
@@ -303,10 +308,33 @@ def test_manifest_check_catches_renamed_and_unlisted_files(
     shutil.copytree(converted_sample.reports[("val_seen", "andh")].out_dir, folder)
     assert check_manifest_folder(folder) == []
     rows = read_manifest(folder / MANIFEST_NAME)
-    write_manifest(folder / MANIFEST_NAME, [replace(rows[0], episode_id="42__9_1"), *rows[2:]])
+    recorded = manifest_left_out_sha256(folder / MANIFEST_NAME)
+    write_manifest(
+        folder / MANIFEST_NAME, [replace(rows[0], episode_id="42__9_1"), *rows[2:]], recorded
+    )
     problems = [str(i) for i in check_manifest_folder(folder)]
     assert problems == [
         f"{folder / MANIFEST_NAME}, record 0 (episode 42__9_1), field 'file_name': "
         f"file name {rows[0].file_name} is not 42__9_1.mcap",
         f"{folder / rows[1].file_name}: not listed in {MANIFEST_NAME}",
+    ]
+
+
+def test_a_folder_without_its_list_of_what_was_left_out_is_not_complete(
+    converted_sample: ConvertedSample, tmp_path: Path
+) -> None:
+    # Deleting left_out.json made a folder that lacks episodes pass validation as complete.
+    folder = tmp_path / "copy"
+    shutil.copytree(converted_sample.reports[("val_seen", "andh")].out_dir, folder)
+    assert check_manifest_folder(folder) == []
+    left_out = folder / LEFT_OUT_NAME
+    assert manifest_left_out_sha256(folder / MANIFEST_NAME) == sha256_file(left_out)
+    original = left_out.read_bytes()
+    left_out.write_bytes(original.replace(b'"left_out": []', b'"left_out": [ ]'))
+    assert [str(i) for i in check_manifest_folder(folder)] == [
+        f"{left_out}: differs from the one the conversion wrote (its sha256 is in {MANIFEST_NAME})"
+    ]
+    left_out.unlink()
+    assert [str(i) for i in check_manifest_folder(folder)] == [
+        f"{left_out}: missing: what the conversion left out, and why, is no longer told"
     ]
