@@ -76,8 +76,7 @@ class AvdnSplit:
     split: str
     data_dir: Path
     records: tuple[AvdnRecord, ...]
-    skipped: tuple[ValidationIssue, ...] = field(default=())
-    #: The skipped records themselves (``skipped`` holds their issues), in file order.
+    #: The skipped records, each with its issues, in file order.
     skipped_records: tuple[SkippedRecord, ...] = field(default=())
 
     @property
@@ -87,6 +86,11 @@ class AvdnSplit:
     @property
     def images_dir(self) -> Path:
         return self.data_dir / IMAGES_DIR
+
+    @property
+    def skipped(self) -> tuple[ValidationIssue, ...]:
+        """The issues of the skipped records, in file order."""
+        return tuple(issue for s in self.skipped_records for issue in s.issues)
 
     @property
     def skipped_record_indices(self) -> list[int]:
@@ -340,6 +344,5 @@ def load_split(
         split=split,
         data_dir=Path(data_dir),
         records=tuple(records),
-        skipped=tuple(issues),
         skipped_records=tuple(skipped),
     )
