@@ -38,7 +38,7 @@ COMPASS_ABBREVIATIONS: Final[dict[str, str]] = {
 COMPASS_SUFFIXES: Final = ("wards", "ward", "erly", "ern", "bound")
 SIDES: Final = ("left", "right")
 #: Words that put a left / right after them on a side ("on your left", "to the right").
-SIDE_PREPOSITIONS: Final = frozenset({"on", "to", "off", "at", "by", "from", "along"})
+SIDE_PREPOSITIONS: Final = frozenset({"on", "to", "at", "by", "from", "along"})
 #: Phrases saying that something is ahead rather than to a side.
 AHEAD_PHRASES: Final = (
     ("in", "front"),

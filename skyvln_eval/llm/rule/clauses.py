@@ -48,7 +48,7 @@ _CATEGORY_WORDS = sorted(
 # stop"); "get" is left out, too common a word to end one.
 _CUE_STARTS = frozenset(c[0] for c in (*STOP_CUES, *DESTINATION_CUES) if c[0] != "get")
 _LEFT_STOPS = PREPOSITIONS | PRONOUNS | TURN_VERBS | MOTION_VERBS | DESCRIPTION_ENDS | _CUE_STARTS
-_TRAILING = PREPOSITIONS | DETERMINERS | frozenset({"and", "or", "it", "straight", "dead", "just"})
+_TRAILING = PREPOSITIONS | DETERMINERS | frozenset({"and", "or", "it", "straight", "just"})
 _BEFORE_A_TURN = TURN_VERBS | MOTION_VERBS | frozenset({"a", "the", "hard", "sharp", "slight"})
 
 

@@ -11,8 +11,8 @@ order a commander chooses does not matter:
   ("the second crossing") or landmark ("by the church", "the roundabout") qualifies the
   turn said in the same clause or next to it ("At the first intersection, turn left");
 - a landmark is the destination, a place to stop at, or one to pass by the cues of its
-  clause, or by a cue elsewhere in the sentence ("Target: a red church", "you'll fly past
-  a park, it'll be off your left"), or by a later "that is your destination";
+  clause, or by a cue elsewhere in the sentence ("Target: a red church"), or by a later
+  "that is your destination";
 - a distance belongs to the sentence's stop or destination, or is a stop of its own.
 
 When the instruction answers the follower's question with a no, the compass point the
