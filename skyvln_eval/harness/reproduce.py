@@ -50,7 +50,13 @@ from skyvln_eval.metrics import MetricConventions, score_results, summarise
 from skyvln_eval.metrics.cost import UNKNOWN_IF_ANY_UNKNOWN
 from skyvln_eval.metrics.records import EpisodeResult
 from skyvln_eval.metrics.scores_io import summary_csv_text, write_scores
-from skyvln_eval.reports import TABLE_I, TABLE_II, build_table, to_csv, to_latex, to_markdown
+from skyvln_eval.reports import TABLE_I, TABLE_II, to_csv, to_latex, to_markdown
+from skyvln_eval.reports.paper_tables import (
+    STAND_IN_MARKERS,
+    paper_table,
+    stand_in_kind,
+    table_metrics,
+)
 
 TABLE_METRICS = ("success", "oracle_success", "spl", "gp_m", "ne_m", "path_length_m")
 HEALTH_METRICS = (
@@ -92,19 +98,6 @@ COST_METRICS = (
     "llm_latency_s",
     "wall_s",
 )
-#: Table I row markers for systems whose LLM modules are answered by a stand-in.
-STAND_IN_MARKERS = {
-    "rule": ("†", "† LLM modules answered by the rule-based stand-in (not an LLM)."),
-    "random": ("‡", "‡ LLM modules answered at random (not an LLM)."),
-    "scripted": ("§", "§ LLM modules answered by a script (a test double)."),
-}
-
-
-def stand_in_kind(backend: str) -> str | None:
-    """The kind of stand-in (a key of :data:`STAND_IN_MARKERS`) a backend spec names, or
-    ``None`` for a model."""
-    kind = backend.partition(":")[0]
-    return kind if kind in STAND_IN_MARKERS else None
 
 
 def setting_note(plan: ReproducePlan) -> str:
@@ -161,43 +154,36 @@ def _labelled(
 
 
 def _write_tables(
+    scores: pd.DataFrame,
     summary: pd.DataFrame,
     plan: ReproducePlan,
     table1: tuple[list[str], list[str]],
-    table2: tuple[list[str], list[str]],
+    table2_rows: list[str],
     conventions: MetricConventions,
     tables_dir: Path,
     withheld: Sequence[str] = (),
 ) -> dict[str, Path]:
-    """Tables I and II; ``table2`` is Table II's rows and those answered by a stand-in."""
+    """Tables I and II, as :func:`paper_table` makes them for every caller (references,
+    stand-in markers and notes come from the scores themselves)."""
     files: dict[str, Path] = {}
     table1_rows, table1_notes = table1
-    table2_rows, stand_ins = table2
     setting = [setting_note(plan)]
-    # The ground-truth replay is a reference: it reaches every goal and is never "best".
-    oracles = {
-        label
-        for label, system in zip(table1_rows, plan.table1.systems, strict=True)
-        if is_oracle(str(system.agent.get("name")))
-    }
-    # Among LLM backends a stand-in (not an LLM, no network) is the reference the models
-    # are measured against, not the "fastest" or "most reliable" of them.
-    for name, spec, rows, notes, references in (
-        ("table1", TABLE_I, table1_rows, [*setting, *table1_notes], oracles),
-        ("table2", TABLE_II, table2_rows, setting, set(stand_ins)),
+    for name, spec, rows, notes in (
+        ("table1", TABLE_I, table1_rows, [*setting, *table1_notes]),
+        ("table2", TABLE_II, table2_rows, setting),
     ):
         shape = functools.partial(
-            build_table, rows=rows, notes=notes, unranked=references, withheld=withheld
-        )
-        table = shape(summary, spec, conventions)
+            paper_table, scores, spec, conventions, summary=summary, rows=rows, notes=notes,
+            withheld=withheld,
+        )  # fmt: skip
+        table = shape()
         for suffix, render in (("md", to_markdown), ("tex", to_latex), ("csv", to_csv)):
             path = tables_dir / f"{name}.{suffix}"
             atomic_write_text(path, render(table))
             files[f"{name}.{suffix}"] = path
         if "ci_low" in summary.columns:
             path = tables_dir / f"{name}_ci.md"
-            with_ci = shape(summary, spec, conventions, show_ci=True)
-            atomic_write_text(path, to_markdown(with_ci))
+            atomic_write_text(path, to_markdown(shape(show_ci=True)))
             files[f"{name}_ci.md"] = path
     return files
 
@@ -416,7 +402,16 @@ def reproduce(
     withheld = sorted({r.split for r in results if not r.has_ground_truth})
     scored = [r for r in results if r.has_ground_truth]
     scores = score_results(scored or results, conventions)
-    metrics = dict.fromkeys((*TABLE_METRICS, *HEALTH_METRICS, *CONTROL_METRICS, *COST_METRICS))
+    metrics = dict.fromkeys(
+        (
+            *TABLE_METRICS,
+            *HEALTH_METRICS,
+            *CONTROL_METRICS,
+            *COST_METRICS,
+            *table_metrics(TABLE_I),
+            *table_metrics(TABLE_II),
+        )
+    )
     summary = summarise(scores, [m for m in metrics if m in scores], plan.resamples, seed=plan.seed)
     write_scores(out_dir / "scores" / "scores.csv", scores, conventions)
     atomic_write_text(out_dir / "scores" / "summary.csv", summary_csv_text(summary, conventions))
@@ -428,7 +423,7 @@ def reproduce(
     table1 = _table1_rows(runs, plan)
     featured = _featured_row(plan, table1[0])
     report.files |= _write_tables(
-        summary, plan, table1, (table2_rows, stand_ins), conventions, tables_dir, withheld
+        scores, summary, plan, table1, table2_rows, conventions, tables_dir, withheld
     )
     table1_rows = table1[0]
     flown = [

@@ -217,6 +217,13 @@ def _dynamics(
     return rollout, content, extra
 
 
+def llm_backend(config: RunConfig) -> str | None:
+    """The backend that answered the agent's LLM calls (``rule``, ``openai:gpt-4o``, ...),
+    recorded in every result so that a table can tell a stand-in from a model; ``None``
+    for an agent without LLM modules."""
+    return config.agent.llm.backend if config.agent.name in LLM_AGENTS else None
+
+
 def run_episode_task(task: EpisodeTask) -> EpisodeResult:
     """Run one episode; never raises for the episode's own failures (see the module docstring)."""
     config = _config(task.config_json)
@@ -258,6 +265,7 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
             "config_digest": digest,
             "execution_mode": config.mode,
             "oracle": is_oracle(config.agent.name),
+            "llm_backend": llm_backend(config),
             "questions": rollout.questions,
         }
         if config.write_logs:
@@ -330,6 +338,7 @@ def failed_result(
         "config_digest": _config_texts(task.config_json)[0],
         "execution_mode": config.mode,
         "oracle": is_oracle(config.agent.name),
+        "llm_backend": llm_backend(config),
     }
     if wall_s is not None:
         extra["wall_s"] = round(wall_s, 6)

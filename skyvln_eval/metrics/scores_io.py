@@ -14,7 +14,9 @@ without dynamics) or, in the ``oracle`` column, "not said".
 
 Version 2 added the ``oracle`` column (the harness's oracle flew the episode: a table
 never ranks it). Version 1 files still read, their ``oracle`` cells empty: not said,
-which is what they say; their rows are ranked as they always were.
+which is what they say; their rows are ranked as they always were. The ``llm_backend``
+column (what answered the agent's LLM calls: a stand-in such as ``rule`` is a reference
+in Table II, never ranked) is optional: a file without it reads with the cells empty.
 """
 
 from __future__ import annotations
@@ -97,7 +99,14 @@ def read_scores(path: str | Path) -> tuple[pd.DataFrame, MetricConventions]:
     try:
         frame = pd.read_csv(
             io.StringIO(lines[2]),
-            dtype={"episode_id": str, "split": str, "mode": str, "system": str, "oracle": str},
+            dtype={
+                "episode_id": str,
+                "split": str,
+                "mode": str,
+                "system": str,
+                "oracle": str,
+                "llm_backend": "string",
+            },
         )
     except ValueError as exc:  # pandas' ParserError and EmptyDataError among them
         reason = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
@@ -116,6 +125,9 @@ def read_scores(path: str | Path) -> tuple[pd.DataFrame, MetricConventions]:
         if column in frame.columns:
             frame[column] = frame[column].astype("Float64")
     _read_oracle(frame, path)
+    if "llm_backend" not in frame.columns:  # scored before results said (not known)
+        empty = pd.array([None] * len(frame), dtype="string")
+        frame.insert(frame.columns.get_loc("oracle") + 1, "llm_backend", empty)
     check_unique_scores([(str(path), frame)])
     frame.attrs[CONVENTIONS_ATTR] = conventions
     return frame, conventions

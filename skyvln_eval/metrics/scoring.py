@@ -102,6 +102,7 @@ def score_results(
             "episode_id": [r.episode_id for r in results],
             "status": [r.status for r in results],
             "oracle": pd.array([_oracle(r) for r in results], dtype="boolean"),
+            "llm_backend": pd.array([_llm_backend(r) for r in results], dtype="string"),
             "n_views": visited.lengths,
             "n_gt_views": gt.lengths,
         }
@@ -146,3 +147,13 @@ def _oracle(result: EpisodeResult) -> bool | None:
         return value
     where = "/".join(result.key)
     raise MetricInputError(f"{where}: extra.oracle must be true or false, got {value!r}")
+
+
+def _llm_backend(result: EpisodeResult) -> str | None:
+    """The backend that answered ``result``'s LLM calls (its ``extra["llm_backend"]``),
+    ``None`` for an agent without LLM modules or a run that did not say."""
+    value = result.extra.get("llm_backend")
+    if value is None or isinstance(value, str):
+        return value
+    where = "/".join(result.key)
+    raise MetricInputError(f"{where}: extra.llm_backend must be a string, got {value!r}")

@@ -1,8 +1,9 @@
 """Reports: paper-style tables (Markdown, LaTeX, CSV) and headless, deterministic figures.
 
-Tables: :func:`build_table` arranges a :func:`skyvln_eval.metrics.summarise` summary in
-the shape of the SkyVLN paper's Table I (:data:`TABLE_I`) or Table II (:data:`TABLE_II`);
-:func:`to_markdown`, :func:`to_latex` and :func:`to_csv` render it. Figures:
+Tables: :func:`paper_table` makes the SkyVLN paper's Table I (:data:`TABLE_I`) or Table II
+(:data:`TABLE_II`) from per-episode scores, the same way for every caller (it summarises
+them and arranges the summary with :func:`build_table`); :func:`to_markdown`,
+:func:`to_latex` and :func:`to_csv` render it. Figures:
 :func:`control_figure` (6-DOF curves and errors per controller, per scenario),
 :func:`sr_vs_threshold_figure`, :func:`ne_distribution_figure`,
 :func:`trajectory_figure` (views over the map tile); :func:`save_figure` writes them
@@ -16,6 +17,7 @@ from skyvln_eval.reports.nav_figures import (
     success_rate_curve,
     trajectory_figure,
 )
+from skyvln_eval.reports.paper_tables import paper_table, table_metrics
 from skyvln_eval.reports.render import FIGURE_FORMATS, new_figure, save_figure
 from skyvln_eval.reports.tables import (
     TABLE_I,
@@ -44,9 +46,11 @@ __all__ = [
     "latex_escape",
     "ne_distribution_figure",
     "new_figure",
+    "paper_table",
     "save_figure",
     "sr_vs_threshold_figure",
     "success_rate_curve",
+    "table_metrics",
     "to_csv",
     "to_latex",
     "to_markdown",

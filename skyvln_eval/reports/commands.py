@@ -262,24 +262,28 @@ def table(
     digits: Annotated[int, typer.Option(min=0, max=6, help="Decimals")] = 2,
     out: Annotated[Path | None, typer.Option(help="Write here instead of printing")] = None,
 ) -> None:
-    """Render a paper-style table from scores files. Systems the ground-truth oracle flew
-    are references, never ranked (as in `reproduce`'s tables)."""
+    """Render a paper-style table from scores files, as `reproduce` does: systems the
+    ground-truth oracle flew (and, in Table II, stand-ins) are references, never ranked."""
     from skyvln_eval.fileio import atomic_write_text
-    from skyvln_eval.metrics import summarise
-    from skyvln_eval.metrics.aggregate import oracle_systems
     from skyvln_eval.metrics.scores_io import read_many_scores
-    from skyvln_eval.reports.tables import RENDERERS, TABLES, build_table
+    from skyvln_eval.reports.paper_tables import paper_table
+    from skyvln_eval.reports.tables import RENDERERS, TABLES
 
     if kind not in TABLES:
         raise ConfigError(f"--kind must be one of {sorted(TABLES)}, not {kind!r}")
     if fmt not in RENDERERS:
         raise ConfigError(f"--format must be one of {sorted(RENDERERS)}, not {fmt!r}")
     frame, conventions = read_many_scores(scores)
-    spec = TABLES[kind]
-    metrics = [m for m, _ in spec.metrics]
-    summary = summarise(frame, metrics, resamples if ci else 0, seed=seed)
-    shaped = build_table(
-        summary, spec, conventions, row, mode, digits, ci, unranked=oracle_systems(frame)
+    shaped = paper_table(
+        frame,
+        TABLES[kind],
+        conventions,
+        rows=row,
+        mode=mode,
+        digits=digits,
+        show_ci=ci,
+        resamples=resamples,
+        seed=seed,
     )
     text = RENDERERS[fmt](shaped)
     if out is None:

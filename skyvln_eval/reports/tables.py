@@ -128,6 +128,8 @@ SOME_ERRORS = "⋄"
 #: mean is unknown: a backend's cost when only failed attempts have none.
 LOWER_BOUNDS: dict[str, str] = {"llm_cost_usd": "llm_cost_lower_usd"}
 AT_LEAST = "≥"
+#: Summary metrics that say how many of a row's LLM calls were replayed from the cache.
+CACHE_METRICS = ("llm_calls", "llm_cached_calls")
 #: Columns that describe the run's health, not the agent's path: measured whatever the
 #: episodes' status, so they always show their numbers (a dead endpoint's Error/% is 100).
 HEALTH_METRICS = frozenset(
@@ -242,13 +244,16 @@ def build_table(
                 cell = Cell(float(v["mean"]), low, high, ranks.get(row), *in_cell[row])
                 if show_ci:
                     cell = replace(cell, ci_method=str(v["ci_method"]))
-                bound = _lower_bound(index, (row, split, LOWER_BOUNDS.get(metric, "")))
+                bound = _summary_mean(index, (row, split, LOWER_BOUNDS.get(metric, "")))
                 if math.isnan(cell.mean) and bound is not None:
                     # Never ranked: the true value is unknown (its CI too).
                     cell = replace(cell, mean=bound, rank=None, lower_bound=True)
                     bounded.append(f"{row} on {titles[split]}")
                 cells[row][(split, metric)] = cell
     notes = [*notes, *_error_notes(errors, row_names, spec, titles)]
+    notes += _episode_count_notes(errors, row_names, spec, titles)
+    if {"llm_cost_usd", "llm_latency_s"} & set(dict(spec.metrics)):
+        notes += _cached_notes(index, row_names, spec, titles)
     notes += _not_run_notes(cells, row_names, spec, titles, withheld)
     if bounded:
         notes.append(
@@ -270,12 +275,12 @@ def build_table(
     return Table(spec, row_names, cells, conventions, digits, show_ci, tuple(notes), shown_withheld)
 
 
-def _lower_bound(index: pd.DataFrame, key: tuple[str, str, str]) -> float | None:
-    """The known lower bound the summary has at ``key`` (row, split, bound metric)."""
+def _summary_mean(index: pd.DataFrame, key: tuple[str, str, str]) -> float | None:
+    """The summary's known mean at ``key`` (row, split, metric); None if it has none."""
     if key not in index.index:
         return None
-    bound = float(index.loc[key]["mean"])
-    return None if math.isnan(bound) else bound
+    mean = float(index.loc[key]["mean"])
+    return None if math.isnan(mean) else mean
 
 
 def _interval_notes(
@@ -346,6 +351,45 @@ def _error_counts(
                 n = int(v["n"])
                 counts[(row, split)] = (n, round(float(v["mean"]) / 100.0 * n))
     return counts
+
+
+def _episode_count_notes(
+    errors: dict[tuple[str, str], tuple[int, int]],
+    rows: Sequence[str],
+    spec: TableSpec,
+    titles: dict[str, str],
+) -> list[str]:
+    """The episodes of each row, on a split where the rows ran different numbers of them
+    (their means are then over different episode sets)."""
+    parts = []
+    for split, _ in spec.groups:
+        counts = {row: errors[(row, split)][0] for row in rows if (row, split) in errors}
+        if len(set(counts.values())) > 1:
+            shown = ", ".join(f"{row} {n}" for row, n in counts.items())
+            parts.append(f"{titles[split]}: {shown}")
+    if not parts:
+        return []
+    return [f"Rows ran different numbers of episodes: {'; '.join(parts)}."]
+
+
+def _cached_notes(
+    index: pd.DataFrame, rows: Sequence[str], spec: TableSpec, titles: dict[str, str]
+) -> list[str]:
+    """How many of a row's LLM calls were answers replayed from the response cache: their
+    cost and time are those of the call that made them, not paid or waited for again."""
+    parts = []
+    for row in rows:
+        for split, _ in spec.groups:
+            calls, cached = (_summary_mean(index, (row, split, metric)) for metric in CACHE_METRICS)
+            if calls and cached:
+                parts.append(f"{row} on {titles[split]}: {100.0 * cached / calls:.0f}%")
+    if not parts:
+        return []
+    return [
+        "Replayed from the response cache (their Cost and LLM s are those of the calls "
+        f"that made them; this run neither paid nor waited for them): {'; '.join(parts)} "
+        "of the LLM calls."
+    ]
 
 
 def _error_notes(

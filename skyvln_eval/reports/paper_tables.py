@@ -1,0 +1,134 @@
+"""Table I and Table II from per-episode scores: the one way every caller makes them.
+
+`reproduce`, `skyvln-eval table` and the notebooks all call :func:`paper_table`, so the
+same scores give the same cells and notes wherever they are rendered: error cells and
+their counts, unknown costs shown as lower bounds, references never ranked (systems the
+ground-truth oracle flew; in Table II also the stand-ins, which are what the models are
+measured against), Table I rows answered by a stand-in marked with a footnote, and the
+share of answers replayed from the response cache.
+
+The scores say all of that themselves: ``status`` for errors, ``oracle`` for the oracle,
+``llm_backend`` for what answered the LLM calls (empty in files scored before it was
+recorded: such rows are taken as they are labelled).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection, Sequence
+
+import pandas as pd
+
+from skyvln_eval.metrics import summarise
+from skyvln_eval.metrics.aggregate import oracle_systems
+from skyvln_eval.metrics.conventions import MetricConventions
+from skyvln_eval.reports.tables import (
+    CACHE_METRICS,
+    LOWER_BOUNDS,
+    TABLE_I,
+    Table,
+    TableSpec,
+    build_table,
+)
+
+#: Table I row markers for systems whose LLM modules are answered by a stand-in.
+STAND_IN_MARKERS = {
+    "rule": ("†", "† LLM modules answered by the rule-based stand-in (not an LLM)."),
+    "random": ("‡", "‡ LLM modules answered at random (not an LLM)."),
+    "scripted": ("§", "§ LLM modules answered by a script (a test double)."),
+}
+
+
+def stand_in_kind(backend: str | None) -> str | None:
+    """The kind of stand-in (a key of :data:`STAND_IN_MARKERS`) a backend spec names, or
+    ``None`` for a model (or no backend)."""
+    if not backend:
+        return None
+    kind = backend.partition(":")[0]
+    return kind if kind in STAND_IN_MARKERS else None
+
+
+def stand_in_systems(scores: pd.DataFrame) -> dict[str, str]:
+    """The systems of ``scores`` whose LLM calls a stand-in answered, with its kind."""
+    if "llm_backend" not in scores.columns:
+        return {}
+    kinds: dict[str, str] = {}
+    for system, backend in scores[["system", "llm_backend"]].dropna().itertuples(index=False):
+        kind = stand_in_kind(str(backend))
+        if kind is not None:
+            kinds.setdefault(str(system), kind)
+    return kinds
+
+
+def table_metrics(spec: TableSpec) -> list[str]:
+    """The summary metrics ``spec`` reads: its columns, ``status_error`` (cells whose
+    episodes ended in error), the lower bounds of unknown costs and, for a table with
+    LLM columns, the calls answered from the cache."""
+    columns = [metric for metric, _ in spec.metrics]
+    bounds = [LOWER_BOUNDS[m] for m in columns if m in LOWER_BOUNDS]
+    cache = list(CACHE_METRICS) if set(columns) & {"llm_cost_usd", "llm_latency_s"} else []
+    return list(dict.fromkeys([*columns, "status_error", *bounds, *cache]))
+
+
+def paper_table(
+    scores: pd.DataFrame,
+    spec: TableSpec,
+    conventions: MetricConventions,
+    *,
+    summary: pd.DataFrame | None = None,
+    rows: Sequence[str] | None = None,
+    notes: Sequence[str] = (),
+    mode: str = "andh",
+    digits: int = 2,
+    show_ci: bool = False,
+    resamples: int = 1000,
+    seed: int = 0,
+    withheld: Collection[str] = (),
+) -> Table:
+    """``spec`` (:data:`TABLE_I` or :data:`TABLE_II`) from ``scores``.
+
+    ``summary``: a summary of ``scores`` already made (with :func:`table_metrics` among
+    its metrics, and intervals when ``show_ci``); else one is made here (``resamples``
+    bootstrap resamples with ``seed`` when ``show_ci``). ``rows``: systems in order
+    (default: all); ``notes``: footnotes of the caller's; ``withheld``: splits whose
+    ground truth is withheld.
+    """
+    stand_ins = stand_in_systems(scores)
+    labels = _marked_labels(stand_ins) if spec is TABLE_I else {}
+    if labels:
+        scores = scores.assign(system=scores["system"].replace(labels))
+        if summary is not None:
+            summary = summary.assign(system=summary["system"].replace(labels))
+        rows = None if rows is None else [labels.get(r, r) for r in rows]
+    if summary is None:
+        metrics = [m for m in table_metrics(spec) if m in scores.columns]
+        summary = summarise(scores, metrics, resamples if show_ci else 0, seed=seed)
+    references = set(oracle_systems(scores))
+    if spec is not TABLE_I:
+        references |= set(stand_ins)  # the reference the models are measured against
+    marker_notes = [
+        STAND_IN_MARKERS[kind][1]
+        for system, kind in stand_ins.items()
+        if spec is TABLE_I and (rows is None or labels.get(system, system) in rows)
+    ]
+    return build_table(
+        summary,
+        spec,
+        conventions,
+        rows,
+        mode,
+        digits,
+        show_ci,
+        list(dict.fromkeys([*notes, *sorted(set(marker_notes))])),
+        unranked=references,
+        withheld=withheld,
+    )
+
+
+def _marked_labels(stand_ins: dict[str, str]) -> dict[str, str]:
+    """Row labels with the marker of their stand-in, where the label lacks it."""
+    marked = {}
+    for system, kind in stand_ins.items():
+        marker = STAND_IN_MARKERS[kind][0]
+        if marker not in system:
+            marked[system] = f"{system} {marker}"
+    return marked

@@ -1,0 +1,105 @@
+"""One way to make Table I and II from scores: `table`, `reproduce` and notebooks agree.
+
+A review found `skyvln-eval table` summarising only the table's own columns: Table I of
+a dead endpoint showed SR 0.00 with no 'error' (the cells' error counts come from
+``status_error``), Table II showed 'n/a' where `reproduce` showed a cost's lower bound,
+and ranked the rule stand-in as the best backend; rows over different numbers of
+episodes, and costs replayed from the cache, were not told.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+from typer.testing import CliRunner
+
+from skyvln_eval.cli import app
+from skyvln_eval.llm_records import LlmCall
+from skyvln_eval.metrics import MetricConventions, score_results
+from skyvln_eval.metrics.scores_io import read_scores, write_scores
+from skyvln_eval.reports import TABLE_I, TABLE_II, paper_table, to_markdown
+from tests.metrics.helpers import result, square
+
+GOAL = [square(0, 0), square(0, 120)]
+
+
+def _call(cached: bool = False, ok: bool = True) -> LlmCall:
+    if not ok:
+        return LlmCall(
+            module="action", backend="openai", model="m", outcome="failed", error="HTTP 500"
+        )
+    return LlmCall(
+        module="action", backend="openai", model="m", prompt_tokens=100, completion_tokens=10, cost_usd=0.001,
+        latency_s=0.5, cached=cached,
+    )  # fmt: skip
+
+
+def _scores() -> pd.DataFrame:
+    """test_unseen: a model (2 episodes, half its calls from the cache), the rule
+    stand-in (3 episodes, best SR) and a dead endpoint (2 episodes, all error)."""
+    results = []
+    for k in range(2):
+        results.append(
+            result(
+                [square(0, 0), square(0, 60), square(0, 120)], GOAL, system="gemma", split="test_unseen",
+                episode_id=f"1913__{k}_1", extra={"llm_backend": "openai:gemma"},
+                llm_calls=(_call(), _call(cached=True)),
+            )
+        )  # fmt: skip
+        results.append(
+            result(
+                [square(0, 0)], GOAL, "error", system="dead", split="test_unseen",
+                episode_id=f"1913__{k}_1", extra={"llm_backend": "openai:dead"},
+                llm_calls=(_call(ok=False),),
+            )
+        )  # fmt: skip
+    for k in range(3):
+        results.append(
+            result(
+                GOAL, GOAL, system="rule", split="test_unseen", episode_id=f"1913__{k}_1",
+                extra={"llm_backend": "rule"},
+            )
+        )  # fmt: skip
+    return score_results(results, MetricConventions())
+
+
+def test_table_ii_marks_errors_references_unequal_episodes_and_cache_replays() -> None:
+    table = paper_table(_scores(), TABLE_II, MetricConventions())
+    md = to_markdown(table)
+    assert "| dead | error | error | error |" in md
+    rule = table.cells["rule"][("test_unseen", "success")]
+    assert rule is not None and rule.mean == 100.0 and rule.rank is None  # a reference
+    assert "Not ranked (a reference, not a competitor): rule." in md
+    assert "Rows ran different numbers of episodes: Unseen Testing: dead 2, gemma 2, rule 3." in md
+    assert "Replayed from the response cache" in md and "gemma on Unseen Testing: 50%" in md
+
+
+def test_table_i_marks_a_stand_in_row_and_says_why() -> None:
+    scores = _scores().replace({"split": {"test_unseen": "val_seen"}})
+    table = paper_table(scores, TABLE_I, MetricConventions())
+    assert "rule †" in table.rows and "gemma" in table.rows
+    md = to_markdown(table)
+    assert "† LLM modules answered by the rule-based stand-in (not an LLM)." in md
+    assert "| dead | error | error |" in md
+    # A label that already carries the marker (reproduce's) is not marked twice.
+    marked = scores.replace({"system": {"rule": "Full †"}})
+    again = paper_table(marked, TABLE_I, MetricConventions(), rows=["Full †", "gemma"])
+    assert again.rows == ("Full †", "gemma")
+    assert to_markdown(again).count("† LLM modules") == 1
+
+
+def test_the_table_command_makes_the_same_table(tmp_path: Path) -> None:
+    path = tmp_path / "scores.csv"
+    write_scores(path, _scores(), MetricConventions())
+    assert read_scores(path)[0]["llm_backend"].tolist()[:1] == ["openai:dead"]
+    outcome = CliRunner().invoke(app, ["table", str(path), "--kind", "table2"])
+    assert outcome.exit_code == 0, outcome.output
+    back, conventions = read_scores(path)
+    assert outcome.output == to_markdown(paper_table(back, TABLE_II, conventions))
+    assert "| dead | error | error | error |" in outcome.output
+    table1 = CliRunner().invoke(
+        app, ["table", str(path), "--kind", "table1"]
+    )  # test_unseen only: SR/SPL columns of Unseen Testing
+    assert table1.exit_code == 0, table1.output
+    assert "| dead | - | - | - | - | error | error |" in table1.output
