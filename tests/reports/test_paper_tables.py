@@ -30,9 +30,15 @@ def _call(cached: bool = False, ok: bool = True) -> LlmCall:
             module="action", backend="openai", model="m", outcome="failed", error="HTTP 500"
         )
     return LlmCall(
-        module="action", backend="openai", model="m", prompt_tokens=100, completion_tokens=10, cost_usd=0.001,
-        latency_s=0.5, cached=cached,
-    )  # fmt: skip
+        module="action",
+        backend="openai",
+        model="m",
+        prompt_tokens=100,
+        completion_tokens=10,
+        cost_usd=0.001,
+        latency_s=0.5,
+        cached=cached,
+    )
 
 
 def _scores() -> pd.DataFrame:
@@ -42,25 +48,38 @@ def _scores() -> pd.DataFrame:
     for k in range(2):
         results.append(
             result(
-                [square(0, 0), square(0, 60), square(0, 120)], GOAL, system="gemma", split="test_unseen",
-                episode_id=f"1913__{k}_1", extra={"llm_backend": "openai:gemma"},
+                [square(0, 0), square(0, 60), square(0, 120)],
+                GOAL,
+                system="gemma",
+                split="test_unseen",
+                episode_id=f"1913__{k}_1",
+                extra={"llm_backend": "openai:gemma"},
                 llm_calls=(_call(), _call(cached=True)),
             )
-        )  # fmt: skip
+        )
         results.append(
             result(
-                [square(0, 0)], GOAL, "error", system="dead", split="test_unseen",
-                episode_id=f"1913__{k}_1", extra={"llm_backend": "openai:dead"},
+                [square(0, 0)],
+                GOAL,
+                "error",
+                system="dead",
+                split="test_unseen",
+                episode_id=f"1913__{k}_1",
+                extra={"llm_backend": "openai:dead"},
                 llm_calls=(_call(ok=False),),
             )
-        )  # fmt: skip
+        )
     for k in range(3):
         results.append(
             result(
-                GOAL, GOAL, system="rule", split="test_unseen", episode_id=f"1913__{k}_1",
+                GOAL,
+                GOAL,
+                system="rule",
+                split="test_unseen",
+                episode_id=f"1913__{k}_1",
                 extra={"llm_backend": "rule"},
             )
-        )  # fmt: skip
+        )
     return score_results(results, MetricConventions())
 
 
