@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from skyvln_eval.agent import Perception, PerceptionConfig
+from skyvln_eval.agent.base import episode_key
 from skyvln_eval.agent.detectors import (
     Detection,
     SimulatedDetector,
@@ -72,7 +73,7 @@ def render(decisions: int) -> list[Episode]:
             sensors = SimulatedSensors(world, pose.x_m, pose.y_m, pose.z_m, SensorConfig())
             views.append([view.images for view in perception.capture(sensors, pose)])
         left -= len(views)
-        episodes.append((episode_seed(0, episode.episode_id), views))
+        episodes.append((episode_seed(0, episode_key(episode.episode_id)), views))
     return episodes
 
 

@@ -10,6 +10,7 @@ handle through which it can turn in place and capture images, and nothing else.
 
 from __future__ import annotations
 
+import zlib
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -32,14 +33,16 @@ if TYPE_CHECKING:
 class EpisodeBrief:
     """What an agent knows when an episode starts.
 
-    ``dialog`` is every turn so far (earlier rounds and the current round's question and
-    instruction); ``current_round`` the round the agent now follows. ``start_pose`` and
-    ``start_view`` are where it starts (the view's ``[lat, lng]`` corners), ``georef``
-    the map's georeference, ``max_steps`` the view budget, start included.
+    ``episode_key`` tells episodes apart, to seed an agent's randomness (:func:`episode_key`);
+    the episode's id and map name are not given, since they are the keys of its
+    annotations (the route and the goal). ``dialog`` is every turn so far (earlier rounds
+    and the current round's question and instruction); ``current_round`` the round the
+    agent now follows. ``start_pose`` and ``start_view`` are where it starts (the view's
+    ``[lat, lng]`` corners), ``georef`` the map's georeference, ``max_steps`` the view
+    budget, start included.
     """
 
-    episode_id: str
-    map_name: str
+    episode_key: int
     dialog: tuple[DialogTurn, ...]
     current_round: int
     start_pose: ViewPose
@@ -55,6 +58,12 @@ class EpisodeBrief:
             for t in self.dialog
             if t.round_index >= self.current_round and t.speaker == "commander"
         )
+
+
+def episode_key(episode_id: str) -> int:
+    """The :attr:`EpisodeBrief.episode_key` of an episode: its id's CRC-32 (stable across
+    processes, unlike ``hash``)."""
+    return zlib.crc32(episode_id.encode("utf-8"))
 
 
 @dataclass(frozen=True, eq=False)

@@ -53,7 +53,7 @@ class RandomAgent(Agent):
         return {"name": self.name, "seed": self.seed}
 
     def reset(self, brief: EpisodeBrief) -> None:
-        self._rng = random.Random(episode_seed(self.seed, brief.episode_id))
+        self._rng = random.Random(episode_seed(self.seed, brief.episode_key))
 
     def act(self, observation: Observation) -> Decision:
         action = action_from_dict(random_action(self._rng, {}), {})
@@ -88,7 +88,7 @@ class NavGPTAgent(Agent):
         self._dialog = DialogText.of(brief.dialog, brief.current_round)
         self._history: list[dict[str, Any]] = []
         self._odometer = Odometer()
-        self.perception.reset(episode_seed(self.seed, brief.episode_id))
+        self.perception.reset(episode_seed(self.seed, brief.episode_key))
 
     def act(self, observation: Observation) -> Decision:
         if not hasattr(self, "_brief"):

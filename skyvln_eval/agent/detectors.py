@@ -17,7 +17,6 @@ leaving from below the drone, where a detector can. Detectors see pixels only: a
 from __future__ import annotations
 
 import math
-import zlib
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -559,6 +558,7 @@ def create_detector(name: str, **options: Any) -> Detector:
     return detector_class(name)(**options)
 
 
-def episode_seed(seed: int, episode_id: str) -> int:
-    """A per-episode seed that does not depend on Python's hash randomisation."""
-    return (seed * 1_000_003 + zlib.crc32(episode_id.encode("utf-8"))) % (2**32)
+def episode_seed(seed: int, episode_key: int) -> int:
+    """A per-episode seed from an agent's seed and the episode's key
+    (:attr:`~skyvln_eval.agent.base.EpisodeBrief.episode_key`)."""
+    return (seed * 1_000_003 + episode_key) % (2**32)

@@ -116,7 +116,7 @@ class SkyVLNAgent(Agent):
         self._state = _EpisodeState(
             brief, DialogText.of(brief.dialog, brief.current_round), brief.dialog
         )
-        self.perception.reset(episode_seed(self.seed, brief.episode_id))
+        self.perception.reset(episode_seed(self.seed, brief.episode_key))
         if self.memory is not None:
             self.memory.reset(())
 

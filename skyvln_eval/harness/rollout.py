@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyvln_eval.agent.actions import Action, Stop
-from skyvln_eval.agent.base import Agent, Decision, EpisodeBrief, Observation
+from skyvln_eval.agent.base import Agent, Decision, EpisodeBrief, Observation, episode_key
 from skyvln_eval.avdn.records import DialogTurn, Episode
 from skyvln_eval.errors import CacheMissError, LLMAuthError, SkyvlnError
 from skyvln_eval.frames import ViewPose, view_to_pose
@@ -44,8 +44,7 @@ def episode_brief(episode: Episode, max_steps: int) -> EpisodeBrief:
     georef = episode.georef
     start = np.asarray(episode.start_view, dtype=np.float64)
     return EpisodeBrief(
-        episode_id=episode.episode_id,
-        map_name=episode.map_name,
+        episode_key=episode_key(episode.episode_id),
         dialog=tuple(episode.dialog()),
         current_round=episode.first.round_index,
         start_pose=view_to_pose(start, georef),

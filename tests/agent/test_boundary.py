@@ -19,8 +19,17 @@ from tests.conftest import REPO
 from tests.toy_worlds import town_episode, town_world
 
 AGENT_PACKAGE = REPO / "skyvln_eval" / "agent"
-#: What agent modules may never import: the world's rasters and the simulator.
-FORBIDDEN = ("skyvln_eval.worlds", "skyvln_eval.sim", "skyvln_eval.harness")
+#: What agent modules may never import: the world's rasters, the simulator, and what
+#: reads a dataset's annotations or logs (the route and the goal).
+FORBIDDEN = (
+    "skyvln_eval.worlds",
+    "skyvln_eval.sim",
+    "skyvln_eval.harness",
+    "skyvln_eval.avdn.loader",
+    "skyvln_eval.avdn.validation",
+    "skyvln_eval.converters",
+    "skyvln_eval.metrics",
+)
 
 
 def _imports(path: Path) -> Iterator[str]:
@@ -36,7 +45,7 @@ def test_no_agent_module_imports_the_world_or_the_simulator() -> None:
         f"{path.relative_to(REPO)} imports {name}"
         for path in sorted(AGENT_PACKAGE.rglob("*.py"))
         for name in _imports(path)
-        if name.startswith(FORBIDDEN)
+        if name.startswith(FORBIDDEN) or name == "skyvln_eval.avdn"  # it exports load_split
     ]
     assert not offending, offending
 
@@ -156,6 +165,8 @@ def test_nothing_an_agent_is_given_leads_to_the_world_the_goal_or_the_route() ->
                 assert item.shape != view.shape or not np.allclose(item, view), "a GT view"
         if isinstance(item, str):
             assert item not in descriptions, f"a landmark description reached the agent: {item}"
+            # The episode's id and map name are the keys of its annotations (the route).
+            assert episode.episode_id not in item and episode.map_name not in item, item
     brief = inspector.given[0]
     assert isinstance(brief, EpisodeBrief) and brief.instruction.startswith("Go north")
 

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from skyvln_eval.agent import Perception, PerceptionConfig, SimulatedDetector
+from skyvln_eval.agent.base import episode_key
 from skyvln_eval.agent.detectors import (
     _NAMED_COLOURS,
     _PALETTE,
@@ -58,7 +59,7 @@ def panoramas(sample_dir: Path) -> dict[bool, Episodes]:
                 config = SensorConfig(depth=depth)
                 sensors = SimulatedSensors(world, pose.x_m, pose.y_m, pose.z_m, config)
                 views += [view.images for view in perception.capture(sensors, pose)]
-            out.append((episode_seed(0, episode.episode_id), views))
+            out.append((episode_seed(0, episode_key(episode.episode_id)), views))
     return rendered
 
 

@@ -15,6 +15,7 @@ from typing import Any
 import pytest
 import yaml
 
+from skyvln_eval.agent.base import episode_key
 from skyvln_eval.avdn import load_split
 from skyvln_eval.converters import topics as t
 from skyvln_eval.converters.reader import read_episode, read_log
@@ -194,14 +195,14 @@ def test_an_agent_that_raises_marks_its_episode_error_and_the_run_goes_on(
         act = agent.act
 
         def act_or_raise(observation: Any) -> Any:
-            if agent._episode_id_for_test == victim[0]:  # type: ignore[attr-defined]
+            if agent._episode_key_for_test == episode_key(victim[0]):  # type: ignore[attr-defined]
                 raise RuntimeError("agent exploded")
             return act(observation)
 
         reset = agent.reset
 
         def reset_and_remember(brief: Any) -> None:
-            agent._episode_id_for_test = brief.episode_id  # type: ignore[attr-defined]
+            agent._episode_key_for_test = brief.episode_key  # type: ignore[attr-defined]
             reset(brief)
 
         agent.act, agent.reset = act_or_raise, reset_and_remember  # type: ignore[method-assign]
