@@ -22,17 +22,22 @@ from typing import Any, Final
 from skyvln_eval.llm.rule.instructions import parse_instruction
 from skyvln_eval.vocabulary import COMPASS, category_of, text_similarity
 
-#: View edges (m) the rule aims for when stopping: over a landmark of unknown size, and
-#: at a place given only by a distance (the middle of typical AVDN end views).
-DEFAULT_LANDMARK_EDGE_M: Final = 110.0
-DEFAULT_PLACE_EDGE_M: Final = 130.0
+#: View edge (m) the rule aims for when stopping where nothing says otherwise: the
+#: median end view of the official AVDN agent's real test_unseen rollouts (122 m over
+#: 897; deciles 85-182 m; ../shared/fixtures), not the synthetic generator's plan (a
+#: review found the rule copying its 1.4 x size and 360 m cap).
+DEFAULT_END_EDGE_M: Final = 120.0
+#: Largest view edge AVDN allows (altitude 1).
+MAX_EDGE_M: Final = 400.0
 MIN_SEARCH_EDGE_M: Final = 160.0
 
 
 def desired_edge_m(goal_kind: str, size_m: float | None) -> float:
+    """The view edge to stop with: the typical end view, or, over a destination of known
+    size too large for it, twice its size (it then fills the middle half of the view)."""
     if goal_kind == "destination" and size_m is not None:
-        return min(360.0, max(100.0, 1.4 * size_m))
-    return DEFAULT_LANDMARK_EDGE_M if goal_kind == "destination" else DEFAULT_PLACE_EDGE_M
+        return min(MAX_EDGE_M, max(DEFAULT_END_EDGE_M, 2.0 * size_m))
+    return DEFAULT_END_EDGE_M
 
 
 def _waypoint(
@@ -157,13 +162,13 @@ def _dead_reckon(
             thought = "at the expected place but the landmark is not in sight; climbing to look"
             return thought, {"type": "ascend", "distance_m": climb}
         return _climb_or_stop(
-            edge, DEFAULT_PLACE_EDGE_M, state["actions_left"], "reached the distance given"
+            edge, DEFAULT_END_EDGE_M, state["actions_left"], "reached the distance given"
         )
     final = remaining <= half * 1.4 or state["actions_left"] <= 1
     if searching:
         wanted_edge = max(edge, MIN_SEARCH_EDGE_M)
     else:
-        wanted_edge = DEFAULT_PLACE_EDGE_M if final else edge
+        wanted_edge = DEFAULT_END_EDGE_M if final else edge
     thought = (
         f"flying {remaining:.0f} m towards the expected end point at bearing {bearing:.0f} deg"
     )
@@ -197,7 +202,7 @@ def _approach(
     edge, fine = pose["view_edge_m"], state["descriptor"] == "fine"
     wanted = desired_edge_m(goal["kind"], target.get("size_m") if fine else None)
     if fine and target.get("clipped"):  # larger than every view of it so far: see more of it
-        wanted = max(wanted, min(360.0, 1.3 * edge))
+        wanted = max(wanted, min(MAX_EDGE_M, 1.3 * edge))
     if fine:
         arrived = target["distance_m"] <= max(6.0, 0.08 * edge, 0.2 * target.get("size_m", 0.0))
     else:
