@@ -105,7 +105,8 @@ def setting_note(plan: ReproducePlan) -> str:
     asks = plan.commander.max_questions
     commander = (
         f"a simulated commander who knows the goal (as AVDN's human one does) answers up to "
-        f"{asks} clarification question(s) per episode with the way and distance to it"
+        f"{asks} clarification question(s) per episode with the way and distance to it "
+        "(whatever was asked)"
         if asks
         else "no commander answers questions"
     )

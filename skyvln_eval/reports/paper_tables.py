@@ -110,6 +110,8 @@ def paper_table(
         for system, kind in stand_ins.items()
         if spec is TABLE_I and (rows is None or labels.get(system, system) in rows)
     ]
+    shown = rows if rows is not None else list(dict.fromkeys(summary["system"]))
+    asked = _questions_note(scores, shown, spec, mode)
     return build_table(
         summary,
         spec,
@@ -118,10 +120,34 @@ def paper_table(
         mode,
         digits,
         show_ci,
-        list(dict.fromkeys([*notes, *sorted(set(marker_notes))])),
+        list(dict.fromkeys([*notes, *sorted(set(marker_notes)), *asked])),
         unranked=references,
         withheld=withheld,
     )
+
+
+def _questions_note(
+    scores: pd.DataFrame, rows: Sequence[str], spec: TableSpec, mode: str
+) -> list[str]:
+    """Which rows asked the simulated commander (who knows the goal) and how often: help
+    the other rows did not get, which their differences include."""
+    if "questions_asked" not in scores.columns:
+        return []
+    splits = [split for split, _ in spec.groups]
+    sel = scores[scores["split"].isin(splits) & (scores["mode"] == mode)]
+    parts = []
+    for row in rows:
+        asked = sel.loc[sel["system"] == row, "questions_asked"].dropna()
+        if len(asked) and asked.sum() > 0:
+            parts.append(
+                f"{row} {int(asked.sum())} in {int((asked > 0).sum())} of {len(asked)} episodes"
+            )
+    if not parts:
+        return []
+    return [
+        "Questions asked of the simulated commander, who knows the goal (help the other "
+        f"rows did not get): {'; '.join(parts)}."
+    ]
 
 
 def _marked_labels(stand_ins: dict[str, str]) -> dict[str, str]:

@@ -53,7 +53,7 @@ def _scores() -> pd.DataFrame:
                 system="gemma",
                 split="test_unseen",
                 episode_id=f"1913__{k}_1",
-                extra={"llm_backend": "openai:gemma"},
+                extra={"llm_backend": "openai:gemma", "questions": [{"step": 0}] * k},
                 llm_calls=(_call(), _call(cached=True)),
             )
         )
@@ -92,6 +92,7 @@ def test_table_ii_marks_errors_references_unequal_episodes_and_cache_replays() -
     assert "Not ranked (a reference, not a competitor): rule." in md
     assert "Rows ran different numbers of episodes: Unseen Testing: dead 2, gemma 2, rule 3." in md
     assert "Replayed from the response cache" in md and "gemma on Unseen Testing: 50%" in md
+    assert "simulated commander, who knows the goal" in md and "gemma 1 in 1 of 2 episodes" in md
 
 
 def test_table_i_marks_a_stand_in_row_and_says_why() -> None:
