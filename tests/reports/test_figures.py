@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -131,6 +132,18 @@ def test_trajectory_over_a_map_tile(tmp_path: Path) -> None:
         trajectory_figure(tile, gt, gt + 0.0001, title="demo"), tmp_path / "t2.png"
     ).read_bytes()
     assert a == b
+
+
+def test_figures_show_as_png_in_jupyter() -> None:
+    # IPython displays an object with _repr_png_ as an image whatever matplotlib backend is
+    # active (a bare Figure showed as '<Figure size 1200x1200 with 13 Axes>' under Agg).
+    from IPython.core.formatters import PNGFormatter
+
+    figure = control_figure(two_controller_log(), "static")
+    png = PNGFormatter()(figure)
+    assert isinstance(png, bytes) and png.startswith(b"\x89PNG\r\n\x1a\n")
+    width, height = struct.unpack(">II", png[16:24])  # the IHDR chunk: the figure's pixels
+    assert (width, height) == (1200, 1200)
 
 
 def test_matplotlib_is_loaded_by_the_first_figure_not_by_the_command_line() -> None:
