@@ -11,6 +11,8 @@ import pytest
 from tests.conftest import REPO
 
 NOTEBOOKS = sorted((REPO / "notebooks").glob("*.ipynb"))
+#: Figures each notebook shows: each must reach the page as a PNG, once.
+IMAGES = {"01_dataset_exploration": 2, "02_results_analysis": 2, "03_llm_backends": 0}
 
 
 def test_there_are_notebooks() -> None:
@@ -27,7 +29,8 @@ def test_notebook_runs(path: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPat
     from nbclient import NotebookClient
 
     # The kernel is this interpreter's (its folder first on PATH), run from the checkout, with
-    # the session's cache (SKYVLN_EVAL_CACHE is set by the test session).
+    # the session's cache (SKYVLN_EVAL_CACHE is set by the test session). Agg, not the
+    # inline backend Jupyter picks: the toolkit's figures must show without it.
     monkeypatch.setenv("PATH", str(Path(sys.executable).parent) + os.pathsep + os.environ["PATH"])
     monkeypatch.setenv("PYTHONPATH", str(REPO))
     monkeypatch.setenv("MPLBACKEND", "Agg")
@@ -45,3 +48,12 @@ def test_notebook_runs(path: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPat
     ]
     assert not errors
     assert any(cell.get("outputs") for cell in notebook.cells if cell.cell_type == "code")
+    # A figure without a PNG representation shows as text ('<Figure size ... with 13 Axes>').
+    images = [
+        output
+        for cell in notebook.cells
+        if cell.cell_type == "code"
+        for output in cell.get("outputs", [])
+        if "image/png" in output.get("data", {})
+    ]
+    assert len(images) == IMAGES[path.stem]
