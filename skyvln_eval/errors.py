@@ -9,7 +9,10 @@ from __future__ import annotations
 import errno
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from skyvln_eval.llm.types import RefusedRequest
 
 
 class SkyvlnError(Exception):
@@ -364,7 +367,18 @@ class ActionParseError(SkyvlnError):
 
 
 class LLMError(SkyvlnError):
-    """An LLM backend could not produce a completion."""
+    """An LLM backend could not produce a completion.
+
+    What the failed request still told, for its record: the tokens the server reported
+    for it (``None``: none reported), and the requests of the same attempt it turned down
+    for their form before this one (``refused``:
+    :class:`~skyvln_eval.llm.types.RefusedRequest`), each an attempt of its own. The
+    backend sets them where it knows them; they default to nothing known.
+    """
+
+    prompt_tokens: int | None = None
+    completion_tokens: int | None = None
+    refused: tuple[RefusedRequest, ...] = ()
 
 
 class LLMTransientError(LLMError):

@@ -4,11 +4,16 @@ Both the LLM client that makes the calls and the metrics that count them use the
 types, so they live here, below both (``llm`` and ``metrics`` import this module; it
 imports neither).
 
-* :class:`LlmCall`: one attempt of one call an agent module made. A logical call is one
-  or more attempts (retries of transient faults); its last attempt has ``final=True``.
-  ``outcome`` says what the attempt gave: ``ok`` (an answer the module could use),
-  ``invalid`` (an answer it could not use: unparseable, out of range, cut off at
-  ``max_tokens``) or ``failed`` (no answer: a transport fault, an HTTP error, a timeout).
+* :class:`LlmCall`: one attempt of one call an agent module made: one request sent. A
+  logical call is one or more attempts (retries of transient faults, requests sent again
+  in another form); its last attempt has ``final=True``. ``outcome`` says what the
+  attempt gave: ``ok`` (an answer the module could use), ``invalid`` (an answer it could
+  not use: unparseable, out of range, cut off at ``max_tokens``), ``failed`` (no answer:
+  a transport fault, an HTTP error, a timeout) or ``refused`` (the server turned the
+  request down for its form, a structured-output level or a decoding parameter, and the
+  call went on at once in another form: negotiation, not a failure of the call; a call
+  whose last form is refused ends in a ``failed`` attempt, so a ``refused`` one is never
+  final).
   Tokens are ``None`` when the server did not report them and cost is ``None`` when it is
   unknown (no price for the model, or no token counts): unknown is never written as 0.
 * :class:`ModuleFailure`: an agent module whose LLM answer could not be used in the end
@@ -26,7 +31,9 @@ from typing import Any, Final, Literal, get_args
 
 from skyvln_eval.errors import ResultRecordError, ValidationIssue
 
-CallOutcome = Literal["ok", "invalid", "failed"]
+CallOutcome = Literal["ok", "invalid", "failed", "refused"]
+#: Outcomes of an attempt that got no answer (the server's, a transport's or a refusal).
+UNANSWERED: Final = frozenset({"failed", "refused"})
 CALL_OUTCOMES: Final = get_args(CallOutcome)
 #: Modules whose answer is the decision's action: their failure means a fallback action.
 ACTION_MODULES: Final = frozenset({"motion", "navgpt"})
@@ -69,7 +76,8 @@ def _check_amount(value: Any, name: str, optional: bool) -> None:
 class LlmCall:
     """One attempt of one LLM call by an agent module; see the module docstring.
 
-    ``latency_s`` is the LLM's time for this attempt (request sent to answer received),
+    ``latency_s`` is the LLM's time for this attempt's one request (sent to answered, or to
+    the error or refusal that ended it), never another request's of the same call,
     excluding ``queue_s``, the wait for a free slot under the client's concurrency limit.
     ``temperature``, ``max_tokens`` and ``structured_output`` (the level of structured
     output the request used: ``json_schema``, ``json_object_schema``, ``json_object`` or
@@ -122,6 +130,13 @@ class LlmCall:
             got = self.server_defaults
             raise _issue(f"must be a list of names, got {got!r}", "server_defaults")
         object.__setattr__(self, "server_defaults", tuple(self.server_defaults))  # JSON: a list
+        if self.outcome == "refused" and self.final:
+            raise _issue("a refused request never ends its call (the call went on)", "final")
+
+    @property
+    def answered(self) -> bool:
+        """Whether the request got an answer (usable or not)."""
+        return self.outcome not in UNANSWERED
 
     @property
     def tokens(self) -> int | None:
@@ -174,9 +189,11 @@ class ModuleFailure:
 def module_usage(
     calls: Sequence[LlmCall], failures: Sequence[ModuleFailure]
 ) -> dict[str, dict[str, Any]]:
-    """Per agent module: calls (requests, repairs included), failed calls (no answer after
-    retries), parse failures (unusable answers), repairs, fallbacks (module failures),
-    tokens (``None`` once any call's are unknown) and LLM seconds.
+    """Per agent module: calls (repairs included), requests (every attempt sent: retries
+    and refused forms included), refused requests (negotiation), failed calls (no answer
+    after retries), parse failures (unusable answers), repairs, fallbacks (module
+    failures), tokens (``None`` once an answered request's are unknown) and LLM seconds
+    (every request's time, refused and failed ones included).
     """
     out: dict[str, dict[str, Any]] = {}
 
@@ -185,6 +202,8 @@ def module_usage(
             module,
             {
                 "calls": 0,
+                "requests": 0,
+                "refused_requests": 0,
                 "failed_calls": 0,
                 "parse_failures": 0,
                 "repairs": 0,
@@ -198,8 +217,12 @@ def module_usage(
     for call in calls:
         row = entry(call.module)
         row["llm_s"] += call.latency_s
+        row["requests"] += 1
+        row["refused_requests"] += call.outcome == "refused"
         for key in ("prompt_tokens", "completion_tokens"):
             value = getattr(call, key)
+            if value is None and not call.answered:
+                continue  # a request with no answer that reported no tokens adds none
             row[key] = None if value is None or row[key] is None else row[key] + value
         row["parse_failures"] += call.outcome == "invalid"
         if call.final:

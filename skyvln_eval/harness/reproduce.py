@@ -87,6 +87,8 @@ CONTROL_COLUMNS: tuple[tuple[str, str, Aggregate], ...] = (
 CONTROL_METRICS = tuple(dict.fromkeys(metric for metric, _, _ in CONTROL_COLUMNS))
 COST_METRICS = (
     "llm_calls",
+    "llm_requests",  # every request sent: retries and forms the server refused included
+    "llm_refused_requests",
     "llm_failed_calls",
     "llm_parse_failures",
     "llm_repairs",

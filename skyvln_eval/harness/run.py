@@ -241,7 +241,7 @@ def _per_model(
     found: dict[str, set[str]] = {}
     for result in results:
         for call in result.llm_calls:
-            if call.outcome != "failed":
+            if call.answered:  # a refused or failed request's settings were not answered
                 for value in values(call):
                     found.setdefault(f"{call.backend}:{call.model}", set()).add(value)
     return {model: ", ".join(sorted(names)) for model, names in sorted(found.items())}

@@ -2,10 +2,15 @@
 
 :class:`LLMClient` wraps one backend. Each :meth:`LLMClient.call` is made for a named
 agent module and returns the completion (or ``None`` when the backend gave up) with one
-:class:`~skyvln_eval.llm_records.LlmCall` per attempt: a retried 429 leaves a ``failed``
-record with its error, the answered attempt one with tokens, cost, latency, the decoding
-settings sent and the structured-output level used. Latency is the backend's time only;
-the wait for a free slot under ``max_concurrency`` is recorded apart (``queue_s``).
+:class:`~skyvln_eval.llm_records.LlmCall` per request sent: a retried 429 leaves a
+``failed`` record with its error, a request the server turned down for its form (a
+structured-output level, a decoding parameter: negotiation, answered at once in another
+form) a ``refused`` one, the answered request one with tokens, cost, latency, the decoding
+settings sent and the structured-output level used. Each record's latency is its own
+request's time only (a call's answer does not include the refused requests before it,
+nor a failed one the time of earlier ones); the call's LLM time is the sum over its
+records. The wait for a free slot under ``max_concurrency`` is recorded apart
+(``queue_s``, on the first request of the attempt that waited).
 
 A call has a deadline (the retry policy's ``deadline_s``), counted from the moment its
 first attempt gets a slot: each attempt is given the time left as its timeout (the
@@ -35,7 +40,7 @@ from skyvln_eval.llm.base import LLMBackend
 from skyvln_eval.llm.cache import ResponseCache, cache_key
 from skyvln_eval.llm.prices import PriceTable, price_key
 from skyvln_eval.llm.retry import RetryPolicy, call_with_retries
-from skyvln_eval.llm.types import Completion, GenerationConfig, Message
+from skyvln_eval.llm.types import Completion, GenerationConfig, Message, RefusedRequest
 from skyvln_eval.llm_records import LlmCall
 
 #: Backends whose calls cost nothing whatever the price table says.
@@ -107,14 +112,20 @@ class LLMClient:
             return tuple(self._made[since:])
 
     def _cost(self, completion: Completion) -> float | None:
+        return self._attempt_cost(completion.prompt_tokens, completion.completion_tokens)
+
+    def _attempt_cost(
+        self, prompt_tokens: int | None, completion_tokens: int | None
+    ) -> float | None:
+        """What one request cost: priced from the tokens the server reported for it, answered
+        or not; unknown (``None``) when it reported none, since a server may bill a request
+        it did not answer. The offline stand-ins cost nothing."""
         if self.backend.kind in FREE_KINDS:
             return 0.0
-        if completion.prompt_tokens is None or completion.completion_tokens is None:
+        if prompt_tokens is None or completion_tokens is None:
             return None  # the server did not say how many tokens it billed
         return self.prices.cost_usd(
-            price_key(self.backend.identity()),
-            completion.prompt_tokens,
-            completion.completion_tokens,
+            price_key(self.backend.identity()), prompt_tokens, completion_tokens
         )
 
     def _base(self, module: str, config: GenerationConfig, repair: bool) -> LlmCall:
@@ -182,10 +193,11 @@ class LLMClient:
                 return CallResult(hit, (self.answered(base, hit, 1, 0.0),))
         records: list[LlmCall] = []
         queue_s = [0.0]
+        began = [0.0]  # when the latest attempt began: the time of one that fails for good
         deadline = _Deadline(self.retry.deadline_s)
 
         def attempt() -> Completion:
-            waited = time.perf_counter()
+            waited = began[0] = time.perf_counter()
             with self._slots:
                 started = time.perf_counter()
                 queue_s[0] = started - waited
@@ -195,22 +207,28 @@ class LLMClient:
                 completion = replace(completion, latency_s=latency)
             return completion
 
-        def failed(error: LLMError, latency_s: float, final: bool) -> LlmCall:
-            # What a failed attempt cost is unknown (a server may bill a request it did not
-            # finish answering), except for the offline stand-ins, which cost nothing.
-            return replace(
-                base,
-                cost_usd=0.0 if self.backend.kind in FREE_KINDS else None,
-                outcome="failed",
-                error=f"{type(error).__name__}: {error}",
-                attempt=len(records) + 1,
-                final=final,
-                latency_s=max(0.0, latency_s - queue_s[0]),
-                queue_s=queue_s[0],
+        def failed(error: LLMError, latency_s: float, final: bool) -> None:
+            # The requests the server turned down for their form before this one are
+            # attempts of their own; what is left of the measured time is this request's.
+            waited = queue_s[0]
+            refused_s = self._keep_refused(base, error.refused, records, queue_s)
+            records.append(
+                replace(
+                    base,
+                    cost_usd=self._attempt_cost(error.prompt_tokens, error.completion_tokens),
+                    prompt_tokens=error.prompt_tokens,
+                    completion_tokens=error.completion_tokens,
+                    outcome="failed",
+                    error=f"{type(error).__name__}: {error}",
+                    attempt=len(records) + 1,
+                    final=final,
+                    latency_s=max(0.0, latency_s - waited - refused_s),
+                    queue_s=queue_s[0],
+                )
             )
 
         def on_fault(error: LLMTransientError, latency_s: float) -> None:
-            records.append(failed(error, latency_s, final=False))
+            failed(error, latency_s, final=False)
 
         try:
             completion = call_with_retries(
@@ -219,7 +237,7 @@ class LLMClient:
         except LLMAuthError as error:
             # The refused attempt is kept before the run stops: the episode's row says a
             # call was made, at a cost not known.
-            records.append(failed(error, 0.0, final=True))
+            failed(error, time.perf_counter() - began[0], final=True)
             self._keep(records)
             raise
         except LLMTransientError as error:
@@ -228,9 +246,44 @@ class LLMClient:
                 None, tuple(records), f"gave up after {len(records)} attempt(s): {error}"
             )
         except LLMError as error:
-            records.append(failed(error, 0.0, final=True))
+            failed(error, time.perf_counter() - began[0], final=True)
             return CallResult(None, tuple(records), str(error))
+        self._keep_refused(base, completion.refused, records, queue_s)
+        completion = replace(completion, refused=())  # recorded: the answer is its own
         records.append(self.answered(base, completion, len(records) + 1, queue_s[0]))
         if self.cache is not None and key is not None:
             self.cache.put(key, completion)
         return CallResult(completion, tuple(records))
+
+    def _keep_refused(
+        self,
+        base: LlmCall,
+        refused: Sequence[RefusedRequest],
+        records: list[LlmCall],
+        queue_s: list[float],
+    ) -> float:
+        """Append one ``refused`` record per request the server turned down for its form
+        (the wait for a slot goes with the first request of the attempt, which waited);
+        return their summed latency."""
+        for request in refused:
+            records.append(
+                replace(
+                    base,
+                    outcome="refused",
+                    error=request.error,
+                    attempt=len(records) + 1,
+                    final=False,
+                    prompt_tokens=request.prompt_tokens,
+                    completion_tokens=request.completion_tokens,
+                    cost_usd=self._attempt_cost(request.prompt_tokens, request.completion_tokens),
+                    latency_s=max(0.0, request.latency_s),
+                    queue_s=queue_s[0],
+                    structured_output=request.structured_output,
+                    server_defaults=request.server_defaults,
+                    temperature=None
+                    if "temperature" in request.server_defaults
+                    else base.temperature,
+                )
+            )
+            queue_s[0] = 0.0
+        return sum(request.latency_s for request in refused)

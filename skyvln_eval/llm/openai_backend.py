@@ -12,7 +12,10 @@ a JSON schema is sent at the most constrained level the server is not known to r
 then none: the prompt asks for JSON and the parser checks it). A refusal (HTTP 400, or a
 5xx whose body names the response format, the schema or a grammar) moves one level down
 at once; the level that answers is remembered for the endpoint for the rest of the
-process and recorded with every call. ``structured_output`` pins a level instead.
+process and recorded with every call. ``structured_output`` pins a level instead. Each
+refused request goes back to the client with its own time (``Completion.refused``, or the
+error's ``refused`` when the call fails after it), which records it as an attempt: every
+request sent is one record.
 
 A model that refuses a decoding parameter (HTTP 400 naming it, as OpenAI's reasoning
 models do for ``max_tokens``, ``temperature``, ``top_p``, ``stop``) gets the request again
@@ -84,7 +87,13 @@ from skyvln_eval.llm.negotiation import (
     response_format,
 )
 from skyvln_eval.llm.prices import VENDOR_SERVERS
-from skyvln_eval.llm.types import Completion, GenerationConfig, Message, StructuredLevel
+from skyvln_eval.llm.types import (
+    Completion,
+    GenerationConfig,
+    Message,
+    RefusedRequest,
+    StructuredLevel,
+)
 
 log = logging.getLogger(__name__)
 
@@ -235,14 +244,33 @@ def without_system_role(messages: Sequence[Message]) -> list[Message]:
     return [*rest[:first_user], opened, *rest[first_user + 1 :]]
 
 
-class _FormatRefused(Exception):
+class _Refused(Exception):
+    """The server turned the request down for its form; the call goes on in another."""
+
+    def record(
+        self,
+        what: str,
+        started: float,
+        level: StructuredLevel | None,
+        unsent: tuple[str, ...],
+    ) -> RefusedRequest:
+        """This refusal as a request of its own, timed from ``started`` (perf_counter)."""
+        return RefusedRequest(
+            error=f"{what} ({self})",
+            latency_s=time.perf_counter() - started,
+            structured_output=level,
+            server_defaults=unsent,
+        )
+
+
+class _FormatRefused(_Refused):
     """The server cannot do the response format of this request (the body says why)."""
 
     def __init__(self, status: int, body: str) -> None:
         super().__init__(f"HTTP {status}: {body[:300]}")
 
 
-class _ParameterRefused(Exception):
+class _ParameterRefused(_Refused):
     """The model does not take one decoding parameter of this request (HTTP 400)."""
 
     def __init__(self, parameter: str, body: str) -> None:
@@ -418,31 +446,48 @@ class OpenAIBackend(LLMBackend):
         return kwargs
 
     def generate(self, messages: Sequence[Message], config: GenerationConfig) -> Completion:
+        """One answer, after as many requests as negotiation takes (see the module
+        docstring). The completion's latency is the answered request's time; each request
+        turned down for its form before it is listed in ``refused`` with its own time (and
+        attached to the error, when the call fails after some), so none goes unrecorded."""
         kwargs = self._request(messages, config)
         level: StructuredLevel | None = None
         if config.json_schema is not None:
             level = self.structured_level()
-        started = time.perf_counter()
         ends_at = time.monotonic() + config.timeout_s
         adapted = adaptation(self.endpoint)
-        while True:
-            request = adapted.apply(kwargs)
-            if level is not None:
-                fmt = response_format(level, config.json_schema or {}, config.schema_name)
-                if fmt is not None:
-                    request["response_format"] = fmt
-            try:
-                response = self._create_by(ends_at, request)
-                break
-            except _FormatRefused as refusal:
-                level = self._step_down(level, refusal)
-                remember_level(self.endpoint, level)  # known now, whatever the next try does
-            except _ParameterRefused as refusal:
-                adapted = self._adapt(adapted, refusal)
-                remember_adaptation(self.endpoint, adapted)
-        latency = time.perf_counter() - started
-        unsent = tuple(sorted(p for p in adapted.server_defaults if p in kwargs))
-        return self._completion(response, latency, level, unsent)
+        refused: list[RefusedRequest] = []
+        try:
+            while True:
+                request = adapted.apply(kwargs)
+                if level is not None:
+                    fmt = response_format(level, config.json_schema or {}, config.schema_name)
+                    if fmt is not None:
+                        request["response_format"] = fmt
+                unsent = tuple(sorted(p for p in adapted.server_defaults if p in kwargs))
+                started = time.perf_counter()
+                try:
+                    response = self._create_by(ends_at, request)
+                    break
+                except _FormatRefused as refusal:
+                    lower = self._step_down(level, refusal)  # raises when nothing is left
+                    what = f"structured output level {level!r} refused"
+                    refused.append(refusal.record(what, started, level, unsent))
+                    level = lower
+                    remember_level(self.endpoint, level)  # known now, whatever the next does
+                except _ParameterRefused as refusal:
+                    found = self._adapt(adapted, refusal)  # raises when nothing is left
+                    what = f"parameter {refusal.parameter!r} refused"
+                    refused.append(refusal.record(what, started, level, unsent))
+                    adapted = found
+                    remember_adaptation(self.endpoint, adapted)
+            latency = time.perf_counter() - started  # the answered request's own time
+            return self._completion(response, latency, level, unsent, tuple(refused))
+        except LLMError as error:
+            # The requests refused before this failure were sent all the same: the client
+            # records them from here.
+            error.refused = tuple(refused)
+            raise
 
     def _adapt(self, adapted: RequestAdaptation, refusal: _ParameterRefused) -> RequestAdaptation:
         found = adapted.refusing(refusal.parameter)
@@ -574,6 +619,7 @@ class OpenAIBackend(LLMBackend):
         latency_s: float,
         level: StructuredLevel | None,
         server_defaults: tuple[str, ...],
+        refused: tuple[RefusedRequest, ...] = (),
     ) -> Completion:
         try:
             choice = response.choices[0]
@@ -604,4 +650,5 @@ class OpenAIBackend(LLMBackend):
             finish_reason=finish,
             structured_output=level,
             server_defaults=server_defaults,
+            refused=refused,
         )

@@ -89,13 +89,38 @@ STRUCTURED_LEVELS: tuple[StructuredLevel, ...] = get_args(StructuredLevel)
 
 
 @dataclass(frozen=True)
+class RefusedRequest:
+    """A request the server turned down for its form, after which the backend sent the
+    call again at once in another form: a structured-output level it does not take, or a
+    decoding parameter the model refuses.
+
+    It is a request all the same (it went over the wire, took time, may have been billed),
+    so the client records it as an attempt of its own (outcome ``refused``), never folded
+    into the answer's latency. ``structured_output`` and ``server_defaults`` are the level
+    and the unsent parameters of the refused request; ``error`` what the server said (any
+    API key scrubbed); tokens are ``None`` unless the server reported some.
+    """
+
+    error: str
+    latency_s: float
+    structured_output: StructuredLevel | None = None
+    server_defaults: tuple[str, ...] = ()
+    prompt_tokens: int | None = None
+    completion_tokens: int | None = None
+
+
+@dataclass(frozen=True)
 class Completion:
     """A backend's answer to one call, with its usage and timing.
 
     Token counts are ``None`` when the server did not report them. ``structured_output``
     is the level of structured output the request used (``None``: the call asked for
     free text); ``server_defaults`` the decoding parameters of the call that were not sent
-    because the model refuses them (it decoded at the server's defaults).
+    because the model refuses them (it decoded at the server's defaults). ``latency_s`` is
+    the time of the request that was answered only; ``refused`` lists the requests of the
+    same call the server turned down for their form before it (negotiation), each with its
+    own time. The response cache does not keep ``refused``: a cached answer stands for its
+    answer only.
     """
 
     text: str
@@ -108,3 +133,4 @@ class Completion:
     cached: bool = False
     structured_output: StructuredLevel | None = None
     server_defaults: tuple[str, ...] = ()
+    refused: tuple[RefusedRequest, ...] = ()

@@ -11,8 +11,15 @@ no token count, its token counts when any answered attempt reported none, and ev
 over such an episode is NaN too, shown as "n/a" (:data:`UNKNOWN_IF_ANY_UNKNOWN`). A failed
 attempt (no answer) adds the tokens it reported, usually none, so a dead endpoint shows 0
 tokens; but its cost is unknown, since a provider may bill a request it never answered
-(one cut off mid-generation). ``llm_calls`` counts calls (a call's retries and repairs are
-attempts of it); ``llm_unpriced_calls`` counts attempts whose cost is unknown.
+(one cut off mid-generation). A request the server refused for its form (a
+structured-output level or a decoding parameter it does not take: negotiation) counts as
+a failed one does: its tokens if it reported any, its cost unknown unless it did, its
+time in the LLM time. ``llm_calls`` counts calls (a call's retries and repairs are
+attempts of it), ``llm_requests`` every request sent (every attempt: retries and refused
+forms included), ``llm_refused_requests`` the refused ones; ``llm_failed_calls`` counts
+only calls that ended with no answer, so negotiation that ended in an answer is no
+failure. ``llm_unpriced_calls`` counts attempts whose cost is unknown. ``llm_latency_s``
+is the time of every request (answered, failed and refused), queueing excluded.
 ``llm_cost_lower_usd`` is a known lower bound where only failed attempts are unpriced (a
 single HTTP 429 would otherwise leave nothing of a backend's cost): Table II shows it as
 "≥x" in place of "n/a".
@@ -35,6 +42,8 @@ from skyvln_eval.metrics.records import EpisodeResult, LlmCall
 #: Per-episode LLM columns and their units.
 COST_COLUMNS: dict[str, str] = {
     "llm_calls": "calls",
+    "llm_requests": "requests",
+    "llm_refused_requests": "requests",
     "llm_failed_calls": "calls",
     "llm_call_failure_rate": "fraction",
     "llm_parse_failures": "answers",
@@ -65,15 +74,15 @@ def _sum_known(values: Sequence[float | int | None]) -> float:
 
 def _reported(call: LlmCall, tokens: int | None) -> int | None:
     """An attempt's token count: unknown only for an answered attempt that reported none (a
-    failed one that reported none adds 0; one that reported some adds them)."""
-    return 0 if tokens is None and call.outcome == "failed" else tokens
+    failed or refused one that reported none adds 0; one that reported some adds them)."""
+    return 0 if tokens is None and not call.answered else tokens
 
 
 def _cost_lower_bound(calls: Sequence[LlmCall]) -> float:
-    """What the calls cost at least: the priced attempts' sum, when only failed attempts
-    (no answer, no token count: a provider may or may not bill them) are unpriced; NaN
-    when an answered attempt is (no price for the model, or no token count)."""
-    if any(c.cost_usd is None and c.outcome != "failed" for c in calls):
+    """What the calls cost at least: the priced attempts' sum, when only attempts without
+    an answer (failed or refused, no token count: a provider may or may not bill them) are
+    unpriced; NaN when an answered attempt is (no price for the model, or no token count)."""
+    if any(c.cost_usd is None and c.answered for c in calls):
         return math.nan
     return float(sum(c.cost_usd for c in calls if c.cost_usd is not None))
 
@@ -87,6 +96,8 @@ def call_totals(
     fallback_steps = {f.step_index for f in failures if f.action_fallback}
     return {
         "llm_calls": float(len(finals)),
+        "llm_requests": float(len(calls)),
+        "llm_refused_requests": float(sum(c.outcome == "refused" for c in calls)),
         "llm_failed_calls": float(failed),
         "llm_call_failure_rate": failed / len(finals) if finals else math.nan,
         "llm_parse_failures": float(sum(c.outcome == "invalid" for c in calls)),

@@ -139,7 +139,11 @@ def test_an_answer_cut_off_at_its_budget_is_detected_and_asked_for_with_more(
     ]
     parse = functools.partial(parse_subgoals, dialog=dialog)
     call = call_json(client, "subgoals", messages, config, parse, RepairPolicy())
-    first, second = call.records[0], call.records[1]
+    # llama.cpp refuses the strict json_schema form (HTTP 500): that request is recorded as
+    # such, with its own time; the cut-off answer and its repair come after it.
+    refused, first, second = call.records[:3]
+    assert refused.outcome == "refused" and refused.structured_output == "json_schema"
+    assert refused.latency_s > 0 and "HTTP 500" in (refused.error or "")
     assert first.finish_reason == "length" and first.outcome == "invalid"
     assert "max_tokens=16" in (first.error or "")
     assert second.repair and second.max_tokens == 32 and second.temperature == 0.7

@@ -145,10 +145,15 @@ def test_structured_output_is_negotiated_down_to_what_a_llama_cpp_server_takes()
     assert formats[1] == {"type": "json_object", "schema": SCHEMA}
     assert first.completion is not None
     assert first.completion.structured_output == "json_object_schema"
-    assert [r.outcome for r in first.records] == ["ok"]  # negotiation is not a failure
+    # The refused request is an attempt of its own (negotiation, not a failure) ...
+    assert [(r.outcome, r.structured_output) for r in first.records] == [
+        ("refused", "json_schema"),
+        ("ok", "json_object_schema"),
+    ]
+    assert "HTTP 500" in (first.records[0].error or "")
     # ... and remembered for the endpoint: the next call starts there.
     assert formats[2] == {"type": "json_object", "schema": SCHEMA} and len(formats) == 3
-    assert second.records[0].structured_output == "json_object_schema"
+    assert [r.structured_output for r in second.records] == ["json_object_schema"]
 
 
 def test_a_refused_level_is_remembered_even_when_the_next_attempt_fails() -> None:
@@ -162,6 +167,11 @@ def test_a_refused_level_is_remembered_even_when_the_next_attempt_fails() -> Non
         client = LLMClient(backend, retry=once, sleep=lambda _: None)
         failed = client.call("motion", HELLO, quick)
         assert failed.completion is None
+        # Both requests are recorded: the refused level, then the timeout that ended the call.
+        assert [(r.outcome, r.final) for r in failed.records] == [
+            ("refused", False),
+            ("failed", True),
+        ]
         again = client.call("motion", [*HELLO, Message("user", "again")], quick)
         formats = [r["body"].get("response_format") for r in server.requests]
     assert [f["type"] for f in formats] == ["json_schema", "json_object", "json_object"]

@@ -34,8 +34,8 @@ def test_a_reasoning_model_gets_the_budget_as_max_completion_tokens_and_its_defa
         repair = dataclasses.replace(CONFIG, temperature=0.7)
         second = client.call("motion", [*HELLO, Message("user", "again")], repair, repair=True)
         bodies = [r["body"] for r in server.requests]
-    # max_tokens, then the temperature, then stop refused, each answered at once (no
-    # backoff, no failed attempt), then the answer; the schema level is untouched.
+    # max_tokens, then the temperature, then stop refused, each sent again at once (no
+    # backoff, no failed call), then the answer; the schema level is untouched.
     assert [("max_tokens" in b, "temperature" in b, "stop" in b) for b in bodies[:4]] == [
         (True, True, True),
         (False, True, True),
@@ -45,8 +45,19 @@ def test_a_reasoning_model_gets_the_budget_as_max_completion_tokens_and_its_defa
     assert all(b["response_format"]["type"] == "json_schema" for b in bodies)
     assert bodies[3]["max_completion_tokens"] == 64 and bodies[3]["top_p"] == 1.0
     assert first.completion is not None and first.completion.text == '{"greeting": "hi"}'
-    (record,) = first.records
-    assert record.outcome == "ok" and record.attempt == 1
+    # Every request sent is an attempt of its own: the three refused ones as such, each with
+    # what it went without, the server's words and its own time.
+    *refused, record = first.records
+    assert [(r.outcome, r.attempt, r.final) for r in first.records] == [
+        ("refused", 1, False),
+        ("refused", 2, False),
+        ("refused", 3, False),
+        ("ok", 4, True),
+    ]
+    assert [r.server_defaults for r in refused] == [(), (), ("temperature",)]
+    assert [r.temperature for r in refused] == [0.0, 0.0, None]
+    assert ["'max_tokens'" in (r.error or "") for r in refused] == [True, False, False]
+    assert "'stop'" in (refused[2].error or "") and all(r.latency_s > 0 for r in refused)
     assert record.server_defaults == ("stop", "temperature")
     assert record.temperature is None  # not sent: the model decoded at its own default
     assert record.max_tokens == 64 and record.structured_output == "json_schema"
@@ -83,8 +94,9 @@ def test_what_went_unsent_survives_the_cache_and_the_records_json(tmp_path: Path
         fresh = _client(server, cache).call("motion", HELLO, CONFIG)
         again = _client(server, cache).call("motion", HELLO, CONFIG)
     assert again.completion is not None and again.completion.cached
-    assert again.records[0].server_defaults == fresh.records[0].server_defaults != ()
-    record = fresh.records[0]
+    assert again.records[0].server_defaults == fresh.records[-1].server_defaults != ()
+    assert len(again.records) == 1  # the cache answers: nothing is sent, nothing refused
+    record = fresh.records[-1]
     assert LlmCall.from_json_dict(record.to_json_dict()) == record
 
 

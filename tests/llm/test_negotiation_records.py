@@ -1,0 +1,90 @@
+"""Every request that reaches the server is one attempt record, negotiation included.
+
+The audit counted requests on the wire against records: a structured-output level the
+server refused used to be folded into the call (its time in the answer's latency, no record
+of its own), and a call that failed for good was recorded with a latency of 0.0. Here the
+loopback server keeps every request it got, so the two counts are compared directly; it
+sleeps ``LATENCY_S`` before every reply, which bounds each request's time from below
+(never a threshold on how fast anything is).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+from skyvln_eval.llm import GenerationConfig, LLMClient, Message, RetryPolicy, create_backend
+from skyvln_eval.llm.loopback import LoopbackOpenAIServer, answer, status
+from skyvln_eval.llm_records import module_usage
+from skyvln_eval.metrics.cost import call_totals
+
+SCHEMA = {"type": "object", "properties": {"greeting": {"type": "string"}}}
+STRUCTURED = GenerationConfig(timeout_s=5.0, json_schema=SCHEMA, schema_name="greeting")
+HELLO = [Message("system", "You answer in JSON."), Message("user", "Say hello.")]
+LATENCY_S = 0.05
+
+
+def _client(server: LoopbackOpenAIServer) -> LLMClient:
+    backend = create_backend("openai:fake-model", base_url=server.base_url)
+    retry = RetryPolicy(max_attempts=3, initial_delay_s=0.0, max_delay_s=0.0)
+    return LLMClient(backend, retry=retry, sleep=lambda _: None)
+
+
+def test_a_refused_level_is_an_attempt_of_its_own_with_its_own_time() -> None:
+    with LoopbackOpenAIServer(
+        [answer('{"greeting": "hi"}')], structured="llama_cpp", latency_s=LATENCY_S
+    ) as server:
+        began = time.perf_counter()
+        result = _client(server).call("motion", HELLO, STRUCTURED)
+        elapsed = time.perf_counter() - began
+        sent = len(server.requests)
+    assert result.completion is not None
+    assert sent == len(result.records) == 2  # was 2 requests, 1 record
+    refused, answered = result.records
+    assert (refused.outcome, refused.attempt, refused.final) == ("refused", 1, False)
+    assert refused.structured_output == "json_schema"
+    assert "json_schema" in (refused.error or "") and "HTTP 500" in (refused.error or "")
+    assert refused.prompt_tokens is None and refused.cost_usd is None  # none reported
+    assert (answered.outcome, answered.attempt, answered.final) == ("ok", 2, True)
+    # Each request's time is its own: both waited for the server, and together they fit in
+    # the call (the answer's latency no longer holds the refused request's time too).
+    assert refused.latency_s >= LATENCY_S and answered.latency_s >= LATENCY_S
+    assert refused.latency_s + answered.latency_s <= elapsed
+    # Counted as a request, not as a failed call; its missing token count hides nothing.
+    totals = call_totals(result.records)
+    assert totals["llm_calls"] == 1 and totals["llm_requests"] == 2
+    assert totals["llm_refused_requests"] == 1
+    assert totals["llm_failed_calls"] == 0 and totals["llm_call_failure_rate"] == 0.0
+    assert (totals["llm_prompt_tokens"], totals["llm_completion_tokens"]) == (100, 20)
+    assert math.isnan(totals["llm_cost_usd"])  # no price for the model: unknown, not 0
+    usage = module_usage(result.records, ())["motion"]
+    assert (usage["calls"], usage["requests"], usage["refused_requests"]) == (1, 2, 1)
+    assert usage["failed_calls"] == 0 and usage["prompt_tokens"] == 100
+
+
+def test_a_server_refusing_everything_leaves_one_record_per_request_each_timed() -> None:
+    # HTTP 400 to every request: json_schema, json_object with the schema and plain
+    # json_object are refused formats; the plain request's 400 ends the call; the repair
+    # call starts at the remembered level and fails in one request.
+    with LoopbackOpenAIServer([status(400)] * 5, latency_s=LATENCY_S) as server:
+        client = _client(server)
+        first = client.call("motion", HELLO, STRUCTURED)
+        again = client.call("motion", [*HELLO, Message("user", "again")], STRUCTURED, repair=True)
+        sent = len(server.requests)
+    records = [*first.records, *again.records]
+    assert sent == len(records) == 5  # was 5 requests, 2 records
+    assert [(r.outcome, r.final, r.structured_output) for r in first.records] == [
+        ("refused", False, "json_schema"),
+        ("refused", False, "json_object_schema"),
+        ("refused", False, "json_object"),
+        ("failed", True, None),
+    ]
+    assert [r.attempt for r in first.records] == [1, 2, 3, 4]
+    assert [(r.outcome, r.final) for r in again.records] == [("failed", True)]
+    assert first.completion is None and "HTTP 400" in (first.error or "")
+    # A failed call's latency is its measured time (it was 0.0).
+    assert all(r.latency_s >= LATENCY_S for r in records)
+    totals = call_totals(records)
+    assert (totals["llm_calls"], totals["llm_failed_calls"]) == (2, 2)
+    assert (totals["llm_requests"], totals["llm_refused_requests"]) == (5, 3)
+    assert totals["llm_latency_s"] == sum(r.latency_s for r in records)
