@@ -5,7 +5,8 @@ For tests, benchmarks and offline demonstrations of the ``openai`` backend: it r
 
 Each request to ``POST /v1/chat/completions`` takes the next :class:`Reply` of the script:
 an answer, an HTTP error status (with headers, e.g. Retry-After), a hang longer than the
-client's timeout, a malformed JSON body, a body cut short, or an answer sent one byte at a
+client's timeout, a malformed JSON body, a body cut short, no choices but the usage, or an
+answer sent one byte at a
 time (``trickle``: each byte well within any read timeout, the whole far past it). A reply
 with a ``task`` waits for a request of that task; requests it does not match, and all
 requests once the script is used up, are answered as the offline ``rule`` backend would, so
@@ -61,6 +62,7 @@ ReplyKind = Literal[
     "refuse_schema",
     "refusal",
     "error_body",
+    "no_choices",
     "rule",
 ]
 StructuredMimic = Literal["all", "llama_cpp", "none"]
@@ -93,6 +95,12 @@ def error_body(message: str, task: str | None = None) -> Reply:
     """HTTP 200 with an error object and no choices, as gateways (OpenRouter) answer when
     the model behind them failed."""
     return Reply("error_body", content=message, task=task)
+
+
+def no_choices(task: str | None = None) -> Reply:
+    """HTTP 200 with an empty ``choices`` list but a ``usage`` object (100 prompt and 20
+    completion tokens): the server billed a request it gave no answer to."""
+    return Reply("no_choices", task=task)
 
 
 def status(code: int, task: str | None = None, message: str = "", **headers: str) -> Reply:
@@ -339,6 +347,9 @@ class LoopbackOpenAIServer:
                 elif reply.kind == "error_body":
                     failed = {"error": {"message": reply.content, "code": 502}}
                     self._send(200, json.dumps(failed).encode())
+                elif reply.kind == "no_choices":
+                    empty = json.loads(_completion_body("", model)) | {"choices": []}
+                    self._send(200, json.dumps(empty).encode())
                 elif reply.kind == "refusal":
                     self._send(200, _completion_body(None, model, refused=reply.content))
                 elif reply.kind == "answer":

@@ -244,6 +244,18 @@ def without_system_role(messages: Sequence[Message]) -> list[Message]:
     return [*rest[:first_user], opened, *rest[first_user + 1 :]]
 
 
+def _usage(response: Any) -> tuple[int | None, int | None]:
+    """The prompt and completion tokens a response reports (``None``: not reported)."""
+    usage = getattr(response, "usage", None)
+    counts = []
+    for name in ("prompt_tokens", "completion_tokens"):
+        value = getattr(usage, name, None) if usage is not None else None
+        with contextlib.suppress(TypeError, ValueError):
+            value = None if value is None else int(value)
+        counts.append(value if isinstance(value, int) and value >= 0 else None)
+    return counts[0], counts[1]
+
+
 class _Refused(Exception):
     """The server turned the request down for its form; the call goes on in another."""
 
@@ -621,6 +633,9 @@ class OpenAIBackend(LLMBackend):
         server_defaults: tuple[str, ...],
         refused: tuple[RefusedRequest, ...] = (),
     ) -> Completion:
+        # Usage first: a response that fails below may still say what it billed, and the
+        # failed attempt's record counts it.
+        prompt_tokens, completion_tokens = _usage(response)
         try:
             choice = response.choices[0]
             text = choice.message.content or ""
@@ -634,18 +649,17 @@ class OpenAIBackend(LLMBackend):
             # behind them failed: what it says is the reason.
             said = getattr(response, "error", None)
             detail = f": {self._scrub(json.dumps(said, default=str))[:300]}" if said else ""
-            raise LLMTransientError(
+            fault = LLMTransientError(
                 f"malformed response: no choices ({type(error).__name__}){detail}"
-            ) from None
-        usage = getattr(response, "usage", None)
-        prompt_tokens = getattr(usage, "prompt_tokens", None) if usage is not None else None
-        completion_tokens = getattr(usage, "completion_tokens", None) if usage is not None else None
+            )
+            fault.prompt_tokens, fault.completion_tokens = prompt_tokens, completion_tokens
+            raise fault from None
         return Completion(
             text=text,
             backend=self.name,
             model=self.model,
-            prompt_tokens=None if prompt_tokens is None else int(prompt_tokens),
-            completion_tokens=None if completion_tokens is None else int(completion_tokens),
+            prompt_tokens=prompt_tokens,
+            completion_tokens=completion_tokens,
             latency_s=latency_s,
             finish_reason=finish,
             structured_output=level,

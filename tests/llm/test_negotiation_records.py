@@ -12,9 +12,13 @@ from __future__ import annotations
 
 import math
 import time
+from pathlib import Path
+
+import pytest
 
 from skyvln_eval.llm import GenerationConfig, LLMClient, Message, RetryPolicy, create_backend
-from skyvln_eval.llm.loopback import LoopbackOpenAIServer, answer, status
+from skyvln_eval.llm.loopback import LoopbackOpenAIServer, answer, no_choices, status
+from skyvln_eval.llm.prices import load_prices
 from skyvln_eval.llm_records import module_usage
 from skyvln_eval.metrics.cost import call_totals
 
@@ -88,3 +92,31 @@ def test_a_server_refusing_everything_leaves_one_record_per_request_each_timed()
     assert (totals["llm_calls"], totals["llm_failed_calls"]) == (2, 2)
     assert (totals["llm_requests"], totals["llm_refused_requests"]) == (5, 3)
     assert totals["llm_latency_s"] == sum(r.latency_s for r in records)
+
+
+def test_tokens_reported_with_no_choices_are_counted_and_priced(tmp_path: Path) -> None:
+    # HTTP 200 with "choices": [] and a usage object: no answer, but tokens the server says
+    # it billed. They count (the failed attempt's record has them) and, priced, the cost is
+    # known; without a price it stays unknown, never 0.
+    script = [no_choices(), answer('{"greeting": "hi"}')] * 2
+    with LoopbackOpenAIServer(script) as server:
+        table = tmp_path / "prices.yaml"
+        table.write_text(
+            "format: skyvln-eval/llm-prices\nversion: 1\nusd_per_million_tokens:\n"
+            f"  openai:fake-model@{server.base_url}: {{input: 1.0, output: 2.0}}\n"
+        )
+        client = _client(server)
+        priced = LLMClient(client.backend, retry=client.retry, prices=load_prices(table))
+        result = priced.call("motion", HELLO, GenerationConfig(timeout_s=5.0))
+        unpriced = _client(server).call("motion", HELLO, GenerationConfig(timeout_s=5.0))
+    failed, answered = result.records
+    assert failed.outcome == "failed" and "no choices" in (failed.error or "")
+    assert (failed.prompt_tokens, failed.completion_tokens) == (100, 20)  # were None
+    assert failed.cost_usd == pytest.approx((100 * 1.0 + 20 * 2.0) / 1e6)
+    totals = call_totals(result.records)
+    assert (totals["llm_prompt_tokens"], totals["llm_completion_tokens"]) == (200, 40)
+    assert totals["llm_cost_usd"] == pytest.approx(2 * 140 / 1e6)
+    assert answered.outcome == "ok"
+    unknown = unpriced.records[0]
+    assert unknown.outcome == "failed" and unknown.prompt_tokens == 100
+    assert unknown.cost_usd is None
