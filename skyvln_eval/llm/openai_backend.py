@@ -11,8 +11,12 @@ a JSON schema is sent at the most constrained level the server is not known to r
 (``json_schema`` strict, then ``json_object`` with the schema, plain ``json_object``,
 then none: the prompt asks for JSON and the parser checks it). A refusal (HTTP 400, or a
 5xx whose body names the response format, the schema or a grammar) moves one level down
-at once; the level that answers is remembered for the endpoint for the rest of the
-process and recorded with every call. ``structured_output`` pins a level instead. Each
+at once, except a 400 whose body clearly names another cause (OpenAI's ``param``, a
+request field such as the model or ``max_tokens``, the model's name) and nothing about
+the format: that is the call's error, with the server's words, and the endpoint keeps its
+level. Refused credentials (401 / 403) are never a format refusal. The level that
+answers is remembered for the endpoint for the rest of the process and recorded with
+every call. ``structured_output`` pins a level instead. Each
 refused request goes back to the client with its own time (``Completion.refused``, or the
 error's ``refused`` when the call fails after it), which records it as an attempt: every
 request sent is one record.
@@ -105,7 +109,16 @@ _CONTEXT_OVERFLOW = re.compile(
     re.IGNORECASE,
 )
 #: Words in an error body that say the server cannot do the requested response format.
-_FORMAT_WORDS = re.compile(r"response_format|json_schema|schema|grammar", re.IGNORECASE)
+_FORMAT_WORDS = re.compile(
+    r"response[_ ]format|json[_ ]schema|json[_ ]object|schema|grammar|structured output",
+    re.IGNORECASE,
+)
+#: Request fields other than the response format an error body may name as its cause (a
+#: model not found, a budget too large): a 400 naming one of them is no format refusal.
+_OTHER_FIELDS = re.compile(
+    r"\b(?:model|max_tokens|max_completion_tokens|messages|temperature|top_p|seed|stop)\b",
+    re.IGNORECASE,
+)
 #: A server refusing the system message (OpenAI's o1-mini: "Unsupported value:
 #: 'messages[0].role' does not support 'system' with this model"; Gemma chat templates:
 #: "System role not supported").
@@ -617,6 +630,13 @@ class OpenAIBackend(LLMBackend):
                 f"request refused (HTTP {status}: {excerpt}); this model takes no system "
                 "role: set system_role: false in its backend config"
             )
+        if has_format and status == 400 and self._names_another_cause(error, body):
+            # Stepping down would not help and would leave the endpoint at a lower level for
+            # the rest of the process: the server's words are the error.
+            return LLMError(
+                f"request refused (HTTP 400: {excerpt}); the server names no structured-output "
+                "format as the cause, so the request was not sent again at a lower level"
+            )
         if has_format and (status == 400 or (status >= 500 and _FORMAT_WORDS.search(body))):
             return _FormatRefused(status, body)
         if status >= 500:
@@ -624,6 +644,17 @@ class OpenAIBackend(LLMBackend):
                 f"server error (HTTP {status}: {excerpt})", retry_after_s(error.response.headers)
             )
         return LLMError(f"request refused (HTTP {status}: {excerpt})")
+
+    def _names_another_cause(self, error: Any, body: str) -> bool:
+        """Whether a 400 clearly names a cause other than the response format: OpenAI's
+        ``param`` field, or a request field or the model's name in the body, and nothing
+        about the format. A 400 that names nothing is taken for a format refusal."""
+        if _FORMAT_WORDS.search(body):
+            return False
+        param = getattr(error, "param", None)
+        if isinstance(param, str) and param and param != "response_format":
+            return True
+        return bool(_OTHER_FIELDS.search(body)) or self.model in body
 
     def _completion(
         self,

@@ -16,8 +16,10 @@ from pathlib import Path
 
 import pytest
 
+from skyvln_eval.errors import LLMAuthError
 from skyvln_eval.llm import GenerationConfig, LLMClient, Message, RetryPolicy, create_backend
 from skyvln_eval.llm.loopback import LoopbackOpenAIServer, answer, no_choices, status
+from skyvln_eval.llm.negotiation import negotiated_level
 from skyvln_eval.llm.prices import load_prices
 from skyvln_eval.llm_records import module_usage
 from skyvln_eval.metrics.cost import call_totals
@@ -120,3 +122,38 @@ def test_tokens_reported_with_no_choices_are_counted_and_priced(tmp_path: Path) 
     unknown = unpriced.records[0]
     assert unknown.outcome == "failed" and unknown.prompt_tokens == 100
     assert unknown.cost_usd is None
+
+
+@pytest.mark.parametrize(
+    "message",
+    [
+        "The model `fake-model` does not exist or you do not have access to it.",
+        "max_tokens is too large: 100000. This model supports at most 16384 tokens.",
+    ],
+)
+def test_a_400_naming_another_cause_is_that_error_not_a_format_refusal(message: str) -> None:
+    with LoopbackOpenAIServer([status(400, message=message), answer("{}")]) as server:
+        client = _client(server)
+        result = client.call("motion", HELLO, STRUCTURED)
+        sent = len(server.requests)
+        again = client.call("motion", [*HELLO, Message("user", "again")], STRUCTURED)
+        formats = [r["body"]["response_format"]["type"] for r in server.requests]
+    # Asked once, not sent down every level; the user reads the server's words.
+    assert sent == 1 and [r.outcome for r in result.records] == ["failed"]
+    assert result.completion is None and message[:40] in (result.error or "")
+    # The endpoint keeps its level: the next call asks for json_schema again.
+    assert formats == ["json_schema", "json_schema"] and again.completion is not None
+    assert negotiated_level(client.backend.endpoint) is None  # type: ignore[attr-defined]
+
+
+@pytest.mark.parametrize("code", [401, 403])
+def test_refused_credentials_are_never_a_format_refusal(code: int) -> None:
+    message = "Invalid API key; response_format json_schema requires a paid plan."
+    with LoopbackOpenAIServer([status(code, message=message)] * 4) as server:
+        client = _client(server)
+        with pytest.raises(LLMAuthError, match=f"HTTP {code}"):
+            client.call("motion", HELLO, STRUCTURED)
+        assert len(server.requests) == 1
+    assert negotiated_level(client.backend.endpoint) is None  # type: ignore[attr-defined]
+    (record,) = client.calls_made()
+    assert record.outcome == "failed" and record.final
