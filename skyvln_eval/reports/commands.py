@@ -322,7 +322,8 @@ def plot_sr_threshold(
     ),
     max_threshold_m: Annotated[float, typer.Option(help="Largest radius shown, metres")] = 100.0,
 ) -> None:
-    """Success rate vs success radius, one line per system."""
+    """Success rate vs success radius, one line per system; error episodes are left out
+    (the legend counts them, and the degraded ones), oracle runs labelled references."""
     from skyvln_eval.metrics.scores_io import read_many_scores
     from skyvln_eval.reports.nav_figures import sr_vs_threshold_figure
     from skyvln_eval.reports.render import save_figure
@@ -339,7 +340,8 @@ def plot_ne(
         "ne_distribution.png"
     ),
 ) -> None:
-    """Distribution of the navigation error, one histogram per system."""
+    """Distribution of the navigation error, one histogram per system; error episodes are
+    left out (the legend counts them, and the degraded ones), oracle runs labelled references."""
     from skyvln_eval.metrics.scores_io import read_many_scores
     from skyvln_eval.reports.nav_figures import ne_distribution_figure
     from skyvln_eval.reports.render import save_figure
@@ -370,10 +372,11 @@ def plot_trajectory(
         "trajectory.png"
     ),
 ) -> None:
-    """An episode's GT and flown views drawn over its map tile."""
+    """An episode's GT and flown views drawn over its map tile; the title says an episode's
+    status unless ok (an error episode's with its first error line)."""
     from skyvln_eval.avdn import load_split
     from skyvln_eval.metrics import read_results
-    from skyvln_eval.reports.nav_figures import trajectory_figure
+    from skyvln_eval.reports.nav_figures import trajectory_figure, trajectory_labels
     from skyvln_eval.reports.render import save_figure
     from skyvln_eval.worlds import load_world
 
@@ -393,7 +396,8 @@ def plot_trajectory(
     if not records:
         raise ConfigError(f"{data_dir}: split {row.split} has no episode {episode!r}")
     tile = load_world(data_dir, records[0].map_name, records[0].georef)
+    title, flown = trajectory_labels(row)  # an error episode's title says so
     figure = trajectory_figure(
-        tile, row.gt_path_corners, row.visited_views, f"{row.system}: {episode}"
+        tile, row.gt_path_corners, row.visited_views, title, agent_label=flown
     )
     typer.echo(f"wrote {save_figure(figure, out)}")

@@ -3,11 +3,18 @@
 The first two take a scores frame (:func:`skyvln_eval.metrics.score_results`), one line
 per system. The map figure takes a :class:`~skyvln_eval.worlds.WorldTile` and view
 arrays (``(K, 4, 2)`` ``[lat, lng]``) and draws them with the tile's georeference.
+
+An ``error`` episode (it raised, or none of its LLM calls gave a usable answer) measured
+nothing: the first two figures leave it out and say so in the legend (``flaky (n=3, 1
+error left out)``; a system of errors only is named, not drawn); ``degraded`` episodes are
+drawn and counted in the legend. Systems the ground-truth oracle flew are labelled as
+references (:func:`~skyvln_eval.metrics.aggregate.oracle_systems`), dash-dotted.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -15,13 +22,21 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from skyvln_eval.errors import MetricInputError
+from skyvln_eval.metrics.aggregate import oracle_systems
 from skyvln_eval.metrics.conventions import MetricConventions
+from skyvln_eval.metrics.records import EpisodeResult
 from skyvln_eval.metrics.scoring import can_succeed
 from skyvln_eval.reports.render import new_figure
 from skyvln_eval.worlds.tile import WorldTile
 
 if TYPE_CHECKING:  # matplotlib is imported when a figure is made (render.new_figure)
+    from matplotlib.axes import Axes
     from matplotlib.figure import Figure
+
+#: Oracle-flown systems are references: a line style of their own, not a rival's.
+_REFERENCE_STYLE = "-."
+#: How much of an error's first line a trajectory title shows.
+_TITLE_ERROR_CHARS = 80
 
 
 def success_rate_curve(
@@ -45,6 +60,51 @@ def _systems(scores: pd.DataFrame, systems: Sequence[str] | None) -> list[str]:
     return names
 
 
+@dataclass(frozen=True)
+class _SystemRows:
+    """One system's episodes as a figure shows them: the drawn ones and its legend text."""
+
+    drawn: pd.DataFrame  # every episode but the 'error' ones
+    errors: int  # 'error' episodes, left out
+    name: str  # the system, marked as a reference if the oracle flew it
+    reference: bool
+
+    @property
+    def counts(self) -> str:
+        """What the legend says the line or histogram is made of, e.g. "n=3, 1 error left out"."""
+        parts = [f"n={len(self.drawn)}"]
+        degraded = int((self.drawn["status"] == "degraded").sum())
+        if degraded:
+            parts.append(f"{degraded} degraded")
+        if self.errors:
+            parts.append(f"{self.errors} error{'s' if self.errors > 1 else ''} left out")
+        return ", ".join(parts)
+
+    @property
+    def label_when_empty(self) -> str:
+        """The legend entry of a system none of whose episodes can be drawn."""
+        n = len(self.drawn) + self.errors
+        return f"{self.name} ({self.errors} of {n} episodes error: not drawn)"
+
+    @property
+    def style(self) -> str:
+        return _REFERENCE_STYLE if self.reference else "-"
+
+
+def _system_rows(scores: pd.DataFrame, system: str, references: Sequence[str]) -> _SystemRows:
+    sel = scores[scores["system"] == system]
+    # An error episode's distances describe whatever it flew before it failed: not a result.
+    error = (sel["status"] == "error").to_numpy(bool)
+    reference = system in references
+    name = f"{system}, reference: ground-truth oracle" if reference else system
+    return _SystemRows(sel[~error], int(error.sum()), name, reference)
+
+
+def _name_only(ax: Axes, rows: _SystemRows, colour: str) -> None:
+    """A legend entry with nothing drawn (a system whose episodes are all errors)."""
+    ax.plot([], [], color=colour, ls="none", marker="x", label=rows.label_when_empty)
+
+
 def sr_vs_threshold_figure(
     scores: pd.DataFrame,
     conventions: MetricConventions,
@@ -54,20 +114,27 @@ def sr_vs_threshold_figure(
     """R2R success rate as a function of the success radius, per system.
 
     Uses ``r2r_ne_m`` (2-D or 3-D as the conventions say); the conventions' threshold is
-    marked. An episode that cannot succeed (:func:`~skyvln_eval.metrics.scoring.can_succeed`:
-    an 'error', or no view) counts as a failure at every radius, as in the scores; a
-    'degraded' one is scored on its views.
+    marked. 'error' episodes are left out (the legend counts them), so with errors the
+    curve at the threshold is the SR of the episodes drawn, not the scores' SR, which
+    counts an error as a failure; a 'degraded' episode is scored on its views.
     """
     thresholds = np.linspace(0.0, max_threshold_m, 401)
     figure = new_figure(6.0, 4.0)
     ax = figure.subplots()
-    for system in _systems(scores, systems):
-        sel = scores[scores["system"] == system]
+    references = oracle_systems(scores)
+    for k, system in enumerate(_systems(scores, systems)):
+        rows = _system_rows(scores, system, references)
+        if rows.drawn.empty:
+            _name_only(ax, rows, f"C{k}")
+            continue
+        sel = rows.drawn
         ne = np.where(can_succeed(sel["status"], sel["n_views"] > 0), sel["r2r_ne_m"], np.inf)
         ax.plot(
             thresholds,
             success_rate_curve(ne, thresholds, conventions.strict_threshold),
-            label=f"{system} (n={len(sel)})",
+            color=f"C{k}",
+            ls=rows.style,
+            label=f"{rows.name} ({rows.counts})",
         )
     ax.axvline(
         conventions.threshold_m,
@@ -87,23 +154,30 @@ def sr_vs_threshold_figure(
 def ne_distribution_figure(
     scores: pd.DataFrame, systems: Sequence[str] | None = None, bins: int = 30
 ) -> Figure:
-    """Histogram of the official NE (metres) per system, with each median marked."""
-    names = _systems(scores, systems)
-    top = float(scores["ne_m"].max()) or 1.0
+    """Histogram of the official NE (metres) per system, with each median marked; 'error'
+    episodes are left out (the legend counts them)."""
+    references = oracle_systems(scores)
+    every = [_system_rows(scores, system, references) for system in _systems(scores, systems)]
+    drawn = [rows.drawn["ne_m"].to_numpy(np.float64) for rows in every]
+    top = max((float(ne.max()) for ne in drawn if len(ne)), default=0.0) or 1.0
     edges = np.linspace(0.0, top, bins + 1)
     figure = new_figure(6.0, 4.0)
     ax = figure.subplots()
-    for k, system in enumerate(names):
-        ne = scores.loc[scores["system"] == system, "ne_m"].to_numpy(np.float64)
+    for k, (rows, ne) in enumerate(zip(every, drawn, strict=True)):
+        if not len(ne):
+            _name_only(ax, rows, f"C{k}")
+            continue
+        median = float(np.median(ne))
         ax.hist(
             ne,
             bins=list(edges),
             histtype="step",
             lw=1.4,
+            ls=rows.style,
             color=f"C{k}",
-            label=f"{system} (median {np.median(ne):.1f} m)",
+            label=f"{rows.name} ({rows.counts}; median {median:.1f} m)",
         )
-        ax.axvline(float(np.median(ne)), color=f"C{k}", ls=":", lw=1.0)
+        ax.axvline(median, color=f"C{k}", ls=":", lw=1.0)
     ax.set_xlabel("navigation error NE (m)")
     ax.set_ylabel("episodes")
     ax.grid(True, lw=0.3)
@@ -117,16 +191,18 @@ def trajectory_figure(
     visited_views: NDArray[np.float64] | None = None,
     title: str = "",
     margin_px: int = 60,
+    agent_label: str = "agent",
 ) -> Figure:
     """The map around an episode with its GT views (yellow) and visited views (cyan).
 
     Centres are joined in order; the start is a white dot, the GT end a chequered flag
-    marker. The image is cropped to the views plus ``margin_px``.
+    marker. The image is cropped to the views plus ``margin_px``. ``agent_label`` names
+    the visited views in the legend (:func:`trajectory_labels` for a result row).
     """
     georef = tile.georef
     layers = [("ground truth", np.asarray(gt_views), "gold")]
     if visited_views is not None and len(visited_views):
-        layers.append(("agent", np.asarray(visited_views), "cyan"))
+        layers.append((agent_label, np.asarray(visited_views), "cyan"))
     every = np.concatenate([views.reshape(-1, 2) for _, views, _ in layers])
     px = georef.gps_to_pixel_float(every)
     height, width = tile.shape
@@ -153,3 +229,25 @@ def trajectory_figure(
     ax.set_title(title or tile.map_name)
     ax.legend(fontsize="small", loc="upper right")
     return figure
+
+
+def trajectory_labels(row: EpisodeResult) -> tuple[str, str]:
+    """The title and the flown views' legend label of a trajectory figure of ``row``.
+
+    The title says the episode's status unless ``ok`` (an 'error' episode with the first
+    line of its error: what it flew is not a result); a run of the ground-truth oracle is
+    labelled a reference.
+    """
+    title = f"{row.system}: {row.episode_id}"
+    if row.status == "error":
+        first = ((row.error or "").strip().splitlines() or ["no error text"])[0]
+        if len(first) > _TITLE_ERROR_CHARS:
+            first = first[: _TITLE_ERROR_CHARS - 3] + "..."
+        title += f" — error: {first}"
+    elif row.status != "ok":
+        title += f" — {row.status}"
+    oracle = row.extra.get("oracle") is True
+    flown = "ground-truth oracle (reference)" if oracle else "agent"
+    if row.status == "error":
+        flown += ", until the error"
+    return title, flown

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import struct
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -20,10 +21,14 @@ from skyvln_eval.reports import (
     success_rate_curve,
     trajectory_figure,
 )
+from skyvln_eval.reports.nav_figures import trajectory_labels
 from skyvln_eval.worlds import WorldTile
 from tests.conftest import modules_loaded_by
 from tests.metrics.helpers import result, square
 from tests.metrics.test_safety_and_cost import control_log
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 
 def two_controller_log() -> pd.DataFrame:
@@ -153,9 +158,10 @@ def test_matplotlib_is_loaded_by_the_first_figure_not_by_the_command_line() -> N
     assert modules_loaded_by("skyvln_eval.reports", ("matplotlib",)) == []
 
 
-def test_the_sr_curve_counts_successes_as_the_scores_do() -> None:
-    # A degraded episode is scored on its views (its success counts), an error one never
-    # succeeds: at the conventions' threshold the curve reads the scores' SR@d.
+def test_the_sr_curve_reads_the_scores_sr_of_the_episodes_it_draws() -> None:
+    # A degraded episode is scored on its views (its success counts); an error one is left
+    # out (it measured nothing): at the conventions' threshold the curve reads the scores'
+    # SR@d of the other episodes, and the legend says one was left out.
     g = [square(0, 0), square(100, 0)]
     statuses = ["ok", "degraded", "error", "ok"]
     results = [
@@ -165,6 +171,76 @@ def test_the_sr_curve_counts_successes_as_the_scores_do() -> None:
     scores = score_results(results)
     conventions = MetricConventions()
     figure = sr_vs_threshold_figure(scores, conventions, max_threshold_m=100.0)
-    thresholds, rates = figure.get_axes()[0].get_lines()[0].get_data()
+    curve = figure.get_axes()[0].get_lines()[0]
+    thresholds, rates = curve.get_data()
     at = int(np.searchsorted(np.asarray(thresholds), conventions.threshold_m))
-    assert np.asarray(rates)[at] == pytest.approx(100.0 * scores["r2r_sr"].mean()) == 75.0
+    drawn = scores[scores["status"] != "error"]
+    assert np.asarray(rates)[at] == pytest.approx(100.0 * drawn["r2r_sr"].mean()) == 100.0
+    assert curve.get_label() == "agent (n=3, 1 degraded, 1 error left out)"
+
+
+def _statuses_and_a_reference() -> pd.DataFrame:
+    """'dead': 4 errors; 'flaky': 2 ok, 1 degraded, 1 error 900 m off (NE 0..2 m else);
+    'truth': flown by the ground-truth oracle."""
+    g = [square(0, 0), square(100, 0)]
+    rows = [result([g[0], g[1]], g, episode_id=f"d{k}", system="dead", status="error")
+            for k in range(4)]  # fmt: skip
+    for k, status in enumerate(("ok", "degraded", "ok", "error")):
+        end = square(1000, 0) if status == "error" else square(100 + k, 0)
+        rows.append(result([g[0], end], g, episode_id=f"f{k}", system="flaky", status=status))
+    rows += [
+        result([g[0], g[1]], g, episode_id=f"t{k}", system="truth", extra={"oracle": True})
+        for k in range(2)
+    ]
+    return score_results(rows)
+
+
+def _legend(figure: Figure) -> list[str]:
+    return [t.get_text() for t in figure.get_axes()[0].get_legend().get_texts()]
+
+
+def test_error_episodes_are_not_drawn_as_results_and_references_are_named() -> None:
+    scores = _statuses_and_a_reference()
+    sr = sr_vs_threshold_figure(scores, MetricConventions(), max_threshold_m=100.0)
+    assert _legend(sr) == [
+        "dead (4 of 4 episodes error: not drawn)",
+        "flaky (n=3, 1 degraded, 1 error left out)",
+        "truth, reference: ground-truth oracle (n=2)",
+        "d_th = 20 m",
+    ]
+    lines = sr.get_axes()[0].get_lines()
+    assert len(lines[0].get_xdata()) == 0  # 'dead': a name in the legend, no line
+    assert np.asarray(lines[1].get_ydata())[-1] == pytest.approx(100.0)  # 3 of 3 drawn
+    assert lines[2].get_linestyle() == "-."  # the reference, apart from the agents
+    ne = ne_distribution_figure(scores)
+    assert _legend(ne) == [
+        "dead (4 of 4 episodes error: not drawn)",
+        "flaky (n=3, 1 degraded, 1 error left out; median 1.0 m)",
+        "truth, reference: ground-truth oracle (n=2; median 0.0 m)",
+    ]
+    # The error episode's 900 m is not on the NE axis (the bins end at the largest drawn).
+    assert ne.get_axes()[0].get_xlim()[1] < 10.0
+
+
+def test_a_trajectory_of_an_error_episode_says_so_in_its_title(tmp_path: Path) -> None:
+    g = [square(0, 0), square(100, 0)]
+    error = "LLMError: request refused (HTTP 400: bad)\nTraceback (most recent call last):\n..."
+    failed = result([g[0], g[1]], g, status="error", error=error, system="S")
+    assert trajectory_labels(failed) == (
+        "S: 1913__0_1 — error: LLMError: request refused (HTTP 400: bad)",
+        "agent, until the error",
+    )
+    long = result([g[0]], g, status="error", error="x" * 200, system="S")
+    assert trajectory_labels(long)[0] == f"S: 1913__0_1 — error: {'x' * 77}..."
+    degraded = result([g[0], g[1]], g, status="degraded", system="S")
+    assert trajectory_labels(degraded) == ("S: 1913__0_1 — degraded", "agent")
+    oracle = result([g[0], g[1]], g, system="truth", extra={"oracle": True})
+    assert trajectory_labels(oracle) == ("truth: 1913__0_1", "ground-truth oracle (reference)")
+    # Drawn: the title and the flown views' legend entry are those.
+    georef = MapGeoref((30.0, 40.0), (30.01, 40.01), 1e-5, 1e-5)
+    tile = WorldTile(map_name="1913", georef=georef, bgr=np.zeros((1000, 1000, 3), np.uint8))
+    title, flown = trajectory_labels(failed)
+    figure = trajectory_figure(tile, failed.gt_path_corners, failed.visited_views, title,
+                               agent_label=flown)  # fmt: skip
+    assert figure.get_axes()[0].get_title() == title
+    assert flown in _legend(figure)
