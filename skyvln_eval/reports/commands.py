@@ -8,6 +8,7 @@ writes files atomically; heavy imports happen inside the commands so ``skyvln-ev
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -357,6 +358,42 @@ def _data_dir(value: str) -> Path:
     return data_dir_argument(value)
 
 
+#: How many of a file's episode ids an error names when the one asked for is not there.
+_IDS_SHOWN = 5
+
+
+def _trajectory_row(
+    path: Path, rows: Sequence[EpisodeResult], episode: str, system: str | None
+) -> EpisodeResult:
+    """The one row of ``episode`` (of ``system``, if given) in the results ``path``; else
+    an error that says what the file has: the episode's systems, or some of its ids."""
+    of_episode = [r for r in rows if r.episode_id == episode]
+    if not of_episode:
+        ids = sorted({r.episode_id for r in rows})
+        shown = ", ".join(ids[:_IDS_SHOWN]) + (", ..." if len(ids) > _IDS_SHOWN else "")
+        raise ConfigError(f"{path}: no episode {episode!r} in it ({len(ids)} episode(s): {shown})")
+    systems = sorted({r.system for r in of_episode})
+    chosen = [r for r in of_episode if system is None or r.system == system]
+    if not chosen:
+        raise ConfigError(
+            f"{path}: episode {episode!r} has no row of system {system!r}; its system(s): "
+            f"{', '.join(map(repr, systems))} (--system)"
+        )
+    if len(chosen) == 1:
+        return chosen[0]
+    if system is None and len(systems) > 1:
+        raise ConfigError(
+            f"{path}: {len(chosen)} rows for episode {episode!r}, of systems "
+            f"{', '.join(map(repr, systems))}; choose one with --system"
+        )
+    # One system, several rows: the same episode in several splits or modes.
+    where = ", ".join(sorted(f"{r.split}/{r.mode}" for r in chosen))
+    raise ConfigError(
+        f"{path}: {len(chosen)} rows for episode {episode!r} of system {chosen[0].system!r} "
+        f"(split/mode {where}); give a results file holding one of them"
+    )
+
+
 @plot_app.command("trajectory")
 def plot_trajectory(
     results: Annotated[Path, typer.Argument(help="Result rows (.jsonl or .parquet)")],
@@ -380,17 +417,7 @@ def plot_trajectory(
     from skyvln_eval.reports.render import save_figure
     from skyvln_eval.worlds import load_world
 
-    rows = [
-        r
-        for r in read_results(results)
-        if r.episode_id == episode and (system is None or r.system == system)
-    ]
-    if len(rows) != 1:
-        systems = sorted({r.system for r in rows})
-        raise ConfigError(
-            f"{results}: {len(rows)} rows for episode {episode!r} (systems {systems}); use --system"
-        )
-    row = rows[0]
+    row = _trajectory_row(results, read_results(results), episode, system)
     data_dir = _data_dir(data_dir_text)
     records = [r for r in load_split(data_dir, row.split).records if r.episode_id == episode]
     if not records:

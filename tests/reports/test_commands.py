@@ -5,10 +5,13 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
+from skyvln_eval.avdn import load_split
 from skyvln_eval.cli import app
 from skyvln_eval.errors import (
     DataError,
@@ -16,11 +19,21 @@ from skyvln_eval.errors import (
     NoGroundTruthError,
     ResultRecordError,
 )
-from skyvln_eval.metrics import RESULTS_VERSION, Prediction, write_predictions_json, write_results
+from skyvln_eval.metrics import (
+    RESULTS_VERSION,
+    Prediction,
+    read_results,
+    write_predictions_json,
+    write_results,
+)
 from skyvln_eval.metrics.scores_io import read_scores
-from tests.conftest import CliOutcome, make_record
+from skyvln_eval.reports import render
+from tests.conftest import CliOutcome, make_record, write_dataset
 from tests.metrics.helpers import result, square
 from tests.reports.test_figures import two_controller_log
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 runner = CliRunner()
 Cli = Callable[..., CliOutcome]
@@ -285,3 +298,57 @@ def test_predictions_start_at_the_start_view_and_may_be_scored_incomplete_when_a
     assert allowed.exit_code == 0, allowed.output
     assert "predicts 1 of the 2 episodes of val_seen" in allowed.output
     assert len(read_scores(tmp_path / "s" / "scores.csv")[0]) == 1
+
+
+def test_plot_trajectory_says_which_systems_have_the_episode_or_that_it_is_not_there(
+    tmp_path: Path, cli: Cli
+) -> None:
+    run = write_run(tmp_path / "run.jsonl")  # m__0_1 .. m__5_1 of 'Ours Full' and 'w/o HSD'
+    one_split = tmp_path / "one_split.jsonl"
+    write_results(one_split, [r for r in read_results(run) if r.split == "val_seen"])
+
+    def trajectory(path: Path, *args: str) -> str:
+        outcome = cli("plot", "trajectory", str(path), "--data-dir", str(tmp_path), *args)
+        assert outcome.code == 2 and "Traceback" not in outcome.err, outcome
+        return " ".join(outcome.err.split())
+
+    systems = "its system(s): 'Ours Full', 'w/o HSD'"
+    assert f"{one_split}: episode 'm__2_1' has no row of system 'Ours'; {systems}" in (
+        trajectory(one_split, "--episode", "m__2_1", "--system", "Ours")
+    )
+    assert (
+        "no episode 'm__9_1' in it (6 episode(s): m__0_1, m__1_1, m__2_1, m__3_1, m__4_1, ...)"
+        in (trajectory(one_split, "--episode", "m__9_1", "--system", "Ours Full"))
+    )
+    assert (
+        "2 rows for episode 'm__2_1', of systems 'Ours Full', 'w/o HSD'; choose one with --system"
+        in (trajectory(one_split, "--episode", "m__2_1"))
+    )
+    assert "(split/mode test_unseen/andh, val_seen/andh, val_unseen/andh)" in (
+        trajectory(run, "--episode", "m__2_1", "--system", "w/o HSD")
+    )
+    assert not (tmp_path / "trajectory.png").exists()
+
+
+def test_plot_trajectory_of_an_error_episode_is_titled_with_its_error(
+    tmp_path: Path, cli: Cli, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Ratios that fit the fixture's 100 px map image (the defaults are for a 1000 px one).
+    record = make_record(lng_ratio=1e-4, lat_ratio=1e-4)
+    data_dir = write_dataset(tmp_path / "ds", {"val_seen": [record]})
+    (record,) = load_split(data_dir, "val_seen").records
+    gt = record.gt_path_corners
+    failed = result(gt[:2], gt, status="error", error="TimeoutError: no answer\nTraceback ...")
+    results = tmp_path / "results.jsonl"
+    write_results(results, [failed])
+    drawn: list[Figure] = []
+    monkeypatch.setattr(render, "save_figure", lambda figure, path: drawn.append(figure) or path)
+    outcome = cli(
+        "plot", "trajectory", str(results), "--episode", failed.episode_id,
+        "--data-dir", str(data_dir), "--out", str(tmp_path / "t.png"),
+    )  # fmt: skip
+    assert outcome.code == 0, outcome
+    (ax,) = drawn[0].get_axes()
+    assert ax.get_title() == "agent: 1913__0_1 — error: TimeoutError: no answer"
+    legend = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert "agent, until the error" in legend
