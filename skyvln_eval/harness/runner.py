@@ -44,6 +44,7 @@ from skyvln_eval.harness.oracle import ground_truth_oracle, is_oracle
 from skyvln_eval.harness.rollout import CallsMade
 from skyvln_eval.harness.run_log import RunLogContent, Step, named_views, write_run_log
 from skyvln_eval.llm_records import LlmCall
+from skyvln_eval.metrics.cost import call_totals
 from skyvln_eval.metrics.records import EpisodeResult, judge_status
 from skyvln_eval.metrics.safety import summarise_control
 from skyvln_eval.native_calls import NATIVE_CALLS
@@ -279,6 +280,8 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
                 "stop_reason": rollout.stop_reason,
                 "status": status,
                 "error": error or "",
+                # What explains a degraded or error status, for the viewer's episode card.
+                **_status_counts(rollout),
             }
             write_run_log(
                 log_path(task.run_dir, task.split, task.episode_id),
@@ -310,6 +313,13 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
         calls = () if made is None else tuple(made.since())
         wall_s = time.perf_counter() - started
         return failed_result(config, task, episode, error, wall_s, fatal, calls)
+
+
+def _status_counts(rollout: OfficialRollout | DynamicsRollout) -> dict[str, str]:
+    """The LLM call and fallback counts behind an episode's status, as run log metadata."""
+    totals = call_totals(rollout.llm_calls, rollout.failures, len(rollout.actions))
+    keys = ("llm_calls", "llm_failed_calls", "llm_parse_failures", "fallback_decisions")
+    return {key: str(int(totals[key])) for key in (*keys, "module_failures")}
 
 
 def ground_truth(episode: Episode) -> NDArray[np.float64]:

@@ -25,15 +25,55 @@ Json = Mapping[str, Any]
 _GROUND_Z_M = -0.5
 
 
-def episode_card(canvas: Canvas, episode: Episode, run: Mapping[str, str], path: Path) -> None:
+#: Counts of the run metadata that explain a 'degraded' or 'error' status (written by the
+#: runner; absent from logs of older runs), with what each counts.
+STATUS_COUNTS = (
+    ("fallback_decisions", "fallback decision(s)"),
+    ("module_failures", "module failure(s)"),
+    ("llm_failed_calls", "failed LLM call(s)"),
+    ("llm_parse_failures", "unusable LLM answer(s)"),
+)
+
+
+def status_line(run: Mapping[str, str]) -> str | None:
+    """The episode's status (``ok``, ``degraded``, ``error``) as the card shows it: with the
+    counts that explain a status other than ok, where the run metadata has them; ``None``
+    for a log without one (an episode log, converted from the dataset: nothing was run)."""
+    status = run.get("status")
+    if not status:
+        return None
+    counts = []
+    if status != "ok":
+        for key, what in STATUS_COUNTS:
+            value = run.get(key, "")
+            if value.isdigit() and int(value):
+                counts.append(f"{value} {what}")
+    said = ", ".join(counts)
+    if said and run.get("llm_calls", "").isdigit():
+        said += f"; {run['llm_calls']} LLM call(s) in all"
+    return f"- status: **{status}**" + (f" ({said})" if said else "")
+
+
+def episode_card_text(episode: Episode, run: Mapping[str, str], path: Path) -> str:
+    """The episode card: what the episode is, which log, and what the run said of it."""
     lines = [f"# {episode.split} {episode.episode_id}", ""]
     lines += [f"- map: {episode.map_name}", f"- log: {path}"]
-    for key in ("system", "execution_mode", "stop_reason", "error", "config_digest"):
+    if run.get("system"):
+        lines.append(f"- system: {run['system']}")
+    # The status first after the system: a degraded or failed episode must not read as a
+    # result that went as planned.
+    if (status := status_line(run)) is not None:
+        lines.append(status)
+    for key in ("execution_mode", "stop_reason", "error", "config_digest"):
         if run.get(key):
             lines.append(f"- {key.replace('_', ' ')}: {run[key]}")
     if run.get("config"):
         lines += ["", "## Run configuration", "", text.fenced(run["config"].rstrip())]
-    canvas.markdown(e.EPISODE_INFO, "\n".join(lines) + "\n", static=True)
+    return "\n".join(lines) + "\n"
+
+
+def episode_card(canvas: Canvas, episode: Episode, run: Mapping[str, str], path: Path) -> None:
+    canvas.markdown(e.EPISODE_INFO, episode_card_text(episode, run, path), static=True)
 
 
 def map_tile(canvas: Canvas, message: Json) -> None:

@@ -246,6 +246,13 @@ def test_an_llm_server_that_fails_leaves_error_episodes_with_the_faults_recorded
         # No call was answered: the episode is an error, not a result that looks normal.
         assert result.status == "error" and "no LLM call" in (result.error or "")
         assert result.fallback_decisions == result.decisions >= 1
+        # The run log says so too, with the counts behind it (the viewer's episode card).
+        log = read_log(tmp_path / "run" / "logs" / result.split / f"{result.episode_id}.mcap")
+        meta = log.metadata[t.RUN_METADATA]
+        finals = [c for c in result.llm_calls if c.final]
+        assert meta["status"] == "error" and meta["llm_calls"] == str(len(finals))
+        assert meta["llm_failed_calls"] == str(sum(c.outcome == "failed" for c in finals)) != "0"
+        assert meta["fallback_decisions"] == str(result.fallback_decisions)
     assert report.statuses == {"error": 2} and len(report.errors) == 2
     verdict = error_verdict([report], fail_on_error=0.0)
     assert verdict is not None and "2 of 2 episode(s) ended in error" in verdict

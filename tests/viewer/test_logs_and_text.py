@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
+from skyvln_eval.avdn import load_split
 from skyvln_eval.converters import messages as fx
 from skyvln_eval.converters import topics as t
 from skyvln_eval.converters.reader import read_log
@@ -19,6 +20,8 @@ from skyvln_eval.errors import ConfigError, McapLogError, MissingExtraError
 from skyvln_eval.viewer import text
 from skyvln_eval.viewer.logs import RunLogStream, find_episode_logs
 from skyvln_eval.viewer.scene import detections_by_view, sector_box
+from skyvln_eval.viewer.static_content import episode_card_text
+from tests.conftest import make_record, write_dataset
 
 
 def test_episodes_are_selected_by_id_or_split_and_id(flown_run: Path, tmp_path: Path) -> None:
@@ -176,3 +179,30 @@ def test_base64_image_bytes_are_passed_through_undecoded() -> None:
     data = _noise_png(1, 16)
     message = {"data": base64.b64encode(data).decode(), "format": "png"}
     assert image_bytes(message) == (data, "image/png")
+
+
+def test_the_episode_card_shows_the_status_and_what_explains_it(tmp_path: Path) -> None:
+    record = make_record()
+    (episode,) = load_split(
+        write_dataset(tmp_path / "ds", {"val_seen": [record]}), "val_seen"
+    ).episodes()
+    log = tmp_path / "e.mcap"
+
+    def card(**run: str) -> list[str]:
+        return episode_card_text(episode, {"system": "S", **run}, log).splitlines()
+
+    assert "- status: **ok**" in card(status="ok", fallback_decisions="0")
+    counts = {"llm_calls": "12", "llm_failed_calls": "0", "fallback_decisions": "2",
+              "module_failures": "3", "llm_parse_failures": "1"}  # fmt: skip
+    degraded = card(status="degraded", **counts)
+    expected = (
+        "- status: **degraded** (2 fallback decision(s), 3 module failure(s), "
+        "1 unusable LLM answer(s); 12 LLM call(s) in all)"
+    )
+    assert degraded.index("- system: S") + 1 == degraded.index(expected)  # right below
+    failed = card(status="error", error="LLMError: HTTP 500", llm_calls="4", llm_failed_calls="4")
+    assert "- status: **error** (4 failed LLM call(s); 4 LLM call(s) in all)" in failed
+    assert "- error: LLMError: HTTP 500" in failed
+    # A log of an older run (no counts) still says its status; a dataset log has none.
+    assert "- status: **degraded**" in card(status="degraded")
+    assert not any(line.startswith("- status") for line in card())
