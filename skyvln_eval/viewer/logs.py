@@ -61,7 +61,8 @@ def find_episode_logs(target: str | Path, episodes: Sequence[str] = ()) -> list[
     """The run MCAPs to show: ``target`` is a run directory or one ``.mcap`` file.
 
     ``episodes`` selects by ``ID`` or ``SPLIT/ID``; empty means every episode of the run, in
-    (split, episode) order. An id that matches nothing is an error that lists close ids.
+    (split, episode) order. An id that matches nothing is an error that lists close ids. A
+    file holds one episode: a selector naming another is an error, never ignored.
     """
     target = Path(target)
     if target.is_file():
@@ -69,9 +70,10 @@ def find_episode_logs(target: str | Path, episodes: Sequence[str] = ()) -> list[
             raise ConfigError(f"{target}: not a run directory or an .mcap run log")
         with RunLogStream(target) as log:  # a lone file: its split and id from its metadata
             meta = log.metadata.get(t.EPISODE_METADATA, {})
-        return [
-            EpisodeLogRef(target, meta.get("split") or "-", meta.get("episode_id") or target.stem)
-        ]
+        ref = EpisodeLogRef(target, meta.get("split") or "-", meta.get("episode_id") or target.stem)
+        for selector in episodes:
+            _check_holds(ref, selector)
+        return [ref]
     logs = target / LOGS_DIR
     if not logs.is_dir():
         raise ConfigError(
@@ -94,6 +96,18 @@ def find_episode_logs(target: str | Path, episodes: Sequence[str] = ()) -> list[
             raise ConfigError(_not_found(target, selector, logs))
         refs += [_ref(p) for p in hits if _ref(p) not in refs]
     return refs
+
+
+def _check_holds(ref: EpisodeLogRef, selector: str) -> None:
+    """Refuse ``--episode selector`` for the one-episode file of ``ref`` unless it names
+    that episode: recording the file's own episode instead would show the wrong one."""
+    split, episode_id = _parse_selector(selector)
+    if episode_id != ref.episode_id or split not in (None, ref.split):
+        raise ConfigError(
+            f"{ref.path} holds episode {ref.key}, not {selector!r}: one .mcap file holds one "
+            "episode, so --episode can only name that one; to pick episodes, give the run "
+            "directory (its logs/<split>/<episode_id>.mcap)"
+        )
 
 
 def _not_found(target: Path, selector: str, logs: Path) -> str:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import base64
 import sys
 import tracemalloc
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -14,6 +15,7 @@ import pytest
 from skyvln_eval.avdn import load_split
 from skyvln_eval.converters import messages as fx
 from skyvln_eval.converters import topics as t
+from skyvln_eval.converters.convert import convert_episode
 from skyvln_eval.converters.reader import read_log
 from skyvln_eval.converters.writer import McapLogWriter
 from skyvln_eval.errors import ConfigError, McapLogError, MissingExtraError
@@ -21,7 +23,9 @@ from skyvln_eval.viewer import text
 from skyvln_eval.viewer.logs import RunLogStream, find_episode_logs
 from skyvln_eval.viewer.scene import detections_by_view, sector_box
 from skyvln_eval.viewer.static_content import episode_card_text
-from tests.conftest import make_record, write_dataset
+from tests.conftest import CliOutcome, make_record, write_dataset
+
+Cli = Callable[..., CliOutcome]
 
 
 def test_episodes_are_selected_by_id_or_split_and_id(flown_run: Path, tmp_path: Path) -> None:
@@ -206,3 +210,31 @@ def test_the_episode_card_shows_the_status_and_what_explains_it(tmp_path: Path) 
     # A log of an older run (no counts) still says its status; a dataset log has none.
     assert "- status: **degraded**" in card(status="degraded")
     assert not any(line.startswith("- status") for line in card())
+
+
+def _episode_log(tmp_path: Path) -> Path:
+    """A one-episode MCAP made by `convert` (no world: no images), for 1913__0_1 of val_seen."""
+    data_dir = write_dataset(tmp_path / "ds", {"val_seen": [make_record()]})
+    (episode,) = load_split(data_dir, "val_seen").episodes()
+    path = tmp_path / "1913__0_1.mcap"
+    with McapLogWriter(path) as writer:
+        convert_episode(episode, None, writer)
+    return path
+
+
+def test_a_single_file_refuses_an_episode_it_does_not_hold(tmp_path: Path, cli: Cli) -> None:
+    path = _episode_log(tmp_path)
+    (ref,) = find_episode_logs(path)
+    assert ref.key == "val_seen/1913__0_1"
+    # Naming the episode the file holds is harmless; naming another is refused.
+    assert find_episode_logs(path, ["1913__0_1", "val_seen/1913__0_1"]) == [ref]
+    for other in ("1913__7_1", "val_unseen/1913__0_1"):
+        with pytest.raises(ConfigError) as refused:
+            find_episode_logs(path, [other])
+        message = str(refused.value)
+        assert message.startswith(f"{path} holds episode val_seen/1913__0_1, not {other!r}")
+        assert "give the run directory" in message
+    # The command refuses before it builds or writes anything.
+    saved = tmp_path / "x.rrd"
+    outcome = cli("view", str(path), "-e", "1913__7_1", "--save", str(saved))
+    assert outcome.code == 2 and "not '1913__7_1'" in outcome.err and not saved.exists()
