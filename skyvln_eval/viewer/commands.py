@@ -12,13 +12,14 @@ import shlex
 import subprocess
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import typer
 
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.interrupts import terminate_like_ctrl_c
+from skyvln_eval.viewer import entities as e
 from skyvln_eval.viewer.deps import rerun_cli_path
 from skyvln_eval.viewer.logs import EpisodeLogRef, find_episode_logs
 from skyvln_eval.viewer.privacy import USER_OPT_OUT, rerun_environment
@@ -66,15 +67,39 @@ def merge_recordings(paths: Sequence[Path], out: Path) -> None:
     tmp.replace(out)
 
 
+def image_counts(rows: Mapping[str, int]) -> dict[str, int]:
+    """Images of the flight per kind, from a recording's rows per entity (the map tile,
+    one image drawn under everything, is not one of them)."""
+    camera_views = sum(
+        n
+        for path, n in rows.items()
+        if path.startswith(f"{e.CAMERA_DETECTIONS}/") and path.endswith("/image")
+    )
+    return {
+        "observation": rows.get(e.CAMERA_OBSERVATION, 0),
+        "camera view": camera_views,
+        "ground-truth view": rows.get(e.CAMERA_GT_OBSERVATION, 0),
+    }
+
+
 def describe(summary: RecordingSummary, show_path: bool = True) -> str:
+    """One line on what a recording holds, in the terms of its log: an agent's decisions
+    for a run log, ground-truth views for an episode log; images of every kind."""
     rows = summary.rows
+    images = image_counts(rows)
+    kinds = ", ".join(f"{n} {kind}" for kind, n in images.items() if n)
     parts = [
-        f"{summary.decisions} decision(s)",
-        f"{rows.get('camera/observation', 0)} image(s)",
-        f"{rows.get('llm/log', 0)} LLM exchange(s)",
-        f"{rows.get('world/drone', 0)} pose(s)",
-        f"{rows.get('world/obstacles', 0)} obstacle sample(s)",
+        f"{summary.decisions} decision(s)"
+        if summary.run_log
+        else f"{summary.gt_views} ground-truth view(s) (an episode log: no agent flew it)",
+        f"{sum(images.values())} image(s)" + (f" ({kinds})" if kinds else ""),
     ]
+    if summary.run_log:
+        parts += [
+            f"{rows.get(e.LLM_LOG, 0)} LLM exchange(s)",
+            f"{rows.get(e.WORLD_DRONE, 0)} pose(s)",
+            f"{rows.get(e.WORLD_OBSTACLES, 0)} obstacle sample(s)",
+        ]
     where = f" -> {summary.path}" if show_path else ""
     return f"{summary.episode.key}: {', '.join(parts)}{where}"
 

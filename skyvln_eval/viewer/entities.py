@@ -55,6 +55,8 @@ WORLD_HORIZON: Final = "world/horizon"
 CAMERA: Final = "camera"
 CAMERA_OBSERVATION: Final = "camera/observation"
 CAMERA_DETECTIONS: Final = "camera/detections"  # one child per view: image, boxes, sectors
+#: The official view below each ground-truth view (episode logs, from `convert`).
+CAMERA_GT_OBSERVATION: Final = "camera/gt_observation"
 
 
 def camera_view(view: str) -> str:

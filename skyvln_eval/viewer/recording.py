@@ -37,13 +37,21 @@ _DEFAULT_IMAGE_PX = 224
 
 @dataclass(frozen=True)
 class RecordingSummary:
-    """What one recording holds: where it was written and the rows logged per entity."""
+    """What one recording holds: where it was written and the rows logged per entity.
+
+    ``run_log`` says whether it was built from a run log (an agent flew it) or from an
+    episode log (``convert``: the ground truth only); ``decisions`` counts the agent's
+    decisions (0 in an episode log) and ``gt_views`` an episode log's ground-truth views
+    (0 in a run log, whose ground truth is drawn, not stepped through).
+    """
 
     path: Path
     episode: EpisodeLogRef
     recording_id: str
     decisions: int
     rows: dict[str, int]
+    run_log: bool
+    gt_views: int
 
 
 def recording_id(ref: EpisodeLogRef, run: Mapping[str, str]) -> str:
@@ -90,7 +98,7 @@ class _Recorder:
             t.TOPIC_RUN_VIEWS: self._view,
             t.TOPIC_OBSERVATION: self._image(e.CAMERA_OBSERVATION),
             t.TOPIC_CAMERA_VIEWS: self._camera_view,
-            t.TOPIC_GT_OBSERVATION: self._image(f"{e.CAMERA}/gt_observation"),
+            t.TOPIC_GT_OBSERVATION: self._image(e.CAMERA_GT_OBSERVATION),
             t.TOPIC_AGENT_STEP: self._agent_step,
             t.TOPIC_AGENT_LOG: self._agent_log,
             t.TOPIC_AGENT_TARGET: self._target,
@@ -291,6 +299,11 @@ def write_recording(ref: EpisodeLogRef, out: str | Path) -> RecordingSummary:
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
     with RunLogStream(ref.path) as log:
+        # Counted from the log, not from the clock: a run that raised before its first
+        # decision has none, and an episode log's clock ticks are ground-truth views.
+        run_log = t.RUN_METADATA in log.metadata
+        decisions = log.topic_counts.get(t.TOPIC_AGENT_STEP, 0)
+        gt_views = 0 if run_log else log.topic_counts.get(t.TOPIC_GPS, 0)
         rec_id = recording_id(ref, log.run_metadata)
         rec = rr.RecordingStream(e.APPLICATION_ID, recording_id=rec_id)
         try:
@@ -305,5 +318,5 @@ def write_recording(ref: EpisodeLogRef, out: str | Path) -> RecordingSummary:
             rec.disconnect()
             tmp.unlink(missing_ok=True)
             raise
-    canvas = recorder.canvas
-    return RecordingSummary(out, ref, rec_id, len(canvas.decision_times_ns), dict(canvas.rows))
+    rows = dict(recorder.canvas.rows)
+    return RecordingSummary(out, ref, rec_id, decisions, rows, run_log, gt_views)

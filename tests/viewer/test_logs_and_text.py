@@ -20,7 +20,9 @@ from skyvln_eval.converters.reader import read_log
 from skyvln_eval.converters.writer import McapLogWriter
 from skyvln_eval.errors import ConfigError, McapLogError, MissingExtraError
 from skyvln_eval.viewer import text
-from skyvln_eval.viewer.logs import RunLogStream, find_episode_logs
+from skyvln_eval.viewer.commands import describe
+from skyvln_eval.viewer.logs import EpisodeLogRef, RunLogStream, find_episode_logs
+from skyvln_eval.viewer.recording import RecordingSummary
 from skyvln_eval.viewer.scene import detections_by_view, sector_box
 from skyvln_eval.viewer.static_content import episode_card_text
 from tests.conftest import CliOutcome, make_record, write_dataset
@@ -238,3 +240,36 @@ def test_a_single_file_refuses_an_episode_it_does_not_hold(tmp_path: Path, cli: 
     saved = tmp_path / "x.rrd"
     outcome = cli("view", str(path), "-e", "1913__7_1", "--save", str(saved))
     assert outcome.code == 2 and "not '1913__7_1'" in outcome.err and not saved.exists()
+
+
+def test_the_printout_counts_images_of_every_kind_and_decisions_only_of_runs(
+    tmp_path: Path,
+) -> None:
+    ref = EpisodeLogRef(tmp_path / "e.mcap", "val_seen", "1913__0_1")
+    flown = {"camera/observation": 3, "camera/detections/pano/image": 10,
+             "camera/detections/down/image": 5, "camera/detections/down": 3,
+             "map/tile": 1, "llm/log": 6}  # fmt: skip
+    run = RecordingSummary(ref.path, ref, "id", 3, flown, run_log=True, gt_views=0)
+    assert describe(run, False) == (
+        "val_seen/1913__0_1: 3 decision(s), 18 image(s) (3 observation, 15 camera view), "
+        "6 LLM exchange(s), 0 pose(s), 0 obstacle sample(s)"
+    )
+    converted = {"camera/gt_observation": 4, "map/tile": 1}
+    episode = RecordingSummary(ref.path, ref, "id", 0, converted, run_log=False, gt_views=4)
+    assert describe(episode, False) == (
+        "val_seen/1913__0_1: 4 ground-truth view(s) (an episode log: no agent flew it), "
+        "4 image(s) (4 ground-truth view)"
+    )
+
+
+def test_a_recording_of_an_episode_log_counts_ground_truth_views_not_decisions(
+    tmp_path: Path,
+) -> None:
+    pytest.importorskip("rerun", reason="rerun-sdk is not installed (pip install '.[viewer]')")
+    from skyvln_eval.viewer import write_recording
+
+    (ref,) = find_episode_logs(_episode_log(tmp_path))
+    summary = write_recording(ref, tmp_path / "e.rrd")
+    line = describe(summary)  # the log's 3 GPS fixes were printed as "3 decision(s)"
+    assert "3 ground-truth view(s)" in line and "decision" not in line, line
+    assert (summary.run_log, summary.decisions, summary.gt_views) == (False, 0, 3)
