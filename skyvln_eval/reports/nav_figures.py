@@ -5,10 +5,12 @@ per system. The map figure takes a :class:`~skyvln_eval.worlds.WorldTile` and vi
 arrays (``(K, 4, 2)`` ``[lat, lng]``) and draws them with the tile's georeference.
 
 An ``error`` episode (it raised, or none of its LLM calls gave a usable answer) measured
-nothing: the first two figures leave it out and say so in the legend (``flaky (n=3, 1
-error left out)``; a system of errors only is named, not drawn); ``degraded`` episodes are
-drawn and counted in the legend. Systems the ground-truth oracle flew are labelled as
-references (:func:`~skyvln_eval.metrics.aggregate.oracle_systems`), dash-dotted.
+nothing: the NE histogram leaves it out and says so in the legend (``flaky (n=3, 1 error
+left out)``); the SR curve counts it as a failure, as the tables' SR does, and says so
+(``flaky (n=4, 1 error counted as a failure)``); a system of errors only is named, not
+drawn. ``degraded`` episodes are drawn and counted in the legend. Systems the
+ground-truth oracle flew are labelled as references
+(:func:`~skyvln_eval.metrics.aggregate.oracle_systems`), dash-dotted.
 """
 
 from __future__ import annotations
@@ -69,15 +71,19 @@ class _SystemRows:
     name: str  # the system, marked as a reference if the oracle flew it
     reference: bool
 
-    @property
-    def counts(self) -> str:
-        """What the legend says the line or histogram is made of, e.g. "n=3, 1 error left out"."""
-        parts = [f"n={len(self.drawn)}"]
+    def counts(self, errors_as_failures: bool = False) -> str:
+        """What the legend says the line or histogram is made of: "n=3, 1 error left out",
+        or with ``errors_as_failures`` "n=4, 1 error counted as a failure"."""
+        total = len(self.drawn) + (self.errors if errors_as_failures else 0)
+        parts = [f"n={total}"]
         degraded = int((self.drawn["status"] == "degraded").sum())
         if degraded:
             parts.append(f"{degraded} degraded")
         if self.errors:
-            parts.append(f"{self.errors} error{'s' if self.errors > 1 else ''} left out")
+            plural = "s" if self.errors > 1 else ""
+            failures = "failures" if plural else "a failure"
+            how = f"counted as {failures}" if errors_as_failures else "left out"
+            parts.append(f"{self.errors} error{plural} {how}")
         return ", ".join(parts)
 
     @property
@@ -114,9 +120,9 @@ def sr_vs_threshold_figure(
     """R2R success rate as a function of the success radius, per system.
 
     Uses ``r2r_ne_m`` (2-D or 3-D as the conventions say); the conventions' threshold is
-    marked. 'error' episodes are left out (the legend counts them), so with errors the
-    curve at the threshold is the SR of the episodes drawn, not the scores' SR, which
-    counts an error as a failure; a 'degraded' episode is scored on its views.
+    marked. An 'error' episode counts as a failure, as in the scores' SR (the legend
+    says how many; a system of errors only is named, not drawn as a 0% line); a
+    'degraded' episode is scored on its views.
     """
     thresholds = np.linspace(0.0, max_threshold_m, 401)
     figure = new_figure(6.0, 4.0)
@@ -127,14 +133,14 @@ def sr_vs_threshold_figure(
         if rows.drawn.empty:
             _name_only(ax, rows, f"C{k}")
             continue
-        sel = rows.drawn
+        sel = scores[scores["system"] == system]  # errors too: they count as failures
         ne = np.where(can_succeed(sel["status"], sel["n_views"] > 0), sel["r2r_ne_m"], np.inf)
         ax.plot(
             thresholds,
             success_rate_curve(ne, thresholds, conventions.strict_threshold),
             color=f"C{k}",
             ls=rows.style,
-            label=f"{rows.name} ({rows.counts})",
+            label=f"{rows.name} ({rows.counts(errors_as_failures=True)})",
         )
     ax.axvline(
         conventions.threshold_m,
@@ -175,7 +181,7 @@ def ne_distribution_figure(
             lw=1.4,
             ls=rows.style,
             color=f"C{k}",
-            label=f"{rows.name} ({rows.counts}; median {median:.1f} m)",
+            label=f"{rows.name} ({rows.counts()}; median {median:.1f} m)",
         )
         ax.axvline(median, color=f"C{k}", ls=":", lw=1.0)
     ax.set_xlabel("navigation error NE (m)")

@@ -158,10 +158,10 @@ def test_matplotlib_is_loaded_by_the_first_figure_not_by_the_command_line() -> N
     assert modules_loaded_by("skyvln_eval.reports", ("matplotlib",)) == []
 
 
-def test_the_sr_curve_reads_the_scores_sr_of_the_episodes_it_draws() -> None:
-    # A degraded episode is scored on its views (its success counts); an error one is left
-    # out (it measured nothing): at the conventions' threshold the curve reads the scores'
-    # SR@d of the other episodes, and the legend says one was left out.
+def test_the_sr_curve_reads_the_scores_sr() -> None:
+    # A degraded episode is scored on its views (its success counts); an error one counts
+    # as a failure, as in the scores' SR (and the tables'): at the conventions' threshold
+    # the curve reads the scores' SR@d, and the legend says how the error was counted.
     g = [square(0, 0), square(100, 0)]
     statuses = ["ok", "degraded", "error", "ok"]
     results = [
@@ -174,9 +174,8 @@ def test_the_sr_curve_reads_the_scores_sr_of_the_episodes_it_draws() -> None:
     curve = figure.get_axes()[0].get_lines()[0]
     thresholds, rates = curve.get_data()
     at = int(np.searchsorted(np.asarray(thresholds), conventions.threshold_m))
-    drawn = scores[scores["status"] != "error"]
-    assert np.asarray(rates)[at] == pytest.approx(100.0 * drawn["r2r_sr"].mean()) == 100.0
-    assert curve.get_label() == "agent (n=3, 1 degraded, 1 error left out)"
+    assert np.asarray(rates)[at] == pytest.approx(100.0 * scores["r2r_sr"].mean()) == 75.0
+    assert curve.get_label() == "agent (n=4, 1 degraded, 1 error counted as a failure)"
 
 
 def _statuses_and_a_reference() -> pd.DataFrame:
@@ -204,13 +203,13 @@ def test_error_episodes_are_not_drawn_as_results_and_references_are_named() -> N
     sr = sr_vs_threshold_figure(scores, MetricConventions(), max_threshold_m=100.0)
     assert _legend(sr) == [
         "dead (4 of 4 episodes error: not drawn)",
-        "flaky (n=3, 1 degraded, 1 error left out)",
+        "flaky (n=4, 1 degraded, 1 error counted as a failure)",
         "truth, reference: ground-truth oracle (n=2)",
         "d_th = 20 m",
     ]
     lines = sr.get_axes()[0].get_lines()
     assert len(lines[0].get_xdata()) == 0  # 'dead': a name in the legend, no line
-    assert np.asarray(lines[1].get_ydata())[-1] == pytest.approx(100.0)  # 3 of 3 drawn
+    assert np.asarray(lines[1].get_ydata())[-1] == pytest.approx(75.0)  # the error failed
     assert lines[2].get_linestyle() == "-."  # the reference, apart from the agents
     ne = ne_distribution_figure(scores)
     assert _legend(ne) == [
