@@ -123,3 +123,15 @@ def test_the_table_command_makes_the_same_table(tmp_path: Path) -> None:
     )  # test_unseen only: SR/SPL columns of Unseen Testing
     assert table1.exit_code == 0, table1.output
     assert "| dead | - | - | - | - | error | error |" in table1.output
+
+
+def test_scores_without_the_backend_column_read_and_rank_as_labelled(tmp_path: Path) -> None:
+    # Files scored before results said what answered the LLM calls: no stand-in is known.
+    path = tmp_path / "scores.csv"
+    write_scores(path, _scores().drop(columns=["llm_backend"]), MetricConventions())
+    back, conventions = read_scores(path)
+    assert back["llm_backend"].isna().all()
+    table = paper_table(back, TABLE_II, conventions)
+    rule = table.cells["rule"][("test_unseen", "llm_cost_usd")]
+    assert rule is not None and rule.rank == 1  # ranked: nothing says it is a stand-in
+    assert "Not ranked" not in to_markdown(table)
