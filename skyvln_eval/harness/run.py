@@ -278,10 +278,13 @@ class Progress:
 
 
 def _success(result: EpisodeResult) -> bool | None:
-    """Whether the episode reached its goal; ``None`` when its ground truth is withheld."""
+    """Whether the episode reached its goal, as its scores will say under the default
+    conventions (an error or a crash never succeeds); ``None`` when its ground truth is
+    withheld."""
     if not result.has_ground_truth:
         return None
-    if len(result.visited_views) == 0:
+    crashed = result.control is not None and result.control.collided
+    if len(result.visited_views) == 0 or result.status == "error" or crashed:
         return False
     return official_success(result.visited_views[-1], result.gt_path_corners[-1])
 

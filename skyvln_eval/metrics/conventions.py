@@ -5,7 +5,8 @@ length and the DTW flavour; a number without its conventions cannot be compared.
 scores file, table and CSV this package writes carries ``MetricConventions.to_dict()``.
 
 The official AVDN metrics (success, oracle success, SPL, GP) do not depend on these
-choices except ``legacy_gp``; they always use hull-IoU 0.4 and flat 2-D degrees.
+choices except ``legacy_gp`` and ``collision_fails``; they always use hull-IoU 0.4 and
+flat 2-D degrees.
 """
 
 from __future__ import annotations
@@ -23,8 +24,9 @@ if TYPE_CHECKING:
 
 DistanceMode = Literal["2d", "3d"]
 
-#: Version of the metric definitions; bumped when a formula changes.
-METRICS_VERSION = 1
+#: Version of the metric definitions; bumped when a formula changes (2: a flight that
+#: touched an obstacle never succeeds, ``collision_fails``).
+METRICS_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -39,6 +41,12 @@ class MetricConventions:
     - ``strict_threshold``: success is ``NE < threshold_m`` if true, ``<=`` if false.
     - ``legacy_gp``: official GP against ``G[N-2]`` instead of ``G[N-1]``, as the
       official code computed it until November 2023.
+    - ``collision_fails``: an episode whose flight touched an obstacle (dynamics mode)
+      never succeeds (SR, OSR, SPL, R2R SR/OSR/SPL/SDTW are 0 for it), as an episode
+      that ended in error never does: a crashed drone did not complete its task, and by
+      default the crash ends the flight where it happened, which may lie in the
+      destination's view (AVDN's success reads the final view only) with a path shorter
+      than the shortest one, an SPL of 1. False scores such flights on their views alone.
     - ``success_iou``: the official hull-IoU threshold (fixed at 0.4; recorded only).
     - ``metrics_version``: version of the formulas in this package.
 
@@ -50,6 +58,7 @@ class MetricConventions:
     threshold_m: float = 20.0
     strict_threshold: bool = True
     legacy_gp: bool = False
+    collision_fails: bool = True
     success_iou: float = SUCCESS_IOU
     spl_reference: Literal["gt_path_length"] = "gt_path_length"
     dtw: Literal["exact_euclidean"] = "exact_euclidean"
@@ -84,10 +93,15 @@ class MetricConventions:
         """A one-line human summary for table footnotes."""
         cmp = "<" if self.strict_threshold else "<="
         gp = "G[N-2] (legacy)" if self.legacy_gp else "G[N-1]"
+        crash = (
+            "a flight that touched an obstacle never succeeds"
+            if self.collision_fails
+            else "flights that touched an obstacle are scored on their views alone"
+        )
         return (
             f"official AVDN SR/OSR/SPL (hull-IoU {self.success_iou}), GP vs {gp}; "
             f"R2R family on {self.distance.upper()} view centres, success NE {cmp} "
-            f"{self.threshold_m:g} m, SPL vs GT path length, exact Euclidean DTW "
+            f"{self.threshold_m:g} m, SPL vs GT path length, exact Euclidean DTW; {crash} "
             f"(metrics v{self.metrics_version})"
         )
 

@@ -64,11 +64,26 @@ METRIC_UNITS: dict[str, str] = {
 }
 
 
-def can_succeed(statuses: ArrayLike, flew: ArrayLike) -> NDArray[np.bool_]:
+def can_succeed(
+    statuses: ArrayLike, flew: ArrayLike, crashed: ArrayLike | None = None
+) -> NDArray[np.bool_]:
     """Which episodes a success can be counted for: an 'error' episode never succeeds,
-    whatever it flew (its distances still describe its path); a 'degraded' one is scored
+    whatever it flew (its distances still describe its path); nor does one whose flight
+    ``crashed`` into an obstacle (see :func:`crashed_flights`); a 'degraded' one is scored
     on its views like an 'ok' one; an episode with no view flew nothing."""
-    return (np.asarray(statuses) != "error") & np.asarray(flew, dtype=bool)
+    ok = (np.asarray(statuses) != "error") & np.asarray(flew, dtype=bool)
+    if crashed is not None:
+        ok &= ~np.asarray(crashed, dtype=bool)
+    return ok
+
+
+def crashed_flights(scores: pd.DataFrame, conventions: MetricConventions) -> NDArray[np.bool_]:
+    """Which rows of a scores frame flew into an obstacle and so cannot succeed under
+    ``conventions`` (``collision_fails``); none without the ``collided`` column (runs
+    without control) or with the convention off."""
+    if not conventions.collision_fails or "collided" not in scores.columns:
+        return np.zeros(len(scores), dtype=bool)
+    return scores["collided"].astype("Float64").fillna(0.0).to_numpy(np.float64) > 0.0
 
 
 def score_results(
@@ -93,7 +108,11 @@ def score_results(
     visited = pack_views(
         [r.visited_views for r in results], stand_ins=[r.gt_path_corners[0] for r in results]
     )
-    ok = can_succeed(np.array([r.status for r in results]), ~visited.empty)
+    crashed = [
+        conventions.collision_fails and r.control is not None and r.control.collided
+        for r in results
+    ]
+    ok = can_succeed(np.array([r.status for r in results]), ~visited.empty, crashed)
     frame = pd.DataFrame(
         {
             "system": [r.system for r in results],

@@ -51,7 +51,7 @@ def _mode(mode: str) -> EpisodeMode:
 
 
 def _conventions(
-    threshold_m: float, distance: str, non_strict: bool, legacy_gp: bool
+    threshold_m: float, distance: str, non_strict: bool, legacy_gp: bool, collisions_succeed: bool
 ) -> MetricConventions:
     from skyvln_eval.metrics import MetricConventions
 
@@ -62,6 +62,7 @@ def _conventions(
         threshold_m=threshold_m,
         strict_threshold=not non_strict,
         legacy_gp=legacy_gp,
+        collision_fails=not collisions_succeed,
     )
 
 
@@ -181,6 +182,14 @@ def score(
     legacy_gp: Annotated[
         bool, typer.Option("--legacy-gp", help="Official GP against G[N-2] (pre-Nov-2023 code)")
     ] = False,
+    collisions_succeed: Annotated[
+        bool,
+        typer.Option(
+            "--collisions-succeed",
+            help="Score flights that touched an obstacle on their views alone (default: "
+            "they never succeed)",
+        ),
+    ] = False,
     resamples: Annotated[
         int, typer.Option(min=0, help="Bootstrap resamples for the 95% CIs (0: no CIs)")
     ] = 1000,
@@ -209,7 +218,7 @@ def score(
     from skyvln_eval.reports.run_coverage import covered_results
 
     data_dir = None if data_dir_text is None else _data_dir(data_dir_text)
-    conventions = _conventions(threshold_m, distance, non_strict, legacy_gp)
+    conventions = _conventions(threshold_m, distance, non_strict, legacy_gp, collisions_succeed)
     sources, missing = _load_results(results, data_dir, split, mode, system, allow_incomplete)
     loaded, warnings = covered_results(sources, data_dir, allow_incomplete)
     warnings = [*missing, *warnings]

@@ -27,7 +27,7 @@ from skyvln_eval.errors import MetricInputError
 from skyvln_eval.metrics.aggregate import oracle_systems
 from skyvln_eval.metrics.conventions import MetricConventions
 from skyvln_eval.metrics.records import EpisodeResult
-from skyvln_eval.metrics.scoring import can_succeed
+from skyvln_eval.metrics.scoring import can_succeed, crashed_flights
 from skyvln_eval.reports.render import new_figure
 from skyvln_eval.worlds.tile import WorldTile
 
@@ -64,33 +64,33 @@ def _systems(scores: pd.DataFrame, systems: Sequence[str] | None) -> list[str]:
 
 @dataclass(frozen=True)
 class _SystemRows:
-    """One system's episodes as a figure shows them: the drawn ones and its legend text."""
+    """One system's episodes as a figure shows them, and its legend text."""
 
-    drawn: pd.DataFrame  # every episode but the 'error' ones
-    errors: int  # 'error' episodes, left out
+    rows: pd.DataFrame  # every episode, 'error' ones included
+    errors: int  # how many of them ended in error
     name: str  # the system, marked as a reference if the oracle flew it
     reference: bool
 
-    def counts(self, errors_as_failures: bool = False) -> str:
-        """What the legend says the line or histogram is made of: "n=3, 1 error left out",
-        or with ``errors_as_failures`` "n=4, 1 error counted as a failure"."""
-        total = len(self.drawn) + (self.errors if errors_as_failures else 0)
-        parts = [f"n={total}"]
-        degraded = int((self.drawn["status"] == "degraded").sum())
+    @property
+    def all_errors(self) -> bool:
+        return self.errors == len(self.rows)
+
+    def counts(self, errors_are: str) -> str:
+        """What the legend says the line or histogram is made of, e.g. "n=4, 1 degraded,
+        1 error counted as a failure": ``errors_are`` says how the errors are shown."""
+        parts = [f"n={len(self.rows)}"]
+        degraded = int((self.rows["status"] == "degraded").sum())
         if degraded:
             parts.append(f"{degraded} degraded")
         if self.errors:
             plural = "s" if self.errors > 1 else ""
-            failures = "failures" if plural else "a failure"
-            how = f"counted as {failures}" if errors_as_failures else "left out"
-            parts.append(f"{self.errors} error{plural} {how}")
+            parts.append(f"{self.errors} error{plural} {errors_are}")
         return ", ".join(parts)
 
     @property
     def label_when_empty(self) -> str:
-        """The legend entry of a system none of whose episodes can be drawn."""
-        n = len(self.drawn) + self.errors
-        return f"{self.name} ({self.errors} of {n} episodes error: not drawn)"
+        """The legend entry of a system whose episodes all ended in error."""
+        return f"{self.name} ({self.errors} of {len(self.rows)} episodes error: not drawn)"
 
     @property
     def style(self) -> str:
@@ -99,11 +99,10 @@ class _SystemRows:
 
 def _system_rows(scores: pd.DataFrame, system: str, references: Sequence[str]) -> _SystemRows:
     sel = scores[scores["system"] == system]
-    # An error episode's distances describe whatever it flew before it failed: not a result.
-    error = (sel["status"] == "error").to_numpy(bool)
+    errors = int((sel["status"] == "error").sum())
     reference = system in references
     name = f"{system}, reference: ground-truth oracle" if reference else system
-    return _SystemRows(sel[~error], int(error.sum()), name, reference)
+    return _SystemRows(sel, errors, name, reference)
 
 
 def _name_only(ax: Axes, rows: _SystemRows, colour: str) -> None:
@@ -120,27 +119,36 @@ def sr_vs_threshold_figure(
     """R2R success rate as a function of the success radius, per system.
 
     Uses ``r2r_ne_m`` (2-D or 3-D as the conventions say); the conventions' threshold is
-    marked. An 'error' episode counts as a failure, as in the scores' SR (the legend
-    says how many; a system of errors only is named, not drawn as a 0% line); a
-    'degraded' episode is scored on its views.
+    marked. An episode that cannot succeed counts as a failure, as in the scores' SR: one
+    that ended in error (the legend says how many; a system of errors only is named, not
+    drawn as a 0% line) and, under the conventions' ``collision_fails``, one whose flight
+    touched an obstacle (the legend says how many crashed); a 'degraded' episode is
+    scored on its views. The curve pools every split of the scores given.
     """
     thresholds = np.linspace(0.0, max_threshold_m, 401)
-    figure = new_figure(6.0, 4.0)
+    figure = new_figure(6.0, 5.5)
     ax = figure.subplots()
     references = oracle_systems(scores)
     for k, system in enumerate(_systems(scores, systems)):
         rows = _system_rows(scores, system, references)
-        if rows.drawn.empty:
+        if rows.all_errors:
             _name_only(ax, rows, f"C{k}")
             continue
-        sel = scores[scores["system"] == system]  # errors too: they count as failures
-        ne = np.where(can_succeed(sel["status"], sel["n_views"] > 0), sel["r2r_ne_m"], np.inf)
+        sel = rows.rows
+        crashed = crashed_flights(sel, conventions)
+        ne = np.where(
+            can_succeed(sel["status"], sel["n_views"] > 0, crashed), sel["r2r_ne_m"], np.inf
+        )
+        plural = "s" if rows.errors > 1 else ""
+        label = rows.counts(f"counted as failure{plural}" if plural else "counted as a failure")
+        if crashed.any():
+            label += f", {int(crashed.sum())} crashed (failures)"
         ax.plot(
             thresholds,
             success_rate_curve(ne, thresholds, conventions.strict_threshold),
             color=f"C{k}",
             ls=rows.style,
-            label=f"{rows.name} ({rows.counts(errors_as_failures=True)})",
+            label=f"{rows.name} ({label})",
         )
     ax.axvline(
         conventions.threshold_m,
@@ -150,21 +158,30 @@ def sr_vs_threshold_figure(
         label=f"d_th = {conventions.threshold_m:g} m",
     )
     ax.set_xlabel(f"success threshold (m, {conventions.distance.upper()} view centres)")
-    ax.set_ylabel("success rate (%)")
+    splits = ", ".join(dict.fromkeys(scores["split"].astype(str)))
+    ax.set_ylabel("R2R success rate (%): NE under the threshold")
+    ax.set_title(f"episodes of {splits} pooled", fontsize="small")
     ax.set_ylim(0, 100)
     ax.grid(True, lw=0.3)
-    ax.legend(fontsize="small")
+    # Below the axes: inside, the legend of a few systems covers their curves.
+    ax.legend(fontsize="small", loc="upper center", bbox_to_anchor=(0.5, -0.18), ncol=1)
     return figure
 
 
 def ne_distribution_figure(
     scores: pd.DataFrame, systems: Sequence[str] | None = None, bins: int = 30
 ) -> Figure:
-    """Histogram of the official NE (metres) per system, with each median marked; 'error'
-    episodes are left out (the legend counts them)."""
+    """Histogram of the official NE (metres) per system, with each median marked. An
+    'error' episode counts where it stopped, as in the tables' NE (the legend counts
+    them): leaving it out would flatter a system whose failures stop it far away. A
+    system whose episodes all ended in error is named, not drawn (its table cell reads
+    'error', not a number)."""
     references = oracle_systems(scores)
     every = [_system_rows(scores, system, references) for system in _systems(scores, systems)]
-    drawn = [rows.drawn["ne_m"].to_numpy(np.float64) for rows in every]
+    drawn = [
+        rows.rows["ne_m"].to_numpy(np.float64) if not rows.all_errors else np.empty(0)
+        for rows in every
+    ]
     top = max((float(ne.max()) for ne in drawn if len(ne)), default=0.0) or 1.0
     edges = np.linspace(0.0, top, bins + 1)
     figure = new_figure(6.0, 4.0)
@@ -174,6 +191,7 @@ def ne_distribution_figure(
             _name_only(ax, rows, f"C{k}")
             continue
         median = float(np.median(ne))
+        where = "at where it stopped" if rows.errors == 1 else "at where they stopped"
         ax.hist(
             ne,
             bins=list(edges),
@@ -181,7 +199,7 @@ def ne_distribution_figure(
             lw=1.4,
             ls=rows.style,
             color=f"C{k}",
-            label=f"{rows.name} ({rows.counts()}; median {median:.1f} m)",
+            label=f"{rows.name} ({rows.counts(where)}; median {median:.1f} m)",
         )
         ax.axvline(median, color=f"C{k}", ls=":", lw=1.0)
     ax.set_xlabel("navigation error NE (m)")

@@ -112,6 +112,7 @@ def paper_table(
     ]
     shown = rows if rows is not None else list(dict.fromkeys(summary["system"]))
     asked = _questions_note(scores, shown, spec, mode)
+    crashes = _crashes_note(scores, shown, spec, mode, conventions)
     return build_table(
         summary,
         spec,
@@ -120,7 +121,7 @@ def paper_table(
         mode,
         digits,
         show_ci,
-        list(dict.fromkeys([*notes, *sorted(set(marker_notes)), *asked])),
+        list(dict.fromkeys([*notes, *sorted(set(marker_notes)), *crashes, *asked])),
         unranked=references,
         withheld=withheld,
     )
@@ -148,6 +149,36 @@ def _questions_note(
         "Questions asked of the simulated commander, who knows the goal (help the other "
         f"rows did not get): {'; '.join(parts)}."
     ]
+
+
+def _crashes_note(
+    scores: pd.DataFrame,
+    rows: Sequence[str],
+    spec: TableSpec,
+    mode: str,
+    conventions: MetricConventions,
+) -> list[str]:
+    """How many episodes of each cell flew into an obstacle, and how they were scored: a
+    success rate means something else when most flights crashed."""
+    if "collided" not in scores.columns:
+        return []
+    titles = dict(spec.groups)
+    sel = scores[scores["split"].isin(titles) & (scores["mode"] == mode)]
+    parts = []
+    for row in rows:
+        for split, title in spec.groups:
+            cell = sel.loc[(sel["system"] == row) & (sel["split"] == split), "collided"]
+            crashed = int((cell.astype("Float64").fillna(0.0) > 0.0).sum())
+            if crashed:
+                parts.append(f"{row} on {title} {crashed} of {len(cell)}")
+    if not parts:
+        return []
+    how = (
+        "count as failures (0 in SR and SPL; distances as flown, to the crash)"
+        if conventions.collision_fails
+        else "are scored on their views alone (--collisions-succeed)"
+    )
+    return [f"Episodes whose flight touched an obstacle, which {how}: {'; '.join(parts)}."]
 
 
 def _marked_labels(stand_ins: dict[str, str]) -> dict[str, str]:

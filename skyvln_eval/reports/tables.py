@@ -410,7 +410,8 @@ def _error_notes(
         return []
     return [
         f"{SOME_ERRORS} some episodes ended in error (no usable LLM answer, or the episode "
-        f"raised) and count as failures; 'error': all of them did: {'; '.join(some)}."
+        "raised): they count as failures (0 in SR and SPL; NE as flown, to where they stopped); "
+        f"'error': all of them did: {'; '.join(some)}."
     ]
 
 

@@ -13,6 +13,7 @@ from skyvln_eval.errors import DataError
 from skyvln_eval.metrics import (
     CONTROL_LOG_COLUMNS,
     LlmCall,
+    MetricConventions,
     control_metrics,
     read_control_log,
     score_results,
@@ -97,6 +98,31 @@ def test_control_summaries_reach_the_scores_without_nan_in_averages() -> None:
     assert summary.loc["min_clearance_m", "n"] == 1  # only the episode with obstacles
     assert summary.loc["collided", "n"] == 2 and summary.loc["collided", "mean"] == 50.0
     assert summary.loc["success", "n"] == 3
+
+
+def test_a_flight_that_touched_an_obstacle_never_succeeds_unless_the_conventions_say() -> None:
+    # A crash ends the flight where it happened: here in the destination's view, with a
+    # path shorter than the shortest one. On its views alone it would succeed with SPL 1.
+    g = [square(0, 0), square(50, 0), square(100, 0)]
+    crashed = summarise_control(control_log("nmpc", "dynamic"))
+    assert crashed.collided
+    safe = summarise_control(control_log())
+    results = [
+        result([g[0], square(95, 0)], g, episode_id="crash", control=crashed),
+        result([g[0], square(95, 0)], g, episode_id="safe", control=safe),
+    ]
+    scores = score_results(results).set_index("episode_id")
+    for metric in ("success", "oracle_success", "spl", "r2r_sr", "r2r_osr", "r2r_spl", "sdtw"):
+        assert scores.loc["crash", metric] == 0.0, metric
+        assert scores.loc["safe", metric] > 0.0, metric
+    # Where it ended is still measured: NE and GP as flown.
+    assert scores.loc["crash", "ne_m"] == scores.loc["safe", "ne_m"]
+    assert scores.loc["crash", "gp_m"] == scores.loc["safe", "gp_m"]
+    lenient = MetricConventions(collision_fails=False)
+    on_views = score_results(results, lenient).set_index("episode_id")
+    assert on_views.loc["crash", "success"] == 1.0 and on_views.loc["crash", "spl"] == 1.0
+    assert "never succeeds" in MetricConventions().describe()
+    assert "on their views alone" in lenient.describe()
 
 
 def _call(module: str, **fields: object) -> LlmCall:

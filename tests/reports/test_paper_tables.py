@@ -135,3 +135,27 @@ def test_scores_without_the_backend_column_read_and_rank_as_labelled(tmp_path: P
     rule = table.cells["rule"][("test_unseen", "llm_cost_usd")]
     assert rule is not None and rule.rank == 1  # ranked: nothing says it is a stand-in
     assert "Not ranked" not in to_markdown(table)
+
+
+def test_table_i_says_how_many_flights_crashed_and_how_they_were_scored() -> None:
+    # An audit found a controller row with 29 of 30 flights crashed reading as an SR of
+    # 30%, crashes landing in the destination's view scored as successes with SPL 1.
+    from skyvln_eval.metrics import summarise_control
+    from tests.metrics.test_safety_and_cost import control_log
+
+    crashed = summarise_control(control_log("pid", "dynamic"))
+    results = [
+        result(GOAL, GOAL, system="w PID", episode_id=f"1913__{k}_1", control=crashed)
+        for k in range(2)
+    ] + [result(GOAL, GOAL, system="w PID", episode_id="1913__9_1")]
+    scores = score_results(results, MetricConventions())
+    md = to_markdown(paper_table(scores, TABLE_I, MetricConventions()))
+    assert "| w PID | 33.33 | 33.33 |" in md  # the two crashed flights failed
+    assert (
+        "Episodes whose flight touched an obstacle, which count as failures (0 in SR and "
+        "SPL; distances as flown, to the crash): w PID on Seen Validation 2 of 3." in md
+    )
+    lenient = MetricConventions(collision_fails=False)
+    on_views = to_markdown(paper_table(score_results(results, lenient), TABLE_I, lenient))
+    assert "| w PID | 100.00 | 100.00 |" in on_views
+    assert "are scored on their views alone (--collisions-succeed)" in on_views
