@@ -57,6 +57,12 @@ from skyvln_eval.reports.paper_tables import (
     stand_in_kind,
     table_metrics,
 )
+from skyvln_eval.reports.table_layout import (
+    LAYOUT_FILE,
+    ReproducedTables,
+    TableLayout,
+    write_layout,
+)
 
 TABLE_METRICS = ("success", "oracle_success", "spl", "gp_m", "ne_m", "path_length_m")
 HEALTH_METRICS = (
@@ -171,10 +177,15 @@ def _write_tables(
     files: dict[str, Path] = {}
     table1_rows, table1_notes = table1
     setting = [setting_note(plan)]
-    for name, spec, rows, notes in (
-        ("table1", TABLE_I, table1_rows, [*setting, *table1_notes]),
-        ("table2", TABLE_II, table2_rows, setting),
-    ):
+    layouts = {
+        "table1": TableLayout(tuple(table1_rows), (*setting, *table1_notes)),
+        "table2": TableLayout(tuple(table2_rows), tuple(setting)),
+    }
+    # Which rows and notes each table has, for `skyvln-eval table` on these scores.
+    layout = ReproducedTables(layouts, plan.resamples, plan.seed, tuple(withheld))
+    files[LAYOUT_FILE] = write_layout(tables_dir.parent / "scores", layout)
+    for name, spec in (("table1", TABLE_I), ("table2", TABLE_II)):
+        rows, notes = list(layouts[name].rows), list(layouts[name].notes)
         shape = functools.partial(
             paper_table, scores, spec, conventions, summary=summary, rows=rows, notes=notes,
             withheld=withheld,

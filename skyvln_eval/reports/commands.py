@@ -267,16 +267,26 @@ def table(
             "rest; a note says which)",
         ),
     ] = False,
-    resamples: Annotated[int, typer.Option(min=1, help="Bootstrap resamples with --ci")] = 1000,
-    seed: Annotated[int, typer.Option(help="Bootstrap seed")] = 0,
+    resamples: Annotated[
+        int | None,
+        typer.Option(min=1, help="Bootstrap resamples with --ci (default: reproduce's, else 1000)"),
+    ] = None,
+    seed: Annotated[
+        int | None, typer.Option(help="Bootstrap seed (default: reproduce's, else 0)")
+    ] = None,
     digits: Annotated[int, typer.Option(min=0, max=6, help="Decimals")] = 2,
     out: Annotated[Path | None, typer.Option(help="Write here instead of printing")] = None,
 ) -> None:
     """Render a paper-style table from scores files, as `reproduce` does: systems the
-    ground-truth oracle flew (and, in Table II, stand-ins) are references, never ranked."""
+    ground-truth oracle flew (and, in Table II, stand-ins) are references, never ranked.
+
+    Given the scores.csv a reproduction wrote (its tables.json beside it) and no --row,
+    the table has that reproduction's rows, order and notes: the file it wrote. Other
+    scores show every system, in the order the scores list them."""
     from skyvln_eval.fileio import atomic_write_text
     from skyvln_eval.metrics.scores_io import read_many_scores
     from skyvln_eval.reports.paper_tables import paper_table
+    from skyvln_eval.reports.table_layout import layout_beside
     from skyvln_eval.reports.tables import RENDERERS, TABLES
 
     if kind not in TABLES:
@@ -284,16 +294,20 @@ def table(
     if fmt not in RENDERERS:
         raise ConfigError(f"--format must be one of {sorted(RENDERERS)}, not {fmt!r}")
     frame, conventions = read_many_scores(scores)
+    layout = layout_beside(scores)
+    made = layout.tables.get(kind) if layout is not None else None
     shaped = paper_table(
         frame,
         TABLES[kind],
         conventions,
-        rows=row,
+        rows=row or (list(made.rows) if made is not None else None),
+        notes=made.notes if made is not None and not row else (),
         mode=mode,
         digits=digits,
         show_ci=ci,
-        resamples=resamples,
-        seed=seed,
+        resamples=resamples or (layout.resamples if layout is not None else 1000),
+        seed=seed if seed is not None else (layout.seed if layout is not None else 0),
+        withheld=layout.withheld if layout is not None else (),
     )
     text = RENDERERS[fmt](shaped)
     if out is None:

@@ -89,8 +89,8 @@ def paper_table(
     ``summary``: a summary of ``scores`` already made (with :func:`table_metrics` among
     its metrics, and intervals when ``show_ci``); else one is made here (``resamples``
     bootstrap resamples with ``seed`` when ``show_ci``). ``rows``: systems in order
-    (default: all); ``notes``: footnotes of the caller's; ``withheld``: splits whose
-    ground truth is withheld.
+    (default: all of ``mode``, in the order the scores list them); ``notes``: footnotes
+    of the caller's; ``withheld``: splits whose ground truth is withheld.
     """
     stand_ins = stand_in_systems(scores)
     labels = _marked_labels(stand_ins) if spec is TABLE_I else {}
@@ -99,6 +99,8 @@ def paper_table(
         if summary is not None:
             summary = summary.assign(system=summary["system"].replace(labels))
         rows = None if rows is None else [labels.get(r, r) for r in rows]
+    if rows is None:  # every system of the mode, in the order the scores list them
+        rows = list(dict.fromkeys(scores.loc[scores["mode"] == mode, "system"])) or None
     if summary is None:
         metrics = [m for m in table_metrics(spec) if m in scores.columns]
         summary = summarise(scores, metrics, resamples if show_ci else 0, seed=seed)
@@ -110,7 +112,7 @@ def paper_table(
         for system, kind in stand_ins.items()
         if spec is TABLE_I and (rows is None or labels.get(system, system) in rows)
     ]
-    shown = rows if rows is not None else list(dict.fromkeys(summary["system"]))
+    shown = rows if rows is not None else []
     asked = _questions_note(scores, shown, spec, mode)
     crashes = _crashes_note(scores, shown, spec, mode, conventions)
     return build_table(

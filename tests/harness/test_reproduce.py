@@ -118,6 +118,20 @@ def test_a_small_plan_writes_tables_figures_and_summary_and_resumes(
     else:
         assert not recordings and "pip install 'skyvln-eval[viewer]'" in summary
 
+    # `table` on the scores reproduce wrote makes the files it wrote (its tables.json says
+    # which rows, in which order, with which notes), in every format and with intervals.
+    scores = str(report.files["scores.csv"])
+    for kind, fmt, name, extra in (
+        ("table1", "md", "table1.md", []),
+        ("table1", "latex", "table1.tex", []),
+        ("table1", "csv", "table1.csv", []),
+        ("table1", "md", "table1_ci.md", ["--ci"]),
+        ("table2", "md", "table2.md", []),
+        ("table2", "md", "table2_ci.md", ["--ci"]),
+    ):
+        made = CliRunner().invoke(app, ["table", scores, "--kind", kind, "--format", fmt, *extra])
+        assert made.exit_code == 0, made.output
+        assert made.output == report.files[name].read_text(), name
     again = reproduce(plan, tmp_path / "out", workers=1, executor="serial")
     assert all(r.ran_now == 0 for r in again.reports)
     assert again.files["table1.md"].read_text() == table1  # same results, same table

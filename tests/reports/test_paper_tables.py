@@ -90,7 +90,7 @@ def test_table_ii_marks_errors_references_unequal_episodes_and_cache_replays() -
     rule = table.cells["rule"][("test_unseen", "success")]
     assert rule is not None and rule.mean == 100.0 and rule.rank is None  # a reference
     assert "Not ranked (a reference, not a competitor): rule." in md
-    assert "Rows ran different numbers of episodes: Unseen Testing: dead 2, gemma 2, rule 3." in md
+    assert "Rows ran different numbers of episodes: Unseen Testing: gemma 2, dead 2, rule 3." in md
     assert "Replayed from the response cache" in md and "gemma on Unseen Testing: 50%" in md
     assert "simulated commander, who knows the goal" in md and "gemma 1 in 1 of 2 episodes" in md
 
