@@ -13,9 +13,11 @@ from __future__ import annotations
 import datetime as dt
 import json
 import os
+import re
 import shlex
 import socket
 import sys
+from collections.abc import Collection, Mapping
 from pathlib import Path
 from typing import IO, Any
 
@@ -115,12 +117,42 @@ def hold_run_dir(run_dir: str | Path) -> RunDirLock:
     return lock
 
 
-def remove_leftover_temporaries(run_dir: str | Path) -> int:
-    """Delete the temporary files (``.<name>.<random>.tmp``) that writers killed before
-    their rename left in the run directory; only the lock's holder may. Returns how many."""
+#: A temporary file of :func:`~skyvln_eval.fileio.atomic_write_bytes` and the MCAP
+#: writer: ``tempfile.mkstemp(prefix=".<name>.", suffix=".tmp")``, 8 random characters.
+_TEMPORARY = re.compile(r"^\.(?P<target>.+)\.[a-z0-9_]{8}\.tmp$")
+
+
+def remove_leftover_temporaries(
+    run_dir: str | Path, top_level: Collection[str], folders: Mapping[str, Collection[str]]
+) -> int:
+    """Delete the temporary files that writers killed before their rename left in the run
+    directory; only the lock's holder may. Returns how many.
+
+    Only the run's own: at the top, those of the files in ``top_level``; under each
+    folder of ``folders`` (any depth), those of files with one of its suffixes. A run
+    directory may be a folder that holds other things (``--out .``): a file that merely
+    looks temporary is not the run's to delete.
+    """
+    run_dir = Path(run_dir)
+    found = [(p, p.name) for p in run_dir.glob(".*.tmp")]
+    for folder, suffixes in folders.items():
+        found += [
+            (p, p.name)
+            for p in (run_dir / folder).rglob(".*.tmp")
+            if _target_suffix(p.name) in suffixes
+        ]
     removed = 0
-    for leftover in Path(run_dir).rglob(".*.tmp"):
-        if leftover.is_file():
-            leftover.unlink(missing_ok=True)
-            removed += 1
+    for leftover, name in found:
+        match = _TEMPORARY.match(name)
+        if match is None or not leftover.is_file():
+            continue
+        if leftover.parent == run_dir and match["target"] not in top_level:
+            continue
+        leftover.unlink(missing_ok=True)
+        removed += 1
     return removed
+
+
+def _target_suffix(name: str) -> str | None:
+    match = _TEMPORARY.match(name)
+    return None if match is None else Path(match["target"]).suffix

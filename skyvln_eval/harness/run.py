@@ -41,8 +41,14 @@ from skyvln_eval.harness.lock import RunDirLock, hold_run_dir, remove_leftover_t
 from skyvln_eval.harness.official_loop import official_success
 from skyvln_eval.harness.preflight import preflight
 from skyvln_eval.harness.provenance import provenance
-from skyvln_eval.harness.runner import EpisodeTask, failed_result, run_episode_task
-from skyvln_eval.harness.store import ResultStore, RowKey, key_of
+from skyvln_eval.harness.runner import (
+    CONTROL_DIR,
+    LOGS_DIR,
+    EpisodeTask,
+    failed_result,
+    run_episode_task,
+)
+from skyvln_eval.harness.store import DAMAGED_FILE, RESULTS_FILE, ResultStore, RowKey, key_of
 from skyvln_eval.llm_records import LlmCall
 from skyvln_eval.metrics.records import EpisodeResult
 from skyvln_eval.paths import cache_root
@@ -50,6 +56,10 @@ from skyvln_eval.paths import cache_root
 CONFIG_FILE = "config.yaml"
 VERSIONS_FILE = "versions.json"
 REPORT_FILE = "run.json"
+#: The files a run writes at its top level and the folders of its per-episode files
+#: (with their suffixes): the only temporaries a launch may clean up after a killed one.
+RUN_FILES = frozenset({CONFIG_FILE, VERSIONS_FILE, REPORT_FILE, RESULTS_FILE, DAMAGED_FILE})
+RUN_FOLDERS = {LOGS_DIR: frozenset({".mcap"}), CONTROL_DIR: frozenset({".parquet"})}
 #: Episode logs for the harness carry no images: it needs the episode, not its pictures.
 EPISODE_LOG_OPTIONS = ConvertOptions(observations=False, map_tile_max_side_px=0)
 
@@ -341,7 +351,7 @@ def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = Fal
     lock = hold_run_dir(run_dir)
     try:
         prepare_run_dir(config, run_dir)
-        leftovers = remove_leftover_temporaries(run_dir)
+        leftovers = remove_leftover_temporaries(run_dir, RUN_FILES, RUN_FOLDERS)
         store = ResultStore(run_dir)
     except BaseException:
         lock.release()

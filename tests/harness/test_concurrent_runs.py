@@ -138,3 +138,28 @@ def test_runs_converting_the_same_episodes_at_once_do_not_trip_over_each_other(
         thread.join()
     assert all(isinstance(o, dict) and len(o) == 40 for o in outcomes), outcomes
     assert all(path.is_file() for o in outcomes for path in o.values())  # type: ignore[union-attr]
+
+
+def test_a_launch_removes_only_the_temporaries_its_own_writers_leave(tmp_path: Path) -> None:
+    # An audit lost a user's `docs/.draft.tmp` to `run --out` of a folder that held it:
+    # every hidden .tmp file under the run directory was taken for a killed writer's.
+    from skyvln_eval.harness.lock import remove_leftover_temporaries
+    from skyvln_eval.harness.run import RUN_FILES, RUN_FOLDERS
+
+    ours = [
+        tmp_path / ".results.jsonl.k3j_x9a2.tmp",
+        tmp_path / "logs" / "val_seen" / ".9101__5_1.mcap.abcd1234.tmp",
+        tmp_path / "control" / "val_seen" / ".9101__5_1.parquet.zz99yy88.tmp",
+    ]
+    theirs = [
+        tmp_path / "docs" / ".draft.tmp",
+        tmp_path / ".notes.txt.abcd1234.tmp",  # looks like a writer's, not a run file's
+        tmp_path / "logs" / "val_seen" / ".draft.tmp",
+        tmp_path / "logs" / ".thesis.tex.abcd1234.tmp",
+    ]
+    for path in ours + theirs:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text("x")
+    assert remove_leftover_temporaries(tmp_path, RUN_FILES, RUN_FOLDERS) == len(ours)
+    assert not any(p.exists() for p in ours)
+    assert all(p.exists() for p in theirs)
