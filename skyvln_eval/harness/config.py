@@ -164,10 +164,16 @@ class RunConfig(_Strict):
 
     def digest(self) -> str:
         """A short hash of the settings that decide the results (not workers or executor)."""
-        relevant = self.model_dump(
-            mode="json",
-            exclude={"workers", "executor", "threads_per_worker", "ray_address", "write_logs"},
-        )
+        return self._hash(set())
+
+    def settings_digest(self) -> str:
+        """:meth:`digest` without the selection (``limit``, ``episodes``): the same for
+        every row of a run that grew in place, different for a row of another config."""
+        return self._hash({"limit", "episodes"})
+
+    def _hash(self, also_excluded: set[str]) -> str:
+        how_it_runs = {"workers", "executor", "threads_per_worker", "ray_address", "write_logs"}
+        relevant = self.model_dump(mode="json", exclude=how_it_runs | also_excluded)
         text = yaml.safe_dump(relevant, sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:12]
 

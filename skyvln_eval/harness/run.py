@@ -161,6 +161,41 @@ def grows(before: RunConfig, after: RunConfig) -> bool:
     return after.episodes is None or set(before.episodes) <= set(after.episodes)
 
 
+def foreign_rows(config: RunConfig, results: Sequence[EpisodeResult]) -> list[str]:
+    """The rows among ``results`` that ``config`` did not make, each as "split/episode:
+    what differs": another system, execution mode or settings (the selection aside, so
+    the rows of a run that grew in place are its own). Rows of older runs that did not
+    record their settings are checked on system and mode alone."""
+    settings = config.settings_digest()
+    found = []
+    for r in results:
+        differs = []
+        if r.system != config.system:
+            differs.append(f"system {r.system!r}, not {config.system!r}")
+        mode = r.extra.get("execution_mode")
+        if mode is not None and mode != config.mode:
+            differs.append(f"execution mode {mode!r}, not {config.mode!r}")
+        made = r.extra.get("settings_digest")
+        if made is not None and made != settings:
+            differs.append(f"settings {made}, not {settings}")
+        if differs:
+            found.append(f"{r.split}/{r.episode_id}: {'; '.join(differs)}")
+    return found
+
+
+def check_own_rows(config: RunConfig, results: Sequence[EpisodeResult], where: Path) -> None:
+    """Refuse results of which some rows another configuration made: resumed or scored,
+    they would pass for this run's (a row copied in, a config.yaml replaced)."""
+    foreign = foreign_rows(config, results)
+    if foreign:
+        raise ConfigError(
+            f"{where}: {len(foreign)} of its {len(results)} result row(s) were made by "
+            f"another configuration than its {CONFIG_FILE}, e.g. {foreign[0]}; a run "
+            "directory holds the rows of one configuration: use a new run directory, or "
+            f"put back the {CONFIG_FILE} that made them"
+        )
+
+
 @dataclass
 class RunReport:
     """What a run covers and what happened: episodes by status, errors, missing episodes.
@@ -353,6 +388,7 @@ def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = Fal
         prepare_run_dir(config, run_dir)
         leftovers = remove_leftover_temporaries(run_dir, RUN_FILES, RUN_FOLDERS)
         store = ResultStore(run_dir)
+        check_own_rows(config, store.results(), run_dir / RESULTS_FILE)
     except BaseException:
         lock.release()
         raise

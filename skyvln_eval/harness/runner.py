@@ -82,6 +82,21 @@ def _config_texts(config_json: str) -> tuple[str, str]:
     return config.digest(), config.to_yaml()
 
 
+def config_marks(config: RunConfig, config_json: str) -> dict[str, Any]:
+    """What a row records of the config that made it: a resume and ``score`` refuse a row
+    whose marks are not the run's (:func:`~skyvln_eval.harness.run.foreign_rows`)."""
+    return {
+        "config_digest": _config_texts(config_json)[0],
+        "settings_digest": _settings_digest(config_json),
+        "execution_mode": config.mode,
+    }
+
+
+@functools.lru_cache(maxsize=4)
+def _settings_digest(config_json: str) -> str:
+    return _config(config_json).settings_digest()
+
+
 _worlds: OrderedDict[tuple[str, str], WorldTile] = OrderedDict()
 _worlds_guard = threading.Lock()
 _world_loading: dict[tuple[str, str], threading.Lock] = {}
@@ -263,8 +278,7 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
             "stop_reason": rollout.stop_reason,
             "actions": len(rollout.actions),
             "seed": seed,
-            "config_digest": digest,
-            "execution_mode": config.mode,
+            **config_marks(config, task.config_json),
             "oracle": is_oracle(config.agent.name),
             "llm_backend": llm_backend(config),
             "questions": rollout.questions,
@@ -345,8 +359,7 @@ def failed_result(
     ``fatal`` says why no further episode can succeed either (refused credentials, a
     replay's cache miss): the run stops."""
     extra: dict[str, Any] = {
-        "config_digest": _config_texts(task.config_json)[0],
-        "execution_mode": config.mode,
+        **config_marks(config, task.config_json),
         "oracle": is_oracle(config.agent.name),
         "llm_backend": llm_backend(config),
     }

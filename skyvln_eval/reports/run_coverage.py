@@ -18,7 +18,7 @@ from pathlib import Path
 from skyvln_eval.avdn.constants import EpisodeMode
 from skyvln_eval.errors import ConfigError, DataError, IncompleteRunError, SkyvlnError
 from skyvln_eval.harness.config import RunConfig, run_config_from_mapping
-from skyvln_eval.harness.run import CONFIG_FILE, REPORT_FILE, selected
+from skyvln_eval.harness.run import CONFIG_FILE, REPORT_FILE, check_own_rows, selected
 from skyvln_eval.harness.store import RESULTS_FILE, RowKey
 from skyvln_eval.metrics.records import EpisodeResult
 
@@ -160,6 +160,7 @@ def run_coverage(
     """How ``results`` (the rows of ``run_dir``) cover the episodes its config selects,
     from ``data_dir`` or, by default, the dataset the run ran on."""
     config = read_run_config(run_dir)
+    check_own_rows(config, results, run_dir / RESULTS_FILE)
     data_dir = data_dir if data_dir is not None else run_data_dir(config, run_dir)
     try:
         expected = selected_episodes(config, data_dir)

@@ -108,7 +108,12 @@ def test_worker_processes_keep_one_task_queued_and_a_caller_that_stops_starts_no
     )
     for task, outcome in outcomes:
         assert outcome == task[1]
-        time.sleep(1.0)  # the caller is busy (recording the result): the queued task runs
+        # The caller is busy (recording the result): the queued tasks run meanwhile. Waited
+        # for, not slept on: a loaded machine may take longer to start them.
+        deadline = time.monotonic() + 60.0
+        while len(list(tmp_path.iterdir())) < 4 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)  # room for a fifth to start, were the pool to start one
         break
     outcomes.close()  # as the harness's loop does when it breaks: the pool shuts down
     started = sorted(int(p.name) for p in tmp_path.iterdir())

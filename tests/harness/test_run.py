@@ -317,3 +317,37 @@ def test_a_run_grows_in_place_only_to_a_selection_holding_its_episodes(
     # A limit as well: the first one of the longer list may not be one of the shorter's.
     assert not grows(listed, small_config(limit=1, episodes=["a", "b", "c"]))
     assert not grows(small_config(limit=None), small_config(limit=None, episodes=["a"]))
+
+
+def test_rows_another_configuration_made_are_refused_by_resume_and_score(
+    tmp_path: Path, small_config: MakeConfig, cli: Any
+) -> None:
+    # An audit resumed a run whose config.yaml was replaced by another system's: "24
+    # already done", rows of the old system scored under the new config; and a row copied
+    # in from another run was scored as this one's.
+    from skyvln_eval.harness.run import foreign_rows
+
+    config = small_config(limit=1)
+    run_dir = tmp_path / "run"
+    assert run(config, run_dir).complete
+    rows = read_results(run_dir / RESULTS_FILE)
+    assert foreign_rows(config, rows) == []
+    assert foreign_rows(small_config(limit=3), rows) == []  # grown in place: its own rows
+    other = small_config(limit=1, max_action_len=3)
+    assert foreign_rows(other, rows)[0].startswith(f"{rows[0].split}/{rows[0].episode_id}: ")
+    renamed = small_config(limit=1, system="another system")
+    assert "system 'test system', not 'another system'" in foreign_rows(renamed, rows)[0]
+
+    (run_dir / "config.yaml").unlink()  # the run's config lost, another given
+    with pytest.raises(ConfigError, match=r"were made by another configuration than its"):
+        run(other, run_dir)
+    # Its own config back, the run and its scores are whole again; a foreign row is not.
+    (run_dir / "config.yaml").write_text(config.to_yaml())
+    assert run(config, run_dir).ran_now == 0
+    lines = (run_dir / RESULTS_FILE).read_text().splitlines()
+    first = json.loads(lines[1])  # the first row, after the header
+    first["extra"]["settings_digest"] = other.settings_digest()
+    lines[1] = json.dumps(first)
+    (run_dir / RESULTS_FILE).write_text("\n".join(lines) + "\n")
+    scored = cli("score", str(run_dir), "--out", str(tmp_path / "scores"))
+    assert scored.code == 2 and "another configuration" in scored.err, scored
