@@ -446,6 +446,13 @@ def reproduce(
         except RunStoppedError as stopped:  # a run's verdict, as `run` gives it: exit 1
             _echo_problem(f"error: {stopped}")
             raise typer.Exit(1) from None
+    from skyvln_eval.harness.commands import describe_report
+
+    # Each run's account (what resume kept, set aside or ran now, its warnings), as `run`
+    # prints it: a reproduction is several runs, and their notes are not in the tables.
+    for run_report in report.reports:
+        for line in describe_report(run_report):
+            console.print(line, markup=False, highlight=False)
     for name in ("table1.md", "table2.md"):
         console.print(report.files[name].read_text(encoding="utf-8"))
     console.print(f"wrote {report.files['SUMMARY.md']} ({report.wall_s:.0f} s)")

@@ -1,11 +1,14 @@
 """Where a run came from: toolkit and library versions and the source's git revision.
 
-Written once into every run directory (``versions.json``) so that any table row can be
-traced to the exact code that made it.
+Every run directory keeps in ``versions.json`` the provenance of each launch that found
+it with other code than the last one did (a resume after a ``git pull``), with how many
+rows it held then, so that any table row can be traced to the exact code that made it;
+such a launch warns that the run now mixes rows of two versions.
 """
 
 from __future__ import annotations
 
+import json
 import platform
 import subprocess
 import sys
@@ -68,3 +71,58 @@ def provenance() -> dict[str, Any]:
         "libraries": {name: _version(name) for name in LIBRARIES},
         "git": git_revision(),
     }
+
+
+VERSIONS_FORMAT = "skyvln-eval.versions"
+VERSIONS_VERSION = 2
+
+
+def record_launch(path: Path, rows_before: int) -> str | None:
+    """Add this launch's provenance to the run's ``versions.json`` at ``path`` when it
+    differs from the last launch's; return a warning when rows made by that other code
+    are already in the run (they and this launch's rows will be scored together)."""
+    from skyvln_eval.fileio import atomic_write_json
+
+    launches = _launches(path)
+    current = provenance()
+    last = launches[-1] if launches else None
+    if last is not None and {k: v for k, v in last.items() if k != "rows_before"} == current:
+        return None
+    launches.append({"rows_before": rows_before, **current})
+    atomic_write_json(
+        path,
+        {"format": VERSIONS_FORMAT, "version": VERSIONS_VERSION, "launches": launches},
+        indent=1,
+    )
+    if last is None or rows_before == 0:
+        return None
+    changed = sorted(k for k in current if last.get(k) != current[k])
+    return (
+        f"WARNING: the run's {rows_before} recorded row(s) were made with other code or "
+        f"libraries ({', '.join(changed)} differ: {_describe(last)} then, "
+        f"{_describe(current)} now); the rows run now join them, so its scores mix two "
+        f"versions ({path.name} lists each launch). For one version, run again into a new "
+        "run directory."
+    )
+
+
+def _describe(launch: dict[str, Any]) -> str:
+    git = launch.get("git")
+    if isinstance(git, dict) and git.get("commit"):
+        return f"commit {str(git['commit'])[:10]}{' with changes' if git.get('dirty') else ''}"
+    return f"skyvln-eval {launch.get('skyvln_eval')}"
+
+
+def _launches(path: Path) -> list[dict[str, Any]]:
+    """The launches recorded so far; a ``versions.json`` of an older run (one provenance,
+    written anew at each launch) is its last launch, its row count then unknown."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        return []
+    except (OSError, ValueError):
+        return []  # unreadable: this launch's provenance replaces it
+    if isinstance(data, dict) and data.get("format") == VERSIONS_FORMAT:
+        launches = data.get("launches")
+        return [x for x in launches if isinstance(x, dict)] if isinstance(launches, list) else []
+    return [{"rows_before": None, **data}] if isinstance(data, dict) else []

@@ -3,7 +3,8 @@
 A run directory holds:
 
 - ``config.yaml``: the resolved :class:`RunConfig` (a directory never mixes two configs);
-- ``versions.json``: toolkit and library versions, git revision (:mod:`.provenance`);
+- ``versions.json``: toolkit and library versions and git revision, of each launch that
+  found other code than the last (:mod:`.provenance`);
 - ``results.jsonl``: one :class:`EpisodeResult` per episode, appended as episodes finish
   (:mod:`.store`), so ``skyvln-eval score`` works on it directly;
 - ``logs/<split>/<episode_id>.mcap``: the run MCAP of each episode;
@@ -40,7 +41,7 @@ from skyvln_eval.harness.executors import Executor, make_executor
 from skyvln_eval.harness.lock import RunDirLock, hold_run_dir, remove_leftover_temporaries
 from skyvln_eval.harness.official_loop import official_success
 from skyvln_eval.harness.preflight import preflight
-from skyvln_eval.harness.provenance import provenance
+from skyvln_eval.harness.provenance import record_launch
 from skyvln_eval.harness.runner import (
     CONTROL_DIR,
     LOGS_DIR,
@@ -143,7 +144,6 @@ def prepare_run_dir(config: RunConfig, run_dir: Path) -> None:
             )
     run_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_text(path, config.to_yaml())
-    atomic_write_json(run_dir / VERSIONS_FILE, provenance(), indent=1)
 
 
 def grows(before: RunConfig, after: RunConfig) -> bool:
@@ -308,6 +308,12 @@ def error_verdict(reports: Sequence[RunReport], fail_on_error: float) -> str | N
             )
             for count, first in report.error_kinds().values():
                 lines.append(f"  {count} x {first}")  # the first text starts with its kind
+            # A resume leaves error rows be; a crash of the machine is not the agent's result.
+            lines.append(
+                f"  to run them again (e.g. after a worker crash or an endpoint outage): "
+                f"skyvln-eval run {report.run_dir / CONFIG_FILE} --out {report.run_dir} "
+                "--retry-failed"
+            )
     return "\n".join(lines) or None
 
 
@@ -389,10 +395,11 @@ def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = Fal
         leftovers = remove_leftover_temporaries(run_dir, RUN_FILES, RUN_FOLDERS)
         store = ResultStore(run_dir)
         check_own_rows(config, store.results(), run_dir / RESULTS_FILE)
+        mixed = record_launch(run_dir / VERSIONS_FILE, len(store.results()))
     except BaseException:
         lock.release()
         raise
-    notes = store.recovery.messages()
+    notes = store.recovery.messages() + ([mixed] if mixed else [])
     if leftovers:
         notes.append(f"removed {leftovers} temporary file(s) left by an interrupted run")
     cap = speed_cap_note(config)

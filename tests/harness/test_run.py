@@ -257,6 +257,7 @@ def test_an_llm_server_that_fails_leaves_error_episodes_with_the_faults_recorded
     verdict = error_verdict([report], fail_on_error=0.0)
     assert verdict is not None and "2 of 2 episode(s) ended in error" in verdict
     assert "HTTP 500" in verdict  # the first error text of its kind
+    assert f"--out {report.run_dir} --retry-failed" in verdict  # and how to run them again
     assert error_verdict([report], fail_on_error=1.0) is None
 
 
@@ -351,3 +352,26 @@ def test_rows_another_configuration_made_are_refused_by_resume_and_score(
     (run_dir / RESULTS_FILE).write_text("\n".join(lines) + "\n")
     scored = cli("score", str(run_dir), "--out", str(tmp_path / "scores"))
     assert scored.code == 2 and "another configuration" in scored.err, scored
+
+
+def test_a_resume_with_other_code_is_recorded_and_warns_that_the_run_mixes_versions(
+    tmp_path: Path, small_config: MakeConfig
+) -> None:
+    # An audit resumed a run after changing the code: no warning, and versions.json kept
+    # only the new commit, so nothing could tell the two versions' rows apart.
+    run_dir = tmp_path / "run"
+    first = run(small_config(limit=1), run_dir)
+    assert not any("WARNING" in note for note in first.notes)
+    versions = json.loads((run_dir / "versions.json").read_text())
+    assert [launch["rows_before"] for launch in versions["launches"]] == [0]
+    again = run(small_config(limit=1), run_dir)  # the same code: nothing to add or say
+    assert not any("WARNING" in note for note in again.notes)
+    assert len(json.loads((run_dir / "versions.json").read_text())["launches"]) == 1
+    versions["launches"][0]["git"] = {"commit": "0123456789abcdef", "dirty": False}
+    (run_dir / "versions.json").write_text(json.dumps(versions))
+    grown = run(small_config(limit=2), run_dir)
+    warning = next(note for note in grown.notes if note.startswith("WARNING"))
+    assert "recorded row(s) were made with other code" in warning
+    assert "commit 0123456789 then" in warning
+    launches = json.loads((run_dir / "versions.json").read_text())["launches"]
+    assert [launch["rows_before"] for launch in launches] == [0, 1]
