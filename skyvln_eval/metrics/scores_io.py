@@ -2,21 +2,23 @@
 
 The first two lines are comments::
 
-    # skyvln-eval.scores v2
+    # skyvln-eval.scores v3
     # conventions: {"distance":"2d",...}
 
-then a CSV header and one row per episode (the frame of
-:func:`~skyvln_eval.metrics.scoring.score_results`), sorted by system, split, mode and
-episode id so that the file does not depend on the order results were recorded in.
-Floats are written with Python's shortest round-trip repr, so reading gives back the
-same values; empty cells are "not applicable" (e.g. control metrics of an episode
-without dynamics) or, in the ``oracle`` column, "not said".
+then a ``# warning: ...`` line per warning its scoring gave (e.g. the scores of an
+incomplete run: every table made from the file repeats it), then a CSV header and one row
+per episode (the frame of :func:`~skyvln_eval.metrics.scoring.score_results`), sorted by
+system, split, mode and episode id so that the file does not depend on the order results
+were recorded in. Floats are written with Python's shortest round-trip repr, so reading
+gives back the same values; empty cells are "not applicable" (e.g. control metrics of an
+episode without dynamics) or, in the ``oracle`` column, "not said".
 
-Version 2 added the ``oracle`` column (the harness's oracle flew the episode: a table
-never ranks it). Version 1 files still read, their ``oracle`` cells empty: not said,
-which is what they say; their rows are ranked as they always were. The ``llm_backend``
-column (what answered the agent's LLM calls: a stand-in such as ``rule`` is a reference
-in Table II, never ranked) is optional: a file without it reads with the cells empty.
+Version 3 added the warning lines. Version 2 added the ``oracle`` column (the harness's
+oracle flew the episode: a table never ranks it). Version 1 files still read, their
+``oracle`` cells empty: not said, which is what they say; their rows are ranked as they
+always were. The ``llm_backend`` column (what answered the agent's LLM calls: a stand-in
+such as ``rule`` is a reference in Table II, never ranked) is optional: a file without it
+reads with the cells empty.
 """
 
 from __future__ import annotations
@@ -35,24 +37,36 @@ from skyvln_eval.metrics.conventions import CONVENTIONS_ATTR, MetricConventions,
 from skyvln_eval.metrics.scoring import CONTROL_COLUMNS, KEY_COLUMNS, METRIC_UNITS
 
 SCORES_FORMAT = "skyvln-eval.scores"
-SCORES_VERSION = 2
+SCORES_VERSION = 3
 #: Versions :func:`read_scores` reads (see the module docstring).
-_READABLE_VERSIONS = ("1", "2")
-#: Lines before the first row of a scores file: the format, the conventions, the CSV header.
-_LINES_BEFORE_ROWS = 3
+_READABLE_VERSIONS = ("1", "2", "3")
+#: Where a scores frame read from a file keeps the file's warnings (``frame.attrs``).
+WARNINGS_ATTR = "skyvln_warnings"
+_WARNING = "# warning: "
+#: Lines before a file's first row: the format, the conventions, the warnings, the CSV
+#: header (``frame.attrs``, for naming a row by its line).
+_LINES_ATTR = "skyvln_lines_before_rows"
 
 
-def scores_to_csv_text(scores: pd.DataFrame, conventions: MetricConventions) -> str:
+def scores_to_csv_text(
+    scores: pd.DataFrame, conventions: MetricConventions, warnings: Sequence[str] = ()
+) -> str:
     buffer = io.StringIO()
     buffer.write(f"# {SCORES_FORMAT} v{SCORES_VERSION}\n# conventions: {conventions.to_json()}\n")
+    buffer.write("".join(f"{_WARNING}{' '.join(w.split())}\n" for w in warnings))
     ordered = scores.sort_values(list(KEY_COLUMNS), kind="stable")
     ordered.to_csv(buffer, index=False, lineterminator="\n")
     return buffer.getvalue()
 
 
-def write_scores(path: str | Path, scores: pd.DataFrame, conventions: MetricConventions) -> None:
+def write_scores(
+    path: str | Path,
+    scores: pd.DataFrame,
+    conventions: MetricConventions,
+    warnings: Sequence[str] = (),
+) -> None:
     """Write a scores CSV atomically (see the module docstring)."""
-    atomic_write_text(path, scores_to_csv_text(scores, conventions))
+    atomic_write_text(path, scores_to_csv_text(scores, conventions, warnings))
 
 
 def summary_csv_text(
@@ -96,9 +110,13 @@ def read_scores(path: str | Path) -> tuple[pd.DataFrame, MetricConventions]:
         )
     except json.JSONDecodeError as exc:
         raise DataError(f"{path}: conventions line is not JSON ({exc.msg})") from None
+    table, warnings = lines[2], []
+    while table.startswith(_WARNING):
+        warning, _, table = table.partition("\n")
+        warnings.append(warning[len(_WARNING) :])
     try:
         frame = pd.read_csv(
-            io.StringIO(lines[2]),
+            io.StringIO(table),
             dtype={
                 "episode_id": str,
                 "split": str,
@@ -124,13 +142,20 @@ def read_scores(path: str | Path) -> tuple[pd.DataFrame, MetricConventions]:
     for column in CONTROL_COLUMNS:
         if column in frame.columns:
             frame[column] = frame[column].astype("Float64")
+    frame.attrs[_LINES_ATTR] = 3 + len(warnings)
     _read_oracle(frame, path)
     if "llm_backend" not in frame.columns:  # scored before results said (not known)
         empty = pd.array([None] * len(frame), dtype="string")
         frame.insert(frame.columns.get_loc("oracle") + 1, "llm_backend", empty)
     check_unique_scores([(str(path), frame)])
     frame.attrs[CONVENTIONS_ATTR] = conventions
+    frame.attrs[WARNINGS_ATTR] = warnings
     return frame, conventions
+
+
+def scores_warnings(frame: pd.DataFrame) -> list[str]:
+    """The warnings of the scores files ``frame`` was read from (:func:`read_scores`)."""
+    return list(frame.attrs.get(WARNINGS_ATTR, []))
 
 
 def _read_oracle(frame: pd.DataFrame, path: Path) -> None:
@@ -145,13 +170,18 @@ def _read_oracle(frame: pd.DataFrame, path: Path) -> None:
     bad = text.notna() & values.isna()
     if bad.any():
         row = int(np.flatnonzero(bad.to_numpy())[0])
-        where = _row_name(str(path), row)
+        where = _row_name(str(path), row, frame)
         raise DataError(f"{where}: oracle is {text.iloc[row]!r}, not True, False or empty")
     frame["oracle"] = values
 
 
-def _row_name(file: str, row: int) -> str:
-    return f"record {row} of {file} (line {row + 1 + _LINES_BEFORE_ROWS})"
+def _row_name(file: str, row: int, frame: pd.DataFrame) -> str:
+    return f"record {row} of {file} (line {_line(row, frame)})"
+
+
+def _line(row: int, frame: pd.DataFrame) -> int:
+    """The line of the file ``frame`` was read from that holds its ``row``."""
+    return row + 1 + int(frame.attrs.get(_LINES_ATTR, 3))
 
 
 def check_unique_scores(files: Sequence[tuple[str, pd.DataFrame]]) -> None:
@@ -167,9 +197,9 @@ def check_unique_scores(files: Sequence[tuple[str, pd.DataFrame]]) -> None:
                 continue
             system, split, mode, episode_id = key
             first_file = "this file" if first[0] == index else files[first[0]][0]
+            earlier = _row_name(first_file, first[1], files[first[0]][1])
             message = (
-                f"line {row + 1 + _LINES_BEFORE_ROWS} duplicates "
-                f"{_row_name(first_file, first[1])}: same system {system!r}, split "
+                f"line {_line(row, frame)} duplicates {earlier}: same system {system!r}, split "
                 f"{split} and mode {mode}, which a table would average as one. Different runs "
                 "need different system labels (the `system` of their run configs, or "
                 "`score --system` for predictions); the same scores must be given once."
@@ -196,4 +226,7 @@ def read_many_scores(paths: Sequence[str | Path]) -> tuple[pd.DataFrame, MetricC
         frames.append((str(path), frame))
     assert first is not None  # paths is non-empty
     check_unique_scores(frames)
-    return pd.concat([frame for _, frame in frames], ignore_index=True), first
+    joined = pd.concat([frame for _, frame in frames], ignore_index=True)
+    joined.attrs[CONVENTIONS_ATTR] = first
+    joined.attrs[WARNINGS_ATTR] = [w for _, frame in frames for w in scores_warnings(frame)]
+    return joined, first

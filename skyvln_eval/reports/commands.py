@@ -225,7 +225,7 @@ def score(
     scores = score_results(loaded, conventions)
     summary = summarise(scores, [m for m in SUMMARY_METRICS if m in scores], resamples, seed=seed)
     out.mkdir(parents=True, exist_ok=True)
-    write_scores(out / "scores.csv", scores, conventions)
+    write_scores(out / "scores.csv", scores, conventions, warnings)
     atomic_write_text(out / "summary.csv", summary_csv_text(summary, conventions, warnings))
     title = "scores"
     if warnings:
@@ -284,7 +284,7 @@ def table(
     the table has that reproduction's rows, order and notes: the file it wrote. Other
     scores show every system, in the order the scores list them."""
     from skyvln_eval.fileio import atomic_write_text
-    from skyvln_eval.metrics.scores_io import read_many_scores
+    from skyvln_eval.metrics.scores_io import read_many_scores, scores_warnings
     from skyvln_eval.reports.paper_tables import paper_table
     from skyvln_eval.reports.table_layout import layout_beside
     from skyvln_eval.reports.tables import RENDERERS, TABLES
@@ -296,12 +296,16 @@ def table(
     frame, conventions = read_many_scores(scores)
     layout = layout_beside(scores)
     made = layout.tables.get(kind) if layout is not None else None
+    # What scoring warned of (an incomplete run's scores) goes with every table of them.
+    warned = [f"WARNING: {w}" for w in scores_warnings(frame)]
+    for warning in warned:
+        typer.echo(warning, err=True)
     shaped = paper_table(
         frame,
         TABLES[kind],
         conventions,
         rows=row or (list(made.rows) if made is not None else None),
-        notes=made.notes if made is not None and not row else (),
+        notes=[*warned, *(made.notes if made is not None and not row else ())],
         mode=mode,
         digits=digits,
         show_ci=ci,

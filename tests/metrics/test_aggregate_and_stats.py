@@ -252,9 +252,9 @@ def test_a_scores_file_says_which_systems_the_oracle_flew_and_an_old_one_says_no
     (tmp_path / "bad.csv").write_text(damaged)
     with pytest.raises(DataError, match=r"record 2 of .*bad.csv \(line 6\): oracle is 'yes'"):
         read_scores(tmp_path / "bad.csv")
-    (tmp_path / "v3.csv").write_text("# skyvln-eval.scores v3\n" + "\n".join(lines[1:]))
-    with pytest.raises(FormatVersionError, match="version '3' is not supported"):
-        read_scores(tmp_path / "v3.csv")
+    (tmp_path / "v4.csv").write_text("# skyvln-eval.scores v4\n" + "\n".join(lines[1:]))
+    with pytest.raises(FormatVersionError, match="version '4' is not supported"):
+        read_scores(tmp_path / "v4.csv")
 
 
 def test_a_system_flown_by_the_oracle_and_by_an_agent_is_refused() -> None:

@@ -72,6 +72,12 @@ def test_an_interrupted_run_is_refused_unless_allowed(dataset: Path, tmp_path: P
     assert "scores OF INCOMPLETE RESULTS" in text
     assert "# warning: INCOMPLETE: run" in (out / "summary.csv").read_text()
     assert read_scores(out / "scores.csv")[0].episode_id.tolist() == IDS[:1]
+    # The scores file says so too, and every table made from it (an audit found a clean
+    # table of 1 of 15 episodes, SR 100%).
+    assert "# warning: INCOMPLETE: run" in (out / "scores.csv").read_text()
+    table = runner.invoke(app, ["table", str(out / "scores.csv")])
+    assert table.exit_code == 0, table.output
+    assert "WARNING: INCOMPLETE: run" in table.stdout.split("| agent |")[1]  # a table note
 
 
 def test_a_limited_run_is_complete_with_or_without_data_dir(dataset: Path, tmp_path: Path) -> None:
