@@ -27,6 +27,7 @@ from skyvln_eval.errors import ConfigError, RunStoppedError, SkyvlnError, Unknow
 
 if TYPE_CHECKING:
     from skyvln_eval.avdn import AvdnRecord, SplitSummary
+    from skyvln_eval.harness.progress import RichRunProgress
 
 app = typer.Typer(
     name="skyvln-eval",
@@ -52,17 +53,24 @@ def _echo_problem(text: str, colour: str = "red") -> None:
 
 
 @contextmanager
-def _stoppable() -> Iterator[None]:
+def _stoppable(progress: RichRunProgress | None = None) -> Iterator[None]:
     """A long job that Ctrl-C or SIGTERM stops: its workers ended, what finished kept, a
-    line that says so, exit code 130 (as a shell reports an interrupted command)."""
+    line that says so (how many finished, from ``progress``), exit code 130 (as a shell
+    reports an interrupted command)."""
     from skyvln_eval.interrupts import terminate_like_ctrl_c
 
     try:
         with terminate_like_ctrl_c():
             yield
     except KeyboardInterrupt:
+        finished = (
+            f" ({progress.finished} finished in this launch; run.json lists those left)"
+            if progress is not None
+            else ""
+        )
         _echo_problem(
-            "interrupted: the episodes that finished are kept; the same command runs the rest"
+            f"interrupted: the episodes that finished are kept{finished}; the same command "
+            "runs the rest"
         )
         sys.stdout.flush()
         sys.stderr.flush()
@@ -379,12 +387,15 @@ def run_(
     --fail-on-error of its episodes ended in error.
     """
     from skyvln_eval.harness.commands import run_command
+    from skyvln_eval.harness.progress import RichRunProgress
     from skyvln_eval.harness.run import error_verdict
 
-    with _stoppable():
+    progress = RichRunProgress()
+    with _stoppable(progress):
         report = run_command(
-            config, out, workers, executor, ray_address, retry_failed, threads_per_worker
-        )
+            config, out, workers, executor, ray_address, retry_failed, threads_per_worker,
+            progress,
+        )  # fmt: skip
     verdict = error_verdict([report], fail_on_error)
     if verdict:
         _echo_problem(verdict)
@@ -432,7 +443,8 @@ def reproduce(
     chosen = load_plan(plan, limit=limit, recordings=None if recordings else 0)
     if data_dir is None and chosen.data == "sample":
         _build_dataset("sample", None, False, 1)  # with a progress bar on first use
-    with _stoppable():
+    progress = RichRunProgress(err_console)
+    with _stoppable(progress):
         try:
             report = run_plan(
                 chosen,
@@ -440,7 +452,7 @@ def reproduce(
                 workers,
                 executor,
                 str(data_dir) if data_dir else None,
-                RichRunProgress(err_console),
+                progress,
                 threads_per_worker=threads_per_worker,
             )
         except RunStoppedError as stopped:  # a run's verdict, as `run` gives it: exit 1

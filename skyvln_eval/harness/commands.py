@@ -54,6 +54,7 @@ def run_command(
     ray_address: str | None,
     retry_failed: bool,
     threads_per_worker: int | None = None,
+    progress: RichRunProgress | None = None,
 ) -> RunReport:
     config = load_run_config(
         config_path,
@@ -69,7 +70,7 @@ def run_command(
         executor=make_executor(
             config.executor, config.workers, config.ray_address, config.threads_per_worker
         ),
-        progress=RichRunProgress(),
+        progress=progress or RichRunProgress(),
         retry_failed=retry_failed,
     )
     for line in describe_report(report):

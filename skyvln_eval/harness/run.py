@@ -206,7 +206,9 @@ class RunReport:
     ``simulated_s`` is the time flown by the episodes run now (dynamics mode only);
     ``flights`` counts, of the flown episodes recorded, those that crashed (a step that
     touched an obstacle) and those with control steps whose solve failed (the controller fell
-    back): outcomes the statuses, which judge the agent, do not show.
+    back): outcomes the statuses, which judge the agent, do not show. ``finished`` is
+    false from a launch until its end: a ``run.json`` that says so is of a launch that was
+    stopped (Ctrl-C, a kill) with ``missing`` the episodes it had still to run.
     """
 
     run_dir: Path
@@ -224,6 +226,7 @@ class RunReport:
     server_defaults: dict[str, str] = field(default_factory=dict)
     stopped: str | None = None
     flights: dict[str, int] = field(default_factory=dict)
+    finished: bool = False
 
     @property
     def complete(self) -> bool:
@@ -250,6 +253,7 @@ class RunReport:
     def to_json(self) -> dict[str, object]:
         return {
             "system": self.system,
+            "finished": self.finished,
             "expected": len(self.expected),
             "ran_now": self.ran_now,
             "already_done": self.already_done,
@@ -407,6 +411,10 @@ def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = Fal
     report = RunReport(run_dir, config.system, list(logs), notes=notes)
     todo = store.missing(logs, retry_failed=retry_failed)
     report.already_done = len(logs) - len(todo)
+    # Said before any episode runs: a launch stopped on the way leaves this run.json, not
+    # the last finished launch's (which may have selected fewer episodes).
+    report.missing = list(todo)
+    atomic_write_json(run_dir / REPORT_FILE, report.to_json(), indent=1)
     config_json = config.model_dump_json()
     tasks = [
         EpisodeTask(
@@ -454,6 +462,7 @@ def _finish(job: RunJob, wall_s: float) -> None:
         )
     report.structured_output = structured_levels(results.values())
     report.server_defaults = unsent_parameters(results.values())
+    report.finished = True
     atomic_write_json(job.run_dir / REPORT_FILE, report.to_json(), indent=1)
 
 

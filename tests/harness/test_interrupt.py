@@ -77,7 +77,8 @@ def test_a_run_stopped_from_outside_ends_its_workers_and_resumes(
             process.send_signal(signal.SIGTERM)
         out, err = process.communicate(timeout=60)
     assert process.returncode == 130, err
-    assert "interrupted: the episodes that finished are kept" in err
+    assert "interrupted: the episodes that finished are kept (" in err
+    assert "finished in this launch; run.json lists those left)" in err
     assert "Traceback" not in out + err
     # The workers end with the run (and multiprocessing's resource tracker as soon as it
     # sees the run's end of its pipe close).

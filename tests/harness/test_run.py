@@ -375,3 +375,24 @@ def test_a_resume_with_other_code_is_recorded_and_warns_that_the_run_mixes_versi
     assert "commit 0123456789 then" in warning
     launches = json.loads((run_dir / "versions.json").read_text())["launches"]
     assert [launch["rows_before"] for launch in launches] == [0, 1]
+
+
+def test_a_launch_stopped_on_the_way_leaves_a_run_json_that_says_so(
+    tmp_path: Path, small_config: MakeConfig
+) -> None:
+    # An audit grew a finished run (24 episodes) to 45 and stopped it: run.json still said
+    # "expected 24, missing []", the last finished launch's account.
+    from skyvln_eval.harness.run import Progress
+
+    class StopAfterOne(Progress):
+        def episode_done(self, result: Any, success: bool | None) -> None:
+            raise KeyboardInterrupt
+
+    run_dir = tmp_path / "run"
+    assert run(small_config(limit=1), run_dir).complete
+    assert json.loads((run_dir / "run.json").read_text())["finished"] is True
+    with pytest.raises(KeyboardInterrupt):
+        run(small_config(limit=3), run_dir, progress=StopAfterOne())
+    stopped = json.loads((run_dir / "run.json").read_text())
+    assert stopped["finished"] is False and stopped["expected"] == 3
+    assert stopped["already_done"] == 1 and len(stopped["missing"]) == 2
