@@ -24,6 +24,7 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from skyvln_eval.control.registry import controller_config
 from skyvln_eval.converters.batch import convert_split
@@ -46,7 +47,9 @@ from skyvln_eval.harness.runner import (
     CONTROL_DIR,
     LOGS_DIR,
     EpisodeTask,
+    control_log_name,
     failed_result,
+    log_path,
     run_episode_task,
 )
 from skyvln_eval.harness.store import DAMAGED_FILE, RESULTS_FILE, ResultStore, RowKey, key_of
@@ -138,12 +141,33 @@ def prepare_run_dir(config: RunConfig, run_dir: Path) -> None:
         if existing.digest() != config.digest() and not grows(existing, config):
             raise ConfigError(
                 f"{run_dir} holds a run of another configuration ({existing.system!r}, "
-                f"{existing.digest()}); resume it with that config or use a new run "
-                "directory (in place, a run may only grow: a larger or no limit, more "
-                "episodes listed, all else the same)"
+                f"{existing.digest()}; {config_differences(existing, config)}); resume it "
+                "with that config or use a new run directory (in place, a run may only "
+                "grow: a larger or no limit, more episodes listed, all else the same)"
             )
     run_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_text(path, config.to_yaml())
+
+
+def config_differences(before: RunConfig, after: RunConfig, shown: int = 4) -> str:
+    """The settings that differ, e.g. "seed 0 here, 1 given" (nested ones by their
+    dotted path), the first ``shown`` of them."""
+    old, new = _flat(before.model_dump(mode="json")), _flat(after.model_dump(mode="json"))
+    how_it_runs = {"workers", "executor", "threads_per_worker", "ray_address", "write_logs"}
+    names = [k for k in dict.fromkeys([*old, *new]) if old.get(k) != new.get(k)]
+    names = [k for k in names if k.split(".")[0] not in how_it_runs]
+    parts = [f"{k} {old.get(k)!r} here, {new.get(k)!r} given" for k in names[:shown]]
+    more = f" and {len(names) - shown} more" if len(names) > shown else ""
+    return ", ".join(parts) + more if parts else "settings differ"
+
+
+def _flat(data: Any, prefix: str = "") -> dict[str, Any]:
+    if not isinstance(data, dict):
+        return {prefix: data}
+    out: dict[str, Any] = {}
+    for key, value in data.items():
+        out.update(_flat(value, f"{prefix}.{key}" if prefix else str(key)))
+    return out
 
 
 def grows(before: RunConfig, after: RunConfig) -> bool:
@@ -181,6 +205,28 @@ def foreign_rows(config: RunConfig, results: Sequence[EpisodeResult]) -> list[st
         if differs:
             found.append(f"{r.split}/{r.episode_id}: {'; '.join(differs)}")
     return found
+
+
+def lost_files(
+    config: RunConfig, run_dir: Path, store: ResultStore, keys: Sequence[RowKey]
+) -> dict[RowKey, str]:
+    """Of the recorded episodes ``keys``, those whose run MCAP (when the run writes logs)
+    or control log (a flown episode) is gone, with the first missing file: a resume would
+    otherwise count them done with their logs lost. Error rows are left be (an episode
+    that raised wrote none; ``--retry-failed`` runs them again)."""
+    lost: dict[RowKey, str] = {}
+    for key in keys:
+        row = store.get(key)
+        if row is None or row.status == "error":
+            continue
+        split, episode_id = key
+        wanted = [log_path(run_dir, split, episode_id)] if config.write_logs else []
+        if row.control is not None:
+            wanted.append(run_dir / control_log_name(split, episode_id))
+        gone = [path for path in wanted if not path.is_file()]
+        if gone:
+            lost[key] = str(gone[0].relative_to(run_dir))
+    return lost
 
 
 def check_own_rows(config: RunConfig, results: Sequence[EpisodeResult], where: Path) -> None:
@@ -410,6 +456,15 @@ def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = Fal
     notes += [cap] if cap else []
     report = RunReport(run_dir, config.system, list(logs), notes=notes)
     todo = store.missing(logs, retry_failed=retry_failed)
+    lost = lost_files(config, run_dir, store, [key for key in logs if key not in set(todo)])
+    if lost:  # run again: the same row (runs are deterministic), its files written anew
+        again = set(todo) | set(lost)
+        todo = [key for key in logs if key in again]
+        first = next(iter(lost.values()))
+        notes.append(
+            f"{len(lost)} recorded episode(s) run again: a file of theirs was missing "
+            f"(e.g. {first})"
+        )
     report.already_done = len(logs) - len(todo)
     # Said before any episode runs: a launch stopped on the way leaves this run.json, not
     # the last finished launch's (which may have selected fewer episodes).

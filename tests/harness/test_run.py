@@ -67,8 +67,9 @@ def test_official_run_writes_results_and_run_logs_then_resumes_nothing(
     again = run(config, run_dir)
     assert again.ran_now == 0 and again.already_done == 4
     assert len(read_results(run_dir / RESULTS_FILE)) == 4
-    with pytest.raises(ConfigError, match="another configuration"):
+    with pytest.raises(ConfigError, match="another configuration") as refused:
         run(small_config(splits=("val_seen", "val_unseen"), max_action_len=3), run_dir)
+    assert "max_action_len 10 here, 3 given" in str(refused.value)  # says what differs
     # A quick look grows in place into a larger one, its episodes kept; it never shrinks.
     grown = config.model_copy(update={"limit": 3})
     more = run(grown, run_dir)
@@ -396,3 +397,23 @@ def test_a_launch_stopped_on_the_way_leaves_a_run_json_that_says_so(
     stopped = json.loads((run_dir / "run.json").read_text())
     assert stopped["finished"] is False and stopped["expected"] == 3
     assert stopped["already_done"] == 1 and len(stopped["missing"]) == 2
+
+
+def test_a_recorded_episode_whose_run_log_is_gone_runs_again_on_resume(
+    tmp_path: Path, small_config: MakeConfig
+) -> None:
+    # An audit deleted a run MCAP: the resume said "already done" and the log stayed lost.
+    config = small_config(limit=2)
+    run_dir = tmp_path / "run"
+    assert run(config, run_dir).complete
+    before = read_results(run_dir / RESULTS_FILE)
+    lost = run_dir / "logs" / before[0].split / f"{before[0].episode_id}.mcap"
+    lost.unlink()
+    again = run(config, run_dir)
+    assert (again.ran_now, again.already_done) == (1, 1)
+    assert any(
+        "1 recorded episode(s) run again: a file of theirs was missing" in n for n in again.notes
+    )
+    assert lost.is_file() and not check_log(lost).issues
+    after = {r.episode_id: r for r in read_results(run_dir / RESULTS_FILE)}
+    assert [comparable(after[r.episode_id]) for r in before] == [comparable(r) for r in before]
