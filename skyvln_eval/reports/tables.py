@@ -251,7 +251,7 @@ def build_table(
                     bounded.append(f"{row} on {titles[split]}")
                 cells[row][(split, metric)] = cell
     notes = [*notes, *_error_notes(errors, row_names, spec, titles)]
-    notes += _episode_count_notes(errors, row_names, spec, titles)
+    notes += _episode_count_notes(errors, cells, row_names, spec)
     if {"llm_cost_usd", "llm_latency_s"} & set(dict(spec.metrics)):
         notes += _cached_notes(index, row_names, spec, titles)
     notes += _not_run_notes(cells, row_names, spec, titles, withheld)
@@ -355,21 +355,34 @@ def _error_counts(
 
 def _episode_count_notes(
     errors: dict[tuple[str, str], tuple[int, int]],
+    cells: dict[str, dict[tuple[str, str], Cell | None]],
     rows: Sequence[str],
     spec: TableSpec,
-    titles: dict[str, str],
 ) -> list[str]:
-    """The episodes of each row, on a split where the rows ran different numbers of them
-    (their means are then over different episode sets)."""
-    parts = []
-    for split, _ in spec.groups:
-        counts = {row: errors[(row, split)][0] for row in rows if (row, split) in errors}
+    """How many episodes each cell's mean is over, so a reader always knows n: one number
+    when every cell has the same, else per split, naming the rows of a split that ran
+    different numbers (their means are then over different episode sets). A cell whose
+    count the summary does not give (no ``status_error`` row) is not described."""
+    uniform: dict[str, int] = {}  # split title -> the one count of its cells
+    differing: list[str] = []
+    every_cell_counted = True
+    for split, title in spec.groups:
+        shown = [r for r in rows if any(cells[r][(split, m)] is not None for m, _ in spec.metrics)]
+        counts = {row: errors[(row, split)][0] for row in shown if (row, split) in errors}
+        every_cell_counted &= len(counts) == len(shown)
         if len(set(counts.values())) > 1:
-            shown = ", ".join(f"{row} {n}" for row, n in counts.items())
-            parts.append(f"{titles[split]}: {shown}")
-    if not parts:
-        return []
-    return [f"Rows ran different numbers of episodes: {'; '.join(parts)}."]
+            differing.append(f"{title}: " + ", ".join(f"{row} {n}" for row, n in counts.items()))
+        elif counts and len(counts) == len(shown):
+            uniform[title] = next(iter(counts.values()))
+    if every_cell_counted and not differing and len(set(uniform.values())) == 1:
+        return [f"Each cell: {next(iter(uniform.values()))} episodes."]
+    notes = []
+    if uniform:
+        shown_counts = "; ".join(f"{title} {n}" for title, n in uniform.items())
+        notes.append(f"Episodes per cell: {shown_counts}.")
+    if differing:
+        notes.append(f"Rows ran different numbers of episodes: {'; '.join(differing)}.")
+    return notes
 
 
 def _cached_notes(

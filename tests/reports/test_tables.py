@@ -274,3 +274,38 @@ def test_a_split_or_row_that_did_not_run_is_named_in_a_note() -> None:
     assert "-: no scores (not run): Unseen Validation; Unseen Testing." in to_markdown(table)
     table = build_table(summary(), TABLE_I, MetricConventions())
     assert "-: no scores (not run): w/o TMA & co_1 on Unseen Testing." in to_markdown(table)
+
+
+def counted(data: pd.DataFrame, n: dict[tuple[str, str], int]) -> pd.DataFrame:
+    """``data`` with error-free status_error rows saying each (system, split) ran n episodes."""
+    rows = [
+        {"system": system, "split": split, "mode": "andh", "metric": "status_error",
+         "unit": "%", "n": episodes, "mean": 0.0}
+        for (system, split), episodes in n.items()
+    ]  # fmt: skip
+    return pd.concat([data, pd.DataFrame(rows)], ignore_index=True)
+
+
+def test_a_table_always_says_how_many_episodes_its_cells_are_over() -> None:
+    every_cell = dict.fromkeys(VALUES, 30)
+    table = build_table(counted(summary(), every_cell), TABLE_I, MetricConventions())
+    assert "Each cell: 30 episodes." in to_markdown(table)
+    assert "Each cell: 30 episodes." in to_latex(table)
+    assert "different numbers" not in to_markdown(table)
+    # Same count within each split, not across them: each split's count.
+    by_split = {key: 20 if key[1] == "test_unseen" else 30 for key in VALUES}
+    md = to_markdown(build_table(counted(summary(), by_split), TABLE_I, MetricConventions()))
+    assert "Episodes per cell: Seen Validation 30; Unseen Validation 30; Unseen Testing 20." in md
+    assert "Each cell:" not in md
+    # Rows of a split that differ are named; the other splits keep their one count.
+    uneven = every_cell | {("Random", "val_seen"): 29}
+    md = to_markdown(build_table(counted(summary(), uneven), TABLE_I, MetricConventions()))
+    assert "Episodes per cell: Unseen Validation 30; Unseen Testing 30." in md
+    assert (
+        "Rows ran different numbers of episodes: Seen Validation: Random 29, "
+        "w/o TMA & co_1 30, Ours Full 30." in md
+    )
+    # A count the summary does not give is not claimed for every cell.
+    partial = {key: n for key, n in every_cell.items() if key[0] != "Random"}
+    md = to_markdown(build_table(counted(summary(), partial), TABLE_I, MetricConventions()))
+    assert "Each cell:" not in md and "Episodes per cell: Unseen Validation" not in md
