@@ -20,8 +20,9 @@ A failure never reads as a score: a path metric's cell (SR, SPL, NE, ...) whose 
 episode ended in error shows ``error``, not the 0 its episodes score as failures; one where
 some did carries ``⋄`` and a note says how many (the health columns, Error/% and the like,
 show their numbers); a split whose ground truth is withheld shows ``withheld``.
-Every rendering carries the metric conventions (a comment in LaTeX and CSV, a footnote
-in Markdown).
+Every rendering carries the metric conventions and the notes: Markdown and LaTeX the same
+caption (with what the marks mean) and footnotes (LaTeX's in a block under the tabular, and
+the exact conventions as a comment), CSV as comment lines.
 """
 
 from __future__ import annotations
@@ -477,19 +478,30 @@ def to_markdown(table: Table) -> str:
                 text = f"<u>{text}</u>"
             out.append(text)
         lines.append("| " + " | ".join(out) + " |")
-    lines += [
-        "",
-        f"{spec.caption} Best in bold, second underlined. "
-        f"Conventions: {table.conventions.describe()}.",
-        *(["", *table.notes] if table.notes else []),
-    ]
+    lines += ["", f"{_caption(table)} {_conventions_note(table)}"]
+    lines += ["", *table.notes] if table.notes else []
     return "\n".join(lines) + "\n"
+
+
+#: What the marks of every rendering mean (bold and underline in Markdown and LaTeX).
+RANK_MARKS = "Best in bold, second underlined."
+
+
+def _caption(table: Table) -> str:
+    """The caption every rendering carries: the table's and what its marks mean."""
+    return f"{table.spec.caption} {RANK_MARKS}"
+
+
+def _conventions_note(table: Table) -> str:
+    return f"Conventions: {table.conventions.describe()}."
 
 
 _LATEX_SPECIALS = {"&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_", "{": r"\{",
                    "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}",
                    "\\": r"\textbackslash{}", SOME_ERRORS: r"$\diamond$",
-                   AT_LEAST: r"$\geq$"}  # fmt: skip
+                   AT_LEAST: r"$\geq$",
+                   # Text-mode < and > print as other glyphs in LaTeX's default font encoding.
+                   "<": r"$<$", ">": r"$>$"}  # fmt: skip
 
 
 def latex_escape(text: str) -> str:
@@ -497,7 +509,8 @@ def latex_escape(text: str) -> str:
 
 
 def to_latex(table: Table) -> str:
-    """A booktabs ``table`` environment (needs the booktabs and multirow packages)."""
+    """A booktabs ``table`` environment (needs the booktabs and multirow packages) with the
+    Markdown's caption, and its conventions and notes in a footnote block under the tabular."""
     spec = table.spec
     n_metrics = len(spec.metrics)
     arrow = {"↑": r"$\uparrow$", "↓": r"$\downarrow$"}
@@ -506,7 +519,7 @@ def to_latex(table: Table) -> str:
         r"% needs \usepackage{booktabs} and \usepackage{multirow}",
         r"\begin{table}[t]",
         r"\centering",
-        f"\\caption{{{latex_escape(' '.join((spec.caption, *table.notes)))}}}",
+        f"\\caption{{{latex_escape(_caption(table))}}}",
         f"\\label{{{spec.label}}}",
         r"\begin{tabular}{l " + " ".join(["c" * n_metrics] * len(spec.groups)) + "}",
         r"\toprule",
@@ -543,7 +556,12 @@ def to_latex(table: Table) -> str:
                 text += f"\\,{{\\scriptsize{_bracket(cell, digits)}}}"
             out.append(text)
         lines.append(" & ".join(out) + r" \\")
-    lines += [r"\bottomrule", r"\end{tabular}", r"\end{table}"]
+    # The conventions and notes the Markdown carries, as a footnote block under the table
+    # (a caption is for the list of tables, not for paragraphs of notes).
+    notes = [_conventions_note(table), *table.notes]
+    lines += [r"\bottomrule", r"\end{tabular}", r"\par\smallskip\footnotesize"]
+    lines += [f"{latex_escape(note)}\\par" for note in notes]
+    lines.append(r"\end{table}")
     return "\n".join(lines) + "\n"
 
 

@@ -16,7 +16,7 @@ import pytest
 from skyvln_eval.errors import MetricInputError
 from skyvln_eval.metrics import MetricConventions, score_results, summarise
 from skyvln_eval.reports import TABLE_I, TABLE_II, build_table, to_csv, to_latex, to_markdown
-from skyvln_eval.reports.tables import Table
+from skyvln_eval.reports.tables import Table, latex_escape
 from tests.metrics.helpers import result, square
 
 EXPECTED = Path(__file__).parent / "expected"
@@ -309,3 +309,20 @@ def test_a_table_always_says_how_many_episodes_its_cells_are_over() -> None:
     partial = {key: n for key, n in every_cell.items() if key[0] != "Random"}
     md = to_markdown(build_table(counted(summary(), partial), TABLE_I, MetricConventions()))
     assert "Each cell:" not in md and "Episodes per cell: Unseen Validation" not in md
+
+
+def test_latex_carries_the_caption_conventions_and_notes_of_the_markdown() -> None:
+    data = with_errors(summary(), {("Random", "val_unseen"): 3.0})
+    table = build_table(data, TABLE_I, MetricConventions(), notes=["† a row's 100% note"])
+    md, latex = to_markdown(table), to_latex(table)
+    caption = f"{TABLE_I.caption} Best in bold, second underlined."
+    conventions = f"Conventions: {MetricConventions().describe()}."
+    assert f"{caption} {conventions}" in md
+    assert f"\\caption{{{latex_escape(caption)}}}" in latex
+    # Below the tabular, one paragraph each: the conventions, then every note in order.
+    block = latex.split("\\end{tabular}\n", 1)[1].splitlines()
+    assert block[0] == r"\par\smallskip\footnotesize"
+    assert block[1:-1] == [f"{latex_escape(t)}\\par" for t in (conventions, *table.notes)]
+    assert block[-1] == r"\end{table}"
+    assert len(table.notes) >= 2 and r"a row's 100\% note\par" in latex
+    assert "NE $<$ 20 m" in latex  # not LaTeX's text-mode '<' (an inverted '!')
