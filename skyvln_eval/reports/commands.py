@@ -350,8 +350,10 @@ def plot_sr_threshold(
     ),
     max_threshold_m: Annotated[float, typer.Option(help="Largest radius shown, metres")] = 100.0,
 ) -> None:
-    """Success rate vs success radius, one line per system; error episodes are left out
-    (the legend counts them, and the degraded ones), oracle runs labelled references."""
+    """R2R success rate vs success radius, one line per system, every split of the scores
+    pooled: error episodes count as failures, as in the tables' SR, and so (under the
+    scores' conventions, collision_fails by default) do flights that touched an obstacle;
+    the legend counts them, and the degraded ones; oracle runs labelled references."""
     from skyvln_eval.metrics.scores_io import read_many_scores
     from skyvln_eval.reports.nav_figures import sr_vs_threshold_figure
     from skyvln_eval.reports.render import save_figure
@@ -368,8 +370,9 @@ def plot_ne(
         "ne_distribution.png"
     ),
 ) -> None:
-    """Distribution of the navigation error, one histogram per system; error episodes are
-    left out (the legend counts them, and the degraded ones), oracle runs labelled references."""
+    """Distribution of the navigation error, one histogram per system: error episodes count
+    at where they stopped, as in the tables' NE (a system of errors only is named, not
+    drawn); the legend counts them, and the degraded ones; oracle runs labelled references."""
     from skyvln_eval.metrics.scores_io import read_many_scores
     from skyvln_eval.reports.nav_figures import ne_distribution_figure
     from skyvln_eval.reports.render import save_figure

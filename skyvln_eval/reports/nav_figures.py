@@ -4,11 +4,13 @@ The first two take a scores frame (:func:`skyvln_eval.metrics.score_results`), o
 per system. The map figure takes a :class:`~skyvln_eval.worlds.WorldTile` and view
 arrays (``(K, 4, 2)`` ``[lat, lng]``) and draws them with the tile's georeference.
 
-An ``error`` episode (it raised, or none of its LLM calls gave a usable answer) measured
-nothing: the NE histogram leaves it out and says so in the legend (``flaky (n=3, 1 error
-left out)``); the SR curve counts it as a failure, as the tables' SR does, and says so
-(``flaky (n=4, 1 error counted as a failure)``); a system of errors only is named, not
-drawn. ``degraded`` episodes are drawn and counted in the legend. Systems the
+An ``error`` episode (it raised, or none of its LLM calls gave a usable answer) is drawn
+as the tables score it, and the legend says so: the SR curve counts it as a failure
+(``flaky (n=4, 1 error counted as a failure)``), as it does a flight that touched an
+obstacle under the conventions' ``collision_fails`` (the default; ``…, 2 crashed
+(failures)``); the NE histogram counts it at where it stopped (``flaky (n=4, 1 error at
+where it stopped; median …)``); a system of errors only is named, not drawn.
+``degraded`` episodes are drawn and counted in the legend. Systems the
 ground-truth oracle flew are labelled as references
 (:func:`~skyvln_eval.metrics.aggregate.oracle_systems`), dash-dotted.
 """

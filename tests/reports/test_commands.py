@@ -352,3 +352,19 @@ def test_plot_trajectory_of_an_error_episode_is_titled_with_its_error(
     assert ax.get_title() == "agent: 1913__0_1 — error: TimeoutError: no answer"
     legend = [t.get_text() for t in ax.get_legend().get_texts()]
     assert "agent, until the error" in legend
+
+
+@pytest.mark.parametrize(
+    ("command", "says"),
+    [
+        ("sr-threshold", ["error episodes count as failures", "touched an obstacle"]),
+        ("ne", ["error episodes count at where they stopped"]),
+    ],
+)
+def test_the_plot_help_says_how_error_episodes_are_drawn(command: str, says: list[str]) -> None:
+    # The figures once left error episodes out; the help said so after they stopped doing it.
+    shown = CliRunner().invoke(app, ["plot", command, "--help"], env={"COLUMNS": "200"})
+    assert shown.exit_code == 0, shown.output
+    text = " ".join(shown.output.replace("│", " ").split())
+    assert all(phrase in text for phrase in says), text
+    assert "left out" not in text
