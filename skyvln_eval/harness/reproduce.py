@@ -107,6 +107,18 @@ COST_METRICS = (
     "wall_s",
 )
 
+#: Score columns that are wall-clock measurements: they vary from run to run, where every
+#: other value of the scores and tables is the same for the same seed and inputs.
+WALL_CLOCK_METRICS = (
+    "wall_s",
+    "llm_latency_s",
+    "llm_queue_s",
+    "solve_time_mean_ms",
+    "solve_time_p95_ms",
+)
+#: The footnote part that says a table's timing columns are measured, not computed.
+VARY_RUN_TO_RUN = "measured wall-clock times (they vary from run to run)"
+
 
 def setting_note(plan: ReproducePlan) -> str:
     """What the agents could sense and ask, for the tables' captions."""
@@ -454,7 +466,8 @@ def reproduce(
             "Safety and control (flown systems)",
             "Keep-out clearance: how far the drone stayed outside the nearest obstacle's "
             "keep-out sphere (its radius plus the safety margin); below 0 it was inside that "
-            "sphere, a collision is inside the obstacle itself.",
+            "sphere, a collision is inside the obstacle itself. The solve-time columns are "
+            f"{VARY_RUN_TO_RUN}.",
         ),
     )
     atomic_write_text(
@@ -465,10 +478,13 @@ def reproduce(
             [(metric, metric, "mean") for metric in COST_METRICS],
             f"LLM cost per episode, mean over episodes ({plan.table2.split})",
             # A stand-in has no tokenizer: its counts are not comparable with a model's.
-            f"Tokens of {', '.join(stand_ins)}: estimates (four characters a token), not "
-            "counted by a model; a stand-in costs nothing."
-            if stand_ins
-            else "",
+            (
+                f"Tokens of {', '.join(stand_ins)}: estimates (four characters a token), not "
+                "counted by a model; a stand-in costs nothing. "
+                if stand_ins
+                else ""
+            )
+            + f"llm_latency_s and wall_s are {VARY_RUN_TO_RUN}.",
         ),
     )
     report.files |= {"control.md": tables_dir / "control.md", "cost.md": tables_dir / "cost.md"}

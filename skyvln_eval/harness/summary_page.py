@@ -10,6 +10,7 @@ import pandas as pd
 
 from skyvln_eval.avdn.summary import SplitSummary
 from skyvln_eval.fileio import atomic_write_text
+from skyvln_eval.harness.reproduce import WALL_CLOCK_METRICS
 from skyvln_eval.metrics import MetricConventions
 
 if TYPE_CHECKING:
@@ -74,6 +75,20 @@ def _runs(report: ReproduceReport) -> list[str]:
     return lines + (["", *problems] if problems else [])
 
 
+def _timing_note() -> str:
+    """Which values are wall-clock measurements: the only ones two runs of the same seed
+    and inputs differ in, so a reader comparing them knows what to ignore."""
+    columns = ", ".join(f"`{metric}`" for metric in WALL_CLOCK_METRICS)
+    return (
+        f"Wall-clock measurements, which vary from run to run: {columns} (columns of "
+        "scores.csv, and those metrics' rows of summary.csv), control.md's solve-time "
+        "columns, cost.md's `llm_latency_s` and `wall_s`, Table II's LLM s column (values, "
+        "intervals and marks), the control logs' per-step solve times and the times on this "
+        "page. Every other value of the scores, tables and figures is byte-identical for the "
+        "same seed and inputs."
+    )
+
+
 def _status_line(report: ReproduceReport) -> str:
     totals = {s: sum(r.statuses.get(s, 0) for r in report.reports) for s in ("ok", "degraded")}
     errors = sum(len(r.errors) for r in report.reports)
@@ -130,6 +145,8 @@ def write_summary_page(
             _status_line(report),
             "",
             f"Metric conventions: {conventions.describe()}",
+            "",
+            _timing_note(),
             "",
             "## Table I: systems (SPL and SR, %)",
             "",

@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 from skyvln_eval.cli import app
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.harness.plan import environment_backends, load_plan, planned_runs, slug
-from skyvln_eval.harness.reproduce import CONTROL_COLUMNS, reproduce
+from skyvln_eval.harness.reproduce import CONTROL_COLUMNS, WALL_CLOCK_METRICS, reproduce
 from skyvln_eval.llm import LLMConfig
 
 TINY_PLAN = {
@@ -101,6 +101,16 @@ def test_a_small_plan_writes_tables_figures_and_summary_and_resumes(
     assert any(name.startswith("trajectory_") for name in report.files)
     summary = report.files["SUMMARY.md"].read_text()
     assert "Table I" in summary and "Table II" in summary and "control_static.png" in summary
+    # The page names the wall-clock columns (the only values that vary between runs of the
+    # same seed): each is a column of the scores, so the page names nothing that is not there.
+    scores_header = report.files["scores.csv"].read_text().splitlines()
+    columns = next(line for line in scores_header if not line.startswith("#")).split(",")
+    assert set(WALL_CLOCK_METRICS) <= set(columns)
+    assert all(f"`{metric}`" in summary for metric in WALL_CLOCK_METRICS)
+    assert "Every other value of the scores, tables and figures is byte-identical" in summary
+    assert "solve-time columns are measured wall-clock times" in control[-1]
+    cost = report.files["cost.md"].read_text().strip().splitlines()
+    assert "llm_latency_s and wall_s are measured wall-clock times" in cost[-1]
     assert "not an LLM" in summary
     recordings = sorted(name for name in report.files if name.endswith(".rrd"))
     if importlib.util.find_spec("rerun") is not None:
