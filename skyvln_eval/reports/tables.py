@@ -354,6 +354,11 @@ def _error_counts(
     return counts
 
 
+def episodes(n: int) -> str:
+    """``n`` episodes in words: "1 episode", "30 episodes"."""
+    return f"{n} episode" + ("" if n == 1 else "s")
+
+
 def _episode_count_notes(
     errors: dict[tuple[str, str], tuple[int, int]],
     cells: dict[str, dict[tuple[str, str], Cell | None]],
@@ -376,7 +381,7 @@ def _episode_count_notes(
         elif counts and len(counts) == len(shown):
             uniform[title] = next(iter(counts.values()))
     if every_cell_counted and not differing and len(set(uniform.values())) == 1:
-        return [f"Each cell: {next(iter(uniform.values()))} episodes."]
+        return [f"Each cell: {episodes(next(iter(uniform.values())))}."]
     notes = []
     if uniform:
         shown_counts = "; ".join(f"{title} {n}" for title, n in uniform.items())
