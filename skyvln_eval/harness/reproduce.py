@@ -9,9 +9,14 @@ Writes under the output directory:
 - ``tables/table1.{md,tex,csv}``, ``tables/table2.{md,tex,csv}`` (and ``*_ci.md`` with
   intervals), ``tables/control.md`` (safety and control of the flown systems) and
   ``tables/cost.md`` (LLM calls, tokens, cost and latency per backend);
+- ``scores/tables.json``: each table's rows, order and notes (``skyvln-eval table`` on
+  these scores makes the same tables from it);
 - ``figures/``: the control figures of the static and dynamic obstacle cases, SR vs the
   success threshold, the NE distribution and trajectories over their maps;
-- ``dataset_summary.json`` and ``SUMMARY.md``, which links everything.
+  ``control_runs/``: the control logs the control figures are drawn from;
+- ``recordings/``: the first finished episodes of every system as Rerun recordings;
+- ``dataset_summary.json`` and ``SUMMARY.md``, which links every file in ``files`` and says
+  which runs fill two table rows.
 
 Interrupted, it resumes: finished episodes are not run again.
 """
@@ -152,10 +157,19 @@ def table1_label(label: str, agent: AgentConfig) -> tuple[str, str | None]:
     return f"{label} ({backend})", None
 
 
+#: The tables' titles, as SUMMARY.md names them.
+TABLE_TITLES = {"table1": "Table I", "table2": "Table II"}
+
+
 @dataclass
 class ReproduceReport:
+    """What reproduce ran and wrote. ``run_rows``: for each of ``reports``, the table rows
+    its episodes fill, ``(table title, row label as the table shows it)``; a run can fill
+    two (Table I's Full and Table II's rule-based row are one run)."""
+
     out_dir: Path
     reports: list[RunReport]
+    run_rows: list[tuple[tuple[str, str], ...]] = field(default_factory=list)
     files: dict[str, Path] = field(default_factory=dict)
     wall_s: float = 0.0
     notes: list[str] = field(default_factory=list)
@@ -165,12 +179,19 @@ class ReproduceReport:
         return all(r.complete for r in self.reports)
 
 
+def _row_labels(planned: PlannedRun, table: str) -> list[str]:
+    """The rows ``planned`` fills in ``table``, labelled as the table shows them (Table I
+    marks a stand-in's rows, ``Full †``)."""
+    labels = [label for t, label in planned.rows if t == table]
+    if table == "table1":
+        return [table1_label(label, planned.config.agent)[0] for label in labels]
+    return labels
+
+
 def _labelled(
     planned: PlannedRun, results: Sequence[EpisodeResult], table: str
 ) -> list[EpisodeResult]:
-    labels = [label for t, label in planned.rows if t == table]
-    if table == "table1":
-        labels = [table1_label(label, planned.config.agent)[0] for label in labels]
+    labels = _row_labels(planned, table)
     return [dataclasses.replace(r, system=label) for label in labels for r in results]
 
 
@@ -289,7 +310,8 @@ def _control_figures(plan: ReproducePlan, out_dir: Path) -> dict[str, Path]:
     if not spec.controllers or not spec.cases:  # a plan may leave the control figures out
         return {}
     paths = record_paper_runs(out_dir / "control_runs", spec.controllers, spec.cases, plan.seed)
-    files: dict[str, Path] = {}
+    # The logs the figures are drawn from, for SUMMARY.md to link.
+    files = {f"control_runs/{path.name}": path for path in sorted(paths.values())}
     for case in spec.cases:
         frames = [read_control_log(p) for (_, c), p in paths.items() if c == case]
         log = pd.concat(frames, ignore_index=True)
@@ -411,7 +433,13 @@ def reproduce(
             + f". The episodes recorded are kept under {out_dir / 'runs'}: the same command "
             "goes on from them once that is fixed."
         )
-    report = ReproduceReport(out_dir, reports)
+    run_rows = [
+        tuple((title, label) for table, title in TABLE_TITLES.items()
+              for label in _row_labels(planned, table))
+        for planned in runs
+    ]  # fmt: skip
+    report = ReproduceReport(out_dir, reports, run_rows)
+    report.files["dataset_summary.json"] = out_dir / "dataset_summary.json"
     results: list[EpisodeResult] = []
     table2_rows: list[str] = []
     stand_ins: list[str] = []  # Table II rows answered by a stand-in

@@ -12,6 +12,8 @@ from skyvln_eval.avdn.summary import SplitSummary
 from skyvln_eval.fileio import atomic_write_text
 from skyvln_eval.harness.reproduce import WALL_CLOCK_METRICS
 from skyvln_eval.metrics import MetricConventions
+from skyvln_eval.reports.table_layout import LAYOUT_FILE
+from skyvln_eval.reports.tables import episodes
 
 if TYPE_CHECKING:
     from skyvln_eval.harness.plan import ReproducePlan
@@ -41,13 +43,41 @@ def _datasets(datasets: Sequence[SplitSummary]) -> list[str]:
     return lines
 
 
+def _rows_of(rows: Sequence[tuple[str, str]], sep: str = ", ") -> str:
+    """A run's table rows as the tables label them: ``Full † (Table I)``."""
+    return sep.join(f"{label} ({table})" for table, label in rows)
+
+
+def _shared_runs(report: ReproduceReport, scores: pd.DataFrame) -> str:
+    """How the scored rows outnumber the episodes: a run that fills several table rows has
+    its episodes scored once for each (the same episodes, not more of them)."""
+    parts = []
+    extra = 0
+    for r, rows in zip(report.reports, report.run_rows, strict=True):
+        if len(rows) < 2:
+            continue
+        splits = sorted({split for split, _ in r.expected})
+        # Its episodes as scored under its first row (withheld ground truth is not scored).
+        of_run = (scores["system"] == rows[0][1]) & scores["split"].isin(splits)
+        scored = int(of_run.sum())
+        extra += scored * (len(rows) - 1)
+        parts.append(
+            f"{_rows_of(rows, ' and ')} are one run "
+            f"({', '.join(splits)}: {episodes(scored)}), scored once for each row"
+        )
+    if not parts:
+        return ""
+    return f" for {int(scores.shape[0]) - extra} episodes: {'; '.join(parts)}"
+
+
 def _runs(report: ReproduceReport) -> list[str]:
     lines = [
-        "| system | split | episodes | ok | degraded | error | missing | run now | simulated s "
-        "| structured output |",
+        "| table rows | split | episodes | ok | degraded | error | missing | run now "
+        "| simulated s | structured output |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for r in report.reports:
+    names = [_rows_of(rows) for rows in report.run_rows]
+    for r, name in zip(report.reports, names, strict=True):
         splits = sorted({split for split, _ in r.expected})
         counts = " | ".join(str(r.statuses.get(s, 0)) for s in ("ok", "degraded", "error"))
         levels = "; ".join(f"{m}: {lvl}" for m, lvl in r.structured_output.items()) or "-"
@@ -56,21 +86,22 @@ def _runs(report: ReproduceReport) -> list[str]:
                 f"{m}: {names}" for m, names in r.server_defaults.items()
             )
         lines.append(
-            f"| {r.system} | {', '.join(splits)} | {len(r.expected)} | {counts} "
+            f"| {name} | {', '.join(splits)} | {len(r.expected)} | {counts} "
             f"| {len(r.missing)} | {r.ran_now} | {r.simulated_s:.0f} | {levels} |"
         )
+    runs = list(zip(report.reports, names, strict=True))
     problems = (
         [
-            f"- {r.system}: error {split}/{episode}: {message}"
-            for r in report.reports
+            f"- {name}: error {split}/{episode}: {message}"
+            for r, name in runs
             for (split, episode), message in r.errors.items()
         ]
         + [
-            f"- {r.system}: missing {split}/{episode}"
-            for r in report.reports
+            f"- {name}: missing {split}/{episode}"
+            for r, name in runs
             for split, episode in r.missing
         ]
-        + [f"- {r.system}: stopped early: {r.stopped}" for r in report.reports if r.stopped]
+        + [f"- {name}: stopped early: {r.stopped}" for r, name in runs if r.stopped]
     )
     return lines + (["", *problems] if problems else [])
 
@@ -114,6 +145,26 @@ def _recordings(report: ReproduceReport) -> list[str]:
     return lines + [f"- {note}" for note in report.notes]
 
 
+def _other_formats(report: ReproduceReport, table: str) -> str:
+    """Links to a table's files: Markdown (shown above it), LaTeX, CSV, and the version
+    with intervals if written."""
+    text = (
+        f"Files: {_link(report, f'{table}.md')}, {_link(report, f'{table}.tex')} (LaTeX) and "
+        f"{_link(report, f'{table}.csv')}"
+    )
+    with_ci = f"{table}_ci.md"
+    if with_ci in report.files:
+        text += f"; with 95% intervals: {_link(report, with_ci)}"
+    return text + "."
+
+
+def _control_logs(report: ReproduceReport) -> list[str]:
+    logs = sorted(name for name in report.files if name.startswith("control_runs/"))
+    if not logs:
+        return []
+    return ["", "The control figures' logs: " + ", ".join(_link(report, n) for n in logs) + "."]
+
+
 def write_summary_page(
     report: ReproduceReport,
     plan: ReproducePlan,
@@ -138,7 +189,8 @@ def write_summary_page(
         [
             f"# Reproduce: plan `{plan.name}`",
             "",
-            f"Status: {status}. {int(scores.shape[0])} scored episode rows; the episodes run now "
+            f"Status: {status}. {int(scores.shape[0])} scored episode rows"
+            f"{_shared_runs(report, scores)}; the episodes run now "
             f"took {wall:.0f} s of wall time for {simulated:.0f} s of simulated flight; "
             f"everything took {report.wall_s:.0f} s.",
             "",
@@ -152,27 +204,27 @@ def write_summary_page(
             "",
             _read(report, "table1.md"),
             "",
-            f"Also as {_link(report, 'table1.tex')} (LaTeX) and {_link(report, 'table1.csv')}; "
-            + (
-                f"with 95% intervals: {_link(report, 'table1_ci.md')}."
-                if "table1_ci.md" in report.files
-                else ""
-            ),
+            _other_formats(report, "table1"),
             "",
             "## Table II: LLM backends",
             "",
             _read(report, "table2.md"),
             "",
             rule_note,
-            f"Also as {_link(report, 'table2.tex')} and {_link(report, 'table2.csv')}.",
+            _other_formats(report, "table2"),
             "",
             _read(report, "cost.md"),
             "",
+            f"File: {_link(report, 'cost.md')}.",
+            "",
             _read(report, "control.md"),
+            "",
+            f"File: {_link(report, 'control.md')}.",
             "",
             "## Figures",
             "",
             *[f"- {_link(report, name)}" for name in figures],
+            *_control_logs(report),
             "",
             "## Episode recordings (Rerun)",
             "",
@@ -181,18 +233,24 @@ def write_summary_page(
             "## Scores",
             "",
             f"- per episode: {_link(report, 'scores.csv')}; per system and split with 95% "
-            f"intervals: {_link(report, 'summary.csv')}",
+            f"intervals: {_link(report, 'summary.csv')}; each table's rows, order and notes "
+            f"(what `skyvln-eval table` on these scores reads): {_link(report, LAYOUT_FILE)}",
             "- every run directory under `runs/` holds `config.yaml`, `versions.json`, "
             "`results.jsonl`, one run MCAP per episode under `logs/` and, flown, its control "
             "log under `control/`",
             "",
             "## Runs",
             "",
+            "One line per run (a system on a split), named by the table rows it fills, as the "
+            "tables label them; a run that fills two rows is one run, its episodes counted once.",
+            "",
             *_runs(report),
             "",
             "## Dataset",
             "",
             *_datasets(datasets),
+            "",
+            f"As JSON: {_link(report, 'dataset_summary.json')}.",
             "",
         ]
     )

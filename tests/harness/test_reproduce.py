@@ -14,6 +14,7 @@ from skyvln_eval.errors import ConfigError
 from skyvln_eval.harness.plan import environment_backends, load_plan, planned_runs, slug
 from skyvln_eval.harness.reproduce import CONTROL_COLUMNS, WALL_CLOCK_METRICS, reproduce
 from skyvln_eval.llm import LLMConfig
+from skyvln_eval.metrics.scores_io import read_scores
 
 TINY_PLAN = {
     "name": "tiny",
@@ -112,6 +113,27 @@ def test_a_small_plan_writes_tables_figures_and_summary_and_resumes(
     cost = report.files["cost.md"].read_text().strip().splitlines()
     assert "llm_latency_s and wall_s are measured wall-clock times" in cost[-1]
     assert "not an LLM" in summary
+    # Every file reproduce wrote is linked from the page ("SUMMARY.md, which links everything").
+    for name, path in report.files.items():
+        if name != "SUMMARY.md":
+            assert f"]({path.relative_to(tmp_path / 'out').as_posix()})" in summary, name
+    assert {"table2_ci.md", "tables.json", "dataset_summary.json"} <= set(report.files)
+    assert any(name.startswith("control_runs/") for name in report.files)
+    # The scored rows outnumber the episodes by the shared run's, and the page says why.
+    shared = "Full † (Table I) and rule-based (not an LLM) (Table II) are one run"
+    scored_rows = len(read_scores(report.files["scores.csv"])[0])
+    episodes = sum(len(r.expected) for r in report.reports)
+    assert scored_rows == episodes + 1  # limit 1: the shared run's one episode, twice
+    assert (
+        f"{scored_rows} scored episode rows for {episodes} episodes: {shared} "
+        "(test_unseen: 1 episode), scored once for each row" in summary
+    )
+    # The Runs table names each run by the rows it fills, labelled as the tables label them.
+    runs = summary.split("## Runs", 1)[1].split("## Dataset", 1)[0]
+    assert "| Full † (Table I), rule-based (not an LLM) (Table II) | test_unseen |" in runs
+    labels = {f"| {row} |" for r in report.run_rows for _, row in r}
+    tables_text = table1 + table2
+    assert labels and all(label in tables_text for label in labels), labels
     recordings = sorted(name for name in report.files if name.endswith(".rrd"))
     if importlib.util.find_spec("rerun") is not None:
         # One recording per system (limit 1): NavGPT-style, Full (also Table II's rule row),
@@ -183,6 +205,18 @@ def test_the_default_plan_has_the_papers_rows() -> None:
     assert plan.table1.splits == ("val_seen", "val_unseen", "test_unseen")
     labels = [b.label for b in plan.table2.backends]
     assert labels == ["rule-based (not an LLM)", "random (not an LLM)"]
+
+
+def test_the_readme_lists_the_default_plans_rows_and_every_output() -> None:
+    readme = (Path(__file__).parents[2] / "README.md").read_text()
+    outputs = readme.split("writes under `reproduce-output/`:\n\n", 1)[1].split("\n\n", 1)[0]
+    table1 = outputs.split("Table I (", 1)[1].split("over seen validation", 1)[0]
+    for system in load_plan("default").table1.systems:
+        assert system.label in table1, system.label
+    for output in ("tables/table1", "tables/table2", "figures/", "control_runs/", "scores/",
+                   "summary.csv", "tables.json", "runs/", "recordings/", "dataset_summary.json",
+                   "SUMMARY.md"):  # fmt: skip
+        assert f"`{output}" in outputs, output
 
 
 def test_a_system_can_override_its_controller_settings(tmp_path: Path) -> None:
