@@ -102,6 +102,8 @@ def _runs(report: ReproduceReport) -> list[str]:
             for split, episode in r.missing
         ]
         + [f"- {name}: stopped early: {r.stopped}" for r, name in runs if r.stopped]
+        # What each run's launch said: rows set aside or run again, a code change.
+        + [f"- {name}: {note}" for r, name in runs for note in r.notes]
     )
     return lines + (["", *problems] if problems else [])
 
