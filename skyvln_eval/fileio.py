@@ -37,11 +37,13 @@ def usual_permissions(path: str | Path) -> None:
     Path(path).chmod(0o666 & ~_umask())
 
 
-def atomic_write_bytes(path: str | Path, data: bytes) -> None:
+def atomic_write_bytes(path: str | Path, data: bytes, durable: bool = False) -> None:
     """Write ``data`` to ``path`` atomically (temporary file in the same folder, then rename).
 
     The file gets the usual permissions (0666 minus the umask), not the 0600 that
-    temporary files are created with.
+    temporary files are created with. ``durable``: the data and the rename are synced to
+    disk before this returns (a power cut then finds the old file or the new one whole);
+    for files whose loss loses work, e.g. a run's results rewritten.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -49,11 +51,30 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
     try:
         with os.fdopen(fd, "wb") as handle:
             handle.write(data)
+            if durable:
+                handle.flush()
+                os.fsync(handle.fileno())
         usual_permissions(tmp)
         Path(tmp).replace(path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+    if durable:
+        sync_directory(path.parent)
+
+
+def sync_directory(folder: Path) -> None:
+    """Sync a folder's entries (a rename in it), where the platform can."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass  # some filesystems refuse fsync on a folder: the rename is as durable as it gets
+    finally:
+        os.close(fd)
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:

@@ -34,3 +34,24 @@ def test_a_failed_write_leaves_the_old_file_and_no_temporary(tmp_path: Path) -> 
         atomic_write_bytes(path, "not bytes")  # type: ignore[arg-type]
     assert path.read_bytes() == b"old"
     assert [p.name for p in tmp_path.iterdir()] == ["keep.bin"]
+
+
+def test_a_durable_write_syncs_its_bytes_and_its_rename(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A run's results, rewritten (a row replaced, damaged rows set aside), are work that a
+    # power cut must not lose: the bytes and the folder's entry reach the disk first.
+    synced: list[str] = []
+    real_fsync = os.fsync
+
+    def recording_fsync(fd: int) -> None:
+        synced.append(str(Path(f"/proc/self/fd/{fd}").readlink()))
+        real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", recording_fsync)
+    atomic_write_bytes(tmp_path / "plain.txt", b"a")
+    assert synced == []  # an ordinary write does not wait for the disk
+    atomic_write_bytes(tmp_path / "results.jsonl", b"b", durable=True)
+    assert len(synced) == 2 and synced[1] == str(tmp_path)
+    assert synced[0].startswith(str(tmp_path / ".results.jsonl."))  # the temporary file
+    assert (tmp_path / "results.jsonl").read_bytes() == b"b"

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from skyvln_eval.errors import DataError, FormatVersionError, ResultRecordError, ResultsWriteError
-from skyvln_eval.fileio import atomic_write_bytes
+from skyvln_eval.fileio import atomic_write_bytes, sync_directory
 from skyvln_eval.harness.crashpoints import write_or_crash
 from skyvln_eval.metrics.records import EpisodeResult
 from skyvln_eval.metrics.results_io import (
@@ -238,7 +238,7 @@ class ResultStore:
             os.fsync(handle.fileno())
 
     def _rewrite(self) -> None:
-        atomic_write_bytes(self.path, _line(HEADER) + b"".join(self._lines.values()))
+        atomic_write_bytes(self.path, _line(HEADER) + b"".join(self._lines.values()), durable=True)
 
     def __contains__(self, key: RowKey) -> bool:
         return key in self._rows
@@ -279,13 +279,15 @@ class ResultStore:
             self._take_back(start)
             episode = "/".join(key_of(result))
             raise ResultsWriteError(str(self.path), episode, len(self._rows), error) from error
+        if new_file:  # its name in the folder synced too, not only its bytes
+            sync_directory(self.path.parent)
         self._rows[key_of(result)] = result
         self._lines[key_of(result)] = line
 
     def _replace(self, result: EpisodeResult, line: bytes) -> None:
         lines = self._lines | {key_of(result): line}
         try:
-            atomic_write_bytes(self.path, _line(HEADER) + b"".join(lines.values()))
+            atomic_write_bytes(self.path, _line(HEADER) + b"".join(lines.values()), durable=True)
         except OSError as error:
             episode = "/".join(key_of(result))
             raise ResultsWriteError(str(self.path), episode, len(self._rows), error) from error
