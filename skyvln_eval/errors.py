@@ -129,6 +129,11 @@ class ConfigError(SkyvlnError):
     """A configuration value or command-line option is invalid."""
 
 
+class ForeignRowsError(ConfigError):
+    """A run directory holds result rows another configuration made: never resumed nor
+    scored as the run's, whatever is allowed."""
+
+
 #: The context key (of a ``PydanticCustomError``) by which a validator that checks a
 #: free-form mapping (a controller's settings) names the field inside it, as a dotted path
 #: below the error's location: :func:`describe_validation_error` appends it.

@@ -30,7 +30,7 @@ from skyvln_eval.control.registry import controller_config
 from skyvln_eval.converters.batch import convert_split
 from skyvln_eval.converters.convert import ConvertOptions
 from skyvln_eval.converters.reader import read_episode
-from skyvln_eval.errors import AvdnValidationError, ConfigError
+from skyvln_eval.errors import AvdnValidationError, ConfigError, ForeignRowsError
 from skyvln_eval.fileio import (
     atomic_write_json,
     atomic_write_text,
@@ -234,7 +234,7 @@ def check_own_rows(config: RunConfig, results: Sequence[EpisodeResult], where: P
     they would pass for this run's (a row copied in, a config.yaml replaced)."""
     foreign = foreign_rows(config, results)
     if foreign:
-        raise ConfigError(
+        raise ForeignRowsError(
             f"{where}: {len(foreign)} of its {len(results)} result row(s) were made by "
             f"another configuration than its {CONFIG_FILE}, e.g. {foreign[0]}; a run "
             "directory holds the rows of one configuration: use a new run directory, or "

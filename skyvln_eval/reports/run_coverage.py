@@ -16,7 +16,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from skyvln_eval.avdn.constants import EpisodeMode
-from skyvln_eval.errors import ConfigError, DataError, IncompleteRunError, SkyvlnError
+from skyvln_eval.errors import (
+    ConfigError,
+    DataError,
+    ForeignRowsError,
+    IncompleteRunError,
+    SkyvlnError,
+)
 from skyvln_eval.harness.config import RunConfig, run_config_from_mapping
 from skyvln_eval.harness.run import CONFIG_FILE, REPORT_FILE, check_own_rows, selected
 from skyvln_eval.harness.store import RESULTS_FILE, RowKey
@@ -199,6 +205,8 @@ def covered_results(
         try:
             run_dir = run_dir_of(Path(name))
             coverage = None if run_dir is None else run_coverage(run_dir, results, data_dir)
+        except ForeignRowsError:
+            raise  # rows of another configuration: not this run's, allowed or not
         except (ConfigError, DataError) as error:  # which episodes the run covers is unknown
             if not allow_incomplete:
                 raise
@@ -209,6 +217,11 @@ def covered_results(
             rows += results
             for r in results:
                 plain.setdefault((r.system, r.split, r.mode), []).append(r.episode_id)
+            if data_dir is None:  # nothing to compare them with: say so, in every table
+                warnings.append(
+                    f"NOT CHECKED whether {name} covers its episodes (not in a run directory, "
+                    f"and no --data-dir): its scores cover the {len(results)} episode(s) it has"
+                )
             continue
         if not coverage.complete:
             if coverage.unexpected or not allow_incomplete:

@@ -353,6 +353,8 @@ def test_rows_another_configuration_made_are_refused_by_resume_and_score(
     (run_dir / RESULTS_FILE).write_text("\n".join(lines) + "\n")
     scored = cli("score", str(run_dir), "--out", str(tmp_path / "scores"))
     assert scored.code == 2 and "another configuration" in scored.err, scored
+    allowed = cli("score", str(run_dir), "--out", str(tmp_path / "s"), "--allow-incomplete")
+    assert allowed.code == 2 and "another configuration" in allowed.err, allowed  # never
 
 
 def test_a_resume_with_other_code_is_recorded_and_warns_that_the_run_mixes_versions(

@@ -195,21 +195,24 @@ def test_table_refuses_an_episode_given_twice(tmp_path: Path) -> None:
     twice = runner.invoke(app, ["table", paths[0], paths[0], "--ci"])
     assert isinstance(twice.exception, ResultRecordError)
     assert str(twice.exception).startswith(f"{paths[0]}, record 0 (episode m__0_1)")
-    assert f"duplicates record 0 of {paths[0]} (line 4)" in str(twice.exception)
+    # Line 5: the format, the conventions, a warning (scored without --data-dir: coverage
+    # not checked), the CSV header, then the first row.
+    assert "# warning: NOT CHECKED whether" in Path(paths[0]).read_text()
+    assert f"duplicates record 0 of {paths[0]} (line 5)" in str(twice.exception)
 
     merged = runner.invoke(app, ["table", paths[0], paths[1]])
     assert isinstance(merged.exception, ResultRecordError)
     message = str(merged.exception)
     assert message.startswith(f"{paths[1]}, record 0 (episode m__0_1), field 'episode_id'")
-    assert f"record 0 of {paths[0]} (line 4)" in message and "same system 'agent'" in message
+    assert f"record 0 of {paths[0]} (line 5)" in message and "same system 'agent'" in message
     assert "different system labels" in message
 
     # One file holding an episode twice (e.g. two files pasted together) is refused on reading.
     lines = Path(paths[1]).read_text().splitlines(keepends=True)
-    Path(paths[1]).write_text("".join([*lines, lines[5]]))
+    Path(paths[1]).write_text("".join([*lines, lines[6]]))
     pasted = runner.invoke(app, ["table", paths[1]])
     assert isinstance(pasted.exception, ResultRecordError)
-    assert "line 12 duplicates record 2 of this file (line 6)" in str(pasted.exception)
+    assert "line 13 duplicates record 2 of this file (line 7)" in str(pasted.exception)
 
 
 def test_score_takes_a_run_directory_and_names_what_it_cannot_score(tmp_path: Path) -> None:
