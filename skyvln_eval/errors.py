@@ -45,7 +45,7 @@ class ValidationIssue:
         return where
 
     def __str__(self) -> str:
-        field = "" if self.field is None else f", field '{self.field}'"
+        field = f", field '{self.field}'" if self.field else ""  # none, or the record itself
         return f"{self.record_location}{field}: {self.message}"
 
 

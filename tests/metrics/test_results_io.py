@@ -138,6 +138,12 @@ def test_bad_rows_are_located(tmp_path: Path) -> None:
         ResultRecordError, match=r"gt_path_corners\[1\].*4 \[lat, lng\] corners, got 3"
     ):
         read_results(path)
+    lines[2] = "[1, 2]"  # the record itself is wrong: no field to name, and none named
+    path.write_text("\n".join(lines))
+    with pytest.raises(ResultRecordError) as not_an_object:
+        read_results(path)
+    assert "field" not in str(not_an_object.value)
+    assert "record 1: expected a JSON object, got list" in str(not_an_object.value)
 
 
 def test_duplicates_and_unknown_suffixes_are_refused(tmp_path: Path) -> None:
