@@ -137,7 +137,7 @@ def test_a_dead_endpoint_is_an_error_in_every_table_and_fails_the_command(
     # ... and SUMMARY.md counts each status and inlines the tables.
     page = (out / "SUMMARY.md").read_text()
     assert "2 error (no usable LLM answer" in page and "n/a" in page
-    assert "| dead endpoint | test_unseen | 2 | 0 | 0 | 2 |" in page
+    assert "| dead endpoint (Table II) | test_unseen | 2 | 0 | 0 | 2 |" in page
     # Table I says its rows were answered by the rule stand-in.
     table1 = (out / "tables" / "table1.md").read_text()
     assert "| Full † |" in table1 and "† LLM modules answered by the rule-based" in table1
