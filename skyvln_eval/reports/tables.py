@@ -336,7 +336,7 @@ def _not_run_notes(
             not_run.append(
                 title if len(missing) == len(rows) else f"{', '.join(missing)} on {title}"
             )
-    return [f"-: no scores (not run): {'; '.join(not_run)}."] if not_run else []
+    return [f"-: no scores (no episode recorded): {'; '.join(not_run)}."] if not_run else []
 
 
 def _error_counts(
