@@ -78,8 +78,10 @@ class RichRunProgress(RunProgress):
 
     def episode_done(self, result: EpisodeResult, success: bool | None) -> None:
         self.finished += 1
-        self.scored += int(success is not None)
-        self.successes += int(bool(success))
+        # The oracle's episodes are a reference, not a result: never in the live SR.
+        counted = success is not None and result.extra.get("oracle") is not True
+        self.scored += int(counted)
+        self.successes += int(counted and bool(success))
         self.errors += int(result.status == "error")
         self.degraded += int(result.status == "degraded")
         priced = [c.cost_usd for c in result.llm_calls if c.cost_usd is not None]

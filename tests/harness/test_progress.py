@@ -52,3 +52,14 @@ def test_a_known_cost_is_shown_and_a_known_zero_stays_zero() -> None:
     assert "LLM $0.0000" in shown(flown(0.0, 0.0), flown(0.0))  # the rule stand-in, a free model
     assert "LLM $0.0000" in shown(flown())  # an agent that calls no LLM
     assert "LLM n/a" in shown(flown(0.002), flown(None), flown(0.001))  # once unknown, stays
+
+
+def test_the_live_sr_leaves_the_oracles_episodes_out() -> None:
+    # A reproduction runs the ground-truth oracle next to the agents: pooled in, it lifted
+    # the live SR (an audit read 44.9% where the agents' own was 38.3%).
+    progress = RichRunProgress(Console(file=io.StringIO(), width=200))
+    progress.start("run", total=3, already_done=0)
+    progress.episode_done(flown(), success=False)
+    progress.episode_done(result([GT[0], GT[1]], GT, extra={"oracle": True}), success=True)
+    assert "SR   0.0%" in progress._stats()  # the agent's failure alone
+    progress.finish([])

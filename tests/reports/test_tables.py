@@ -271,9 +271,13 @@ def test_reference_rows_are_not_ranked_and_withheld_splits_say_so() -> None:
 def test_a_split_or_row_that_did_not_run_is_named_in_a_note() -> None:
     only_seen = summary()[lambda d: d.split == "val_seen"]
     table = build_table(only_seen, TABLE_I, MetricConventions())
-    assert "-: no scores (no episode recorded): Unseen Validation; Unseen Testing." in to_markdown(table)
+    assert "-: no scores (no episode recorded): Unseen Validation; Unseen Testing." in to_markdown(
+        table
+    )
     table = build_table(summary(), TABLE_I, MetricConventions())
-    assert "-: no scores (no episode recorded): w/o TMA & co_1 on Unseen Testing." in to_markdown(table)
+    assert "-: no scores (no episode recorded): w/o TMA & co_1 on Unseen Testing." in to_markdown(
+        table
+    )
 
 
 def counted(data: pd.DataFrame, n: dict[tuple[str, str], int]) -> pd.DataFrame:
