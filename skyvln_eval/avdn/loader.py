@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from itertools import count as count_from
 from itertools import islice
 from pathlib import Path
+from typing import Any
 
 from skyvln_eval.avdn.constants import (
     ANNOTATIONS_DIR,
@@ -241,12 +242,36 @@ def _missing_rounds(expected: int, have: set[int]) -> str | None:
     return f"round(s) {first}{more}"
 
 
+class RepeatedKeys(dict[str, Any]):
+    """A JSON object that gave some key more than once (``repeated``): JSON keeps the last
+    value, silently; the validation refuses the record, naming the keys."""
+
+    repeated: tuple[str, ...] = ()
+
+
+def object_keeping_repeats(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """``json.loads``' object hook: a plain dict, or a :class:`RepeatedKeys` that says which
+    keys came more than once."""
+    made = dict(pairs)
+    if len(made) == len(pairs):
+        return made
+    seen: set[str] = set()
+    repeated: dict[str, None] = {}
+    for key, _ in pairs:
+        if key in seen:
+            repeated[key] = None
+        seen.add(key)
+    out = RepeatedKeys(made)
+    out.repeated = tuple(repeated)
+    return out
+
+
 def read_annotation_file(path: Path) -> list[object]:
     """Decode an annotation file; raises :class:`AvdnFileError` unless it is a JSON list."""
     if not path.is_file():
         raise AvdnFileError(str(path), "annotation file not found")
     try:
-        data = json.loads(path.read_bytes())
+        data = json.loads(path.read_bytes(), object_pairs_hook=object_keeping_repeats)
     except json.JSONDecodeError as exc:
         raise AvdnFileError(
             str(path), f"not valid JSON (line {exc.lineno}, column {exc.colno}: {exc.msg})"

@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyvln_eval.avdn.constants import METERS_PER_DEGREE
+from skyvln_eval.avdn.geometry import view_heading_deg
 from skyvln_eval.avdn.json_values import (
     locate_bad_number,
     number_problem,
@@ -45,7 +46,9 @@ SQUARE_TOLERANCE = 0.05
 MIN_EDGE_M = 1.0
 
 _MAP_NAME = re.compile(r"[0-9A-Za-z_-]+")
-_ROUTE_INDEX = re.compile(r"(\d+)_(\d+)")
+#: Plain decimal, ASCII digits, no leading zeros: "6_2" and "6_02" (or "٦_٢") would be
+#: different ids of one round, which a trajectory would hold twice.
+_ROUTE_INDEX = re.compile(r"(0|[1-9][0-9]*)_([1-9][0-9]*)")
 
 
 @dataclass
@@ -70,7 +73,7 @@ def record_place(raw: Any) -> tuple[str | None, str | None, int | None]:
     map_name, route = raw.get("map_name"), raw.get("route_index")
     place_map = map_name if isinstance(map_name, str) and _MAP_NAME.fullmatch(map_name) else None
     match = _ROUTE_INDEX.fullmatch(route) if isinstance(route, str) else None
-    if match is None or int(match.group(2)) < 1:
+    if match is None:
         return place_map, None, None
     return place_map, match.group(1), int(match.group(2))
 
@@ -142,9 +145,12 @@ def _check_scalars(raw: dict[str, Any], report: Any) -> bool:
         report("route_index", f"expected a string, got {type_name(route)} {route!r}")
         ok = False
     else:
-        match = _ROUTE_INDEX.fullmatch(route)
-        if not match or int(match.group(2)) < 1:
-            report("route_index", f"expected '<trajectory>_<round>' with round >= 1, got {route!r}")
+        if not _ROUTE_INDEX.fullmatch(route):
+            report(
+                "route_index",
+                "expected '<trajectory>_<round>' in plain decimal digits without leading "
+                f"zeros, round >= 1, got {route!r}",
+            )
             ok = False
     last = raw.get("last_round_idx")
     if "last_round_idx" in raw and (type(last) is not int or last < 1):
@@ -227,10 +233,12 @@ def _check_record(
     def report(field: str, message: str) -> None:
         issues.append(ValidationIssue(file, message, index, episode, field))
 
+    for key in getattr(raw, "repeated", ()):  # the loader's RepeatedKeys
+        report(key, "key given more than once in the record (JSON keeps the last value)")
     missing = [key for key in REQUIRED_KEYS if key not in raw]
     for key in missing:
         report(key, "missing required key")
-    if missing:
+    if missing or len(issues) > count:
         return None
     _check_scalars(raw, report)
     for key, value in raw.items():
@@ -280,6 +288,14 @@ def _check_view_geometry(
     lo = np.array([p.raw["gps_botm_left"] for p in pending])[owner]
     hi = np.array([p.raw["gps_top_right"] for p in pending])[owner]
     outside = ((views < lo[:, None, :]) | (views > hi[:, None, :])).any(axis=(1, 2))
+    # The first view faces the start heading (`angle`), its front edge from corner 0 to 1:
+    # corners listed from another corner (the right order, shifted round) pass the checks
+    # above but turn every step by a multiple of 90 degrees. A gap of more than 45 degrees
+    # is no rounding.
+    angles = np.array([float(p.raw["angle"]) for p in pending])[owner]
+    facing = np.asarray(view_heading_deg(views), dtype=np.float64)
+    gap = np.abs((facing - angles + 180.0) % 360.0 - 180.0)
+    shifted = (view_k == 0) & ~degenerate & ~not_square & ~mirrored & (gap > 45.0)
 
     bad: set[int] = set()
     problems = (
@@ -287,11 +303,19 @@ def _check_view_geometry(
         (not_square, "view is not square (sides {sides} m, diagonals {diags} m)"),
         (mirrored, "corners are not in the order front-left, front-right, back-right, back-left"),
         (outside, "view lies outside the map bounds gps_botm_left..gps_top_right"),
+        (
+            shifted,
+            "the first view faces {facing} degrees but angle (the start heading) is "
+            "{angle}: its corners do not start at the front-left corner (listed from "
+            "another corner?)",
+        ),
     )
     for mask, template in problems:
         for v in np.flatnonzero(mask):
             p = pending[owner[v]]
             message = template.format(
+                facing=f"{facing[v]:.1f}",
+                angle=f"{angles[v]:g}",
                 min=MIN_EDGE_M,
                 sides=", ".join(f"{s:.1f}" for s in sides[v]),
                 diags=", ".join(f"{d:.1f}" for d in diagonals[v]),

@@ -229,6 +229,40 @@ def test_mirrored_corner_order(dataset_factory: Callable[..., Path]) -> None:
     assert "front-left, front-right" in issue.message
 
 
+@pytest.mark.parametrize("shift", [1, 2, 3])
+def test_corners_listed_from_another_corner_are_refused(
+    dataset_factory: Callable[..., Path], shift: int
+) -> None:
+    # An audit shifted every view's corners round by one (FR, BR, BL, FL): the order still
+    # runs clockwise, so the record loaded and the official step flew 90 degrees off.
+    record = make_record()
+    record["gt_path_corners"] = [view[shift:] + view[:shift] for view in record["gt_path_corners"]]
+    issue = only_issue(dataset_factory, [record])
+    assert issue.field == "gt_path_corners[0]"
+    assert "do not start at the front-left corner" in issue.message
+
+
+@pytest.mark.parametrize("route", ["6_02", "06_1", "\u0666_1", "\uff16_1"])
+def test_a_route_index_in_another_spelling_of_its_numbers_is_refused(
+    dataset_factory: Callable[..., Path], route: str
+) -> None:
+    # "6_2" and "6_02" are one round: both would have joined trajectory 6, round 2 twice.
+    issue = only_issue(dataset_factory, [make_record(route_index=route)])
+    assert issue.field == "route_index" and "without leading zeros" in issue.message
+
+
+def test_a_key_given_twice_is_refused_not_silently_the_last(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    root = dataset_factory({"val_seen": [make_record()]})
+    path = root / "annotations" / "val_seen_data.json"
+    text = path.read_text()
+    assert text.count('"angle": 30.0') == 1
+    path.write_text(text.replace('"angle": 30.0', '"angle": 30.0, "angle": 120.0'))
+    _, issues = check_split(root, "val_seen")
+    assert [(i.field, "more than once" in i.message) for i in issues] == [("angle", True)]
+
+
 @pytest.mark.parametrize(
     ("key", "path", "field"),
     [
