@@ -365,6 +365,35 @@ def _check_destinations(
     return bad
 
 
+def _check_attention_on_map(
+    pending: list[_Pending], file: str, issues: list[ValidationIssue]
+) -> set[int]:
+    """Attention circles are centred on their map (a human marked them on its image): a
+    swapped [lng, lat] centre that still reads as a valid [lat, lng] lies far off it. A
+    tenth of the map's extent is allowed past each edge, for rounding near one."""
+    bad: set[int] = set()
+    for p in pending:
+        if not p.attention:
+            continue
+        centres = np.array([circle.centre for circle in p.attention], dtype=np.float64)
+        lo = np.array(p.raw["gps_botm_left"], dtype=np.float64)
+        hi = np.array(p.raw["gps_top_right"], dtype=np.float64)
+        margin = 0.1 * (hi - lo)
+        off = ((centres < lo - margin) | (centres > hi + margin)).any(axis=1)
+        if off.any():
+            k = int(np.flatnonzero(off)[0])
+            episode = episode_id_of(p.raw["map_name"], p.raw["route_index"])
+            message = (
+                f"attention centre {centres[k].tolist()!r} lies outside the map bounds "
+                "gps_botm_left..gps_top_right (centres are [lat, lng]: swapped?)"
+            )
+            issues.append(
+                ValidationIssue(file, message, p.index, episode, f"attention_list[{k}][0]")
+            )
+            bad.add(p.index)
+    return bad
+
+
 def _check_consistency(
     pending: list[_Pending], file: str, issues: list[ValidationIssue]
 ) -> set[int]:
@@ -442,7 +471,11 @@ def parse_records_indexed(
     """:func:`parse_records`, also returning each valid record's index in ``data``."""
     issues: list[ValidationIssue] = []
     pending = [p for i, raw in enumerate(data) if (p := _check_record(raw, i, file, issues))]
-    bad = _check_view_geometry(pending, file, issues) | _check_destinations(pending, file, issues)
+    bad = (
+        _check_view_geometry(pending, file, issues)
+        | _check_destinations(pending, file, issues)
+        | _check_attention_on_map(pending, file, issues)
+    )
     good = [p for p in pending if p.index not in bad]
     bad |= _check_consistency(good, file, issues)
     kept = [p for p in good if p.index not in bad]

@@ -251,6 +251,15 @@ def test_a_route_index_in_another_spelling_of_its_numbers_is_refused(
     assert issue.field == "route_index" and "without leading zeros" in issue.message
 
 
+def test_an_attention_centre_off_the_map_is_refused(dataset_factory: Callable[..., Path]) -> None:
+    # Swapped [lng, lat] that still reads as a valid [lat, lng]: drawn far off the map.
+    record = make_record()
+    lat, lng = record["gt_path_corners"][0][0]
+    record["attention_list"] = [[[lat, lng], 20.0], [[lng, lat], 20.0]]
+    issue = only_issue(dataset_factory, [record])
+    assert issue.field == "attention_list[1][0]" and "outside the map bounds" in issue.message
+
+
 def test_a_key_given_twice_is_refused_not_silently_the_last(
     dataset_factory: Callable[..., Path],
 ) -> None:
