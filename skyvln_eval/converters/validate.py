@@ -64,14 +64,36 @@ class LogCheck:
 
 
 def _validator(channel: LogChannel) -> Any:
-    validator = _validators.get(channel.schema_data)
+    """The validator of a channel's messages: the toolkit's own copy of a schema it knows
+    (a file's own copy may be wrong: :func:`_schema_differs`), else the file's schema."""
+    known = topics.SCHEMAS.get(channel.schema_name)
+    data = topics.schema_bytes(channel.schema_name) if known is not None else channel.schema_data
+    validator = _validators.get(data)
     if validator is None:
-        schema = json.loads(channel.schema_data)
+        schema = json.loads(data)
         cls = jsonschema.validators.validator_for(schema, default=jsonschema.Draft202012Validator)
         cls.check_schema(schema)
         validator = cls(schema)
-        _validators[channel.schema_data] = validator
+        _validators[data] = validator
     return validator
+
+
+def _schema_differs(channel: LogChannel) -> str | None:
+    """Why a channel's schema is not the toolkit's copy of the schema it names, if it is
+    not (e.g. a foxglove.CompressedImage without the base64 ``contentEncoding`` Foxglove
+    decodes ``data`` by); None for a schema the toolkit does not know."""
+    if channel.schema_name not in topics.SCHEMAS:
+        return None
+    try:
+        found = json.loads(channel.schema_data)
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        return f"schema {channel.schema_name} is not valid JSON"
+    if found == topics.schema_json(channel.schema_name):
+        return None
+    return (
+        f"schema {channel.schema_name} differs from the toolkit's copy (Foxglove and the "
+        "reader expect that one); its messages were checked against the toolkit's"
+    )
 
 
 def _message_problems(message: LogMessage, validator: Any) -> list[tuple[str, str]]:
@@ -113,6 +135,9 @@ def _channel_issues(log: McapLog) -> list[ValidationIssue]:
                     field=channel.topic,
                 )
             )
+        differs = _schema_differs(channel)
+        if differs is not None:
+            issues.append(ValidationIssue(log.path, differs, field=channel.topic))
         encodings = (channel.schema_encoding, channel.message_encoding)
         if encodings != (topics.SCHEMA_ENCODING, topics.MESSAGE_ENCODING):
             issues.append(

@@ -100,6 +100,28 @@ def test_messages_are_checked_against_the_schema_stored_in_their_channel() -> No
     assert "timestamp" in text and "log time is 2000000000" in text
 
 
+def test_a_channel_schema_other_than_the_toolkits_is_reported_and_not_trusted(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # An audit wrote a log whose foxglove.CompressedImage schema lacked the base64
+    # contentEncoding (Foxglove could not decode the images): validate said nothing, its
+    # messages being checked against that very schema.
+    stub = json.dumps({"type": "object"}).encode()
+    real = t.schema_bytes
+    buffer = io.BytesIO()
+    with monkeypatch.context() as patched:
+        patched.setattr(
+            t, "schema_bytes", lambda name: stub if name == t.COMPRESSED_IMAGE else real(name)
+        )
+        with McapLogWriter(buffer) as writer:
+            image = {"timestamp": {"sec": 0, "nsec": 0}, "frame_id": "camera", "format": "jpeg"}
+            writer.write(t.TOPIC_GT_OBSERVATION, t.COMPRESSED_IMAGE, image, 0)  # no data
+    check = check_log_bytes(buffer.getvalue(), "tampered.mcap")
+    text = "\n".join(str(i) for i in check.issues)
+    assert "schema foxglove.CompressedImage differs from the toolkit's copy" in text
+    assert "'data' is a required property" in text  # checked against the real schema
+
+
 def test_own_schema_version_is_in_the_channel_metadata() -> None:
     episode = Episode("val_seen", "andh", (parse_record(make_record()),))
     log = read_log_bytes(convert_to_bytes(episode, synthetic_world()))
