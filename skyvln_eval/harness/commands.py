@@ -16,14 +16,19 @@ def describe_report(report: RunReport) -> list[str]:
     """Human-readable lines of a completeness report (notes, failures, missing episodes)."""
     lines = [*report.notes]
     statuses = ", ".join(f"{n} {status}" for status, n in sorted(report.statuses.items()))
-    lines.append(
-        f"{report.system}: {len(report.expected)} episode(s) ({statuses or 'none recorded'}), "
-        f"{report.already_done} already done, {report.ran_now} run now in {report.wall_s:.1f} s"
-        + (
+    splits = "/".join(dict.fromkeys(split for split, _ in report.expected))
+    if report.runs_in_pass > 1:  # run interleaved with others: no wall time of its own
+        timing = f" (with the pass's {report.runs_in_pass} runs, in {report.wall_s:.1f} s)"
+    else:
+        timing = f" in {report.wall_s:.1f} s" + (
             f" ({report.simulated_s / report.wall_s:.0f}x real time)"
             if report.wall_s and report.simulated_s  # flown in dynamics mode, run now
             else ""
         )
+    lines.append(
+        f"{report.system} ({splits or 'no episode'}): {len(report.expected)} episode(s) "
+        f"({statuses or 'none recorded'}), {report.already_done} already done, "
+        f"{report.ran_now} run now{timing}"
     )
     if report.flights:
         flights = report.flights

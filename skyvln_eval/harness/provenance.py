@@ -1,9 +1,9 @@
 """Where a run came from: toolkit and library versions and the source's git revision.
 
-Every run directory keeps in ``versions.json`` the provenance of each launch that found
-it with other code than the last one did (a resume after a ``git pull``), with how many
+Every run directory keeps in ``versions.json`` the provenance of each launch that made
+rows with other code than the last one did (a resume after a ``git pull``), with how many
 rows it held then, so that any table row can be traced to the exact code that made it;
-such a launch warns that the run now mixes rows of two versions.
+while more than one version made the rows, every launch warns that its scores mix them.
 """
 
 from __future__ import annotations
@@ -77,32 +77,41 @@ VERSIONS_FORMAT = "skyvln-eval.versions"
 VERSIONS_VERSION = 2
 
 
-def record_launch(path: Path, rows_before: int) -> str | None:
+def record_launch(path: Path, rows_before: int) -> None:
     """Add this launch's provenance to the run's ``versions.json`` at ``path`` when it
-    differs from the last launch's; return a warning when rows made by that other code
-    are already in the run (they and this launch's rows will be scored together)."""
+    differs from the last launch's (called by a launch that will make rows)."""
     from skyvln_eval.fileio import atomic_write_json
 
     launches = _launches(path)
     current = provenance()
     last = launches[-1] if launches else None
     if last is not None and {k: v for k, v in last.items() if k != "rows_before"} == current:
-        return None
+        return
     launches.append({"rows_before": rows_before, **current})
     atomic_write_json(
         path,
         {"format": VERSIONS_FORMAT, "version": VERSIONS_VERSION, "launches": launches},
         indent=1,
     )
-    if last is None or rows_before == 0:
+
+
+def mixed_versions_note(path: Path) -> str | None:
+    """A warning, at every launch, while the run's rows were made by more than one version
+    of the code or libraries (``versions.json`` lists a launch per version that made rows;
+    an older run's file, one provenance, counts as one)."""
+    launches = _launches(path)
+    if len(launches) < 2:
         return None
-    changed = sorted(k for k in current if last.get(k) != current[k])
+    made = [
+        launch for launch in launches if launch.get("rows_before") != 0 or launch is launches[0]
+    ]
+    described = "; ".join(
+        f"{_describe(launch)} from row {launch.get('rows_before') or 0}" for launch in made
+    )
     return (
-        f"WARNING: the run's {rows_before} recorded row(s) were made with other code or "
-        f"libraries ({', '.join(changed)} differ: {_describe(last)} then, "
-        f"{_describe(current)} now); the rows run now join them, so its scores mix two "
-        f"versions ({path.name} lists each launch). For one version, run again into a new "
-        "run directory."
+        f"WARNING: this run's rows were made by {len(launches)} versions of the code or "
+        f"libraries ({described}): its scores mix them ({path.name} lists each). For one "
+        "version, run again into a new run directory."
     )
 
 

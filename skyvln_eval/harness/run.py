@@ -42,7 +42,7 @@ from skyvln_eval.harness.executors import Executor, make_executor
 from skyvln_eval.harness.lock import RunDirLock, hold_run_dir, remove_leftover_temporaries
 from skyvln_eval.harness.official_loop import official_success
 from skyvln_eval.harness.preflight import preflight
-from skyvln_eval.harness.provenance import record_launch
+from skyvln_eval.harness.provenance import mixed_versions_note, record_launch
 from skyvln_eval.harness.runner import (
     CONTROL_DIR,
     LOGS_DIR,
@@ -273,6 +273,9 @@ class RunReport:
     stopped: str | None = None
     flights: dict[str, int] = field(default_factory=dict)
     finished: bool = False
+    #: How many runs shared the pass ``wall_s`` measures (a reproduction runs several
+    #: together, their episodes interleaved: no run has a wall time of its own).
+    runs_in_pass: int = 1
 
     @property
     def complete(self) -> bool:
@@ -307,6 +310,7 @@ class RunReport:
             "errors": {f"{s}/{e}": msg for (s, e), msg in self.errors.items()},
             "missing": [f"{s}/{e}" for s, e in self.missing],
             "wall_s": round(self.wall_s, 3),
+            "runs_in_pass": self.runs_in_pass,
             "simulated_s": round(self.simulated_s, 3),
             "structured_output": self.structured_output,
             "server_defaults": self.server_defaults,
@@ -445,11 +449,10 @@ def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = Fal
         leftovers = remove_leftover_temporaries(run_dir, RUN_FILES, RUN_FOLDERS)
         store = ResultStore(run_dir)
         check_own_rows(config, store.results(), run_dir / RESULTS_FILE)
-        mixed = record_launch(run_dir / VERSIONS_FILE, len(store.results()))
     except BaseException:
         lock.release()
         raise
-    notes = store.recovery.messages() + ([mixed] if mixed else [])
+    notes = store.recovery.messages()
     if leftovers:
         notes.append(f"removed {leftovers} temporary file(s) left by an interrupted run")
     cap = speed_cap_note(config)
@@ -466,6 +469,10 @@ def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = Fal
             f"(e.g. {first})"
         )
     report.already_done = len(logs) - len(todo)
+    if todo:  # a launch that makes rows: the code that makes them is recorded
+        record_launch(run_dir / VERSIONS_FILE, len(store.results()))
+    mixed = mixed_versions_note(run_dir / VERSIONS_FILE)
+    notes += [mixed] if mixed else []
     # Said before any episode runs: a launch stopped on the way leaves this run.json, not
     # the last finished launch's (which may have selected fewer episodes).
     report.missing = list(todo)
@@ -485,9 +492,12 @@ def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = Fal
     return RunJob(config, run_dir, store, report, tasks, lock)
 
 
-def _finish(job: RunJob, wall_s: float) -> None:
+def _finish(job: RunJob, wall_s: float, runs_in_pass: int = 1, finished: bool = True) -> None:
+    """The job's report from its rows, written to ``run.json``; ``wall_s`` is the pass's
+    (shared by its ``runs_in_pass`` runs, whose episodes ran interleaved)."""
     report = job.report
     report.wall_s = wall_s
+    report.runs_in_pass = runs_in_pass
     results = {key_of(r): r for r in job.store.results()}
     report.missing = [key for key in report.expected if key not in results]
     report.statuses = {}
@@ -517,7 +527,7 @@ def _finish(job: RunJob, wall_s: float) -> None:
         )
     report.structured_output = structured_levels(results.values())
     report.server_defaults = unsent_parameters(results.values())
-    report.finished = True
+    report.finished = finished
     atomic_write_json(job.run_dir / REPORT_FILE, report.to_json(), indent=1)
 
 
@@ -557,24 +567,29 @@ def _execute_jobs(
     total = sum(len(job.report.expected) for job in jobs)
     progress.start(description, total, total - len(tasks))
     started = time.perf_counter()
-    for task, outcome in executor.map_unordered(task_function, tasks):
-        job = by_dir[task.run_dir]
-        result = (
-            outcome
-            if isinstance(outcome, EpisodeResult)
-            else _crash_result(job.config, task, outcome)
-        )
-        job.store.append(result)
-        job.report.ran_now += 1
-        if job.config.mode == "dynamics":  # flown time; an official step's second is nominal
-            job.report.simulated_s += float(result.extra.get("simulated_s", 0.0))
-        progress.episode_done(result, _success(result))
-        if "fatal" in result.extra:  # e.g. refused credentials: no later episode can succeed
-            job.report.stopped = str(result.extra["fatal"])
-            break
+    try:
+        for task, outcome in executor.map_unordered(task_function, tasks):
+            job = by_dir[task.run_dir]
+            result = (
+                outcome
+                if isinstance(outcome, EpisodeResult)
+                else _crash_result(job.config, task, outcome)
+            )
+            job.store.append(result)
+            job.report.ran_now += 1
+            if job.config.mode == "dynamics":  # flown time; an official step's is nominal
+                job.report.simulated_s += float(result.extra.get("simulated_s", 0.0))
+            progress.episode_done(result, _success(result))
+            if "fatal" in result.extra:  # e.g. refused credentials: no later one can succeed
+                job.report.stopped = str(result.extra["fatal"])
+                break
+    except KeyboardInterrupt:  # Ctrl-C, SIGTERM: each run.json says where the launch got
+        for job in jobs:
+            _finish(job, time.perf_counter() - started, len(jobs), finished=False)
+        raise
     wall_s = time.perf_counter() - started
     for job in jobs:
-        _finish(job, wall_s)
+        _finish(job, wall_s, len(jobs))
     reports = [job.report for job in jobs]
     progress.finish(reports)
     return reports

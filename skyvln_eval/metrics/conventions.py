@@ -78,8 +78,9 @@ class MetricConventions:
             )
         if self.metrics_version != METRICS_VERSION:
             raise ConfigError(
-                f"scores made with metrics_version {self.metrics_version} cannot be mixed "
-                f"with this toolkit's version {METRICS_VERSION}; rescore from the results"
+                f"scored with metrics_version {self.metrics_version}; this toolkit's formulas "
+                f"are version {METRICS_VERSION} (a definition changed): score the results "
+                "again with `skyvln-eval score`"
             )
 
     def to_dict(self) -> dict[str, Any]:

@@ -31,7 +31,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from skyvln_eval.errors import DataError, FormatVersionError, ResultRecordError, ValidationIssue
+from skyvln_eval.errors import (
+    ConfigError,
+    DataError,
+    FormatVersionError,
+    ResultRecordError,
+    ValidationIssue,
+)
 from skyvln_eval.fileio import atomic_write_text
 from skyvln_eval.metrics.conventions import CONVENTIONS_ATTR, MetricConventions, check_conventions
 from skyvln_eval.metrics.scoring import CONTROL_COLUMNS, KEY_COLUMNS, METRIC_UNITS
@@ -110,6 +116,8 @@ def read_scores(path: str | Path) -> tuple[pd.DataFrame, MetricConventions]:
         )
     except json.JSONDecodeError as exc:
         raise DataError(f"{path}: conventions line is not JSON ({exc.msg})") from None
+    except ConfigError as exc:  # e.g. scored by older formulas: say which file
+        raise DataError(f"{path}: {exc}") from None
     table, warnings = lines[2], []
     while table.startswith(_WARNING):
         warning, _, table = table.partition("\n")

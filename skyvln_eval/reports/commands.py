@@ -360,7 +360,7 @@ def plot_sr_threshold(
 
     frame, conventions = read_many_scores(scores)
     figure = sr_vs_threshold_figure(frame, conventions, None, max_threshold_m)
-    typer.echo(f"wrote {save_figure(figure, out)}")
+    typer.echo(f"wrote {save_figure(_warned(figure, frame), out)}")
 
 
 @plot_app.command("ne")
@@ -378,7 +378,26 @@ def plot_ne(
     from skyvln_eval.reports.render import save_figure
 
     frame, _ = read_many_scores(scores)
-    typer.echo(f"wrote {save_figure(ne_distribution_figure(frame), out)}")
+    typer.echo(f"wrote {save_figure(_warned(ne_distribution_figure(frame), frame), out)}")
+
+
+def _warned(figure: Any, frame: Any) -> Any:
+    """``figure`` marked, and each warning of its scores said on stderr: what scoring
+    warned of (an incomplete run's scores, a coverage not checked) goes with every figure
+    of them, as with every table."""
+    from skyvln_eval.metrics.scores_io import scores_warnings
+
+    warnings = scores_warnings(frame)
+    for warning in warnings:
+        typer.echo(f"WARNING: {warning}", err=True)
+    if warnings:
+        first = warnings[0].split(":")[0]  # e.g. INCOMPLETE, NOT CHECKED whether ...
+        figure.suptitle(
+            f"WARNING ({len(warnings)}): {first[:60]}... (see the scores file)",
+            color="tab:red",
+            fontsize="small",
+        )
+    return figure
 
 
 def _data_dir(value: str) -> Path:

@@ -18,6 +18,7 @@ from collections.abc import Collection, Sequence
 
 import pandas as pd
 
+from skyvln_eval.errors import MetricInputError
 from skyvln_eval.metrics import summarise
 from skyvln_eval.metrics.aggregate import oracle_systems
 from skyvln_eval.metrics.conventions import MetricConventions
@@ -94,6 +95,14 @@ def paper_table(
     """
     stand_ins = stand_in_systems(scores)
     labels = _marked_labels(stand_ins) if spec is TABLE_I else {}
+    clashes = {old: new for old, new in labels.items() if new in set(scores["system"])}
+    if clashes:  # two systems would become one row, their episodes pooled
+        old, new = next(iter(clashes.items()))
+        raise MetricInputError(
+            f"system {old!r} ran on a stand-in and would be shown as {new!r}, the label of "
+            "another system in these scores: their episodes would be pooled in one row. "
+            "Give one of the runs another system label"
+        )
     if labels:
         scores = scores.assign(system=scores["system"].replace(labels))
         if summary is not None:

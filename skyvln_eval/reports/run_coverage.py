@@ -214,6 +214,7 @@ def covered_results(
             rows += results
             continue
         if coverage is None:
+            _one_configuration_per_system(name, results)
             rows += results
             for r in results:
                 plain.setdefault((r.system, r.split, r.mode), []).append(r.episode_id)
@@ -231,6 +232,24 @@ def covered_results(
     if data_dir is not None:
         warnings += _split_coverage(plain, data_dir, allow_incomplete)
     return rows, warnings
+
+
+def _one_configuration_per_system(name: str, results: Sequence[EpisodeResult]) -> None:
+    """Refuse results in which one system's rows were made by different settings (their
+    ``settings_digest``): outside a run directory nothing else tells them apart, and a
+    table would pool them in one row."""
+    seen: dict[str, tuple[str, str]] = {}  # system -> (digest, first episode)
+    for r in results:
+        digest = r.extra.get("settings_digest")
+        if not isinstance(digest, str):
+            continue  # rows of older runs did not record it
+        first = seen.setdefault(r.system, (digest, f"{r.split}/{r.episode_id}"))
+        if first[0] != digest:
+            raise ForeignRowsError(
+                f"{name}: system {r.system!r} has rows made by different settings "
+                f"({first[1]}: {first[0]}; {r.split}/{r.episode_id}: {digest}), which a table "
+                "would pool in one row; give the runs different system labels"
+            )
 
 
 def _split_coverage(

@@ -355,6 +355,13 @@ def test_rows_another_configuration_made_are_refused_by_resume_and_score(
     assert scored.code == 2 and "another configuration" in scored.err, scored
     allowed = cli("score", str(run_dir), "--out", str(tmp_path / "s"), "--allow-incomplete")
     assert allowed.code == 2 and "another configuration" in allowed.err, allowed  # never
+    copied = tmp_path / "elsewhere" / "results.jsonl"  # out of its run directory
+    copied.parent.mkdir()
+    own = json.loads(lines[1]) | {"episode_id": "1913__99_1"}  # a row of the run's own
+    own["extra"] = own["extra"] | {"settings_digest": config.settings_digest()}
+    copied.write_text("\n".join([*lines, json.dumps(own)]) + "\n")
+    alone = cli("score", str(copied), "--out", str(tmp_path / "c"))
+    assert alone.code == 2 and "has rows made by different settings" in alone.err, alone
 
 
 def test_a_resume_with_other_code_is_recorded_and_warns_that_the_run_mixes_versions(
@@ -367,17 +374,20 @@ def test_a_resume_with_other_code_is_recorded_and_warns_that_the_run_mixes_versi
     assert not any("WARNING" in note for note in first.notes)
     versions = json.loads((run_dir / "versions.json").read_text())
     assert [launch["rows_before"] for launch in versions["launches"]] == [0]
-    again = run(small_config(limit=1), run_dir)  # the same code: nothing to add or say
-    assert not any("WARNING" in note for note in again.notes)
-    assert len(json.loads((run_dir / "versions.json").read_text())["launches"]) == 1
     versions["launches"][0]["git"] = {"commit": "0123456789abcdef", "dirty": False}
     (run_dir / "versions.json").write_text(json.dumps(versions))
-    grown = run(small_config(limit=2), run_dir)
+    again = run(small_config(limit=1), run_dir)  # nothing to run: no row of other code
+    assert not any("WARNING" in note for note in again.notes)
+    assert len(json.loads((run_dir / "versions.json").read_text())["launches"]) == 1
+    grown = run(small_config(limit=2), run_dir)  # a row made now, by this code
     warning = next(note for note in grown.notes if note.startswith("WARNING"))
-    assert "recorded row(s) were made with other code" in warning
-    assert "commit 0123456789 then" in warning
+    assert "rows were made by 2 versions" in warning
+    assert "commit 0123456789 from row 0" in warning
     launches = json.loads((run_dir / "versions.json").read_text())["launches"]
     assert [launch["rows_before"] for launch in launches] == [0, 1]
+    later = run(small_config(limit=2), run_dir)  # said again while the rows are mixed
+    assert any("rows were made by 2 versions" in note for note in later.notes)
+    assert json.loads((run_dir / "run.json").read_text())["notes"] == later.notes
 
 
 def test_a_launch_stopped_on_the_way_leaves_a_run_json_that_says_so(
@@ -398,7 +408,9 @@ def test_a_launch_stopped_on_the_way_leaves_a_run_json_that_says_so(
         run(small_config(limit=3), run_dir, progress=StopAfterOne())
     stopped = json.loads((run_dir / "run.json").read_text())
     assert stopped["finished"] is False and stopped["expected"] == 3
-    assert stopped["already_done"] == 1 and len(stopped["missing"]) == 2
+    # Where the launch got: one episode done before it, one in it, one left.
+    assert stopped["already_done"] == 1 and stopped["ran_now"] == 1
+    assert len(stopped["missing"]) == 1
 
 
 def test_a_recorded_episode_whose_run_log_is_gone_runs_again_on_resume(

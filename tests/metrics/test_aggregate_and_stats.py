@@ -255,6 +255,12 @@ def test_a_scores_file_says_which_systems_the_oracle_flew_and_an_old_one_says_no
     (tmp_path / "v4.csv").write_text("# skyvln-eval.scores v4\n" + "\n".join(lines[1:]))
     with pytest.raises(FormatVersionError, match="version '4' is not supported"):
         read_scores(tmp_path / "v4.csv")
+    # Scored by older formulas (metrics v1: a crashed flight could succeed): refused, the
+    # file named, and what to do said.
+    old = "\n".join(lines).replace('"metrics_version":2', '"metrics_version":1')
+    (tmp_path / "old.csv").write_text(old)
+    with pytest.raises(DataError, match=r"old.csv: scored with metrics_version 1; .* score"):
+        read_scores(tmp_path / "old.csv")
 
 
 def test_a_system_flown_by_the_oracle_and_by_an_agent_is_refused() -> None:

@@ -159,3 +159,15 @@ def test_table_i_says_how_many_flights_crashed_and_how_they_were_scored() -> Non
     on_views = to_markdown(paper_table(score_results(results, lenient), TABLE_I, lenient))
     assert "| w PID | 100.00 | 100.00 |" in on_views
     assert "are scored on their views alone (--collisions-succeed)" in on_views
+
+
+def test_a_stand_in_row_whose_marked_label_another_system_has_is_refused() -> None:
+    # An audit tabled reproduce's scores ('w PID †') with its own rule-backend run 'w PID':
+    # marked, the two became one row pooling both runs' episodes.
+    import pytest
+
+    from skyvln_eval.errors import MetricInputError
+
+    scores = _scores().replace({"system": {"gemma": "rule †"}})
+    with pytest.raises(MetricInputError, match=r"would be shown as 'rule †', the label of"):
+        paper_table(scores, TABLE_I, MetricConventions())

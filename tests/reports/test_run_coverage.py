@@ -78,6 +78,11 @@ def test_an_interrupted_run_is_refused_unless_allowed(dataset: Path, tmp_path: P
     table = runner.invoke(app, ["table", str(out / "scores.csv")])
     assert table.exit_code == 0, table.output
     assert "WARNING: INCOMPLETE: run" in table.stdout.split("| agent |")[1]  # a table note
+    for kind in ("sr-threshold", "ne"):  # and every figure of them
+        png = out / f"{kind}.png"
+        plotted = runner.invoke(app, ["plot", kind, str(out / "scores.csv"), "--out", str(png)])
+        assert plotted.exit_code == 0 and png.is_file(), plotted.output
+        assert "WARNING: INCOMPLETE: run" in plotted.stderr
 
 
 def test_a_limited_run_is_complete_with_or_without_data_dir(dataset: Path, tmp_path: Path) -> None:
