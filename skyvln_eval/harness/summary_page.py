@@ -70,10 +70,18 @@ def _shared_runs(report: ReproduceReport, scores: pd.DataFrame) -> str:
     return f" for {int(scores.shape[0]) - extra} episodes: {'; '.join(parts)}"
 
 
+def _relative(path: Path, report: ReproduceReport) -> str:
+    """``path`` as SUMMARY.md links it: from the output folder, where it lies in it."""
+    try:
+        return str(Path(path).relative_to(report.out_dir))
+    except ValueError:
+        return str(path)
+
+
 def _runs(report: ReproduceReport) -> list[str]:
     lines = [
         "| table rows | split | episodes | ok | degraded | error | missing | run now "
-        "| simulated s | structured output |",
+        "| simulated s (run now) | structured output |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     names = [_rows_of(rows) for rows in report.run_rows]
@@ -102,8 +110,13 @@ def _runs(report: ReproduceReport) -> list[str]:
             for split, episode in r.missing
         ]
         + [f"- {name}: stopped early: {r.stopped}" for r, name in runs if r.stopped]
-        # What each run's launch said: rows set aside or run again, a code change.
-        + [f"- {name}: {note}" for r, name in runs for note in r.notes]
+        # What each run's launch said (rows set aside or run again, a code change), with
+        # its run directory: a system runs one per split.
+        + [
+            f"- {name} ({_relative(r.run_dir, report)}): {note}"
+            for r, name in runs
+            for note in r.notes
+        ]
     )
     return lines + (["", *problems] if problems else [])
 

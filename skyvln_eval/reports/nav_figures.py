@@ -145,6 +145,9 @@ def sr_vs_threshold_figure(
         label = rows.counts(f"counted as failure{plural}" if plural else "counted as a failure")
         if crashed.any():
             label += f", {int(crashed.sum())} crashed (failures)"
+        elif not conventions.collision_fails and "collided" in sel.columns:
+            touched = int((sel["collided"].astype("Float64").fillna(0.0) > 0.0).sum())
+            label += f", {touched} crashed (scored on their views)" if touched else ""
         ax.plot(
             thresholds,
             success_rate_curve(ne, thresholds, conventions.strict_threshold),

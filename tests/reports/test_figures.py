@@ -243,3 +243,18 @@ def test_a_trajectory_of_an_error_episode_says_so_in_its_title(tmp_path: Path) -
                                agent_label=flown)  # fmt: skip
     assert figure.get_axes()[0].get_title() == title
     assert flown in _legend(figure)
+
+
+def test_the_sr_curve_says_how_crashed_flights_were_scored() -> None:
+    from skyvln_eval.metrics import summarise_control
+    from tests.metrics.test_safety_and_cost import control_log
+
+    g = [square(0, 0), square(100, 0)]
+    crashed = summarise_control(control_log("pid", "dynamic"))
+    results = [result([g[0], square(100, 0)], g, episode_id="c", control=crashed)]
+    for conventions, said in (
+        (MetricConventions(), "1 crashed (failures)"),
+        (MetricConventions(collision_fails=False), "1 crashed (scored on their views)"),
+    ):
+        figure = sr_vs_threshold_figure(score_results(results, conventions), conventions)
+        assert said in figure.get_axes()[0].get_lines()[0].get_label()
