@@ -432,6 +432,7 @@ def reproduce(
     Exits 1 when a run is incomplete, stopped early, or has more than --fail-on-error of
     its episodes in error (the tables are written either way, with the error rates).
     """
+    from skyvln_eval.harness.commands import describe_report
     from skyvln_eval.harness.executors import EXECUTOR_KINDS
     from skyvln_eval.harness.plan import load_plan
     from skyvln_eval.harness.progress import RichRunProgress
@@ -458,8 +459,6 @@ def reproduce(
         except RunStoppedError as stopped:  # a run's verdict, as `run` gives it: exit 1
             _echo_problem(f"error: {stopped}")
             raise typer.Exit(1) from None
-    from skyvln_eval.harness.commands import describe_report
-
     # Each run's account (what resume kept, set aside or ran now, its warnings), as `run`
     # prints it: a reproduction is several runs, and their notes are not in the tables.
     for run_report in report.reports:

@@ -86,6 +86,11 @@ class DynamicsSettings(_Strict):
         return name
 
 
+#: Settings that say how a run runs, not what it computes: no digest covers them, and a
+#: run directory may be resumed with others.
+HOW_IT_RUNS = frozenset({"workers", "executor", "threads_per_worker", "ray_address", "write_logs"})
+
+
 class RunConfig(_Strict):
     """One run: a system on some splits of a dataset.
 
@@ -172,8 +177,7 @@ class RunConfig(_Strict):
         return self._hash({"limit", "episodes"})
 
     def _hash(self, also_excluded: set[str]) -> str:
-        how_it_runs = {"workers", "executor", "threads_per_worker", "ray_address", "write_logs"}
-        relevant = self.model_dump(mode="json", exclude=how_it_runs | also_excluded)
+        relevant = self.model_dump(mode="json", exclude=set(HOW_IT_RUNS | also_excluded))
         text = yaml.safe_dump(relevant, sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:12]
 

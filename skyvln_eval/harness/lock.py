@@ -134,25 +134,22 @@ def remove_leftover_temporaries(
     looks temporary is not the run's to delete.
     """
     run_dir = Path(run_dir)
-    found = [(p, p.name) for p in run_dir.glob(".*.tmp")]
+    leftovers = [p for p in run_dir.glob(".*.tmp") if _target(p) in top_level]
     for folder, suffixes in folders.items():
-        found += [
-            (p, p.name)
+        leftovers += [
+            p
             for p in (run_dir / folder).rglob(".*.tmp")
-            if _target_suffix(p.name) in suffixes
+            if (target := _target(p)) is not None and Path(target).suffix in suffixes
         ]
     removed = 0
-    for leftover, name in found:
-        match = _TEMPORARY.match(name)
-        if match is None or not leftover.is_file():
-            continue
-        if leftover.parent == run_dir and match["target"] not in top_level:
-            continue
-        leftover.unlink(missing_ok=True)
-        removed += 1
+    for leftover in leftovers:
+        if leftover.is_file():
+            leftover.unlink(missing_ok=True)
+            removed += 1
     return removed
 
 
-def _target_suffix(name: str) -> str | None:
-    match = _TEMPORARY.match(name)
-    return None if match is None else Path(match["target"]).suffix
+def _target(path: Path) -> str | None:
+    """The name of the file a temporary file was to become, if it is a writer's."""
+    match = _TEMPORARY.match(path.name)
+    return None if match is None else match["target"]

@@ -82,7 +82,8 @@ def record_launch(path: Path, rows_before: int) -> None:
     differs from the last launch's (called by a launch that will make rows)."""
     from skyvln_eval.fileio import atomic_write_json
 
-    launches = _launches(path)
+    # With no row yet, the launches before made none: the history starts anew.
+    launches = _launches(path) if rows_before else []
     current = provenance()
     last = launches[-1] if launches else None
     if last is not None and {k: v for k, v in last.items() if k != "rows_before"} == current:
@@ -102,11 +103,8 @@ def mixed_versions_note(path: Path) -> str | None:
     launches = _launches(path)
     if len(launches) < 2:
         return None
-    made = [
-        launch for launch in launches if launch.get("rows_before") != 0 or launch is launches[0]
-    ]
     described = "; ".join(
-        f"{_describe(launch)} from row {launch.get('rows_before') or 0}" for launch in made
+        f"{_describe(launch)} from row {launch.get('rows_before') or 0}" for launch in launches
     )
     return (
         f"WARNING: this run's rows were made by {len(launches)} versions of the code or "

@@ -37,7 +37,7 @@ from skyvln_eval.fileio import (
     exclusive_lock,
     read_yaml_mapping,
 )
-from skyvln_eval.harness.config import RunConfig, run_config_from_mapping
+from skyvln_eval.harness.config import HOW_IT_RUNS, RunConfig, run_config_from_mapping
 from skyvln_eval.harness.executors import Executor, make_executor
 from skyvln_eval.harness.lock import RunDirLock, hold_run_dir, remove_leftover_temporaries
 from skyvln_eval.harness.official_loop import official_success
@@ -55,6 +55,7 @@ from skyvln_eval.harness.runner import (
 from skyvln_eval.harness.store import DAMAGED_FILE, RESULTS_FILE, ResultStore, RowKey, key_of
 from skyvln_eval.llm_records import LlmCall
 from skyvln_eval.metrics.records import EpisodeResult
+from skyvln_eval.metrics.scoring import can_succeed, touched_an_obstacle
 from skyvln_eval.paths import cache_root
 
 CONFIG_FILE = "config.yaml"
@@ -153,9 +154,8 @@ def config_differences(before: RunConfig, after: RunConfig, shown: int = 4) -> s
     """The settings that differ, e.g. "seed 0 here, 1 given" (nested ones by their
     dotted path), the first ``shown`` of them."""
     old, new = _flat(before.model_dump(mode="json")), _flat(after.model_dump(mode="json"))
-    how_it_runs = {"workers", "executor", "threads_per_worker", "ray_address", "write_logs"}
     names = [k for k in dict.fromkeys([*old, *new]) if old.get(k) != new.get(k)]
-    names = [k for k in names if k.split(".")[0] not in how_it_runs]
+    names = [k for k in names if k.split(".")[0] not in HOW_IT_RUNS]
     parts = [f"{k} {old.get(k)!r} here, {new.get(k)!r} given" for k in names[:shown]]
     more = f" and {len(names) - shown} more" if len(names) > shown else ""
     return ", ".join(parts) + more if parts else "settings differ"
@@ -388,8 +388,8 @@ def _success(result: EpisodeResult) -> bool | None:
     withheld."""
     if not result.has_ground_truth:
         return None
-    crashed = result.control is not None and result.control.collided
-    if len(result.visited_views) == 0 or result.status == "error" or crashed:
+    flew, crashed = len(result.visited_views) > 0, touched_an_obstacle(result)
+    if not can_succeed([result.status], [flew], [crashed])[0]:
         return False
     return official_success(result.visited_views[-1], result.gt_path_corners[-1])
 
@@ -459,9 +459,10 @@ def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = Fal
     notes += [cap] if cap else []
     report = RunReport(run_dir, config.system, list(logs), notes=notes)
     todo = store.missing(logs, retry_failed=retry_failed)
-    lost = lost_files(config, run_dir, store, [key for key in logs if key not in set(todo)])
+    pending = set(todo)
+    lost = lost_files(config, run_dir, store, [key for key in logs if key not in pending])
     if lost:  # run again: the same row (runs are deterministic), its files written anew
-        again = set(todo) | set(lost)
+        again = pending | set(lost)
         todo = [key for key in logs if key in again]
         first = next(iter(lost.values()))
         notes.append(

@@ -77,13 +77,25 @@ def can_succeed(
     return ok
 
 
-def crashed_flights(scores: pd.DataFrame, conventions: MetricConventions) -> NDArray[np.bool_]:
-    """Which rows of a scores frame flew into an obstacle and so cannot succeed under
-    ``conventions`` (``collision_fails``); none without the ``collided`` column (runs
-    without control) or with the convention off."""
-    if not conventions.collision_fails or "collided" not in scores.columns:
+def touched_an_obstacle(result: EpisodeResult) -> bool:
+    """Whether the episode's flight touched an obstacle (dynamics mode)."""
+    return result.control is not None and result.control.collided
+
+
+def touched_obstacles(scores: pd.DataFrame) -> NDArray[np.bool_]:
+    """:func:`touched_an_obstacle` for each row of a scores frame (its ``collided``
+    column; none without it: runs without control)."""
+    if "collided" not in scores.columns:
         return np.zeros(len(scores), dtype=bool)
     return scores["collided"].astype("Float64").fillna(0.0).to_numpy(np.float64) > 0.0
+
+
+def crashed_flights(scores: pd.DataFrame, conventions: MetricConventions) -> NDArray[np.bool_]:
+    """Which rows of a scores frame flew into an obstacle and so cannot succeed under
+    ``conventions`` (``collision_fails``; none with the convention off)."""
+    if not conventions.collision_fails:
+        return np.zeros(len(scores), dtype=bool)
+    return touched_obstacles(scores)
 
 
 def score_results(
@@ -108,10 +120,7 @@ def score_results(
     visited = pack_views(
         [r.visited_views for r in results], stand_ins=[r.gt_path_corners[0] for r in results]
     )
-    crashed = [
-        conventions.collision_fails and r.control is not None and r.control.collided
-        for r in results
-    ]
+    crashed = [conventions.collision_fails and touched_an_obstacle(r) for r in results]
     ok = can_succeed(np.array([r.status for r in results]), ~visited.empty, crashed)
     frame = pd.DataFrame(
         {

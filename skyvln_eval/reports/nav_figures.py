@@ -29,7 +29,7 @@ from skyvln_eval.errors import MetricInputError
 from skyvln_eval.metrics.aggregate import oracle_systems
 from skyvln_eval.metrics.conventions import MetricConventions
 from skyvln_eval.metrics.records import EpisodeResult
-from skyvln_eval.metrics.scoring import can_succeed, crashed_flights
+from skyvln_eval.metrics.scoring import can_succeed, crashed_flights, touched_obstacles
 from skyvln_eval.reports.render import new_figure
 from skyvln_eval.worlds.tile import WorldTile
 
@@ -145,9 +145,8 @@ def sr_vs_threshold_figure(
         label = rows.counts(f"counted as failure{plural}" if plural else "counted as a failure")
         if crashed.any():
             label += f", {int(crashed.sum())} crashed (failures)"
-        elif not conventions.collision_fails and "collided" in sel.columns:
-            touched = int((sel["collided"].astype("Float64").fillna(0.0) > 0.0).sum())
-            label += f", {touched} crashed (scored on their views)" if touched else ""
+        elif touched := int(touched_obstacles(sel).sum()):  # collision_fails off
+            label += f", {touched} crashed (scored on their views)"
         ax.plot(
             thresholds,
             success_rate_curve(ne, thresholds, conventions.strict_threshold),

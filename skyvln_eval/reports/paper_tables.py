@@ -22,6 +22,7 @@ from skyvln_eval.errors import MetricInputError
 from skyvln_eval.metrics import summarise
 from skyvln_eval.metrics.aggregate import oracle_systems
 from skyvln_eval.metrics.conventions import MetricConventions
+from skyvln_eval.metrics.scoring import touched_obstacles
 from skyvln_eval.reports.tables import (
     CACHE_METRICS,
     LOWER_BOUNDS,
@@ -95,7 +96,8 @@ def paper_table(
     """
     stand_ins = stand_in_systems(scores)
     labels = _marked_labels(stand_ins) if spec is TABLE_I else {}
-    clashes = {old: new for old, new in labels.items() if new in set(scores["system"])}
+    systems = set(scores["system"])
+    clashes = {old: new for old, new in labels.items() if new in systems}
     if clashes:  # two systems would become one row, their episodes pooled
         old, new = next(iter(clashes.items()))
         raise MetricInputError(
@@ -171,17 +173,16 @@ def _crashes_note(
 ) -> list[str]:
     """How many episodes of each cell flew into an obstacle, and how they were scored: a
     success rate means something else when most flights crashed."""
-    if "collided" not in scores.columns:
-        return []
     titles = dict(spec.groups)
     sel = scores[scores["split"].isin(titles) & (scores["mode"] == mode)]
+    touched = touched_obstacles(sel)
     parts = []
     for row in rows:
         for split, title in spec.groups:
-            cell = sel.loc[(sel["system"] == row) & (sel["split"] == split), "collided"]
-            crashed = int((cell.astype("Float64").fillna(0.0) > 0.0).sum())
+            cell = ((sel["system"] == row) & (sel["split"] == split)).to_numpy(bool)
+            crashed = int(touched[cell].sum())
             if crashed:
-                parts.append(f"{row} on {title} {crashed} of {len(cell)}")
+                parts.append(f"{row} on {title} {crashed} of {int(cell.sum())}")
     if not parts:
         return []
     how = (
