@@ -101,7 +101,7 @@ def run_official_episode(
         raise ConfigError(f"max_steps must be >= 1 (views, start included), got {max_steps}")
     georef = episode.georef
     bounds = (georef.gps_botm_left, georef.gps_top_right)
-    view = np.asarray(episode.start_view, dtype=np.float64)
+    view = np.array(episode.start_view, dtype=np.float64)  # not a view of the route
     rollout = OfficialRollout(
         episode.episode_id, [view], [episode.start_heading_deg], max_steps=max_steps
     )

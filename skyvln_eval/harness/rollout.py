@@ -38,11 +38,21 @@ class CallsMade:
         return [call for client, mark in self._marks for call in client.calls_made(mark)]
 
 
+def sealed(view: NDArray[np.float64]) -> NDArray[np.float64]:
+    """A read-only copy of ``view`` for the agent. A copy, because a slice keeps its whole
+    array in ``.base`` (the start view is a row of the ground-truth route); read-only, so
+    that what the agent does to it cannot change the views the harness records and scores.
+    """
+    copy = np.array(view, dtype=np.float64, copy=True)
+    copy.flags.writeable = False
+    return copy
+
+
 def episode_brief(episode: Episode, max_steps: int) -> EpisodeBrief:
     """What the agent is told of ``episode``: the dialog so far, where it starts, the map's
     georeference and the step budget. Not the goal, the route or the world."""
     georef = episode.georef
-    start = np.asarray(episode.start_view, dtype=np.float64)
+    start = sealed(episode.start_view)
     return EpisodeBrief(
         episode_key=episode_key(episode.episode_id),
         dialog=tuple(episode.dialog()),
@@ -126,7 +136,7 @@ class Rollout:
             step_index=len(self.views) - 1,
             max_steps=self.max_steps,
             pose=pose,
-            view_corners=view,
+            view_corners=sealed(view),
             sensors=here.handle(),  # valid while ``here`` lives: for this decision
             feedback=feedback,
             new_dialog=answer_pending(self, commander, view),

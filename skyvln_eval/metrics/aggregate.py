@@ -215,7 +215,9 @@ def summarise(
     seed: int = 0,
 ) -> pd.DataFrame:
     """Per (system, split, mode, metric): n, mean and, if ``n_resamples``, an interval
-    (``ci_low``, ``ci_high``, ``confidence``, ``ci_method``: see the module docstring).
+    (``ci_low``, ``ci_high``, ``confidence``, ``ci_method``: see the module docstring),
+    and ``oracle`` (whether the harness's ground-truth oracle flew the system) where the
+    scores say.
 
     Every bootstrapped metric of a group is resampled with the same ``seed``, so metrics
     defined on the same episodes share their resamples. Episodes are taken in episode-id
@@ -226,6 +228,7 @@ def summarise(
         raise MetricInputError("no scores to summarise")
     metrics = list(metrics or [m for m in METRIC_UNITS if m in scores.columns])
     checked_scores(scores, metrics)
+    oracles = set(oracle_systems(scores)) if "oracle" in scores.columns else None
     rows = []
     for key, unordered in scores.groupby(GROUP_KEYS, sort=True):
         group = unordered.sort_values("episode_id", kind="stable")
@@ -233,6 +236,8 @@ def summarise(
             column = group[metric]
             present = column.notna().to_numpy()
             row = dict(zip(GROUP_KEYS, key, strict=True))
+            if oracles is not None:  # a reference row says so wherever it is read
+                row["oracle"] = row["system"] in oracles
             row.update(metric=metric, unit=unit_of(metric))
             what = f"{'/'.join(map(str, key))} {metric}"
             if metric in UNKNOWN_IF_ANY_UNKNOWN and not present.all():

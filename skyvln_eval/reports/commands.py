@@ -214,7 +214,9 @@ def score(
 
     from skyvln_eval.fileio import atomic_write_text
     from skyvln_eval.metrics import score_results, summarise
+    from skyvln_eval.metrics.aggregate import oracle_systems
     from skyvln_eval.metrics.scores_io import summary_csv_text, write_scores
+    from skyvln_eval.reports.paper_tables import ORACLE_MARK, ORACLE_NOTE
     from skyvln_eval.reports.run_coverage import covered_results
 
     data_dir = None if data_dir_text is None else _data_dir(data_dir_text)
@@ -235,14 +237,20 @@ def score(
     shown = [m for m in PRINTED_METRICS if m in set(summary.metric)]
     for column in ("system", "split", "n", *shown):
         table.add_column(column, justify="left" if column in ("system", "split") else "right")
+    oracles = set(oracle_systems(scores))
     for (sys_name, split_name, _), group in summary.groupby(["system", "split", "mode"], sort=True):
         by_metric = group.set_index("metric")
         cells = [_cell(by_metric, m) for m in shown]
-        table.add_row(str(sys_name), str(split_name), str(int(group.n.max())), *cells)
+        name = str(sys_name)
+        if sys_name in oracles and "oracle" not in name.lower():
+            name += f" {ORACLE_MARK}"
+        table.add_row(name, str(split_name), str(int(group.n.max())), *cells)
     console = Console(width=160)
     for warning in warnings:
         console.print(f"WARNING: {warning}", style="bold red", markup=False, highlight=False)
     console.print(table)
+    if oracles:
+        console.print(ORACLE_NOTE, markup=False, highlight=False)
     for warning in warnings:  # again below the table, where the eye lands
         console.print(f"WARNING: {warning}", style="bold red", markup=False, highlight=False)
     console.print(f"wrote {out / 'scores.csv'} and {out / 'summary.csv'}")

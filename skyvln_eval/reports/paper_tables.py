@@ -4,8 +4,9 @@
 same scores give the same cells and notes wherever they are rendered: error cells and
 their counts, unknown costs shown as lower bounds, references never ranked (systems the
 ground-truth oracle flew; in Table II also the stand-ins, which are what the models are
-measured against), Table I rows answered by a stand-in marked with a footnote, and the
-share of answers replayed from the response cache.
+measured against), Table I rows answered by a stand-in marked with a footnote, rows the
+oracle flew labelled "(oracle)" whatever their system is called, and the share of
+answers replayed from the response cache.
 
 The scores say all of that themselves: ``status`` for errors, ``oracle`` for the oracle,
 ``llm_backend`` for what answered the LLM calls (empty in files scored before it was
@@ -38,6 +39,14 @@ STAND_IN_MARKERS = {
     "random": ("‡", "‡ LLM modules answered at random (not an LLM)."),
     "scripted": ("§", "§ LLM modules answered by a script (a test double)."),
 }
+
+
+#: What a row the ground-truth oracle flew says of itself, and its footnote.
+ORACLE_MARK = "(oracle)"
+ORACLE_NOTE = (
+    "(oracle): flown by the harness's ground-truth oracle, which follows the annotated "
+    "route: a reference, not an agent's result."
+)
 
 
 def stand_in_kind(backend: str | None) -> str | None:
@@ -95,15 +104,20 @@ def paper_table(
     of the caller's; ``withheld``: splits whose ground truth is withheld.
     """
     stand_ins = stand_in_systems(scores)
-    labels = _marked_labels(stand_ins) if spec is TABLE_I else {}
+    oracles = oracle_systems(scores)
+    labels = {
+        **(_marked_labels(stand_ins) if spec is TABLE_I else {}),
+        **{o: f"{o} {ORACLE_MARK}" for o in oracles if "oracle" not in o.lower()},
+    }
     systems = set(scores["system"])
     clashes = {old: new for old, new in labels.items() if new in systems}
     if clashes:  # two systems would become one row, their episodes pooled
         old, new = next(iter(clashes.items()))
+        why = "the ground-truth oracle flew it" if old in oracles else "it ran on a stand-in"
         raise MetricInputError(
-            f"system {old!r} ran on a stand-in and would be shown as {new!r}, the label of "
-            "another system in these scores: their episodes would be pooled in one row. "
-            "Give one of the runs another system label"
+            f"system {old!r} would be shown as {new!r} ({why}), the label of another "
+            "system in these scores: their episodes would be pooled in one row. Give one "
+            "of the runs another system label"
         )
     if labels:
         scores = scores.assign(system=scores["system"].replace(labels))
@@ -123,6 +137,8 @@ def paper_table(
         for system, kind in stand_ins.items()
         if spec is TABLE_I and (rows is None or labels.get(system, system) in rows)
     ]
+    if any(labels.get(o, o) in (rows or ()) for o in oracles):
+        marker_notes.append(ORACLE_NOTE)
     shown = rows if rows is not None else []
     asked = _questions_note(scores, shown, spec, mode)
     crashes = _crashes_note(scores, shown, spec, mode, conventions)

@@ -81,7 +81,7 @@ class SimulatedSensors:
         x, y, z = self._position
         poses = [CameraPose(x, y, z, compass_to_enu_yaw_rad(h), p) for h, p in views]
         rendered = RECENT_RENDERS.render(self._world, poses, self._camera)
-        images = [self._restrict(i) for i in rendered]
+        images = [_read_only(self._restrict(i)) for i in rendered]
         self.captures += [
             Capture(float(h), float(p), i.rgb) for (h, p), i in zip(views, images, strict=True)
         ]
@@ -142,6 +142,15 @@ class RecentRenders:
         with self._lock:
             self._batches.clear()
             self.hits = 0
+
+
+def _read_only(images: CameraImages) -> CameraImages:
+    """``images`` with its arrays made read-only: the run log keeps the agent's RGB views,
+    so an agent that painted on them would change what is recorded of its flight."""
+    for array in (images.rgb, images.depth_m, images.semantic, images.instance):
+        if array is not None:
+            array.flags.writeable = False
+    return images
 
 
 def _copied(images: CameraImages) -> CameraImages:

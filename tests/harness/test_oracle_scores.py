@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
+import pandas as pd
 from typer.testing import CliRunner
 
 from skyvln_eval.cli import app
@@ -36,15 +37,24 @@ def test_a_table_made_from_scores_never_ranks_the_oracle(
     by_system = scores.groupby("system")["oracle"].agg(list).to_dict()
     assert by_system == {"GT replay": [True, True], "NavGPT-style": [False, False],
                          "Random": [False, False]}  # fmt: skip
+    # A label without the word says what flew it wherever the system is shown.
+    # (The terminal table may wrap the label onto a second line.)
+    names = [line.split("│")[1].strip() for line in scored.output.splitlines() if "│" in line]
+    assert " ".join(names) == "GT replay (oracle) NavGPT-style Random", names
+    assert "(oracle): flown by the harness's ground-truth oracle" in scored.output
+    summary = pd.read_csv(out / "summary.csv", comment="#")
+    assert summary.groupby("system")["oracle"].all().to_dict() == {
+        "GT replay": True, "NavGPT-style": False, "Random": False}  # fmt: skip
 
     table = runner.invoke(app, ["table", str(out / "scores.csv"), "--kind", "table1"])
     assert table.exit_code == 0, table.output
     lines = table.output.splitlines()
-    oracle = next(line for line in lines if line.startswith("| GT replay |"))
+    oracle = next(line for line in lines if line.startswith("| GT replay (oracle) |"))
     assert "100.00" in oracle and "**" not in oracle and "<u>" not in oracle
     # The agents are ranked among themselves: on SR the better of two is bold.
     # NavGPT-style's LLM calls were answered by the rule stand-in: its row says so.
     agents = [line for line in lines if line.startswith(("| Random |", "| NavGPT-style † |"))]
     assert len(agents) == 2 and "† LLM modules answered by the rule-based" in table.output
     assert sum("**" in line for line in agents) >= 1
-    assert "Not ranked (a reference, not a competitor): GT replay." in table.output
+    assert "Not ranked (a reference, not a competitor): GT replay (oracle)." in table.output
+    assert "(oracle): flown by the harness's ground-truth oracle" in table.output

@@ -169,5 +169,5 @@ def test_a_stand_in_row_whose_marked_label_another_system_has_is_refused() -> No
     from skyvln_eval.errors import MetricInputError
 
     scores = _scores().replace({"system": {"gemma": "rule †"}})
-    with pytest.raises(MetricInputError, match=r"would be shown as 'rule †', the label of"):
+    with pytest.raises(MetricInputError, match=r"as 'rule †' \(it ran on a stand-in\), the label"):
         paper_table(scores, TABLE_I, MetricConventions())

@@ -48,7 +48,11 @@ def test_the_same_views_from_the_same_place_are_rendered_once(renders: list[int]
             assert x is not None and y is not None
             np.testing.assert_array_equal(x, y)
             assert not np.shares_memory(x, y), f"{name} is shared between two captures"
-    # What one capture does to its pixels never reaches another.
+    # An agent's images are read-only (the run log keeps its RGB views); one that makes
+    # them writable and paints on them still reaches no other capture.
+    with pytest.raises(ValueError, match="read-only"):
+        first[0].rgb[:] = 0
+    first[0].rgb.flags.writeable = True
     first[0].rgb[:] = 0
     third = SimulatedSensors(world, 300.0, 330.0, 80.0, config).capture_many(VIEWS)
     np.testing.assert_array_equal(third[0].rgb, again[0].rgb)
