@@ -128,6 +128,16 @@ class LLMClient:
             price_key(self.backend.identity()), prompt_tokens, completion_tokens
         )
 
+    def _refused_cost(self, request: RefusedRequest) -> float | None:
+        """What a request refused for its form cost: priced from the tokens it reported,
+        else nothing. The server turned it down before generating (HTTP 400, or a 5xx
+        naming the response format it cannot compile), and providers do not bill such
+        requests; counting them as unknown would leave every endpoint that negotiates
+        without a cost."""
+        if request.prompt_tokens is None or request.completion_tokens is None:
+            return 0.0
+        return self._attempt_cost(request.prompt_tokens, request.completion_tokens)
+
     def _base(self, module: str, config: GenerationConfig, repair: bool) -> LlmCall:
         identity = self.backend.identity()
         return LlmCall(
@@ -275,7 +285,7 @@ class LLMClient:
                     final=False,
                     prompt_tokens=request.prompt_tokens,
                     completion_tokens=request.completion_tokens,
-                    cost_usd=self._attempt_cost(request.prompt_tokens, request.completion_tokens),
+                    cost_usd=self._refused_cost(request),
                     latency_s=max(0.0, request.latency_s),
                     queue_s=queue_s[0],
                     structured_output=request.structured_output,

@@ -12,9 +12,11 @@ over such an episode is NaN too, shown as "n/a" (:data:`UNKNOWN_IF_ANY_UNKNOWN`)
 attempt (no answer) adds the tokens it reported, usually none, so a dead endpoint shows 0
 tokens; but its cost is unknown, since a provider may bill a request it never answered
 (one cut off mid-generation). A request the server refused for its form (a
-structured-output level or a decoding parameter it does not take: negotiation) counts as
-a failed one does: its tokens if it reported any, its cost unknown unless it did, its
-time in the LLM time. ``llm_calls`` counts calls (a call's retries and repairs are
+structured-output level or a decoding parameter it does not take: negotiation) adds its
+tokens if it reported any and its time to the LLM time; it costs nothing unless it
+reported tokens (turned down before generation, it is not billed). Negotiation happens
+once per endpoint and process, in whichever episode calls first: the refused requests'
+counts are the only columns that depend on the scheduling. ``llm_calls`` counts calls (a call's retries and repairs are
 attempts of it), ``llm_requests`` every request sent (every attempt: retries and refused
 forms included), ``llm_refused_requests`` the refused ones; ``llm_failed_calls`` counts
 only calls that ended with no answer, so negotiation that ended in an answer is no

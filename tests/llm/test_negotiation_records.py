@@ -50,7 +50,7 @@ def test_a_refused_level_is_an_attempt_of_its_own_with_its_own_time() -> None:
     assert (refused.outcome, refused.attempt, refused.final) == ("refused", 1, False)
     assert refused.structured_output == "json_schema"
     assert "json_schema" in (refused.error or "") and "HTTP 500" in (refused.error or "")
-    assert refused.prompt_tokens is None and refused.cost_usd is None  # none reported
+    assert refused.prompt_tokens is None and refused.cost_usd == 0.0  # not generated, not billed
     assert (answered.outcome, answered.attempt, answered.final) == ("ok", 2, True)
     # Each request's time is its own: both waited for the server, and together they fit in
     # the call (the answer's latency no longer holds the refused request's time too).
@@ -122,6 +122,28 @@ def test_tokens_reported_with_no_choices_are_counted_and_priced(tmp_path: Path) 
     unknown = unpriced.records[0]
     assert unknown.outcome == "failed" and unknown.prompt_tokens == 100
     assert unknown.cost_usd is None
+
+
+def test_a_priced_endpoint_that_negotiates_has_a_known_cost(tmp_path: Path) -> None:
+    # llama.cpp-style: json_schema refused (HTTP 500 naming it), json_object with the schema
+    # answered. The refused request was never generated, so it costs nothing: the call's
+    # cost is the answer's, known, not unknown or a lower bound.
+    with LoopbackOpenAIServer(
+        [answer('{"greeting": "hi"}')], structured="llama_cpp", latency_s=0.0
+    ) as server:
+        table = tmp_path / "prices.yaml"
+        table.write_text(
+            "format: skyvln-eval/llm-prices\nversion: 1\nusd_per_million_tokens:\n"
+            f"  openai:fake-model@{server.base_url}: {{input: 1.0, output: 2.0}}\n"
+        )
+        client = _client(server)
+        priced = LLMClient(client.backend, retry=client.retry, prices=load_prices(table))
+        result = priced.call("motion", HELLO, STRUCTURED)
+    refused, answered = result.records
+    assert refused.outcome == "refused" and refused.cost_usd == 0.0
+    totals = call_totals(result.records)
+    assert totals["llm_cost_usd"] == pytest.approx(answered.cost_usd) == 140 / 1e6
+    assert totals["llm_cost_lower_usd"] == totals["llm_cost_usd"]
 
 
 @pytest.mark.parametrize(
