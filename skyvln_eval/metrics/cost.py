@@ -11,20 +11,20 @@ no token count, its token counts when any answered attempt reported none, and ev
 over such an episode is NaN too, shown as "n/a" (:data:`UNKNOWN_IF_ANY_UNKNOWN`). A failed
 attempt (no answer) adds the tokens it reported, usually none, so a dead endpoint shows 0
 tokens; but its cost is unknown, since a provider may bill a request it never answered
-(one cut off mid-generation). A request the server refused for its form (a
-structured-output level or a decoding parameter it does not take: negotiation) adds its
-tokens if it reported any and its time to the LLM time; it costs nothing unless it
-reported tokens (turned down before generation, it is not billed). Negotiation happens
-once per endpoint and process, in whichever episode calls first: the refused requests'
-counts are the only columns that depend on the scheduling. ``llm_calls`` counts calls (a call's retries and repairs are
-attempts of it), ``llm_requests`` every request sent (every attempt: retries and refused
-forms included), ``llm_refused_requests`` the refused ones; ``llm_failed_calls`` counts
-only calls that ended with no answer, so negotiation that ended in an answer is no
-failure. ``llm_unpriced_calls`` counts attempts whose cost is unknown. ``llm_latency_s``
-is the time of every request (answered, failed and refused), queueing excluded.
-``llm_cost_lower_usd`` is a known lower bound where only failed attempts are unpriced (a
-single HTTP 429 would otherwise leave nothing of a backend's cost): Table II shows it as
-"≥x" in place of "n/a".
+(one cut off mid-generation). A request the server refused for its form (a structured-
+output level or a decoding parameter it does not take: negotiation) adds its tokens if
+it reported any and its time to the LLM time; it costs nothing unless it reported tokens
+(turned down before generation, it is not billed). Negotiation happens once per endpoint
+and process, in whichever episode calls first: the refused requests' counts are the only
+columns that depend on the scheduling. ``llm_calls`` counts calls (a call's retries and
+repairs are attempts of it), ``llm_requests`` every request sent (every attempt: retries
+and refused forms included), ``llm_refused_requests`` the refused ones;
+``llm_failed_calls`` counts only calls that ended with no answer, so negotiation that
+ended in an answer is no failure. ``llm_unpriced_calls`` counts attempts whose cost is
+unknown. ``llm_latency_s`` is the time of every request (answered, failed and refused),
+queueing excluded. ``llm_cost_lower_usd`` is a known lower bound where only failed
+attempts are unpriced (a single HTTP 429 would otherwise leave nothing of a backend's
+cost): Table II shows it as "≥x" in place of "n/a".
 An episode without calls costs a known 0.
 Rates (call failure rate, fallback rate) are NaN for an episode with nothing to rate (no
 call, no decision); over episodes they are pooled (failed calls of all calls: see
