@@ -38,6 +38,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from skyvln_eval.agent.actions import Action, action_record
+from skyvln_eval.avdn.geometry import view_centre
 from skyvln_eval.avdn.imagery import observe_view
 from skyvln_eval.avdn.records import Episode
 from skyvln_eval.converters import messages as fx
@@ -218,6 +219,10 @@ def _agent_messages(
         t_ns = ns(step.t_s)
         pose = view_to_pose(step.view, episode.georef)
         out.add(t_ns, t.TOPIC_TF, drone_tf(t_ns, pose))
+        # Where the drone is on the globe, as an episode log says it: Foxglove's Map panel
+        # reads /drone/gps, so one layout shows both kinds of log.
+        lat, lng = view_centre(np.asarray(step.view, dtype=np.float64)[None])[0]
+        out.add(t_ns, t.TOPIC_GPS, fx.location_fix(t_ns, t.DRONE_FRAME, lat, lng, pose.z_m))
         if world is not None and observations:
             key = np.asarray(step.view, dtype=np.float64).tobytes()
             if key not in encoded:

@@ -12,11 +12,12 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import yaml
 
 from skyvln_eval.agent.base import episode_key
-from skyvln_eval.avdn import load_split
+from skyvln_eval.avdn import load_split, view_centre
 from skyvln_eval.converters import topics as t
 from skyvln_eval.converters.reader import read_episode, read_log
 from skyvln_eval.converters.validate import check_log
@@ -58,6 +59,11 @@ def test_official_run_writes_results_and_run_logs_then_resumes_nothing(
     steps = [m.decode() for m in log.topic(t.TOPIC_AGENT_STEP)]
     assert len(steps) == int(result.extra["actions"])
     assert steps[0]["trace"]["subgoals"]
+    # A fix per decision at its view's centre, as an episode log has (one Map layout for both).
+    fixes = [m.decode() for m in log.topic(t.TOPIC_GPS)]
+    assert len(fixes) == len(steps)
+    start = view_centre(np.asarray(episodes[result.episode_id].start_view)[None])[0]
+    assert (fixes[0]["latitude"], fixes[0]["longitude"]) == tuple(start)
     assert log.topic(t.TOPIC_LLM_EXCHANGE) and log.topic(t.TOPIC_RUN_VIEWS)
     assert log.metadata[t.RUN_METADATA]["system"] == "test system"
 
