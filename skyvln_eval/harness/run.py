@@ -352,8 +352,14 @@ def error_verdict(reports: Sequence[RunReport], fail_on_error: float) -> str | N
     run stopped early. Says how many and why (the first error text of each kind)."""
     lines = []
     for report in reports:
+        rerun = f"skyvln-eval run {report.run_dir / CONFIG_FILE} --out {report.run_dir}"
         if report.stopped:
             lines.append(f"{report.system}: the run stopped early: {report.stopped}")
+            lines.append(
+                f"  {len(report.missing)} of {len(report.expected)} selected episode(s) have "
+                "no result; once the cause is fixed, the same command runs them, and the "
+                f"episode that stopped the run, again: {rerun}"
+            )
         if report.errors and report.error_share > fail_on_error:
             lines.append(
                 f"{report.system}: {len(report.errors)} of {report.recorded} episode(s) ended "
@@ -363,10 +369,10 @@ def error_verdict(reports: Sequence[RunReport], fail_on_error: float) -> str | N
             for count, first in report.error_kinds().values():
                 lines.append(f"  {count} x {first}")  # the first text starts with its kind
             # A resume leaves error rows be; a crash of the machine is not the agent's result.
+            which = "the others" if report.stopped else "them"
             lines.append(
-                f"  to run them again (e.g. after a worker crash or an endpoint outage): "
-                f"skyvln-eval run {report.run_dir / CONFIG_FILE} --out {report.run_dir} "
-                "--retry-failed"
+                f"  to run {which} again (e.g. after a worker crash or an endpoint outage): "
+                f"{rerun} --retry-failed"
             )
     return "\n".join(lines) or None
 

@@ -4,6 +4,7 @@ a context overflow, a 400-digit number in an action."""
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -68,6 +69,11 @@ def test_refused_credentials_stop_the_run_at_once_and_the_run_resumes_once_fixed
         in stopped.err
     )
     assert "check the API key in the environment variable SKYVLN_TEST_KEY" in stopped.err
+    # How many never ran, and that the same command runs them once the key is fixed.
+    assert re.search(r"\b[34] of 4 selected episode\(s\) have no result", stopped.err)
+    assert "the same command runs them, and the episode that stopped the run, again" in " ".join(
+        stopped.err.split()
+    )
     assert sent <= 2, "at once: one request per worker, not one per episode"
     everything = stopped.out + stopped.err + resumed.out + resumed.err
     everything += "".join(p.read_text(errors="replace") for p in run_dir.rglob("*") if p.is_file())
