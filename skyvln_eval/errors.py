@@ -19,6 +19,15 @@ class SkyvlnError(Exception):
     """Root of every error the toolkit raises on purpose."""
 
 
+def listed(names: Sequence[object], limit: int = 12) -> str:
+    """``names`` quoted and joined for an error message, cut after ``limit`` with how many
+    more there are (``'a', 'b' and 3 more``): a cut list that does not say so reads as all
+    of them."""
+    shown = ", ".join(repr(name) for name in names[:limit])
+    more = len(names) - limit
+    return f"{shown} and {more} more" if more > 0 else shown or "none"
+
+
 @dataclass(frozen=True)
 class ValidationIssue:
     """One problem found in an input file, located as precisely as we can.

@@ -26,7 +26,7 @@ from typing import Literal
 import numpy as np
 import pandas as pd
 
-from skyvln_eval.errors import IncompleteRunError, MetricInputError
+from skyvln_eval.errors import IncompleteRunError, MetricInputError, listed
 from skyvln_eval.metrics.conventions import CONVENTIONS_ATTR
 from skyvln_eval.metrics.cost import UNKNOWN_IF_ANY_UNKNOWN
 from skyvln_eval.metrics.official import OFFICIAL_COLUMNS
@@ -364,7 +364,7 @@ def compare_systems(
     def values(system: str) -> pd.Series:
         sel = scores[(scores.system == system) & (scores.split == split) & (scores["mode"] == mode)]
         if sel.empty:
-            raise MetricInputError(f"no scores for system {system!r} on {split}/{mode}")
+            raise MetricInputError(_no_scores_for(scores, system, split, mode))
         # Episode order fixes the bootstrap's resamples: sorted, so input order never matters.
         return sel.set_index("episode_id")[metric].astype(np.float64).sort_index()
 
@@ -373,7 +373,7 @@ def compare_systems(
     if only_a or only_b:
         raise MetricInputError(
             f"{system_a!r} and {system_b!r} did not run the same episodes on {split}: "
-            f"only {system_a!r}: {only_a[:10]}, only {system_b!r}: {only_b[:10]}"
+            f"only {system_a!r}: {listed(only_a, 10)}; only {system_b!r}: {listed(only_b, 10)}"
         )
     b = b.loc[a.index]
     scale = 100.0 if metric in PERCENT_METRICS else 1.0
@@ -381,3 +381,14 @@ def compare_systems(
     return pd.Series(
         {"metric": metric, "system_a": system_a, "system_b": system_b, **result.__dict__}
     )
+
+
+def _no_scores_for(scores: pd.DataFrame, system: str, split: str, mode: str) -> str:
+    """Why ``system`` has no scores on ``split``/``mode``: the systems there are, or, for
+    one that exists, the splits and modes it has (a typo and a missing split look alike)."""
+    where = scores[scores.system == system]
+    if where.empty:
+        systems = list(dict.fromkeys(scores["system"].astype(str)))
+        return f"no scores for system {system!r}; the scores have the systems {listed(systems)}"
+    has = list(dict.fromkeys(where["split"].astype(str) + "/" + where["mode"].astype(str)))
+    return f"no scores for system {system!r} on {split}/{mode}; it has {listed(has)}"

@@ -35,7 +35,7 @@ from dataclasses import dataclass, replace
 
 import pandas as pd
 
-from skyvln_eval.errors import MetricInputError
+from skyvln_eval.errors import MetricInputError, listed
 from skyvln_eval.metrics.aggregate import CI_METHODS, LOWER_IS_BETTER
 from skyvln_eval.metrics.conventions import MetricConventions, check_conventions
 
@@ -210,7 +210,8 @@ def build_table(
     unknown = [r for r in row_names if r not in set(sel["system"])]
     if unknown and not withheld:  # a row that ran only withheld splits has no scores
         raise MetricInputError(
-            f"no scores for system(s) {unknown}; have {sorted(set(sel['system']))}"
+            f"no scores for system(s) {listed(unknown)}; the scores have the systems "
+            f"{listed(list(dict.fromkeys(sel['system'].astype(str))))}"
         )
     index = sel.set_index(["system", "split", "metric"])
     errors = _error_counts(index, row_names, [split for split, _ in spec.groups])
@@ -419,7 +420,7 @@ def _error_notes(
 ) -> list[str]:
     """What ``error`` and ``‡`` mean, with the counts, when some cell has errors."""
     some = [
-        f"{row} on {titles[split]}: {failed} of {n}"
+        f"{row} on {titles[split]} {failed} of {n}"
         for row in rows
         for split, _ in spec.groups
         for n, failed in [errors.get((row, split), (0, 0))]
@@ -430,7 +431,8 @@ def _error_notes(
     return [
         f"{SOME_ERRORS} some episodes ended in error (no usable LLM answer, or the episode "
         "raised): they count as failures (0 in SR and SPL; NE as flown, to where they stopped); "
-        f"'error': all of them did: {'; '.join(some)}."
+        "'error': every episode of the cell did. Episodes that ended in error: "
+        f"{'; '.join(some)}."
     ]
 
 

@@ -122,8 +122,23 @@ def test_paired_test_finds_a_real_difference_and_not_a_null_one() -> None:
     assert same.difference == 0.0 and same.p_value == 1.0
     assert math.isnan(same.ci_low) and math.isnan(same.ci_high)  # not a certain [0, 0]
     missing = scores[~((scores.system == "B") & (scores.episode_id == "e3"))]
-    with pytest.raises(MetricInputError, match=r"only 'A': \['e3'\]"):
+    with pytest.raises(MetricInputError, match=r"only 'A': 'e3'; only 'B': none"):
         compare_systems(missing, "A", "B", "success", "val_seen")
+
+
+def test_compare_systems_names_the_systems_there_are_and_says_how_many_it_cut() -> None:
+    # An audit asked for 'Full' where the system is 'Full †': the error named neither.
+    scores = scores_of_two_systems()
+    with pytest.raises(MetricInputError) as unknown:
+        compare_systems(scores, "Full", "B", "success", "val_seen")
+    assert "no scores for system 'Full'; the scores have the systems 'A', 'B'" in str(unknown.value)
+    with pytest.raises(MetricInputError, match=r"'A' on val_unseen/andh; it has 'val_seen/andh'"):
+        compare_systems(scores, "A", "B", "success", "val_unseen")
+    # Only A has the last 15 episodes: 10 are named, and the 5 others counted.
+    fewer = scores[~((scores.system == "B") & (scores.episode_id.str[1:].astype(int) >= 25))]
+    with pytest.raises(MetricInputError) as cut:
+        compare_systems(fewer, "A", "B", "success", "val_seen")
+    assert "'e34' and 5 more; only 'B': none" in str(cut.value)
 
 
 def test_completeness_names_missing_and_unknown_episodes() -> None:

@@ -182,7 +182,11 @@ def test_a_cell_whose_every_episode_failed_says_error_and_is_not_ranked() -> Non
     md = to_markdown(table)
     assert "| Ours Full | error | error | <u>16.62</u> |" in md
     assert "| Random | 0.50 | 1.60 | 0.20⋄ | 1.00⋄ |" in md
-    assert "Random on Unseen Validation: 3 of 100; Ours Full on Seen Validation: 100 of 100" in md
+    # 3 of Random's 100 ended in error, not all of them (the note once said "all of them
+    # did: Random on Unseen Validation: 3 of 100").
+    assert "'error': every episode of the cell did. Episodes that ended in error: " in md
+    assert "Random on Unseen Validation 3 of 100; Ours Full on Seen Validation 100 of 100." in md
+    assert "all of them did" not in md
     rows = list(csv.reader(io.StringIO(to_csv(table)), delimiter=","))
     assert rows[-1][:3] == ["Ours Full", "error", "error"]
     # The marker's counts are columns of the CSV too, for a script reading it.
@@ -330,3 +334,18 @@ def test_latex_carries_the_caption_conventions_and_notes_of_the_markdown() -> No
     assert block[-1] == r"\end{table}"
     assert len(table.notes) >= 2 and r"a row's 100\% note\par" in latex
     assert "NE $<$ 20 m" in latex  # not LaTeX's text-mode '<' (an inverted '!')
+
+
+def test_a_row_without_scores_names_the_systems_there_are() -> None:
+    data = summary()
+    with pytest.raises(MetricInputError) as unknown:
+        build_table(data, TABLE_I, MetricConventions(), rows=["Full"])
+    systems = list(dict.fromkeys(data["system"]))
+    assert f"no scores for system(s) 'Full'; the scores have the systems {systems[0]!r}" in str(
+        unknown.value
+    )
+    many = pd.concat(
+        [data.assign(system=f"S{k}") for k in range(20)], ignore_index=True
+    )  # 20 systems: 12 named, the 8 others counted
+    with pytest.raises(MetricInputError, match=r"'S11' and 8 more$"):
+        build_table(many, TABLE_I, MetricConventions(), rows=["Full"])
