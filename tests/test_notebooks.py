@@ -57,3 +57,17 @@ def test_notebook_runs(path: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPat
         if "image/png" in output.get("data", {})
     ]
     assert len(images) == IMAGES[path.stem]
+
+
+def test_notebooks_read_runs_checked() -> None:
+    # An audit found notebook 03 reading results.jsonl with read_results: a run stopped by
+    # refused credentials (HTTP 401) gave its stop row as an 'error' episode and hid the
+    # episodes that never ran. run_results checks the run covers its episodes.
+    import nbformat
+
+    for path in NOTEBOOKS:
+        code = "\n".join(
+            cell.source for cell in nbformat.read(path, as_version=4).cells
+            if cell.cell_type == "code"
+        )  # fmt: skip
+        assert "read_results(" not in code, path.name

@@ -45,3 +45,18 @@ def test_mypy_is_clean() -> None:
         [sys.executable, "-m", "mypy"], capture_output=True, text=True, cwd=REPO
     )
     assert result.returncode == 0, result.stdout + result.stderr
+
+
+def test_a_runs_outputs_load_from_the_package_facades() -> None:
+    # The README's "In Python / Jupyter" names these; read_scores lived only in
+    # skyvln_eval.metrics.scores_io.
+    import skyvln_eval.harness as harness
+    import skyvln_eval.metrics as metrics
+    import skyvln_eval.reports as reports
+
+    for module, names in (
+        (harness, ["run_results"]),
+        (metrics, ["read_results", "read_scores", "score_results", "summarise"]),
+        (reports, ["paper_table", "to_markdown"]),
+    ):
+        assert set(names) <= set(module.__all__), module.__name__

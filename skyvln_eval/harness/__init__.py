@@ -24,7 +24,8 @@ from skyvln_eval.harness.official_loop import (
     official_success,
     run_official_episode,
 )
-from skyvln_eval.harness.run import Progress, RunReport, resolve_data_dir, run, run_results
+from skyvln_eval.harness.run import Progress, RunReport, resolve_data_dir, run
+from skyvln_eval.harness.run_reading import run_results
 from skyvln_eval.harness.runner import EpisodeTask, run_episode_task
 from skyvln_eval.harness.store import ResultStore
 

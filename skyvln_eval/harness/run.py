@@ -616,30 +616,3 @@ def run(
         config.executor, config.workers, config.ray_address, config.threads_per_worker
     )
     return execute_jobs([job], executor, progress, config.system, task_function)[0]
-
-
-def run_results(
-    run_dir: str | Path,
-    keys: Sequence[RowKey] | None = None,
-    *,
-    allow_incomplete: bool = False,
-) -> list[EpisodeResult]:
-    """The results of a run directory: all of them, or ``keys`` in that order.
-
-    All of them must cover every episode the run's config selects, as ``skyvln-eval score``
-    checks: a run still going, or stopped, raises :class:`IncompleteRunError` naming the
-    missing episodes, so that half a run is not summarised as a run. ``allow_incomplete``
-    returns the rows recorded so far (a row that only records the run stopping is left
-    out)."""
-    store = ResultStore(run_dir, repair=False)  # a reader: the run's own process repairs
-    if keys is not None:
-        return [r for key in keys if (r := store.get(key)) is not None]
-    results = store.results()
-    if allow_incomplete:
-        return [r for r in results if "fatal" not in r.extra]
-    from skyvln_eval.reports.run_coverage import run_coverage  # it reads this module
-
-    coverage = run_coverage(Path(run_dir), results)
-    if not coverage.complete:
-        raise coverage.error()
-    return results

@@ -8,7 +8,9 @@ per system and split (with Wilson or seeded bootstrap intervals), :func:`check_c
 refuses runs that miss episodes, :func:`compare_systems` tests two systems on the same episodes.
 Predictions made elsewhere (the official ``.npy`` output, a JSON format) are read by
 :func:`read_predictions` and joined with ground truth by :func:`results_from_predictions`.
-Control logs give safety metrics through :func:`control_metrics`.
+Control logs give safety metrics through :func:`control_metrics`. Scores files
+(``skyvln-eval score``'s ``scores.csv``) are read back by :func:`read_scores`, with the
+conventions they were made under.
 """
 
 from skyvln_eval.metrics.aggregate import (
@@ -58,6 +60,7 @@ from skyvln_eval.metrics.safety import (
     summarise_control,
     tracking_errors,
 )
+from skyvln_eval.metrics.scores_io import read_many_scores, read_scores, write_scores
 from skyvln_eval.metrics.scoring import METRIC_UNITS, score_results
 from skyvln_eval.metrics.stats import (
     ConfidenceInterval,
@@ -107,10 +110,12 @@ __all__ = [
     "paired_comparison",
     "r2r_metrics",
     "read_control_log",
+    "read_many_scores",
     "read_official_npy",
     "read_predictions",
     "read_predictions_json",
     "read_results",
+    "read_scores",
     "result_from_json_dict",
     "result_to_json_dict",
     "results_from_predictions",
@@ -124,4 +129,5 @@ __all__ = [
     "wilson_interval",
     "write_predictions_json",
     "write_results",
+    "write_scores",
 ]

@@ -32,7 +32,13 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from skyvln_eval.errors import DataError, FormatVersionError, ResultRecordError, ValidationIssue
+from skyvln_eval.errors import (
+    DataError,
+    FormatVersionError,
+    IncompleteRunError,
+    ResultRecordError,
+    ValidationIssue,
+)
 from skyvln_eval.fileio import atomic_write_bytes, undecodable_at
 from skyvln_eval.llm_records import LlmCall, ModuleFailure
 from skyvln_eval.metrics.records import ControlSummary, EpisodeResult
@@ -310,9 +316,34 @@ def write_results(path: str | Path, results: Sequence[EpisodeResult]) -> None:
         raise DataError(f"{path}: unknown results format; use a .jsonl or .parquet name")
 
 
-def read_results(path: str | Path) -> list[EpisodeResult]:
-    """Read a results file written by :func:`write_results` (format by suffix)."""
+def read_results(path: str | Path, *, allow_incomplete: bool = False) -> list[EpisodeResult]:
+    """Read a results file written by :func:`write_results` (format by suffix).
+
+    A run's ``results.jsonl`` may hold a row that only records the run stopping there
+    (refused credentials, a full disk: ``extra["fatal"]``): it is no episode's result, and
+    the run's later episodes never ran. Such a file raises
+    :class:`~skyvln_eval.errors.IncompleteRunError`; ``allow_incomplete`` reads the rows
+    of the episodes that ran, leaving those out. This reads one file: which episodes a
+    run was to cover is its directory's (:func:`skyvln_eval.harness.run_results` checks
+    them all, as ``skyvln-eval score`` does).
+    """
+    rows = read_result_rows(path)
+    stopped = [r for r in rows if "fatal" in r.extra]
+    if stopped and not allow_incomplete:
+        raise stopped_run_error(str(path), stopped)
+    return [r for r in rows if "fatal" not in r.extra]
+
+
+def read_result_rows(path: str | Path) -> list[EpisodeResult]:
+    """Every row of a results file as written, a row that only records a run stopping
+    included (for readers that account for them, e.g. ``score``'s coverage check)."""
     path = Path(path)
+    if path.is_dir():
+        raise DataError(
+            f"{path}: a directory, not a results file; pass the file in it "
+            f"({path / 'results.jsonl'}), or read a run directory with "
+            "skyvln_eval.harness.run_results, which checks that the run covers its episodes"
+        )
     if not path.is_file():
         raise DataError(f"{path}: results file not found")
     if path.suffix == ".jsonl":
@@ -320,3 +351,20 @@ def read_results(path: str | Path) -> list[EpisodeResult]:
     if path.suffix == ".parquet":
         return results_from_parquet_bytes(path.read_bytes(), str(path))
     raise DataError(f"{path}: unknown results format; expected .jsonl or .parquet")
+
+
+def stopped_run_error(file: str, stopped: Sequence[EpisodeResult]) -> IncompleteRunError:
+    """The error for results of ``file`` whose ``stopped`` rows only record the run
+    stopping there (``extra["fatal"]``)."""
+    reason = (str(stopped[0].extra["fatal"]).strip().splitlines() or ["no reason"])[0][:200]
+    return IncompleteRunError(
+        f"results file {file}",
+        [f"{r.split}/{r.episode_id}" for r in stopped],
+        hint=(
+            f"{len(stopped)} row(s) only record that the run stopped there ({reason}), not "
+            "an episode's result, and the episodes after them never ran. Finish the run (the "
+            "same `skyvln-eval run` command resumes it); read its directory with "
+            "skyvln_eval.harness.run_results to have every missing episode named; or pass "
+            "allow_incomplete=True to read the rows of the episodes that ran"
+        ),
+    )

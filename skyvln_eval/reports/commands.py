@@ -113,15 +113,16 @@ def _load_results(
     from skyvln_eval.metrics import (
         ground_truth_episodes,
         read_predictions,
-        read_results,
         results_from_predictions,
     )
-    from skyvln_eval.metrics.results_io import check_unique_files
+    from skyvln_eval.metrics.results_io import check_unique_files, read_result_rows
 
     sources, warnings = [], []
     for path in map(_input_file, paths):
         if path.suffix in (".jsonl", ".parquet"):
-            sources.append((str(path), read_results(path)))
+            # Every row: the coverage check counts a row that only records the run
+            # stopping as a missing episode, and says so.
+            sources.append((str(path), read_result_rows(path)))
             continue
         if data_dir is None or split is None:
             raise ConfigError(
@@ -474,7 +475,8 @@ def plot_trajectory(
     from skyvln_eval.reports.render import save_figure
     from skyvln_eval.worlds import load_world
 
-    row = _trajectory_row(results, read_results(results), episode, system)
+    # One episode's figure: the episodes an unfinished run has are drawn.
+    row = _trajectory_row(results, read_results(results, allow_incomplete=True), episode, system)
     data_dir = _data_dir(data_dir_text)
     records = [r for r in load_split(data_dir, row.split).records if r.episode_id == episode]
     if not records:

@@ -27,6 +27,7 @@ from skyvln_eval.harness.config import RunConfig, run_config_from_mapping
 from skyvln_eval.harness.run import CONFIG_FILE, REPORT_FILE, check_own_rows, selected
 from skyvln_eval.harness.store import RESULTS_FILE, RowKey
 from skyvln_eval.metrics.records import EpisodeResult
+from skyvln_eval.metrics.results_io import stopped_run_error
 
 
 def run_dir_of(results_file: Path) -> Path | None:
@@ -133,8 +134,9 @@ class RunCoverage:
             hint = f"Is {self.data_dir} the dataset the run ran on? (--data-dir gives another)"
         else:
             hint = (
-                f"{self._finish_it()}, or pass --allow-incomplete to score the "
-                f"{self.recorded} recorded episode(s) as they are"
+                f"{self._finish_it()}, or pass --allow-incomplete (in Python, "
+                f"allow_incomplete=True) to score the {self.recorded} recorded episode(s) "
+                "as they are"
             )
         return IncompleteRunError(
             self._what(),
@@ -211,10 +213,11 @@ def covered_results(
             if not allow_incomplete:
                 raise
             warnings.append(f"NOT CHECKED whether {name} is complete: {error}")
-            rows += results
+            rows += _ran(name, results, allow_incomplete, warnings)
             continue
         if coverage is None:
             _one_configuration_per_system(name, results)
+            results = _ran(name, results, allow_incomplete, warnings)
             rows += results
             for r in results:
                 plain.setdefault((r.system, r.split, r.mode), []).append(r.episode_id)
@@ -232,6 +235,24 @@ def covered_results(
     if data_dir is not None:
         warnings += _split_coverage(plain, data_dir, allow_incomplete)
     return rows, warnings
+
+
+def _ran(
+    name: str, results: list[EpisodeResult], allow_incomplete: bool, warnings: list[str]
+) -> list[EpisodeResult]:
+    """``results`` without the rows that only record a run stopping (``extra["fatal"]``),
+    which no episode's score is: with them the file raises, unless ``allow_incomplete``
+    (then ``warnings`` says they are left out)."""
+    stopped = [r for r in results if "fatal" in r.extra]
+    if not stopped:
+        return results
+    if not allow_incomplete:
+        raise stopped_run_error(name, stopped)
+    warnings.append(
+        f"INCOMPLETE: {name}: {len(stopped)} row(s) only record the run stopping there and "
+        "are left out; the episodes after them never ran"
+    )
+    return [r for r in results if "fatal" not in r.extra]
 
 
 def _one_configuration_per_system(name: str, results: Sequence[EpisodeResult]) -> None:

@@ -152,3 +152,32 @@ def test_duplicates_and_unknown_suffixes_are_refused(tmp_path: Path) -> None:
         write_results(tmp_path / "x.jsonl", [one, one])
     with pytest.raises(DataError, match="unknown results format"):
         write_results(tmp_path / "x.csv", [one])
+
+
+def test_a_row_that_only_records_the_run_stopping_is_no_episode(tmp_path: Path) -> None:
+    # An audit read a run stopped by an HTTP 401 with read_results: the stop row came
+    # back as an ordinary 'error' episode, and the episodes that never ran were invisible.
+    from skyvln_eval.errors import IncompleteRunError
+
+    g = [square(0, 0), square(100, 0)]
+    rows = [
+        result(g, g, episode_id="e0"),
+        result(g[:1], g, episode_id="e1", status="error", extra={"fatal": "HTTP 401: refused"}),
+    ]
+    path = tmp_path / "results.jsonl"
+    write_results(path, rows)
+    with pytest.raises(IncompleteRunError) as stopped:
+        read_results(path)
+    message = str(stopped.value)
+    assert f"results file {path} is incomplete: 1 missing episode(s): val_seen/e1" in message
+    assert "only record that the run stopped there (HTTP 401: refused)" in message
+    assert "allow_incomplete=True" in message and "run_results" in message
+    assert [r.episode_id for r in read_results(path, allow_incomplete=True)] == ["e0"]
+
+
+def test_a_directory_is_not_a_missing_file(tmp_path: Path) -> None:
+    with pytest.raises(DataError) as folder:
+        read_results(tmp_path)
+    assert f"{tmp_path}: a directory, not a results file; pass the file in it " in str(folder.value)
+    assert str(tmp_path / "results.jsonl") in str(folder.value)
+    assert "run_results" in str(folder.value)

@@ -59,8 +59,8 @@ def test_an_interrupted_run_is_refused_unless_allowed(dataset: Path, tmp_path: P
         f"run {run_path} (system 'agent': 3 episode(s) selected by its config.yaml, 1 recorded) "
         "is incomplete: 2 missing episode(s): val_seen/1913__1_1, val_seen/1913__2_1. Finish "
         f"it with `skyvln-eval run {run_path / 'config.yaml'} --out {run_path}`, which runs "
-        "only the missing episodes, or pass --allow-incomplete to score the 1 recorded "
-        "episode(s) as they are"
+        "only the missing episodes, or pass --allow-incomplete (in Python, "
+        "allow_incomplete=True) to score the 1 recorded episode(s) as they are"
     )
     assert not out.exists()  # nothing written for a partial run
 
@@ -128,6 +128,22 @@ def test_rows_outside_the_selection_and_stopping_rows(dataset: Path, tmp_path: P
     allowed = score(stopped, "--allow-incomplete", "--out", tmp_path / "o")
     assert allowed.exit_code == 0, allowed.output
     assert read_scores(tmp_path / "o" / "scores.csv")[0].episode_id.tolist() == [IDS[1]]
+
+    # Copied out of its run directory, the stop row is still no episode's result (it was
+    # scored as an 'error' episode).
+    copy = tmp_path / "copy.jsonl"
+    copy.write_bytes((stopped / "results.jsonl").read_bytes())
+    refused = score(copy, "--out", tmp_path / "p")
+    assert isinstance(refused.exception, IncompleteRunError)
+    assert "1 row(s) only record that the run stopped there (refused credentials)" in str(
+        refused.exception
+    )
+    allowed = score(copy, "--allow-incomplete", "--out", tmp_path / "p")
+    assert allowed.exit_code == 0, allowed.output
+    assert "1 row(s) only record the run stopping there and are left out" in " ".join(
+        allowed.output.split()
+    )
+    assert read_scores(tmp_path / "p" / "scores.csv")[0].episode_id.tolist() == [IDS[1]]
 
 
 def test_a_run_whose_episodes_cannot_be_known(dataset: Path, tmp_path: Path) -> None:

@@ -1,0 +1,121 @@
+"""Reading a run's results in Python: :func:`run_results`, checked as ``score`` checks them.
+
+A run directory (``skyvln-eval run --out DIR``) holds ``config.yaml`` and
+``results.jsonl``. ``reproduce`` writes one run directory per system and split
+(``runs/<system>/<split>``); the folder of a system's split runs is read as all of them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+from skyvln_eval.errors import DataError, IncompleteRunError, listed
+from skyvln_eval.harness.run import CONFIG_FILE
+from skyvln_eval.harness.store import RESULTS_FILE, ResultStore, RowKey, key_of
+from skyvln_eval.metrics.records import EpisodeResult
+
+
+def run_results(
+    run_dir: str | Path,
+    keys: Sequence[RowKey] | None = None,
+    *,
+    allow_incomplete: bool = False,
+) -> list[EpisodeResult]:
+    """The results of a run directory: all of them, or the ``(split, episode_id)``
+    ``keys`` in that order.
+
+    All of them must cover every episode the run's config selects, as ``skyvln-eval score``
+    checks: a run still going, or stopped, raises :class:`IncompleteRunError` naming the
+    missing episodes, so that half a run is not summarised as a run. A key without a row
+    raises too, naming it. ``allow_incomplete`` returns the rows recorded so far (of
+    ``keys``, those recorded). A row that only records the run stopping (refused
+    credentials, a full disk) is never returned: it is no episode's result.
+
+    ``run_dir`` may also be a folder of run directories, as ``reproduce`` writes a
+    system's splits (``runs/full/val_seen``, ...): each is read and checked as above, and
+    their rows returned together, in the folders' name order.
+    """
+    folder = Path(run_dir)
+    runs = _run_dirs(folder)
+    if keys is None:
+        return [r for one in runs for r in _all_rows(one, allow_incomplete)]
+    rows: dict[RowKey, EpisodeResult] = {}
+    for one in runs:
+        for row in ResultStore(one, repair=False).results():
+            key = key_of(row)
+            if key in rows:  # e.g. two systems' runs in one folder
+                raise DataError(
+                    f"{folder}: episode {'/'.join(key)} has rows in more than one of its run "
+                    "directories; ask one run directory for keys"
+                )
+            rows[key] = row
+    return _rows_of(folder, rows, [(split, eid) for split, eid in keys], allow_incomplete)
+
+
+def _run_dirs(folder: Path) -> list[Path]:
+    """``folder`` if it is a run directory, else the run directories in it; refuses what
+    is neither, saying what it is."""
+    if folder.is_file():
+        hint = f"; pass its folder {folder.parent}" if folder.name == RESULTS_FILE else ""
+        raise DataError(f"{folder}: a file, not a run directory{hint}")
+    if not folder.is_dir():
+        raise DataError(f"{folder}: no such run directory")
+    if (folder / CONFIG_FILE).is_file() or (folder / RESULTS_FILE).exists():
+        return [folder]
+    runs = sorted(
+        d for d in folder.iterdir() if (d / CONFIG_FILE).is_file() or (d / RESULTS_FILE).is_file()
+    )
+    if runs:
+        return runs
+    deeper = sorted(d.name for d in folder.iterdir() if d.is_dir() and _run_dirs_in(d))
+    where = f"; its folders {listed(deeper)} hold run directories" if deeper else ""
+    raise DataError(
+        f"{folder}: not a run directory (no {CONFIG_FILE} or {RESULTS_FILE}) nor a folder "
+        f"of run directories{where}"
+    )
+
+
+def _run_dirs_in(folder: Path) -> bool:
+    return any((d / CONFIG_FILE).is_file() for d in folder.iterdir() if d.is_dir())
+
+
+def _all_rows(run_dir: Path, allow_incomplete: bool) -> list[EpisodeResult]:
+    store = ResultStore(run_dir, repair=False)  # a reader: the run's own process repairs
+    results = store.results()
+    if allow_incomplete:
+        return [r for r in results if "fatal" not in r.extra]
+    from skyvln_eval.reports.run_coverage import run_coverage  # it reads harness.run
+
+    coverage = run_coverage(run_dir, results)
+    if not coverage.complete:
+        raise coverage.error()
+    return results
+
+
+def _rows_of(
+    folder: Path,
+    rows: dict[RowKey, EpisodeResult],
+    keys: Sequence[RowKey],
+    allow_incomplete: bool,
+) -> list[EpisodeResult]:
+    """The rows of ``keys``; one without a row (or with one that only records the run
+    stopping) raises, naming them, unless ``allow_incomplete`` leaves it out."""
+    found = {k: r for k, r in rows.items() if "fatal" not in r.extra}
+    missing = ["/".join(key) for key in keys if key not in found]
+    if missing and not allow_incomplete:
+        stopped = [k for k in keys if k in rows and k not in found]
+        why = (
+            f" ({len(stopped)} of them have a row that only records the run stopping there)"
+            if stopped
+            else ""
+        )
+        raise IncompleteRunError(
+            f"run {folder} (asked for {len(keys)} episode(s))",
+            missing,
+            hint=f"Those have no result row{why}. Keys are (split, episode_id); it has rows "
+            f"of {len(found)} episode(s), e.g. "
+            + listed(sorted("/".join(key_of(r)) for r in found.values()), 3)
+            + ". Pass allow_incomplete=True to get the rows it has",
+        )
+    return [found[key] for key in keys if key in found]

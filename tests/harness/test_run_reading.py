@@ -1,0 +1,74 @@
+"""`run_results`: a run's rows in Python, checked as `score` checks them."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from skyvln_eval.errors import DataError, IncompleteRunError
+from skyvln_eval.harness import run_results
+from tests.conftest import make_record
+from tests.reports.test_run_coverage import IDS, config, run_dir
+
+
+@pytest.fixture
+def two_splits(dataset_factory: Callable[..., Path]) -> Path:
+    records = [make_record(route_index=e[6:]) for e in IDS]
+    return dataset_factory({"val_seen": records, "val_unseen": records})
+
+
+def test_keys_without_a_row_are_named_not_dropped(two_splits: Path, tmp_path: Path) -> None:
+    run = run_dir(tmp_path / "run", config(two_splits, limit=2), IDS[:2])
+    asked = [("val_seen", IDS[1]), ("val_seen", "1913__9_9"), ("val_unseen", IDS[0])]
+    with pytest.raises(IncompleteRunError) as missing:
+        run_results(run, asked)
+    message = str(missing.value)
+    assert "2 missing episode(s): val_seen/1913__9_9, val_unseen/1913__0_1" in message
+    assert "Keys are (split, episode_id)" in message and "allow_incomplete=True" in message
+    assert [r.episode_id for r in run_results(run, asked, allow_incomplete=True)] == [IDS[1]]
+    # A row that only records the run stopping is no episode's result either.
+    stopped = run_dir(
+        tmp_path / "stopped", config(two_splits, limit=2), IDS[:2], **{IDS[1]: {"fatal": "401"}}
+    )
+    with pytest.raises(IncompleteRunError, match="1 of them have a row that only records"):
+        run_results(stopped, [("val_seen", IDS[1])])
+
+
+def test_an_incomplete_run_says_what_to_pass_in_python(two_splits: Path, tmp_path: Path) -> None:
+    run = run_dir(tmp_path / "run", config(two_splits, limit=2), IDS[:1])
+    with pytest.raises(IncompleteRunError, match=r"allow_incomplete=True\) to score the 1"):
+        run_results(run)
+
+
+def test_a_folder_of_split_runs_reads_as_all_of_them(two_splits: Path, tmp_path: Path) -> None:
+    # reproduce writes runs/<system>/<split>; `run_results(runs/full)` said "run config
+    # runs/full/config.yaml: cannot read it".
+    system = tmp_path / "runs" / "full"
+    system.mkdir(parents=True)
+    unseen = run_dir(
+        system / "val_unseen", config(two_splits, splits=("val_unseen",), limit=1), IDS[:1]
+    )
+    rows_file = unseen / "results.jsonl"
+    rows_file.write_text(
+        rows_file.read_text().replace('"split": "val_seen"', '"split": "val_unseen"')
+    )
+    run_dir(system / "val_seen", config(two_splits, limit=2), IDS[:2])
+    rows = run_results(system)
+    assert [(r.split, r.episode_id) for r in rows] == [
+        ("val_seen", IDS[0]),
+        ("val_seen", IDS[1]),
+        ("val_unseen", IDS[0]),
+    ]
+    assert [r.split for r in run_results(system, [("val_unseen", IDS[0])])] == ["val_unseen"]
+    # Each is checked: an unfinished one refuses the lot.
+    run_dir(system / "zz", config(two_splits, limit=3), IDS[:1])
+    with pytest.raises(IncompleteRunError, match=f"run {system / 'zz'}"):
+        run_results(system)
+    # One level up holds folders of runs: they are named.
+    with pytest.raises(DataError) as above:
+        run_results(tmp_path / "runs")
+    assert "its folders 'full' hold run directories" in str(above.value)
+    with pytest.raises(DataError, match="pass its folder"):
+        run_results(system / "val_seen" / "results.jsonl")
