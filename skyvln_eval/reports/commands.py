@@ -351,6 +351,13 @@ def plot_control(
         typer.echo(f"wrote {path}")
 
 
+_SPLIT_HELP = (
+    "Only this split (repeat for more); by default every split, pooled only when every "
+    "system ran the same ones, else one panel per split"
+)
+_SYSTEM_HELP = "Only this system, as the scores name it (repeat for more, in legend order)"
+
+
 @plot_app.command("sr-threshold")
 def plot_sr_threshold(
     scores: Annotated[list[Path], typer.Argument(help="scores.csv files")],
@@ -358,9 +365,12 @@ def plot_sr_threshold(
         "sr_vs_threshold.png"
     ),
     max_threshold_m: Annotated[float, typer.Option(help="Largest radius shown, metres")] = 100.0,
+    split: Annotated[list[str] | None, typer.Option(help=_SPLIT_HELP)] = None,
+    system: Annotated[list[str] | None, typer.Option(help=_SYSTEM_HELP)] = None,
 ) -> None:
-    """R2R success rate vs success radius, one line per system, every split of the scores
-    pooled: error episodes count as failures, as in the tables' SR, and so (under the
+    """R2R success rate vs success radius, one line per system: one panel pooling the
+    splits (its title names them) when every system ran the same ones, else one panel per
+    split; error episodes count as failures, as in the tables' SR, and so (under the
     scores' conventions, collision_fails by default) do flights that touched an obstacle;
     the legend counts them, and the degraded ones; oracle runs labelled references."""
     from skyvln_eval.metrics.scores_io import read_many_scores
@@ -368,7 +378,7 @@ def plot_sr_threshold(
     from skyvln_eval.reports.render import save_figure
 
     frame, conventions = read_many_scores(scores)
-    figure = sr_vs_threshold_figure(frame, conventions, None, max_threshold_m)
+    figure = sr_vs_threshold_figure(frame, conventions, system, max_threshold_m, split)
     typer.echo(f"wrote {save_figure(_warned(figure, frame), out)}")
 
 
@@ -378,8 +388,11 @@ def plot_ne(
     out: Annotated[Path, typer.Option(help="Figure file (.png, .pdf, .svg)")] = Path(
         "ne_distribution.png"
     ),
+    split: Annotated[list[str] | None, typer.Option(help=_SPLIT_HELP)] = None,
+    system: Annotated[list[str] | None, typer.Option(help=_SYSTEM_HELP)] = None,
 ) -> None:
-    """Distribution of the navigation error, one histogram per system: error episodes count
+    """Distribution of the navigation error, one histogram per system, in panels as
+    `plot sr-threshold` makes them (the title names the splits): error episodes count
     at where they stopped, as in the tables' NE (a system of errors only is named, not
     drawn); the legend counts them, and the degraded ones; oracle runs labelled references."""
     from skyvln_eval.metrics.scores_io import read_many_scores
@@ -387,7 +400,8 @@ def plot_ne(
     from skyvln_eval.reports.render import save_figure
 
     frame, _ = read_many_scores(scores)
-    typer.echo(f"wrote {save_figure(_warned(ne_distribution_figure(frame), frame), out)}")
+    figure = ne_distribution_figure(frame, system, splits=split)
+    typer.echo(f"wrote {save_figure(_warned(figure, frame), out)}")
 
 
 def _warned(figure: Any, frame: Any) -> Any:

@@ -1,8 +1,12 @@
 """Navigation figures: SR vs success threshold, NE distribution, a trajectory over its map.
 
 The first two take a scores frame (:func:`skyvln_eval.metrics.score_results`), one line
-per system. The map figure takes a :class:`~skyvln_eval.worlds.WorldTile` and view
-arrays (``(K, 4, 2)`` ``[lat, lng]``) and draws them with the tile's georeference.
+per system, each system in a colour and line style of its own. Their title names the
+splits drawn: one panel pools them when every system ran the same splits; otherwise each
+split has a panel, so that a system run on one split is never drawn beside others pooled
+over three (its n would differ, unsaid). The map figure takes a
+:class:`~skyvln_eval.worlds.WorldTile` and view arrays (``(K, 4, 2)`` ``[lat, lng]``) and
+draws them with the tile's georeference.
 
 An ``error`` episode (it raised, or none of its LLM calls gave a usable answer) is drawn
 as the tables score it, and the legend says so: the SR curve counts it as a failure
@@ -25,7 +29,8 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from skyvln_eval.errors import MetricInputError
+from skyvln_eval.avdn.constants import SPLITS
+from skyvln_eval.errors import MetricInputError, listed
 from skyvln_eval.metrics.aggregate import oracle_systems
 from skyvln_eval.metrics.conventions import MetricConventions
 from skyvln_eval.metrics.records import EpisodeResult
@@ -39,6 +44,11 @@ if TYPE_CHECKING:  # matplotlib is imported when a figure is made (render.new_fi
 
 #: Oracle-flown systems are references: a line style of their own, not a rival's.
 _REFERENCE_STYLE = "-."
+#: An agent's line: matplotlib's ten cycle colours solid, then dashed, then dotted.
+_COLOURS = 10
+_DASHES = ("-", "--", ":")
+#: The height of one legend line below the axes (small font), inches.
+_LEGEND_LINE_IN = 0.2
 #: How much of an error's first line a trajectory title shows.
 _TITLE_ERROR_CHARS = 80
 
@@ -57,11 +67,82 @@ def success_rate_curve(
 def _systems(scores: pd.DataFrame, systems: Sequence[str] | None) -> list[str]:
     if scores.empty:
         raise MetricInputError("no scores to plot")
-    names = list(systems) if systems else list(dict.fromkeys(scores["system"]))
-    unknown = sorted(set(names) - set(scores["system"]))
+    have = list(dict.fromkeys(scores["system"].astype(str)))
+    names = list(dict.fromkeys(systems)) if systems else have
+    unknown = [name for name in names if name not in set(have)]
     if unknown:
-        raise MetricInputError(f"no scores for system(s) {unknown}")
+        raise MetricInputError(
+            f"no scores for system(s) {listed(unknown)}; the scores have the systems {listed(have)}"
+        )
     return names
+
+
+def _ordered_splits(splits: Sequence[str]) -> list[str]:
+    """The AVDN splits in their usual order (seen validation first), then any other."""
+    known = [s for s in SPLITS if s in set(splits)]
+    return known + [s for s in dict.fromkeys(splits) if s not in set(SPLITS)]
+
+
+def _selected(
+    scores: pd.DataFrame, systems: Sequence[str] | None, splits: Sequence[str] | None
+) -> tuple[pd.DataFrame, list[str]]:
+    """The rows of ``splits`` (all by default) and the systems to draw, in order; refuses
+    a split or system that has no scores there, naming those there are."""
+    names = _systems(scores, systems)
+    scores = scores[scores["system"].isin(names)]
+    if splits:
+        have = _ordered_splits(list(scores["split"].astype(str)))
+        unknown = [s for s in dict.fromkeys(splits) if s not in set(have)]
+        if unknown:
+            raise MetricInputError(
+                f"no scores of split(s) {listed(unknown)}; these systems have {listed(have)}"
+            )
+        scores = scores[scores["split"].isin(list(splits))]
+        absent = [n for n in names if n not in set(scores["system"])]
+        if absent:
+            raise MetricInputError(
+                f"system(s) {listed(absent)} have no scores on {listed(list(splits))}"
+            )
+    return scores, names
+
+
+@dataclass(frozen=True)
+class _Panel:
+    """One axes of a figure: the episodes it draws and the title that says which."""
+
+    scores: pd.DataFrame
+    title: str
+
+
+def _panels(scores: pd.DataFrame, names: Sequence[str]) -> list[_Panel]:
+    """One panel pooling every split, when each system ran the same splits; else one per
+    split: pooled, a system that ran one split would sit beside others' three-split means
+    under a title saying all of them are pooled (an audit found Table II's test-only rows
+    drawn so next to Table I's)."""
+    ran = {
+        name: tuple(_ordered_splits(list(scores.loc[scores["system"] == name, "split"])))
+        for name in names
+    }
+    if len(set(ran.values())) == 1:
+        splits = next(iter(ran.values()))
+        pooled = " pooled" if len(splits) > 1 else ""
+        return [_Panel(scores, f"episodes of {', '.join(splits)}{pooled}")]
+    every = _ordered_splits(list(scores["split"].astype(str)))
+    return [
+        _Panel(
+            scores[scores["split"] == split],
+            f"episodes of {split} (one panel per split: the systems ran different splits)",
+        )
+        for split in every
+    ]
+
+
+def _style(k: int, reference: bool) -> tuple[str, str]:
+    """The colour and line style of the ``k``-th system, the same in every panel: the ten
+    colours, then again dashed, then dotted (30 systems before two look alike); a
+    reference (oracle) line is dash-dotted, a style no agent's line has."""
+    colour = f"C{k % _COLOURS}"
+    return colour, _REFERENCE_STYLE if reference else _DASHES[(k // _COLOURS) % len(_DASHES)]
 
 
 @dataclass(frozen=True)
@@ -94,10 +175,6 @@ class _SystemRows:
         """The legend entry of a system whose episodes all ended in error."""
         return f"{self.name} ({self.errors} of {len(self.rows)} episodes error: not drawn)"
 
-    @property
-    def style(self) -> str:
-        return _REFERENCE_STYLE if self.reference else "-"
-
 
 def _system_rows(scores: pd.DataFrame, system: str, references: Sequence[str]) -> _SystemRows:
     sel = scores[scores["system"] == system]
@@ -112,11 +189,25 @@ def _name_only(ax: Axes, rows: _SystemRows, colour: str) -> None:
     ax.plot([], [], color=colour, ls="none", marker="x", label=rows.label_when_empty)
 
 
+def _figure(panels: int, entries: int, axes_height_in: float) -> tuple[Figure, list[Axes]]:
+    """A figure of ``panels`` axes side by side, tall enough for a legend of ``entries``
+    lines below each (a fixed height clipped the axis label at 11 systems)."""
+    figure = new_figure(6.0 * panels, axes_height_in + _LEGEND_LINE_IN * (entries + 1))
+    axes = figure.subplots(1, panels, squeeze=False)[0]
+    return figure, list(axes)
+
+
+def _legend_below(ax: Axes) -> None:
+    # Below the axes: inside, the legend of a few systems covers their curves.
+    ax.legend(fontsize="small", loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=1)
+
+
 def sr_vs_threshold_figure(
     scores: pd.DataFrame,
     conventions: MetricConventions,
     systems: Sequence[str] | None = None,
     max_threshold_m: float = 100.0,
+    splits: Sequence[str] | None = None,
 ) -> Figure:
     """R2R success rate as a function of the success radius, per system.
 
@@ -125,92 +216,125 @@ def sr_vs_threshold_figure(
     that ended in error (the legend says how many; a system of errors only is named, not
     drawn as a 0% line) and, under the conventions' ``collision_fails``, one whose flight
     touched an obstacle (the legend says how many crashed); a 'degraded' episode is
-    scored on its views. The curve pools every split of the scores given.
+    scored on its views.
+
+    ``systems`` and ``splits`` choose what is drawn (all by default). When every system
+    ran the same splits, one panel pools them and its title names them; otherwise there
+    is one panel per split, each line one system's episodes of that split (its n in the
+    legend). A system has one colour and line style in every panel, unlike any other's.
     """
-    thresholds = np.linspace(0.0, max_threshold_m, 401)
-    figure = new_figure(6.0, 5.5)
-    ax = figure.subplots()
+    scores, names = _selected(scores, systems, splits)
+    panels = _panels(scores, names)
     references = oracle_systems(scores)
-    for k, system in enumerate(_systems(scores, systems)):
-        rows = _system_rows(scores, system, references)
-        if rows.all_errors:
-            _name_only(ax, rows, f"C{k}")
-            continue
-        sel = rows.rows
-        crashed = crashed_flights(sel, conventions)
-        ne = np.where(
-            can_succeed(sel["status"], sel["n_views"] > 0, crashed), sel["r2r_ne_m"], np.inf
+    thresholds = np.linspace(0.0, max_threshold_m, 401)
+    figure, axes = _figure(len(panels), len(names) + 1, 4.0)
+    for ax, panel in zip(axes, panels, strict=True):
+        for k, system in enumerate(names):
+            if system in set(panel.scores["system"]):
+                _sr_line(ax, _system_rows(panel.scores, system, references), k, thresholds,
+                         conventions)  # fmt: skip
+        ax.axvline(
+            conventions.threshold_m,
+            color="0.4",
+            ls="--",
+            lw=0.8,
+            label=f"d_th = {conventions.threshold_m:g} m",
         )
-        plural = "s" if rows.errors > 1 else ""
-        label = rows.counts(f"counted as failure{plural}" if plural else "counted as a failure")
-        if crashed.any():
-            label += f", {int(crashed.sum())} crashed (failures)"
-        elif touched := int(touched_obstacles(sel).sum()):  # collision_fails off
-            label += f", {touched} crashed (scored on their views)"
-        ax.plot(
-            thresholds,
-            success_rate_curve(ne, thresholds, conventions.strict_threshold),
-            color=f"C{k}",
-            ls=rows.style,
-            label=f"{rows.name} ({label})",
-        )
-    ax.axvline(
-        conventions.threshold_m,
-        color="0.4",
-        ls="--",
-        lw=0.8,
-        label=f"d_th = {conventions.threshold_m:g} m",
-    )
-    ax.set_xlabel(f"success threshold (m, {conventions.distance.upper()} view centres)")
-    splits = ", ".join(dict.fromkeys(scores["split"].astype(str)))
-    ax.set_ylabel("R2R success rate (%): NE under the threshold")
-    ax.set_title(f"episodes of {splits} pooled", fontsize="small")
-    ax.set_ylim(0, 100)
-    ax.grid(True, lw=0.3)
-    # Below the axes: inside, the legend of a few systems covers their curves.
-    ax.legend(fontsize="small", loc="upper center", bbox_to_anchor=(0.5, -0.18), ncol=1)
+        ax.set_xlabel(f"success threshold (m, {conventions.distance.upper()} view centres)")
+        ax.set_ylabel("R2R success rate (%):\nNE under the threshold")
+        ax.set_title(panel.title, fontsize="small")
+        ax.set_ylim(0, 100)
+        ax.grid(True, lw=0.3)
+        _legend_below(ax)
     return figure
 
 
+def _sr_line(
+    ax: Axes,
+    rows: _SystemRows,
+    k: int,
+    thresholds: NDArray[np.float64],
+    conventions: MetricConventions,
+) -> None:
+    """One system's SR curve (its legend entry only, if its episodes all ended in error)."""
+    colour, style = _style(k, rows.reference)
+    if rows.all_errors:
+        _name_only(ax, rows, colour)
+        return
+    sel = rows.rows
+    crashed = crashed_flights(sel, conventions)
+    ne = np.where(can_succeed(sel["status"], sel["n_views"] > 0, crashed), sel["r2r_ne_m"], np.inf)
+    plural = "s" if rows.errors > 1 else ""
+    label = rows.counts(f"counted as failure{plural}" if plural else "counted as a failure")
+    if crashed.any():
+        label += f", {int(crashed.sum())} crashed (failures)"
+    elif touched := int(touched_obstacles(sel).sum()):  # collision_fails off
+        label += f", {touched} crashed (scored on their views)"
+    ax.plot(
+        thresholds,
+        success_rate_curve(ne, thresholds, conventions.strict_threshold),
+        color=colour,
+        ls=style,
+        label=f"{rows.name} ({label})",
+    )
+
+
 def ne_distribution_figure(
-    scores: pd.DataFrame, systems: Sequence[str] | None = None, bins: int = 30
+    scores: pd.DataFrame,
+    systems: Sequence[str] | None = None,
+    bins: int = 30,
+    splits: Sequence[str] | None = None,
 ) -> Figure:
     """Histogram of the official NE (metres) per system, with each median marked. An
     'error' episode counts where it stopped, as in the tables' NE (the legend counts
     them): leaving it out would flatter a system whose failures stop it far away. A
     system whose episodes all ended in error is named, not drawn (its table cell reads
-    'error', not a number)."""
+    'error', not a number).
+
+    ``systems`` and ``splits`` choose what is drawn, and the panels are made as
+    :func:`sr_vs_threshold_figure` makes them: one pooling the splits, which its title
+    names, when every system ran the same ones, else one per split. Every panel has the
+    same bins."""
+    scores, names = _selected(scores, systems, splits)
+    panels = _panels(scores, names)
     references = oracle_systems(scores)
-    every = [_system_rows(scores, system, references) for system in _systems(scores, systems)]
-    drawn = [
-        rows.rows["ne_m"].to_numpy(np.float64) if not rows.all_errors else np.empty(0)
-        for rows in every
-    ]
-    top = max((float(ne.max()) for ne in drawn if len(ne)), default=0.0) or 1.0
-    edges = np.linspace(0.0, top, bins + 1)
-    figure = new_figure(6.0, 4.0)
-    ax = figure.subplots()
-    for k, (rows, ne) in enumerate(zip(every, drawn, strict=True)):
-        if not len(ne):
-            _name_only(ax, rows, f"C{k}")
-            continue
-        median = float(np.median(ne))
-        where = "at where it stopped" if rows.errors == 1 else "at where they stopped"
-        ax.hist(
-            ne,
-            bins=list(edges),
-            histtype="step",
-            lw=1.4,
-            ls=rows.style,
-            color=f"C{k}",
-            label=f"{rows.name} ({rows.counts(where)}; median {median:.1f} m)",
-        )
-        ax.axvline(median, color=f"C{k}", ls=":", lw=1.0)
-    ax.set_xlabel("navigation error NE (m)")
-    ax.set_ylabel("episodes")
-    ax.grid(True, lw=0.3)
-    ax.legend(fontsize="small")
+    errors_only = {n for n in names if _system_rows(scores, n, references).all_errors}
+    drawn = scores[~scores["system"].isin(errors_only)]["ne_m"].to_numpy(np.float64)
+    top = float(drawn.max()) if len(drawn) else 0.0
+    edges = np.linspace(0.0, top or 1.0, bins + 1)
+    figure, axes = _figure(len(panels), len(names), 3.5)
+    for ax, panel in zip(axes, panels, strict=True):
+        for k, system in enumerate(names):
+            if system in set(panel.scores["system"]):
+                _ne_histogram(ax, _system_rows(panel.scores, system, references), k, edges)
+        ax.set_xlabel("navigation error NE (m)")
+        ax.set_ylabel("episodes")
+        ax.set_title(panel.title, fontsize="small")
+        ax.grid(True, lw=0.3)
+        _legend_below(ax)
     return figure
+
+
+def _ne_histogram(ax: Axes, rows: _SystemRows, k: int, edges: NDArray[np.float64]) -> None:
+    """One system's NE histogram and median (its legend entry only, if its episodes all
+    ended in error)."""
+    colour, style = _style(k, rows.reference)
+    if rows.all_errors:
+        _name_only(ax, rows, colour)
+        return
+    ne = rows.rows["ne_m"].to_numpy(np.float64)
+    median = float(np.median(ne))
+    where = "at where it stopped" if rows.errors == 1 else "at where they stopped"
+    ax.hist(
+        ne,
+        bins=list(edges),
+        histtype="step",
+        lw=1.4,
+        ls=style,
+        color=colour,
+        label=f"{rows.name} ({rows.counts(where)}; median {median:.1f} m)",
+    )
+    ax.axvline(median, color=colour, ls=":", lw=1.0)
 
 
 def trajectory_figure(

@@ -100,6 +100,20 @@ def test_score_then_table_then_plots(tmp_path: Path) -> None:
         )
         assert plotted.exit_code == 0, plotted.output
         assert (tmp_path / target).stat().st_size > 0
+        # --split and --system choose what is drawn (repeatable); a name that has no
+        # scores is refused, naming those there are.
+        chosen = ["--split", "val_seen", "--split", "test_unseen", "--system", "w/o HSD"]
+        target = tmp_path / f"chosen_{target}"
+        plotted = runner.invoke(
+            app, ["plot", kind, str(out / "scores.csv"), "--out", str(target), *chosen]
+        )
+        assert plotted.exit_code == 0, plotted.output
+        assert target.stat().st_size > 0
+        refused = runner.invoke(
+            app, ["plot", kind, str(out / "scores.csv"), "--out", str(target), "--system", "Full"]
+        )
+        assert refused.exit_code != 0
+        assert "the scores have the systems 'Ours Full', 'w/o HSD'" in str(refused.exception)
 
     log_path = tmp_path / "log.parquet"
     two_controller_log().to_parquet(log_path)

@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from skyvln_eval.avdn import MapGeoref, view_from_pose
-from skyvln_eval.errors import DataError
+from skyvln_eval.errors import DataError, MetricInputError
 from skyvln_eval.metrics import MetricConventions, score_results
 from skyvln_eval.reports import (
     control_figure,
@@ -258,3 +258,78 @@ def test_the_sr_curve_says_how_crashed_flights_were_scored() -> None:
     ):
         figure = sr_vs_threshold_figure(score_results(results, conventions), conventions)
         assert said in figure.get_axes()[0].get_lines()[0].get_label()
+
+
+def _mixed_splits() -> pd.DataFrame:
+    """'Full' ran val_seen (2 episodes) and test_unseen (3); 'rule' test_unseen only (3),
+    the same flights as Full's there (Table II's rule-based row is Table I's Full run)."""
+    g = [square(0, 0), square(100, 0)]
+    rows = [
+        result([g[0], square(100 + k, 0)], g, episode_id=f"e{k}", system=system, split=split)
+        for system, split, count in (
+            ("Full", "test_unseen", 3),
+            ("Full", "val_seen", 2),
+            ("rule", "test_unseen", 3),
+        )
+        for k in range(count)
+    ]
+    return score_results(rows)
+
+
+def test_systems_of_different_splits_are_not_pooled_silently() -> None:
+    # An audit found Table II's test-only rows (n=30) drawn beside Table I's rows pooled
+    # over three splits (n=90) under a title saying all splits were pooled.
+    scores = _mixed_splits()
+    for figure in (
+        sr_vs_threshold_figure(scores, MetricConventions()),
+        ne_distribution_figure(scores),
+    ):
+        axes = figure.get_axes()
+        assert [ax.get_title().split(" (")[0] for ax in axes] == [
+            "episodes of val_seen",
+            "episodes of test_unseen",
+        ]
+        legends = [[t.get_text() for t in ax.get_legend().get_texts()] for ax in axes]
+        assert legends[0][0].startswith("Full (n=2")
+        assert [entry.split(" (")[0] for entry in legends[1][:2]] == ["Full", "rule"]
+        assert all("(n=3" in entry for entry in legends[1][:2])
+    # Chosen splits or systems that ran the same ones: one panel, its splits named.
+    one = sr_vs_threshold_figure(scores, MetricConventions(), splits=["test_unseen"])
+    assert [ax.get_title() for ax in one.get_axes()] == ["episodes of test_unseen"]
+    pooled = ne_distribution_figure(scores, systems=["Full"])
+    assert [ax.get_title() for ax in pooled.get_axes()] == [
+        "episodes of val_seen, test_unseen pooled"
+    ]
+    assert _legend(pooled)[0].startswith("Full (n=5")
+    with pytest.raises(MetricInputError, match="no scores of split\\(s\\) 'val_unseen'"):
+        sr_vs_threshold_figure(scores, MetricConventions(), splits=["val_unseen"])
+    with pytest.raises(MetricInputError, match="system\\(s\\) 'rule' have no scores on"):
+        ne_distribution_figure(scores, systems=["Full", "rule"], splits=["val_seen"])
+    with pytest.raises(MetricInputError, match="'Ful'; the scores have the systems 'Full'"):
+        ne_distribution_figure(scores, systems=["Ful"])
+
+
+def test_every_system_has_a_style_of_its_own_and_its_axis_label_shows() -> None:
+    # With 11 systems the colour cycle wrapped: the 1st and 11th lines looked the same,
+    # and the y-axis label was cut off at the top.
+    g = [square(0, 0), square(100, 0)]
+    systems = [f"S{k}" for k in range(11)] + ["truth"]
+    rows = [
+        result([g[0], square(100 + k, 0)], g, episode_id=f"e{k}", system=system,
+               extra={"oracle": True} if system == "truth" else {})
+        for system in systems
+        for k in range(2)
+    ]  # fmt: skip
+    scores = score_results(rows)
+    sr = sr_vs_threshold_figure(scores, MetricConventions())
+    ax = sr.get_axes()[0]
+    styles = [(line.get_color(), line.get_linestyle()) for line in ax.get_lines()[:12]]
+    assert len(set(styles)) == 12
+    assert styles[-1][1] == "-."  # the reference, as before
+    ne = ne_distribution_figure(scores)
+    patches = [(p.get_edgecolor(), p.get_linestyle()) for p in ne.get_axes()[0].patches]
+    assert len(set(patches)) == 12
+    renderer = sr.canvas.get_renderer()  # type: ignore[attr-defined]
+    sr.draw(renderer)
+    label = ax.yaxis.label.get_window_extent(renderer)
+    assert sr.bbox.y0 <= label.y0 and label.y1 <= sr.bbox.y1
