@@ -114,7 +114,7 @@ def test_a_dead_endpoint_is_an_error_in_every_table_and_fails_the_command(
     assert junk_row["Unseen Testing Error/% ↓"].strip("*<u>/") == "0.00"
     # Its episodes score as failures, but a 0 would read as a result: the cells say so.
     assert dead_row["Unseen Testing SR/% ↑"] == dead_row["Unseen Testing NE/m ↓"] == "error"
-    assert "dead endpoint on Unseen Testing: 2 of 2" in table2
+    assert "Episodes that ended in error: dead endpoint on Unseen Testing 2 of 2" in table2
     # Unknown cost is "n/a", never 0: in Table II, the cost table, the summary CSV ...
     unpriced = dict(zip(header, _row(table2, "unpriced model"), strict=True))
     assert unpriced["Unseen Testing Cost/$ ↓"] == "n/a"
