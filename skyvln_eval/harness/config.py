@@ -29,6 +29,7 @@ from skyvln_eval.errors import (
 from skyvln_eval.fileio import read_yaml_mapping
 from skyvln_eval.harness.executors import ExecutorKind
 from skyvln_eval.sensing import SensorConfig
+from skyvln_eval.sim.quadrotor import InputLimits
 from skyvln_eval.sim.scenarios import ScenarioKind
 
 ExecutionMode = Literal["official", "dynamics"]
@@ -189,7 +190,7 @@ def check_controller_settings(controller: str, settings: dict[str, Any], field: 
     """Check ``settings`` against controller ``controller``'s settings (no solver is built);
     in a pydantic validator, a bad one is an error at ``field`` plus its path inside."""
     try:
-        controller_config(controller, settings)
+        config = controller_config(controller, settings)
     except SettingsError as error:
         inside = ".".join(part for part in (field, error.field) if part)
         raise PydanticCustomError(
@@ -197,6 +198,33 @@ def check_controller_settings(controller: str, settings: dict[str, Any], field: 
             "{problem}",
             {"problem": error.problem, FIELD_PATH_CONTEXT: inside},
         ) from None
+    beyond = _beyond_the_drone(getattr(config, "limits", None))
+    if beyond:
+        name, planned, applied = beyond
+        raise PydanticCustomError(
+            "controller_settings",
+            "{problem}",
+            {
+                "problem": f"{planned!r} goes beyond the simulated drone's {applied!r}: the drone "
+                "saturates there, so the controller would plan (and its log claim) commands that "
+                "are never applied; use a value within the drone's",
+                FIELD_PATH_CONTEXT: f"{field}.limits.{name}",
+            },
+        )
+
+
+def _beyond_the_drone(limits: object) -> tuple[str, float, float] | None:
+    """The first of ``limits`` wider than the simulated drone's (the harness flies the
+    default :class:`InputLimits`): its name, the controller's value and the drone's."""
+    if not isinstance(limits, InputLimits):
+        return None
+    drone = InputLimits()
+    if limits.thrust_min_m_s2 < drone.thrust_min_m_s2:
+        return "thrust_min_m_s2", limits.thrust_min_m_s2, drone.thrust_min_m_s2
+    for name in ("thrust_max_m_s2", "tilt_ref_max_rad"):
+        if getattr(limits, name) > getattr(drone, name):
+            return name, getattr(limits, name), getattr(drone, name)
+    return None
 
 
 def run_config_from_mapping(data: Any, source: str) -> RunConfig:

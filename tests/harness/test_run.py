@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
+from pydantic import ValidationError
 
 from skyvln_eval.agent.base import episode_key
 from skyvln_eval.avdn import load_split, view_centre
@@ -23,6 +24,7 @@ from skyvln_eval.converters.reader import read_episode, read_log
 from skyvln_eval.converters.validate import check_log
 from skyvln_eval.errors import ConfigError, IncompleteRunError
 from skyvln_eval.harness import RunConfig, load_run_config, make_executor, run, run_results
+from skyvln_eval.harness.config import run_config_from_mapping
 from skyvln_eval.harness.run import error_verdict
 from skyvln_eval.harness.store import RESULTS_FILE
 from skyvln_eval.metrics import MetricConventions, read_results, score_results
@@ -120,6 +122,33 @@ def test_dynamics_run_flies_with_a_controller_and_logs_it(
     assert len(log.topic(t.TOPIC_CONTROL_STEP)) == result.control.steps
     assert log.topic(t.TOPIC_OBSTACLES) and log.topic(t.TOPIC_AGENT_TARGET)
     assert not check_log(run_dir / "logs" / "val_unseen" / f"{result.episode_id}.mcap").issues
+
+
+def test_a_flight_whose_controller_fell_back_is_degraded_not_ok(
+    tmp_path: Path, small_config: MakeConfig
+) -> None:
+    # A slack this dear makes the QP infeasible whenever an obstacle is near: the controller
+    # falls back (hover, shifted plan) on those steps. The flight is not the controller's.
+    dear = {"compile": "never", "weights": {"slack_linear": 1e12, "slack_quadratic": 1e12}}
+    config = small_config(
+        mode="dynamics", limit=1, dynamics={"controller": "nmpc", "controller_settings": dear}
+    )
+    report = run(config, tmp_path / "dyn")
+    (result,) = read_results(tmp_path / "dyn" / RESULTS_FILE)
+    assert result.control is not None and result.control.solve_failures > 0
+    assert result.status == "degraded" and report.statuses == {"degraded": 1}
+
+
+def test_controller_limits_beyond_the_drone_are_refused(small_config: MakeConfig) -> None:
+    wide = {"limits": {"tilt_ref_max_rad": 0.8}}
+    with pytest.raises(ValidationError, match=r"0\.8 goes beyond the simulated drone.s 0\.436"):
+        small_config(mode="dynamics", dynamics={"controller": "nmpc", "controller_settings": wide})
+    data = {"system": "s", "data": "sample", "mode": "dynamics"}
+    data["dynamics"] = {"controller_settings": wide}
+    with pytest.raises(ConfigError, match=r"run\.yaml.*controller_settings\.limits\.tilt_ref_max"):
+        run_config_from_mapping(data, "run.yaml")  # as a file's config is read: the field named
+    narrow = {"limits": {"tilt_ref_max_rad": 0.3}}  # within the drone's: the planner's choice
+    small_config(mode="dynamics", dynamics={"controller": "nmpc", "controller_settings": narrow})
 
 
 @pytest.mark.parametrize("mode", ["official", "dynamics"])
