@@ -5,8 +5,9 @@ For tests, benchmarks and offline demonstrations of the ``openai`` backend: it r
 
 Each request to ``POST /v1/chat/completions`` takes the next :class:`Reply` of the script:
 an answer, an HTTP error status (with headers, e.g. Retry-After), a hang longer than the
-client's timeout, a malformed JSON body, a body cut short, no choices but the usage, or an
-answer sent one byte at a
+client's timeout, a malformed JSON body, a body cut short, no choices but the usage, a
+body of any content type as given (``raw``), an error echoing the API key in every
+escaping (``echo_key``), or an answer sent one byte at a
 time (``trickle``: each byte well within any read timeout, the whole far past it). A reply
 with a ``task`` waits for a request of that task; requests it does not match, and all
 requests once the script is used up, are answered as the offline ``rule`` backend would, so
@@ -41,6 +42,7 @@ import json
 import sys
 import threading
 import time
+import urllib.parse
 from dataclasses import dataclass, field
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any, Literal
@@ -63,10 +65,14 @@ ReplyKind = Literal[
     "refusal",
     "error_body",
     "no_choices",
+    "raw",
+    "echo_key",
     "rule",
 ]
 StructuredMimic = Literal["all", "llama_cpp", "none"]
 ParameterMimic = Literal["all", "openai_reasoning"]
+#: The usage object of every answer unless a reply says otherwise.
+USAGE: dict[str, Any] = {"prompt_tokens": 100, "completion_tokens": 20, "total_tokens": 120}
 
 
 @dataclass(frozen=True)
@@ -77,12 +83,34 @@ class Reply:
     headers: dict[str, str] = field(default_factory=dict)
     seconds: float = 0.0
     task: str | None = None
-    finish_reason: str = "stop"
+    finish_reason: str | None = "stop"
+    content_type: str = "application/json"
+    usage: dict[str, Any] | None = field(default_factory=lambda: dict(USAGE))
 
 
-def answer(content: str, task: str | None = None, finish_reason: str = "stop") -> Reply:
-    """An answer; ``finish_reason="length"`` says it was cut off at ``max_tokens``."""
-    return Reply("answer", content=content, task=task, finish_reason=finish_reason)
+def answer(
+    content: str,
+    task: str | None = None,
+    finish_reason: str | None = "stop",
+    usage: dict[str, Any] | None = USAGE,
+) -> Reply:
+    """An answer; ``finish_reason="length"`` says it was cut off at ``max_tokens`` (``None``:
+    the server gives no reason, as some do); ``usage`` is the usage object sent (``None``:
+    none)."""
+    kept = None if usage is None else dict(usage)
+    return Reply("answer", content=content, task=task, finish_reason=finish_reason, usage=kept)
+
+
+def raw(body: str, content_type: str = "application/json", code: int = 200) -> Reply:
+    """``body`` as it is, with that content type and status: a gateway's HTML page, a
+    JSON body cut off or not JSON at all."""
+    return Reply("raw", content=body, status=code, content_type=content_type)
+
+
+def echo_key(code: int = 400) -> Reply:
+    """HTTP ``code`` whose body echoes the request's API key in every form a server may
+    write it (see :func:`key_forms`), in legal JSON, as servers that quote a wrong key do."""
+    return Reply("echo_key", status=code)
 
 
 def refusal(text: str, task: str | None = None) -> Reply:
@@ -136,6 +164,37 @@ def rule(task: str | None = None) -> Reply:
 def refuse_schema(content: str) -> Reply:
     """HTTP 400 when the request carries ``response_format``, else ``content``."""
     return Reply("refuse_schema", content=content)
+
+
+def key_forms(key: str) -> dict[str, str]:
+    """The forms :func:`echo_key` writes the key in: as sent, JSON-escaped with ``/`` as
+    ``\\/``, every character ``\\uXXXX``-escaped, half of them so (mixed), and URL-encoded
+    as a path (``quote``) and as a form field (``quote_plus``)."""
+    slashed = json.dumps(key)[1:-1].replace("/", "\\/")
+    mixed = "".join(f"\\u{ord(c):04x}" if k % 2 else json.dumps(c)[1:-1] for k, c in enumerate(key))
+    return {
+        "exact": key,
+        "json_slash": slashed,
+        "unicode": "".join(f"\\u{ord(c):04X}" for c in key),
+        "mixed": mixed,
+        "url": urllib.parse.quote(key, safe=""),
+        "url_plus": urllib.parse.quote_plus(key),
+    }
+
+
+def _key_echo_body(authorization: str) -> bytes:
+    """A JSON error body naming the key of ``authorization`` in every form of
+    :func:`key_forms` (written by hand: ``json.dumps`` would pick one escaping)."""
+    forms = key_forms(authorization.removeprefix("Bearer "))
+    fields = ", ".join(f'"{name}": "{form}"' for name, form in forms.items())
+    text = (
+        '{"error": {"message": "Incorrect API key provided: '
+        + forms["json_slash"]
+        + '", '
+        + fields
+        + ', "code": "invalid_api_key"}}'
+    )
+    return text.encode("utf-8")
 
 
 def _images(body: dict[str, Any]) -> list[dict[str, Any]]:
@@ -211,7 +270,11 @@ def _parameter_refusal(body: dict[str, Any], parameters: ParameterMimic) -> dict
 
 
 def _completion_body(
-    content: str | None, model: str, finish_reason: str = "stop", refused: str | None = None
+    content: str | None,
+    model: str,
+    finish_reason: str | None = "stop",
+    refused: str | None = None,
+    usage: dict[str, Any] | None = USAGE,
 ) -> bytes:
     message: dict[str, Any] = {"role": "assistant", "content": content}
     if refused is not None:
@@ -228,8 +291,9 @@ def _completion_body(
                 "finish_reason": finish_reason,
             }
         ],
-        "usage": {"prompt_tokens": 100, "completion_tokens": 20, "total_tokens": 120},
     }
+    if usage is not None:
+        body["usage"] = usage
     return json.dumps(body).encode()
 
 
@@ -271,9 +335,15 @@ class LoopbackOpenAIServer:
             def log_message(self, format: str, *args: Any) -> None:  # keep test output quiet
                 pass
 
-            def _send(self, code: int, body: bytes, headers: dict[str, str] | None = None) -> None:
+            def _send(
+                self,
+                code: int,
+                body: bytes,
+                headers: dict[str, str] | None = None,
+                content_type: str = "application/json",
+            ) -> None:
                 self.send_response(code)
-                self.send_header("Content-Type", "application/json")
+                self.send_header("Content-Type", content_type)
                 self.send_header("Content-Length", str(len(body)))
                 for key, value in (headers or {}).items():
                     self.send_header(key, value)
@@ -353,7 +423,16 @@ class LoopbackOpenAIServer:
                 elif reply.kind == "refusal":
                     self._send(200, _completion_body(None, model, refused=reply.content))
                 elif reply.kind == "answer":
-                    self._send(200, _completion_body(reply.content, model, reply.finish_reason))
+                    self._send(
+                        200,
+                        _completion_body(
+                            reply.content, model, reply.finish_reason, None, reply.usage
+                        ),
+                    )
+                elif reply.kind == "raw":
+                    self._send(reply.status, reply.content.encode(), None, reply.content_type)
+                elif reply.kind == "echo_key":
+                    self._send(reply.status, _key_echo_body(self.headers.get("Authorization", "")))
                 elif reply.kind == "refuse_schema":
                     if "response_format" in body:
                         self._error(400)

@@ -91,6 +91,7 @@ from skyvln_eval.llm.negotiation import (
     response_format,
 )
 from skyvln_eval.llm.prices import VENDOR_SERVERS
+from skyvln_eval.llm.redact import readable_body, scrub
 from skyvln_eval.llm.types import (
     Completion,
     GenerationConfig,
@@ -197,7 +198,7 @@ def _body_text(error: Any) -> str:
     parts = [str(getattr(error, "message", "") or "")]
     response = getattr(error, "response", None)
     with contextlib.suppress(Exception):  # a streamed or closed body: the message is all
-        parts.append(response.text if response is not None else "")
+        parts.append(readable_body(response.text) if response is not None else "")
     return " ".join(p for p in parts if p)
 
 
@@ -393,8 +394,7 @@ class OpenAIBackend(LLMBackend):
         return os.environ.get(self.api_key_env) or None
 
     def _scrub(self, text: str) -> str:
-        secret = self._secret()
-        return text.replace(secret, "[API key]") if secret else text
+        return scrub(text, self._secret())
 
     def _where(self) -> str:
         """:attr:`endpoint` for messages: a password or query in the URL left out, the API

@@ -13,7 +13,14 @@ import pytest
 import yaml
 
 from skyvln_eval.harness.store import RESULTS_FILE
-from skyvln_eval.llm.loopback import LoopbackOpenAIServer, Reply, answer, status
+from skyvln_eval.llm.loopback import (
+    LoopbackOpenAIServer,
+    Reply,
+    answer,
+    echo_key,
+    key_forms,
+    status,
+)
 from skyvln_eval.metrics import read_results
 from tests.conftest import CliOutcome
 
@@ -172,3 +179,41 @@ def test_refused_credentials_stop_reproduce_with_the_reason_not_a_missing_table(
     assert "refused the credentials (HTTP 401" in stopped.err
     assert "SKYVLN_TEST_KEY" in stopped.err and "no scores for" not in stopped.err
     assert not (out / "SUMMARY.md").exists()
+
+
+def _stored_text(path: Path) -> str:
+    """Everything a run file holds, as text: its bytes, and for an MCAP log the messages,
+    metadata and attachments its compressed chunks hold."""
+    data = path.read_bytes()
+    parts = [data.decode("utf-8", errors="replace")]
+    if path.suffix == ".mcap":
+        from mcap.reader import make_reader
+
+        with path.open("rb") as stream:
+            reader = make_reader(stream)
+            parts += [m.data.decode("utf-8", "replace") for _, _, m in reader.iter_messages()]
+            parts += [json.dumps(m.metadata) for m in reader.iter_metadata()]
+            parts += [a.data.decode("utf-8", "replace") for a in reader.iter_attachments()]
+    return "\n".join(parts)
+
+
+def test_a_key_echoed_in_escaped_forms_is_in_no_file_of_the_run_and_no_output(
+    tmp_path: Path, sample_dir: Path, cli: Cli, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The audit's server escaped "/" as "\/" (legal JSON): the exact-text scrub missed it,
+    # and the key went to results.jsonl, run.json, the MCAP logs and stderr.
+    key = "sk-SENTINEL/15c0+ffee=15"
+    monkeypatch.setenv("SKYVLN_TEST_KEY", key)
+    run_dir = tmp_path / "run"
+    with LoopbackOpenAIServer([echo_key(400) for _ in range(200)]) as server:
+        path = _config_file(tmp_path, sample_dir, server.base_url, limit=1)
+        outcome = cli("run", str(path), "--out", str(run_dir))
+        sent = len(server.requests)
+    assert outcome.code == 1 and sent > 1, outcome  # an error episode, recorded
+    files = [p for p in run_dir.rglob("*") if p.is_file()]
+    assert {"results.jsonl", "run.json"} <= {p.name for p in files}
+    assert any(p.suffix == ".mcap" for p in files)
+    everything = outcome.out + outcome.err + "".join(_stored_text(p) for p in files)
+    for name, form in key_forms(key).items():
+        assert form not in everything, name
+    assert "[API key]" in outcome.err

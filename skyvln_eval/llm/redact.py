@@ -1,0 +1,68 @@
+"""Keeping an API key out of what a server's answer puts into errors and records.
+
+Servers echo the key in their error bodies ("Incorrect API key provided: sk-..."), and not
+always as typed: JSON may escape any character as ``\\uXXXX`` and ``/`` as ``\\/``, a URL
+or form field percent-encodes it, Python's ``repr`` (the openai client's error message
+shows the parsed body so) escapes quotes and backslashes. Replacing the key's exact text
+misses all of those, so :func:`scrub` matches the key with every character in any of its
+forms, mixed as a server may mix them.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import re
+from typing import Final
+
+#: What the key is replaced by.
+REDACTED: Final = "[API key]"
+#: Characters of an excerpt shown of a body that is not what was expected.
+EXCERPT_CHARS: Final = 200
+
+
+def _char_forms(char: str) -> list[str]:
+    """Every text one character of the key can appear as in a body, as regex patterns."""
+    code = ord(char)
+    forms = [re.escape(char), rf"\\u{code:04x}"]  # matched ignoring case: \u002F too
+    forms += ["".join(f"%{byte:02x}" for byte in char.encode("utf-8"))]
+    if code > 0xFFFF:  # JSON writes it as a surrogate pair
+        high, low = divmod(code - 0x10000, 0x400)
+        forms.append(rf"\\u{0xD800 + high:04x}\\u{0xDC00 + low:04x}")
+    if char in "/\"'\\":  # JSON's \/ and \", repr's \' and \\
+        forms.append(re.escape("\\" + char))
+    if char == " ":  # a form field's space
+        forms.append(r"\+")
+    return forms
+
+
+@functools.lru_cache(maxsize=8)
+def _key_pattern(key: str) -> re.Pattern[str]:
+    parts = ["(?:" + "|".join(_char_forms(char)) + ")" for char in key]
+    return re.compile("".join(parts), re.IGNORECASE)
+
+
+def scrub(text: str, key: str | None) -> str:
+    """``text`` with every occurrence of ``key`` replaced, in whatever escaping (see the
+    module docstring). Matching ignores case: a hex escape may be written either way, and
+    hiding a look-alike of the key costs nothing."""
+    if not key:
+        return text
+    return _key_pattern(key).sub(REDACTED, text)
+
+
+def readable_body(raw: str) -> str:
+    """A JSON body as plain JSON (no ``\\/`` or ``\\uXXXX`` escapes, so what the server
+    said reads as it said it), anything else as it came."""
+    try:
+        return json.dumps(json.loads(raw), ensure_ascii=False)
+    except ValueError:
+        return raw
+
+
+def excerpt(raw: str, key: str | None, chars: int = EXCERPT_CHARS) -> str:
+    """The start of a body, key scrubbed (before it is cut, so no part of the key is
+    left at the cut), quoted as a Python string so that its ends are plain."""
+    cleaned = scrub(raw, key)
+    shown = cleaned[:chars] + ("…" if len(cleaned) > chars else "")
+    return repr(shown)

@@ -1,0 +1,53 @@
+"""What a misbehaving server's answers become in the call records (from an audit): a key
+echoed in an escaped form."""
+
+from __future__ import annotations
+
+import pytest
+
+from skyvln_eval.llm import GenerationConfig, LLMClient, Message, RetryPolicy, create_backend
+from skyvln_eval.llm.loopback import LoopbackOpenAIServer, echo_key, key_forms
+from skyvln_eval.llm.redact import REDACTED, scrub
+
+HELLO = [Message("system", "You answer in JSON."), Message("user", "Say hello.")]
+CONFIG = GenerationConfig(timeout_s=5.0)
+SCHEMA = {"type": "object", "properties": {"greeting": {"type": "string"}}}
+STRUCTURED = GenerationConfig(timeout_s=5.0, json_schema=SCHEMA, schema_name="greeting")
+#: A key with the characters JSON and URLs escape.
+KEY = "sk-proj-AUDIT/9f8e+7d6c5b4a=="
+
+
+def _client(server: LoopbackOpenAIServer, attempts: int = 2, **options: object) -> LLMClient:
+    backend = create_backend("openai:fake-model", base_url=server.base_url, **options)
+    retry = RetryPolicy(max_attempts=attempts, initial_delay_s=0.0, max_delay_s=0.0)
+    return LLMClient(backend, retry=retry, sleep=lambda _: None)
+
+
+def test_every_escaped_form_of_the_key_is_scrubbed() -> None:
+    for name, form in key_forms(KEY).items():
+        assert scrub(f"before {form} after", KEY) == f"before {REDACTED} after", name
+    # repr (the openai client's error message shows the parsed body so) and hex in capitals.
+    assert scrub(repr({"k": KEY}), KEY) == repr({"k": REDACTED})
+    assert scrub(KEY.replace("/", "%2F"), KEY) == REDACTED
+    assert scrub("nothing to hide", KEY) == "nothing to hide" and scrub(KEY, None) == KEY
+
+
+@pytest.mark.parametrize("code", [400, 401, 500])
+def test_a_key_echoed_in_any_escaping_reaches_no_record(
+    code: int, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    monkeypatch.setenv("ECHO_KEY", KEY)
+    with LoopbackOpenAIServer([echo_key(code)] * 12) as server:
+        client = _client(server, api_key_env="ECHO_KEY")
+        try:
+            result = client.call("motion", HELLO, STRUCTURED)
+            texts = [result.error or "", *(r.error or "" for r in result.records)]
+        except Exception as error:  # refused credentials stop the call with an error
+            texts = [str(error)]
+        sent = len(server.requests)
+    assert sent >= 1 and all(texts)
+    texts.append(caplog.text)  # the negotiation's warnings quote the body too
+    for text in texts:
+        for name, form in key_forms(KEY).items():
+            assert form not in text, (name, text)
+    assert REDACTED in texts[0]
