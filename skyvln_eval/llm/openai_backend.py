@@ -91,7 +91,7 @@ from skyvln_eval.llm.negotiation import (
     response_format,
 )
 from skyvln_eval.llm.prices import VENDOR_SERVERS
-from skyvln_eval.llm.redact import readable_body, scrub
+from skyvln_eval.llm.redact import excerpt, readable_body, scrub
 from skyvln_eval.llm.types import (
     Completion,
     GenerationConfig,
@@ -492,7 +492,7 @@ class OpenAIBackend(LLMBackend):
                 unsent = tuple(sorted(p for p in adapted.server_defaults if p in kwargs))
                 started = time.perf_counter()
                 try:
-                    response = self._create_by(ends_at, request)
+                    response, body = self._create_by(ends_at, request)
                     break
                 except _FormatRefused as refusal:
                     lower = self._step_down(level, refusal)  # raises when nothing is left
@@ -507,7 +507,7 @@ class OpenAIBackend(LLMBackend):
                     adapted = found
                     remember_adaptation(self.endpoint, adapted)
             latency = time.perf_counter() - started  # the answered request's own time
-            return self._completion(response, latency, level, unsent, tuple(refused))
+            return self._completion(response, body, latency, level, unsent, tuple(refused))
         except LLMError as error:
             # The requests refused before this failure were sent all the same: the client
             # records them from here.
@@ -555,8 +555,9 @@ class OpenAIBackend(LLMBackend):
         )
         return lower
 
-    def _create_by(self, ends_at: float, kwargs: dict[str, Any]) -> Any:
-        """One request, answered in full before ``ends_at`` (``time.monotonic``) or given up."""
+    def _create_by(self, ends_at: float, kwargs: dict[str, Any]) -> tuple[Any, str]:
+        """One request, answered in full before ``ends_at`` (``time.monotonic``) or given up:
+        the parsed answer and its body."""
         timeout_s = kwargs["timeout"]
         client = self._checkout()
         left = ends_at - time.monotonic()
@@ -582,13 +583,16 @@ class OpenAIBackend(LLMBackend):
         self._checkin(client)
         if "error" in outcome:
             raise outcome["error"]
-        return outcome["response"]
+        answered: tuple[Any, str] = outcome["response"]
+        return answered
 
-    def _create(self, client: Any, kwargs: dict[str, Any], timeout_s: float) -> Any:
+    def _create(self, client: Any, kwargs: dict[str, Any], timeout_s: float) -> tuple[Any, str]:
+        """The parsed answer and the body it was parsed from (for errors that show it)."""
         import openai
 
         try:
-            return client.chat.completions.create(**kwargs)
+            raw = client.chat.completions.with_raw_response.create(**kwargs)
+            return self._parsed(raw), raw.text
         except openai.RateLimitError as error:
             raise LLMTransientError(
                 f"rate limited (HTTP 429): {self._scrub(_body_text(error))[:200]}",
@@ -603,10 +607,32 @@ class OpenAIBackend(LLMBackend):
             ) from None
         except openai.APIStatusError as error:
             raise self._status_error(error, kwargs) from None
-        except (openai.APIResponseValidationError, json.JSONDecodeError, ValueError) as error:
+        except openai.APIResponseValidationError as error:
             raise LLMTransientError(
-                self._scrub(f"malformed response: {type(error).__name__}")
+                self._scrub(f"malformed response: {error}: ")
+                + excerpt(error.response.text, self._secret())
             ) from None
+
+    def _parsed(self, raw: Any) -> Any:
+        """The completion object of a raw HTTP 200, or an error that says what came back
+        instead (a gateway's HTML page, a body that is not valid JSON), with its start."""
+        kind = raw.headers.get("content-type") or "none"
+        try:
+            response = raw.parse()
+        except ValueError as error:  # JSONDecodeError among them
+            shown = excerpt(raw.text, self._secret())
+            raise LLMTransientError(
+                f"malformed response: the body is not valid JSON ({self._scrub(str(error))}; "
+                f"content-type {kind}): {shown}"
+            ) from None
+        if response is None or isinstance(response, str | bytes):
+            # The client parses JSON only when the content type says JSON; anything else
+            # comes back as the body's text.
+            raise LLMTransientError(
+                f"malformed response: the body is not JSON (content-type {kind}): "
+                f"{excerpt(raw.text, self._secret())}"
+            )
+        return response
 
     def _status_error(self, error: Any, request: dict[str, Any]) -> Exception:
         status = int(error.status_code)
@@ -659,6 +685,7 @@ class OpenAIBackend(LLMBackend):
     def _completion(
         self,
         response: Any,
+        body: str,
         latency_s: float,
         level: StructuredLevel | None,
         server_defaults: tuple[str, ...],
@@ -678,10 +705,14 @@ class OpenAIBackend(LLMBackend):
         except (AttributeError, IndexError, TypeError) as error:
             # Gateways (OpenRouter) answer HTTP 200 with an error object when the model
             # behind them failed: what it says is the reason.
+            # Anything else: the start of what came back.
             said = getattr(response, "error", None)
-            detail = f": {self._scrub(json.dumps(said, default=str))[:300]}" if said else ""
+            if said:
+                detail = self._scrub(json.dumps(said, default=str))[:300]
+            else:
+                detail = f"the body is {excerpt(readable_body(body), self._secret())}"
             fault = LLMTransientError(
-                f"malformed response: no choices ({type(error).__name__}){detail}"
+                f"malformed response: no choices ({type(error).__name__}): {detail}"
             )
             fault.prompt_tokens, fault.completion_tokens = prompt_tokens, completion_tokens
             raise fault from None

@@ -1,12 +1,12 @@
 """What a misbehaving server's answers become in the call records (from an audit): a key
-echoed in an escaped form."""
+echoed in an escaped form, an HTML page or broken JSON with HTTP 200."""
 
 from __future__ import annotations
 
 import pytest
 
 from skyvln_eval.llm import GenerationConfig, LLMClient, Message, RetryPolicy, create_backend
-from skyvln_eval.llm.loopback import LoopbackOpenAIServer, echo_key, key_forms
+from skyvln_eval.llm.loopback import LoopbackOpenAIServer, echo_key, key_forms, raw
 from skyvln_eval.llm.redact import REDACTED, scrub
 
 HELLO = [Message("system", "You answer in JSON."), Message("user", "Say hello.")]
@@ -51,3 +51,45 @@ def test_a_key_echoed_in_any_escaping_reaches_no_record(
         for name, form in key_forms(KEY).items():
             assert form not in text, (name, text)
     assert REDACTED in texts[0]
+
+
+@pytest.mark.parametrize(
+    ("body", "content_type", "says"),
+    [
+        (
+            "<html><body>502 Bad Gateway for KEY</body></html>",
+            "text/html",
+            "the body is not JSON (content-type text/html): '<html><body>502 Bad Gateway",
+        ),
+        (
+            '{"id": "KEY", "choices": [{"index": 0, "mess',
+            "application/json",
+            "the body is not valid JSON (Unterminated string",
+        ),
+        (
+            '["KEY"]',
+            "application/json",
+            "no choices (AttributeError): the body is '[\"[API key]\"]'",
+        ),
+    ],
+)
+def test_a_body_that_is_no_completion_is_shown_in_the_error(
+    body: str, content_type: str, says: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("ECHO_KEY", KEY)
+    echoed = body.replace("KEY", KEY.replace("/", "\\/"))  # as JSON may write it
+    with LoopbackOpenAIServer([raw(echoed, content_type)]) as server:
+        result = _client(server, attempts=1, api_key_env="ECHO_KEY").call("motion", HELLO, CONFIG)
+    assert result.completion is None
+    [record] = result.records
+    error = record.error or ""
+    assert record.outcome == "failed" and "malformed response" in error and says in error, error
+    assert KEY not in error and REDACTED in error
+
+
+def test_a_long_body_is_shown_by_its_start() -> None:
+    page = "<html>" + "x" * 5000 + "</html>"
+    with LoopbackOpenAIServer([raw(page, "text/html")]) as server:
+        result = _client(server, attempts=1).call("motion", HELLO, CONFIG)
+    error = result.records[0].error or ""
+    assert "'<html>xxx" in error and "…'" in error and len(error) < 400
