@@ -259,7 +259,8 @@ def without_system_role(messages: Sequence[Message]) -> list[Message]:
 
 
 def _usage(response: Any) -> tuple[int | None, int | None]:
-    """The prompt and completion tokens a response reports (``None``: not reported)."""
+    """The prompt and completion tokens a response reports (``None``: not reported, or
+    not a count: see below)."""
     usage = getattr(response, "usage", None)
     counts = []
     for name in ("prompt_tokens", "completion_tokens"):
@@ -267,6 +268,11 @@ def _usage(response: Any) -> tuple[int | None, int | None]:
         with contextlib.suppress(TypeError, ValueError):
             value = None if value is None else int(value)
         counts.append(value if isinstance(value, int) and value >= 0 else None)
+    if counts[0] == 0:
+        # A prompt was sent, so a server saying 0 prompt tokens counts nothing (some
+        # gateways fill the usage object with zeros): taken at its word, the call would
+        # cost a known $0 and top the cost ranking. Neither count of it is believed.
+        return None, None
     return counts[0], counts[1]
 
 

@@ -113,7 +113,8 @@ class RefusedRequest:
 class Completion:
     """A backend's answer to one call, with its usage and timing.
 
-    Token counts are ``None`` when the server did not report them. ``structured_output``
+    Token counts are ``None`` when the server did not report them (or reported a prompt of
+    0 tokens, which no request has). ``structured_output``
     is the level of structured output the request used (``None``: the call asked for
     free text); ``server_defaults`` the decoding parameters of the call that were not sent
     because the model refuses them (it decoded at the server's defaults). ``latency_s`` is

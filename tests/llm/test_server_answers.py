@@ -1,13 +1,18 @@
 """What a misbehaving server's answers become in the call records (from an audit): a key
-echoed in an escaped form, an HTML page or broken JSON with HTTP 200."""
+echoed in an escaped form, a usage object of zeros, an HTML page or broken JSON with
+HTTP 200."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import pytest
 
 from skyvln_eval.llm import GenerationConfig, LLMClient, Message, RetryPolicy, create_backend
-from skyvln_eval.llm.loopback import LoopbackOpenAIServer, echo_key, key_forms, raw
+from skyvln_eval.llm.loopback import LoopbackOpenAIServer, answer, echo_key, key_forms, raw
+from skyvln_eval.llm.prices import load_prices
 from skyvln_eval.llm.redact import REDACTED, scrub
+from skyvln_eval.metrics.cost import call_totals
 
 HELLO = [Message("system", "You answer in JSON."), Message("user", "Say hello.")]
 CONFIG = GenerationConfig(timeout_s=5.0)
@@ -51,6 +56,28 @@ def test_a_key_echoed_in_any_escaping_reaches_no_record(
         for name, form in key_forms(KEY).items():
             assert form not in text, (name, text)
     assert REDACTED in texts[0]
+
+
+def test_a_usage_object_of_zeros_is_no_count_and_no_known_cost(tmp_path: Path) -> None:
+    zeros = {"prompt_tokens": 0, "completion_tokens": 0, "total_tokens": 0}
+    with LoopbackOpenAIServer([answer('{"greeting": "hi"}', usage=zeros)]) as server:
+        table = tmp_path / "prices.yaml"
+        table.write_text(
+            "format: skyvln-eval/llm-prices\nversion: 1\nusd_per_million_tokens:\n"
+            f"  openai:fake-model@{server.base_url}: {{input: 1.0, output: 2.0}}\n"
+        )
+        client = _client(server)
+        priced = LLMClient(client.backend, retry=client.retry, prices=load_prices(table))
+        result = priced.call("motion", HELLO, CONFIG)
+    [record] = result.records
+    assert record.outcome == "ok"
+    # A prompt was sent: 0 prompt tokens means the server did not count, not that it was free.
+    assert (record.prompt_tokens, record.completion_tokens, record.cost_usd) == (None, None, None)
+    totals = call_totals(result.records)
+    assert all(
+        totals[column] != totals[column]  # NaN: unknown, shown as n/a
+        for column in ("llm_cost_usd", "llm_cost_lower_usd", "llm_prompt_tokens")
+    )
 
 
 @pytest.mark.parametrize(
