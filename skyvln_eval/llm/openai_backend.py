@@ -703,7 +703,10 @@ class OpenAIBackend(LLMBackend):
         try:
             choice = response.choices[0]
             text = choice.message.content or ""
-            finish = str(choice.finish_reason or "stop")
+            # As the server said it: None when it gave no reason (not "stop", which would
+            # say the model ended its answer itself).
+            reason = getattr(choice, "finish_reason", None)
+            finish = None if reason is None else str(reason)
             declined = getattr(choice.message, "refusal", None)
             if not text and isinstance(declined, str) and declined:
                 # OpenAI's structured outputs: the model declined; its reason is the answer.

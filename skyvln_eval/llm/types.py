@@ -114,7 +114,8 @@ class Completion:
     """A backend's answer to one call, with its usage and timing.
 
     Token counts are ``None`` when the server did not report them (or reported a prompt of
-    0 tokens, which no request has). ``structured_output``
+    0 tokens, which no request has). ``finish_reason`` is the server's (``None``: it gave
+    none); the offline backends say ``"stop"``. ``structured_output``
     is the level of structured output the request used (``None``: the call asked for
     free text); ``server_defaults`` the decoding parameters of the call that were not sent
     because the model refuses them (it decoded at the server's defaults). ``latency_s`` is
@@ -130,7 +131,7 @@ class Completion:
     prompt_tokens: int | None = None
     completion_tokens: int | None = None
     latency_s: float = 0.0
-    finish_reason: str = "stop"
+    finish_reason: str | None = "stop"
     cached: bool = False
     structured_output: StructuredLevel | None = None
     server_defaults: tuple[str, ...] = ()

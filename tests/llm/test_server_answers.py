@@ -1,6 +1,6 @@
 """What a misbehaving server's answers become in the call records (from an audit): a key
 echoed in an escaped form, a usage object of zeros, an HTML page or broken JSON with
-HTTP 200."""
+HTTP 200, a ``finish_reason`` of null."""
 
 from __future__ import annotations
 
@@ -8,7 +8,10 @@ from pathlib import Path
 
 import pytest
 
+from skyvln_eval.agent.calls import call_json
+from skyvln_eval.errors import ActionParseError
 from skyvln_eval.llm import GenerationConfig, LLMClient, Message, RetryPolicy, create_backend
+from skyvln_eval.llm.config import RepairPolicy
 from skyvln_eval.llm.loopback import LoopbackOpenAIServer, answer, echo_key, key_forms, raw
 from skyvln_eval.llm.prices import load_prices
 from skyvln_eval.llm.redact import REDACTED, scrub
@@ -120,3 +123,36 @@ def test_a_long_body_is_shown_by_its_start() -> None:
         result = _client(server, attempts=1).call("motion", HELLO, CONFIG)
     error = result.records[0].error or ""
     assert "'<html>xxx" in error and "…'" in error and len(error) < 400
+
+
+def _greeting(text: str) -> str:
+    if "greeting" not in text:
+        raise ActionParseError("no greeting")
+    return text
+
+
+def test_a_null_finish_reason_is_recorded_as_none_and_length_is_still_caught() -> None:
+    script = [
+        answer('{"greeting": "hi"}', finish_reason=None),
+        answer('{"greet', finish_reason="length"),
+        answer('{"greeting": "hello"}'),
+        answer('{"greeting": "hello again"}'),
+    ]
+    with LoopbackOpenAIServer(script) as server:
+        client = _client(server)
+        unsaid = client.call("motion", HELLO, CONFIG)
+        cut = call_json(
+            client,
+            "motion",
+            [*HELLO, Message("user", "again")],
+            CONFIG,
+            _greeting,
+            RepairPolicy(repairs=1, budget_factor=2.0),
+        )
+        plain = call_json(client, "motion", [*HELLO, Message("user", "more")], CONFIG, _greeting)
+    assert unsaid.completion is not None and unsaid.completion.finish_reason is None
+    assert unsaid.records[0].finish_reason is None  # was recorded as "stop"
+    # A cut-off answer is still told apart (and repaired with a larger budget).
+    assert cut.records[0].finish_reason == "length" and "cut off" in (cut.records[0].error or "")
+    assert cut.value is not None and cut.repairs == 1
+    assert plain.value is not None and plain.records[0].finish_reason == "stop"
