@@ -24,7 +24,8 @@ ended in an answer is no failure. ``llm_unpriced_calls`` counts attempts whose c
 unknown. ``llm_latency_s`` is the time of every request (answered, failed and refused),
 queueing excluded. ``llm_cost_lower_usd`` is a known lower bound where only failed
 attempts are unpriced (a single HTTP 429 would otherwise leave nothing of a backend's
-cost): Table II shows it as "≥x" in place of "n/a".
+cost) and some attempt that was not a refusal is priced (else nothing shows the model
+has a price): Table II shows it as "≥x" in place of "n/a".
 An episode without calls costs a known 0.
 Rates (call failure rate, fallback rate) are NaN for an episode with nothing to rate (no
 call, no decision); over episodes they are pooled (failed calls of all calls: see
@@ -83,10 +84,19 @@ def _reported(call: LlmCall, tokens: int | None) -> int | None:
 def _cost_lower_bound(calls: Sequence[LlmCall]) -> float:
     """What the calls cost at least: the priced attempts' sum, when only attempts without
     an answer (failed or refused, no token count: a provider may or may not bill them) are
-    unpriced; NaN when an answered attempt is (no price for the model, or no token count)."""
+    unpriced; NaN when an answered attempt is (no price for the model, or no token count),
+    and when no attempt is priced at all. A record does not say whether its model has a
+    price, and an unpriced failure looks the same either way: without one priced attempt
+    nothing shows there is a price, so a model without one whose calls all failed would
+    show a "known" 0 (a refusal, which costs 0 whatever the price, shows nothing either).
+    No calls at all cost a known 0."""
     if any(c.cost_usd is None and c.answered for c in calls):
         return math.nan
-    return float(sum(c.cost_usd for c in calls if c.cost_usd is not None))
+    priced = [c.cost_usd for c in calls if c.cost_usd is not None]
+    # A refusal costs 0 whether or not the model has a price: no evidence of one.
+    if calls and not any(c.cost_usd is not None and c.outcome != "refused" for c in calls):
+        return math.nan
+    return float(sum(priced))
 
 
 def call_totals(

@@ -173,3 +173,25 @@ def test_failed_attempts_add_the_tokens_they_reported_and_leave_the_cost_unknown
     unpriced = _call("motion", prompt_tokens=500, completion_tokens=50)  # answered, no price
     alone = score_results([result(g, g, episode_id="d", llm_calls=[answered, unpriced])])
     assert np.isnan(alone.llm_cost_lower_usd[0]) and np.isnan(alone.llm_cost_usd[0])
+
+
+def test_no_lower_bound_of_the_cost_without_one_priced_attempt() -> None:
+    # The audit's model had no price and every call failed: nothing was answered, so "every
+    # answered call is priced" held vacuously, and Table II showed "≥0.0000" with that note.
+    g = [square(0, 0), square(50, 0)]
+    dead = [
+        _call("motion", outcome="failed", error="HTTP 503", attempt=1, final=False),
+        _call("motion", outcome="failed", error="HTTP 503", attempt=2),
+    ]
+    refused = _call("motion", outcome="refused", error="level refused", final=False)
+    answered = _call("motion", prompt_tokens=500, completion_tokens=50, cost_usd=0.005, attempt=2)
+    scores = score_results(
+        [
+            result(g, g, llm_calls=dead),
+            result(g, g, episode_id="b", llm_calls=[refused, answered]),
+            result(g, g, episode_id="c"),  # no call: a known 0
+        ]
+    )
+    assert np.isnan(scores.llm_cost_lower_usd[0]) and np.isnan(scores.llm_cost_usd[0])
+    assert scores.llm_cost_lower_usd[1] == pytest.approx(0.005)  # a priced answer shows a price
+    assert scores.llm_cost_lower_usd[2] == 0.0 and scores.llm_cost_usd[2] == 0.0

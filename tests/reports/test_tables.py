@@ -349,3 +349,30 @@ def test_a_row_without_scores_names_the_systems_there_are() -> None:
     )  # 20 systems: 12 named, the 8 others counted
     with pytest.raises(MetricInputError, match=r"'S11' and 8 more$"):
         build_table(many, TABLE_I, MetricConventions(), rows=["Full"])
+
+
+def test_a_model_without_a_price_whose_calls_all_failed_has_no_lower_bound() -> None:
+    # From an audit: every call of the unpriced model failed, so "every answered call is
+    # priced" held vacuously and Table II showed "≥0.0000" with a note saying so.
+    from skyvln_eval.llm_records import LlmCall
+
+    g = [square(0, 0), square(50, 0)]
+    failed = {"module": "motion", "backend": "openai", "outcome": "failed", "error": "HTTP 503"}
+    dead = [LlmCall(model="dead", **failed)]  # type: ignore[arg-type]
+    live = [
+        LlmCall(model="live", final=False, **failed),  # type: ignore[arg-type]
+        LlmCall(
+            module="motion", backend="openai", model="live", attempt=2,
+            prompt_tokens=100, completion_tokens=20, cost_usd=0.0014,
+        ),
+    ]  # fmt: skip
+    results = [
+        result(g, g, "error", f"d{k}", "Dead", "test_unseen", llm_calls=dead) for k in range(2)
+    ] + [result(g, g, "ok", f"p{k}", "Priced", "test_unseen", llm_calls=live) for k in range(2)]
+    metrics = ["spl", "success", "ne_m", "llm_cost_usd", "llm_cost_lower_usd"]
+    data = summarise(score_results(results), metrics)
+    md = to_markdown(build_table(data, TABLE_II, MetricConventions()))
+    row = next(line for line in md.splitlines() if line.startswith("| Dead |"))
+    assert "≥" not in row and "n/a" in row
+    # The priced model's failed attempt leaves its cost known from below, and only its.
+    assert "a provider may bill them: Priced on Unseen Testing." in md
