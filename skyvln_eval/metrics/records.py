@@ -38,15 +38,27 @@ RESULT_STATUSES: tuple[ResultStatus, ...] = get_args(ResultStatus)
 def judge_status(
     calls: Sequence[LlmCall], failures: Sequence[ModuleFailure], agent_error: str | None
 ) -> tuple[ResultStatus, str | None]:
-    """An episode's status and, for ``error``, why (the first error text)."""
+    """An episode's status and, for ``error``, why (the first error text: of a request that
+    failed or gave an unusable answer, ahead of a form the server refused, see
+    :func:`_first_error`)."""
     if agent_error is not None:
         return "error", agent_error
     if calls and not any(c.outcome == "ok" for c in calls):
-        first = next((c.error for c in calls if c.error), "no answer")
+        first = _first_error(calls)
         return "error", f"no LLM call of the episode gave a usable answer; first error: {first}"
     if failures:
         return "degraded", None
     return "ok", None
+
+
+def _first_error(calls: Sequence[LlmCall]) -> str:
+    """The first error of an attempt that failed or gave an unusable answer, else the first
+    of a refused one. A refusal (a structured-output level or a parameter the server does
+    not take) is negotiation that went on in another form: the request that failed says
+    what went wrong (a server that only streams refuses every level first, then gives its
+    reason to the plain request)."""
+    failed = next((c.error for c in calls if c.error and c.outcome != "refused"), None)
+    return failed or next((c.error for c in calls if c.error), "no answer")
 
 
 def _issue(message: str, field_name: str, episode_id: str | None) -> ResultRecordError:

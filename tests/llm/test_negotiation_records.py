@@ -179,3 +179,25 @@ def test_refused_credentials_are_never_a_format_refusal(code: int) -> None:
     assert negotiated_level(client.backend.endpoint) is None  # type: ignore[attr-defined]
     (record,) = client.calls_made()
     assert record.outcome == "failed" and record.final
+
+
+def test_an_episodes_first_error_is_the_failed_requests_not_a_refused_level() -> None:
+    # From an audit: a server that only streams refuses every structured-output level, then
+    # the plain request, with its reason. The episode said "structured output level
+    # 'json_schema' refused" (the first record with an error) instead of that reason.
+    from skyvln_eval.metrics.records import judge_status
+
+    streams = "this server only supports stream=true"
+    with LoopbackOpenAIServer([status(400, message=streams)] * 8) as server:
+        result = _client(server).call("motion", HELLO, STRUCTURED)
+    outcomes = [r.outcome for r in result.records]
+    assert outcomes[0] == "refused" and outcomes[-1] == "failed", outcomes
+    status_, why = judge_status(result.records, [], None)
+    assert status_ == "error" and why is not None
+    assert "request refused (HTTP 400" in why and streams in why
+    assert "structured output level" not in why
+    # Only refusals (no request failed after them): the first refusal is still the reason.
+    only_refused = [r for r in result.records if r.outcome == "refused"]
+    assert "structured output level 'json_schema'" in (
+        judge_status(only_refused, [], None)[1] or ""
+    )
