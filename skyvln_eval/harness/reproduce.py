@@ -265,6 +265,11 @@ def _table1_rows(runs: Sequence[PlannedRun], plan: ReproducePlan) -> tuple[list[
     return [label for label, _ in labelled], list(dict.fromkeys(notes))
 
 
+#: Decimals of the columns that need more than 3: a cost per episode is a few thousandths
+#: of a dollar or less (0.0014 and 0.0006 would both read 0.001); Table II shows 4.
+_DECIMALS: dict[str, int] = {"llm_cost_usd": 6, "llm_cost_lower_usd": 6}
+
+
 def _metric_table(
     scores: pd.DataFrame,
     systems: Sequence[str],
@@ -296,7 +301,7 @@ def _metric_table(
             else:
                 # A share is the mean of 0/1 values, in percent.
                 value = 100.0 * values.mean() if how == "share" else getattr(values, how)()
-                cells.append(f"{value:.3f}")
+                cells.append(f"{value:.{_DECIMALS.get(metric, 3)}f}")
         lines.append(f"| {system} | {len(group)} | " + " | ".join(cells) + " |")
     return "\n".join([*lines, *(["", note] if note else [])]) + "\n"
 

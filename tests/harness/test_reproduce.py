@@ -325,3 +325,23 @@ def test_every_way_of_naming_a_backend_gives_its_full_configuration(
     )
     with pytest.raises(ConfigError, match=r"backends\.yaml: x: tmeout_s"):
         environment_backends("SKYVLN_TEST_BACKENDS")
+
+
+def test_cost_md_tells_small_costs_apart() -> None:
+    # From an audit: 3 decimals showed 0.0014 and 0.0006 (USD per episode) both as 0.001.
+    import pandas as pd
+
+    from skyvln_eval.harness.reproduce import COST_METRICS, _metric_table
+
+    scores = pd.DataFrame(
+        {
+            "system": ["a", "a", "b"],
+            "llm_cost_usd": [0.0014, 0.0014, 0.0006],
+            "llm_cost_lower_usd": [0.0014, 0.0014, 0.0006],
+            "llm_latency_s": [1.23456, 1.23456, 2.0],
+        }
+    )
+    columns = [(metric, metric, "mean") for metric in COST_METRICS]
+    table = _metric_table(scores, ["a", "b"], columns, "cost")
+    assert "| a | 2 | 0.001400 | 0.001400 | 1.235 |" in table
+    assert "| b | 1 | 0.000600 | 0.000600 | 2.000 |" in table
