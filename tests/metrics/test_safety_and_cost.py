@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -190,8 +191,11 @@ def test_no_lower_bound_of_the_cost_without_one_priced_attempt() -> None:
             result(g, g, llm_calls=dead),
             result(g, g, episode_id="b", llm_calls=[refused, answered]),
             result(g, g, episode_id="c"),  # no call: a known 0
+            # A refused form costs 0 whatever the price: no sign that the model has one.
+            result(g, g, episode_id="d", llm_calls=[replace(refused, cost_usd=0.0), *dead]),
         ]
     )
+    assert np.isnan(scores.llm_cost_lower_usd[3])
     assert np.isnan(scores.llm_cost_lower_usd[0]) and np.isnan(scores.llm_cost_usd[0])
     assert scores.llm_cost_lower_usd[1] == pytest.approx(0.005)  # a priced answer shows a price
     assert scores.llm_cost_lower_usd[2] == 0.0 and scores.llm_cost_usd[2] == 0.0
