@@ -164,5 +164,20 @@ def _convert(hint: Any, value: Any, where: str, path: tuple[str, ...]) -> Any:
 def _number(value: Any, where: str, path: tuple[str, ...]) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
         problem = f"must be a number, got {value!r}"
+        if isinstance(value, str) and _looks_like_yaml_exponent(value):
+            # YAML 1.1 reads 1.0e12 as text: its exponent needs a sign (1.0e+12).
+            mantissa, _, exponent = value.lower().partition("e")
+            problem += f" (text: YAML wants a signed exponent, {mantissa}e+{exponent})"
         raise SettingsError(f"{'.'.join((where, *path))} {problem}", ".".join(path), problem)
     return float(value)
+
+
+def _looks_like_yaml_exponent(text: str) -> bool:
+    """Whether ``text`` is a number in exponent form without the exponent's sign, which
+    YAML 1.1 (PyYAML) reads as a string."""
+    mantissa, e, exponent = text.lower().partition("e")
+    try:
+        float(mantissa)
+    except ValueError:
+        return False
+    return bool(e) and exponent.isdigit()

@@ -89,6 +89,11 @@ CONTROL_COLUMNS: tuple[tuple[str, str, Aggregate], ...] = (
     ("min_clearance_m", "min keep-out clearance/m, episode mean", "mean"),
     ("solve_failures", "solve failures per episode", "mean"),
     ("soft_steps", "steps with the obstacle constraint relaxed, per episode", "mean"),
+    (
+        "constraint_violation_steps",
+        "steps inside the keep-out clearance or past a limit, per episode",
+        "mean",
+    ),
     ("rmse_x_m", "RMSE x/m, episode mean", "mean"),
     ("rmse_y_m", "RMSE y/m, episode mean", "mean"),
     ("rmse_z_m", "RMSE z/m, episode mean", "mean"),
@@ -276,8 +281,11 @@ def _metric_table(
     columns: Sequence[tuple[str, str, Aggregate]],
     title: str,
     note: str = "",
+    counted: str | None = None,
 ) -> str:
-    """A Markdown table of ``columns`` (score column, header, how its episodes combine)."""
+    """A Markdown table of ``columns`` (score column, header, how its episodes combine);
+    ``counted``: a 0/1 column saying which episodes the values come from (the flown ones
+    of a control table), their count shown as "k of n" when some have none."""
     present = [c for c in columns if c[0] in scores.columns]
     sel = scores[scores["system"].isin(systems)]
     unknown_if_any = UNKNOWN_IF_ANY_UNKNOWN
@@ -302,7 +310,12 @@ def _metric_table(
                 # A share is the mean of 0/1 values, in percent.
                 value = 100.0 * values.mean() if how == "share" else getattr(values, how)()
                 cells.append(f"{value:.{_DECIMALS.get(metric, 3)}f}")
-        lines.append(f"| {system} | {len(group)} | " + " | ".join(cells) + " |")
+        episodes = str(len(group))
+        if counted is not None and counted in group.columns:
+            with_values = int(group[counted].fillna(False).astype(bool).sum())
+            if with_values < len(group):
+                episodes = f"{with_values} of {len(group)}"
+        lines.append(f"| {system} | {episodes} | " + " | ".join(cells) + " |")
     return "\n".join([*lines, *(["", note] if note else [])]) + "\n"
 
 
@@ -499,8 +512,10 @@ def reproduce(
             "Safety and control (flown systems)",
             "Keep-out clearance: how far the drone stayed outside the nearest obstacle's "
             "keep-out sphere (its radius plus the safety margin); below 0 it was inside that "
-            "sphere, a collision is inside the obstacle itself. The solve-time columns are "
+            "sphere, a collision is inside the obstacle itself. Episodes: those that flew "
+            '("k of n": the others ended before any flight). The solve-time columns are '
             f"{VARY_RUN_TO_RUN}.",
+            counted="has_control",
         ),
     )
     atomic_write_text(

@@ -28,7 +28,7 @@ SUMMARY_METRICS = ("success", "oracle_success", "spl", "gp_m", "oracle_gp_m", "n
                    "path_length_m", "r2r_sr", "r2r_spl", "ndtw", "sdtw", "cls",
                    "status_error", "status_degraded", "fallback_rate", "llm_call_failure_rate",
                    "llm_cost_usd", "llm_latency_s", "collided", "min_clearance_m",
-                   "solve_failures", "soft_steps")  # fmt: skip
+                   "solve_failures", "soft_steps", "constraint_violation_steps")  # fmt: skip
 #: What the terminal table shows (summary.csv has every metric above).
 PRINTED_METRICS = ("success", "oracle_success", "spl", "gp_m", "ne_m", "path_length_m",
                    "status_error", "status_degraded", "fallback_rate", "llm_cost_usd",

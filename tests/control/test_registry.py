@@ -139,3 +139,13 @@ def test_controller_config_checks_settings_without_building_a_solver(
         controller_config("lmpc", {"max_obstacle": 1})
     assert caught.value.field == "max_obstacle"
     assert caught.value.problem.endswith("(did you mean 'max_obstacles'?)")
+
+
+def test_an_exponent_without_its_sign_is_named_as_yaml_text() -> None:
+    document = yaml.safe_load("weights: {slack_linear: 1.0e12}")
+    with pytest.raises(SettingsError) as caught:
+        controller_config("nmpc", document)
+    assert caught.value.problem == (
+        "must be a number, got '1.0e12' (text: YAML wants a signed exponent, 1.0e+12)"
+    )
+    assert controller_config("nmpc", yaml.safe_load("weights: {slack_linear: 1.0e+12}"))

@@ -345,3 +345,22 @@ def test_cost_md_tells_small_costs_apart() -> None:
     table = _metric_table(scores, ["a", "b"], columns, "cost")
     assert "| a | 2 | 0.001400 | 0.001400 | 1.235 |" in table
     assert "| b | 1 | 0.000600 | 0.000600 | 2.000 |" in table
+
+
+def test_control_md_counts_the_episodes_that_flew() -> None:
+    # From an audit: an episode that ended before any flight counted in "episodes" while
+    # every cell averaged the flown ones only.
+    import pandas as pd
+
+    from skyvln_eval.harness.reproduce import CONTROL_COLUMNS, _metric_table
+
+    scores = pd.DataFrame(
+        {
+            "system": ["a", "a", "a", "b"],
+            "has_control": [True, True, False, True],
+            "solve_failures": [2.0, 0.0, None, 1.0],
+        }
+    )
+    table = _metric_table(scores, ["a", "b"], CONTROL_COLUMNS, "control", counted="has_control")
+    assert "| a | 2 of 3 | 1.000 |" in table and "| b | 1 | 1.000 |" in table
+    assert "| a | 3 | 1.000 |" in _metric_table(scores, ["a"], CONTROL_COLUMNS, "control")
