@@ -88,7 +88,7 @@ CONTROL_COLUMNS: tuple[tuple[str, str, Aggregate], ...] = (
     ("min_clearance_m", "min keep-out clearance/m, worst episode", "min"),
     ("min_clearance_m", "min keep-out clearance/m, episode mean", "mean"),
     ("solve_failures", "solve failures per episode", "mean"),
-    ("soft_steps", "steps with the obstacle constraint relaxed, per episode", "mean"),
+    ("soft_steps", "steps whose plan relaxed the obstacle constraint, per episode", "mean"),
     (
         "constraint_violation_steps",
         "steps inside the keep-out clearance or past a limit, per episode",
