@@ -44,6 +44,8 @@ HOST = "127.0.0.1"
 DEFAULT_PORT = 9090
 #: Headers of the upstream response that the proxy does not pass on (it re-frames the body).
 _HOP_BY_HOP = frozenset({"connection", "transfer-encoding", "content-length", "keep-alive"})
+#: Headers ``send_response`` writes itself: forwarded too, each would be there twice.
+_SENT_BY_THE_PROXY = frozenset({"server", "date"})
 _STARTUP_S = 60.0
 _PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 
@@ -102,7 +104,7 @@ class _ProxyHandler(BaseHTTPRequestHandler):
             response = upstream.getresponse()
             self.send_response(response.status, response.reason)
             for name, value in response.getheaders():
-                if name.lower() not in _HOP_BY_HOP:
+                if name.lower() not in _HOP_BY_HOP | _SENT_BY_THE_PROXY:
                     self.send_header(name, value)
             self.send_header("Content-Security-Policy", self.policy)
             self.send_header("Referrer-Policy", "no-referrer")

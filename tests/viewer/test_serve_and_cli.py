@@ -44,6 +44,9 @@ def test_the_served_viewer_listens_on_the_loopback_only_with_a_policy(
         with urllib.request.urlopen(viewer.url, timeout=30) as response:
             page = response.read().decode()
             policy = response.headers["Content-Security-Policy"]
+            # Each header once: the proxy's own Server and Date, not the viewer's as well.
+            assert len(response.headers.get_all("Server")) == 1
+            assert len(response.headers.get_all("Date")) == 1
         grpc_port = int(viewer.grpc_url.rsplit(":", 1)[1].split("/")[0])
         assert "re_viewer.js" in page
         assert f"connect-src 'self' http://127.0.0.1:{grpc_port}" in policy
