@@ -15,7 +15,6 @@ from skyvln_eval.reports.nav_figures import (
     ne_distribution_figure,
     sr_vs_threshold_figure,
     success_rate_curve,
-    trajectory_figure,
 )
 from skyvln_eval.reports.paper_tables import paper_table, table_metrics
 from skyvln_eval.reports.render import FIGURE_FORMATS, new_figure, save_figure
@@ -32,6 +31,7 @@ from skyvln_eval.reports.tables import (
     to_latex,
     to_markdown,
 )
+from skyvln_eval.reports.trajectory_figure import trajectory_figure
 
 __all__ = [
     "FIGURE_FORMATS",

@@ -485,8 +485,8 @@ def plot_trajectory(
     status unless ok (an error episode's with its first error line)."""
     from skyvln_eval.avdn import load_split
     from skyvln_eval.metrics import read_results
-    from skyvln_eval.reports.nav_figures import trajectory_figure, trajectory_labels
     from skyvln_eval.reports.render import save_figure
+    from skyvln_eval.reports.trajectory_figure import trajectory_figure, trajectory_labels
     from skyvln_eval.worlds import load_world
 
     # One episode's figure: the episodes an unfinished run has are drawn.

@@ -21,7 +21,7 @@ from skyvln_eval.reports import (
     success_rate_curve,
     trajectory_figure,
 )
-from skyvln_eval.reports.nav_figures import trajectory_labels
+from skyvln_eval.reports.trajectory_figure import trajectory_labels
 from skyvln_eval.worlds import WorldTile
 from tests.conftest import modules_loaded_by
 from tests.metrics.helpers import result, square
