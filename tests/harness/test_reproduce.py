@@ -99,6 +99,14 @@ def test_a_small_plan_writes_tables_figures_and_summary_and_resumes(
     )
     full = next(line for line in control if line.startswith("| Full"))
     assert "-" not in full.split("|")[3:]  # a flown system has every control figure
+    # Table II's backends flew too (its system is a dynamics one): their rows are there,
+    # of their one split, as the note says.
+    rows = [line.split("|")[1].strip() for line in control if line.startswith("| ")]
+    assert rows[1:] == ["Full †", "rule-based (not an LLM)", "random (not an LLM)"], rows
+    assert (
+        "Table II's (rule-based (not an LLM), random (not an LLM)) are of test_unseen"
+        in (control[-1])
+    )
     assert any(name.startswith("trajectory_") for name in report.files)
     summary = report.files["SUMMARY.md"].read_text()
     assert "Table I" in summary and "Table II" in summary and "control_static.png" in summary
