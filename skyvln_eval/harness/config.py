@@ -29,6 +29,7 @@ from skyvln_eval.errors import (
 from skyvln_eval.fileio import read_yaml_mapping
 from skyvln_eval.harness.executors import ExecutorKind
 from skyvln_eval.sensing import SensorConfig
+from skyvln_eval.sim.plant import PlantConfig
 from skyvln_eval.sim.quadrotor import InputLimits
 from skyvln_eval.sim.scenarios import ScenarioKind
 
@@ -215,10 +216,10 @@ def check_controller_settings(controller: str, settings: dict[str, Any], field: 
 
 def _beyond_the_drone(limits: object) -> tuple[str, float, float] | None:
     """The first of ``limits`` wider than the simulated drone's (the harness flies the
-    default :class:`InputLimits`): its name, the controller's value and the drone's."""
+    default :class:`PlantConfig`): its name, the controller's value and the drone's."""
     if not isinstance(limits, InputLimits):
         return None
-    drone = InputLimits()
+    drone = PlantConfig().limits
     if limits.thrust_min_m_s2 < drone.thrust_min_m_s2:
         return "thrust_min_m_s2", limits.thrust_min_m_s2, drone.thrust_min_m_s2
     for name in ("thrust_max_m_s2", "tilt_ref_max_rad"):

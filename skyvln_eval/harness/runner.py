@@ -273,11 +273,10 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
                     {"controller": config.dynamics.controller},
                 )
                 control = summarise_control(flown.control_log, control_log)
-        status, error = judge_status(rollout.llm_calls, rollout.failures, rollout.error)
-        if status == "ok" and control is not None and control.solve_failures:
-            # The controller fell back (hover, shifted plan) on some steps: what was flown
-            # there is not the controller's, so the episode says so, as for an agent fallback.
-            status = "degraded"
+        solve_failures = 0 if control is None else control.solve_failures
+        status, error = judge_status(
+            rollout.llm_calls, rollout.failures, rollout.error, solve_failures
+        )
         extra |= {
             "stop_reason": rollout.stop_reason,
             "actions": len(rollout.actions),

@@ -28,25 +28,31 @@ from skyvln_eval.llm_records import LlmCall, ModuleFailure, module_usage
 
 ResultStatus = Literal["ok", "degraded", "error"]
 #: ``ok``: the agent flew the episode with every answer it asked for; ``degraded``: it
-#: flew it, but some decision used a fallback action or some module's answer could not be
-#: used; ``error``: the episode raised (harness, agent or controller), or no LLM call of it
-#: gave a usable answer. The rates of each are reported; an ``error`` episode never counts
-#: as a success (its distances still describe whatever it flew).
+#: flew it, but some decision used a fallback action, some module's answer could not be
+#: used, or (flown) some control step's solve failed and the controller fell back;
+#: ``error``: the episode raised (harness, agent or controller), or no LLM call of it
+#: gave a usable answer. The rates of each are reported; an ``error`` episode never
+#: counts as a success (its distances still describe whatever it flew).
 RESULT_STATUSES: tuple[ResultStatus, ...] = get_args(ResultStatus)
 
 
 def judge_status(
-    calls: Sequence[LlmCall], failures: Sequence[ModuleFailure], agent_error: str | None
+    calls: Sequence[LlmCall],
+    failures: Sequence[ModuleFailure],
+    agent_error: str | None,
+    solve_failures: int = 0,
 ) -> tuple[ResultStatus, str | None]:
     """An episode's status and, for ``error``, why (the first error text: of a request that
     failed or gave an unusable answer, ahead of a form the server refused, see
-    :func:`_first_error`)."""
+    :func:`_first_error`). ``solve_failures``: the flight's control steps whose solve
+    failed (the controller fell back: hover, a shifted plan), whose flying is then not the
+    controller's."""
     if agent_error is not None:
         return "error", agent_error
     if calls and not any(c.outcome == "ok" for c in calls):
         first = _first_error(calls)
         return "error", f"no LLM call of the episode gave a usable answer; first error: {first}"
-    if failures:
+    if failures or solve_failures:
         return "degraded", None
     return "ok", None
 

@@ -217,7 +217,7 @@ def score(
     from skyvln_eval.metrics import score_results, summarise
     from skyvln_eval.metrics.aggregate import oracle_systems
     from skyvln_eval.metrics.scores_io import summary_csv_text, write_scores
-    from skyvln_eval.reports.paper_tables import ORACLE_MARK, ORACLE_NOTE
+    from skyvln_eval.reports.paper_tables import ORACLE_NOTE, oracle_label
     from skyvln_eval.reports.run_coverage import covered_results
 
     data_dir = None if data_dir_text is None else _data_dir(data_dir_text)
@@ -242,9 +242,7 @@ def score(
     for (sys_name, split_name, _), group in summary.groupby(["system", "split", "mode"], sort=True):
         by_metric = group.set_index("metric")
         cells = [_cell(by_metric, m) for m in shown]
-        name = str(sys_name)
-        if sys_name in oracles and "oracle" not in name.lower():
-            name += f" {ORACLE_MARK}"
+        name = oracle_label(str(sys_name)) if sys_name in oracles else str(sys_name)
         table.add_row(name, str(split_name), str(int(group.n.max())), *cells)
     console = Console(width=160)
     for warning in warnings:

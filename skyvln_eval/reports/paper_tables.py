@@ -49,6 +49,11 @@ ORACLE_NOTE = (
 )
 
 
+def oracle_label(system: str) -> str:
+    """How a system the oracle flew is shown: marked, unless its name already says so."""
+    return system if "oracle" in system.lower() else f"{system} {ORACLE_MARK}"
+
+
 def stand_in_kind(backend: str | None) -> str | None:
     """The kind of stand-in (a key of :data:`STAND_IN_MARKERS`) a backend spec names, or
     ``None`` for a model (or no backend)."""
@@ -107,7 +112,7 @@ def paper_table(
     oracles = oracle_systems(scores)
     labels = {
         **(_marked_labels(stand_ins) if spec is TABLE_I else {}),
-        **{o: f"{o} {ORACLE_MARK}" for o in oracles if "oracle" not in o.lower()},
+        **{o: oracle_label(o) for o in oracles if oracle_label(o) != o},
     }
     systems = set(scores["system"])
     clashes = {old: new for old, new in labels.items() if new in systems}

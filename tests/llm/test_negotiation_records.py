@@ -17,12 +17,12 @@ from pathlib import Path
 import pytest
 
 from skyvln_eval.errors import LLMAuthError
-from skyvln_eval.llm import GenerationConfig, LLMClient, Message, RetryPolicy, create_backend
+from skyvln_eval.llm import GenerationConfig, LLMClient, Message
 from skyvln_eval.llm.loopback import LoopbackOpenAIServer, answer, no_choices, status
 from skyvln_eval.llm.negotiation import negotiated_level
-from skyvln_eval.llm.prices import load_prices
 from skyvln_eval.llm_records import module_usage
 from skyvln_eval.metrics.cost import call_totals
+from tests.llm.loopback_clients import fake_model_prices, loopback_client
 
 SCHEMA = {"type": "object", "properties": {"greeting": {"type": "string"}}}
 STRUCTURED = GenerationConfig(timeout_s=5.0, json_schema=SCHEMA, schema_name="greeting")
@@ -31,9 +31,7 @@ LATENCY_S = 0.05
 
 
 def _client(server: LoopbackOpenAIServer) -> LLMClient:
-    backend = create_backend("openai:fake-model", base_url=server.base_url)
-    retry = RetryPolicy(max_attempts=3, initial_delay_s=0.0, max_delay_s=0.0)
-    return LLMClient(backend, retry=retry, sleep=lambda _: None)
+    return loopback_client(server, attempts=3)
 
 
 def test_a_refused_level_is_an_attempt_of_its_own_with_its_own_time() -> None:
@@ -102,13 +100,7 @@ def test_tokens_reported_with_no_choices_are_counted_and_priced(tmp_path: Path) 
     # known; without a price it stays unknown, never 0.
     script = [no_choices(), answer('{"greeting": "hi"}')] * 2
     with LoopbackOpenAIServer(script) as server:
-        table = tmp_path / "prices.yaml"
-        table.write_text(
-            "format: skyvln-eval/llm-prices\nversion: 1\nusd_per_million_tokens:\n"
-            f"  openai:fake-model@{server.base_url}: {{input: 1.0, output: 2.0}}\n"
-        )
-        client = _client(server)
-        priced = LLMClient(client.backend, retry=client.retry, prices=load_prices(table))
+        priced = loopback_client(server, prices=fake_model_prices(server, tmp_path))
         result = priced.call("motion", HELLO, GenerationConfig(timeout_s=5.0))
         unpriced = _client(server).call("motion", HELLO, GenerationConfig(timeout_s=5.0))
     failed, answered = result.records
@@ -131,13 +123,7 @@ def test_a_priced_endpoint_that_negotiates_has_a_known_cost(tmp_path: Path) -> N
     with LoopbackOpenAIServer(
         [answer('{"greeting": "hi"}')], structured="llama_cpp", latency_s=0.0
     ) as server:
-        table = tmp_path / "prices.yaml"
-        table.write_text(
-            "format: skyvln-eval/llm-prices\nversion: 1\nusd_per_million_tokens:\n"
-            f"  openai:fake-model@{server.base_url}: {{input: 1.0, output: 2.0}}\n"
-        )
-        client = _client(server)
-        priced = LLMClient(client.backend, retry=client.retry, prices=load_prices(table))
+        priced = loopback_client(server, prices=fake_model_prices(server, tmp_path))
         result = priced.call("motion", HELLO, STRUCTURED)
     refused, answered = result.records
     assert refused.outcome == "refused" and refused.cost_usd == 0.0

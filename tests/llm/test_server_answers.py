@@ -10,12 +10,12 @@ import pytest
 
 from skyvln_eval.agent.calls import call_json
 from skyvln_eval.errors import ActionParseError
-from skyvln_eval.llm import GenerationConfig, LLMClient, Message, RetryPolicy, create_backend
+from skyvln_eval.llm import GenerationConfig, LLMClient, Message
 from skyvln_eval.llm.config import RepairPolicy
 from skyvln_eval.llm.loopback import LoopbackOpenAIServer, answer, echo_key, key_forms, raw
-from skyvln_eval.llm.prices import load_prices
 from skyvln_eval.llm.redact import REDACTED, scrub
 from skyvln_eval.metrics.cost import call_totals
+from tests.llm.loopback_clients import fake_model_prices, loopback_client
 
 HELLO = [Message("system", "You answer in JSON."), Message("user", "Say hello.")]
 CONFIG = GenerationConfig(timeout_s=5.0)
@@ -26,9 +26,7 @@ KEY = "sk-proj-AUDIT/9f8e+7d6c5b4a=="
 
 
 def _client(server: LoopbackOpenAIServer, attempts: int = 2, **options: object) -> LLMClient:
-    backend = create_backend("openai:fake-model", base_url=server.base_url, **options)
-    retry = RetryPolicy(max_attempts=attempts, initial_delay_s=0.0, max_delay_s=0.0)
-    return LLMClient(backend, retry=retry, sleep=lambda _: None)
+    return loopback_client(server, attempts, **options)
 
 
 def test_every_escaped_form_of_the_key_is_scrubbed() -> None:
@@ -64,13 +62,7 @@ def test_a_key_echoed_in_any_escaping_reaches_no_record(
 def test_a_usage_object_of_zeros_is_no_count_and_no_known_cost(tmp_path: Path) -> None:
     zeros = {"prompt_tokens": 0, "completion_tokens": 0, "total_tokens": 0}
     with LoopbackOpenAIServer([answer('{"greeting": "hi"}', usage=zeros)]) as server:
-        table = tmp_path / "prices.yaml"
-        table.write_text(
-            "format: skyvln-eval/llm-prices\nversion: 1\nusd_per_million_tokens:\n"
-            f"  openai:fake-model@{server.base_url}: {{input: 1.0, output: 2.0}}\n"
-        )
-        client = _client(server)
-        priced = LLMClient(client.backend, retry=client.retry, prices=load_prices(table))
+        priced = loopback_client(server, 2, prices=fake_model_prices(server, tmp_path))
         result = priced.call("motion", HELLO, CONFIG)
     [record] = result.records
     assert record.outcome == "ok"
