@@ -175,7 +175,7 @@ class LLMConfig(BaseModel):
     @classmethod
     def _extra_body_fields(cls, extra_body: dict[str, Any]) -> dict[str, Any]:
         # Checked on load, as the backend is: a run stops before its first episode.
-        from skyvln_eval.llm.openai_backend import checked_extra_body
+        from skyvln_eval.llm.openai_request import checked_extra_body
 
         try:
             return checked_extra_body(extra_body)

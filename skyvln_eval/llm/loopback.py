@@ -50,7 +50,7 @@ from typing import Any, Literal
 import cv2
 import numpy as np
 
-from skyvln_eval.llm.openai_backend import TASK_DATA_FIELD
+from skyvln_eval.llm.openai_request import TASK_DATA_FIELD
 from skyvln_eval.llm.rule import RuleBackend
 from skyvln_eval.llm.types import GenerationConfig, Message
 

@@ -27,11 +27,9 @@ at once without it: the budget as ``max_completion_tokens``, the others left to 
 server's defaults. The endpoint keeps that for the rest of the process (:mod:`.negotiation`)
 and every answer records which parameters were not sent.
 
-Errors are told apart by what the server says: 401 / 403 (:class:`LLMAuthError`), a
-context overflow (:class:`LLMContextOverflowError`, not retried), 429 and 5xx
-(transient, retried by the client), other 4xx (refused). The client's own retries are off
+Errors are classified by :mod:`.openai_errors`. The client's own retries are off
 (``max_retries=0``): :class:`~skyvln_eval.llm.client.LLMClient` retries, so that every
-fault is recorded.
+fault is recorded. The request body is made by :mod:`.openai_request`.
 
 ``timeout_s`` bounds a whole attempt, from connect to last byte. The HTTP library's own
 timeouts bound each network operation, so a server that sends its answer one byte at a
@@ -52,17 +50,10 @@ own chat template places it, so the instructions reach the model either way.
 
 from __future__ import annotations
 
-import base64
-import contextlib
-import dataclasses
-import datetime
-import email.utils
 import functools
 import json
 import logging
-import math
 import os
-import re
 import ssl
 import threading
 import time
@@ -73,7 +64,6 @@ from typing import Any, Final
 from skyvln_eval.errors import (
     ConfigError,
     LLMAuthError,
-    LLMContextOverflowError,
     LLMError,
     LLMTransientError,
     MissingExtraError,
@@ -90,6 +80,21 @@ from skyvln_eval.llm.negotiation import (
     remember_level,
     response_format,
 )
+from skyvln_eval.llm.openai_errors import (
+    Asker,
+    FormatRefused,
+    ParameterRefused,
+    body_text,
+    retry_after_s,
+    status_error,
+    timed_out,
+)
+from skyvln_eval.llm.openai_request import (
+    TASK_DATA_FIELD,
+    checked_extra_body,
+    messages_payload,
+    reported_usage,
+)
 from skyvln_eval.llm.prices import VENDOR_SERVERS
 from skyvln_eval.llm.redact import excerpt, readable_body, scrub
 from skyvln_eval.llm.types import (
@@ -103,111 +108,6 @@ from skyvln_eval.llm.types import (
 log = logging.getLogger(__name__)
 
 OPENAI_BASE_URL: Final = VENDOR_SERVERS["openai"]
-#: Words in an error body that say the request is longer than the model's context.
-_CONTEXT_OVERFLOW = re.compile(
-    r"context length|context window|maximum context|context_length_exceeded|too many tokens"
-    r"|prompt is too long|exceeds? the (?:model'?s? )?(?:maximum )?context|n_ctx",
-    re.IGNORECASE,
-)
-#: Words in an error body that say the server cannot do the requested response format.
-_FORMAT_WORDS = re.compile(
-    r"response[_ ]format|json[_ ]schema|json[_ ]object|schema|grammar|structured output",
-    re.IGNORECASE,
-)
-#: Request fields other than the response format an error body may name as its cause (a
-#: model not found, a budget too large): a 400 naming one of them is no format refusal.
-_OTHER_FIELDS = re.compile(
-    r"\b(?:model|max_tokens|max_completion_tokens|messages|temperature|top_p|seed|stop)\b",
-    re.IGNORECASE,
-)
-#: A server refusing the system message (OpenAI's o1-mini: "Unsupported value:
-#: 'messages[0].role' does not support 'system' with this model"; Gemma chat templates:
-#: "System role not supported").
-_SYSTEM_ROLE_REFUSED = re.compile(
-    r"role'? does not support 'system'|system role (?:is )?not supported", re.IGNORECASE
-)
-#: How OpenAI (and servers that copy its errors) names a parameter the model does not take,
-#: for bodies without the ``param`` field.
-_UNSUPPORTED = re.compile(r"unsupported (?:parameter|value):\s*'(\w+)'", re.IGNORECASE)
-#: Where the loopback test server finds the task data of a request (only when asked for).
-TASK_DATA_FIELD: Final = "skyvln_task_data"
-#: Request fields the toolkit sets (decoding settings have their own config fields); a
-#: ``stream`` or ``n`` of the user's would break the answer's parsing.
-RESERVED_FIELDS: Final = frozenset(
-    {
-        "model",
-        "messages",
-        "temperature",
-        "top_p",
-        "max_tokens",
-        "max_completion_tokens",
-        "seed",
-        "stop",
-        "response_format",
-        "stream",
-        "n",
-        "timeout",
-        TASK_DATA_FIELD,
-    }
-)
-
-
-def checked_extra_body(extra_body: Any) -> dict[str, Any]:
-    """``extra_body`` as a plain JSON object, or a :class:`ConfigError` saying what is wrong."""
-    if not isinstance(extra_body, dict):
-        raise ConfigError(f"extra_body must be a mapping of request fields, got {extra_body!r}")
-    taken = sorted(set(extra_body) & RESERVED_FIELDS)
-    if taken:
-        raise ConfigError(
-            f"extra_body cannot set {', '.join(taken)}: the toolkit sets these fields "
-            "(decoding settings have their own config fields: temperature, top_p, max_tokens, "
-            "budgets, seed)"
-        )
-    try:
-        return dict(json.loads(json.dumps(extra_body, sort_keys=True, allow_nan=False)))
-    except (TypeError, ValueError) as error:
-        raise ConfigError(f"extra_body must be plain JSON: {error}") from None
-
-
-def retry_after_s(headers: Any, now: float | None = None) -> float | None:
-    """How long the server asks us to wait, from its headers: OpenAI's ``retry-after-ms``,
-    else ``Retry-After`` in seconds or as an HTTP date (RFC 9110; a date in the past is 0);
-    ``None`` when it says nothing readable (our own backoff then decides)."""
-    if headers is None:
-        return None
-    with contextlib.suppress(TypeError, ValueError):
-        milliseconds = headers.get("retry-after-ms")
-        if milliseconds is not None and math.isfinite(float(milliseconds)):
-            return float(milliseconds) / 1000.0
-    value = headers.get("retry-after")
-    if value is None:
-        return None
-    with contextlib.suppress(TypeError, ValueError):
-        seconds = float(value)
-        return seconds if math.isfinite(seconds) else None
-    with contextlib.suppress(TypeError, ValueError, IndexError, OverflowError):
-        when = email.utils.parsedate_to_datetime(value)
-        if when.tzinfo is None:  # "-0000": HTTP dates are in GMT
-            when = when.replace(tzinfo=datetime.UTC)
-        return max(0.0, when.timestamp() - (time.time() if now is None else now))
-    return None
-
-
-def _body_text(error: Any) -> str:
-    """What the server said: the parsed error message and the raw body, as one string."""
-    parts = [str(getattr(error, "message", "") or "")]
-    response = getattr(error, "response", None)
-    with contextlib.suppress(Exception):  # a streamed or closed body: the message is all
-        parts.append(readable_body(response.text) if response is not None else "")
-    return " ".join(p for p in parts if p)
-
-
-def _timed_out(endpoint: str, timeout_s: float) -> LLMTransientError:
-    return LLMTransientError(
-        f"{endpoint}: no complete answer within {timeout_s:.3g} s (timeout, connect to last byte)"
-    )
-
-
 #: Idle HTTP clients per (server, key), shared by every backend of the process: agents are
 #: built per episode, and a client (with its connection pool) is costly to make. The key
 #: lives only inside the clients, as when each backend made its own.
@@ -242,85 +142,6 @@ def _made_tls_context() -> ssl.SSLContext | bool:
             context: ssl.SSLContext = make()
             return context
     return True  # the client's own default
-
-
-def without_system_role(messages: Sequence[Message]) -> list[Message]:
-    """``messages`` for a model without a system role: the system messages' text opens the
-    first user message (a user message of its own when there is none)."""
-    system = "\n\n".join(m.text for m in messages if m.role == "system")
-    rest = [m for m in messages if m.role != "system"]
-    if not system:
-        return rest
-    first_user = next((i for i, m in enumerate(rest) if m.role == "user"), None)
-    if first_user is None:
-        return [Message("user", system), *rest]
-    opened = dataclasses.replace(rest[first_user], text=f"{system}\n\n{rest[first_user].text}")
-    return [*rest[:first_user], opened, *rest[first_user + 1 :]]
-
-
-def _usage(response: Any) -> tuple[int | None, int | None]:
-    """The prompt and completion tokens a response reports (``None``: not reported, or
-    not a count: see below)."""
-    usage = getattr(response, "usage", None)
-    counts = []
-    for name in ("prompt_tokens", "completion_tokens"):
-        value = getattr(usage, name, None) if usage is not None else None
-        with contextlib.suppress(TypeError, ValueError):
-            value = None if value is None else int(value)
-        counts.append(value if isinstance(value, int) and value >= 0 else None)
-    if counts[0] == 0:
-        # A prompt was sent, so a server saying 0 prompt tokens counts nothing (some
-        # gateways fill the usage object with zeros): taken at its word, the call would
-        # cost a known $0 and top the cost ranking. Neither count of it is believed.
-        return None, None
-    return counts[0], counts[1]
-
-
-class _Refused(Exception):
-    """The server turned the request down for its form; the call goes on in another."""
-
-    def record(
-        self,
-        what: str,
-        started: float,
-        level: StructuredLevel | None,
-        unsent: tuple[str, ...],
-    ) -> RefusedRequest:
-        """This refusal as a request of its own, timed from ``started`` (perf_counter)."""
-        return RefusedRequest(
-            error=f"{what} ({self})",
-            latency_s=time.perf_counter() - started,
-            structured_output=level,
-            server_defaults=unsent,
-        )
-
-
-class _FormatRefused(_Refused):
-    """The server cannot do the response format of this request (the body says why)."""
-
-    def __init__(self, status: int, body: str) -> None:
-        super().__init__(f"HTTP {status}: {body[:300]}")
-
-
-class _ParameterRefused(_Refused):
-    """The model does not take one decoding parameter of this request (HTTP 400)."""
-
-    def __init__(self, parameter: str, body: str) -> None:
-        super().__init__(f"HTTP 400: {body[:300]}")
-        self.parameter = parameter
-
-
-def _refused_parameter(error: Any, body: str, request: dict[str, Any]) -> str | None:
-    """The decoding parameter of ``request`` a 400 says the model does not take, if any:
-    named in an "Unsupported parameter / value" message, or in OpenAI's ``param`` field of
-    an ``unsupported_*`` error (not, say, a budget too large, which no renaming fixes)."""
-    found = _UNSUPPORTED.search(body)
-    named = found.group(1) if found else None
-    if named is None and str(getattr(error, "code", "") or "").startswith("unsupported_"):
-        named = getattr(error, "param", None)
-    if isinstance(named, str) and named in request and named != "response_format":
-        return named
-    return None
 
 
 class OpenAIBackend(LLMBackend):
@@ -412,6 +233,9 @@ class OpenAIBackend(LLMBackend):
         shown = urllib.parse.urlunsplit((url.scheme, netloc, url.path, "", ""))
         return self._scrub(f"openai:{self.model}@{shown}{'?[query]' if url.query else ''}")
 
+    def _asker(self) -> Asker:
+        return Asker(self._where(), self.model, self.api_key_env, self.system_role)
+
     def _checkout(self) -> Any:
         """An idle client, or a new one: a client serves one request at a time, so that
         one abandoned at its deadline can be closed without touching another's."""
@@ -440,24 +264,10 @@ class OpenAIBackend(LLMBackend):
         with _idle_lock:
             _idle_clients.setdefault((self.base_url, self._secret()), []).append(client)
 
-    def _payload(self, messages: Sequence[Message]) -> list[dict[str, Any]]:
-        out: list[dict[str, Any]] = []
-        for message in messages if self.system_role else without_system_role(messages):
-            if message.images and self.takes_images:
-                parts: list[dict[str, Any]] = [{"type": "text", "text": message.text}]
-                for image in message.images:
-                    encoded = base64.b64encode(image.data).decode("ascii")
-                    url = f"data:{image.mime_type};base64,{encoded}"
-                    parts.append({"type": "image_url", "image_url": {"url": url}})
-                out.append({"role": message.role, "content": parts})
-            else:
-                out.append({"role": message.role, "content": message.text})
-        return out
-
     def _request(self, messages: Sequence[Message], config: GenerationConfig) -> dict[str, Any]:
         kwargs: dict[str, Any] = {
             "model": self.model,
-            "messages": self._payload(messages),
+            "messages": messages_payload(messages, self.system_role, self.takes_images),
             "temperature": config.temperature,
             "top_p": config.top_p,
             "max_tokens": config.max_tokens,
@@ -500,13 +310,13 @@ class OpenAIBackend(LLMBackend):
                 try:
                     response, body = self._create_by(ends_at, request)
                     break
-                except _FormatRefused as refusal:
+                except FormatRefused as refusal:
                     lower = self._step_down(level, refusal)  # raises when nothing is left
                     what = f"structured output level {level!r} refused"
                     refused.append(refusal.record(what, started, level, unsent))
                     level = lower
                     remember_level(self.endpoint, level)  # known now, whatever the next does
-                except _ParameterRefused as refusal:
+                except ParameterRefused as refusal:
                     found = self._adapt(adapted, refusal)  # raises when nothing is left
                     what = f"parameter {refusal.parameter!r} refused"
                     refused.append(refusal.record(what, started, level, unsent))
@@ -520,7 +330,7 @@ class OpenAIBackend(LLMBackend):
             error.refused = tuple(refused)
             raise
 
-    def _adapt(self, adapted: RequestAdaptation, refusal: _ParameterRefused) -> RequestAdaptation:
+    def _adapt(self, adapted: RequestAdaptation, refusal: ParameterRefused) -> RequestAdaptation:
         found = adapted.refusing(refusal.parameter)
         if found is None:
             raise LLMError(self._scrub(f"{self._where()}: request refused ({refusal})"))
@@ -538,7 +348,7 @@ class OpenAIBackend(LLMBackend):
         )
         return found
 
-    def _step_down(self, level: StructuredLevel | None, refusal: _FormatRefused) -> StructuredLevel:
+    def _step_down(self, level: StructuredLevel | None, refusal: FormatRefused) -> StructuredLevel:
         if level is None:  # pragma: no cover - no format was sent, so none can be refused
             raise LLMError(self._scrub(f"{self._where()}: request refused ({refusal})"))
         if self.structured_output != "auto":
@@ -569,7 +379,7 @@ class OpenAIBackend(LLMBackend):
         left = ends_at - time.monotonic()
         if left <= 0.0:
             self._checkin(client)
-            raise _timed_out(self._where(), timeout_s)
+            raise timed_out(self._where(), timeout_s)
         outcome: dict[str, Any] = {}
         done = threading.Event()
 
@@ -585,7 +395,7 @@ class OpenAIBackend(LLMBackend):
         if not done.wait(left):
             # Closing may wait for the stuck read, so it is done aside, never waited for.
             threading.Thread(target=client.close, name="skyvln-llm-close", daemon=True).start()
-            raise _timed_out(self._where(), timeout_s)
+            raise timed_out(self._where(), timeout_s)
         self._checkin(client)
         if "error" in outcome:
             raise outcome["error"]
@@ -601,18 +411,20 @@ class OpenAIBackend(LLMBackend):
             return self._parsed(raw), raw.text
         except openai.RateLimitError as error:
             raise LLMTransientError(
-                f"rate limited (HTTP 429): {self._scrub(_body_text(error))[:200]}",
+                f"rate limited (HTTP 429): {self._scrub(body_text(error))[:200]}",
                 retry_after_s(error.response.headers),
             ) from None
         except openai.APITimeoutError:
-            raise _timed_out(self._where(), timeout_s) from None
+            raise timed_out(self._where(), timeout_s) from None
         except openai.APIConnectionError as error:
             # A dead or unreachable endpoint: named, since a run may call several.
             raise LLMTransientError(
                 self._scrub(f"{self._where()}: connection failed or body cut short: {error}")
             ) from None
         except openai.APIStatusError as error:
-            raise self._status_error(error, kwargs) from None
+            raise status_error(
+                error, self._scrub(body_text(error)), kwargs, self._asker()
+            ) from None
         except openai.APIResponseValidationError as error:
             raise LLMTransientError(
                 self._scrub(f"malformed response: {error}: ")
@@ -640,54 +452,6 @@ class OpenAIBackend(LLMBackend):
             )
         return response
 
-    def _status_error(self, error: Any, request: dict[str, Any]) -> Exception:
-        status = int(error.status_code)
-        body = self._scrub(_body_text(error))
-        has_format = "response_format" in request
-        excerpt = body[:300]
-        if status in (401, 403):
-            return LLMAuthError(
-                f"{self._where()} refused the credentials (HTTP {status}: {excerpt}); check "
-                f"the API key in the environment variable {self.api_key_env}"
-            )
-        if _CONTEXT_OVERFLOW.search(body) and status < 500:
-            return LLMContextOverflowError(
-                f"the prompt does not fit the model's context (HTTP {status}: {excerpt})"
-            )
-        refused = _refused_parameter(error, body, request) if status == 400 else None
-        if refused is not None:
-            return _ParameterRefused(refused, body)
-        if status < 500 and self.system_role and _SYSTEM_ROLE_REFUSED.search(body):
-            return LLMError(
-                f"request refused (HTTP {status}: {excerpt}); this model takes no system "
-                "role: set system_role: false in its backend config"
-            )
-        if has_format and status == 400 and self._names_another_cause(error, body):
-            # Stepping down would not help and would leave the endpoint at a lower level for
-            # the rest of the process: the server's words are the error.
-            return LLMError(
-                f"request refused (HTTP 400: {excerpt}); the server names no structured-output "
-                "format as the cause, so the request was not sent again at a lower level"
-            )
-        if has_format and (status == 400 or (status >= 500 and _FORMAT_WORDS.search(body))):
-            return _FormatRefused(status, body)
-        if status >= 500:
-            return LLMTransientError(
-                f"server error (HTTP {status}: {excerpt})", retry_after_s(error.response.headers)
-            )
-        return LLMError(f"request refused (HTTP {status}: {excerpt})")
-
-    def _names_another_cause(self, error: Any, body: str) -> bool:
-        """Whether a 400 clearly names a cause other than the response format: OpenAI's
-        ``param`` field, or a request field or the model's name in the body, and nothing
-        about the format. A 400 that names nothing is taken for a format refusal."""
-        if _FORMAT_WORDS.search(body):
-            return False
-        param = getattr(error, "param", None)
-        if isinstance(param, str) and param and param != "response_format":
-            return True
-        return bool(_OTHER_FIELDS.search(body)) or self.model in body
-
     def _completion(
         self,
         response: Any,
@@ -699,7 +463,7 @@ class OpenAIBackend(LLMBackend):
     ) -> Completion:
         # Usage first: a response that fails below may still say what it billed, and the
         # failed attempt's record counts it.
-        prompt_tokens, completion_tokens = _usage(response)
+        prompt_tokens, completion_tokens = reported_usage(response)
         try:
             choice = response.choices[0]
             text = choice.message.content or ""

@@ -25,7 +25,8 @@ from skyvln_eval.llm.loopback import (
     status,
     truncated,
 )
-from skyvln_eval.llm.openai_backend import retry_after_s, without_system_role
+from skyvln_eval.llm.openai_errors import retry_after_s
+from skyvln_eval.llm.openai_request import without_system_role
 
 FAST_RETRY = RetryPolicy(max_attempts=8, initial_delay_s=0.01, max_delay_s=0.05, jitter=0.5)
 CONFIG = GenerationConfig(timeout_s=0.5)

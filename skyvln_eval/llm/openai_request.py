@@ -1,0 +1,107 @@
+"""The body of a chat-completions request and the counts of its answer, for
+:mod:`.openai_backend`: the fields the toolkit sets, the user's extra fields, the messages
+(images as data URLs for models that take them; system text moved into the first user
+message for models without a system role) and the tokens a response reports.
+"""
+
+from __future__ import annotations
+
+import base64
+import contextlib
+import dataclasses
+import json
+from collections.abc import Sequence
+from typing import Any, Final
+
+from skyvln_eval.errors import ConfigError
+from skyvln_eval.llm.types import Message
+
+#: Where the loopback test server finds the task data of a request (only when asked for).
+TASK_DATA_FIELD: Final = "skyvln_task_data"
+#: Request fields the toolkit sets (decoding settings have their own config fields); a
+#: ``stream`` or ``n`` of the user's would break the answer's parsing.
+RESERVED_FIELDS: Final = frozenset(
+    {
+        "model",
+        "messages",
+        "temperature",
+        "top_p",
+        "max_tokens",
+        "max_completion_tokens",
+        "seed",
+        "stop",
+        "response_format",
+        "stream",
+        "n",
+        "timeout",
+        TASK_DATA_FIELD,
+    }
+)
+
+
+def checked_extra_body(extra_body: Any) -> dict[str, Any]:
+    """``extra_body`` as a plain JSON object, or a :class:`ConfigError` saying what is wrong."""
+    if not isinstance(extra_body, dict):
+        raise ConfigError(f"extra_body must be a mapping of request fields, got {extra_body!r}")
+    taken = sorted(set(extra_body) & RESERVED_FIELDS)
+    if taken:
+        raise ConfigError(
+            f"extra_body cannot set {', '.join(taken)}: the toolkit sets these fields "
+            "(decoding settings have their own config fields: temperature, top_p, max_tokens, "
+            "budgets, seed)"
+        )
+    try:
+        return dict(json.loads(json.dumps(extra_body, sort_keys=True, allow_nan=False)))
+    except (TypeError, ValueError) as error:
+        raise ConfigError(f"extra_body must be plain JSON: {error}") from None
+
+
+def without_system_role(messages: Sequence[Message]) -> list[Message]:
+    """``messages`` for a model without a system role: the system messages' text opens the
+    first user message (a user message of its own when there is none)."""
+    system = "\n\n".join(m.text for m in messages if m.role == "system")
+    rest = [m for m in messages if m.role != "system"]
+    if not system:
+        return rest
+    first_user = next((i for i, m in enumerate(rest) if m.role == "user"), None)
+    if first_user is None:
+        return [Message("user", system), *rest]
+    opened = dataclasses.replace(rest[first_user], text=f"{system}\n\n{rest[first_user].text}")
+    return [*rest[:first_user], opened, *rest[first_user + 1 :]]
+
+
+def messages_payload(
+    messages: Sequence[Message], system_role: bool, takes_images: bool
+) -> list[dict[str, Any]]:
+    """``messages`` as the request's ``messages`` field: images as data URLs when the model
+    ``takes_images``, the system text in the first user message without a ``system_role``."""
+    out: list[dict[str, Any]] = []
+    for message in messages if system_role else without_system_role(messages):
+        if message.images and takes_images:
+            parts: list[dict[str, Any]] = [{"type": "text", "text": message.text}]
+            for image in message.images:
+                encoded = base64.b64encode(image.data).decode("ascii")
+                url = f"data:{image.mime_type};base64,{encoded}"
+                parts.append({"type": "image_url", "image_url": {"url": url}})
+            out.append({"role": message.role, "content": parts})
+        else:
+            out.append({"role": message.role, "content": message.text})
+    return out
+
+
+def reported_usage(response: Any) -> tuple[int | None, int | None]:
+    """The prompt and completion tokens a response reports (``None``: not reported, or
+    not a count: see below)."""
+    usage = getattr(response, "usage", None)
+    counts = []
+    for name in ("prompt_tokens", "completion_tokens"):
+        value = getattr(usage, name, None) if usage is not None else None
+        with contextlib.suppress(TypeError, ValueError):
+            value = None if value is None else int(value)
+        counts.append(value if isinstance(value, int) and value >= 0 else None)
+    if counts[0] == 0:
+        # A prompt was sent, so a server saying 0 prompt tokens counts nothing (some
+        # gateways fill the usage object with zeros): taken at its word, the call would
+        # cost a known $0 and top the cost ranking. Neither count of it is believed.
+        return None, None
+    return counts[0], counts[1]
