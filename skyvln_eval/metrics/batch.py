@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from skyvln_eval.avdn.geometry import view_centre, view_edge_m
+from skyvln_eval.avdn.geometry import degrees_to_metres, distance_m, view_centre, view_edge_m
 
 FloatArray = NDArray[np.float64]
 
@@ -40,11 +40,12 @@ class ViewBatch:
     def centres(self) -> FloatArray:
         return view_centre(self.views)
 
-    def points_m(self, distance: str) -> FloatArray:
-        """View centres in flat metres ``(E, K, 2)``, or ``(E, K, 3)`` with height edge/2."""
-        from skyvln_eval.avdn.geometry import degrees_to_metres
-
-        xy = degrees_to_metres(self.centres())
+    def points_m(self, distance: str, origin: FloatArray) -> FloatArray:
+        """View centres in flat metres ``(E, K, 2)`` from each row's ``origin`` ``(E, 2)``
+        (``[lat, lng]``), or ``(E, K, 3)`` with height edge/2. From a nearby origin, not
+        from (0, 0): metres of absolute positions (~5e6 m) would cancel digits in every
+        difference taken later."""
+        xy = degrees_to_metres(self.centres() - origin[:, None, :])
         if distance == "2d":
             return np.asarray(xy)
         height = np.asarray(view_edge_m(self.views)) / 2.0
@@ -70,6 +71,12 @@ def pack_views(
         views[e, :k] = seq
         views[e, k:] = seq[k - 1]
     return ViewBatch(views=views, lengths=lengths, empty=empty)
+
+
+def step_distances_m(centres: FloatArray) -> FloatArray:
+    """Official distances (metres) between consecutive ``[lat, lng]`` centres along axis 1
+    of ``(E, K, 2)``: ``(E, K - 1)`` (padding, which repeats the last view, adds 0)."""
+    return np.asarray(distance_m(centres[:, 1:], centres[:, :-1])).reshape(len(centres), -1)
 
 
 def path_lengths(points: FloatArray) -> FloatArray:

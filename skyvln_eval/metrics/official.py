@@ -14,7 +14,7 @@ truth, ``c()`` the centre and ``d()`` the flat 111,300 m/deg distance:
   official code did until November 2023;
 - NE = d(c(P_last), c(G_last)) (not official in AVDN, defined here).
 
-Explicit rules: a ``failed`` episode and an episode with no visited view never succeed
+Explicit rules: an ``error`` episode and an episode with no visited view never succeed
 (success, oracle success, SPL = 0); an empty path is scored as if the agent stayed at
 the ground-truth start G_0 (NE = D_net, GP = 0, L_pred = 0). Degenerate (zero-area)
 views have hull-IoU 0. Inputs are finite by construction, so every output is finite.
@@ -29,8 +29,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyvln_eval.avdn.constants import SUCCESS_IOU
-from skyvln_eval.avdn.geometry import degrees_to_metres, distance_m, point_in_view_strict
-from skyvln_eval.metrics.batch import ViewBatch, path_lengths
+from skyvln_eval.avdn.geometry import distance_m, point_in_view_strict
+from skyvln_eval.metrics.batch import ViewBatch, step_distances_m
 from skyvln_eval.metrics.view_overlap import sparse_hull_iou
 
 FloatArray = NDArray[np.float64]
@@ -73,7 +73,7 @@ def official_metrics(
     """Official per-episode metrics for ``E`` episodes (see the module docstring).
 
     ``visited`` must use G_0 as the stand-in for empty paths; ``ok`` is False for
-    episodes that cannot succeed (failed status or empty path). Returns float arrays
+    episodes that cannot succeed (status error or empty path). Returns float arrays
     ``(E,)`` keyed as :data:`OFFICIAL_COLUMNS`.
     """
     n = len(ok)
@@ -84,14 +84,16 @@ def official_metrics(
     p_last_c = p_c[rows, np.maximum(visited.lengths, 1) - 1]
 
     d_net = np.asarray(distance_m(g_c[:, 0], g_last_c))
-    path_len = path_lengths(np.asarray(degrees_to_metres(p_c)))
-    path_len = np.where(visited.empty, 0.0, path_len)
-    gt_len = path_lengths(np.asarray(degrees_to_metres(g_c)))
+    # Each step's distance as the spec defines it (the norm of a degree difference, times
+    # 111,300): metres of absolute positions (~5e6 m) would cancel digits in the difference.
+    path_len = np.where(visited.empty, 0.0, step_distances_m(p_c).sum(axis=1))
+    gt_len = step_distances_m(g_c).sum(axis=1)
 
-    # Final views: exact hull-IoU (a reported column). Earlier views matter only through
-    # "max IoU > 0.4", so pairs that provably cannot exceed 0.4 are not computed exactly.
+    # Final views: the official definition to the last bit (a reported column). Earlier
+    # views matter only through "max IoU > 0.4", so pairs that provably cannot exceed 0.4
+    # are not computed, and the rest by the fast path (exact where it nears 0.4).
     last_k = np.maximum(visited.lengths, 1) - 1
-    final_iou = sparse_hull_iou(p_last, g_last)
+    final_iou = sparse_hull_iou(p_last, g_last, exact=True)
     mask = visited.mask
     earlier = mask.copy()
     earlier[rows, last_k] = False

@@ -116,8 +116,9 @@ def r2r_metrics(
     n = len(ok)
     rows = np.arange(n)
     d_th = conventions.threshold_m
-    p = visited.points_m(conventions.distance)
-    r = gt.points_m(conventions.distance)
+    origin = gt.centres()[:, 0]  # one origin for both paths of an episode
+    p = visited.points_m(conventions.distance, origin)
+    r = gt.points_m(conventions.distance, origin)
     p_len = np.maximum(visited.lengths, 1)
     r_len = np.maximum(gt.lengths, 1)
     goal = r[rows, r_len - 1]

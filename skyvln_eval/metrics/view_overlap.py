@@ -170,14 +170,18 @@ def _fast_hull_iou(a: FloatArray, b: FloatArray) -> tuple[FloatArray, NDArray[np
     return np.clip(np.nan_to_num(iou), 0.0, 1.0), unsure
 
 
-def sparse_hull_iou(a: FloatArray, b: FloatArray, needed_above: float | None = None) -> FloatArray:
+def sparse_hull_iou(
+    a: FloatArray, b: FloatArray, needed_above: float | None = None, exact: bool = False
+) -> FloatArray:
     """Official hull-IoU of paired views ``(M, 4, 2)``, computed only where needed.
 
     Views whose circumscribed circles do not overlap share no area: their hull-IoU is
     exactly 0. With ``needed_above``, pairs whose :func:`hull_iou_upper_bound` shows they
     cannot exceed it are skipped too and reported as 0 (use this only when the caller
     compares with that threshold). The rest go through the numpy fast path, with the
-    shapely definition where that path cannot vouch for its value (see the module notes).
+    shapely definition where that path cannot vouch for its value (see the module notes),
+    or all through the shapely definition with ``exact`` (values reported as they are,
+    equal to the official code's to the last bit, at about 2.5x the time).
     """
     out = np.zeros(len(a))
     if len(a) == 0:
@@ -191,6 +195,9 @@ def sparse_hull_iou(a: FloatArray, b: FloatArray, needed_above: float | None = N
     candidates = np.flatnonzero(keep)
     for start in range(0, len(candidates), _BLOCK):
         block = candidates[start : start + _BLOCK]
+        if exact:
+            out[block] = hull_iou(a[block], b[block])
+            continue
         iou, unsure = _fast_hull_iou(a[block], b[block])
         if unsure.any():
             iou[unsure] = hull_iou(a[block[unsure]], b[block[unsure]])

@@ -235,3 +235,26 @@ def test_a_result_without_ground_truth_is_refused_not_scored_as_a_failure() -> N
     assert not withheld.has_ground_truth
     with pytest.raises(NoGroundTruthError, match=r"no ground truth for 1 episode\(s\) \(w"):
         score_results([result([g0, g1], [g0, g1]), withheld])
+
+
+def test_lengths_and_final_iou_are_the_spec_operations_to_the_last_bit() -> None:
+    """L_pred is the sum of steps, each the norm of a degree difference times 111,300
+    (not a difference of metres of absolute positions, which cancels digits), and the
+    final IoU column is the shapely definition's value, not the fast path's."""
+    rng = np.random.default_rng(7)
+    results, paths = [], []
+    for i in range(40):
+        centres = [(rng.uniform(-300, 300), rng.uniform(-300, 300)) for _ in range(5)]
+        path = [square(n, e, edge_m=rng.uniform(30, 80)) for n, e in centres]
+        gt = [path[0], square(*centres[-1])]
+        results.append(result(path, gt, episode_id=f"1913__{i}_1"))
+        paths.append((path, gt))
+    scores = score_results(results)
+    for row, (path, gt) in enumerate(paths):
+        c = [view.mean(axis=0) for view in path]
+        steps = [
+            float(np.linalg.norm(c[k + 1] - c[k])) * METERS_PER_DEGREE for k in range(len(c) - 1)
+        ]
+        # Summation order is numpy's (SIMD partial sums): equal to a few ulps of the total.
+        assert scores.path_length_m[row] == pytest.approx(math.fsum(steps), rel=1e-15, abs=0)
+        assert scores.final_iou[row] == hull_iou(path[-1], gt[-1])
