@@ -201,8 +201,10 @@ class Episode:
 
     ANDH: one record; the ground truth is its ``gt_path_corners``. ANDH-Full: all rounds
     of a trajectory, sorted by round; the agent starts at round 1's start view and the
-    ground truth is every round's views concatenated, ending at the final round's last
-    view. ``episode_id`` is the first record's id in both modes, as in the official code.
+    ground truth is every round's views in order, ending at the final round's last view
+    (a round that starts at the view the previous one ended at adds that view once: a
+    repeated reference point would weigh twice in nDTW and CLS). ``episode_id`` is the
+    first record's id in both modes, as in the official code.
     """
 
     split: str
@@ -241,7 +243,13 @@ class Episode:
     def gt_path_corners(self) -> NDArray[np.float64]:
         if len(self.records) == 1:
             return self.first.gt_path_corners
-        return np.concatenate([r.gt_path_corners for r in self.records])
+        rounds = [self.first.gt_path_corners]
+        last = self.first.gt_path_corners[-1]  # every record has at least its start view
+        for record in self.records[1:]:
+            views = record.gt_path_corners
+            rounds.append(views[1:] if np.array_equal(views[0], last) else views)
+            last = views[-1]
+        return np.concatenate(rounds)
 
     @property
     def gt_end_view(self) -> NDArray[np.float64]:

@@ -71,6 +71,24 @@ def test_trajectories_are_grouped_and_sorted_by_round_not_file_order(
     ]
 
 
+def test_a_full_episode_holds_a_view_two_rounds_share_once(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    """Round 2 starts where round 1 ended (as AVDN's rounds do): that view is one
+    reference point, not two; a round that starts elsewhere keeps all its views."""
+    records = trajectory("4", 3)
+    records[1]["gt_path_corners"][0] = records[0]["gt_path_corners"][-1]
+    root = dataset_factory({"val_seen": records})
+    (full,) = load_split(root, "val_seen").episodes("andh-full")
+    assert len(full.gt_path_corners) == 3 + (4 - 1) + 5
+    views = [v.tolist() for v in full.gt_path_corners]
+    assert views == [
+        *records[0]["gt_path_corners"],
+        *records[1]["gt_path_corners"][1:],
+        *records[2]["gt_path_corners"],
+    ]
+
+
 def test_incomplete_trajectory_cannot_form_a_full_episode(
     dataset_factory: Callable[..., Path],
 ) -> None:
