@@ -66,7 +66,14 @@ COST_COLUMNS: dict[str, str] = {
 }
 #: Columns whose mean is unknown (NaN, "n/a") as soon as one episode's value is.
 UNKNOWN_IF_ANY_UNKNOWN = frozenset(
-    {"llm_cost_usd", "llm_cost_lower_usd", "llm_prompt_tokens", "llm_completion_tokens"}
+    {
+        "llm_cost_usd",
+        "llm_cost_lower_usd",
+        "llm_prompt_tokens",
+        "llm_completion_tokens",
+        "llm_latency_s",  # known unless no one recorded the calls (predictions from elsewhere)
+        "llm_queue_s",
+    }
 )
 
 
@@ -130,8 +137,13 @@ def call_totals(
 
 
 def episode_costs(results: Sequence[EpisodeResult]) -> pd.DataFrame:
-    """One row per result with its LLM totals (zeros and known costs when it made no call)."""
-    rows = [call_totals(r.llm_calls, r.module_failures, r.decisions) for r in results]
+    """One row per result with its LLM totals (zeros and known costs when it made no call;
+    empty, i.e. unknown, where no one recorded its calls: ``llm_use_recorded``)."""
+    unknown = dict.fromkeys(COST_COLUMNS, math.nan)
+    rows = [
+        call_totals(r.llm_calls, r.module_failures, r.decisions) if r.llm_use_recorded else unknown
+        for r in results
+    ]
     return pd.DataFrame(rows, columns=list(COST_COLUMNS))
 
 

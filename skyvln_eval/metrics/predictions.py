@@ -17,7 +17,10 @@ arrays / scalars, and refuses anything else (a pickle can run arbitrary code).
                                    "status": "ok"}}}
 
 ``path_corners`` are the visited views, start view first; ``status`` is optional
-(``"ok"`` by default, ``"failed"`` for a crashed episode, which may have no view).
+(``"ok"`` by default; ``"degraded"``; ``"error"`` for an episode that failed, which may
+have no view and never succeeds, with an optional ``"error"`` text saying what went
+wrong). Nothing in the file says what the agent's model calls cost: its results' LLM
+counts, cost and time are unknown ("n/a"), not 0.
 
 :func:`results_from_predictions` joins predictions with the ground truth of a split and
 fails on missing or unknown episodes, naming them.
@@ -62,6 +65,7 @@ class Prediction:
     episode_id: str
     path_corners: NDArray[np.float64]
     status: ResultStatus = "ok"
+    error: str | None = None
 
 
 def _allowed_globals() -> dict[tuple[str, str], Any]:
@@ -170,11 +174,18 @@ def _prediction(episode_id: str, entry: Any, file: str, row: int) -> Prediction:
     status = entry.get("status", "ok")
     if status not in RESULT_STATUSES:
         raise bad("status", f"must be one of {RESULT_STATUSES}, got {status!r}")
+    error = entry.get("error")
+    if error is not None and not isinstance(error, str):
+        raise bad("error", f"must be a string saying what went wrong, got {error!r}")
+    if error and status != "error":
+        raise bad("error", f"an error text needs status 'error', got status {status!r}")
+    if status == "error" and not error:
+        error = f"status 'error' in {file}"  # the file said it failed, not why
     try:
         views = as_views(_views_of(entry["path_corners"]), "path_corners", episode_id, 0)
     except ResultRecordError as exc:
         raise bad(exc.issue.field or "path_corners", exc.issue.message) from None
-    return Prediction(episode_id=episode_id, path_corners=views, status=status)
+    return Prediction(episode_id=episode_id, path_corners=views, status=status, error=error)
 
 
 def read_predictions_json(path: str | Path) -> dict[str, Prediction]:
@@ -205,6 +216,7 @@ def write_predictions_json(path: str | Path, predictions: Mapping[str, Predictio
     """Write predictions in the JSON format (atomically)."""
     episodes = {
         eid: {"path_corners": p.path_corners.tolist(), "status": p.status}
+        | ({"error": p.error} if p.error else {})
         for eid, p in predictions.items()
     }
     atomic_write_json(
@@ -279,8 +291,11 @@ def results_from_predictions(
             mode=mode,
             system=system,
             status=predictions[eid].status,
+            error=predictions[eid].error,
             visited_views=predictions[eid].path_corners,
             gt_path_corners=views,
+            # The file says where the agent went, not what its model calls cost.
+            extra={"llm_use_recorded": False},
         )
         for eid, views in gt.items()
     ]

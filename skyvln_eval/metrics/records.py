@@ -189,7 +189,10 @@ class EpisodeResult:
     - ``decisions``: how many decisions the agent made; ``module_failures``: the modules
       whose answers could not be used, per decision (see :func:`judge_status`).
     - ``extra``: JSON-able extra facts (seeds, config hashes, wall time, ``oracle``: whether
-      the harness's oracle flew it, absent in rows of older runs), kept verbatim.
+      the harness's oracle flew it, absent in rows of older runs; ``llm_use_recorded``:
+      ``False`` when no one recorded the agent's LLM calls and questions, as for
+      predictions made elsewhere: their counts, cost and time are unknown, not 0), kept
+      verbatim.
     """
 
     episode_id: str
@@ -211,6 +214,12 @@ class EpisodeResult:
     def has_ground_truth(self) -> bool:
         """Whether there is a route to score against (more than the start view)."""
         return len(self.gt_path_corners) >= 2
+
+    @property
+    def llm_use_recorded(self) -> bool:
+        """Whether ``llm_calls`` (and the questions asked) are the agent's record: an empty
+        one then means no call, at no cost; otherwise nothing is known of them."""
+        return self.extra.get("llm_use_recorded", True) is not False
 
     @property
     def fallback_decisions(self) -> int:

@@ -10,6 +10,7 @@ Nothing is averaged here (see :mod:`.aggregate`). Identical inputs give identica
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -145,9 +146,13 @@ def score_results(
         [r.extra.get("wall_s") for r in results], dtype="Float64"
     )  # episode wall time, where the run recorded it
     questions = [r.extra.get("questions") or [] for r in results]  # asked of the commander
-    frame["questions_asked"] = [float(len(q)) for q in questions]
+    recorded = [r.llm_use_recorded for r in results]  # else how many is unknown
+    frame["questions_asked"] = [
+        float(len(q)) if known else math.nan for q, known in zip(questions, recorded, strict=True)
+    ]
     frame["questions_answered"] = [
-        float(sum(x.get("answer") is not None for x in q)) for q in questions
+        float(sum(x.get("answer") is not None for x in q)) if known else math.nan
+        for q, known in zip(questions, recorded, strict=True)
     ]
     frame = pd.concat([frame, episode_costs(results)], axis=1)
     frame["has_control"] = [r.control is not None for r in results]

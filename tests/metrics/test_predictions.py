@@ -15,7 +15,12 @@ import numpy as np
 import pytest
 
 from skyvln_eval.avdn import hull_iou, point_in_view_strict
-from skyvln_eval.errors import IncompleteRunError, NoGroundTruthError, UnsafePickleError
+from skyvln_eval.errors import (
+    IncompleteRunError,
+    NoGroundTruthError,
+    ResultRecordError,
+    UnsafePickleError,
+)
 from skyvln_eval.metrics import (
     ground_truth_episodes,
     read_predictions,
@@ -135,6 +140,47 @@ def test_json_predictions_round_trip_and_completeness(tmp_path: Path) -> None:
         IncompleteRunError, match=f"2 missing episode\\(s\\): {rollouts[1]['instr_id']}, 9999__1_1"
     ):
         results_from_predictions(back, gt, "x", "test_unseen")
+
+
+def test_json_predictions_say_which_episodes_failed_and_nothing_of_llm_costs(
+    tmp_path: Path,
+) -> None:
+    """An 'error' episode (with or without its text, with or without views) is scored as a
+    failure and keeps its reason; the LLM columns of predictions are unknown, not 0."""
+    rollouts = load_rollouts()[:3]
+    start = {ep["instr_id"]: ep["start_view"] for ep in rollouts}
+    ids = list(start)
+    data = {
+        "format": "skyvln-eval.predictions",
+        "version": 1,
+        "episodes": {
+            ids[0]: {"path_corners": [start[ids[0]]]},
+            ids[1]: {"path_corners": [], "status": "error", "error": "agent crashed"},
+            ids[2]: {"path_corners": [start[ids[2]]], "status": "error"},
+        },
+    }
+    path = tmp_path / "p.json"
+    path.write_text(json.dumps(data))
+    predictions = read_predictions(path)
+    assert predictions[ids[1]].error == "agent crashed"
+    assert predictions[ids[2]].error == f"status 'error' in {path}"
+    write_predictions_json(tmp_path / "again.json", predictions)
+    again = read_predictions(tmp_path / "again.json")
+    assert [(p.status, p.error) for p in again.values()] == [
+        (p.status, p.error) for p in predictions.values()
+    ]
+    gt = {eid: np.array([view, view]) for eid, view in start.items()}
+    scores = score_results(results_from_predictions(predictions, gt, "ext", "test_unseen"))
+    assert scores.set_index("episode_id").loc[ids[1:], "success"].tolist() == [0.0, 0.0]
+    for column in ("llm_cost_usd", "llm_latency_s", "llm_calls", "questions_asked"):
+        assert scores[column].isna().all(), column
+    summary = summarise(scores, ["llm_cost_usd", "llm_latency_s"], n_resamples=0)
+    assert summary["mean"].isna().all() and list(summary["n"]) == [3, 3]
+
+    data["episodes"][ids[0]]["error"] = "but it says ok"
+    path.write_text(json.dumps(data))
+    with pytest.raises(ResultRecordError, match=r"field 'error'.*needs status 'error'"):
+        read_predictions(path)
 
 
 def test_real_test_unseen_without_ground_truth_cannot_be_scored(
