@@ -33,7 +33,7 @@ from skyvln_eval.reports.tables import (
     build_table,
 )
 
-#: Table I row markers for systems whose LLM modules are answered by a stand-in.
+#: Row markers (both tables) for systems whose LLM modules a stand-in answered.
 STAND_IN_MARKERS = {
     "rule": ("†", "† LLM modules answered by the rule-based stand-in (not an LLM)."),
     "random": ("‡", "‡ LLM modules answered at random (not an LLM)."),
@@ -111,7 +111,7 @@ def paper_table(
     stand_ins = stand_in_systems(scores)
     oracles = oracle_systems(scores)
     labels = {
-        **(_marked_labels(stand_ins) if spec is TABLE_I else {}),
+        **_marked_labels(stand_ins),
         **{o: oracle_label(o) for o in oracles if oracle_label(o) != o},
     }
     systems = set(scores["system"])
@@ -136,11 +136,14 @@ def paper_table(
         summary = summarise(scores, metrics, resamples if show_ci else 0, seed=seed)
     references = set(oracle_systems(scores))
     if spec is not TABLE_I:
-        references |= set(stand_ins)  # the reference the models are measured against
+        # The reference the models are measured against, under the label it is shown by.
+        references |= {labels.get(system, system) for system in stand_ins}
+    shown_labels = {system: labels.get(system, system) for system in stand_ins}
     marker_notes = [
         STAND_IN_MARKERS[kind][1]
         for system, kind in stand_ins.items()
-        if spec is TABLE_I and (rows is None or labels.get(system, system) in rows)
+        if (rows is None or shown_labels[system] in rows)
+        and STAND_IN_MARKERS[kind][0] in shown_labels[system]
     ]
     if any(labels.get(o, o) in (rows or ()) for o in oracles):
         marker_notes.append(ORACLE_NOTE)
@@ -215,10 +218,12 @@ def _crashes_note(
 
 
 def _marked_labels(stand_ins: dict[str, str]) -> dict[str, str]:
-    """Row labels with the marker of their stand-in, where the label lacks it."""
+    """Row labels with the marker of their stand-in, where the label does not already say
+    what answered it (its marker, "not an LLM" or "stand-in", as reproduce's rows do)."""
     marked = {}
     for system, kind in stand_ins.items():
         marker = STAND_IN_MARKERS[kind][0]
-        if marker not in system:
+        says = marker in system or any(w in system.lower() for w in ("not an llm", "stand-in"))
+        if not says:
             marked[system] = f"{system} {marker}"
     return marked

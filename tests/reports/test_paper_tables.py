@@ -87,10 +87,15 @@ def test_table_ii_marks_errors_references_unequal_episodes_and_cache_replays() -
     table = paper_table(_scores(), TABLE_II, MetricConventions())
     md = to_markdown(table)
     assert "| dead | error | error | error |" in md
-    rule = table.cells["rule"][("test_unseen", "success")]
+    rule = table.cells["rule †"][("test_unseen", "success")]
     assert rule is not None and rule.mean == 100.0 and rule.rank is None  # a reference
-    assert "Not ranked (a reference, not a competitor): rule." in md
-    assert "Rows ran different numbers of episodes: Unseen Testing: gemma 2, dead 2, rule 3." in md
+    assert "Not ranked (a reference, not a competitor): rule †." in md
+    assert "† LLM modules answered by the rule-based stand-in (not an LLM)." in md
+    assert "Unseen Testing: gemma 2, dead 2, rule † 3." in md
+    # A label that says what answered it (reproduce's Table II rows) is not marked again.
+    named = _scores().replace({"system": {"rule": "rule-based (not an LLM)"}})
+    again = to_markdown(paper_table(named, TABLE_II, MetricConventions()))
+    assert "| rule-based (not an LLM) |" in again and "† LLM modules" not in again
     assert "Replayed from the response cache" in md and "gemma on Unseen Testing: 50%" in md
     assert "simulated commander, who knows the goal" in md and "gemma 1 in 1 of 2 episodes" in md
 
