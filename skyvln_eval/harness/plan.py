@@ -210,10 +210,25 @@ class PlannedRun:
     rows: tuple[tuple[TableName, str], ...]
 
 
-def _agent(system: PlanSystem, llm: dict[str, Any] | None = None) -> AgentConfig:
+def _kept_answers(llm: dict[str, Any], out_dir: Path) -> dict[str, Any]:
+    """``llm`` with its response cache in the output folder: a remote model's answers are
+    kept, so a resumed or repeated run does not pay for them again (the cache key starts
+    with the model and server), and a plan's relative ``cache_path`` is taken inside
+    ``--out``, with everything else the plan writes, not in the working directory."""
+    cache = llm.get("cache_path")
+    if cache and not Path(cache).is_absolute():
+        return {**llm, "cache_path": str(out_dir / cache)}
+    if not cache and str(llm.get("backend", "")).startswith("openai:"):
+        return {**llm, "cache_path": str(out_dir / "llm-cache.sqlite")}
+    return llm
+
+
+def _agent(system: PlanSystem, out_dir: Path, llm: dict[str, Any] | None = None) -> AgentConfig:
     data = dict(system.agent)
     if llm is not None:
         data["llm"] = {**dict(data.get("llm") or {}), **llm}
+    if data.get("llm"):
+        data["llm"] = _kept_answers(dict(data["llm"]), out_dir)
     try:
         return AgentConfig.model_validate(data)
     except ValidationError as error:
@@ -233,18 +248,14 @@ def planned_runs(
     for system in plan.table1.systems:
         for split in plan.table1.splits:
             run_dir = out_dir / "runs" / slug(system.label) / split
-            wanted.append(("table1", system.label, system, _agent(system), split, run_dir))
+            agent = _agent(system, out_dir)
+            wanted.append(("table1", system.label, system, agent, split, run_dir))
     from_environment = environment_backends(
         plan.table2.environment_variable, plan.table2.backends_file
     )
     for backend in (*plan.table2.backends, *from_environment):
         run_dir = out_dir / "runs" / "backends" / slug(backend.label) / plan.table2.split
-        llm = dict(backend.llm)
-        if str(llm.get("backend", "")).startswith("openai:") and not llm.get("cache_path"):
-            # A remote model's answers are kept, so a resumed or repeated run does not pay
-            # for them again (the cache key starts with the model and server).
-            llm["cache_path"] = str(out_dir / "llm-cache.sqlite")
-        agent = _agent(plan.table2.system, llm)
+        agent = _agent(plan.table2.system, out_dir, dict(backend.llm))
         wanted.append(
             ("table2", backend.label, plan.table2.system, agent, plan.table2.split, run_dir)
         )

@@ -325,6 +325,11 @@ def test_every_way_of_naming_a_backend_gives_its_full_configuration(
     }
     assert runs["local-gemma"].agent.llm.cache_path == str(tmp_path / "llm-cache.sqlite")
     assert runs["local-gemma"].agent.llm.base_url == "http://127.0.0.1:8765/v1"
+    # The local-llm plan's relative cache_path lands inside --out (an audit found it in the
+    # working directory), for Table I's model rows as for Table II's.
+    local = [r.config for r in planned_runs(load_plan("local-llm"), tmp_path, 1, "threads")]
+    caches = {c.agent.llm.cache_path for c in local if c.agent.llm is not None}
+    assert caches - {None} == {str(tmp_path / "local-llm-cache.sqlite")}
     monkeypatch.setenv("SKYVLN_TEST_BACKENDS", "local-gema")
     with pytest.raises(ConfigError, match="Did you mean 'local-gemma'"):
         environment_backends("SKYVLN_TEST_BACKENDS")
