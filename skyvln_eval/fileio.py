@@ -161,6 +161,17 @@ def undecodable_at(raw: bytes, error: UnicodeDecodeError) -> str:
     return f"byte 0x{raw[error.start]:02x} on line {line}, byte offset {error.start}"
 
 
+def load_yaml(text: str, path: str | Path) -> Any:
+    """``yaml.safe_load`` of ``text``, read from ``path``: a syntax error's marks name the
+    file (given text, PyYAML names it "<unicode string>")."""
+    loader = yaml.SafeLoader(text)
+    loader.name = str(path)
+    try:
+        return loader.get_single_data()
+    finally:
+        loader.dispose()
+
+
 def read_yaml_mapping(path: str | Path, what: str) -> dict[str, Any]:
     """The mapping at the top of the YAML file ``path`` (an empty file gives ``{}``).
 
@@ -179,7 +190,7 @@ def read_yaml_mapping(path: str | Path, what: str) -> dict[str, Any]:
         where = undecodable_at(raw, error)
         raise ConfigError(f"{what} {file}: not UTF-8 text ({where}); save it as UTF-8") from None
     try:
-        data = yaml.safe_load(text)
+        data = load_yaml(text, file)
     except yaml.YAMLError as error:
         raise ConfigError(f"{what} {file}: not valid YAML: {error}") from None
     if data is None:

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import os
 import stat
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
+from skyvln_eval.errors import ConfigError
 from skyvln_eval.fileio import atomic_write_bytes, atomic_write_json
 
 
@@ -55,3 +57,34 @@ def test_a_durable_write_syncs_its_bytes_and_its_rename(
     assert len(synced) == 2 and synced[1] == str(tmp_path)
     assert synced[0].startswith(str(tmp_path / ".results.jsonl."))  # the temporary file
     assert (tmp_path / "results.jsonl").read_bytes() == b"b"
+
+
+def _config_readers() -> list[tuple[str, Callable[[Path], object]]]:
+    from skyvln_eval.agent.config import AgentConfig
+    from skyvln_eval.control.registry import load_controller
+    from skyvln_eval.harness.config import load_run_config
+    from skyvln_eval.harness.plan import load_plan
+    from skyvln_eval.llm.backends_file import load_backends_file
+    from skyvln_eval.llm.prices import load_prices
+
+    return [
+        ("run config", load_run_config),
+        ("reproduce plan", load_plan),
+        ("agent config", AgentConfig.from_yaml),
+        ("backends file", load_backends_file),
+        ("price table", load_prices),
+        ("controller config", load_controller),
+    ]
+
+
+@pytest.mark.parametrize(("what", "read"), [pytest.param(*r, id=r[0]) for r in _config_readers()])
+def test_a_broken_yaml_file_is_named_in_the_parsers_own_marks(
+    tmp_path: Path, what: str, read: Callable[[Path], object]
+) -> None:
+    # PyYAML, given the text rather than the file, said: in "<unicode string>", line 2.
+    path = tmp_path / "broken.yaml"
+    path.write_text("format: x\nagent:\n  name: [unclosed\n")
+    with pytest.raises(ConfigError) as caught:
+        read(path)
+    assert f'in "{path}", line 3' in str(caught.value), what
+    assert "<unicode string>" not in str(caught.value)

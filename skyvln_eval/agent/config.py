@@ -23,6 +23,7 @@ from skyvln_eval.agent.detectors import (
 )
 from skyvln_eval.agent.perception import Perception, PerceptionConfig
 from skyvln_eval.errors import ConfigError, UnknownNameError, describe_validation_error
+from skyvln_eval.fileio import load_yaml
 from skyvln_eval.llm.client import LLMClient
 from skyvln_eval.llm.config import LLMConfig, build_client
 from skyvln_eval.sensing import SensorKind
@@ -113,7 +114,7 @@ class AgentConfig(BaseModel):
         """Read and validate a YAML agent config; errors name the file and the field."""
         file = Path(path)
         try:
-            data = yaml.safe_load(file.read_text(encoding="utf-8")) or {}
+            data = load_yaml(file.read_text(encoding="utf-8"), file) or {}
         except (OSError, yaml.YAMLError) as error:
             raise ConfigError(f"agent config {file}: {error}") from error
         try:

@@ -30,6 +30,7 @@ from skyvln_eval.control.base import Controller
 from skyvln_eval.control.mpc_config import MpcConfig
 from skyvln_eval.control.pid import PidConfig
 from skyvln_eval.errors import ConfigError, SettingsError, UnknownNameError
+from skyvln_eval.fileio import load_yaml
 
 T = TypeVar("T")
 
@@ -88,7 +89,7 @@ def load_controller(path: str | Path) -> Controller:
     """The controller a YAML file describes (``controller: name``, optional ``settings:``)."""
     path = Path(path)
     try:
-        document = yaml.safe_load(path.read_text(encoding="utf-8"))
+        document = load_yaml(path.read_text(encoding="utf-8"), path)
     except (OSError, yaml.YAMLError) as error:
         raise ConfigError(f"{path}: cannot read the controller config: {error}") from error
     if not isinstance(document, dict) or "controller" not in document:

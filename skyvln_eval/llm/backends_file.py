@@ -32,6 +32,7 @@ import yaml
 from pydantic import ValidationError
 
 from skyvln_eval.errors import ConfigError, UnknownNameError, describe_validation_error
+from skyvln_eval.fileio import load_yaml
 from skyvln_eval.llm.config import LLMConfig
 
 BACKENDS_FORMAT: Final = "skyvln-eval/llm-backends"
@@ -63,7 +64,7 @@ def load_backends_file(path: str | Path) -> BackendsFile:
     """Read and validate a backends file; errors name the file, the backend and the field."""
     file = Path(path)
     try:
-        data = yaml.safe_load(file.read_text(encoding="utf-8"))
+        data = load_yaml(file.read_text(encoding="utf-8"), file)
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as error:
         raise ConfigError(f"backends file {file}: {error}") from None
     if not isinstance(data, dict):

@@ -14,6 +14,7 @@ from typing import Any, Final
 import yaml
 
 from skyvln_eval.errors import ConfigError, FormatVersionError
+from skyvln_eval.fileio import load_yaml
 
 log = logging.getLogger(__name__)
 
@@ -117,7 +118,7 @@ def _parsed_prices(path: str, mtime_ns: int, size: int) -> PriceTable:
     """The table in ``path`` (its modification time and size key the cache)."""
     file = Path(path)
     try:
-        data = yaml.safe_load(file.read_text(encoding="utf-8"))
+        data = load_yaml(file.read_text(encoding="utf-8"), file)
     except yaml.YAMLError as error:
         raise ConfigError(f"price table {file} is not valid YAML: {error}") from error
     if not isinstance(data, dict) or data.get("format") != PRICES_FORMAT:
