@@ -11,6 +11,7 @@ from pydantic import ValidationError
 from skyvln_eval.errors import ConfigError, describe_validation_error
 from skyvln_eval.harness.config import RunConfig, load_run_config
 from skyvln_eval.harness.plan import ReproducePlan
+from skyvln_eval.llm import LLMConfig
 
 
 def _problems(model: type, data: dict[str, object]) -> str:
@@ -123,3 +124,30 @@ def test_a_modules_budget_is_set_over_the_other_modules_defaults() -> None:
     # The others keep theirs (they fell back to max_tokens: sub-goals 1024 -> 512).
     assert config.generation("subgoals").max_tokens == DEFAULT_BUDGETS["subgoals"] == 1024
     assert LLMConfig().budgets == DEFAULT_BUDGETS
+
+
+def test_a_misspelt_modules_budget_is_refused_on_load(tmp_path: Path) -> None:
+    from skyvln_eval.agent.vlm_detector import MODULE
+    from skyvln_eval.llm.backends_file import load_backends_file
+    from skyvln_eval.llm.config import LLM_MODULES
+
+    # It was kept, and never used: the motion module ran at its default budget.
+    path = tmp_path / "run.yaml"
+    path.write_text("system: x\nagent: {llm: {backend: rule, budgets: {motoin: 4096}}}\n")
+    with pytest.raises(ConfigError) as caught:
+        load_run_config(path)
+    assert str(caught.value).startswith(
+        f"run config {path}: agent.llm.budgets: unknown agent module 'motoin'. "
+        "Did you mean 'motion'? Known: clarify, detect, hsd_describe, hsd_rank, motion, "
+        "navgpt, subgoals"
+    )
+    backends = tmp_path / "backends.yaml"
+    backends.write_text(
+        "format: skyvln-eval/llm-backends\nversion: 1\n"
+        "backends: {local: {backend: rule, budgets: {motoin: 4096}}}\n"
+    )
+    with pytest.raises(ConfigError, match=rf"{backends}: local: budgets: .*'motoin'"):
+        load_backends_file(backends)
+    # Every module's name is known, the VLM detector's (which has no default) among them.
+    assert MODULE in LLM_MODULES
+    assert LLMConfig(budgets={"detect": 1024}).generation(MODULE).max_tokens == 1024

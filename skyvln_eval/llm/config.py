@@ -61,6 +61,9 @@ DEFAULT_BUDGETS: dict[str, int] = {
     "navgpt": 512,
     "clarify": 192,
 }
+#: Every agent module that calls an LLM, by the name ``budgets`` gives it: those with a
+#: default budget and the VLM detector's ``detect`` (at ``max_tokens`` unless given one).
+LLM_MODULES: tuple[str, ...] = (*DEFAULT_BUDGETS, "detect")
 
 
 #: What follows an '@' of a backend spec and is a server written without its scheme: a
@@ -91,12 +94,12 @@ class LLMConfig(BaseModel):
     variable it is read from. ``timeout_s`` bounds one attempt from connect to last byte
     (a server that answers a byte at a time cannot stretch it), ``retry.deadline_s`` the
     whole call with its retries (default ``timeout_s`` times ``retry.max_attempts``).
-    ``max_tokens`` is the budget of a call; ``budgets`` gives
-    agent modules their own, over :data:`DEFAULT_BUDGETS` (e.g. ``{motion: 1024}`` changes
-    only the motion module's). An unusable answer is asked for
-    again ``repairs`` times, at ``repair_temperature`` (above the first try's, so that the
-    same mistake is not simply repeated) and, when the answer was cut off at the budget,
-    with ``repair_budget_factor`` times the budget.
+    ``max_tokens`` is the budget of a call; ``budgets`` gives agent modules (those of
+    :data:`LLM_MODULES`) their own, over :data:`DEFAULT_BUDGETS` (e.g. ``{motion: 1024}``
+    changes only the motion module's). An unusable answer is asked for again ``repairs``
+    times, at ``repair_temperature`` (above the first try's, so that the same mistake is not
+    simply repeated) and, when the answer was cut off at the budget, with
+    ``repair_budget_factor`` times the budget.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -186,6 +189,9 @@ class LLMConfig(BaseModel):
     @classmethod
     def _budgets_in_range(cls, budgets: dict[str, int]) -> dict[str, int]:
         for module, tokens in budgets.items():
+            # A misspelt module's budget would go unused, silently: its module kept another.
+            if module not in LLM_MODULES:
+                raise ValueError(str(UnknownNameError("agent module", module, LLM_MODULES)))
             if not 16 <= tokens <= 32768:
                 raise ValueError(f"budget of {module!r} must be in [16, 32768], got {tokens}")
         # Over the defaults: {motion: 4096} alone left the other modules at max_tokens.
