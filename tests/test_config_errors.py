@@ -151,3 +151,28 @@ def test_a_misspelt_modules_budget_is_refused_on_load(tmp_path: Path) -> None:
     # Every module's name is known, the VLM detector's (which has no default) among them.
     assert MODULE in LLM_MODULES
     assert LLMConfig(budgets={"detect": 1024}).generation(MODULE).max_tokens == 1024
+
+
+def test_a_backend_spec_is_checked_whole_in_backends_files_and_the_environment(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from skyvln_eval.llm.backends_file import (
+        BackendsFile,
+        environment_backends,
+        load_backends_file,
+    )
+
+    backends = tmp_path / "backends.yaml"
+    backends.write_text(
+        "format: skyvln-eval/llm-backends\nversion: 1\n"
+        "backends: {old: {backend: 'replay:openai:'}}\n"
+    )
+    with pytest.raises(ConfigError) as caught:
+        load_backends_file(backends)
+    assert str(caught.value) == (
+        f"backends file {backends}: old: backend: the openai backend needs a model: "
+        "'openai:<model>', e.g. 'openai:gpt-4o'"
+    )
+    monkeypatch.setenv("SKYVLN_TEST_BACKENDS", "openai:")
+    with pytest.raises(ConfigError, match=r"^\$SKYVLN_TEST_BACKENDS: 'openai:' is not"):
+        environment_backends("SKYVLN_TEST_BACKENDS", BackendsFile())

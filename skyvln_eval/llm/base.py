@@ -40,6 +40,14 @@ class LLMBackend(ABC):
     #: only take turns on the interpreter's lock (and cost a pool per decision).
     answers_in_process: bool = False
 
+    @classmethod
+    def checked_model(cls, model: str | None) -> str | None:
+        """``model`` (what follows ``<name>:`` in a spec; ``None``: nothing), or the
+        :class:`~skyvln_eval.errors.ConfigError` saying why it names none of this backend's
+        models. The constructor calls it, and a config's validation before any backend is
+        made (:func:`~skyvln_eval.llm.registry.check_spec`). Default: any model, or none."""
+        return model
+
     @abstractmethod
     def generate(self, messages: Sequence[Message], config: GenerationConfig) -> Completion:
         """One completion for ``messages``."""

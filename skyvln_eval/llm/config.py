@@ -15,7 +15,7 @@ from skyvln_eval.llm.cache import ResponseCache
 from skyvln_eval.llm.client import LLMClient
 from skyvln_eval.llm.negotiation import StructuredSetting
 from skyvln_eval.llm.prices import load_prices
-from skyvln_eval.llm.registry import create_backend, known_backends
+from skyvln_eval.llm.registry import check_spec, create_backend
 from skyvln_eval.llm.retry import RetryPolicy
 from skyvln_eval.llm.types import GenerationConfig
 
@@ -168,10 +168,12 @@ class LLMConfig(BaseModel):
     @field_validator("backend")
     @classmethod
     def _known_backend(cls, spec: str) -> str:
-        # Checked on load so that a misspelt backend stops a run before its first episode.
-        name = spec.partition(":")[0]
-        if name not in known_backends():
-            raise ValueError(str(UnknownNameError("LLM backend", name, known_backends())))
+        # Checked on load, name and model ('openai:' has none), so that a misspelt backend
+        # stops a run before its first episode rather than failing in each.
+        try:
+            check_spec(spec)
+        except ConfigError as error:
+            raise ValueError(str(error)) from None
         return spec
 
     @field_validator("extra_body")

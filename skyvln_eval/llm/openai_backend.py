@@ -171,10 +171,7 @@ class OpenAIBackend(LLMBackend):
         system_role: bool = True,
         extra_body: dict[str, Any] | None = None,
     ) -> None:
-        if not model:
-            raise ConfigError(
-                "the openai backend needs a model: 'openai:<model>', e.g. 'openai:gpt-4o'"
-            )
+        model = self.checked_model(model)
         if structured_output not in STRUCTURED_SETTINGS:
             raise ConfigError(
                 f"structured_output must be one of {', '.join(STRUCTURED_SETTINGS)}, "
@@ -193,6 +190,14 @@ class OpenAIBackend(LLMBackend):
             import openai  # noqa: F401
         except ImportError as error:  # pragma: no cover - the test extra installs openai
             raise MissingExtraError("the openai backend", "openai", str(error)) from error
+
+    @classmethod
+    def checked_model(cls, model: str | None) -> str:
+        if not model:
+            raise ConfigError(
+                "the openai backend needs a model: 'openai:<model>', e.g. 'openai:gpt-4o'"
+            )
+        return model
 
     def identity(self) -> dict[str, Any]:
         identity: dict[str, Any] = {

@@ -46,6 +46,13 @@ def _resolve(name: str) -> type[LLMBackend]:
     return target
 
 
+def check_spec(spec: str) -> None:
+    """Raise the :class:`ConfigError` :func:`create_backend` would for ``spec``'s name or
+    model, without making the backend (nor importing its optional dependencies)."""
+    name, _, model = spec.partition(":")
+    _resolve(name).checked_model(model or None)
+
+
 def create_backend(spec: str, **options: Any) -> LLMBackend:
     """A backend from its spec, e.g. ``create_backend("openai:gpt-4o", base_url=...)``.
 

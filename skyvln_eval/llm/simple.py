@@ -136,18 +136,27 @@ class ReplayBackend(LLMBackend):
         system_role: bool = True,
         extra_body: dict[str, Any] | None = None,
     ) -> None:
-        if not model:
-            raise ConfigError(
-                "replay needs the replayed backend: 'replay:<backend>:<model>', "
-                "e.g. 'replay:openai:gpt-4o'"
-            )
         from skyvln_eval.llm.registry import backend_identity
 
+        model = self.checked_model(model)
         self.model = model
         options: dict[str, Any] = {} if system_role else {"system_role": False}  # openai's
         if extra_body:
             options["extra_body"] = extra_body
         self._identity = backend_identity(model, base_url=base_url, **options)
+
+    @classmethod
+    def checked_model(cls, model: str | None) -> str:
+        """The replayed backend's spec, itself checked: 'replay:openai:' has no model."""
+        if not model:
+            raise ConfigError(
+                "replay needs the replayed backend: 'replay:<backend>:<model>', "
+                "e.g. 'replay:openai:gpt-4o'"
+            )
+        from skyvln_eval.llm.registry import check_spec
+
+        check_spec(model)
+        return model
 
     def identity(self) -> dict[str, Any]:
         return dict(self._identity)

@@ -127,6 +127,30 @@ def test_unknown_backend_controller_and_agent_fail_before_any_episode(
     assert not (tmp_path / "run").exists(), "no episode may run"
 
 
+@pytest.mark.parametrize(
+    ("backend", "problem"),
+    [
+        ("openai:", "the openai backend needs a model: 'openai:<model>'"),
+        ("replay:", "replay needs the replayed backend: 'replay:<backend>:<model>'"),
+        ("replay:openai:", "the openai backend needs a model"),
+        ("rule:v2", "the rule backend has one version, 'rule-v1'; got 'v2'"),
+    ],
+)
+def test_a_backend_without_a_usable_model_fails_before_any_episode(
+    tmp_path: Path, sample_dir: Path, cli: Cli, backend: str, problem: str
+) -> None:
+    # Only the name was checked on load: every episode failed on the model, then the run
+    # suggested --retry-failed.
+    path = tmp_path / "no-model.yaml"
+    config = _config(sample_dir, agent={"name": "skyvln", "llm": {"backend": backend}})
+    path.write_text(yaml.safe_dump(config))
+    _refused(
+        cli("run", str(path), "--out", str(tmp_path / "run")),
+        f"run config {path}: agent.llm.backend: {problem}",
+    )
+    assert not (tmp_path / "run").exists(), "no episode may run"
+
+
 def test_a_server_without_its_scheme_is_refused_on_load(
     tmp_path: Path, sample_dir: Path, cli: Cli
 ) -> None:

@@ -14,7 +14,7 @@ import json
 from collections.abc import Sequence
 from typing import Any
 
-from skyvln_eval.errors import LLMError
+from skyvln_eval.errors import ConfigError, LLMError
 from skyvln_eval.llm.base import LLMBackend
 from skyvln_eval.llm.rule.instructions import landmark_phrases, parse_instruction
 from skyvln_eval.llm.rule.matching import describe, rank
@@ -50,9 +50,14 @@ class RuleBackend(LLMBackend):
     answers_in_process = True
 
     def __init__(self, model: str | None = None) -> None:
-        if model not in (None, RULE_MODEL):
-            raise LLMError(f"the rule backend has one version, {RULE_MODEL!r}; got {model!r}")
+        self.checked_model(model)
         self.model = RULE_MODEL
+
+    @classmethod
+    def checked_model(cls, model: str | None) -> str:
+        if model not in (None, RULE_MODEL):
+            raise ConfigError(f"the rule backend has one version, {RULE_MODEL!r}; got {model!r}")
+        return RULE_MODEL
 
     def generate(self, messages: Sequence[Message], config: GenerationConfig) -> Completion:
         data = read_task_data(messages)
