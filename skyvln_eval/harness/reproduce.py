@@ -37,12 +37,13 @@ from skyvln_eval.agent.config import LLM_AGENTS, AgentConfig
 from skyvln_eval.avdn.constants import SPLITS, annotation_file_name
 from skyvln_eval.avdn.loader import load_split
 from skyvln_eval.avdn.summary import SplitSummary, summarise_split
-from skyvln_eval.errors import RunStoppedError
+from skyvln_eval.errors import AvdnValidationError, RunStoppedError
 from skyvln_eval.fileio import atomic_write_json, atomic_write_text, ensure_directory
 from skyvln_eval.harness.executors import ExecutorKind, make_executor
 from skyvln_eval.harness.oracle import is_oracle
 from skyvln_eval.harness.plan import PlannedRun, ReproducePlan, planned_runs
 from skyvln_eval.harness.run import (
+    RUN_INVALID_HINT,
     Progress,
     RunJob,
     RunReport,
@@ -403,11 +404,14 @@ def _recordings(
 
 
 def _dataset_summary(data_dir: Path) -> list[SplitSummary]:
-    return [
-        summarise_split(load_split(data_dir, split))
-        for split in SPLITS
-        if (data_dir / "annotations" / annotation_file_name(split)).is_file()
-    ]
+    try:
+        return [
+            summarise_split(load_split(data_dir, split))
+            for split in SPLITS
+            if (data_dir / "annotations" / annotation_file_name(split)).is_file()
+        ]
+    except AvdnValidationError as error:  # what a run says: reproduce cannot skip records
+        raise AvdnValidationError(error.issues, RUN_INVALID_HINT) from None
 
 
 def reproduce(

@@ -291,6 +291,10 @@ def test_an_invalid_record_is_named_with_what_a_run_can_do_about_it(
         "record 1 (episode 1913__1_1), field 'angle'",
     )
     assert "skip_invalid" not in message and "--skip-invalid to skip" not in message
+    # reproduce has no --skip-invalid either (it suggested it, as the loader's hint does).
+    outcome = cli("reproduce", "--data-dir", str(data), "--out", str(tmp_path / "out"))
+    message = _refused(outcome, "1 invalid record(s) (a run needs every record of its splits")
+    assert "`--skip-invalid` with" not in message and "skip_invalid" not in message
     # Where records are loaded, the hint names the options that do leave them out.
     outcome = cli("summary", str(data))
     assert outcome.code == 2 and "`--skip-invalid` with `skyvln-eval summary`" in outcome.err
