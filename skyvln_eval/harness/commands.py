@@ -8,6 +8,7 @@ import typer
 
 from skyvln_eval.harness.config import load_run_config
 from skyvln_eval.harness.executors import make_executor
+from skyvln_eval.harness.preflight import check_keys
 from skyvln_eval.harness.progress import RichRunProgress
 from skyvln_eval.harness.run import RunReport, run
 
@@ -68,6 +69,7 @@ def run_command(
         ray_address=ray_address,
         threads_per_worker=threads_per_worker,
     )
+    check_keys(config.agent, f"run config {config_path}")  # before episodes are converted
     run_dir = out or Path("runs") / config_path.stem
     report = run(
         config,

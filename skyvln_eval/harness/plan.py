@@ -37,6 +37,7 @@ from skyvln_eval.harness.config import (
     RunConfig,
 )
 from skyvln_eval.harness.executors import ExecutorKind
+from skyvln_eval.harness.preflight import check_keys
 from skyvln_eval.llm.backends_file import backends_file_from_env
 from skyvln_eval.llm.backends_file import environment_backends as _environment_backends
 from skyvln_eval.sensing import SensorConfig
@@ -245,17 +246,22 @@ def planned_runs(
 ) -> list[PlannedRun]:
     """One run per (system, split), deduplicated by settings (labels excluded)."""
     wanted: list[tuple[TableName, str, PlanSystem, AgentConfig, Split, Path]] = []
+    in_plan = f"reproduce plan {plan.name!r}"
     for system in plan.table1.systems:
+        agent = _agent(system, out_dir)
+        # Before any run: a missing key stopped the first run that called the model, after
+        # the runs before it.
+        check_keys(agent, f"{in_plan}: system {system.label!r}")
         for split in plan.table1.splits:
             run_dir = out_dir / "runs" / slug(system.label) / split
-            agent = _agent(system, out_dir)
             wanted.append(("table1", system.label, system, agent, split, run_dir))
-    from_environment = environment_backends(
-        plan.table2.environment_variable, plan.table2.backends_file
-    )
-    for backend in (*plan.table2.backends, *from_environment):
+    variable = plan.table2.environment_variable
+    from_environment = environment_backends(variable, plan.table2.backends_file)
+    sources = [in_plan] * len(plan.table2.backends) + [f"${variable}"] * len(from_environment)
+    for backend, source in zip((*plan.table2.backends, *from_environment), sources, strict=True):
         run_dir = out_dir / "runs" / "backends" / slug(backend.label) / plan.table2.split
         agent = _agent(plan.table2.system, out_dir, dict(backend.llm))
+        check_keys(agent, f"{source}: backend {backend.label!r}")
         wanted.append(
             ("table2", backend.label, plan.table2.system, agent, plan.table2.split, run_dir)
         )

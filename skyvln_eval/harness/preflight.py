@@ -1,10 +1,13 @@
-"""Before any episode runs: can the data give what the agent's sensors and detector need?
+"""Before any episode runs: can the data give what the agent's sensors and detector need,
+and does the environment hold the API keys of the models the agent calls?
 
 A detector states the sensors it needs (the simulated one reads the semantic camera; the
 GroundingDINO and VLM detectors read RGB). The semantic camera sees the semantic layers
 of synthetic tiles, which real xView imagery does not have. A run that cannot work is
 refused at once, with a message naming the detector, the data and the alternatives,
-rather than failing in every episode.
+rather than failing in every episode. So is a run whose model needs an API key that is
+not set (OpenAI's server): its first call would stop it, and a reproduction after the
+runs before it.
 """
 
 from __future__ import annotations
@@ -12,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from pathlib import Path
 
-from skyvln_eval.agent.config import LLM_AGENTS
+from skyvln_eval.agent.config import LLM_AGENTS, AgentConfig
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.harness.config import RunConfig
 from skyvln_eval.worlds.layers import has_world_layers
@@ -28,9 +31,31 @@ class PreflightError(ConfigError):
     """A run that cannot work with its data, sensors and detector: refused before it starts."""
 
 
+def missing_keys(agent: AgentConfig) -> list[str]:
+    """``"field: what to set"`` for each model ``agent`` calls whose API key is not in the
+    environment (each backend's own rule: OpenAI's server needs one, a local server not)."""
+    if agent.name not in LLM_AGENTS:
+        return []  # random actions and the oracle call no model
+    llms = {"agent.llm": agent.llm}
+    if agent.detector.name == "vlm" and agent.detector.llm is not None:
+        llms["agent.detector.llm"] = agent.detector.llm
+    found = ((field, llm.missing_key()) for field, llm in llms.items())
+    return [f"{field}: {missing}" for field, missing in found if missing]
+
+
+def check_keys(agent: AgentConfig, source: str) -> None:
+    """Refuse ``agent`` (of ``source``: a run config, a plan's system, an environment
+    variable's backend) when a model it calls lacks its API key; the key is never shown."""
+    missing = missing_keys(agent)
+    if missing:
+        raise PreflightError(f"{source}: {'; '.join(missing)}")
+
+
 def preflight(config: RunConfig, data_dir: Path, map_names: Iterable[str]) -> None:
-    """Refuse ``config`` if its detector needs a sensor that is off, or the data cannot feed
-    a sensor that is on (see the module docstring)."""
+    """Refuse ``config`` if a model its agent calls lacks its API key, its detector needs a
+    sensor that is off, or the data cannot feed a sensor that is on (see the module
+    docstring)."""
+    check_keys(config.agent, f"run {config.system!r}")
     if config.agent.name not in LLM_AGENTS:
         return  # random actions and the oracle do not look
     detector = config.agent.detector

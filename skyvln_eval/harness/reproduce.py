@@ -430,13 +430,14 @@ def reproduce(
     out_dir = ensure_directory(out_dir, "output folder")
     started = time.perf_counter()
     data_dir = resolve_data_dir(data or plan.data)
+    # First: it refuses a plan whose model lacks its API key before anything is written.
+    runs = planned_runs(plan, out_dir, workers, executor, str(data_dir))
     datasets = _dataset_summary(data_dir)
     atomic_write_json(
         out_dir / "dataset_summary.json",
         {"data_dir": str(data_dir), "splits": [dataclasses.asdict(s) for s in datasets]},
         indent=1,
     )
-    runs = planned_runs(plan, out_dir, workers, executor, str(data_dir))
     jobs: list[RunJob] = []
     try:
         for planned in runs:

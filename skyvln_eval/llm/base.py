@@ -48,6 +48,12 @@ class LLMBackend(ABC):
         made (:func:`~skyvln_eval.llm.registry.check_spec`). Default: any model, or none."""
         return model
 
+    def missing_key(self) -> str | None:
+        """What to set when this backend needs an API key the environment does not hold
+        (checked before a run starts: otherwise its first call stops it), else ``None``.
+        Default: none needed."""
+        return None
+
     @abstractmethod
     def generate(self, messages: Sequence[Message], config: GenerationConfig) -> Completion:
         """One completion for ``messages``."""

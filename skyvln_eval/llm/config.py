@@ -219,6 +219,12 @@ class LLMConfig(BaseModel):
     def repair_policy(self) -> RepairPolicy:
         return RepairPolicy(self.repairs, self.repair_temperature, self.repair_budget_factor)
 
+    def missing_key(self) -> str | None:
+        """What to set when the backend needs an API key the environment lacks (the
+        backend's own rule, :meth:`~skyvln_eval.llm.base.LLMBackend.missing_key`), else
+        ``None``. Makes the backend: its optional dependencies are imported."""
+        return create_backend(self.backend, **self.backend_options()).missing_key()
+
     def backend_options(self) -> dict[str, Any]:
         name = self.backend.partition(":")[0]
         if name == "openai":

@@ -238,6 +238,14 @@ class OpenAIBackend(LLMBackend):
         shown = urllib.parse.urlunsplit((url.scheme, netloc, url.path, "", ""))
         return self._scrub(f"openai:{self.model}@{shown}{'?[query]' if url.query else ''}")
 
+    def missing_key(self) -> str | None:
+        # OpenAI's own server needs a key; local servers usually take any, or none.
+        if self._secret() is None and self.base_url == OPENAI_BASE_URL:
+            return (
+                f"{self._where()}: set the environment variable {self.api_key_env} to the API key"
+            )
+        return None
+
     def _asker(self) -> Asker:
         return Asker(self._where(), self.model, self.api_key_env, self.system_role)
 
@@ -253,10 +261,9 @@ class OpenAIBackend(LLMBackend):
             import openai
         except ImportError as error:  # pragma: no cover - the test extra installs openai
             raise MissingExtraError("the openai backend", "openai", str(error)) from error
-        if secret is None and self.base_url == OPENAI_BASE_URL:
-            raise LLMAuthError(
-                f"{self._where()}: set the environment variable {self.api_key_env} to the API key"
-            )
+        missing = self.missing_key()
+        if missing is not None:
+            raise LLMAuthError(missing)
         # Local servers usually accept any key; the client insists on one.
         return openai.OpenAI(
             api_key=secret or "unused",

@@ -12,6 +12,8 @@ import yaml
 
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.harness import load_run_config
+from skyvln_eval.harness.plan import load_plan, planned_runs
+from skyvln_eval.harness.preflight import PreflightError, preflight
 from skyvln_eval.llm import LLMConfig
 from tests.conftest import CliOutcome
 
@@ -149,6 +151,49 @@ def test_a_backend_without_a_usable_model_fails_before_any_episode(
         f"run config {path}: agent.llm.backend: {problem}",
     )
     assert not (tmp_path / "run").exists(), "no episode may run"
+
+
+def test_a_missing_api_key_is_refused_before_any_episode(
+    tmp_path: Path, sample_dir: Path, cli: Cli, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # It was found by the first episode's call (an error row, the run stopped), and
+    # reproduce ran every run before the first that called the model.
+    monkeypatch.delenv("SKYVLN_TEST_KEY", raising=False)
+    llm = {"backend": "openai:gpt-4o-mini", "api_key_env": "SKYVLN_TEST_KEY"}
+    path = tmp_path / "no-key.yaml"
+    path.write_text(yaml.safe_dump(_config(sample_dir, agent={"name": "skyvln", "llm": llm})))
+    _refused(
+        cli("run", str(path), "--out", str(tmp_path / "run")),
+        f"run config {path}: agent.llm: openai:gpt-4o-mini@https://api.openai.com/v1: "
+        "set the environment variable SKYVLN_TEST_KEY to the API key",
+    )
+    assert not (tmp_path / "run").exists(), "no episode may run"
+    with pytest.raises(PreflightError, match=r"^run 'bad input': agent\.llm: openai:gpt-4o-mini@"):
+        preflight(load_run_config(path), sample_dir, [])  # run() from Python checks it too
+    vlm = {"name": "vlm", "llm": {**llm, "backend": "openai:gpt-4o"}}
+    agent = {"name": "skyvln", "detector": vlm, "llm": {**llm, "base_url": "http://127.0.0.1:9/v1"}}
+    path.write_text(yaml.safe_dump(_config(sample_dir, agent=agent)))
+    _refused(  # a local server needs no key; the detector's model on OpenAI's does
+        cli("run", str(path), "--out", str(tmp_path / "run")),
+        f"run config {path}: agent.detector.llm: openai:gpt-4o@https://api.openai.com/v1: set",
+    )
+    monkeypatch.setenv("SKYVLN_EVAL_BACKENDS", "openai:gpt-4o-mini")
+    monkeypatch.delenv("SKYVLN_EVAL_BACKENDS_FILE", raising=False)
+    monkeypatch.delenv("OPENAI_API_KEY", raising=False)
+    out = tmp_path / "out"
+    message = _refused(
+        cli("reproduce", "--data-dir", str(sample_dir), "--out", str(out), "--limit", "1"),
+        "$SKYVLN_EVAL_BACKENDS: backend 'gpt-4o-mini': agent.llm: openai:gpt-4o-mini@"
+        "https://api.openai.com/v1: set the environment variable OPENAI_API_KEY to the API key",
+    )
+    assert "--retry-failed" not in message
+    assert list(out.iterdir()) == [], "no run may start"
+    monkeypatch.setenv("OPENAI_API_KEY", "sk-test-not-a-key")
+    with_key = load_plan("default")
+    assert any(
+        r.config.agent.llm.backend == "openai:gpt-4o-mini"
+        for r in planned_runs(with_key, tmp_path, 1, "serial")
+    )
 
 
 def test_a_server_without_its_scheme_is_refused_on_load(

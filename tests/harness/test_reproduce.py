@@ -304,6 +304,7 @@ def test_every_way_of_naming_a_backend_gives_its_full_configuration(
     )
     monkeypatch.setenv("SKYVLN_EVAL_BACKENDS_FILE", str(backends))
     monkeypatch.setenv("SKYVLN_TEST_BACKENDS", "local-gemma, openai:gpt-4o-mini")
+    monkeypatch.setenv("MY_KEY", "sk-test")  # OpenAI's server: a plan without it is refused
     named, spec = environment_backends("SKYVLN_TEST_BACKENDS")
     assert named.label == "local-gemma" and spec.label == "gpt-4o-mini"
     gemma = LLMConfig.model_validate(named.llm)
