@@ -7,17 +7,24 @@ of synthetic tiles, which real xView imagery does not have. A run that cannot wo
 refused at once, with a message naming the detector, the data and the alternatives,
 rather than failing in every episode. So is a run whose model needs an API key that is
 not set (OpenAI's server): its first call would stop it, and a reproduction after the
-runs before it.
+runs before it. So is a run whose model is served on this machine (a loopback address)
+when nothing listens there: every call would fail, and the run would end as a column of
+"error" cells. A remote server is not probed: it may be down for a moment, and its
+failures are recorded as they happen.
 """
 
 from __future__ import annotations
 
+import ipaddress
+import socket
+import urllib.parse
 from collections.abc import Iterable
 from pathlib import Path
 
 from skyvln_eval.agent.config import LLM_AGENTS, AgentConfig
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.harness.config import RunConfig
+from skyvln_eval.llm.config import LLMConfig
 from skyvln_eval.worlds.layers import has_world_layers
 
 ALTERNATIVES = (
@@ -31,16 +38,58 @@ class PreflightError(ConfigError):
     """A run that cannot work with its data, sensors and detector: refused before it starts."""
 
 
-def missing_keys(agent: AgentConfig) -> list[str]:
-    """``"field: what to set"`` for each model ``agent`` calls whose API key is not in the
-    environment (each backend's own rule: OpenAI's server needs one, a local server not)."""
+#: How long a local server may take to accept a connection before it counts as absent.
+CONNECT_TIMEOUT_S = 2.0
+
+
+def _models(agent: AgentConfig) -> dict[str, LLMConfig]:
+    """The models ``agent`` calls, by their config field."""
     if agent.name not in LLM_AGENTS:
-        return []  # random actions and the oracle call no model
+        return {}  # random actions and the oracle call no model
     llms = {"agent.llm": agent.llm}
     if agent.detector.name == "vlm" and agent.detector.llm is not None:
         llms["agent.detector.llm"] = agent.detector.llm
-    found = ((field, llm.missing_key()) for field, llm in llms.items())
+    return llms
+
+
+def missing_keys(agent: AgentConfig) -> list[str]:
+    """``"field: what to set"`` for each model ``agent`` calls whose API key is not in the
+    environment (each backend's own rule: OpenAI's server needs one, a local server not)."""
+    found = ((field, llm.missing_key()) for field, llm in _models(agent).items())
     return [f"{field}: {missing}" for field, missing in found if missing]
+
+
+def absent_local_servers(agent: AgentConfig) -> list[str]:
+    """``"field: what is wrong"`` for each model ``agent`` calls on a loopback address
+    where nothing accepts a connection."""
+    absent = []
+    for field, llm in _models(agent).items():
+        if not llm.backend.startswith("openai:") or not llm.base_url:
+            continue  # a stand-in, a replay of the cache, or OpenAI's own server
+        url = urllib.parse.urlsplit(llm.base_url)
+        if not _is_loopback(url.hostname):
+            continue
+        port = url.port or (443 if url.scheme == "https" else 80)
+        try:
+            socket.create_connection((url.hostname, port), CONNECT_TIMEOUT_S).close()
+        except OSError as error:
+            absent.append(
+                f"{field}: nothing answers at {llm.base_url} ({error.strerror or error}); "
+                "start the server first (README: 'A real local LLM') or set base_url to "
+                "one that runs"
+            )
+    return absent
+
+
+def _is_loopback(host: str | None) -> bool:
+    if host is None:
+        return False
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:  # a name: not probed
+        return False
 
 
 def check_keys(agent: AgentConfig, source: str) -> None:
@@ -52,10 +101,14 @@ def check_keys(agent: AgentConfig, source: str) -> None:
 
 
 def preflight(config: RunConfig, data_dir: Path, map_names: Iterable[str]) -> None:
-    """Refuse ``config`` if a model its agent calls lacks its API key, its detector needs a
+    """Refuse ``config`` if a model its agent calls lacks its API key or is served on this
+    machine where nothing listens, its detector needs a
     sensor that is off, or the data cannot feed a sensor that is on (see the module
     docstring)."""
     check_keys(config.agent, f"run {config.system!r}")
+    absent = absent_local_servers(config.agent)
+    if absent:
+        raise PreflightError(f"run {config.system!r}: {'; '.join(absent)}")
     if config.agent.name not in LLM_AGENTS:
         return  # random actions and the oracle do not look
     detector = config.agent.detector

@@ -3,6 +3,7 @@ before any episode runs; never a traceback."""
 
 from __future__ import annotations
 
+import socket
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -363,3 +364,24 @@ def test_a_bad_option_is_named_as_the_option_not_as_the_config(
         "--executor: unknown executor 'bogus'. Known: processes, ray, serial, threads",
     )
     assert not out.exists()
+
+
+def test_a_local_model_server_that_is_not_running_is_refused_before_any_episode(
+    tmp_path: Path, sample_dir: Path, cli: Cli
+) -> None:
+    # Without the server, every call failed and the run (or the local-llm plan) ended as
+    # columns of "error" cells, the reason found only in each episode's record.
+    with socket.socket() as probe:  # a port nothing listens on once this is closed
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    url = f"http://127.0.0.1:{port}/v1"
+    agent = {"name": "skyvln", "llm": {"backend": "openai:gemma", "base_url": url}}
+    path = tmp_path / "no-server.yaml"
+    path.write_text(yaml.safe_dump(_config(sample_dir, agent=agent)))
+    outcome = cli("run", str(path), "--out", str(tmp_path / "run"))
+    _refused(outcome, f"run 'bad input': agent.llm: nothing answers at {url}", "start the server")
+    assert not list((tmp_path / "run").glob("**/results.jsonl")), "no episode may run"
+    with socket.socket() as server:  # something listening there: the run goes ahead
+        server.bind(("127.0.0.1", port))
+        server.listen()
+        preflight(load_run_config(path), sample_dir, [])
