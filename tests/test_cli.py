@@ -104,6 +104,17 @@ def test_sample_names_the_synthetic_dataset_in_summary_and_convert(
     assert outcome.code == 0, outcome  # the ground truth replayed: every episode succeeds
     scores = (tmp_path / "s" / "scores.csv").read_text().splitlines()
     assert len(scores) == 3 + len(episodes)  # format, conventions and header lines
+    # Intervals over whole trajectories (the rounds of a dialog together), and a bad unit.
+    by_route = ("--split", "val_seen", "--out", str(tmp_path / "t"), "--ci-unit", "trajectory")
+    outcome = cli("score", str(tmp_path / "preds.json"), "--data-dir", "sample", *by_route)
+    assert outcome.code == 0, outcome
+    assert ",spl,%," in (summary := (tmp_path / "t" / "summary.csv").read_text())
+    assert "trajectory_bootstrap" in summary and ",bootstrap\n" not in summary
+    table = cli("table", str(tmp_path / "t" / "scores.csv"), "--ci", "--ci-unit", "trajectory")
+    assert table.code == 0 and "bootstrap of the trajectories" in table.out, table
+    outcome = cli("score", str(tmp_path / "preds.json"), "--data-dir", "sample", *args[:2],
+                  "--ci-unit", "map")  # fmt: skip
+    assert outcome.code == 2 and "--ci-unit must be one of episode, trajectory" in outcome.err
     # A folder of that name is still reachable by a path that is not the bare word.
     monkeypatch.chdir(tmp_path)
     outcome = cli("summary", "./sample")

@@ -4,7 +4,8 @@ Follow a run: its :class:`EpisodeResult` rows (visited views, ground truth, stat
 optional control summary and LLM calls; files in :mod:`.results_io`) go through
 :func:`score_results` under a :class:`MetricConventions`, giving one row of official
 AVDN, R2R-family, cost and control metrics per episode; :func:`summarise` averages them
-per system and split (with Wilson or seeded bootstrap intervals), :func:`check_complete`
+per system and split (with Wilson or seeded bootstrap intervals, over episodes or whole
+trajectories), :func:`check_complete`
 refuses runs that miss episodes, :func:`compare_systems` tests two systems on the same episodes.
 Predictions made elsewhere (the official ``.npy`` output, a JSON format) are read by
 :func:`read_predictions` and joined with ground truth by :func:`results_from_predictions`.
@@ -16,6 +17,7 @@ conventions they were made under.
 from skyvln_eval.metrics.aggregate import (
     BINARY_METRICS,
     CI_METHODS,
+    CI_UNITS,
     DISPLAY_NAMES,
     LOWER_IS_BETTER,
     PERCENT_METRICS,
@@ -23,6 +25,7 @@ from skyvln_eval.metrics.aggregate import (
     check_scores_complete,
     compare_systems,
     summarise,
+    trajectory_of,
     unit_of,
 )
 from skyvln_eval.metrics.conventions import METRICS_VERSION, MetricConventions
@@ -75,6 +78,7 @@ from skyvln_eval.metrics.view_overlap import sparse_hull_iou
 __all__ = [
     "BINARY_METRICS",
     "CI_METHODS",
+    "CI_UNITS",
     "CONTROL_LOG_COLUMNS",
     "COST_COLUMNS",
     "DISPLAY_NAMES",
@@ -125,6 +129,7 @@ __all__ = [
     "summarise_control",
     "summarise_costs",
     "tracking_errors",
+    "trajectory_of",
     "unit_of",
     "wilson_interval",
     "write_predictions_json",

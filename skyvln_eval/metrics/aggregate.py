@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
-from typing import Literal
+from dataclasses import dataclass
+from typing import Literal, get_args
 
 import numpy as np
 import pandas as pd
@@ -33,6 +34,7 @@ from skyvln_eval.metrics.official import OFFICIAL_COLUMNS
 from skyvln_eval.metrics.scoring import METRIC_UNITS
 from skyvln_eval.metrics.stats import (
     bootstrap_means,
+    cluster_bootstrap_means,
     finite_values,
     paired_comparison,
     percentile_interval,
@@ -116,11 +118,55 @@ LOWER_IS_BETTER = frozenset(
 BINARY_METRICS = frozenset(m for m, unit in METRIC_UNITS.items() if unit == "0/1")
 
 #: How a summary's interval was made (its ``ci_method``), as a table's note says it.
-CiMethod = Literal["wilson", "bootstrap"]
+CiMethod = Literal["wilson", "bootstrap", "wilson_trajectories", "trajectory_bootstrap"]
 CI_METHODS: dict[str, str] = {
     "wilson": "Wilson score interval, the episodes as trials",
     "bootstrap": "percentile bootstrap of the episodes",
+    "wilson_trajectories": "Wilson score interval, the trajectories as trials",
+    "trajectory_bootstrap": (
+        "percentile bootstrap of the trajectories (the rounds of a dialog drawn together)"
+    ),
 }
+#: What an interval resamples: episodes, or trajectories (AVDN's ANDH episodes are the
+#: rounds of dialogs, several per route: their results are not independent, and an
+#: interval over episodes is then too narrow).
+CiUnit = Literal["episode", "trajectory"]
+CI_UNITS: tuple[CiUnit, ...] = get_args(CiUnit)
+
+
+def trajectory_of(episode_id: str) -> str:
+    """The trajectory an AVDN episode id (``<map>__<trajectory>_<round>``) belongs to:
+    ``<map>__<trajectory>``; any other id is a trajectory of its own."""
+    map_name, sep, route = episode_id.rpartition("__")
+    trajectory, underscore, round_index = route.rpartition("_")
+    if not sep or not underscore or not trajectory or not round_index.isdigit():
+        return episode_id
+    return f"{map_name}__{trajectory}"
+
+
+@dataclass(frozen=True)
+class _Resampling:
+    """How one group's intervals resample: its episodes, or their ``clusters``."""
+
+    clusters: np.ndarray | None  # a trajectory label per episode, or None: episodes
+
+    def means(self, values: np.ndarray, n_resamples: int, seed: int) -> np.ndarray:
+        if self.clusters is None:
+            return bootstrap_means(values, n_resamples, seed)
+        return cluster_bootstrap_means(values, self.clusters, n_resamples, seed)
+
+    def trials(self, n_values: int) -> int:
+        """How many independent trials a Wilson interval counts."""
+        return n_values if self.clusters is None else len(set(self.clusters.tolist()))
+
+    @property
+    def bootstrap(self) -> CiMethod:
+        return "bootstrap" if self.clusters is None else "trajectory_bootstrap"
+
+    @property
+    def wilson(self) -> CiMethod:
+        return "wilson" if self.clusters is None else "wilson_trajectories"
+
 
 #: Rates whose summary is the share over all the group's episodes pooled (failed calls of
 #: all calls, fallback decisions of all decisions), not the mean of per-episode rates, in
@@ -213,11 +259,17 @@ def summarise(
     n_resamples: int = 0,
     confidence: float = 0.95,
     seed: int = 0,
+    ci_unit: CiUnit = "episode",
 ) -> pd.DataFrame:
     """Per (system, split, mode, metric): n, mean and, if ``n_resamples``, an interval
     (``ci_low``, ``ci_high``, ``confidence``, ``ci_method``: see the module docstring),
     and ``oracle`` (whether the harness's ground-truth oracle flew the system) where the
     scores say.
+
+    ``ci_unit="trajectory"`` resamples whole trajectories (:func:`trajectory_of`) instead
+    of episodes: the rounds of one dialog fly one route and succeed or fail together more
+    often than independent episodes would. Its 0/1 rates are bootstrapped too (Wilson
+    over the trajectories where every episode has the same value).
 
     Every bootstrapped metric of a group is resampled with the same ``seed``, so metrics
     defined on the same episodes share their resamples. Episodes are taken in episode-id
@@ -226,6 +278,8 @@ def summarise(
     """
     if scores.empty:
         raise MetricInputError("no scores to summarise")
+    if ci_unit not in CI_UNITS:
+        raise MetricInputError(f"ci_unit must be one of {CI_UNITS}, got {ci_unit!r}")
     metrics = list(metrics or [m for m in METRIC_UNITS if m in scores.columns])
     checked_scores(scores, metrics)
     oracles = set(oracle_systems(scores)) if "oracle" in scores.columns else None
@@ -244,11 +298,18 @@ def summarise(
                 # A mean over the known part would pass for the whole: it is unknown.
                 row.update(n=len(column), mean=math.nan)
                 if n_resamples:
-                    row.update(_interval(math.nan, math.nan, "bootstrap", confidence))
+                    method: CiMethod = (
+                        "bootstrap" if ci_unit == "episode" else "trajectory_bootstrap"
+                    )
+                    row.update(_interval(math.nan, math.nan, method, confidence))
                 rows.append(row)
                 continue
             if not present.any():
                 continue
+            ids = group.loc[present, "episode_id"]
+            resampling = _Resampling(
+                None if ci_unit == "episode" else np.array([trajectory_of(e) for e in ids])
+            )
             if metric in POOLED_RATES:  # checked_scores made sure of both parts
                 # Numerator and denominator of the episodes with something to rate.
                 parts = group.loc[present, list(POOLED_RATES[metric])]
@@ -256,16 +317,23 @@ def summarise(
                 mean = 100.0 * pairs[:, 0].sum() / pairs[:, 1].sum()
                 row.update(n=len(pairs), mean=float(mean))
                 if n_resamples:
-                    row.update(_pooled_interval(pairs, n_resamples, confidence, seed))
+                    row.update(_pooled_interval(pairs, n_resamples, confidence, seed, resampling))
             else:
                 values = finite_values(column[present].to_numpy(np.float64), what)
                 scaled = values * (100.0 if metric in PERCENT_METRICS else 1.0)
                 row.update(n=len(values), mean=float(scaled.mean()))
-                if n_resamples and metric in BINARY_METRICS:
-                    successes = _successes(values, group.loc[present, "episode_id"], what)
-                    row.update(_wilson(successes, len(values), confidence))
+                binary = metric in BINARY_METRICS
+                if n_resamples and binary and (resampling.clusters is None or _alike(values)):
+                    successes = _successes(values, ids, what)
+                    trials = resampling.trials(len(values))
+                    # Alike values over trajectories: each trajectory one trial, all alike.
+                    won = successes if resampling.clusters is None else trials * int(values[0])
+                    row.update(_wilson(won, trials, confidence, resampling.wilson))
                 elif n_resamples:
-                    row.update(_percentiles(bootstrap_means(scaled, n_resamples, seed), confidence))
+                    if binary:
+                        _successes(values, ids, what)  # refuses values other than 0 and 1
+                    estimates = resampling.means(scaled, n_resamples, seed)
+                    row.update(_percentiles(estimates, confidence, resampling.bootstrap))
             rows.append(row)
     summary = pd.DataFrame(rows)
     if CONVENTIONS_ATTR in scores.attrs:  # which conventions scored it goes along
@@ -278,16 +346,25 @@ def _interval(low: float, high: float, method: CiMethod, confidence: float) -> d
     return {"ci_low": low, "ci_high": high, "confidence": confidence, "ci_method": method}
 
 
-def _percentiles(estimates: np.ndarray, confidence: float) -> dict[str, object]:
+def _percentiles(
+    estimates: np.ndarray, confidence: float, method: CiMethod = "bootstrap"
+) -> dict[str, object]:
     """The percentile interval of bootstrap ``estimates`` (NaN without spread, one episode
     included: see :func:`~skyvln_eval.metrics.stats.percentile_interval`)."""
-    return _interval(*percentile_interval(estimates, confidence), "bootstrap", confidence)
+    return _interval(*percentile_interval(estimates, confidence), method, confidence)
 
 
-def _wilson(successes: int, n: int, confidence: float) -> dict[str, object]:
+def _wilson(
+    successes: int, n: int, confidence: float, method: CiMethod = "wilson"
+) -> dict[str, object]:
     """The Wilson score interval of ``successes`` of ``n``, in percent."""
     low, high = wilson_interval(successes, n, confidence)
-    return _interval(100.0 * low, 100.0 * high, "wilson", confidence)
+    return _interval(100.0 * low, 100.0 * high, method, confidence)
+
+
+def _alike(values: np.ndarray) -> bool:
+    """Whether every value is the same (a bootstrap of them has no spread)."""
+    return bool((values == values[0]).all())
 
 
 def _successes(values: np.ndarray, episode_ids: pd.Series, what: str) -> int:
@@ -304,18 +381,24 @@ def _successes(values: np.ndarray, episode_ids: pd.Series, what: str) -> int:
 
 
 def _pooled_interval(
-    pairs: np.ndarray, n_resamples: int, confidence: float, seed: int
+    pairs: np.ndarray,
+    n_resamples: int,
+    confidence: float,
+    seed: int,
+    resampling: _Resampling = _Resampling(None),
 ) -> dict[str, object]:
     """Interval of a pooled share from the episodes' (numerator, denominator) ``pairs``:
-    the ratio of sums of each bootstrap resample, or Wilson over the episodes when every
-    resample would give the same 0% or 100% (see :data:`POOLED_RATES`)."""
+    the ratio of sums of each bootstrap resample, or Wilson over the episodes (or the
+    trajectories) when every resample would give the same 0% or 100% (see
+    :data:`POOLED_RATES`)."""
     failed, total = pairs[:, 0], pairs[:, 1]
+    trials = resampling.trials(len(pairs))
     if not failed.any():
-        return _wilson(0, len(pairs), confidence)
+        return _wilson(0, trials, confidence, resampling.wilson)
     if (failed == total).all():
-        return _wilson(len(pairs), len(pairs), confidence)
-    means = bootstrap_means(pairs, n_resamples, seed)
-    return _percentiles(100.0 * means[:, 0] / means[:, 1], confidence)
+        return _wilson(trials, trials, confidence, resampling.wilson)
+    means = resampling.means(pairs, n_resamples, seed)
+    return _percentiles(100.0 * means[:, 0] / means[:, 1], confidence, resampling.bootstrap)
 
 
 def check_complete(

@@ -92,6 +92,36 @@ def bootstrap_means(values: ArrayLike, n_resamples: int = 10_000, seed: int = 0)
     return out
 
 
+def cluster_bootstrap_means(
+    values: ArrayLike, clusters: ArrayLike, n_resamples: int = 10_000, seed: int = 0
+) -> FloatArray:
+    """Means of ``n_resamples`` resamples of ``values`` ``(n,)`` or ``(n, m)`` in which whole
+    ``clusters`` (one label per value) are drawn with replacement: each resample's mean is
+    the sum of its clusters' values over their number of values. For values that are not
+    independent within a cluster (the rounds of one AVDN dialog share its route), where
+    resampling single values would make the interval too narrow."""
+    arr = finite_values(values)
+    labels = np.asarray(clusters)
+    if labels.shape != arr.shape[:1]:
+        raise MetricInputError(f"one cluster label per value: {labels.shape} for {arr.shape}")
+    if n_resamples < 1:
+        raise MetricInputError(f"n_resamples must be at least 1, got {n_resamples}")
+    _, members = np.unique(labels, return_inverse=True)
+    n_clusters = int(members.max()) + 1
+    flat = arr.reshape(len(arr), -1)
+    sums = np.zeros((n_clusters, flat.shape[1]))
+    np.add.at(sums, members, flat)
+    sizes = np.bincount(members, minlength=n_clusters).astype(np.float64)
+    rng = np.random.default_rng(seed)
+    chunk = max(1, _CHUNK_VALUES // (n_clusters * flat.shape[1]))
+    out = np.empty((n_resamples, flat.shape[1]))
+    for start in range(0, n_resamples, chunk):
+        stop = min(n_resamples, start + chunk)
+        idx = rng.integers(0, n_clusters, size=(stop - start, n_clusters), dtype=np.int64)
+        out[start:stop] = sums[idx].sum(axis=1) / sizes[idx].sum(axis=1)[:, None]
+    return out.reshape(n_resamples, *arr.shape[1:])
+
+
 def bootstrap_ci(
     values: ArrayLike, n_resamples: int = 10_000, confidence: float = 0.95, seed: int = 0
 ) -> ConfidenceInterval:

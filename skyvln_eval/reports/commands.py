@@ -19,6 +19,7 @@ from skyvln_eval.errors import ConfigError, DataError
 
 if TYPE_CHECKING:
     from skyvln_eval.metrics import EpisodeResult, MetricConventions
+    from skyvln_eval.metrics.aggregate import CiUnit
 
 plot_app = typer.Typer(
     help="Figures: control curves, SR vs threshold, NE distribution, maps.", no_args_is_help=True
@@ -144,6 +145,16 @@ def _load_results(
     return sources, warnings
 
 
+#: ``--ci-unit`` of ``score`` and ``table``.
+CiUnitOption = Annotated[
+    str,
+    typer.Option(
+        help="What the intervals resample: 'episode', or 'trajectory' (the rounds of a "
+        "dialog together: they share a route, so episode intervals are too narrow)"
+    ),
+]
+
+
 def score(
     results: Annotated[
         list[Path],
@@ -195,6 +206,7 @@ def score(
         int, typer.Option(min=0, help="Bootstrap resamples for the 95% CIs (0: no CIs)")
     ] = 1000,
     seed: Annotated[int, typer.Option(help="Bootstrap seed")] = 0,
+    ci_unit: CiUnitOption = "episode",
     allow_incomplete: Annotated[
         bool,
         typer.Option(
@@ -226,7 +238,8 @@ def score(
     loaded, warnings = covered_results(sources, data_dir, allow_incomplete)
     warnings = [*missing, *warnings]
     scores = score_results(loaded, conventions)
-    summary = summarise(scores, [m for m in SUMMARY_METRICS if m in scores], resamples, seed=seed)
+    metrics = [m for m in SUMMARY_METRICS if m in scores]
+    summary = summarise(scores, metrics, resamples, seed=seed, ci_unit=_ci_unit(ci_unit))
     out.mkdir(parents=True, exist_ok=True)
     write_scores(out / "scores.csv", scores, conventions, warnings)
     atomic_write_text(out / "summary.csv", summary_csv_text(summary, conventions, warnings))
@@ -253,6 +266,16 @@ def score(
     for warning in warnings:  # again below the table, where the eye lands
         console.print(f"WARNING: {warning}", style="bold red", markup=False, highlight=False)
     console.print(f"wrote {out / 'scores.csv'} and {out / 'summary.csv'}")
+
+
+def _ci_unit(text: str) -> CiUnit:
+    """``--ci-unit`` checked against the units an interval can resample."""
+    from skyvln_eval.metrics.aggregate import CI_UNITS
+
+    for unit in CI_UNITS:
+        if text == unit:
+            return unit
+    raise ConfigError(f"--ci-unit must be one of {', '.join(CI_UNITS)}, not {text!r}")
 
 
 def table(
@@ -282,6 +305,7 @@ def table(
         int | None, typer.Option(help="Bootstrap seed (default: reproduce's, else 0)")
     ] = None,
     digits: Annotated[int, typer.Option(min=0, max=6, help="Decimals")] = 2,
+    ci_unit: CiUnitOption = "episode",
     out: Annotated[Path | None, typer.Option(help="Write here instead of printing")] = None,
 ) -> None:
     """Render a paper-style table from scores files, as `reproduce` does: systems the
@@ -319,6 +343,7 @@ def table(
         resamples=resamples or (layout.resamples if layout is not None else 1000),
         seed=seed if seed is not None else (layout.seed if layout is not None else 0),
         withheld=layout.withheld if layout is not None else (),
+        ci_unit=_ci_unit(ci_unit),
     )
     text = RENDERERS[fmt](shaped)
     if out is None:

@@ -21,7 +21,7 @@ import pandas as pd
 
 from skyvln_eval.errors import MetricInputError
 from skyvln_eval.metrics import summarise
-from skyvln_eval.metrics.aggregate import oracle_systems
+from skyvln_eval.metrics.aggregate import CiUnit, oracle_systems
 from skyvln_eval.metrics.conventions import MetricConventions
 from skyvln_eval.metrics.scoring import touched_obstacles
 from skyvln_eval.reports.tables import (
@@ -99,12 +99,14 @@ def paper_table(
     resamples: int = 1000,
     seed: int = 0,
     withheld: Collection[str] = (),
+    ci_unit: CiUnit = "episode",
 ) -> Table:
     """``spec`` (:data:`TABLE_I` or :data:`TABLE_II`) from ``scores``.
 
     ``summary``: a summary of ``scores`` already made (with :func:`table_metrics` among
     its metrics, and intervals when ``show_ci``); else one is made here (``resamples``
-    bootstrap resamples with ``seed`` when ``show_ci``). ``rows``: systems in order
+    bootstrap resamples with ``seed`` when ``show_ci``, resampling episodes or whole
+    trajectories: ``ci_unit``, see :func:`summarise`). ``rows``: systems in order
     (default: all of ``mode``, in the order the scores list them); ``notes``: footnotes
     of the caller's; ``withheld``: splits whose ground truth is withheld.
     """
@@ -133,7 +135,9 @@ def paper_table(
         rows = list(dict.fromkeys(scores.loc[scores["mode"] == mode, "system"])) or None
     if summary is None:
         metrics = [m for m in table_metrics(spec) if m in scores.columns]
-        summary = summarise(scores, metrics, resamples if show_ci else 0, seed=seed)
+        summary = summarise(
+            scores, metrics, resamples if show_ci else 0, seed=seed, ci_unit=ci_unit
+        )
     references = set(oracle_systems(scores))
     if spec is not TABLE_I:
         # The reference the models are measured against, under the label it is shown by.

@@ -101,3 +101,59 @@ def test_a_continuous_metric_without_spread_has_no_interval() -> None:
     low, high, method = interval(summary, "spl")
     assert math.isnan(low) and math.isnan(high) and method == "bootstrap"
     assert interval(summary, "success")[1] == pytest.approx(27.75, abs=0.005)
+
+
+def rounds_frame(per_trajectory: list[list[float]], metric: str) -> pd.DataFrame:
+    """A scores frame whose episodes are the rounds of AVDN trajectories (``<map>__<t>_<r>``)."""
+    ids, values = [], []
+    for t, rounds in enumerate(per_trajectory):
+        for r, value in enumerate(rounds, start=1):
+            ids.append(f"1913__{t}_{r}")
+            values.append(value)
+    keys = {"system": "A", "split": "test_unseen", "mode": "andh"}
+    return pd.DataFrame({**keys, "episode_id": ids, metric: values})
+
+
+def test_trajectory_intervals_draw_the_rounds_of_a_dialog_together() -> None:
+    # Rounds of one route that succeed or fail together: 20 trajectories, 3 rounds each.
+    rng = np.random.default_rng(1)
+    outcomes = [[float(rng.random() < 0.4)] * 3 for _ in range(20)]
+    scores = rounds_frame(outcomes, "success").assign(spl=lambda f: f["success"] * 0.8)
+    by_episode = summarise(scores, ["success", "spl"], n_resamples=2000)
+    by_trajectory = summarise(scores, ["success", "spl"], n_resamples=2000, ci_unit="trajectory")
+    for metric in ("success", "spl"):
+        low_e, high_e, _ = interval(by_episode, metric)
+        low_t, high_t, method = interval(by_trajectory, metric)
+        assert method == "trajectory_bootstrap"
+        # 20 independent trials, not 60: the honest interval is about sqrt(3) wider.
+        assert (high_t - low_t) > 1.4 * (high_e - low_e), metric
+    same = by_trajectory.set_index("metric")
+    assert same.loc["success", "n"] == 60  # the mean is still over episodes
+    assert same.loc["success", "mean"] == by_episode.set_index("metric").loc["success", "mean"]
+    # Every round failed: Wilson over the 20 trajectories, wider than over 60 episodes.
+    none = summarise(
+        rounds_frame([[0.0] * 3] * 20, "success"), ["success"], 200, ci_unit="trajectory"
+    )
+    low, high, method = interval(none, "success")
+    assert (low, method) == (0.0, "wilson_trajectories")
+    assert high == pytest.approx(100 * wilson_interval(0, 20)[1])
+
+
+def test_trajectory_of_episode_ids_and_singleton_clusters() -> None:
+    from skyvln_eval.metrics import trajectory_of
+    from skyvln_eval.metrics.stats import bootstrap_means, cluster_bootstrap_means
+
+    assert trajectory_of("1913__3_2") == trajectory_of("1913__3_1") == "1913__3"
+    assert trajectory_of("1913__3_x") == "1913__3_x" and trajectory_of("e01") == "e01"
+    values = np.random.default_rng(2).normal(size=50)
+    # Every value its own cluster (labels in value order): the episode bootstrap's draws.
+    labels = np.array([f"c{k:03d}" for k in range(50)])
+    np.testing.assert_allclose(
+        cluster_bootstrap_means(values, labels, 300, seed=4),
+        bootstrap_means(values, 300, seed=4),
+        rtol=1e-12,
+    )
+    with pytest.raises(MetricInputError, match="one cluster label per value"):
+        cluster_bootstrap_means(values, labels[:3], 10)
+    with pytest.raises(MetricInputError, match="ci_unit must be one of"):
+        summarise(frame(spl=[0.1, 0.2]), ["spl"], 10, ci_unit="map")  # type: ignore[arg-type]
