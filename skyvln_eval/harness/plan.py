@@ -40,6 +40,7 @@ from skyvln_eval.harness.executors import ExecutorKind
 from skyvln_eval.harness.preflight import check_keys
 from skyvln_eval.llm.backends_file import backends_file_from_env
 from skyvln_eval.llm.backends_file import environment_backends as _environment_backends
+from skyvln_eval.metrics.aggregate import CiUnit
 from skyvln_eval.sensing import SensorConfig
 
 DEFAULT_PLAN = "default"
@@ -100,6 +101,9 @@ class ReproducePlan(_Strict):
     max_action_len: int = Field(default=DEFAULT_MAX_ACTION_LEN, ge=1)
     limit: int | None = Field(default=None, ge=1, description="episodes per split (quick plans)")
     resamples: int = Field(default=1000, ge=0)
+    ci_unit: CiUnit = Field(
+        default="episode", description="what intervals resample: episodes or trajectories"
+    )
     sensors: SensorConfig = SensorConfig()
     commander: CommanderSettings = CommanderSettings()
     dynamics: DynamicsSettings = DynamicsSettings()

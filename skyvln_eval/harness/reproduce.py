@@ -221,7 +221,7 @@ def _write_tables(
         "table2": TableLayout(tuple(table2_rows), tuple(setting)),
     }
     # Which rows and notes each table has, for `skyvln-eval table` on these scores.
-    layout = ReproducedTables(layouts, plan.resamples, plan.seed, tuple(withheld))
+    layout = ReproducedTables(layouts, plan.resamples, plan.seed, tuple(withheld), plan.ci_unit)
     files[LAYOUT_FILE] = write_layout(tables_dir.parent / "scores", layout)
     for name, spec in (("table1", TABLE_I), ("table2", TABLE_II)):
         rows, notes = list(layouts[name].rows), list(layouts[name].notes)
@@ -493,7 +493,13 @@ def reproduce(
             *table_metrics(TABLE_II),
         )
     )
-    summary = summarise(scores, [m for m in metrics if m in scores], plan.resamples, seed=plan.seed)
+    summary = summarise(
+        scores,
+        [m for m in metrics if m in scores],
+        plan.resamples,
+        seed=plan.seed,
+        ci_unit=plan.ci_unit,
+    )
     write_scores(out_dir / "scores" / "scores.csv", scores, conventions)
     atomic_write_text(out_dir / "scores" / "summary.csv", summary_csv_text(summary, conventions))
     report.files |= {

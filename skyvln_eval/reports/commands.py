@@ -147,10 +147,11 @@ def _load_results(
 
 #: ``--ci-unit`` of ``score`` and ``table``.
 CiUnitOption = Annotated[
-    str,
+    str | None,
     typer.Option(
         help="What the intervals resample: 'episode', or 'trajectory' (the rounds of a "
-        "dialog together: they share a route, so episode intervals are too narrow)"
+        "dialog together: they share a route, so episode intervals are too narrow); default: "
+        "episode, or for table the reproduction's"
     ),
 ]
 
@@ -206,7 +207,7 @@ def score(
         int, typer.Option(min=0, help="Bootstrap resamples for the 95% CIs (0: no CIs)")
     ] = 1000,
     seed: Annotated[int, typer.Option(help="Bootstrap seed")] = 0,
-    ci_unit: CiUnitOption = "episode",
+    ci_unit: CiUnitOption = None,
     allow_incomplete: Annotated[
         bool,
         typer.Option(
@@ -268,12 +269,12 @@ def score(
     console.print(f"wrote {out / 'scores.csv'} and {out / 'summary.csv'}")
 
 
-def _ci_unit(text: str) -> CiUnit:
-    """``--ci-unit`` checked against the units an interval can resample."""
+def _ci_unit(text: str | None) -> CiUnit:
+    """``--ci-unit`` checked against the units an interval can resample (None: episodes)."""
     from skyvln_eval.metrics.aggregate import CI_UNITS
 
     for unit in CI_UNITS:
-        if text == unit:
+        if (text or "episode") == unit:
             return unit
     raise ConfigError(f"--ci-unit must be one of {', '.join(CI_UNITS)}, not {text!r}")
 
@@ -305,7 +306,7 @@ def table(
         int | None, typer.Option(help="Bootstrap seed (default: reproduce's, else 0)")
     ] = None,
     digits: Annotated[int, typer.Option(min=0, max=6, help="Decimals")] = 2,
-    ci_unit: CiUnitOption = "episode",
+    ci_unit: CiUnitOption = None,
     out: Annotated[Path | None, typer.Option(help="Write here instead of printing")] = None,
 ) -> None:
     """Render a paper-style table from scores files, as `reproduce` does: systems the
@@ -343,7 +344,7 @@ def table(
         resamples=resamples or (layout.resamples if layout is not None else 1000),
         seed=seed if seed is not None else (layout.seed if layout is not None else 0),
         withheld=layout.withheld if layout is not None else (),
-        ci_unit=_ci_unit(ci_unit),
+        ci_unit=_ci_unit(ci_unit or (layout.ci_unit if layout is not None else None)),
     )
     text = RENDERERS[fmt](shaped)
     if out is None:

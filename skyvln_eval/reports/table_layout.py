@@ -18,6 +18,7 @@ from typing import Any
 
 from skyvln_eval.errors import DataError
 from skyvln_eval.fileio import atomic_write_json
+from skyvln_eval.metrics.aggregate import CI_UNITS, CiUnit
 
 LAYOUT_FILE = "tables.json"
 LAYOUT_FORMAT = "skyvln-eval.table-layout"
@@ -40,6 +41,7 @@ class ReproducedTables:
     resamples: int
     seed: int
     withheld: tuple[str, ...]
+    ci_unit: CiUnit = "episode"
 
 
 def write_layout(scores_dir: Path, layout: ReproducedTables) -> Path:
@@ -52,6 +54,7 @@ def write_layout(scores_dir: Path, layout: ReproducedTables) -> Path:
             "version": LAYOUT_VERSION,
             "resamples": layout.resamples,
             "seed": layout.seed,
+            "ci_unit": layout.ci_unit,
             "withheld": list(layout.withheld),
             "tables": {
                 name: {"rows": list(t.rows), "notes": list(t.notes)}
@@ -95,6 +98,7 @@ def read_layout(path: Path) -> ReproducedTables:
         resamples=_integer(path, "resamples", data.get("resamples")),
         seed=_integer(path, "seed", data.get("seed")),
         withheld=_strings(path, "withheld", data.get("withheld")),
+        ci_unit=_ci_unit(path, data.get("ci_unit", "episode")),  # older files: episodes
     )
 
 
@@ -111,6 +115,13 @@ def _strings(path: Path, field: str, value: Any) -> tuple[str, ...]:
     if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
         raise DataError(f"{path}: field '{field}' must be a list of strings")
     return tuple(value)
+
+
+def _ci_unit(path: Path, value: Any) -> CiUnit:
+    for unit in CI_UNITS:
+        if value == unit:
+            return unit
+    raise DataError(f"{path}: field 'ci_unit' must be one of {', '.join(CI_UNITS)}")
 
 
 def _integer(path: Path, field: str, value: Any) -> int:
