@@ -275,7 +275,7 @@ def validate(
     channel) and for their format version; folders of converted logs also against their
     manifest (a run directory's logs have none: only their files are checked).
     """
-    from skyvln_eval.avdn import SPLITS, annotation_file_name, check_split
+    from skyvln_eval.avdn import SPLITS, annotation_file_name, check_split, undefined_fields
     from skyvln_eval.converters.commands import is_mcap_target, run_validate_mcap
 
     problems = 0
@@ -301,6 +301,12 @@ def validate(
             bad = len({i.record_index for i in issues})
             status = "ok" if not issues else f"{len(issues)} problem(s) in {bad} record(s)"
             typer.echo(f"{path} {split}: {len(records)} valid record(s), {status}")
+            undefined = undefined_fields(records)
+            if undefined:  # kept as they are, but a misspelt optional field reads as absent
+                typer.echo(
+                    f"{path} {split}: note: fields the AVDN format does not define (kept as "
+                    f"they are): {'; '.join(undefined)}"
+                )
             if not no_images:
                 for problem in _undecodable_maps(path, records, checked_maps):
                     _echo_problem(problem)

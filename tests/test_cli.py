@@ -33,6 +33,22 @@ def test_validate_reports_every_problem_and_exits_non_zero(
     assert "train: 1 valid record(s), ok" in output
 
 
+def test_validate_notes_fields_the_format_does_not_define(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    # Kept as they are (nothing is lost), but a misspelt optional field read as absent
+    # passed without a word.
+    typo = make_record(route_index="1_1")
+    typo["destinaton"] = typo.pop("destination")
+    root = dataset_factory({"val_seen": [make_record(), typo, make_record(route_index="2_1", x=1)]})
+    result = runner.invoke(app, ["validate", str(root)])
+    assert result.exit_code == 0, result.output  # a note, not a problem
+    assert (
+        "val_seen: note: fields the AVDN format does not define (kept as they are): "
+        "'destinaton' in 1 record(s); did you mean 'destination'?; 'x' in 1 record(s)"
+    ) in " ".join(result.output.split())
+
+
 def test_validate_passes_on_a_clean_dataset(dataset_factory: Callable[..., Path]) -> None:
     root = dataset_factory({"val_unseen": [make_record()]})
     result = runner.invoke(app, ["validate", str(root)])

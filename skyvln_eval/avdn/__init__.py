@@ -68,7 +68,7 @@ from skyvln_eval.avdn.step import (
     replay_ground_truth,
 )
 from skyvln_eval.avdn.summary import SplitSummary, summarise_split
-from skyvln_eval.avdn.validation import parse_record, parse_records
+from skyvln_eval.avdn.validation import parse_record, parse_records, undefined_fields
 
 __all__ = [
     "DEFAULT_MAX_ACTION_LEN",
@@ -120,6 +120,7 @@ __all__ = [
     "replay_ground_truth",
     "resize_to_degree_grid",
     "summarise_split",
+    "undefined_fields",
     "view_axes",
     "view_centre",
     "view_edge_m",

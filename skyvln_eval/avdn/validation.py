@@ -11,8 +11,10 @@ record whose corners fail the fast checks.
 
 from __future__ import annotations
 
+import difflib
 import math
 import re
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
 from types import MappingProxyType
@@ -503,3 +505,16 @@ def parse_record(raw: Any, file: str = "<record>", index: int = 0) -> AvdnRecord
             [ValidationIssue(i.file, i.message, index, i.episode_id, i.field) for i in issues]
         )
     return records[0]
+
+
+def undefined_fields(records: Sequence[AvdnRecord]) -> list[str]:
+    """The fields of ``records`` the AVDN format does not define (kept in ``extra`` as they
+    are), each with how many records carry it and the defined field it may misspell: a
+    typo of an optional field (``destinaton``) is otherwise read as its absence."""
+    counts = Counter(key for record in records for key in record.extra)
+    described = []
+    for key, count in sorted(counts.items()):
+        close = difflib.get_close_matches(key, sorted(RECORD_KEYS), n=1)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        described.append(f"{key!r} in {count} record(s){hint}")
+    return described
