@@ -243,13 +243,27 @@ class Episode:
     def gt_path_corners(self) -> NDArray[np.float64]:
         if len(self.records) == 1:
             return self.first.gt_path_corners
-        rounds = [self.first.gt_path_corners]
-        last = self.first.gt_path_corners[-1]  # every record has at least its start view
-        for record in self.records[1:]:
-            views = record.gt_path_corners
-            rounds.append(views[1:] if np.array_equal(views[0], last) else views)
+        return np.concatenate([views for views, _ in self._rounds()])
+
+    def round_starts(self) -> dict[int, int]:
+        """By round index, the index in :attr:`gt_path_corners` of the view the round
+        starts from (a view two rounds share: the previous round's last)."""
+        return {
+            r.round_index: start for r, (_, start) in zip(self.records, self._rounds(), strict=True)
+        }
+
+    def _rounds(self) -> list[tuple[NDArray[np.float64], int]]:
+        """Each round's views in the ground truth (a shared first view left out) and the
+        index its start view has there."""
+        out: list[tuple[NDArray[np.float64], int]] = []
+        added, last = 0, None
+        for record in self.records:
+            views = record.gt_path_corners  # every record has at least its start view
+            shared = last is not None and np.array_equal(views[0], last)
+            out.append((views[1:] if shared else views, added - 1 if shared else added))
+            added += len(views) - int(shared)
             last = views[-1]
-        return np.concatenate(rounds)
+        return out
 
     @property
     def gt_end_view(self) -> NDArray[np.float64]:

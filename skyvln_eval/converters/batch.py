@@ -22,7 +22,7 @@ import json
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, NamedTuple
+from typing import Any, Final, Literal, NamedTuple
 
 import skyvln_eval
 from skyvln_eval.avdn import (
@@ -146,6 +146,12 @@ class ConvertReport:
         ]
 
 
+#: What a converted file holds for the same input and format version, changed whenever
+#: that changes, so a re-run converts again instead of keeping the old file (2: an
+#: ANDH-Full ground truth holds a view two rounds share once).
+CONVERSION_REVISION: Final = 2
+
+
 def input_fingerprint(
     raw_records: Sequence[dict[str, Any]],
     split: str,
@@ -156,6 +162,7 @@ def input_fingerprint(
     """SHA-256 of everything a converted file depends on."""
     payload = {
         "format_version": topics.EPISODE_FORMAT_VERSION,
+        "revision": CONVERSION_REVISION,
         "toolkit_version": skyvln_eval.__version__,
         "split": split,
         "mode": mode,

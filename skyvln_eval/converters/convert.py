@@ -178,12 +178,7 @@ def _round_start_times(episode: Episode) -> dict[int, int]:
     """Log time at which each round's dialog is given, by round index."""
     if episode.mode == "andh":
         return {turn.round_index: 0 for turn in episode.dialog()}
-    starts: dict[int, int] = {}
-    first_view = 0
-    for record in episode.records:
-        starts[record.round_index] = first_view * CLOCK_STEP_NS
-        first_view += len(record.gt_path_corners)
-    return starts
+    return {index: view * CLOCK_STEP_NS for index, view in episode.round_starts().items()}
 
 
 def _dialog_by_view(episode: Episode) -> dict[int, list[DialogTurn]]:

@@ -87,6 +87,9 @@ def test_a_full_episode_holds_a_view_two_rounds_share_once(
         *records[1]["gt_path_corners"][1:],
         *records[2]["gt_path_corners"],
     ]
+    # Round 2 starts from the view it shares with round 1 (the last of round 1), round 3
+    # from its own first view, which follows round 2's last.
+    assert full.round_starts() == {1: 0, 2: 2, 3: 3 + 3}
 
 
 def test_incomplete_trajectory_cannot_form_a_full_episode(
