@@ -328,6 +328,7 @@ def _control_figures(plan: ReproducePlan, out_dir: Path) -> dict[str, Path]:
     from skyvln_eval.control import record_paper_runs
     from skyvln_eval.metrics import read_control_log
     from skyvln_eval.reports import control_figure, save_figure
+    from skyvln_eval.reports.control_figures import control_figure_name
 
     spec = plan.control_figures
     if not spec.controllers or not spec.cases:  # a plan may leave the control figures out
@@ -340,9 +341,9 @@ def _control_figures(plan: ReproducePlan, out_dir: Path) -> dict[str, Path]:
         log = pd.concat(frames, ignore_index=True)
         figure = control_figure(log, title=f"6-DOF curves and errors, {case} obstacle case")
         for suffix in ("png", "pdf"):
-            files[f"control_{case}.{suffix}"] = save_figure(
-                figure, out_dir / "figures" / f"control_{case}.{suffix}"
-            )
+            # Named from the log's scenario, as `plot control` names a figure of these logs.
+            name = control_figure_name(str(log["scenario"].iloc[0]), suffix)
+            files[name] = save_figure(figure, out_dir / "figures" / name)
     return files
 
 

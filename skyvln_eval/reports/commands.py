@@ -357,21 +357,22 @@ def table(
 @plot_app.command("control")
 def plot_control(
     logs: Annotated[list[Path], typer.Argument(help="Control logs (.parquet or .csv)")],
-    out: Annotated[Path, typer.Option(help="Folder for control_<scenario>.<format>")] = Path(
-        "figures"
-    ),
+    out: Annotated[
+        Path, typer.Option(help="Folder for control_<case>.<format> (as reproduce names them)")
+    ] = Path("figures"),
     fmt: Annotated[str, typer.Option("--format", help="png, pdf or svg")] = "png",
 ) -> None:
     """Position / attitude vs reference with error curves, one figure per scenario."""
     import pandas as pd
 
     from skyvln_eval.metrics import read_control_log
-    from skyvln_eval.reports.control_figures import control_figure
+    from skyvln_eval.reports.control_figures import control_figure, control_figure_name
     from skyvln_eval.reports.render import save_figure
 
     log = pd.concat([read_control_log(p) for p in logs], ignore_index=True)
     for scenario in sorted(log["scenario"].unique()):
-        path = save_figure(control_figure(log, scenario), out / f"control_{scenario}.{fmt}")
+        figure = control_figure(log, scenario)
+        path = save_figure(figure, out / control_figure_name(scenario, fmt))
         typer.echo(f"wrote {path}")
 
 

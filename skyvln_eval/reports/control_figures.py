@@ -36,6 +36,17 @@ _ATTITUDE = (
     ("yaw", "yaw_rad", "ref_yaw_rad"),
 )
 REFERENCE_COLOUR = "tab:red"
+# skyvln_eval.control.recordings names the paper route's scenarios paper_<case> (kept out of
+# an import: that module brings CasADi in).
+_PAPER_SCENARIO_PREFIX = "paper_"
+
+
+def control_figure_name(scenario: str, suffix: str) -> str:
+    """The file name of a scenario's control figure, ``control_<case>.<suffix>``, for
+    ``reproduce`` and ``plot control`` alike: the paper route's scenarios (``paper_dynamic``)
+    are named by their case (``control_dynamic.png``), so that a figure drawn again from
+    reproduce's control_runs/ replaces the one reproduce wrote instead of sitting beside it."""
+    return f"control_{scenario.removeprefix(_PAPER_SCENARIO_PREFIX)}.{suffix}"
 
 
 def _shared_reference(groups: dict[str, pd.DataFrame], column: str) -> bool:

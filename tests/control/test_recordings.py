@@ -70,3 +70,18 @@ def test_the_mpcs_avoid_what_pid_hits(runs: dict[tuple[str, str], Path]) -> None
             assert log.min_clearance_m.min() < 0.3  # the obstacles were in the way
         pid = load_flight_log(runs[("pid", case)])
         assert pid.collision.any()
+
+
+def test_plot_control_names_the_figures_as_reproduce_does(
+    runs: dict[tuple[str, str], Path], tmp_path: Path
+) -> None:
+    # reproduce writes figures/control_<case>.png; drawing them again from its control_runs/
+    # must give the same names (not control_paper_<case>.png beside them).
+    from typer.testing import CliRunner
+
+    from skyvln_eval.cli import app
+
+    logs = [str(runs[(name, "dynamic")]) for name in ("pid", "nmpc")]
+    plotted = CliRunner().invoke(app, ["plot", "control", *logs, "--out", str(tmp_path)])
+    assert plotted.exit_code == 0, plotted.output
+    assert [p.name for p in tmp_path.iterdir()] == ["control_dynamic.png"]
