@@ -484,7 +484,10 @@ def reproduce(
 def view(
     target: Annotated[
         Path,
-        typer.Argument(help="A run directory (skyvln-eval run --out), one run MCAP, or an .rrd"),
+        typer.Argument(
+            help="A run directory (skyvln-eval run --out), a folder of them (reproduce's "
+            "runs/<system>), one run MCAP, or an .rrd"
+        ),
     ],
     episode: Annotated[
         list[str] | None,

@@ -37,7 +37,7 @@ def run_results(
     their rows returned together, in the folders' name order.
     """
     folder = Path(run_dir)
-    runs = _run_dirs(folder)
+    runs = run_directories(folder)
     if keys is None:
         return [r for one in runs for r in _all_rows(one, allow_incomplete)]
     rows: dict[RowKey, EpisodeResult] = {}
@@ -53,9 +53,10 @@ def run_results(
     return _rows_of(folder, rows, [(split, eid) for split, eid in keys], allow_incomplete)
 
 
-def _run_dirs(folder: Path) -> list[Path]:
-    """``folder`` if it is a run directory, else the run directories in it; refuses what
-    is neither, saying what it is."""
+def run_directories(folder: Path) -> list[Path]:
+    """``folder`` if it is a run directory, else the run directories in it (as
+    ``reproduce`` writes a system's splits); refuses what is neither, saying what it is.
+    What :func:`run_results` and ``skyvln-eval view`` accept as a run."""
     if folder.is_file():
         hint = f"; pass its folder {folder.parent}" if folder.name == RESULTS_FILE else ""
         raise DataError(f"{folder}: a file, not a run directory{hint}")
@@ -72,7 +73,7 @@ def _run_dirs(folder: Path) -> list[Path]:
     where = f"; its folders {listed(deeper)} hold run directories" if deeper else ""
     raise DataError(
         f"{folder}: not a run directory (no {CONFIG_FILE} or {RESULTS_FILE}) nor a folder "
-        f"of run directories{where}"
+        f"of run directories (as reproduce's runs/<system>){where}"
     )
 
 

@@ -25,7 +25,7 @@ from mcap.stream_reader import CRCValidationError
 from skyvln_eval.avdn.records import Episode
 from skyvln_eval.converters import topics as t
 from skyvln_eval.converters.reader import LogChannel, McapLog, episode_from_log
-from skyvln_eval.errors import ConfigError, FormatVersionError, McapLogError
+from skyvln_eval.errors import ConfigError, DataError, FormatVersionError, McapLogError
 
 LOGS_DIR = "logs"
 _SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.\-]*")
@@ -58,7 +58,8 @@ def _parse_selector(selector: str) -> tuple[str | None, str]:
 
 
 def find_episode_logs(target: str | Path, episodes: Sequence[str] = ()) -> list[EpisodeLogRef]:
-    """The run MCAPs to show: ``target`` is a run directory or one ``.mcap`` file.
+    """The run MCAPs to show: ``target`` is a run directory, a folder of them (as
+    ``reproduce`` writes a system's splits, ``runs/<system>``) or one ``.mcap`` file.
 
     ``episodes`` selects by ``ID`` or ``SPLIT/ID``; empty means every episode of the run, in
     (split, episode) order. An id that matches nothing is an error that lists close ids. A
@@ -67,35 +68,54 @@ def find_episode_logs(target: str | Path, episodes: Sequence[str] = ()) -> list[
     target = Path(target)
     if target.is_file():
         if target.suffix != ".mcap":
-            raise ConfigError(f"{target}: not a run directory or an .mcap run log")
+            raise ConfigError(
+                f"{target}: not a run directory, a folder of run directories or an .mcap run log"
+            )
         with RunLogStream(target) as log:  # a lone file: its split and id from its metadata
             meta = log.metadata.get(t.EPISODE_METADATA, {})
         ref = EpisodeLogRef(target, meta.get("split") or "-", meta.get("episode_id") or target.stem)
         for selector in episodes:
             _check_holds(ref, selector)
         return [ref]
-    logs = target / LOGS_DIR
-    if not logs.is_dir():
-        raise ConfigError(
-            f"{target}: not a run directory (no {LOGS_DIR}/ folder of run MCAPs); "
-            "give the folder `skyvln-eval run --out` wrote, or one .mcap file"
-        )
+    log_dirs = _log_dirs(target)
     if not episodes:
-        found = sorted(logs.glob("*/*.mcap"))
+        found = [p for logs in log_dirs for p in sorted(logs.glob("*/*.mcap"))]
         if not found:
             raise ConfigError(f"{target}: the run has no run MCAPs under {LOGS_DIR}/")
         return [_ref(p) for p in found]
     refs: list[EpisodeLogRef] = []
     for selector in episodes:
         split, episode_id = _parse_selector(selector)
-        # Direct lookups (one stat per split), never a listing of every log of the run.
-        splits = [split] if split else sorted(p.name for p in logs.iterdir() if p.is_dir())
-        hits = [logs / s / f"{episode_id}.mcap" for s in splits]
-        hits = [p for p in hits if p.is_file()]
+        hits = [p for logs in log_dirs for p in _lookup(logs, split, episode_id)]
         if not hits:
-            raise ConfigError(_not_found(target, selector, logs))
+            raise ConfigError(_not_found(target, selector, log_dirs))
         refs += [_ref(p) for p in hits if _ref(p) not in refs]
     return refs
+
+
+def _log_dirs(target: Path) -> list[Path]:
+    """The ``logs/`` folders of the runs ``target`` stands for: its own (a run directory),
+    else those of the run directories in it, resolved as :func:`run_results` resolves a
+    folder, so that a reproduce system's folder (``runs/full``) is viewed as it is read."""
+    from skyvln_eval.harness.run_reading import run_directories
+
+    if (target / LOGS_DIR).is_dir():  # the logs are all a recording needs
+        return [target / LOGS_DIR]
+    try:
+        runs = run_directories(target)
+    except DataError as error:
+        raise ConfigError(f"{error}; view also takes one run .mcap log or an .rrd") from None
+    found = [run / LOGS_DIR for run in runs if (run / LOGS_DIR).is_dir()]
+    if not found:
+        raise ConfigError(f"{target}: the run has no run MCAPs under {LOGS_DIR}/")
+    return found
+
+
+def _lookup(logs: Path, split: str | None, episode_id: str) -> list[Path]:
+    """The run MCAPs of one selector in one ``logs/`` folder: direct lookups (one stat per
+    split), never a listing of every log of the run."""
+    splits = [split] if split else sorted(p.name for p in logs.iterdir() if p.is_dir())
+    return [p for p in (logs / s / f"{episode_id}.mcap" for s in splits) if p.is_file()]
 
 
 def _check_holds(ref: EpisodeLogRef, selector: str) -> None:
@@ -110,8 +130,8 @@ def _check_holds(ref: EpisodeLogRef, selector: str) -> None:
         )
 
 
-def _not_found(target: Path, selector: str, logs: Path) -> str:
-    known = sorted({p.stem for p in logs.glob("*/*.mcap")})
+def _not_found(target: Path, selector: str, log_dirs: Sequence[Path]) -> str:
+    known = sorted({p.stem for logs in log_dirs for p in logs.glob("*/*.mcap")})
     close = difflib.get_close_matches(selector.rpartition("/")[2], known, n=3)
     hint = f" Did you mean {', '.join(close)}?" if close else ""
     return f"{target}: no run MCAP for episode {selector!r}.{hint} ({len(known)} episode(s) in it)"

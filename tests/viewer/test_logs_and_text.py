@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import base64
+import shutil
 import sys
 import tracemalloc
 from collections.abc import Callable
@@ -43,6 +44,27 @@ def test_episodes_are_selected_by_id_or_split_and_id(flown_run: Path, tmp_path: 
             find_episode_logs(flown_run, [bad])
     with pytest.raises(ConfigError, match="not a run directory"):
         find_episode_logs(tmp_path)
+
+
+def test_a_reproduce_system_folder_is_viewed_as_run_results_reads_it(
+    flown_run: Path, tmp_path: Path, cli: Cli
+) -> None:
+    # reproduce writes runs/<system>/<split>/, one run directory per split; run_results
+    # reads runs/<system> as all of them, and so does view.
+    system = tmp_path / "runs" / "full"
+    shutil.copytree(flown_run, system / "val_unseen")
+    (only,) = find_episode_logs(flown_run)
+    (ref,) = find_episode_logs(system, [only.key])
+    assert ref.key == only.key and ref.path.is_relative_to(system / "val_unseen")
+    assert find_episode_logs(system) == [ref]
+    with pytest.raises(ConfigError, match="Did you mean"):
+        find_episode_logs(system, [only.episode_id[:-1] + "9"])
+    # A folder of neither kind: the error says what view takes.
+    outcome = cli("view", str(tmp_path / "runs"), "--save", str(tmp_path / "x.rrd"))
+    assert outcome.code == 2
+    assert "not a run directory" in outcome.err and "nor a folder of run directories" in outcome.err
+    assert "its folders 'full' hold run directories" in outcome.err
+    assert ".mcap" in outcome.err and ".rrd" in outcome.err
 
 
 def test_a_truncated_log_is_refused_naming_the_file(flown_run: Path, tmp_path: Path) -> None:
