@@ -258,10 +258,12 @@ def _undecodable_maps(
 
 @app.command()
 def validate(
-    paths: Annotated[
-        list[Path],
+    targets: Annotated[
+        list[str],
         typer.Argument(
-            help="Dataset folders, MCAP files, folders of converted MCAP logs, or run directories"
+            help="Dataset folders (or sample / full, the synthetic datasets), MCAP files, "
+            "folders of converted MCAP logs, or run directories",
+            metavar="PATHS...",
         ),
     ],
     no_images: Annotated[
@@ -280,7 +282,8 @@ def validate(
 
     problems = 0
     checked_maps: set[tuple[Path, str]] = set()
-    for path in paths:
+    for target in targets:
+        path = data_dir_argument(target)  # "sample" as summary and convert read it
         if is_mcap_target(path):
             problems += run_validate_mcap(path, typer.echo, _echo_problem)
             continue

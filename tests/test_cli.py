@@ -101,6 +101,9 @@ def test_sample_names_the_synthetic_dataset_in_summary_and_convert(
     outcome = cli("summary", "sample")
     assert outcome.code == 0, outcome
     assert "val_unseen" in outcome.out and "no annotation file" not in outcome.err
+    outcome = cli("validate", "sample", "--no-images")  # it was "no annotations/ found"
+    assert outcome.code == 0, outcome
+    assert f"{sample_dir} val_unseen: " in " ".join(outcome.out.split())
     converted: list[Path] = []
     monkeypatch.setattr(
         commands, "run_convert", lambda data_dir, *_, **__: converted.append(data_dir) or 0
