@@ -41,6 +41,7 @@ class RichRunProgress(RunProgress):
         self.degraded = 0
         self._spent_usd = 0.0  # of the priced calls; the total only if nothing is unpriced
         self._cost_unknown = False
+        self._nothing_to_run = False
 
     @property
     def cost_usd(self) -> float | None:
@@ -49,6 +50,8 @@ class RichRunProgress(RunProgress):
         return None if self._cost_unknown or not self.finished else self._spent_usd
 
     def _stats(self) -> str:
+        if self._nothing_to_run:  # a resumed run with every episode recorded before
+            return "nothing left to run: every episode was recorded before"
         if self.scored:
             rate = f"{100.0 * self.successes / self.scored:5.1f}%"
         else:  # nothing finished yet, or nothing with a ground truth to score against
@@ -60,6 +63,7 @@ class RichRunProgress(RunProgress):
         return f"SR {rate} | LLM {cost}{health}"
 
     def start(self, description: str, total: int, already_done: int) -> None:
+        self._nothing_to_run = total > 0 and already_done >= total
         self._bar = Progress(
             TextColumn("[bold]{task.description}"),
             BarColumn(),

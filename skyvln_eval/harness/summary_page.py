@@ -200,13 +200,19 @@ def write_summary_page(
         "as data) with a vocabulary, the random backend answers at random. They measure the "
         "pipeline, not a language model."
     )
+    ran_now = sum(r.ran_now for r in report.reports)
+    this_time = (
+        f"the {ran_now} episode(s) run now took {wall:.0f} s of wall time for "
+        f"{simulated:.0f} s of simulated flight"
+        if ran_now
+        else "nothing was left to run: every episode was recorded before"
+    )
     text = "\n".join(
         [
             f"# Reproduce: plan `{plan.name}`",
             "",
             f"Status: {status}. {int(scores.shape[0])} scored episode rows"
-            f"{_shared_runs(report, scores)}; the episodes run now "
-            f"took {wall:.0f} s of wall time for {simulated:.0f} s of simulated flight; "
+            f"{_shared_runs(report, scores)}; {this_time}; "
             f"everything took {report.wall_s:.0f} s.",
             "",
             _status_line(report),

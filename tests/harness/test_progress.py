@@ -63,3 +63,11 @@ def test_the_live_sr_leaves_the_oracles_episodes_out() -> None:
     progress.episode_done(result([GT[0], GT[1]], GT, extra={"oracle": True}), success=True)
     assert "SR   0.0%" in progress._stats()  # the agent's failure alone
     progress.finish([])
+
+
+def test_a_resumed_run_with_nothing_left_says_so() -> None:
+    # It showed "SR n/a | LLM n/a", as if the episodes had no ground truth or cost.
+    progress = RichRunProgress(Console(file=io.StringIO(), width=200))
+    progress.start("run", total=4, already_done=4)
+    assert progress._stats() == "nothing left to run: every episode was recorded before"
+    progress.finish([])

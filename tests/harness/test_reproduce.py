@@ -175,6 +175,9 @@ def test_a_small_plan_writes_tables_figures_and_summary_and_resumes(
     again = reproduce(plan, tmp_path / "out", workers=1, executor="serial")
     assert all(r.ran_now == 0 for r in again.reports)
     assert again.files["table1.md"].read_text() == table1  # same results, same table
+    page = again.files["SUMMARY.md"].read_text()  # no "0 s of wall time for 0 s of flight"
+    assert "nothing was left to run: every episode was recorded before" in page
+    assert "episode(s) run now took" in summary
 
 
 def test_reproduce_command_on_a_small_plan(tmp_path: Path, sample_dir: Path) -> None:
