@@ -93,20 +93,20 @@ def _progress(verb: str) -> Progress:
 
 
 def _build_dataset(size: str, out: Path | None, force: bool, workers: int) -> Path:
-    from skyvln_eval.worlds.sample import SPECS, ensure_dataset
+    from skyvln_eval.worlds.sample import SPECS, ensure_dataset, write_dataset
 
     if size not in DATASET_SIZES:
         raise typer.BadParameter(f"--size must be one of {', '.join(DATASET_SIZES)}")
     spec = SPECS[size]
     with _progress("generating") as progress:
         task = progress.add_task(f"{size} dataset maps", total=len(spec.map_splits()))
-        return ensure_dataset(
-            spec,
-            out,
-            workers=workers,
-            force=force,
-            on_map_done=lambda _: progress.advance(task),
-        )
+
+        def done(_: str) -> None:
+            progress.advance(task)
+
+        if out is not None:  # the folder the user named, not a versioned one inside it
+            return write_dataset(spec, out, workers, force, on_map_done=done)
+        return ensure_dataset(spec, None, workers, force, on_map_done=done)
 
 
 @app.command()
@@ -118,9 +118,15 @@ def sample(
         ),
     ] = "sample",
     out: Annotated[
-        Path | None, typer.Option(help="Parent folder for the dataset (default: the cache)")
+        Path | None,
+        typer.Option(
+            help="Folder to write the dataset into, new or empty (default: a folder named "
+            "by its version in the cache, reused by runs' data: sample)"
+        ),
     ] = None,
-    force: Annotated[bool, typer.Option(help="Rebuild even if it exists")] = False,
+    force: Annotated[
+        bool, typer.Option(help="Rebuild even if it exists (replacing a dataset in --out)")
+    ] = False,
     workers: Annotated[int, typer.Option(min=1, help="Processes for map generation")] = 1,
 ) -> None:
     """Generate the synthetic AVDN-format dataset (byte-identical each time); print its folder."""

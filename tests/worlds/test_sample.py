@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +14,9 @@ from skyvln_eval.avdn import SPLITS, hull_iou, load_split, replay_ground_truth, 
 from skyvln_eval.avdn.step import action_between_views
 from skyvln_eval.worlds import load_world
 from skyvln_eval.worlds.sample import DatasetSpec, build_dataset
+from tests.conftest import CliOutcome
+
+Cli = Callable[..., CliOutcome]
 
 
 @pytest.fixture(scope="module")
@@ -107,21 +112,54 @@ def test_worlds_load_with_layers_on_the_resized_grid(sample_dir: Path, splits) -
     assert world.instance[px[1], px[0]] != 0  # the destination is a landmark on the map
 
 
+TINY_SPEC = DatasetSpec(
+    "tiny",
+    seed=5,
+    map_id_base=500,
+    tile_m=550.0,  # small, for speed (at 450 m seed 5 cannot plan every route)
+    metres_per_px=0.5,
+    seen_maps=1,
+    val_unseen_maps=1,
+    test_unseen_maps=1,
+    records={"train": 4, "val_seen": 2, "val_unseen": 3, "test_unseen": 2},
+)
+
+
 def test_generation_is_byte_identical(tmp_path: Path) -> None:
-    spec = DatasetSpec(
-        "tiny",
-        seed=5,
-        map_id_base=500,
-        tile_m=550.0,  # small, for speed (at 450 m seed 5 cannot plan every route)
-        metres_per_px=0.5,
-        seen_maps=1,
-        val_unseen_maps=1,
-        test_unseen_maps=1,
-        records={"train": 4, "val_seen": 2, "val_unseen": 3, "test_unseen": 2},
-    )
+    spec = TINY_SPEC
     first = build_dataset(spec, tmp_path / "a")
     second = build_dataset(spec, tmp_path / "b")
     assert first["files"] == second["files"]
     assert first["records"] == {"train": 4, "val_seen": 2, "val_unseen": 3, "test_unseen": 2}
     for name in first["files"]:
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
+
+
+def test_sample_out_writes_the_dataset_into_that_folder(
+    tmp_path: Path, cli: Cli, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # `sample --out DIR` makes DIR the dataset (annotations/ in it), not a versioned
+    # folder inside it, and prints DIR; the cache keeps its versioned folders.
+    import skyvln_eval.worlds.sample as sample
+
+    monkeypatch.setitem(sample.SPECS, "sample", TINY_SPEC)
+    out = tmp_path / "data"
+    outcome = cli("sample", "--out", str(out))
+    assert outcome.code == 0, outcome
+    assert outcome.out.strip() == str(out)
+    assert (out / "annotations" / "val_seen_data.json").is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data"]  # no staging left
+    built = (out / "DATASET_INFO.json").stat().st_mtime_ns
+    assert cli("sample", "--out", str(out)).code == 0  # there already: kept as it is
+    assert (out / "DATASET_INFO.json").stat().st_mtime_ns == built
+    # Another dataset there is replaced only with --force; other files never.
+    monkeypatch.setitem(sample.SPECS, "sample", replace(TINY_SPEC, seed=6))
+    outcome = cli("sample", "--out", str(out))
+    assert outcome.code == 2 and "holds another synthetic dataset" in outcome.err
+    assert "--force replaces it" in outcome.err
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("keep me")
+    outcome = cli("sample", "--out", str(mine), "--force")
+    assert outcome.code == 2 and "a folder that is not empty" in outcome.err
+    assert (mine / "notes.txt").read_text() == "keep me"

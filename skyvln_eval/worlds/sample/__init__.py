@@ -7,7 +7,12 @@ from skyvln_eval.worlds.sample.build import (
     DatasetSpec,
     build_dataset,
 )
-from skyvln_eval.worlds.sample.cache import cache_root, ensure_dataset, ensure_sample
+from skyvln_eval.worlds.sample.cache import (
+    cache_root,
+    ensure_dataset,
+    ensure_sample,
+    write_dataset,
+)
 from skyvln_eval.worlds.sample.dialogs import (
     DIALOG_VERSION,
     AnswerFacts,
@@ -50,4 +55,5 @@ __all__ = [
     "render_trajectory",
     "rephrase_records",
     "seen_families",
+    "write_dataset",
 ]
