@@ -47,6 +47,16 @@ def episode_id_of(map_name: str, route_index: str) -> str:
     return f"{map_name}__{route_index}"
 
 
+def trajectory_of(episode_id: str) -> str:
+    """The trajectory an episode id of :func:`episode_id_of` (``<map>__<trajectory>_<round>``)
+    belongs to: ``<map>__<trajectory>``; any other id is a trajectory of its own."""
+    map_name, sep, route = episode_id.rpartition("__")
+    trajectory, underscore, round_index = route.rpartition("_")
+    if not sep or not underscore or not trajectory or not round_index.isdigit():
+        return episode_id
+    return f"{map_name}__{trajectory}"
+
+
 @dataclass(frozen=True)
 class AttentionCircle:
     """A human attention circle: centre ``(lat, lng)`` and radius in resized-map pixels."""

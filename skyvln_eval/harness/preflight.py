@@ -102,9 +102,8 @@ def check_keys(agent: AgentConfig, source: str) -> None:
 
 def preflight(config: RunConfig, data_dir: Path, map_names: Iterable[str]) -> None:
     """Refuse ``config`` if a model its agent calls lacks its API key or is served on this
-    machine where nothing listens, its detector needs a
-    sensor that is off, or the data cannot feed a sensor that is on (see the module
-    docstring)."""
+    machine where nothing listens, its detector needs a sensor that is off, or the data
+    cannot feed a sensor that is on (see the module docstring)."""
     check_keys(config.agent, f"run {config.system!r}")
     absent = absent_local_servers(config.agent)
     if absent:

@@ -14,6 +14,7 @@ Control logs give safety metrics through :func:`control_metrics`. Scores files
 conventions they were made under.
 """
 
+from skyvln_eval.avdn.records import trajectory_of
 from skyvln_eval.metrics.aggregate import (
     BINARY_METRICS,
     CI_METHODS,
@@ -25,7 +26,6 @@ from skyvln_eval.metrics.aggregate import (
     check_scores_complete,
     compare_systems,
     summarise,
-    trajectory_of,
     unit_of,
 )
 from skyvln_eval.metrics.conventions import METRICS_VERSION, MetricConventions

@@ -27,6 +27,7 @@ from typing import Literal, get_args
 import numpy as np
 import pandas as pd
 
+from skyvln_eval.avdn.records import trajectory_of
 from skyvln_eval.errors import IncompleteRunError, MetricInputError, listed
 from skyvln_eval.metrics.conventions import CONVENTIONS_ATTR
 from skyvln_eval.metrics.cost import UNKNOWN_IF_ANY_UNKNOWN
@@ -134,14 +135,13 @@ CiUnit = Literal["episode", "trajectory"]
 CI_UNITS: tuple[CiUnit, ...] = get_args(CiUnit)
 
 
-def trajectory_of(episode_id: str) -> str:
-    """The trajectory an AVDN episode id (``<map>__<trajectory>_<round>``) belongs to:
-    ``<map>__<trajectory>``; any other id is a trajectory of its own."""
-    map_name, sep, route = episode_id.rpartition("__")
-    trajectory, underscore, round_index = route.rpartition("_")
-    if not sep or not underscore or not trajectory or not round_index.isdigit():
-        return episode_id
-    return f"{map_name}__{trajectory}"
+def ci_unit_named(value: object) -> CiUnit | None:
+    """``value`` as an interval unit, ``None`` if it names none (each reader says where)."""
+    return next((unit for unit in CI_UNITS if value == unit), None)
+
+
+def _bootstrap_method(unit: CiUnit) -> CiMethod:
+    return "bootstrap" if unit == "episode" else "trajectory_bootstrap"
 
 
 @dataclass(frozen=True)
@@ -161,7 +161,7 @@ class _Resampling:
 
     @property
     def bootstrap(self) -> CiMethod:
-        return "bootstrap" if self.clusters is None else "trajectory_bootstrap"
+        return _bootstrap_method("episode" if self.clusters is None else "trajectory")
 
     @property
     def wilson(self) -> CiMethod:
@@ -278,7 +278,7 @@ def summarise(
     """
     if scores.empty:
         raise MetricInputError("no scores to summarise")
-    if ci_unit not in CI_UNITS:
+    if ci_unit_named(ci_unit) is None:
         raise MetricInputError(f"ci_unit must be one of {CI_UNITS}, got {ci_unit!r}")
     metrics = list(metrics or [m for m in METRIC_UNITS if m in scores.columns])
     checked_scores(scores, metrics)
@@ -298,10 +298,9 @@ def summarise(
                 # A mean over the known part would pass for the whole: it is unknown.
                 row.update(n=len(column), mean=math.nan)
                 if n_resamples:
-                    method: CiMethod = (
-                        "bootstrap" if ci_unit == "episode" else "trajectory_bootstrap"
+                    row.update(
+                        _interval(math.nan, math.nan, _bootstrap_method(ci_unit), confidence)
                     )
-                    row.update(_interval(math.nan, math.nan, method, confidence))
                 rows.append(row)
                 continue
             if not present.any():

@@ -271,12 +271,12 @@ def score(
 
 def _ci_unit(text: str | None) -> CiUnit:
     """``--ci-unit`` checked against the units an interval can resample (None: episodes)."""
-    from skyvln_eval.metrics.aggregate import CI_UNITS
+    from skyvln_eval.metrics.aggregate import CI_UNITS, ci_unit_named
 
-    for unit in CI_UNITS:
-        if (text or "episode") == unit:
-            return unit
-    raise ConfigError(f"--ci-unit must be one of {', '.join(CI_UNITS)}, not {text!r}")
+    unit = ci_unit_named(text or "episode")
+    if unit is None:
+        raise ConfigError(f"--ci-unit must be one of {', '.join(CI_UNITS)}, not {text!r}")
+    return unit
 
 
 def table(

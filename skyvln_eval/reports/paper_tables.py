@@ -138,11 +138,11 @@ def paper_table(
         summary = summarise(
             scores, metrics, resamples if show_ci else 0, seed=seed, ci_unit=ci_unit
         )
+    shown_labels = {system: labels.get(system, system) for system in stand_ins}
     references = set(oracle_systems(scores))
     if spec is not TABLE_I:
         # The reference the models are measured against, under the label it is shown by.
-        references |= {labels.get(system, system) for system in stand_ins}
-    shown_labels = {system: labels.get(system, system) for system in stand_ins}
+        references |= set(shown_labels.values())
     marker_notes = [
         STAND_IN_MARKERS[kind][1]
         for system, kind in stand_ins.items()

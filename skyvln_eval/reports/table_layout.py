@@ -18,7 +18,7 @@ from typing import Any
 
 from skyvln_eval.errors import DataError
 from skyvln_eval.fileio import atomic_write_json
-from skyvln_eval.metrics.aggregate import CI_UNITS, CiUnit
+from skyvln_eval.metrics.aggregate import CI_UNITS, CiUnit, ci_unit_named
 
 LAYOUT_FILE = "tables.json"
 LAYOUT_FORMAT = "skyvln-eval.table-layout"
@@ -118,10 +118,10 @@ def _strings(path: Path, field: str, value: Any) -> tuple[str, ...]:
 
 
 def _ci_unit(path: Path, value: Any) -> CiUnit:
-    for unit in CI_UNITS:
-        if value == unit:
-            return unit
-    raise DataError(f"{path}: field 'ci_unit' must be one of {', '.join(CI_UNITS)}")
+    unit = ci_unit_named(value)
+    if unit is None:
+        raise DataError(f"{path}: field 'ci_unit' must be one of {', '.join(CI_UNITS)}")
+    return unit
 
 
 def _integer(path: Path, field: str, value: Any) -> int:
