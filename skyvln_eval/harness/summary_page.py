@@ -202,10 +202,12 @@ def write_summary_page(
     )
     ran_now = sum(r.ran_now for r in report.reports)
     this_time = (
-        f"the {ran_now} episode(s) run now took {wall:.0f} s of wall time for "
-        f"{simulated:.0f} s of simulated flight"
+        f"the {ran_now} episode(s) run now took {wall:.0f} s of wall time"
+        + (f" for {simulated:.0f} s of simulated flight" if simulated > 0 else "")
         if ran_now
         else "nothing was left to run: every episode was recorded before"
+        if report.complete
+        else "no episode finished in this pass"
     )
     text = "\n".join(
         [

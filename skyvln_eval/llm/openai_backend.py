@@ -85,6 +85,7 @@ from skyvln_eval.llm.openai_errors import (
     FormatRefused,
     ParameterRefused,
     body_text,
+    brief,
     retry_after_s,
     status_error,
     timed_out,
@@ -423,7 +424,7 @@ class OpenAIBackend(LLMBackend):
             return self._parsed(raw), raw.text
         except openai.RateLimitError as error:
             raise LLMTransientError(
-                f"rate limited (HTTP 429): {self._scrub(body_text(error))[:200]}",
+                f"rate limited (HTTP 429): {brief(self._scrub(body_text(error)), 200)}",
                 retry_after_s(error.response.headers),
             ) from None
         except openai.APITimeoutError:

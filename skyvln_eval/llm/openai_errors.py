@@ -115,18 +115,30 @@ class Refused(Exception):
         )
 
 
+#: Where a server's error body turns into the Python traceback some servers append
+#: (llama-cpp-python's does): what the server said comes before it.
+_TRACEBACK = re.compile(r"Traceback \(most recent call last\)|\n\s*File \"")
+
+
+def brief(body: str, chars: int = 300) -> str:
+    """What an error body says, for a message on one line: up to any traceback, whitespace
+    runs as one space, at most ``chars`` characters (``…`` marks a cut)."""
+    said = " ".join(_TRACEBACK.split(body, maxsplit=1)[0].split())
+    return said if len(said) <= chars else said[: chars - 1] + "…"
+
+
 class FormatRefused(Refused):
     """The server cannot do the response format of this request (the body says why)."""
 
     def __init__(self, status: int, body: str) -> None:
-        super().__init__(f"HTTP {status}: {body[:300]}")
+        super().__init__(f"HTTP {status}: {brief(body)}")
 
 
 class ParameterRefused(Refused):
     """The model does not take one decoding parameter of this request (HTTP 400)."""
 
     def __init__(self, parameter: str, body: str) -> None:
-        super().__init__(f"HTTP 400: {body[:300]}")
+        super().__init__(f"HTTP 400: {brief(body)}")
         self.parameter = parameter
 
 
@@ -160,7 +172,7 @@ def status_error(error: Any, body: str, request: dict[str, Any], asker: Asker) -
     scrubbed ``body``) stands for, given the ``request`` it answered."""
     status = int(error.status_code)
     has_format = "response_format" in request
-    excerpt = body[:300]
+    excerpt = brief(body)
     if status in (401, 403):
         return LLMAuthError(
             f"{asker.where} refused the credentials (HTTP {status}: {excerpt}); check "

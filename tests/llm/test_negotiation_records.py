@@ -20,6 +20,7 @@ from skyvln_eval.errors import LLMAuthError
 from skyvln_eval.llm import GenerationConfig, LLMClient, Message
 from skyvln_eval.llm.loopback import LoopbackOpenAIServer, answer, no_choices, status
 from skyvln_eval.llm.negotiation import negotiated_level
+from skyvln_eval.llm.openai_errors import FormatRefused
 from skyvln_eval.llm_records import module_usage
 from skyvln_eval.metrics.cost import call_totals
 from tests.llm.loopback_clients import fake_model_prices, loopback_client
@@ -187,3 +188,21 @@ def test_an_episodes_first_error_is_the_failed_requests_not_a_refused_level() ->
     assert "structured output level 'json_schema'" in (
         judge_status(only_refused, [], None)[1] or ""
     )
+
+
+def test_a_refusal_message_keeps_what_the_server_said_not_its_traceback() -> None:
+    # llama-cpp-python's 500 for a json_schema response format: a validation error, then
+    # the Python traceback of the server (cut by the old 300-character excerpt mid-path).
+    body = (
+        "Error code: 500 - 1 validation error:\n  {'type': 'literal_error', 'loc': "
+        "('body', 'response_format', 'type'), 'msg': \"Input should be 'text' or "
+        "'json_object'\"}\n\n  File \"/venv/lib/python3.11/site-packages/llama_cpp/server/"
+        'errors.py", line 171, in custom_route_handler\n    response = await '
+        "original_route_handler(request)\n"
+    )
+    said = str(FormatRefused(500, body))
+    assert said.startswith("HTTP 500: Error code: 500 - 1 validation error: {'type'")
+    assert said.endswith("'json_object'\"}")
+    assert "File" not in said and "\n" not in said
+    long = str(FormatRefused(500, "schema " * 100))
+    assert len(long) == len("HTTP 500: ") + 300 and long.endswith("…")
