@@ -4,9 +4,17 @@ In AVDN the commander sees the map and the drone, and answers the follower's que
 When the agent asks (TrackBack memory lost its way, or HSD could not tell the stop
 landmark apart), the harness's :class:`SimulatedCommander` answers, at most
 ``max_questions`` times per episode, in the synthetic commander's language (the phrasing
-families of the episode's split): which way to the destination from where the drone is,
-how far, and the destination's description when the map knows its landmarks. The question
-and the answer join the dialog the agent sees at its next step, as a new round.
+families of the episode's split): which way to the episode's goal from where the drone is
+and how far, or, within half a view of it, that the drone is there and should stop.
+
+The goal is the end of the ground truth the episode is scored against. In an ANDH
+episode of an intermediate round that is the round's end: on the synthetic data the place
+the round's instruction leads to ("fly 100 m and wait"), on AVDN's the point where the
+human follower stopped, which a human commander did not know in advance (the tables say
+the commander "knows the goal"). So the commander names a landmark there as *the
+destination* only on a trajectory's last round (``last_round_idx``); before it, it says
+how far to go and to stop, as the round's instruction does. The question and the answer
+join the dialog the agent sees at its next step, as a new round.
 """
 
 from __future__ import annotations
@@ -17,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from skyvln_eval.avdn.constants import METERS_PER_DEGREE
 from skyvln_eval.avdn.geometry import view_centre
 from skyvln_eval.avdn.records import DialogTurn, Episode
 from skyvln_eval.frames import latlng_to_enu, view_to_pose
@@ -45,17 +54,28 @@ class SimulatedCommander:
         self._families = families if families else seen_families()
         self._destination = self._destination_description()
 
-    def _destination_description(self) -> str | None:
-        """The landmark the ground truth ends over, if the map knows its landmarks."""
+    def _ends_the_trajectory(self) -> bool:
+        """Whether the episode's goal is the trajectory's last view (its last round)."""
+        last = self.episode.records[-1]
+        return last.last_round_idx is not None and last.round_index == last.last_round_idx
+
+    def _half_edge_m(self) -> float:
+        """Half the front edge of the goal view, in the official metres."""
         end = self.episode.gt_end_view
-        centre = np.asarray(view_centre(end), dtype=np.float64)
+        return float(np.linalg.norm(end[0] - end[1])) * METERS_PER_DEGREE / 2.0
+
+    def _destination_description(self) -> str | None:
+        """The landmark the trajectory ends over, on its last round, if the map knows its
+        landmarks (``None`` on earlier rounds: their ends are not the destination)."""
+        if not self._ends_the_trajectory():
+            return None
+        centre = np.asarray(view_centre(self.episode.gt_end_view), dtype=np.float64)
         best: tuple[float, str] | None = None
         for landmark in self.world.landmarks:
-            gap = math.hypot(*(np.asarray(landmark.centre) - centre)) * 111_300.0
+            gap = math.hypot(*(np.asarray(landmark.centre) - centre)) * METERS_PER_DEGREE
             if best is None or gap < best[0]:
                 best = (gap, landmark.description)
-        half_edge_m = float(np.linalg.norm(end[0] - end[1])) * 111_300.0 / 2.0
-        return best[1] if best is not None and best[0] <= half_edge_m else None
+        return best[1] if best is not None and best[0] <= self._half_edge_m() else None
 
     def answer(
         self, step_index: int, question: str, view: NDArray[np.float64]
@@ -69,12 +89,14 @@ class SimulatedCommander:
         east, north = goal_x - here.x_m, goal_y - here.y_m
         bearing = math.degrees(math.atan2(east, north)) % 360.0
         off = abs((here.heading_deg - bearing + 180.0) % 360.0 - 180.0)
+        distance_m = math.hypot(east, north)
         facts = AnswerFacts(
             direction=compass_word(bearing),
-            distance_m=math.hypot(east, north),
+            distance_m=distance_m,
             landmark=self._destination,
             is_destination=self._destination is not None,
             wrong_heading=compass_word(here.heading_deg) if off > WRONG_HEADING_DEG else None,
+            arrived=distance_m <= self._half_edge_m(),
         )
         seed = derived_seed(self.seed, "commander", self.episode.episode_id, step_index)
         text = commander_answer(facts, self._families, seed).text

@@ -4,13 +4,17 @@
 agent gets its :meth:`~SimulatedSensors.handle`, a :class:`SensorHandle` implementing
 :class:`skyvln_eval.sensing.Sensors`: it can turn in place and capture, and gets images and
 the camera's geometry. The handle holds only a key into this module's table of live
-simulators, never the world, so nothing an agent is given leads to the world (agent
-modules may not import the simulator: a test checks both).
+simulators, never the world, so nothing an agent is given leads to the world through its
+interface. In one Python process that is a boundary of interfaces, not of memory: code
+that imports the simulator or calls private members (``SensorHandle._sensors()``) can
+reach the world. tests/agent/test_boundary.py checks that the toolkit's agents do
+neither; review an agent of your own the same way.
 
 Channels of sensors the drone does not carry are not handed out: no depth without the
 depth sensor; no semantic, instance or category images without the semantic camera. The
 semantic camera reports each landmark instance's category (as a simulator's panoptic
-segmentation does), not its name or description.
+segmentation does), not its name or description, under a number of the capture's own,
+not the world's id of the landmark.
 """
 
 from __future__ import annotations
@@ -91,14 +95,30 @@ class SimulatedSensors:
         """Only the channels of the sensors the drone carries."""
         kinds = self._config.kinds
         if "semantic" in kinds and images.instance is not None:
-            ids = instance_pixel_counts(images.instance)[0].tolist()
-            categories = {i: self._world.landmark(i).category for i in ids if i}
-            images = replace(images, instance_categories=categories)
+            images = self._numbered_in_capture(images, images.instance)
         else:
             images = replace(images, semantic=None, instance=None, instance_categories={})
         if "depth" not in kinds:
             images = replace(images, depth_m=None)
         return images
+
+    def _numbered_in_capture(
+        self, images: CameraImages, instance: NDArray[np.uint16]
+    ) -> CameraImages:
+        """The capture's instances numbered 1, 2, ... in the order of the world's ids, with
+        their categories: a segmentation tells instances apart within an image, it does
+        not know which landmark of the map each one is (the world's ids would: the same
+        landmark under the same number in every view). The order kept keeps each
+        instance's rank, so what a detector does with them is the same."""
+        ids = instance_pixel_counts(instance)[0]
+        ids = ids[ids > 0]
+        lookup = np.zeros(int(instance.max()) + 1, dtype=np.uint16)
+        lookup[ids] = np.arange(1, len(ids) + 1, dtype=np.uint16)
+        categories = {
+            number: self._world.landmark(int(i)).category
+            for number, i in enumerate(ids.tolist(), start=1)
+        }
+        return replace(images, instance=lookup[instance], instance_categories=categories)
 
 
 class RecentRenders:

@@ -23,7 +23,7 @@ CATEGORY_PHRASES: Final[dict[str, tuple[str, ...]]] = {
     "school": ("school", "academy"),
     "hospital": ("hospital", "clinic", "medical center", "medical centre"),
     "hotel": ("hotel", "motel", "inn"),
-    "tower": ("skyscraper", "high-rise", "tall tower", "tower"),
+    "tower": ("skyscraper", "high-rise", "tower"),
 }
 #: How the detector names each category.
 CATEGORY_LABELS: Final[dict[str, str]] = {c: p[0] for c, p in CATEGORY_PHRASES.items()}

@@ -3,13 +3,16 @@ generator's language, within a budget; the answer joins the dialog the agent see
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from skyvln_eval.agent import AgentConfig, build_agent
+from skyvln_eval.avdn.records import Episode
 from skyvln_eval.harness import RunConfig, official_success, run, run_official_episode
 from skyvln_eval.harness.commander import SimulatedCommander
 from skyvln_eval.harness.store import RESULTS_FILE
 from skyvln_eval.metrics import MetricConventions, read_results, score_results
+from skyvln_eval.worlds.sample.phrasebook import all_frames
 from tests.toy_worlds import town_episode, town_world
 
 # Two restaurants in town: "a restaurant" does not say which one is meant.
@@ -63,3 +66,34 @@ def test_runs_record_questions_and_the_scores_count_them(tmp_path: Path, sample_
         questions = result.extra["questions"]
         assert row.questions_asked == len(questions)
         assert row.questions_answered == sum(q["answer"] is not None for q in questions) <= 1
+
+
+def test_only_the_last_round_ends_at_the_destination() -> None:
+    """An intermediate round's end is where that round's instruction leads, not the
+    destination: the commander says how far to go, and does not call a landmark there the
+    destination (it did, 158 m short of the real one, on the sample's 9101__6_1)."""
+    last, world = town_episode(VAGUE), town_world()
+    [record] = last.records
+    earlier = Episode("toy", "andh", (dataclasses.replace(record, last_round_idx=3),))
+    unknown = Episode("toy", "andh", (dataclasses.replace(record, last_round_idx=None),))
+    answers = {
+        name: SimulatedCommander(e, world, seed=5).answer(0, "Where now?", e.start_view)[1].text
+        for name, e in (("last", last), ("earlier", earlier), ("unknown", unknown))
+    }
+    assert "red roof" in answers["last"], answers
+    for name in ("earlier", "unknown"):  # the way to go, and nothing called the end
+        assert "red roof" not in answers[name] and "north" in answers[name].lower(), answers
+
+
+def test_a_drone_already_over_the_goal_is_told_to_stop_not_to_fly_on() -> None:
+    episode, world = town_episode(VAGUE), town_world()
+    for seed in range(8):  # whichever seen family answers
+        commander = SimulatedCommander(episode, world, seed=seed)
+        [_, there] = commander.answer(0, "Here?", episode.gt_end_view)
+        [_, far] = commander.answer(1, "Here?", episode.start_view)
+        assert there.text in ARRIVED, there.text
+        assert far.text not in ARRIVED and "north" in far.text.lower(), far.text
+
+
+#: Every family's answer to a follower who is there, as the commander says it.
+ARRIVED = {f"{frame.template}." for frame in all_frames() if frame.slot == "answer.arrived"}

@@ -9,7 +9,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from skyvln_eval.sensing import SensorConfig
+from skyvln_eval.frames import compass_to_enu_yaw_rad
+from skyvln_eval.sensing import CameraPose, SensorConfig
 from skyvln_eval.sim import sensors as sensors_module
 from skyvln_eval.sim.camera import render_views
 from skyvln_eval.sim.sensors import RECENT_RENDERS, SimulatedSensors
@@ -81,3 +82,28 @@ def test_the_memo_keeps_only_the_most_recent_batches(renders: list[int]) -> None
     SimulatedSensors(world, *places[0], config).capture(0.0, 60.0)  # evicted: rendered
     assert len(renders) == RECENT_RENDERS.size + 2
     assert RECENT_RENDERS.hits == 1
+
+
+def test_instances_are_numbered_per_capture_not_by_the_worlds_ids() -> None:
+    """The semantic camera tells instances apart in one image; the numbers are the
+    capture's own (1, 2, ... in the order of the world's ids), so they do not say which
+    landmark of the map an instance is, and each keeps its pixels and category."""
+    world = town_world()
+    config = SensorConfig(image_px=96)
+    views = [(0.0, 90.0)]
+    seen_ids: list[list[int]] = []
+    for x, y in ((325.0, 420.0), (420.0, 325.0), (180.0, 330.0)):  # over each landmark
+        sensors = SimulatedSensors(world, x, y, 150.0, config)
+        pose = CameraPose(x, y, 150.0, compass_to_enu_yaw_rad(0.0), 90.0)
+        [raw] = render_views(world, [pose], config.camera())
+        [image] = sensors.capture_many(views)
+        assert image.instance is not None and raw.instance is not None
+        world_ids = sorted(set(np.unique(raw.instance).tolist()) - {0})
+        numbers = sorted(set(np.unique(image.instance).tolist()) - {0})
+        assert world_ids and numbers == list(range(1, len(world_ids) + 1))
+        for number, world_id in enumerate(world_ids, start=1):
+            np.testing.assert_array_equal(image.instance == number, raw.instance == world_id)
+            assert image.instance_categories[number] == world.landmark(world_id).category
+        seen_ids.append(world_ids)
+    # Three different landmarks below, one number for all of them.
+    assert len({tuple(ids) for ids in seen_ids}) == 3

@@ -39,7 +39,7 @@ def _clarify(data: dict[str, Any]) -> dict[str, Any]:
     reason = data.get("reason", "I am not sure where I am")
     goal = data.get("goal")
     about = f" Is {goal!r} somewhere else?" if goal else ""
-    return {"question": f"I went back because {reason}.{about} Which way should I go?"}
+    return {"question": f"I went back because {reason}.{about} Where should I head from here?"}
 
 
 class RuleBackend(LLMBackend):

@@ -27,8 +27,9 @@ from skyvln_eval.worlds.sample.pilot import PlanGeo
 from skyvln_eval.worlds.sample.wording import compass_erly, compass_ward
 
 #: Version of the dialogs' wording: 1 spoke a handful of fixed frames; 2 speaks families
-#: of frames, disjoint between seen and unseen splits. Part of the sample's cache key.
-DIALOG_VERSION: Final = 2
+#: of frames, disjoint between seen and unseen splits; 3 adds the answer to a follower
+#: who is already there (``answer.arrived``). Part of the sample's cache key.
+DIALOG_VERSION: Final = 3
 
 _ANSWER_SLOTS: Final = {
     "which_way": "answer.which_way",
@@ -55,7 +56,8 @@ class AnswerFacts:
     to turn, or "ahead" to keep the heading. ``distance_m``: how far to fly. ``landmark``:
     the description of the next landmark on the route, or of the destination when
     ``is_destination``. ``wrong_heading``: the compass point the follower is flying when
-    it is the wrong one (the answer then opens with a correction).
+    it is the wrong one (the answer then opens with a correction). ``arrived``: the
+    follower is already there (the answer then only says to stop).
     """
 
     direction: str
@@ -63,6 +65,7 @@ class AnswerFacts:
     landmark: str | None = None
     is_destination: bool = False
     wrong_heading: str | None = None
+    arrived: bool = False
 
 
 def sentence_case(text: str) -> str:
@@ -189,9 +192,12 @@ def commander_answer(facts: AnswerFacts, families: Sequence[str], seed: int) -> 
     ``families`` (e.g. ``SPLIT_FAMILIES[split]``), deterministically for ``seed``.
 
     It opens with a correction when the follower flies the wrong way, then says which way
-    (a compass point, a turn, or straight on), then how far and what comes next.
+    (a compass point, a turn, or straight on), then how far and what comes next; to a
+    follower who is already there, only that it is there and should stop.
     """
     phraser = Phraser(families, seed)
+    if facts.arrived:
+        return phraser.join([phraser.clause("answer.arrived")])
     if facts.wrong_heading is not None:
         opening = phraser.clause("answer.correct", old=facts.wrong_heading)
     else:
