@@ -135,9 +135,9 @@ def setting_note(plan: ReproducePlan) -> str:
     """What the agents could sense and ask, for the tables' captions."""
     asks = plan.commander.max_questions
     commander = (
-        f"a simulated commander who knows the goal (as AVDN's human one does) answers up to "
-        f"{asks} clarification question(s) per episode with the way and distance to it "
-        "(whatever was asked)"
+        f"a simulated commander who knows the goal (the end of the ground truth scored) "
+        f"answers up to {asks} clarification question(s) per episode with the way and "
+        "distance to it, or that the drone is there (whatever was asked)"
         if asks
         else "no commander answers questions"
     )
