@@ -17,6 +17,9 @@ from typing import Final
 
 #: What the key is replaced by.
 REDACTED: Final = "[API key]"
+#: Keys shorter than this are placeholders, not secrets (a local server takes any key,
+#: and people set "x" or "none"): hiding every "x" of an error would garble it.
+SHORTEST_SECRET: Final = 8
 #: Characters of an excerpt shown of a body that is not what was expected.
 EXCERPT_CHARS: Final = 200
 
@@ -45,8 +48,9 @@ def _key_pattern(key: str) -> re.Pattern[str]:
 def scrub(text: str, key: str | None) -> str:
     """``text`` with every occurrence of ``key`` replaced, in whatever escaping (see the
     module docstring). Matching ignores case: a hex escape may be written either way, and
-    hiding a look-alike of the key costs nothing."""
-    if not key:
+    hiding a look-alike of the key costs nothing. A key shorter than
+    :data:`SHORTEST_SECRET` characters is a placeholder and is left as it is."""
+    if not key or len(key) < SHORTEST_SECRET:
         return text
     return _key_pattern(key).sub(REDACTED, text)
 

@@ -427,8 +427,15 @@ def compare_systems(
     mode: str = "andh",
     n_resamples: int = 10_000,
     seed: int = 0,
+    ci_unit: CiUnit = "episode",
 ) -> pd.Series:
     """Paired bootstrap and sign-flip test of ``metric`` between two systems on one split.
+
+    ``ci_unit="trajectory"`` resamples and flips whole trajectories (the rounds of one
+    dialog fly one route: counted as independent episodes, they make the interval too
+    narrow and the p-value too small). ``n_units`` says how many units there were, and
+    ``p_exact`` whether the test counted every sign pattern (at most ``n_resamples`` of
+    them: then no test can give a p-value below ``2 / 2**n_units``).
 
     Both systems must have scored exactly the same episodes (else it raises, naming the
     episodes only one of them has). Rates are compared in percent.
@@ -442,6 +449,8 @@ def compare_systems(
     """
 
     checked_scores(scores, [metric])
+    if ci_unit_named(ci_unit) is None:
+        raise MetricInputError(f"ci_unit must be one of {CI_UNITS}, got {ci_unit!r}")
 
     def values(system: str) -> pd.Series:
         sel = scores[(scores.system == system) & (scores.split == split) & (scores["mode"] == mode)]
@@ -459,7 +468,10 @@ def compare_systems(
         )
     b = b.loc[a.index]
     scale = 100.0 if metric in PERCENT_METRICS else 1.0
-    result = paired_comparison(a.to_numpy() * scale, b.to_numpy() * scale, n_resamples, seed=seed)
+    clusters = None if ci_unit == "episode" else [trajectory_of(e) for e in a.index]
+    result = paired_comparison(
+        a.to_numpy() * scale, b.to_numpy() * scale, n_resamples, seed=seed, clusters=clusters
+    )
     return pd.Series(
         {"metric": metric, "system_a": system_a, "system_b": system_b, **result.__dict__}
     )

@@ -43,8 +43,10 @@ class PairedComparison:
     """System A minus system B on the same episodes.
 
     ``ci_low`` / ``ci_high``: paired bootstrap interval of the mean difference;
-    ``p_value``: two-sided sign-flip permutation test of "no difference" (with the +1
-    correction, so never 0).
+    ``p_value``: two-sided sign-flip permutation test of "no difference", exact (every
+    sign pattern) when there are at most ``n_resamples`` patterns, else from random ones
+    with the +1 correction; never 0 either way. ``unit``: what was resampled and flipped,
+    single episodes or whole trajectories (``n_units`` of them).
     """
 
     n: int
@@ -57,6 +59,9 @@ class PairedComparison:
     confidence: float
     n_resamples: int
     seed: int
+    unit: str = "episode"
+    n_units: int = 0
+    p_exact: bool = False
 
 
 def finite_values(values: ArrayLike, what: str = "values") -> FloatArray:
@@ -178,20 +183,50 @@ def percentile_interval(estimates: FloatArray, confidence: float) -> tuple[float
     return float(low), float(high)
 
 
-def sign_flip_p_value(differences: FloatArray, n_resamples: int, seed: int) -> float:
-    """Two-sided p-value of mean(differences) = 0 by random sign flips (paired permutation)."""
+def sign_flip_p_value(
+    differences: FloatArray,
+    n_resamples: int,
+    seed: int,
+    clusters: ArrayLike | None = None,
+) -> float:
+    """Two-sided p-value of mean(differences) = 0 by sign flips (paired permutation).
+
+    With ``clusters`` (one label per difference) a flip changes the sign of a whole
+    cluster, as the rounds of one dialog are not independent. With at most
+    ``n_resamples`` sign patterns (``2**units``) every one is counted, which is exact and
+    needs no seed (on 3 units the smallest p-value there is, 0.25); else ``n_resamples``
+    random patterns, with the +1 correction.
+    """
     n = len(differences)
-    observed = abs(float(differences.mean()))
+    units = differences if clusters is None else _cluster_sums(differences, clusters)
+    k = len(units)
+    observed = abs(float(units.sum()) / n)
+    # A tiny tolerance so ties (e.g. all-zero differences) count as extreme.
+    bar = observed - 1e-12 * max(1.0, observed)
+    if k < 63 and 2**k <= n_resamples:
+        bits = (np.arange(2**k, dtype=np.int64)[:, None] >> np.arange(k)) & 1
+        permuted = np.abs(((bits * 2 - 1) * units).sum(axis=1) / n)
+        return float((permuted >= bar).sum()) / 2**k
     rng = np.random.default_rng(seed)
-    chunk = max(1, _CHUNK_VALUES // n)
+    chunk = max(1, _CHUNK_VALUES // k)
     extreme = 0
     for start in range(0, n_resamples, chunk):
         size = min(chunk, n_resamples - start)
-        signs = rng.integers(0, 2, size=(size, n), dtype=np.int8) * 2 - 1
-        permuted = np.abs((signs * differences).mean(axis=1))
-        # A tiny tolerance so ties (e.g. all-zero differences) count as extreme.
-        extreme += int((permuted >= observed - 1e-12 * max(1.0, observed)).sum())
+        signs = rng.integers(0, 2, size=(size, k), dtype=np.int8) * 2 - 1
+        permuted = np.abs((signs * units).sum(axis=1) / n)
+        extreme += int((permuted >= bar).sum())
     return (extreme + 1) / (n_resamples + 1)
+
+
+def _cluster_sums(values: FloatArray, clusters: ArrayLike) -> FloatArray:
+    """The sum of ``values`` in each cluster, clusters in sorted label order."""
+    labels = np.asarray(clusters)
+    if labels.shape != values.shape:
+        raise MetricInputError(f"one cluster label per value: {labels.shape} for {values.shape}")
+    _, members = np.unique(labels, return_inverse=True)
+    sums = np.zeros(int(members.max()) + 1 if len(members) else 0)
+    np.add.at(sums, members, values)
+    return sums
 
 
 def paired_comparison(
@@ -200,14 +235,42 @@ def paired_comparison(
     n_resamples: int = 10_000,
     confidence: float = 0.95,
     seed: int = 0,
+    clusters: ArrayLike | None = None,
 ) -> PairedComparison:
-    """Compare paired per-episode values ``a[i]`` and ``b[i]`` (same episode ``i``)."""
+    """Compare paired per-episode values ``a[i]`` and ``b[i]`` (same episode ``i``); with
+    ``clusters`` (one label per episode, e.g. its trajectory) the interval resamples and
+    the test flips whole clusters."""
     a_arr = finite_values(a, "system A")
     b_arr = finite_values(b, "system B")
     if a_arr.shape != b_arr.shape or a_arr.ndim != 1:
         raise MetricInputError(
             f"paired values need equal 1-D shapes, got {a_arr.shape} and {b_arr.shape}"
         )
+    diff = a_arr - b_arr
+    if clusters is None:
+        ci = bootstrap_ci(diff, n_resamples, confidence, seed)
+        low, high, units = ci.low, ci.high, len(diff)
+    else:
+        if not 0 < confidence < 1:
+            raise MetricInputError(f"confidence must be in (0, 1), got {confidence}")
+        means = cluster_bootstrap_means(diff, clusters, n_resamples, seed)
+        low, high = percentile_interval(means, confidence)
+        units = len(np.unique(np.asarray(clusters)))
+    return PairedComparison(
+        n=len(diff),
+        mean_a=float(a_arr.mean()),
+        mean_b=float(b_arr.mean()),
+        difference=float(diff.mean()),
+        ci_low=low,
+        ci_high=high,
+        p_value=sign_flip_p_value(diff, n_resamples, seed + 1, clusters),
+        confidence=confidence,
+        n_resamples=n_resamples,
+        seed=seed,
+        unit="episode" if clusters is None else "trajectory",
+        n_units=units,
+        p_exact=units < 63 and 2**units <= n_resamples,
+    )
     diff = a_arr - b_arr
     ci = bootstrap_ci(diff, n_resamples, confidence, seed)
     return PairedComparison(

@@ -289,3 +289,47 @@ def test_a_system_flown_by_the_oracle_and_by_an_agent_is_refused() -> None:
     wrong = [result(g, g, extra={"oracle": "yes"})]
     with pytest.raises(MetricInputError, match=r"agent/val_seen/andh/1913__0_1: extra.oracle"):
         score_results(wrong)
+
+
+def test_a_sign_flip_test_on_few_units_is_exact() -> None:
+    """On 3 paired episodes there are 8 sign patterns: the test counts them all, so its
+    p-value is a multiple of 1/8 and at least 0.25 (it reported 0.244 by sampling)."""
+    three = paired_comparison([1.0, 2.0, 3.0], [0.0, 0.5, 1.0], n_resamples=10_000, seed=3)
+    assert three.p_exact and three.n_units == 3 and three.p_value == 0.25
+    other_seed = paired_comparison([1.0, 2.0, 3.0], [0.0, 0.5, 1.0], 10_000, seed=9)
+    assert other_seed.p_value == 0.25  # counted, not sampled: no seed changes it
+    mixed = paired_comparison([1.0, -2.0, 3.0], [0.0, 0.0, 0.0], n_resamples=10_000)
+    # Sums of +-1 +-2 +-3: 6, 0, 2, -4, 4, -2, 0, -6; six reach the observed |2|.
+    assert mixed.p_value == 0.75
+    many = paired_comparison(np.arange(20.0), np.zeros(20), n_resamples=1000)
+    assert not many.p_exact and many.p_value == pytest.approx(1 / 1001)
+
+
+def test_a_comparison_over_trajectories_flips_and_resamples_whole_dialogs() -> None:
+    """Ten dialogs of four rounds: system A beats B on every round of dialogs 0-5 and
+    loses on every round of 6-9. Per episode that looks like 40 independent pairs; per
+    dialog it is 10, and the test and interval say so."""
+    rows = []
+    for k in range(40):
+        dialog, round_ = divmod(k, 4)
+        episode = f"9101__{dialog}_{round_ + 1}"
+        a_wins = dialog < 6
+        rows.append({"system": "A", "episode_id": episode, "ne_m": 10.0 if a_wins else 30.0})
+        rows.append({"system": "B", "episode_id": episode, "ne_m": 30.0 if a_wins else 10.0})
+    scores = pd.DataFrame(rows).assign(split="val_seen", mode="andh")
+    by_episode = compare_systems(scores, "A", "B", "ne_m", "val_seen", n_resamples=4000)
+    by_dialog = compare_systems(
+        scores, "A", "B", "ne_m", "val_seen", n_resamples=4000, ci_unit="trajectory"
+    )
+    assert by_episode.unit == "episode" and by_episode.n_units == 40
+    assert by_dialog.unit == "trajectory" and by_dialog.n_units == 10 and by_dialog.p_exact
+    assert by_dialog.difference == by_episode.difference == pytest.approx(-4.0)
+    assert by_dialog.p_value > by_episode.p_value
+    assert by_dialog.ci_high - by_dialog.ci_low > by_episode.ci_high - by_episode.ci_low
+    # Exact over 2**10 patterns of dialog signs: |sum| >= 2 dialogs' worth, two-sided.
+    signs = np.array([[1 if (p >> i) & 1 else -1 for i in range(10)] for p in range(1024)])
+    dialog_sums = np.array([-80.0] * 6 + [80.0] * 4)
+    expected = np.mean(np.abs(signs @ dialog_sums) >= 160.0 - 1e-9)
+    assert by_dialog.p_value == pytest.approx(expected)
+    with pytest.raises(MetricInputError, match="ci_unit"):
+        compare_systems(scores, "A", "B", "ne_m", "val_seen", ci_unit="dialog")  # type: ignore[arg-type]
