@@ -59,6 +59,7 @@ from skyvln_eval.metrics.scores_io import summary_csv_text, write_scores
 from skyvln_eval.reports import TABLE_I, TABLE_II, to_csv, to_latex, to_markdown
 from skyvln_eval.reports.paper_tables import (
     STAND_IN_MARKERS,
+    model_label,
     paper_table,
     stand_in_kind,
     table_metrics,
@@ -157,10 +158,7 @@ def table1_label(label: str, agent: AgentConfig) -> tuple[str, str | None]:
     if kind is not None:
         marker, note = STAND_IN_MARKERS[kind]
         return f"{label} {marker}", note
-    model = backend.partition(":")[2]
-    if model.split(":")[-1] in label:
-        return label, None
-    return f"{label} ({backend})", None
+    return model_label(label, backend), None
 
 
 #: The tables' titles, as SUMMARY.md names them.

@@ -610,7 +610,20 @@ def run(
     retry_failed: bool = False,
     task_function: Callable[[EpisodeTask], EpisodeResult] = run_episode_task,
 ) -> RunReport:
-    """Run ``config`` into ``run_dir``, skipping episodes already recorded there."""
+    """Run ``config`` into ``run_dir``, skipping episodes already recorded there, and say
+    what happened.
+
+    Episodes that end in ``error`` (no usable LLM answer, or the episode raised) are
+    recorded and counted, not raised: check ``report.statuses``, ``report.error_share`` and
+    ``report.errors`` (``skyvln-eval run`` exits 1 on them unless ``--fail-on-error``
+    allows their share; :func:`error_verdict` is that check). ``report.complete`` is
+    false while episodes are missing (``retry_failed=True`` runs the error episodes
+    again). Before any episode runs, a :class:`~skyvln_eval.errors.ConfigError` (a
+    :class:`~skyvln_eval.harness.preflight.PreflightError` among them) is raised for what
+    would fail them all: a missing API key, a local model server with nothing listening, a
+    detector whose sensor is off or that the data cannot feed. ``executor``: e.g.
+    :func:`make_executor`'s, else the config's.
+    """
     job = prepare_job(config, run_dir, retry_failed)
     executor = executor or make_executor(
         config.executor, config.workers, config.ray_address, config.threads_per_worker

@@ -18,12 +18,12 @@ from skyvln_eval.metrics.records import EpisodeResult
 
 def run_results(
     run_dir: str | Path,
-    keys: Sequence[RowKey] | None = None,
+    keys: Sequence[RowKey | tuple[str, str, str, str]] | None = None,
     *,
     allow_incomplete: bool = False,
 ) -> list[EpisodeResult]:
     """The results of a run directory: all of them, or the ``(split, episode_id)``
-    ``keys`` in that order.
+    ``keys`` in that order (or the :attr:`EpisodeResult.key` of each).
 
     All of them must cover every episode the run's config selects, as ``skyvln-eval score``
     checks: a run still going, or stopped, raises :class:`IncompleteRunError` naming the
@@ -50,7 +50,18 @@ def run_results(
                     "directories; ask one run directory for keys"
                 )
             rows[key] = row
-    return _rows_of(folder, rows, [(split, eid) for split, eid in keys], allow_incomplete)
+    return _rows_of(folder, rows, [_row_key(folder, key) for key in keys], allow_incomplete)
+
+
+def _row_key(folder: Path, key: Sequence[str]) -> RowKey:
+    """A key as ``(split, episode_id)``; :attr:`EpisodeResult.key`'s ``(system, split,
+    mode, episode_id)`` is taken too (a run directory holds one system and mode)."""
+    if isinstance(key, str) or len(key) not in (2, 4):
+        raise DataError(
+            f"{folder}: a key is (split, episode_id) or an EpisodeResult.key "
+            f"(system, split, mode, episode_id), got {key!r}"
+        )
+    return (key[0], key[1]) if len(key) == 2 else (key[1], key[3])
 
 
 def run_directories(folder: Path) -> list[Path]:

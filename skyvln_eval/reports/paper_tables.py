@@ -75,6 +75,24 @@ def stand_in_systems(scores: pd.DataFrame) -> dict[str, str]:
     return kinds
 
 
+def model_label(label: str, backend: str) -> str:
+    """A Table I row label that names the real model that answered its LLM calls
+    (``Full (openai:gpt-4o)``), unless the label already names it."""
+    model = backend.partition(":")[2] or backend
+    return label if model.split(":")[-1] in label else f"{label} ({backend})"
+
+
+def model_systems(scores: pd.DataFrame) -> dict[str, str]:
+    """The systems of ``scores`` whose LLM calls a real model answered, with its backend."""
+    if "llm_backend" not in scores.columns:
+        return {}
+    backends: dict[str, str] = {}
+    for system, backend in scores[["system", "llm_backend"]].dropna().itertuples(index=False):
+        if str(backend) and stand_in_kind(str(backend)) is None:
+            backends.setdefault(str(system), str(backend))
+    return backends
+
+
 def table_metrics(spec: TableSpec) -> list[str]:
     """The summary metrics ``spec`` reads: its columns, ``status_error`` (cells whose
     episodes ended in error), the lower bounds of unknown costs and, for a table with
@@ -108,11 +126,17 @@ def paper_table(
     bootstrap resamples with ``seed`` when ``show_ci``, resampling episodes or whole
     trajectories: ``ci_unit``, see :func:`summarise`). ``rows``: systems in order
     (default: all of ``mode``, in the order the scores list them); ``notes``: footnotes
-    of the caller's; ``withheld``: splits whose ground truth is withheld.
+    of the caller's; ``withheld``: splits whose ground truth is withheld. Rows are
+    labelled by what answered their LLM calls: a stand-in's marker, or, in Table I, the
+    real model's backend unless the label names it (``rows`` may give either label).
     """
     stand_ins = stand_in_systems(scores)
     oracles = oracle_systems(scores)
+    # Table I compares systems: a row on a real model says which (Table II's rows are
+    # the models).
+    models = model_systems(scores) if spec is TABLE_I else {}
     labels = {
+        **{s: model_label(s, b) for s, b in models.items() if model_label(s, b) != s},
         **_marked_labels(stand_ins),
         **{o: oracle_label(o) for o in oracles if oracle_label(o) != o},
     }
@@ -120,7 +144,13 @@ def paper_table(
     clashes = {old: new for old, new in labels.items() if new in systems}
     if clashes:  # two systems would become one row, their episodes pooled
         old, new = next(iter(clashes.items()))
-        why = "the ground-truth oracle flew it" if old in oracles else "it ran on a stand-in"
+        why = (
+            "the ground-truth oracle flew it"
+            if old in oracles
+            else "it ran on a stand-in"
+            if old in stand_ins
+            else "it names its model"
+        )
         raise MetricInputError(
             f"system {old!r} would be shown as {new!r} ({why}), the label of another "
             "system in these scores: their episodes would be pooled in one row. Give one "

@@ -36,6 +36,17 @@ def test_keys_without_a_row_are_named_not_dropped(two_splits: Path, tmp_path: Pa
         run_results(stopped, [("val_seen", IDS[1])])
 
 
+def test_an_episode_results_own_key_picks_it_and_a_bad_key_is_named(
+    two_splits: Path, tmp_path: Path
+) -> None:
+    run = run_dir(tmp_path / "run", config(two_splits, limit=2), IDS[:2])
+    rows = run_results(run)
+    again = run_results(run, [r.key for r in reversed(rows)])  # (system, split, mode, id)
+    assert [r.key for r in again] == [r.key for r in reversed(rows)]
+    with pytest.raises(DataError, match=r"a key is \(split, episode_id\).*got 'val_seen'"):
+        run_results(run, ["val_seen"])  # type: ignore[list-item]
+
+
 def test_an_incomplete_run_says_what_to_pass_in_python(two_splits: Path, tmp_path: Path) -> None:
     run = run_dir(tmp_path / "run", config(two_splits, limit=2), IDS[:1])
     with pytest.raises(IncompleteRunError, match=r"allow_incomplete=True\) to score the 1"):

@@ -112,6 +112,14 @@ def test_table_i_marks_a_stand_in_row_and_says_why() -> None:
     again = paper_table(marked, TABLE_I, MetricConventions(), rows=["Full †", "gemma"])
     assert again.rows == ("Full †", "gemma")
     assert to_markdown(again).count("† LLM modules") == 1
+    # A row on a real model says which, as reproduce's rows do (the row "Flaky" did not).
+    flaky = scores.replace({"system": {"gemma": "Flaky"}})
+    named = paper_table(flaky, TABLE_I, MetricConventions(), rows=["Flaky", "rule"])
+    assert named.rows == ("Flaky (openai:gemma)", "rule †")
+    assert "| dead | error | error |" in to_markdown(
+        paper_table(flaky, TABLE_I, MetricConventions())
+    )
+    assert "Flaky" in paper_table(flaky, TABLE_II, MetricConventions()).rows  # the models' table
 
 
 def test_the_table_command_makes_the_same_table(tmp_path: Path) -> None:
