@@ -115,7 +115,7 @@ def _plot_clearance(ax: object, groups: dict[str, pd.DataFrame], colours: dict[s
             continue  # no obstacles in this scenario
         drawn = True
         hits = int(g["collision"].sum())
-        label = f"{controller}: {hits} collision step(s)" if hits else f"{controller}: none"
+        label = f"{controller}: {hits} collision step(s)" if hits else f"{controller}: no collision"
         ax.plot(g["t_s"], clearance, color=colours[controller], lw=1.1, label=label)
         inside = g["collision"].to_numpy(bool)
         ax.plot(g["t_s"][inside], clearance[inside], "x", color=colours[controller], ms=4)
