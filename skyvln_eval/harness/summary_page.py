@@ -31,7 +31,7 @@ def _read(report: ReproduceReport, name: str) -> str:
 
 def _datasets(datasets: Sequence[SplitSummary]) -> list[str]:
     lines = [
-        "| split | records | trajectories | maps | mean GT length m | GT replay hull-IoU |",
+        "| split | records | trajectories | maps | mean GT length m | GT replay hull-IoU, least |",
         "|---|---|---|---|---|---|",
     ]
     for s in datasets:

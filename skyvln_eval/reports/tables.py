@@ -167,6 +167,10 @@ class Table:
     def digits_of(self, column: tuple[str, str]) -> int:
         return self.spec.digits_of(column[1], self.digits)
 
+    def _repr_markdown_(self) -> str:
+        """Jupyter shows a table as its Markdown (:func:`to_markdown`), notes included."""
+        return to_markdown(self)
+
 
 def _ranks(values: dict[str, float], lower_is_better: bool, digits: int) -> dict[str, int]:
     """Best (1) and second best (2) by the shown values; no second when it is the worst."""

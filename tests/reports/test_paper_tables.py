@@ -184,3 +184,8 @@ def test_a_stand_in_row_whose_marked_label_another_system_has_is_refused() -> No
     scores = _scores().replace({"system": {"gemma": "rule †"}})
     with pytest.raises(MetricInputError, match=r"as 'rule †' \(it ran on a stand-in\), the label"):
         paper_table(scores, TABLE_I, MetricConventions())
+
+
+def test_a_table_shows_itself_in_jupyter_as_its_markdown() -> None:
+    table = paper_table(_scores(), TABLE_II, MetricConventions())
+    assert table._repr_markdown_() == to_markdown(table)
