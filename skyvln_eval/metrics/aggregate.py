@@ -483,6 +483,11 @@ def _no_scores_for(scores: pd.DataFrame, system: str, split: str, mode: str) -> 
     where = scores[scores.system == system]
     if where.empty:
         systems = list(dict.fromkeys(scores["system"].astype(str)))
-        return f"no scores for system {system!r}; the scores have the systems {listed(systems)}"
+        # A run's own name, where the scores label it by what answered it ("Full †").
+        marked = [s for s in systems if s.startswith(f"{system} ")]
+        hint = f" (did you mean {listed(marked)}?)" if marked else ""
+        return (
+            f"no scores for system {system!r}{hint}; the scores have the systems {listed(systems)}"
+        )
     has = list(dict.fromkeys(where["split"].astype(str) + "/" + where["mode"].astype(str)))
     return f"no scores for system {system!r} on {split}/{mode}; it has {listed(has)}"

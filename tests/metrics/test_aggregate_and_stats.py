@@ -132,6 +132,9 @@ def test_compare_systems_names_the_systems_there_are_and_says_how_many_it_cut() 
     with pytest.raises(MetricInputError) as unknown:
         compare_systems(scores, "Full", "B", "success", "val_seen")
     assert "no scores for system 'Full'; the scores have the systems 'A', 'B'" in str(unknown.value)
+    marked = scores.replace({"system": {"A": "A †"}})  # reproduce labels stand-in rows so
+    with pytest.raises(MetricInputError, match=r"system 'A' \(did you mean 'A †'\?\)"):
+        compare_systems(marked, "A", "B", "success", "val_seen")
     with pytest.raises(MetricInputError, match=r"'A' on val_unseen/andh; it has 'val_seen/andh'"):
         compare_systems(scores, "A", "B", "success", "val_unseen")
     # Only A has the last 15 episodes: 10 are named, and the 5 others counted.
