@@ -20,9 +20,11 @@ columns that depend on the scheduling. ``llm_calls`` counts calls (a call's retr
 repairs are attempts of it), ``llm_requests`` every request sent (every attempt: retries
 and refused forms included), ``llm_refused_requests`` the refused ones;
 ``llm_failed_calls`` counts only calls that ended with no answer, so negotiation that
-ended in an answer is no failure. ``llm_unpriced_calls`` counts attempts whose cost is
-unknown. ``llm_latency_s`` is the time of every request (answered, failed and refused),
-queueing excluded. ``llm_cost_lower_usd`` is a known lower bound where only failed
+ended in an answer is no failure. ``llm_unpriced_requests`` counts requests (attempts)
+whose cost is unknown (``llm_unpriced_calls`` in scores files written before the name
+said so: :func:`~skyvln_eval.metrics.scores_io.read_scores` reads it under this one).
+``llm_latency_s`` is the time of every request (answered, failed and refused), queueing
+excluded. ``llm_cost_lower_usd`` is a known lower bound where only failed
 attempts are unpriced (a single HTTP 429 would otherwise leave nothing of a backend's
 cost) and some attempt that was not a refusal is priced (else nothing shows the model
 has a price): Table II shows it as "≥x" in place of "n/a".
@@ -56,7 +58,7 @@ COST_COLUMNS: dict[str, str] = {
     "llm_completion_tokens": "tokens",
     "llm_cost_usd": "USD",
     "llm_cost_lower_usd": "USD",
-    "llm_unpriced_calls": "calls",
+    "llm_unpriced_requests": "requests",
     "llm_latency_s": "s",
     "llm_queue_s": "s",
     "decisions": "decisions",
@@ -126,7 +128,7 @@ def call_totals(
         "llm_completion_tokens": _sum_known([_reported(c, c.completion_tokens) for c in calls]),
         "llm_cost_usd": _sum_known([c.cost_usd for c in calls]),
         "llm_cost_lower_usd": _cost_lower_bound(calls),
-        "llm_unpriced_calls": float(sum(c.cost_usd is None for c in calls)),
+        "llm_unpriced_requests": float(sum(c.cost_usd is None for c in calls)),
         "llm_latency_s": float(sum(c.latency_s for c in calls)),
         "llm_queue_s": float(sum(c.queue_s for c in calls)),
         "decisions": float(decisions),
@@ -136,9 +138,15 @@ def call_totals(
     }
 
 
-def episode_costs(results: Sequence[EpisodeResult]) -> pd.DataFrame:
-    """One row per result with its LLM totals (zeros and known costs when it made no call;
-    empty, i.e. unknown, where no one recorded its calls: ``llm_use_recorded``)."""
+#: What names the episode of a row of :func:`episode_costs` and :func:`module_costs`, as
+#: in the scores.
+ID_COLUMNS = ["system", "split", "mode", "episode_id"]
+
+
+def episode_totals(results: Sequence[EpisodeResult]) -> pd.DataFrame:
+    """One row per result with its LLM totals (:data:`COST_COLUMNS` only: the scores'
+    columns; zeros and known costs when it made no call; empty, i.e. unknown, where no
+    one recorded its calls: ``llm_use_recorded``)."""
     unknown = dict.fromkeys(COST_COLUMNS, math.nan)
     rows = [
         call_totals(r.llm_calls, r.module_failures, r.decisions) if r.llm_use_recorded else unknown
@@ -147,8 +155,19 @@ def episode_costs(results: Sequence[EpisodeResult]) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=list(COST_COLUMNS))
 
 
+def episode_costs(results: Sequence[EpisodeResult]) -> pd.DataFrame:
+    """One row per result: which episode (:data:`ID_COLUMNS`, to join with the scores)
+    and its LLM totals (:func:`episode_totals`)."""
+    ids = pd.DataFrame([r.key for r in results], columns=ID_COLUMNS, dtype=object)
+    return pd.concat([ids, episode_totals(results)], axis=1)
+
+
 def module_costs(results: Sequence[EpisodeResult]) -> pd.DataFrame:
-    """One row per (result, agent module that called or failed), with that module's totals."""
+    """One row per (result, agent module that called or failed), with that module's totals.
+
+    Decisions belong to the episode, not to a module: a row's ``decisions`` are its
+    episode's, its ``fallback_decisions`` those that fell back for this module's failures,
+    and its ``fallback_rate`` their share of the episode's decisions."""
     rows = []
     for r in results:
         calls: dict[str, list[LlmCall]] = {}
@@ -159,7 +178,7 @@ def module_costs(results: Sequence[EpisodeResult]) -> pd.DataFrame:
             failures.setdefault(failure.module, []).append(failure)
         for module in sorted(set(calls) | set(failures)):
             models = sorted({f"{c.backend}:{c.model}" for c in calls.get(module, [])})
-            totals = call_totals(calls.get(module, []), failures.get(module, []))
+            totals = call_totals(calls.get(module, []), failures.get(module, []), r.decisions)
             rows.append(
                 {
                     "system": r.system,
@@ -171,7 +190,7 @@ def module_costs(results: Sequence[EpisodeResult]) -> pd.DataFrame:
                     **totals,
                 }
             )
-    columns = ["system", "split", "mode", "episode_id", "module", "models", *COST_COLUMNS]
+    columns = [*ID_COLUMNS, "module", "models", *COST_COLUMNS]
     return pd.DataFrame(rows, columns=columns)
 
 

@@ -17,8 +17,9 @@ Version 3 added the warning lines. Version 2 added the ``oracle`` column (the ha
 oracle flew the episode: a table never ranks it). Version 1 files still read, their
 ``oracle`` cells empty: not said, which is what they say; their rows are ranked as they
 always were. The ``llm_backend`` column (what answered the agent's LLM calls: a stand-in
-such as ``rule`` is a reference in Table II, never ranked) is optional: a file without it
-reads with the cells empty.
+such as ``rule`` is a reference in Table II, never ranked), ``execution_mode`` (official or
+dynamics; ``mode`` is the AVDN episode mode) and ``error`` (the first line of an error
+episode's error) are optional: a file without them reads with the cells empty.
 """
 
 from __future__ import annotations
@@ -132,11 +133,15 @@ def read_scores(path: str | Path) -> tuple[pd.DataFrame, MetricConventions]:
                 "system": str,
                 "oracle": str,
                 "llm_backend": "string",
+                "execution_mode": "string",
+                "error": "string",
             },
         )
     except ValueError as exc:  # pandas' ParserError and EmptyDataError among them
         reason = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
         raise DataError(f"{path}: the scores table is not valid CSV ({reason})") from None
+    # Its old name: it always counted requests (attempts), not calls.
+    frame = frame.rename(columns={"llm_unpriced_calls": "llm_unpriced_requests"})
     said = ("oracle",) if version != "1" else ()
     missing = [c for c in (*KEY_COLUMNS, "status", *said, *METRIC_UNITS) if c not in frame.columns]
     if missing:
@@ -152,9 +157,12 @@ def read_scores(path: str | Path) -> tuple[pd.DataFrame, MetricConventions]:
             frame[column] = frame[column].astype("Float64")
     frame.attrs[_LINES_ATTR] = 3 + len(warnings)
     _read_oracle(frame, path)
-    if "llm_backend" not in frame.columns:  # scored before results said (not known)
-        empty = pd.array([None] * len(frame), dtype="string")
-        frame.insert(frame.columns.get_loc("oracle") + 1, "llm_backend", empty)
+    after = "oracle"
+    for column in ("llm_backend", "execution_mode", "error"):
+        if column not in frame.columns:  # scored before the scores said (not known)
+            empty = pd.array([None] * len(frame), dtype="string")
+            frame.insert(frame.columns.get_loc(after) + 1, column, empty)
+        after = column
     check_unique_scores([(str(path), frame)])
     frame.attrs[CONVENTIONS_ATTR] = conventions
     frame.attrs[WARNINGS_ATTR] = warnings

@@ -20,7 +20,7 @@ from numpy.typing import ArrayLike, NDArray
 from skyvln_eval.errors import MetricInputError, NoGroundTruthError
 from skyvln_eval.metrics.batch import pack_views
 from skyvln_eval.metrics.conventions import CONVENTIONS_ATTR, MetricConventions
-from skyvln_eval.metrics.cost import COST_COLUMNS, episode_costs
+from skyvln_eval.metrics.cost import COST_COLUMNS, episode_totals
 from skyvln_eval.metrics.official import OFFICIAL_COLUMNS, official_metrics
 from skyvln_eval.metrics.r2r import R2R_COLUMNS, r2r_metrics
 from skyvln_eval.metrics.records import RESULT_STATUSES, EpisodeResult
@@ -132,6 +132,8 @@ def score_results(
             "status": [r.status for r in results],
             "oracle": pd.array([_oracle(r) for r in results], dtype="boolean"),
             "llm_backend": pd.array([_llm_backend(r) for r in results], dtype="string"),
+            "execution_mode": pd.array([_execution_mode(r) for r in results], dtype="string"),
+            "error": pd.array([_first_line(r.error) for r in results], dtype="string"),
             "n_views": visited.lengths,
             "n_gt_views": gt.lengths,
         }
@@ -154,7 +156,7 @@ def score_results(
         float(sum(x.get("answer") is not None for x in q)) if known else math.nan
         for q, known in zip(questions, recorded, strict=True)
     ]
-    frame = pd.concat([frame, episode_costs(results)], axis=1)
+    frame = pd.concat([frame, episode_totals(results)], axis=1)
     frame["has_control"] = [r.control is not None for r in results]
     with_control = [k for k, r in enumerate(results) if r.control is not None]
     for column in CONTROL_COLUMNS:
@@ -180,6 +182,19 @@ def _oracle(result: EpisodeResult) -> bool | None:
         return value
     where = "/".join(result.key)
     raise MetricInputError(f"{where}: extra.oracle must be true or false, got {value!r}")
+
+
+def _execution_mode(result: EpisodeResult) -> str | None:
+    """How the episode ran: ``official`` (AVDN's step) or ``dynamics`` (flown), from its
+    ``extra["execution_mode"]``; ``None`` where the results do not say. (The ``mode``
+    column is the AVDN episode mode, ``andh`` or ``andh-full``.)"""
+    value = result.extra.get("execution_mode")
+    return value if isinstance(value, str) else None
+
+
+def _first_line(error: str | None) -> str | None:
+    """An episode's error, as its first line (the rest is in the results file)."""
+    return None if not error else error.strip().splitlines()[0]
 
 
 def _llm_backend(result: EpisodeResult) -> str | None:

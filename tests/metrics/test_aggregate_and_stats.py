@@ -336,3 +336,40 @@ def test_a_comparison_over_trajectories_flips_and_resamples_whole_dialogs() -> N
     assert by_dialog.p_value == pytest.approx(expected)
     with pytest.raises(MetricInputError, match="ci_unit"):
         compare_systems(scores, "A", "B", "ne_m", "val_seen", ci_unit="dialog")  # type: ignore[arg-type]
+
+
+def test_scores_keep_how_an_episode_ran_and_why_it_failed(tmp_path: Path) -> None:
+    """An audit found the error text and the execution mode dropped from the scores: a
+    researcher filtering failures in pandas could not see why, nor which runs flew."""
+    g = [square(0, 0), square(100, 0)]
+    results = [
+        result(g, g, episode_id="e0", extra={"execution_mode": "dynamics"}),
+        result(
+            [g[0]],
+            g,
+            "error",
+            episode_id="e1",
+            error='HTTP 500: {"error": "boom", "at": 3}\nTraceback (most recent call last)',
+            extra={"execution_mode": "official"},
+        ),
+        result([g[0]], g, episode_id="e2"),  # results that do not say how it ran
+    ]
+    scores = score_results(results)
+    assert scores["execution_mode"].tolist() == ["dynamics", "official", pd.NA]
+    assert scores["error"].tolist() == [pd.NA, 'HTTP 500: {"error": "boom", "at": 3}', pd.NA]
+    write_scores(tmp_path / "s.csv", scores, MetricConventions())
+    back, _ = read_scores(tmp_path / "s.csv")
+    for column in ("execution_mode", "error"):
+        pd.testing.assert_series_equal(back[column], scores[column], check_names=True)
+    # A file scored before the columns reads with them empty, in the same place.
+    lines = (tmp_path / "s.csv").read_text().splitlines()
+    header = lines[2].split(",")
+    cut = [header.index("execution_mode"), header.index("error")]
+    kept = [lines[0], lines[1]] + [
+        ",".join(c for k, c in enumerate(line.split(",")) if k not in cut)
+        for line in [lines[2], *[row for row in lines[3:] if '"' not in row]]
+    ]
+    (tmp_path / "old.csv").write_text("\n".join(kept) + "\n")
+    old, _ = read_scores(tmp_path / "old.csv")
+    assert list(old.columns) == list(back.columns)
+    assert old["execution_mode"].isna().all() and old["error"].isna().all()

@@ -11,17 +11,21 @@ import pandas as pd
 import pytest
 
 from skyvln_eval.errors import DataError
+from skyvln_eval.llm_records import ModuleFailure
 from skyvln_eval.metrics import (
     CONTROL_LOG_COLUMNS,
     LlmCall,
     MetricConventions,
     control_metrics,
+    episode_costs,
+    module_costs,
     read_control_log,
     score_results,
     summarise,
     summarise_control,
     summarise_costs,
 )
+from skyvln_eval.metrics.scores_io import read_scores, write_scores
 from tests.metrics.helpers import result, square
 
 
@@ -168,7 +172,7 @@ def test_failed_attempts_add_the_tokens_they_reported_and_leave_the_cost_unknown
     assert scores.llm_prompt_tokens.tolist()[:2] == [500.0, 800.0]
     assert np.isnan(scores.llm_prompt_tokens[2])  # an answer without a count: unknown
     assert np.isnan(scores.llm_cost_usd[0]) and np.isnan(scores.llm_cost_usd[1])
-    assert scores.llm_unpriced_calls.tolist() == [1.0, 1.0, 0.0]
+    assert scores.llm_unpriced_requests.tolist() == [1.0, 1.0, 0.0]
     # Only failed attempts unpriced: what the answered calls cost is a known lower bound.
     assert scores.llm_cost_lower_usd.tolist() == pytest.approx([0.005, 0.005, 0.005])
     unpriced = _call("motion", prompt_tokens=500, completion_tokens=50)  # answered, no price
@@ -199,3 +203,43 @@ def test_no_lower_bound_of_the_cost_without_one_priced_attempt() -> None:
     assert np.isnan(scores.llm_cost_lower_usd[0]) and np.isnan(scores.llm_cost_usd[0])
     assert scores.llm_cost_lower_usd[1] == pytest.approx(0.005)  # a priced answer shows a price
     assert scores.llm_cost_lower_usd[2] == 0.0 and scores.llm_cost_usd[2] == 0.0
+
+
+def test_cost_rows_name_their_episode_and_module_rows_do_not_contradict_themselves(
+    tmp_path: Path,
+) -> None:
+    """An audit found episode_costs rows with only an index (no way to join them to the
+    scores), and module rows saying decisions 0 and fallback rate n/a next to one
+    fallback decision."""
+    g = [square(0, 0), square(50, 0)]
+    calls = [_call("motion", outcome="invalid", error="bad"), _call("motion", cost_usd=0.001)]
+    failure = ModuleFailure(step_index=2, module="motion", reason="bad", substitute="stop action")
+    results = [
+        result(
+            g, g, episode_id="1913__0_1", llm_calls=calls, module_failures=(failure,), decisions=4
+        ),
+        result(g, g, episode_id="1913__0_2"),
+    ]
+    costs = episode_costs(results)
+    assert costs[["system", "split", "mode", "episode_id"]].values.tolist() == [
+        ["agent", "val_seen", "andh", "1913__0_1"],
+        ["agent", "val_seen", "andh", "1913__0_2"],
+    ]
+    joined = score_results(results).merge(costs, on=["system", "split", "mode", "episode_id"])
+    assert len(joined) == 2 and joined["llm_requests_y"].tolist() == [2.0, 0.0]
+    motion = module_costs(results).set_index("module").loc["motion"]
+    assert motion["decisions"] == 4 and motion["fallback_decisions"] == 1
+    assert motion["fallback_rate"] == pytest.approx(0.25)
+    # Requests, not calls: two attempts of one call, the first (invalid) unpriced.
+    assert costs["llm_unpriced_requests"].tolist() == [1.0, 0.0]
+
+
+def test_a_scores_file_with_the_old_name_of_unpriced_requests_reads(tmp_path: Path) -> None:
+    g = [square(0, 0), square(50, 0)]
+    scores = score_results([result(g, g, llm_calls=[_call("motion")])])
+    write_scores(tmp_path / "s.csv", scores, MetricConventions())
+    text = (tmp_path / "s.csv").read_text().replace("llm_unpriced_requests", "llm_unpriced_calls")
+    (tmp_path / "old.csv").write_text(text)
+    old, _ = read_scores(tmp_path / "old.csv")
+    assert "llm_unpriced_calls" not in old.columns
+    assert old["llm_unpriced_requests"].tolist() == scores["llm_unpriced_requests"].tolist()
