@@ -269,7 +269,8 @@ def summarise(
     ``ci_unit="trajectory"`` resamples whole trajectories (:func:`trajectory_of`) instead
     of episodes: the rounds of one dialog fly one route and succeed or fail together more
     often than independent episodes would. Its 0/1 rates are bootstrapped too (Wilson
-    over the trajectories where every episode has the same value).
+    over the trajectories where every episode has the same value); ``n_trajectories``
+    says how many trajectories each row's episodes come from.
 
     Every bootstrapped metric of a group is resampled with the same ``seed``, so metrics
     defined on the same episodes share their resamples. Episodes are taken in episode-id
@@ -309,6 +310,8 @@ def summarise(
             resampling = _Resampling(
                 None if ci_unit == "episode" else np.array([trajectory_of(e) for e in ids])
             )
+            if resampling.clusters is not None:  # how many units the interval rests on
+                row["n_trajectories"] = len(set(resampling.clusters.tolist()))
             if metric in POOLED_RATES:  # checked_scores made sure of both parts
                 # Numerator and denominator of the episodes with something to rate.
                 parts = group.loc[present, list(POOLED_RATES[metric])]
@@ -335,6 +338,8 @@ def summarise(
                     row.update(_percentiles(estimates, confidence, resampling.bootstrap))
             rows.append(row)
     summary = pd.DataFrame(rows)
+    if "n_trajectories" in summary.columns:  # a count, not a float
+        summary["n_trajectories"] = summary["n_trajectories"].astype("Int64")
     if CONVENTIONS_ATTR in scores.attrs:  # which conventions scored it goes along
         summary.attrs[CONVENTIONS_ATTR] = scores.attrs[CONVENTIONS_ATTR]
     return summary

@@ -108,6 +108,7 @@ class Cell:
     errors: int = 0  # how many of them ended in error (scored as failures)
     lower_bound: bool = False  # the mean is unknown; ``mean`` is a known lower bound of it
     ci_method: str = ""  # how the interval was made (a key of CI_METHODS)
+    trajectories: int = 0  # the units of a trajectory interval (0: not one, or not known)
 
     @property
     def all_errors(self) -> bool:
@@ -250,6 +251,9 @@ def build_table(
                 cell = Cell(float(v["mean"]), low, high, ranks.get(row), *in_cell[row])
                 if show_ci:
                     cell = replace(cell, ci_method=str(v["ci_method"]))
+                    units = v.get("n_trajectories", math.nan)
+                    if not pd.isna(units):
+                        cell = replace(cell, trajectories=int(units))
                 bound = _summary_mean(index, (row, split, LOWER_BOUNDS.get(metric, "")))
                 if math.isnan(cell.mean) and bound is not None:
                     # Never ranked: the true value is unknown (its CI too).
@@ -300,10 +304,13 @@ def _interval_notes(
     labels = dict(spec.metrics)
     by_method: dict[str, dict[str, None]] = {}
     unavailable = False
+    units: set[int] = set()
     for row in rows:
         for (_, metric), cell in cells[row].items():
             if cell is None or not cell.shows_interval:
                 continue
+            if cell.trajectories:
+                units.add(cell.trajectories)
             if cell.ci_low is not None and math.isnan(cell.ci_low):
                 unavailable = True
                 continue
@@ -315,6 +322,10 @@ def _interval_notes(
         f"{CI_METHODS.get(method, method)}: {', '.join(columns)}"
         for method, columns in sorted(by_method.items())
     ]
+    if units:  # few dialogs make a wide interval: say how few
+        low, high = min(units), max(units)
+        span = f"{low}" if low == high else f"{low} to {high}"
+        parts.append(f"each over {span} trajector{'y' if high == 1 else 'ies'}")
     if unavailable:
         parts.append("[n/a]: no interval (a bootstrap needs episodes whose values differ)")
     return [f"Brackets: {level} intervals; {'; '.join(parts)}."]

@@ -129,6 +129,8 @@ def test_trajectory_intervals_draw_the_rounds_of_a_dialog_together() -> None:
         assert (high_t - low_t) > 1.4 * (high_e - low_e), metric
     same = by_trajectory.set_index("metric")
     assert same.loc["success", "n"] == 60  # the mean is still over episodes
+    assert same.loc["success", "n_trajectories"] == 20  # what the interval rests on
+    assert "n_trajectories" not in by_episode.columns
     assert same.loc["success", "mean"] == by_episode.set_index("metric").loc["success", "mean"]
     # Every round failed: Wilson over the 20 trajectories, wider than over 60 episodes.
     none = summarise(

@@ -189,3 +189,13 @@ def test_a_stand_in_row_whose_marked_label_another_system_has_is_refused() -> No
 def test_a_table_shows_itself_in_jupyter_as_its_markdown() -> None:
     table = paper_table(_scores(), TABLE_II, MetricConventions())
     assert table._repr_markdown_() == to_markdown(table)
+
+
+def test_trajectory_intervals_say_how_many_trajectories_they_rest_on() -> None:
+    scores = _scores()
+    md = to_markdown(
+        paper_table(scores, TABLE_II, MetricConventions(), show_ci=True, ci_unit="trajectory")
+    )
+    assert "each over 2 to 3 trajectories" in md  # gemma and dead 2 dialogs, rule 3
+    plain = to_markdown(paper_table(scores, TABLE_II, MetricConventions(), show_ci=True))
+    assert "trajector" not in plain.split("Brackets")[1]
