@@ -9,6 +9,7 @@ the run directory, so every table row can be traced to the settings that made it
 from __future__ import annotations
 
 import hashlib
+import math
 from pathlib import Path
 from typing import Any, Literal
 
@@ -29,7 +30,7 @@ from skyvln_eval.errors import (
 from skyvln_eval.fileio import read_yaml_mapping
 from skyvln_eval.harness.executors import ExecutorKind
 from skyvln_eval.sensing import SensorConfig
-from skyvln_eval.sim.plant import PlantConfig
+from skyvln_eval.sim.plant import PlantConfig, SensorNoise, WindConfig
 from skyvln_eval.sim.quadrotor import InputLimits
 from skyvln_eval.sim.scenarios import ScenarioKind
 
@@ -57,8 +58,57 @@ class CommanderSettings(_Strict):
     max_questions: int = Field(default=2, ge=0, le=20, description="answers per episode")
 
 
+class PlantSettings(_Strict):
+    """What the simulated drone adds to the controller's model (dynamics mode).
+
+    All zero by default: the nominal plant, the controller's own equations integrated more
+    finely, with exact state feedback, so the closed loop shows the best case. Wind (a
+    mean and a seeded gust) and sensor noise make the model mismatch a real flight has.
+    """
+
+    wind_mean_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    gust_std_m_s: float = Field(default=0.0, ge=0.0)
+    position_noise_std_m: float = Field(default=0.0, ge=0.0)
+    velocity_noise_std_m_s: float = Field(default=0.0, ge=0.0)
+    attitude_noise_std_rad: float = Field(default=0.0, ge=0.0)
+
+    @property
+    def nominal(self) -> bool:
+        return not any(abs(v) for v in (*self.wind_mean_m_s, *self._spreads()))
+
+    def _spreads(self) -> tuple[float, ...]:
+        return (
+            self.gust_std_m_s,
+            self.position_noise_std_m,
+            self.velocity_noise_std_m_s,
+            self.attitude_noise_std_rad,
+        )
+
+    def plant_config(self) -> PlantConfig:
+        return PlantConfig(
+            wind=WindConfig(mean_m_s=self.wind_mean_m_s, gust_std_m_s=self.gust_std_m_s),
+            noise=SensorNoise(
+                position_std_m=self.position_noise_std_m,
+                velocity_std_m_s=self.velocity_noise_std_m_s,
+                attitude_std_rad=self.attitude_noise_std_rad,
+            ),
+        )
+
+    def describe(self) -> str:
+        """The plant in words, for the tables' captions."""
+        if self.nominal:
+            return "nominal plant (the controller's model, no wind, exact state)"
+        wind = math.hypot(*self.wind_mean_m_s[:2])
+        return (
+            f"plant with wind {wind:g} m/s (gusts {self.gust_std_m_s:g} m/s) and sensor noise "
+            f"{self.position_noise_std_m:g} m, {self.velocity_noise_std_m_s:g} m/s, "
+            f"{self.attitude_noise_std_rad:g} rad"
+        )
+
+
 class DynamicsSettings(_Strict):
-    """How actions are flown in dynamics mode: controller, reference, arrival, obstacles."""
+    """How actions are flown in dynamics mode: controller, reference, arrival, obstacles,
+    and what the plant adds to the controller's model (``plant``: nominal by default)."""
 
     controller: str = "nmpc"
     controller_settings: dict[str, Any] = Field(default_factory=dict)
@@ -73,6 +123,7 @@ class DynamicsSettings(_Strict):
     end_on_collision: bool = Field(
         default=True, description="a collision ends the episode where it happened (a crash)"
     )
+    plant: PlantSettings = PlantSettings()
 
     @field_validator("controller")
     @classmethod
@@ -86,6 +137,27 @@ class DynamicsSettings(_Strict):
             except UnknownNameError as error:
                 raise ValueError(str(error)) from None
         return name
+
+    @model_validator(mode="after")
+    def _every_obstacle_planned_around(self) -> DynamicsSettings:
+        """An MPC plans around its ``max_obstacles`` nearest obstacles: with more on the
+        route it would drop some from its plan without a word (0 slots is an MPC that
+        ignores obstacles on purpose, and a PID has none)."""
+        try:
+            slots = getattr(
+                controller_config(self.controller, self.controller_settings), "max_obstacles", None
+            )
+        except (UnknownNameError, SettingsError):
+            return self  # said by the controller's own check
+        count = self.obstacles.n_obstacles if self.obstacles.kind != "none" else 0
+        if isinstance(slots, int) and 0 < slots < count:
+            raise ValueError(
+                f"controller {self.controller!r} plans around its {slots} nearest obstacles "
+                f"(max_obstacles), but each segment has {count} (obstacles.n_obstacles): it "
+                f"would drop the others from its plan. Set controller_settings: "
+                f"{{max_obstacles: {count}}}, or fewer obstacles"
+            )
+        return self
 
 
 #: Settings that say how a run runs, not what it computes: no digest covers them, and a

@@ -111,6 +111,7 @@ def run_dynamics_episode(
         DroneState(pose.x_m, pose.y_m, pose.z_m, yaw_rad=pose.yaw_rad),
         # One scenario name for the whole episode, whether or not a segment has obstacles.
         scenario=ObstacleScenario(obstacles.kind),
+        plant_config=settings.plant.plant_config(),
         seed=seed,
         reference_config=ReferenceConfig(
             cruise_speed_m_s=settings.cruise_speed_m_s,

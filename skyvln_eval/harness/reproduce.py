@@ -142,7 +142,13 @@ def setting_note(plan: ReproducePlan) -> str:
         if asks
         else "no commander answers questions"
     )
-    return f"Sensors: {plan.sensors.describe()}; {commander}."
+    systems = [*plan.table1.systems, plan.table2.system]
+    flown = (
+        f"; flown systems: {plan.dynamics.plant.describe()}"
+        if any(system.mode == "dynamics" for system in systems)
+        else ""
+    )
+    return f"Sensors: {plan.sensors.describe()}; {commander}{flown}."
 
 
 def table1_label(label: str, agent: AgentConfig) -> tuple[str, str | None]:

@@ -1,12 +1,14 @@
 """The simulated drone: the paper's model integrated with RK4, plus wind, sensor noise and yaw.
 
 The plant integrates :func:`~skyvln_eval.sim.quadrotor.model_rhs` with several RK4 sub-steps
-per control step (the controllers predict with one, so there is a small, realistic model
-mismatch), holds each command constant over the step (zero-order hold), saturates it to the
-actuator limits, and adds what the controllers' model lacks: wind (a constant mean plus a
-seeded Ornstein-Uhlenbeck gust on the air velocity that drag acts on) and the heading loop
+per control step (the controllers predict with one: at the default 0.1 s step the two
+differ by micrometres, no real mismatch), holds each command constant over the step
+(zero-order hold), saturates it to the actuator limits, and adds what the controllers'
+model lacks: wind (a constant mean plus a seeded Ornstein-Uhlenbeck gust on the air
+velocity that drag acts on) and the heading loop
 ``yaw' = clip(wrap(yaw_ref - yaw) / tau_yaw, +-yaw_rate_max)``. :meth:`Plant.measure`
-returns the state with seeded Gaussian sensor noise.
+returns the state with seeded Gaussian sensor noise. Wind and noise are off by default
+(the nominal plant): the model mismatch of a closed loop is what they are set to.
 
 The integration is one CasADi function per plant configuration (built once per process,
 evaluated through a buffer: a few microseconds a step where Python floats took a quarter
