@@ -136,6 +136,9 @@ def read_scores(path: str | Path) -> tuple[pd.DataFrame, MetricConventions]:
                 "execution_mode": "string",
                 "error": "string",
             },
+            # Only an empty cell is missing, as written: an error line "None" stays text.
+            keep_default_na=False,
+            na_values=[""],
         )
     except ValueError as exc:  # pandas' ParserError and EmptyDataError among them
         reason = (str(exc).strip().splitlines() or [type(exc).__name__])[0]

@@ -353,10 +353,12 @@ def test_scores_keep_how_an_episode_ran_and_why_it_failed(tmp_path: Path) -> Non
             extra={"execution_mode": "official"},
         ),
         result([g[0]], g, episode_id="e2"),  # results that do not say how it ran
+        result([g[0]], g, "error", episode_id="e3", error="None"),  # text, not missing
     ]
     scores = score_results(results)
-    assert scores["execution_mode"].tolist() == ["dynamics", "official", pd.NA]
-    assert scores["error"].tolist() == [pd.NA, 'HTTP 500: {"error": "boom", "at": 3}', pd.NA]
+    assert scores["execution_mode"].tolist() == ["dynamics", "official", pd.NA, pd.NA]
+    boom = 'HTTP 500: {"error": "boom", "at": 3}'
+    assert scores["error"].tolist() == [pd.NA, boom, pd.NA, "None"]
     write_scores(tmp_path / "s.csv", scores, MetricConventions())
     back, _ = read_scores(tmp_path / "s.csv")
     for column in ("execution_mode", "error"):
