@@ -74,15 +74,7 @@ class PlantSettings(_Strict):
 
     @property
     def nominal(self) -> bool:
-        return not any(abs(v) for v in (*self.wind_mean_m_s, *self._spreads()))
-
-    def _spreads(self) -> tuple[float, ...]:
-        return (
-            self.gust_std_m_s,
-            self.position_noise_std_m,
-            self.velocity_noise_std_m_s,
-            self.attitude_noise_std_rad,
-        )
+        return self == PlantSettings()  # every field its zero default
 
     def plant_config(self) -> PlantConfig:
         return PlantConfig(

@@ -180,6 +180,17 @@ def _control_logs(report: ReproduceReport) -> list[str]:
     return ["", "The control figures' logs: " + ", ".join(_link(report, n) for n in logs) + "."]
 
 
+def _this_pass(report: ReproduceReport, wall: float, simulated: float) -> str:
+    """What this reproduce pass ran, for the status line."""
+    ran_now = sum(r.ran_now for r in report.reports)
+    if ran_now:
+        flight = f" for {simulated:.0f} s of simulated flight" if simulated > 0 else ""
+        return f"the {ran_now} episode(s) run now took {wall:.0f} s of wall time{flight}"
+    if report.complete:
+        return "nothing was left to run: every episode was recorded before"
+    return "no episode finished in this pass"
+
+
 def write_summary_page(
     report: ReproduceReport,
     plan: ReproducePlan,
@@ -200,15 +211,7 @@ def write_summary_page(
         "as data) with a vocabulary, the random backend answers at random. They measure the "
         "pipeline, not a language model."
     )
-    ran_now = sum(r.ran_now for r in report.reports)
-    this_time = (
-        f"the {ran_now} episode(s) run now took {wall:.0f} s of wall time"
-        + (f" for {simulated:.0f} s of simulated flight" if simulated > 0 else "")
-        if ran_now
-        else "nothing was left to run: every episode was recorded before"
-        if report.complete
-        else "no episode finished in this pass"
-    )
+    this_time = _this_pass(report, wall, simulated)
     text = "\n".join(
         [
             f"# Reproduce: plan `{plan.name}`",

@@ -42,7 +42,7 @@ from collections.abc import Sequence
 import pandas as pd
 
 from skyvln_eval.llm_records import ModuleFailure
-from skyvln_eval.metrics.records import EpisodeResult, LlmCall
+from skyvln_eval.metrics.records import KEY_COLUMNS, EpisodeResult, LlmCall
 
 #: Per-episode LLM columns and their units.
 COST_COLUMNS: dict[str, str] = {
@@ -138,11 +138,6 @@ def call_totals(
     }
 
 
-#: What names the episode of a row of :func:`episode_costs` and :func:`module_costs`, as
-#: in the scores.
-ID_COLUMNS = ["system", "split", "mode", "episode_id"]
-
-
 def episode_totals(results: Sequence[EpisodeResult]) -> pd.DataFrame:
     """One row per result with its LLM totals (:data:`COST_COLUMNS` only: the scores'
     columns; zeros and known costs when it made no call; empty, i.e. unknown, where no
@@ -156,9 +151,9 @@ def episode_totals(results: Sequence[EpisodeResult]) -> pd.DataFrame:
 
 
 def episode_costs(results: Sequence[EpisodeResult]) -> pd.DataFrame:
-    """One row per result: which episode (:data:`ID_COLUMNS`, to join with the scores)
+    """One row per result: which episode (the scores' key columns, to join with them)
     and its LLM totals (:func:`episode_totals`)."""
-    ids = pd.DataFrame([r.key for r in results], columns=ID_COLUMNS, dtype=object)
+    ids = pd.DataFrame([r.key for r in results], columns=list(KEY_COLUMNS), dtype=object)
     return pd.concat([ids, episode_totals(results)], axis=1)
 
 
@@ -181,16 +176,13 @@ def module_costs(results: Sequence[EpisodeResult]) -> pd.DataFrame:
             totals = call_totals(calls.get(module, []), failures.get(module, []), r.decisions)
             rows.append(
                 {
-                    "system": r.system,
-                    "split": r.split,
-                    "mode": r.mode,
-                    "episode_id": r.episode_id,
+                    **dict(zip(KEY_COLUMNS, r.key, strict=True)),
                     "module": module,
                     "models": ",".join(models),
                     **totals,
                 }
             )
-    columns = [*ID_COLUMNS, "module", "models", *COST_COLUMNS]
+    columns = [*KEY_COLUMNS, "module", "models", *COST_COLUMNS]
     return pd.DataFrame(rows, columns=columns)
 
 

@@ -34,6 +34,8 @@ ResultStatus = Literal["ok", "degraded", "error"]
 #: gave a usable answer. The rates of each are reported; an ``error`` episode never
 #: counts as a success (its distances still describe whatever it flew).
 RESULT_STATUSES: tuple[ResultStatus, ...] = get_args(ResultStatus)
+#: What names one episode's row in scores and cost tables: :attr:`EpisodeResult.key`.
+KEY_COLUMNS: tuple[str, str, str, str] = ("system", "split", "mode", "episode_id")
 
 
 def judge_status(

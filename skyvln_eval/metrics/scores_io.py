@@ -41,7 +41,8 @@ from skyvln_eval.errors import (
 )
 from skyvln_eval.fileio import atomic_write_text
 from skyvln_eval.metrics.conventions import CONVENTIONS_ATTR, MetricConventions, check_conventions
-from skyvln_eval.metrics.scoring import CONTROL_COLUMNS, KEY_COLUMNS, METRIC_UNITS
+from skyvln_eval.metrics.records import KEY_COLUMNS
+from skyvln_eval.metrics.scoring import CONTROL_COLUMNS, METRIC_UNITS, TEXT_COLUMNS
 
 SCORES_FORMAT = "skyvln-eval.scores"
 SCORES_VERSION = 3
@@ -132,9 +133,7 @@ def read_scores(path: str | Path) -> tuple[pd.DataFrame, MetricConventions]:
                 "mode": str,
                 "system": str,
                 "oracle": str,
-                "llm_backend": "string",
-                "execution_mode": "string",
-                "error": "string",
+                **dict.fromkeys(TEXT_COLUMNS, "string"),
             },
             # Only an empty cell is missing, as written: an error line "None" stays text.
             keep_default_na=False,
@@ -161,7 +160,7 @@ def read_scores(path: str | Path) -> tuple[pd.DataFrame, MetricConventions]:
     frame.attrs[_LINES_ATTR] = 3 + len(warnings)
     _read_oracle(frame, path)
     after = "oracle"
-    for column in ("llm_backend", "execution_mode", "error"):
+    for column in TEXT_COLUMNS:
         if column not in frame.columns:  # scored before the scores said (not known)
             empty = pd.array([None] * len(frame), dtype="string")
             frame.insert(frame.columns.get_loc(after) + 1, column, empty)

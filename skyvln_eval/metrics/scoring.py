@@ -26,7 +26,9 @@ from skyvln_eval.metrics.r2r import R2R_COLUMNS, r2r_metrics
 from skyvln_eval.metrics.records import RESULT_STATUSES, EpisodeResult
 from skyvln_eval.metrics.results_io import check_unique
 
-KEY_COLUMNS = ("system", "split", "mode", "episode_id")
+#: Text columns of the scores frame, after ``oracle``, each empty where not said:
+#: what answered the LLM calls, how the episode ran, and the first line of its error.
+TEXT_COLUMNS = ("llm_backend", "execution_mode", "error")
 
 #: Control columns of the scores frame (NaN-free: missing summaries leave them empty,
 #: ``has_control`` says which rows have them; ``min_clearance_m`` is empty without

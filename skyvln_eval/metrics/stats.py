@@ -203,7 +203,7 @@ def sign_flip_p_value(
     observed = abs(float(units.sum()) / n)
     # A tiny tolerance so ties (e.g. all-zero differences) count as extreme.
     bar = observed - 1e-12 * max(1.0, observed)
-    if k < 63 and 2**k <= n_resamples:
+    if counts_every_pattern(k, n_resamples):
         bits = (np.arange(2**k, dtype=np.int64)[:, None] >> np.arange(k)) & 1
         permuted = np.abs(((bits * 2 - 1) * units).sum(axis=1) / n)
         return float((permuted >= bar).sum()) / 2**k
@@ -216,6 +216,12 @@ def sign_flip_p_value(
         permuted = np.abs((signs * units).sum(axis=1) / n)
         extreme += int((permuted >= bar).sum())
     return (extreme + 1) / (n_resamples + 1)
+
+
+def counts_every_pattern(units: int, n_resamples: int) -> bool:
+    """Whether a sign-flip test over ``units`` counts all ``2**units`` sign patterns (at
+    most ``n_resamples`` of them): exact, where sampling would only approximate."""
+    return units < 63 and 2**units <= n_resamples
 
 
 def _cluster_sums(values: FloatArray, clusters: ArrayLike) -> FloatArray:
@@ -269,19 +275,5 @@ def paired_comparison(
         seed=seed,
         unit="episode" if clusters is None else "trajectory",
         n_units=units,
-        p_exact=units < 63 and 2**units <= n_resamples,
-    )
-    diff = a_arr - b_arr
-    ci = bootstrap_ci(diff, n_resamples, confidence, seed)
-    return PairedComparison(
-        n=len(diff),
-        mean_a=float(a_arr.mean()),
-        mean_b=float(b_arr.mean()),
-        difference=ci.mean,
-        ci_low=ci.low,
-        ci_high=ci.high,
-        p_value=sign_flip_p_value(diff, n_resamples, seed + 1),
-        confidence=confidence,
-        n_resamples=n_resamples,
-        seed=seed,
+        p_exact=counts_every_pattern(units, n_resamples),
     )

@@ -136,7 +136,7 @@ def paper_table(
     # the models).
     models = model_systems(scores) if spec is TABLE_I else {}
     labels = {
-        **{s: model_label(s, b) for s, b in models.items() if model_label(s, b) != s},
+        **{s: named for s, b in models.items() if (named := model_label(s, b)) != s},
         **_marked_labels(stand_ins),
         **{o: oracle_label(o) for o in oracles if oracle_label(o) != o},
     }
