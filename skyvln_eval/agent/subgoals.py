@@ -25,8 +25,8 @@ from skyvln_eval.vocabulary.words import WORD, phrase_words
 
 #: Fields of one sub-goal in the LLM's JSON (``null`` where they do not apply).
 SUBGOAL_FIELDS: Final = ("kind", "landmark", "name", "direction", "side", "distance_m", "ordinal")
-SubGoalKind = Literal["head", "turn", "pass", "stop_after", "stop_at", "destination"]
-SUBGOAL_KINDS: Final = ("head", "turn", "pass", "stop_after", "stop_at", "destination")
+SubGoalKind = Literal["head", "turn", "pass", "stop_after", "stop_at", "destination", "stop"]
+SUBGOAL_KINDS: Final = ("head", "turn", "pass", "stop_after", "stop_at", "destination", "stop")
 LANDMARK_KINDS: Final = ("pass", "stop_at", "destination")  # these name their landmark
 DIRECTIONS: Final = (
     "north",
@@ -50,6 +50,7 @@ class SubGoal:
     ``direction`` is a compass point (``head``) or left / right (``turn``); ``side`` where
     a landmark to ``pass`` should be; ``distance_m`` how far (``stop_after``, or the
     distance given for a landmark); ``ordinal`` which intersection a ``turn`` is at.
+    ``stop``: stop where the drone is (the commander says it is there).
     """
 
     kind: SubGoalKind
@@ -170,7 +171,8 @@ def subgoal_messages(dialog: DialogText) -> list[Message]:
         "ordinal of the intersection or the landmark it is at), pass (a landmark to pass, "
         "side left/right/ahead), stop_after (distance_m), stop_at (a landmark to stop at), "
         "destination (the landmark that is the destination; its name if given, and "
-        "distance_m if the commander says how far). Copy landmark phrases word for word. "
+        "distance_m if the commander says how far), stop (stop where you are: the commander "
+        "says you are there). Copy landmark phrases word for word. "
         "Give at least one sub-goal (head ahead when the commander only says to go on). "
         "List landmarks mentioned only in earlier rounds as context_landmarks.\n"
         + dialog.prose()

@@ -59,6 +59,10 @@ _REGISTRY: dict[str, tuple[type[Any], Callable[[Any], Controller]]] = {
     "mpc": (MpcConfig, _mpc),
     "nmpc": (MpcConfig, _nmpc),
 }
+#: Whether each controller plans around the obstacle forecast (a keep-out constraint it
+#: may relax with slack): the PID only tracks the reference, so "steps with the obstacle
+#: constraint relaxed" has no value for it, not 0.
+_OBSTACLE_CONSTRAINT = {"pid": False, "mpc": True, "nmpc": True}
 _ALIASES = {"lmpc": "mpc", "linear_mpc": "mpc"}
 
 
@@ -71,6 +75,12 @@ def make_controller(name: str, settings: Mapping[str, Any] | None = None) -> Con
     """A new controller ``name`` with ``settings`` overriding its config's defaults."""
     config = controller_config(name, settings)
     return _REGISTRY[_ALIASES.get(name, name)][1](config)
+
+
+def has_obstacle_constraint(name: str) -> bool | None:
+    """Whether controller ``name`` keeps out of obstacles by a constraint of its plan
+    (``None``: not a registered controller, e.g. one a user logged under another name)."""
+    return _OBSTACLE_CONSTRAINT.get(_ALIASES.get(name, name))
 
 
 def controller_config(name: str, settings: Mapping[str, Any] | None = None) -> Any:

@@ -537,7 +537,9 @@ def reproduce(
             "keep-out sphere (its radius plus the safety margin); below 0 it was inside that "
             "sphere, a collision is inside the obstacle itself. Episodes: those that flew "
             '("k of n": the others ended before any flight); Table I\'s rows pool their '
-            f"splits{_one_split_note(flown_on_one_split, plan.table2.split)}. The solve-time "
+            f"splits{_one_split_note(flown_on_one_split, plan.table2.split)}. A dash: no "
+            "episode has the value (relaxed steps of a controller without an obstacle "
+            "constraint, as the PID; clearance where no obstacle flew). The solve-time "
             f"columns are {VARY_RUN_TO_RUN}.",
             counted="has_control",
         ),

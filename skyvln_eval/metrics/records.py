@@ -149,8 +149,9 @@ class ControlSummary:
     solve_time_p95_ms: float
     solve_time_max_ms: float
     #: Steps solved only by relaxing the obstacle constraint (its soft slack used: the
-    #: controller found no path that kept out, and took the least intrusion); None in
-    #: results written before it was recorded.
+    #: controller found no path that kept out, and took the least intrusion); None for a
+    #: controller without an obstacle constraint (the PID) and in results written before
+    #: it was recorded.
     soft_steps: int | None = None
 
     @property

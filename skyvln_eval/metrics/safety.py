@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from skyvln_eval.control.registry import has_obstacle_constraint
 from skyvln_eval.errors import DataError
 from skyvln_eval.metrics.records import ControlSummary
 
@@ -152,8 +153,9 @@ def summarise_control(log: pd.DataFrame, source: str = "<control log>") -> Contr
     t = log["t_s"].to_numpy(np.float64)
     solve = log["solve_time_ms"].to_numpy(np.float64)
     clearance = log["min_clearance_m"].to_numpy(np.float64)
+    controller = str(log["controller"].iloc[0])
     return ControlSummary(
-        controller=str(log["controller"].iloc[0]),
+        controller=controller,
         scenario=str(log["scenario"].iloc[0]),
         steps=len(log),
         duration_s=float(t.max() - t.min()),
@@ -171,7 +173,9 @@ def summarise_control(log: pd.DataFrame, source: str = "<control log>") -> Contr
         solve_time_p50_ms=float(np.percentile(solve, 50)),
         solve_time_p95_ms=float(np.percentile(solve, 95)),
         solve_time_max_ms=float(solve.max()),
-        soft_steps=int((log["status"] == "solved_soft").sum()),
+        soft_steps=None
+        if has_obstacle_constraint(controller) is False
+        else int((log["status"] == "solved_soft").sum()),
     )
 
 

@@ -138,6 +138,7 @@ RIGHT_AS_JUST_BEFORE: Final = frozenset(
         "here",
         "there",
         "now",
+        "where",
         "away",
         "after",
         "before",

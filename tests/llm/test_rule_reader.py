@@ -21,6 +21,7 @@ from typing import Any
 import pytest
 
 from skyvln_eval.llm.rule.instructions import landmark_phrases, parse_instruction
+from skyvln_eval.llm.rule.navigation import _told_to_stop_here, decide_motion, decide_navgpt
 from skyvln_eval.vocabulary import compass_point, compass_points_in, distances_in
 from skyvln_eval.worlds.sample import SPLIT_FAMILIES, load_dialogs, render_trajectory
 from skyvln_eval.worlds.sample.facts import RoundFacts
@@ -109,6 +110,14 @@ PACKAGE = REPO / "skyvln_eval"
                 {"kind": "destination", "landmark": "the school with a white roof"},
             ],
         ),
+        # Only told to stop, with nothing to stop at or after: the drone is there.
+        ("Good, you're directly above it now. Stop right there.", None, [{"kind": "stop"}]),
+        # "Wait" with somewhere to go is not a stop.
+        (
+            "Wait, bear left at the church.",
+            None,
+            [{"kind": "turn", "direction": "left", "landmark": "the church"}],
+        ),
         # No cue the reader knows: the commander lets the follower go on.
         (
             "Yes, that's right. No idea what else to say",
@@ -121,6 +130,19 @@ def test_the_reader_understands_phrasings_it_was_not_written_for(
     text: str, question: str | None, expected: list[dict[str, Any]]
 ) -> None:
     assert parse_instruction(text, question) == expected
+
+
+def test_a_stop_here_is_a_stop_and_nothing_else_is() -> None:
+    told = {"subgoals": [{"kind": "stop"}]}
+    assert decide_motion(told)["action"] == {"type": "stop"}
+    navgpt = {"pose": {}, "dialog": {"instruction": "Yes, you're right over it. Hover there."}}
+    assert decide_navgpt(navgpt)["action"] == {"type": "stop"}
+    # A stop after a heading is a stop somewhere ahead, not here.
+    assert parse_instruction("Go north. Then stop.") == [
+        {"kind": "head", "direction": "north"},
+        {"kind": "stop"},
+    ]
+    assert not _told_to_stop_here([{"kind": "head", "direction": "north"}, {"kind": "stop"}])
 
 
 def test_the_vocabulary_reads_compass_points_and_distances_in_many_forms() -> None:

@@ -63,6 +63,8 @@ def test_control_summary_hand_computed() -> None:
     assert summary.soft_steps == 0
     soft = control_log().assign(status=["solved_soft"] * 3 + ["solved"] * 47)
     assert summarise_control(soft).soft_steps == 3  # the obstacle constraint relaxed 3 times
+    # The PID has no obstacle constraint: nothing to relax is no value, not 0.
+    assert summarise_control(control_log("pid")).soft_steps is None
     assert summary.collision_steps == 0 and not summary.collided
     assert summary.solve_failures == 1 and summary.constraint_violation_steps == 2
     assert summary.solve_time_max_ms == pytest.approx(1.2)

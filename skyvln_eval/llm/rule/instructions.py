@@ -13,7 +13,9 @@ order a commander chooses does not matter:
 - a landmark is the destination, a place to stop at, or one to pass by the cues of its
   clause, or by a cue elsewhere in the sentence ("Target: a red church"), or by a later
   "that is your destination";
-- a distance belongs to the sentence's stop or destination, or is a stop of its own.
+- a distance belongs to the sentence's stop or destination, or is a stop of its own;
+- a sentence that only says to stop, in an instruction without another stop, is a stop
+  where the drone is ("you are there, stop").
 
 When the instruction answers the follower's question with a no, the compass point the
 follower asked about is denied too ("Still north?" "Negative, ...").
@@ -159,11 +161,19 @@ class _Sentence:
         for g in self.own():
             if g["kind"] == _ROLELESS:
                 g["kind"] = "pass"
+        if self.free_stop and not self.own() and not _has_stop(self.goals):
+            # "Stop right there": a sentence that says only to stop, and nothing said
+            # before where or when: it is here ("Wait, turn left" is not).
+            self.goals.append({"kind": "stop"})
 
     def _nearest_roleless(self, k: int) -> Goal | None:
         roleless = [g for g in self.own() if g["kind"] == _ROLELESS]
         after = [g for g in roleless if self.clause_of[id(g)] >= k]
         return after[0] if after else (roleless[-1] if roleless else None)
+
+
+def _has_stop(goals: list[Goal]) -> bool:
+    return any(g["kind"] in ("destination", "stop_at", "stop_after", "stop") for g in goals)
 
 
 def _denied_by_answer(text: str, question: str | None) -> set[str]:

@@ -2,7 +2,8 @@
 
 Policy, in order:
 
-1. TrackBack memory offers a way back after a mistake: fly back to it.
+1. TrackBack memory offers a way back after a mistake: fly back to it; the commander
+   says the drone is there (a ``stop`` sub-goal alone): stop.
 2. The stop landmark (destination, or a landmark to stop at) is identified: fly to it,
    ending at a height that frames it (size-aware with HSD, a default without), then stop
    once over it.
@@ -227,6 +228,15 @@ def _approach(
     }
 
 
+def _told_to_stop_here(goals: list[dict[str, Any]]) -> bool:
+    """The commander says the drone is there: ``stop`` is all that is left to do."""
+    return bool(goals) and all(g["kind"] == "stop" for g in goals)
+
+
+def _stop_here() -> dict[str, Any]:
+    return {"thought": "the commander says I am there; stopping here", "action": {"type": "stop"}}
+
+
 def decide_motion(state: dict[str, Any]) -> dict[str, Any]:
     """A decision ``{"thought", "action"}`` for the SkyVLN motion task."""
     way_back = (state.get("memory") or {}).get("way_back")
@@ -236,6 +246,8 @@ def decide_motion(state: dict[str, Any]) -> dict[str, Any]:
             "action": {"type": "fly_to", "landmark": way_back["target"]},
         }
     goals = [g for g in state["subgoals"] if g.get("status") != "done"]
+    if _told_to_stop_here(goals):
+        return _stop_here()
     goal = next((g for g in goals if g["kind"] in ("destination", "stop_at")), None)
     target = None if goal is None else _find_target(state, goal)
     if goal is not None and target is not None:
@@ -248,6 +260,8 @@ def decide_navgpt(state: dict[str, Any]) -> dict[str, Any]:
     """A decision for the NavGPT-style task: instruction, view-level observations, history."""
     pose = state["pose"]
     goals = parse_instruction(state["dialog"]["instruction"], state["dialog"].get("question"))
+    if _told_to_stop_here(goals):
+        return _stop_here()
     goal = next((g for g in goals if g["kind"] in ("destination", "stop_at")), None)
     if goal is not None:
         seen = [
