@@ -98,15 +98,23 @@ def _build_dataset(size: str, out: Path | None, force: bool, workers: int) -> Pa
     if size not in DATASET_SIZES:
         raise typer.BadParameter(f"--size must be one of {', '.join(DATASET_SIZES)}")
     spec = SPECS[size]
-    with _progress("generating") as progress:
-        task = progress.add_task(f"{size} dataset maps", total=len(spec.map_splits()))
+    progress = _progress("generating")
+    task = progress.add_task(f"{size} dataset maps", total=len(spec.map_splits()))
 
-        def done(_: str) -> None:
-            progress.advance(task)
+    def done(_: str) -> None:
+        # Shown from the first map made: a dataset already there prints nothing (a bar
+        # started and left empty leaves a blank line on stderr).
+        if not progress.live.is_started:
+            progress.start()
+        progress.advance(task)
 
+    try:
         if out is not None:  # the folder the user named, not a versioned one inside it
             return write_dataset(spec, out, workers, force, on_map_done=done)
         return ensure_dataset(spec, None, workers, force, on_map_done=done)
+    finally:
+        if progress.live.is_started:
+            progress.stop()
 
 
 @app.command()
@@ -321,7 +329,12 @@ def validate(
                     _echo_problem(problem)
                     problems += 1
         if not found:
-            _echo_problem(f"{path}: no annotations/<split>_data.json found")
+            missing = not Path(path).exists()
+            _echo_problem(
+                f"{path}: no such file or directory"
+                if missing
+                else f"{path}: no annotations/<split>_data.json found"
+            )
             problems += 1
     if problems:
         raise typer.Exit(1)
@@ -442,7 +455,8 @@ def reproduce(
         typer.Option(help="Save a few episodes per system as Rerun recordings (viewer extra)"),
     ] = True,
 ) -> None:
-    """The main job: the paper's Table I and II, control figures and a summary, on the sample.
+    """The main job: the paper's Table I and II, control figures and a summary, on the
+    bundled sample (or --data-dir).
 
     Exits 1 when a run is incomplete, stopped early, or has more than --fail-on-error of
     its episodes in error (the tables are written either way, with the error rates).

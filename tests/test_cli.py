@@ -69,6 +69,8 @@ def test_validate_a_folder_without_annotations(tmp_path: Path) -> None:
     result = runner.invoke(app, ["validate", str(tmp_path)])
     assert result.exit_code == 1
     assert "no annotations" in result.output
+    missing = runner.invoke(app, ["validate", str(tmp_path / "nope")])
+    assert missing.exit_code == 1 and "nope: no such file or directory" in missing.output
 
 
 def test_summary_skip_invalid_reports_what_it_skipped(dataset_factory: Callable[..., Path]) -> None:

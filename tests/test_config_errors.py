@@ -176,3 +176,20 @@ def test_a_backend_spec_is_checked_whole_in_backends_files_and_the_environment(
     monkeypatch.setenv("SKYVLN_TEST_BACKENDS", "openai:")
     with pytest.raises(ConfigError, match=r"^\$SKYVLN_TEST_BACKENDS: 'openai:' is not"):
         environment_backends("SKYVLN_TEST_BACKENDS", BackendsFile())
+
+
+def test_an_option_the_executor_would_not_use_is_refused() -> None:
+    from skyvln_eval.harness.executors import make_executor
+
+    with pytest.raises(ConfigError, match=r"threads_per_worker .* is for the processes executor"):
+        make_executor("serial", 1, threads_per_worker=4)
+    with pytest.raises(ConfigError, match=r"ray_address .* is for the ray executor"):
+        make_executor("threads", 2, address="1.2.3.4:10001")
+    make_executor("processes", 1, threads_per_worker=2)  # what it is for
+
+
+def test_a_misspelt_plan_name_lists_the_shipped_plans() -> None:
+    from skyvln_eval.harness.plan import load_plan
+
+    with pytest.raises(ConfigError, match=r"unknown plan 'defualt'\. Did you mean 'default'\?"):
+        load_plan("defualt")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from skyvln_eval.harness.config import load_run_config
+from skyvln_eval.harness.config import DynamicsSettings, load_run_config
 from skyvln_eval.harness.executors import make_executor
 from skyvln_eval.harness.preflight import check_keys
 from skyvln_eval.harness.progress import RichRunProgress
@@ -70,6 +70,12 @@ def run_command(
         threads_per_worker=threads_per_worker,
     )
     check_keys(config.agent, f"run config {config_path}")  # before episodes are converted
+    if config.mode == "official" and config.dynamics != DynamicsSettings():
+        typer.echo(
+            f"warning: run config {config_path}: its dynamics settings are not used in mode "
+            "official (nothing is flown); set mode: dynamics to fly them",
+            err=True,
+        )
     run_dir = out or Path("runs") / config_path.stem
     report = run(
         config,

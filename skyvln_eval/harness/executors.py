@@ -445,6 +445,14 @@ def make_executor(
             f"workers and threads_per_worker must be at least 1, got {workers} and "
             f"{threads_per_worker}"
         )
+    # An option the chosen executor does not use would be ignored without a word.
+    if threads_per_worker > 1 and kind != "processes":
+        raise ConfigError(
+            f"threads_per_worker ({threads_per_worker}) is for the processes executor, not "
+            f"{kind!r} (threads: set workers to the episodes in flight)"
+        )
+    if address is not None and kind != "ray":
+        raise ConfigError(f"ray_address ({address!r}) is for the ray executor, not {kind!r}")
     if kind == "processes" and threads_per_worker > 1 and workers == 1:
         return ThreadExecutor(threads_per_worker)
     if kind == "serial" or (kind == "processes" and workers == 1):

@@ -180,6 +180,8 @@ def load_plan(name_or_path: str | Path = DEFAULT_PLAN, **overrides: Any) -> Repr
     path = Path(name_or_path)
     if not path.suffix:
         path = config_path("reproduce", f"{name_or_path}.yaml")
+        if not path.is_file():
+            raise UnknownNameError("plan", str(name_or_path), shipped_plans())
     data = read_yaml_mapping(path, "reproduce plan")
     data |= {k: v for k, v in overrides.items() if v is not None}
     try:
@@ -187,6 +189,11 @@ def load_plan(name_or_path: str | Path = DEFAULT_PLAN, **overrides: Any) -> Repr
     except ValidationError as error:
         problems = describe_validation_error(error, ReproducePlan)
         raise ConfigError(f"reproduce plan {path}: {problems}") from None
+
+
+def shipped_plans() -> list[str]:
+    """The names of the plans that come with the toolkit (``default``, ...)."""
+    return sorted(p.stem for p in config_path("reproduce").iterdir() if p.suffix == ".yaml")
 
 
 def environment_backends(

@@ -142,13 +142,23 @@ def setting_note(plan: ReproducePlan) -> str:
         if asks
         else "no commander answers questions"
     )
-    systems = [*plan.table1.systems, plan.table2.system]
-    flown = (
-        f"; flown systems: {plan.dynamics.plant.describe()}"
-        if any(system.mode == "dynamics" for system in systems)
+    flown = [s.label for s in plan.table1.systems if s.mode == "dynamics"]
+    stepped = [s.label for s in plan.table1.systems if s.mode != "dynamics"]
+    if plan.table2.system.mode == "dynamics":
+        flown.append("Table II's rows")
+    else:
+        stepped.append("Table II's rows")
+    how = ""
+    if flown:  # which rows flew through the obstacles, and which took AVDN's step
+        how = f"; flown by their controllers ({plan.dynamics.plant.describe()}): {', '.join(flown)}"
+        if stepped:
+            how += f"; the official AVDN step (no flight, no obstacles): {', '.join(stepped)}"
+    limit = (
+        f" Episodes: the first {plan.limit} of each split (a quick look: limit {plan.limit})."
+        if plan.limit
         else ""
     )
-    return f"Sensors: {plan.sensors.describe()}; {commander}{flown}."
+    return f"Sensors: {plan.sensors.describe()}; {commander}{how}.{limit}"
 
 
 def table1_label(label: str, agent: AgentConfig) -> tuple[str, str | None]:

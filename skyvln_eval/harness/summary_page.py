@@ -205,6 +205,8 @@ def write_summary_page(
     status = "complete" if report.complete else "INCOMPLETE: see the runs below"
     if errors:  # every episode has a row, but some rows are failures of the run
         status += f", {errors} episode(s) ended in error (the tables mark them)"
+    if plan.limit:  # complete as asked, yet not the whole splits
+        status += f"; a quick look: the first {plan.limit} episode(s) of each split (limit)"
     rule_note = (
         "Rows marked *not an LLM* (and Table I rows marked with a dagger) use offline "
         "stand-ins: the rule-based backend reads the requests' task data (the prompt's content "
@@ -254,7 +256,15 @@ def write_summary_page(
             "",
             "## Episode recordings (Rerun)",
             "",
-            *(_recordings(report) or [f"(none: the plan asks for {plan.recordings})"]),
+            *(
+                _recordings(report)
+                or [
+                    "(none made this time: recordings were off, by --no-recordings or the "
+                    "plan's recordings: 0)"
+                    if plan.recordings == 0
+                    else "(none made this time)"
+                ]
+            ),
             "",
             "## Scores",
             "",

@@ -67,9 +67,10 @@ def _conventions(
     )
 
 
-def _input_file(path: Path) -> Path:
-    """The file to score for ``path``: a run directory's results.jsonl, else ``path``;
-    refuses what cannot be scored, saying what it is and what to give instead."""
+def _input_files(path: Path) -> list[Path]:
+    """The files to score for ``path``: a run directory's results.jsonl, those of a folder
+    of run directories (as reproduce's ``runs/<system>``), else ``path``; refuses what
+    cannot be scored, saying what it is and what to give instead."""
     from skyvln_eval.harness.run import CONFIG_FILE, REPORT_FILE, VERSIONS_FILE
     from skyvln_eval.harness.store import RESULTS_FILE
 
@@ -80,7 +81,10 @@ def _input_file(path: Path) -> Path:
     }
     if path.is_dir():
         if (path / RESULTS_FILE).is_file():
-            return path / RESULTS_FILE
+            return [path / RESULTS_FILE]
+        runs = sorted(d / RESULTS_FILE for d in path.iterdir() if (d / RESULTS_FILE).is_file())
+        if runs:
+            return runs
         raise DataError(
             f"{path}: a directory without {RESULTS_FILE}, so not a run directory (or a run "
             "that recorded no episode yet); give a run directory, a results file "
@@ -98,7 +102,7 @@ def _input_file(path: Path) -> Path:
             f"{path}: neither a results file (.jsonl, .parquet), a predictions file "
             "(.npy official, .json) nor a run directory"
         )
-    return path
+    return [path]
 
 
 def _load_results(
@@ -118,8 +122,20 @@ def _load_results(
     )
     from skyvln_eval.metrics.results_io import check_unique_files, read_result_rows
 
+    episode_mode = _mode(mode)  # a typo is refused whatever the inputs
     sources, warnings = [], []
-    for path in map(_input_file, paths):
+    files = [file for path in paths for file in _input_files(path)]
+    if not any(file.suffix in (".npy", ".json") for file in files):
+        # Result rows carry their own split, mode and system: these would be ignored.
+        given = [
+            flag for flag, value in (("--split", split), ("--system", system)) if value is not None
+        ] + (["--mode"] if episode_mode != "andh" else [])
+        if given:
+            raise ConfigError(
+                f"{', '.join(given)}: only for predictions files (.npy, .json); run results "
+                "carry their own split, mode and system"
+            )
+    for path in files:
         if path.suffix in (".jsonl", ".parquet"):
             # Every row: the coverage check counts a row that only records the run
             # stopping as a missing episode, and says so.
@@ -129,11 +145,11 @@ def _load_results(
             raise ConfigError(
                 f"{path}: predictions need --data-dir and --split for their ground truth"
             )
-        episodes = ground_truth_episodes(data_dir, split, _mode(mode))
+        episodes = ground_truth_episodes(data_dir, split, episode_mode)
         predictions = read_predictions(path)
         label = system or path.stem
         rows = results_from_predictions(
-            predictions, episodes, label, split, _mode(mode), allow_missing=allow_incomplete
+            predictions, episodes, label, split, episode_mode, allow_missing=allow_incomplete
         )
         if len(rows) < len(episodes):
             warnings.append(
@@ -337,7 +353,9 @@ def table(
         TABLES[kind],
         conventions,
         rows=row or (list(made.rows) if made is not None else None),
-        notes=[*warned, *(made.notes if made is not None and not row else ())],
+        # The reproduction's notes hold with --row too: what was sensed and how each row
+        # ran (a note may name a row not shown).
+        notes=[*warned, *(made.notes if made is not None else ())],
         mode=mode,
         digits=digits,
         show_ci=ci,

@@ -44,7 +44,7 @@ STAND_IN_MARKERS = {
 #: What a row the ground-truth oracle flew says of itself, and its footnote.
 ORACLE_MARK = "(oracle)"
 ORACLE_NOTE = (
-    "(oracle): flown by the harness's ground-truth oracle, which follows the annotated "
+    "(oracle): run by the harness's ground-truth oracle, which follows the annotated "
     "route: a reference, not an agent's result."
 )
 

@@ -203,6 +203,12 @@ def build_table(
     sel = summary[summary["mode"] == mode]
     if sel.empty:
         raise MetricInputError(f"the summary has no {mode!r} episodes")
+    splits = [split for split, _ in spec.groups]
+    if not set(splits) & (set(sel["split"]) | set(withheld)):  # a table of dashes
+        raise MetricInputError(
+            f"{spec.name} is over {listed(splits)}, and the scores have only "
+            f"{listed(sorted(set(sel['split'].astype(str))))}"
+        )
     if show_ci and "ci_low" not in sel.columns:
         raise MetricInputError("confidence intervals were asked for but the summary has none")
     if show_ci and "ci_method" not in sel.columns:

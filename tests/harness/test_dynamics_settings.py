@@ -66,3 +66,38 @@ def test_wind_and_noise_reach_the_flown_drone(tmp_path: Path, small_config: Make
     np.testing.assert_array_equal(nominal, again)  # seeded: the same flight
     n = min(len(nominal), len(windy))
     assert np.abs(windy[:n] - nominal[:n]).max() > 0.05  # the wind pushed it
+
+
+def test_the_tables_say_which_rows_flew_and_how_many_episodes_a_quick_look_took() -> None:
+    from skyvln_eval.harness.plan import load_plan
+    from skyvln_eval.harness.reproduce import setting_note
+
+    plan = load_plan("default", limit=3)
+    note = setting_note(plan)
+    flown = [s.label for s in plan.table1.systems if s.mode == "dynamics"]
+    stepped = [s.label for s in plan.table1.systems if s.mode != "dynamics"]
+    assert flown and stepped  # the default plan has both
+    assert f"flown by their controllers ({plan.dynamics.plant.describe()}): " in note
+    assert f"the official AVDN step (no flight, no obstacles): {', '.join(stepped)}" in note
+    assert "Episodes: the first 3 of each split" in note
+    assert "Episodes:" not in setting_note(load_plan("default"))
+
+
+def test_dynamics_settings_in_an_official_run_are_warned_of(
+    tmp_path: Path, sample_dir: Path
+) -> None:
+    import yaml
+    from typer.testing import CliRunner
+
+    from skyvln_eval.cli import app
+
+    config = tmp_path / "official.yaml"
+    settings = {
+        "system": "random", "data": str(sample_dir), "splits": ["val_seen"], "limit": 1,
+        "workers": 1, "executor": "serial", "write_logs": False, "agent": {"name": "random"},
+        "dynamics": {"controller": "pid"},
+    }  # fmt: skip
+    config.write_text(yaml.safe_dump(settings), encoding="utf-8")
+    result = CliRunner().invoke(app, ["run", str(config), "--out", str(tmp_path / "run")])
+    assert result.exit_code == 0, result.output
+    assert "its dynamics settings are not used in mode official" in result.output

@@ -41,7 +41,7 @@ def test_a_table_made_from_scores_never_ranks_the_oracle(
     # (The terminal table may wrap the label onto a second line.)
     names = [line.split("│")[1].strip() for line in scored.output.splitlines() if "│" in line]
     assert " ".join(names) == "GT replay (oracle) NavGPT-style Random", names
-    assert "(oracle): flown by the harness's ground-truth oracle" in scored.output
+    assert "(oracle): run by the harness's ground-truth oracle" in scored.output
     summary = pd.read_csv(out / "summary.csv", comment="#")
     assert summary.groupby("system")["oracle"].all().to_dict() == {
         "GT replay": True, "NavGPT-style": False, "Random": False}  # fmt: skip
@@ -57,4 +57,27 @@ def test_a_table_made_from_scores_never_ranks_the_oracle(
     assert len(agents) == 2 and "† LLM modules answered by the rule-based" in table.output
     assert sum("**" in line for line in agents) >= 1
     assert "Not ranked (a reference, not a competitor): GT replay (oracle)." in table.output
-    assert "(oracle): flown by the harness's ground-truth oracle" in table.output
+    assert "(oracle): run by the harness's ground-truth oracle" in table.output
+
+
+def test_score_takes_a_folder_of_runs_and_refuses_options_it_would_ignore(
+    tmp_path: Path, small_config: MakeConfig
+) -> None:
+    runs = tmp_path / "runs"  # as reproduce's runs/<system>: one run directory per split
+    for split in ("val_seen", "val_unseen"):
+        config = small_config(agent={"name": "random"}, splits=(split,), write_logs=False)
+        assert run(config, runs / split).complete
+    out = tmp_path / "scores"
+    scored = runner.invoke(app, ["score", str(runs), "--out", str(out), "--resamples", "0"])
+    assert scored.exit_code == 0, scored.output
+    scores, _ = read_scores(out / "scores.csv")
+    assert sorted(scores["split"]) == ["val_seen", "val_seen", "val_unseen", "val_unseen"]
+    # Run rows carry their own split, mode and system: an option for predictions is refused.
+    for option in (["--split", "val_unseen"], ["--system", "renamed"], ["--mode", "andh-full"]):
+        refused = runner.invoke(app, ["score", str(runs), "--out", str(out), *option])
+        assert "only for predictions files" in str(refused.exception)
+    typo = runner.invoke(app, ["score", str(runs), "--out", str(out), "--mode", "andhh"])
+    assert "--mode must be 'andh' or 'andh-full'" in str(typo.exception)
+    # Table II is over test_unseen, which these scores lack: an error, not a table of dashes.
+    table2 = runner.invoke(app, ["table", str(out / "scores.csv"), "--kind", "table2"])
+    assert "table2 is over 'test_unseen'" in str(table2.exception)

@@ -12,9 +12,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import pandas as pd
+import pytest
 from typer.testing import CliRunner
 
 from skyvln_eval.cli import app
+from skyvln_eval.errors import MetricInputError
 from skyvln_eval.llm_records import LlmCall
 from skyvln_eval.metrics import MetricConventions, score_results
 from skyvln_eval.metrics.scores_io import read_scores, write_scores
@@ -119,7 +121,12 @@ def test_table_i_marks_a_stand_in_row_and_says_why() -> None:
     assert "| dead | error | error |" in to_markdown(
         paper_table(flaky, TABLE_I, MetricConventions())
     )
-    assert "Flaky" in paper_table(flaky, TABLE_II, MetricConventions()).rows  # the models' table
+    # The models' table (over test_unseen) does not rename its rows.
+    models = _scores().replace({"system": {"gemma": "Flaky"}})
+    assert "Flaky" in paper_table(models, TABLE_II, MetricConventions()).rows
+    # Over scores without test_unseen it would be a table of dashes: refused, saying why.
+    with pytest.raises(MetricInputError, match="table2 is over 'test_unseen'"):
+        paper_table(flaky, TABLE_II, MetricConventions())
 
 
 def test_the_table_command_makes_the_same_table(tmp_path: Path) -> None:

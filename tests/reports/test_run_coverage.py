@@ -91,7 +91,7 @@ def test_a_limited_run_is_complete_with_or_without_data_dir(dataset: Path, tmp_p
     assert plain.exit_code == 0, plain.output
     assert "WARNING" not in plain.output
     # --data-dir checks the run's selection (2 episodes), not the whole split (4).
-    checked = score(run_path, "--data-dir", dataset, "--split", "val_seen", "--out", tmp_path / "b")
+    checked = score(run_path, "--data-dir", dataset, "--out", tmp_path / "b")
     assert checked.exit_code == 0, checked.output
 
     # A copy of the rows outside the run directory is checked against the whole split.
