@@ -7,6 +7,7 @@ is not what the format needs, for :mod:`skyvln_eval.avdn.validation` to report.
 
 from __future__ import annotations
 
+import json
 import math
 from typing import Any, TypeGuard
 
@@ -19,7 +20,7 @@ def is_number(value: Any) -> bool:
 def number_problem(value: Any, what: str = "value") -> str | None:
     """Why ``value`` is not a finite number a 64-bit float holds (None if it is one)."""
     if not is_number(value):
-        return f"expected a number, got {type_name(value)} {value!r}"
+        return f"expected a number, got {shown(value)}"
     try:
         finite = math.isfinite(value)
     except OverflowError:  # JSON allows any integer; one beyond 1.8e308 is no float
@@ -58,6 +59,14 @@ def unwritable(value: Any, path: str) -> tuple[str, str] | None:
 
 def text_ok(value: Any) -> TypeGuard[str]:
     return isinstance(value, str) and unwritable(value, "") is None
+
+
+def shown(value: Any) -> str:
+    """A JSON value for a message, as JSON writes it where Python would not: ``null``,
+    ``true``; else its type and Python form (``string 'x'``, ``integer 3``)."""
+    if value is None or isinstance(value, bool):
+        return json.dumps(value)
+    return f"{type_name(value)} {value!r}"
 
 
 def type_name(value: Any) -> str:

@@ -28,6 +28,7 @@ from skyvln_eval.avdn.geometry import view_heading_deg
 from skyvln_eval.avdn.json_values import (
     locate_bad_number,
     number_problem,
+    shown,
     text_ok,
     type_name,
     unwritable,
@@ -120,7 +121,7 @@ def _corner_array(
 
 def _check_latlng(value: Any, name: str, report: Any) -> bool:
     if not (isinstance(value, list) and len(value) == 2):
-        report(name, f"expected [lat, lng], got {type_name(value)} {value!r}")
+        report(name, f"expected [lat, lng], got {shown(value)}")
         return False
     for i, v in enumerate(value):
         problem = number_problem(v, "coordinate")
@@ -137,14 +138,14 @@ def _check_scalars(raw: dict[str, Any], report: Any) -> bool:
     ok = True
     map_name = raw["map_name"]
     if not isinstance(map_name, str):
-        report("map_name", f"expected a string, got {type_name(map_name)} {map_name!r}")
+        report("map_name", f"expected a string, got {shown(map_name)}")
         ok = False
     elif not _MAP_NAME.fullmatch(map_name):
         report("map_name", f"expected an xView id such as '1913', got {map_name!r}")
         ok = False
     route = raw["route_index"]
     if not isinstance(route, str):
-        report("route_index", f"expected a string, got {type_name(route)} {route!r}")
+        report("route_index", f"expected a string, got {shown(route)}")
         ok = False
     else:
         if not _ROUTE_INDEX.fullmatch(route):
@@ -156,7 +157,7 @@ def _check_scalars(raw: dict[str, Any], report: Any) -> bool:
             ok = False
     last = raw.get("last_round_idx")
     if "last_round_idx" in raw and (type(last) is not int or last < 1):
-        report("last_round_idx", f"expected an integer >= 1, got {type_name(last)} {last!r}")
+        report("last_round_idx", f"expected an integer >= 1, got {shown(last)}")
         ok = False
     if not isinstance(raw["instructions"], str):
         report("instructions", f"expected a string, got {type_name(raw['instructions'])}")
@@ -402,7 +403,7 @@ def _check_consistency(
     """Duplicate episode ids and maps whose records disagree on the geo-reference."""
     bad: set[int] = set()
     first_of_episode: dict[str, int] = {}
-    georef_of_map: dict[str, tuple[Any, ...]] = {}
+    georef_of_map: dict[str, tuple[int, tuple[Any, ...]]] = {}  # map -> first record, georef
     for p in pending:
         raw = p.raw
         episode = episode_id_of(raw["map_name"], raw["route_index"])
@@ -419,25 +420,29 @@ def _check_consistency(
             bad.add(p.index)
             continue
         first_of_episode[episode] = p.index
-        georef = (
-            tuple(raw["gps_botm_left"]),
-            tuple(raw["gps_top_right"]),
-            raw["lng_ratio"],
-            raw["lat_ratio"],
+        georef = tuple(
+            tuple(value) if isinstance(value, list) else value
+            for value in (raw[field] for field in _GEOREF_FIELDS)
         )
-        known = georef_of_map.setdefault(raw["map_name"], georef)
-        if known != georef:
+        first, known = georef_of_map.setdefault(raw["map_name"], (p.index, georef))
+        differs = [f for f, a, b in zip(_GEOREF_FIELDS, known, georef, strict=True) if a != b]
+        if differs:
             issues.append(
                 ValidationIssue(
                     file,
-                    f"geo-reference differs from other records of map {raw['map_name']!r}",
+                    f"geo-reference differs from record {first}'s, the first of map "
+                    f"{raw['map_name']!r} (here {', '.join(differs)})",
                     p.index,
                     episode,
-                    "gps_botm_left",
+                    differs[0],
                 )
             )
             bad.add(p.index)
     return bad
+
+
+#: The fields that place a map on the globe: every record of a map must agree on them.
+_GEOREF_FIELDS = ("gps_botm_left", "gps_top_right", "lng_ratio", "lat_ratio")
 
 
 def _frozen(arr: NDArray[np.float64]) -> NDArray[np.float64]:

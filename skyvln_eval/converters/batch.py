@@ -236,6 +236,7 @@ def run_map_job(job: MapJob) -> list[EpisodeOutcome]:
         note = f"map image {image} cannot be read: {exc}"
         return [EpisodeOutcome(_first_id(raw), "failed", note=note) for raw in job.episodes]
     world: WorldTile | None = None
+    map_error: str | None = None  # a map image that does not decode fails every episode once
     outcomes = []
     for raw in job.episodes:
         try:
@@ -251,7 +252,14 @@ def run_map_job(job: MapJob) -> list[EpisodeOutcome]:
                 outcomes.append(EpisodeOutcome(episode.episode_id, "skipped", row))
                 continue
             if world is None and (job.options.observations or job.options.map_tile_max_side_px):
-                world = WorldTile(job.map_name, job.georef, load_map_bgr(image, job.georef))
+                if map_error is not None:
+                    outcomes.append(EpisodeOutcome(episode.episode_id, "failed", note=map_error))
+                    continue
+                try:
+                    world = WorldTile(job.map_name, job.georef, load_map_bgr(image, job.georef))
+                except SkyvlnError as exc:
+                    map_error = str(exc)
+                    raise
             with McapLogWriter(path) as writer:
                 writer.add_metadata(
                     topics.CONVERSION_METADATA,

@@ -39,7 +39,7 @@ _DATA_END_OPCODE: Final = 0x0F
 _FOOTER_SIZE: Final = 29
 _DATA_END_SIZE: Final = 13  # opcode (1) + length (8) + data_section_crc (4)
 #: Errors the mcap and zstandard libraries raise on damaged input.
-_DECODE_ERRORS: Final = (
+DECODE_ERRORS: Final = (
     McapError,
     CRCValidationError,
     zstandard.ZstdError,
@@ -140,17 +140,24 @@ def message_digest(messages: tuple[LogMessage, ...] | list[LogMessage]) -> str:
     return digest.hexdigest()
 
 
-def _check_framing(data: bytes, name: str) -> None:
-    """Magic at both ends, footer summary CRC, and the data-section CRC."""
-    if not data.startswith(MAGIC):
-        shown = data[:8]
-        raise McapLogError(name, f"not an MCAP file (it starts with {shown!r}, not the MCAP magic)")
-    if len(data) < 2 * len(MAGIC) + _FOOTER_SIZE or not data.endswith(MAGIC):
+def check_ends(head: bytes, tail: bytes, size: int, name: str) -> None:
+    """The MCAP magic at both ends of a file of ``size`` bytes (``head`` and ``tail``: its
+    first and last 8 bytes), room for a footer between them."""
+    if size == 0:
+        raise McapLogError(name, "an empty file, not an MCAP log")
+    if not head.startswith(MAGIC):
+        raise McapLogError(name, f"not an MCAP file (it starts with {head!r}, not the MCAP magic)")
+    if size < 2 * len(MAGIC) + _FOOTER_SIZE or tail != MAGIC:
         raise McapLogError(
             name,
             "truncated or unfinished MCAP file (no closing magic): the write was interrupted "
             "or the file was cut; convert or copy it again",
         )
+
+
+def _check_framing(data: bytes, name: str) -> None:
+    """Magic at both ends, footer summary CRC, and the data-section CRC."""
+    check_ends(data[: len(MAGIC)], data[-len(MAGIC) :], len(data), name)
     footer_at = len(data) - len(MAGIC) - _FOOTER_SIZE
     opcode, length, summary_start, offset_start, summary_crc = struct.unpack_from(
         "<BQQQI", data, footer_at
@@ -178,7 +185,7 @@ def _records(data: bytes, name: str) -> list[Any]:
         return list(reader.records)
     except CRCValidationError as exc:
         raise McapLogError(name, f"damaged MCAP file: {exc}") from exc
-    except _DECODE_ERRORS as exc:
+    except DECODE_ERRORS as exc:
         raise McapLogError(name, f"damaged MCAP file: {type(exc).__name__}: {exc}") from exc
 
 

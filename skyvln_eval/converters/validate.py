@@ -255,8 +255,8 @@ def check_manifest_folder(folder: str | Path) -> list[ValidationIssue]:
     try:
         rows = read_manifest(manifest)
         left_out_sha256 = manifest_left_out_sha256(manifest)
-    except SkyvlnError as exc:
-        return [ValidationIssue(str(manifest), str(exc))]
+    except SkyvlnError as exc:  # its message names the manifest already: not twice
+        return [ValidationIssue(str(manifest), str(exc).removeprefix(f"{manifest}: "))]
     issues = _left_out_matches(folder / LEFT_OUT_NAME, left_out_sha256)
     for index, row in enumerate(rows):
         path = folder / row.file_name

@@ -18,13 +18,18 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any, BinaryIO
 
-from mcap.exceptions import McapError
 from mcap.reader import SeekingReader, make_reader
-from mcap.stream_reader import CRCValidationError
 
 from skyvln_eval.avdn.records import Episode
 from skyvln_eval.converters import topics as t
-from skyvln_eval.converters.reader import LogChannel, McapLog, episode_from_log
+from skyvln_eval.converters.reader import (
+    DECODE_ERRORS,
+    MAGIC,
+    LogChannel,
+    McapLog,
+    check_ends,
+    episode_from_log,
+)
 from skyvln_eval.errors import ConfigError, DataError, FormatVersionError, McapLogError
 
 LOGS_DIR = "logs"
@@ -159,6 +164,13 @@ class RunLogStream:
         except OSError as error:
             raise McapLogError(str(self.path), f"cannot open: {error.strerror}") from error
         try:
+            # The ends first: a cut or foreign file makes the reader fail with no word of why.
+            size = self._file.seek(0, 2)
+            self._file.seek(max(0, size - len(MAGIC)))
+            tail = self._file.read(len(MAGIC))
+            self._file.seek(0)
+            check_ends(self._file.read(len(MAGIC)), tail, size, str(self.path))
+            self._file.seek(0)
             reader = make_reader(self._file, validate_crcs=True)
             if not isinstance(reader, SeekingReader):  # a regular file always seeks
                 raise McapLogError(str(self.path), "not a seekable file")
@@ -188,9 +200,9 @@ class RunLogStream:
         except McapLogError:
             self.close()
             raise
-        except (McapError, CRCValidationError, ValueError, KeyError, EOFError) as error:
+        except (*DECODE_ERRORS, OSError) as error:  # OSError: a seek the footer sent astray
             self.close()
-            raise McapLogError(str(self.path), f"damaged MCAP file: {error}") from error
+            raise self._damaged(error) from error
         self._check_run_format()
         return self
 
@@ -240,5 +252,8 @@ class RunLogStream:
                 topics=list(topics) if topics is not None else None, log_time_order=True
             ):
                 yield channel.topic, message.log_time, json.loads(message.data)
-        except (McapError, CRCValidationError, ValueError, KeyError, EOFError) as error:
-            raise McapLogError(str(self.path), f"damaged MCAP file: {error}") from error
+        except (*DECODE_ERRORS, OSError) as error:
+            raise self._damaged(error) from error
+
+    def _damaged(self, error: BaseException) -> McapLogError:
+        return McapLogError(str(self.path), f"damaged MCAP file: {type(error).__name__}: {error}")

@@ -59,7 +59,7 @@ def test_optional_keys_may_be_absent(dataset_factory: Callable[..., Path]) -> No
         ("map_name", 1913, "expected a string, got integer"),
         ("angle", "north", "expected a number, got string"),
         ("pre_dialogs", "hello", "expected a list of strings"),
-        ("lat_ratio", True, "expected a number, got boolean"),
+        ("lat_ratio", True, "expected a number, got true"),
         ("last_round_idx", 1.5, "expected an integer >= 1"),
         ("route_index", "7", "expected '<trajectory>_<round>'"),
     ],
@@ -290,7 +290,7 @@ def test_a_boolean_among_coordinates_is_a_wrong_type(
         target = target[k]
     target[path[-1]] = True
     issue = only_issue(dataset_factory, [record])
-    assert (issue.field, issue.message) == (field, "expected a number, got boolean True")
+    assert (issue.field, issue.message) == (field, "expected a number, got true")
 
 
 def test_coordinates_of_exactly_0_or_1_are_numbers(dataset_factory: Callable[..., Path]) -> None:
@@ -349,6 +349,8 @@ def test_inconsistent_georeference_on_one_map(dataset_factory: Callable[..., Pat
         dataset_factory, [make_record(), make_record(route_index="1_1", lat_ratio=2e-5)]
     )
     assert issue.record_index == 1 and "geo-reference differs" in issue.message
+    # The field that differs is named, and the record it differs from.
+    assert issue.field == "lat_ratio" and "from record 0's" in issue.message
 
 
 def test_missing_map_image(dataset_factory: Callable[..., Path]) -> None:

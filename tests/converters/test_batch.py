@@ -338,3 +338,18 @@ def test_a_folder_without_its_list_of_what_was_left_out_is_not_complete(
     assert [str(i) for i in check_manifest_folder(folder)] == [
         f"{left_out}: missing: what the conversion left out, and why, is no longer told"
     ]
+
+
+def test_a_map_image_that_does_not_decode_is_read_once_and_fails_each_episode(
+    dataset_factory: Callable[..., Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    records = [make_record(route_index=f"{k}_1") for k in range(3)]
+    root = dataset_factory({"val_seen": records})
+    (root / "train_images" / "1913.tif").write_bytes(b"not a tiff")
+    reads = []
+    load = batch.load_map_bgr
+    monkeypatch.setattr(batch, "load_map_bgr", lambda *a: reads.append(a) or load(*a))
+    report = convert_split(root, "val_seen", tmp_path, workers=1)
+    assert report.count("failed") == 3 and len(reads) == 1  # not decoded again per episode
+    notes = {outcome.note for outcome in report.outcomes if outcome.status == "failed"}
+    assert len(notes) == 1 and "1913.tif" in notes.pop()

@@ -40,7 +40,7 @@ def test_truncated_file(tmp_path: Path, keep: float) -> None:
 
 
 def test_empty_file(tmp_path: Path) -> None:
-    with pytest.raises(McapLogError, match="not an MCAP file"):
+    with pytest.raises(McapLogError, match="an empty file, not an MCAP log"):
         read_episode(_write(tmp_path, b""))
 
 

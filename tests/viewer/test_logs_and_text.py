@@ -27,6 +27,7 @@ from skyvln_eval.viewer.recording import RecordingSummary
 from skyvln_eval.viewer.scene import detections_by_view, sector_box
 from skyvln_eval.viewer.static_content import episode_card_text
 from tests.conftest import CliOutcome, make_record, write_dataset
+from tests.converters.conftest import chunk_payload_span
 
 Cli = Callable[..., CliOutcome]
 
@@ -73,6 +74,30 @@ def test_a_truncated_log_is_refused_naming_the_file(flown_run: Path, tmp_path: P
     cut.write_bytes(ref.path.read_bytes()[:-100])
     with pytest.raises(McapLogError, match=str(cut)), RunLogStream(cut):
         pass
+
+
+def _flipped_in_first_chunk(data: bytes) -> bytes:
+    start, end = chunk_payload_span(data)
+    flipped = bytearray(data)
+    flipped[(start + end) // 2] ^= 0xFF
+    return bytes(flipped)
+
+
+def test_a_damaged_or_foreign_file_is_refused_naming_it(flown_run: Path, tmp_path: Path) -> None:
+    """An audit saw raw tracebacks (struct.error, ZstdError) and an EINVAL without a name."""
+    (ref,) = find_episode_logs(flown_run)
+    data = ref.path.read_bytes()
+    files = {
+        "empty.mcap": (b"", "an empty file"),
+        "text.mcap": (b"hello\n", "not an MCAP file"),
+        "magic.mcap": (data[:8], "truncated or unfinished"),
+        "flipped.mcap": (_flipped_in_first_chunk(data), "damaged MCAP file"),
+    }
+    for name, (content, reason) in files.items():
+        path = tmp_path / name
+        path.write_bytes(content)
+        with pytest.raises(McapLogError, match=f"{path}: {reason}"), RunLogStream(path) as stream:
+            list(stream.messages())
 
 
 def test_the_stream_yields_every_message_in_time_order(flown_run: Path) -> None:
