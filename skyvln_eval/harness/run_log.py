@@ -212,13 +212,17 @@ def _agent_messages(
     steps: Sequence[Step],
     options: ConvertOptions,
     observations: bool,
+    flown_at: frozenset[int] = frozenset(),
 ) -> None:
+    """The messages of each decision's view; ``flown_at``: the times (ns) a control step
+    placed the drone, where the view's ``/tf`` would repeat it (a hair apart)."""
     encoded: dict[bytes, bytes] = {}  # a view seen again (a cancelled step) is not re-rendered
     images = _ImageEncoder(options)
     for step in steps:
         t_ns = ns(step.t_s)
         pose = view_to_pose(step.view, episode.georef)
-        out.add(t_ns, t.TOPIC_TF, drone_tf(t_ns, pose))
+        if t_ns not in flown_at:
+            out.add(t_ns, t.TOPIC_TF, drone_tf(t_ns, pose))
         # Where the drone is on the globe, as an episode log says it: Foxglove's Map panel
         # reads /drone/gps, so one layout shows both kinds of log.
         lat, lng = view_centre(np.asarray(step.view, dtype=np.float64)[None])[0]
@@ -380,10 +384,13 @@ def _write_run_log(
     options: ConvertOptions,
 ) -> None:
     out = _Messages()
-    _agent_messages(out, episode, world, content.steps, options, observations)
+    log = content.control_log
+    flown = log is not None and len(log) > 0
+    flown_at = frozenset(ns(s) for s in log["t_s"].tolist()) if log is not None else frozenset()
+    _agent_messages(out, episode, world, content.steps, options, observations, flown_at)
     _path_messages(out, episode, content)
-    if content.control_log is not None and len(content.control_log):
-        _control_messages(out, content.control_log)
+    if log is not None and flown:
+        _control_messages(out, log)
     _obstacle_messages(out, content.obstacle_segments)
     # Said as written, not as asked: the converter's defaults (observations, a 384 px
     # tile, one view a second) were claimed for logs without images and for dynamics runs.

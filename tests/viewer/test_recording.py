@@ -55,6 +55,9 @@ def test_entities_and_counts_match_the_run_mcap(recording, rerun_cli: Path) -> N
     poses = [m for m in log.topic(t.TOPIC_TF) if m.decode()["child_frame_id"] == t.DRONE_FRAME]
     counts = {topic: len(log.topic(topic)) for topic in t.TOPICS}
     assert counts[t.TOPIC_CONTROL_STEP] > 50 and counts[t.TOPIC_OBSTACLES] > 5  # it flew
+    # One drone pose per time: a decision's view does not repeat the control step's.
+    pose_times = [m.log_time_ns for m in poses]
+    assert len(set(pose_times)) == len(pose_times)
 
     assert rows[f"/{e.WORLD_DRONE}"] == len(poses)
     assert rows[f"/{e.MAP_DRONE}"] == len(poses)
