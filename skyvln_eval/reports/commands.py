@@ -86,9 +86,9 @@ def _input_files(path: Path) -> list[Path]:
         if runs:
             return runs
         raise DataError(
-            f"{path}: a directory without {RESULTS_FILE}, so not a run directory (or a run "
-            "that recorded no episode yet); give a run directory, a results file "
-            "(.jsonl, .parquet) or a predictions file (.npy, .json)"
+            f"{path}: a directory without {RESULTS_FILE}, here or in its folders, so not a run "
+            "directory nor a folder of them (or runs that recorded no episode yet); give a run "
+            "directory, a results file (.jsonl, .parquet) or a predictions file (.npy, .json)"
         )
     if not path.exists():
         raise DataError(f"{path}: no such file or directory")

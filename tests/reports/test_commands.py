@@ -247,7 +247,7 @@ def test_score_takes_a_run_directory_and_names_what_it_cannot_score(tmp_path: Pa
     )
     empty = runner.invoke(app, ["score", str(tmp_path / "scores")])
     assert isinstance(empty.exception, DataError)
-    assert "a directory without results.jsonl, so not a run directory" in str(empty.exception)
+    assert "a directory without results.jsonl, here or in its folders" in str(empty.exception)
     absent = runner.invoke(app, ["score", str(tmp_path / "preds.npy")])
     assert str(absent.exception) == f"{tmp_path / 'preds.npy'}: no such file or directory"
 
