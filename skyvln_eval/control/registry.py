@@ -53,16 +53,14 @@ def _pid(config: PidConfig) -> Controller:
     return PidController(config)
 
 
-#: name -> (config class, factory)
-_REGISTRY: dict[str, tuple[type[Any], Callable[[Any], Controller]]] = {
-    "pid": (PidConfig, _pid),
-    "mpc": (MpcConfig, _mpc),
-    "nmpc": (MpcConfig, _nmpc),
+#: name -> (config class, factory, whether it plans around the obstacle forecast with a
+#: keep-out constraint it may relax with slack: the PID only tracks the reference, so
+#: "steps with the obstacle constraint relaxed" has no value for it, not 0)
+_REGISTRY: dict[str, tuple[type[Any], Callable[[Any], Controller], bool]] = {
+    "pid": (PidConfig, _pid, False),
+    "mpc": (MpcConfig, _mpc, True),
+    "nmpc": (MpcConfig, _nmpc, True),
 }
-#: Whether each controller plans around the obstacle forecast (a keep-out constraint it
-#: may relax with slack): the PID only tracks the reference, so "steps with the obstacle
-#: constraint relaxed" has no value for it, not 0.
-_OBSTACLE_CONSTRAINT = {"pid": False, "mpc": True, "nmpc": True}
 _ALIASES = {"lmpc": "mpc", "linear_mpc": "mpc"}
 
 
@@ -80,7 +78,8 @@ def make_controller(name: str, settings: Mapping[str, Any] | None = None) -> Con
 def has_obstacle_constraint(name: str) -> bool | None:
     """Whether controller ``name`` keeps out of obstacles by a constraint of its plan
     (``None``: not a registered controller, e.g. one a user logged under another name)."""
-    return _OBSTACLE_CONSTRAINT.get(_ALIASES.get(name, name))
+    entry = _REGISTRY.get(_ALIASES.get(name, name))
+    return None if entry is None else entry[2]
 
 
 def controller_config(name: str, settings: Mapping[str, Any] | None = None) -> Any:

@@ -21,7 +21,7 @@ import zlib
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, BinaryIO, Final
 
 import zstandard
 from mcap.exceptions import McapError
@@ -153,6 +153,18 @@ def check_ends(head: bytes, tail: bytes, size: int, name: str) -> None:
             "truncated or unfinished MCAP file (no closing magic): the write was interrupted "
             "or the file was cut; convert or copy it again",
         )
+
+
+def check_file_ends(handle: BinaryIO, name: str) -> None:
+    """:func:`check_ends` on an open file, read from its ends (a log too large to hold);
+    the file is left at its start."""
+    size = handle.seek(0, io.SEEK_END)
+    handle.seek(max(0, size - len(MAGIC)))
+    tail = handle.read(len(MAGIC))
+    handle.seek(0)
+    head = handle.read(len(MAGIC))
+    handle.seek(0)
+    check_ends(head, tail, size, name)
 
 
 def _check_framing(data: bytes, name: str) -> None:

@@ -385,11 +385,10 @@ def _write_run_log(
 ) -> None:
     out = _Messages()
     log = content.control_log
-    flown = log is not None and len(log) > 0
     flown_at = frozenset(ns(s) for s in log["t_s"].tolist()) if log is not None else frozenset()
     _agent_messages(out, episode, world, content.steps, options, observations, flown_at)
     _path_messages(out, episode, content)
-    if log is not None and flown:
+    if log is not None and len(log):
         _control_messages(out, log)
     _obstacle_messages(out, content.obstacle_segments)
     # Said as written, not as asked: the converter's defaults (observations, a 384 px

@@ -20,7 +20,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from skyvln_eval.control.registry import has_obstacle_constraint
 from skyvln_eval.errors import DataError
 from skyvln_eval.metrics.records import ControlSummary
 
@@ -153,6 +152,10 @@ def summarise_control(log: pd.DataFrame, source: str = "<control log>") -> Contr
     t = log["t_s"].to_numpy(np.float64)
     solve = log["solve_time_ms"].to_numpy(np.float64)
     clearance = log["min_clearance_m"].to_numpy(np.float64)
+    # Here, not at the top: the control package imports CasADi, which scoring and
+    # notebooks reading scores do not need.
+    from skyvln_eval.control.registry import has_obstacle_constraint
+
     controller = str(log["controller"].iloc[0])
     return ControlSummary(
         controller=controller,

@@ -24,10 +24,9 @@ from skyvln_eval.avdn.records import Episode
 from skyvln_eval.converters import topics as t
 from skyvln_eval.converters.reader import (
     DECODE_ERRORS,
-    MAGIC,
     LogChannel,
     McapLog,
-    check_ends,
+    check_file_ends,
     episode_from_log,
 )
 from skyvln_eval.errors import ConfigError, DataError, FormatVersionError, McapLogError
@@ -165,12 +164,7 @@ class RunLogStream:
             raise McapLogError(str(self.path), f"cannot open: {error.strerror}") from error
         try:
             # The ends first: a cut or foreign file makes the reader fail with no word of why.
-            size = self._file.seek(0, 2)
-            self._file.seek(max(0, size - len(MAGIC)))
-            tail = self._file.read(len(MAGIC))
-            self._file.seek(0)
-            check_ends(self._file.read(len(MAGIC)), tail, size, str(self.path))
-            self._file.seek(0)
+            check_file_ends(self._file, str(self.path))
             reader = make_reader(self._file, validate_crcs=True)
             if not isinstance(reader, SeekingReader):  # a regular file always seeks
                 raise McapLogError(str(self.path), "not a seekable file")

@@ -26,6 +26,7 @@ from skyvln_eval.metrics import (
     summarise_costs,
 )
 from skyvln_eval.metrics.scores_io import read_scores, write_scores
+from tests.conftest import modules_loaded_by
 from tests.metrics.helpers import result, square
 
 
@@ -69,6 +70,12 @@ def test_control_summary_hand_computed() -> None:
     assert summary.solve_failures == 1 and summary.constraint_violation_steps == 2
     assert summary.solve_time_max_ms == pytest.approx(1.2)
     assert summary.solve_time_p50_ms == pytest.approx(0.7)
+
+
+def test_the_metrics_do_not_import_the_control_stack() -> None:
+    # Whether a controller has an obstacle constraint is asked of the control registry
+    # only when a log is summarised: scoring and notebooks need no CasADi (4 s to import).
+    assert modules_loaded_by("skyvln_eval.metrics", ("casadi", "skyvln_eval.control")) == []
 
 
 def test_control_metrics_per_controller_and_scenario(tmp_path: Path) -> None:
