@@ -256,7 +256,10 @@ def _check_record(
             report(*found)
     corners = _corner_array(raw["gt_path_corners"], "gt_path_corners", (4, 2), report)
     destination = None
-    if "destination" in raw:
+    if "destination" in raw and raw["destination"] is None:
+        # Optional means absent (the format has no null): said, since the fix is plain.
+        report("destination", "expected 4 [lat, lng] corners, got null (leave the key out)")
+    elif "destination" in raw:
         destination = _corner_array(raw["destination"], "destination", (4, 2), report)
     attention = _check_attention(raw["attention_list"], report)
     if len(issues) > count or corners is None or attention is None:

@@ -475,7 +475,12 @@ def compare_systems(
     scale = 100.0 if metric in PERCENT_METRICS else 1.0
     clusters = None if ci_unit == "episode" else [trajectory_of(e) for e in a.index]
     result = paired_comparison(
-        a.to_numpy() * scale, b.to_numpy() * scale, n_resamples, seed=seed, clusters=clusters
+        a.to_numpy() * scale,
+        b.to_numpy() * scale,
+        n_resamples,
+        seed=seed,
+        clusters=clusters,
+        cluster_unit="trajectory",
     )
     return pd.Series(
         {"metric": metric, "system_a": system_a, "system_b": system_b, **result.__dict__}

@@ -242,10 +242,11 @@ def paired_comparison(
     confidence: float = 0.95,
     seed: int = 0,
     clusters: ArrayLike | None = None,
+    cluster_unit: str = "cluster",
 ) -> PairedComparison:
     """Compare paired per-episode values ``a[i]`` and ``b[i]`` (same episode ``i``); with
     ``clusters`` (one label per episode, e.g. its trajectory) the interval resamples and
-    the test flips whole clusters."""
+    the test flips whole clusters, which the result's ``unit`` calls ``cluster_unit``."""
     a_arr = finite_values(a, "system A")
     b_arr = finite_values(b, "system B")
     if a_arr.shape != b_arr.shape or a_arr.ndim != 1:
@@ -273,7 +274,7 @@ def paired_comparison(
         confidence=confidence,
         n_resamples=n_resamples,
         seed=seed,
-        unit="episode" if clusters is None else "trajectory",
+        unit="episode" if clusters is None else cluster_unit,
         n_units=units,
         p_exact=counts_every_pattern(units, n_resamples),
     )

@@ -112,9 +112,10 @@ def _load_results(
     mode: str,
     system: str | None,
     allow_incomplete: bool = False,
-) -> tuple[list[tuple[str, list[EpisodeResult]]], list[str]]:
-    """Each input's name and rows (no episode of a system, split and mode in two of them),
-    and a warning per predictions file that misses episodes (with ``allow_incomplete``)."""
+) -> list[tuple[str, list[EpisodeResult]]]:
+    """Each input's name and rows (no episode of a system, split and mode in two of them).
+    A predictions file that misses episodes (with ``allow_incomplete``) is not warned of
+    here: the coverage check against ``data_dir`` (which predictions need) names them."""
     from skyvln_eval.metrics import (
         ground_truth_episodes,
         read_predictions,
@@ -123,7 +124,7 @@ def _load_results(
     from skyvln_eval.metrics.results_io import check_unique_files, read_result_rows
 
     episode_mode = _mode(mode)  # a typo is refused whatever the inputs
-    sources, warnings = [], []
+    sources = []
     files = [file for path in paths for file in _input_files(path)]
     if not any(file.suffix in (".npy", ".json") for file in files):
         # Result rows carry their own split, mode and system: these would be ignored.
@@ -151,14 +152,9 @@ def _load_results(
         rows = results_from_predictions(
             predictions, episodes, label, split, episode_mode, allow_missing=allow_incomplete
         )
-        if len(rows) < len(episodes):
-            warnings.append(
-                f"INCOMPLETE: {path} predicts {len(rows)} of the {len(episodes)} episodes of "
-                f"{split}; scored on those only"
-            )
         sources.append((str(path), rows))
     check_unique_files(sources)
-    return sources, warnings
+    return sources
 
 
 #: ``--ci-unit`` of ``score`` and ``table``.
@@ -251,9 +247,8 @@ def score(
 
     data_dir = None if data_dir_text is None else _data_dir(data_dir_text)
     conventions = _conventions(threshold_m, distance, non_strict, legacy_gp, collisions_succeed)
-    sources, missing = _load_results(results, data_dir, split, mode, system, allow_incomplete)
+    sources = _load_results(results, data_dir, split, mode, system, allow_incomplete)
     loaded, warnings = covered_results(sources, data_dir, allow_incomplete)
-    warnings = [*missing, *warnings]
     scores = score_results(loaded, conventions)
     metrics = [m for m in SUMMARY_METRICS if m in scores]
     summary = summarise(scores, metrics, resamples, seed=seed, ci_unit=_ci_unit(ci_unit))

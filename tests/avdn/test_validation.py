@@ -323,6 +323,10 @@ def test_a_destination_is_checked_as_the_views_are(dataset_factory: Callable[...
     issue = only_issue(dataset_factory, [record])
     assert issue.field == "destination[0]"
     assert issue.message.startswith("not a valid [lat, lng]: [130.0")
+    # Optional means absent: a null is refused with the fix (null is no AVDN value).
+    record["destination"] = None
+    issue = only_issue(dataset_factory, [record])
+    assert issue.field == "destination" and "got null (leave the key out)" in issue.message
 
 
 def test_view_outside_the_map(dataset_factory: Callable[..., Path]) -> None:

@@ -308,6 +308,15 @@ def test_a_sign_flip_test_on_few_units_is_exact() -> None:
     assert not many.p_exact and many.p_value == pytest.approx(1 / 1001)
 
 
+def test_a_comparison_over_clusters_names_them_as_the_caller_does() -> None:
+    """Clusters are not always trajectories: the unit is what the caller calls them."""
+    values, clusters = np.arange(6.0), ["x", "x", "y", "y", "z", "z"]
+    plain = paired_comparison(values, np.zeros(6), 500, clusters=clusters)
+    scenes = paired_comparison(values, np.zeros(6), 500, clusters=clusters, cluster_unit="scene")
+    assert (plain.unit, plain.n_units) == ("cluster", 3)
+    assert (scenes.unit, scenes.n_units) == ("scene", 3)
+
+
 def test_a_comparison_over_trajectories_flips_and_resamples_whole_dialogs() -> None:
     """Ten dialogs of four rounds: system A beats B on every round of dialogs 0-5 and
     loses on every round of 6-9. Per episode that looks like 40 independent pairs; per

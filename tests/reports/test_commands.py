@@ -313,7 +313,9 @@ def test_predictions_start_at_the_start_view_and_may_be_scored_incomplete_when_a
     assert isinstance(runner.invoke(app, ["score", str(path), *args]).exception, IncompleteRunError)
     allowed = runner.invoke(app, ["score", str(path), *args, "--allow-incomplete"])
     assert allowed.exit_code == 0, allowed.output
-    assert "predicts 1 of the 2 episodes of val_seen" in allowed.output
+    said = " ".join(allowed.output.split())
+    assert "1 missing episode(s): 1913__1_1" in said
+    assert said.count("WARNING:") == 2  # one warning, above and below the table
     assert len(read_scores(tmp_path / "s" / "scores.csv")[0]) == 1
 
 
