@@ -5,7 +5,7 @@ from __future__ import annotations
 import subprocess
 import sys
 
-from tests.conftest import REPO
+from tests.conftest import REPO, modules_loaded_by
 
 HEAVY = ("ray", "transformers", "torch", "openai", "rerun")
 
@@ -19,6 +19,12 @@ def test_importing_the_toolkit_imports_no_optional_heavy_dependency() -> None:
         [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO
     )
     assert out.stdout.strip() == "[]"
+
+
+def test_a_run_does_not_import_the_log_validator_s_json_schema_library() -> None:
+    """jsonschema (with its URI grammar, compiled on import) takes up to 2 s to import: only
+    checking a log needs it, not every CLI start and every worker of a run."""
+    assert modules_loaded_by("skyvln_eval.harness", ("jsonschema",)) == []
 
 
 def _tool(name: str) -> list[str]:

@@ -23,8 +23,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
-import jsonschema
-
 from skyvln_eval.converters import topics
 from skyvln_eval.converters.left_out import LEFT_OUT_NAME, LeftOut, read_left_out
 from skyvln_eval.converters.manifest import (
@@ -70,6 +68,8 @@ def _validator(channel: LogChannel) -> Any:
     data = topics.schema_bytes(channel.schema_name) if known is not None else channel.schema_data
     validator = _validators.get(data)
     if validator is None:
+        import jsonschema  # here: its import takes up to 2 s, which every run would pay
+
         schema = json.loads(data)
         cls = jsonschema.validators.validator_for(schema, default=jsonschema.Draft202012Validator)
         cls.check_schema(schema)
@@ -149,6 +149,8 @@ def _channel_issues(log: McapLog) -> list[ValidationIssue]:
 
 
 def _message_issues(log: McapLog) -> list[ValidationIssue]:
+    import jsonschema  # see _validator
+
     issues: list[ValidationIssue] = []
     by_topic = {c.topic: c for c in log.channels}
     listed: dict[str, int] = {}
