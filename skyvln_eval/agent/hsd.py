@@ -113,6 +113,29 @@ def fine_text(e: Mapping[str, Any]) -> str:
     )
 
 
+def _goal_text(goal: SubGoal) -> str:
+    """``stop_at, landmark 'the red tower', distance_m 120``: the sub-goal's fields."""
+    fields = goal.to_dict()
+    kind = fields.pop("kind")
+    return ", ".join([kind, *(f"{key} {value!r}" for key, value in fields.items())])
+
+
+def _route_text(hint: Mapping[str, Any]) -> str:
+    """The commander's direction and the distance still to fly, as far as known."""
+    parts = []
+    if hint.get("direction_deg") is not None:
+        parts.append(f"the route heads {hint['direction_deg']:.0f} deg")
+    if hint.get("remaining_m") is not None:
+        parts.append(f"about {hint['remaining_m']:.0f} m of it to fly")
+    return f" Route: {', '.join(parts)}." if parts else ""
+
+
+def _position_text(candidate: Mapping[str, Any]) -> str:
+    """Where a candidate the model described is (its own description need not say)."""
+    distance, bearing = candidate["distance_m"], candidate["bearing_deg"]
+    return f" [about {distance:.0f} m away at bearing {bearing:.0f} deg]"
+
+
 def coarse_text(e: Mapping[str, Any]) -> str:
     return f"{e['id']} {e['label']}: view {e['view']}, {e['position']}, score {e['score']:.2f}"
 
@@ -429,13 +452,17 @@ class SpatialDescriptor:
             "route_hint": dict(route_hint or {}),
             "candidates": listed,
         }
+        # Every value of the task data is in the prose too: a stand-in that reads the data
+        # knows nothing the model is not told.
         prose = (
-            f"Landmark phrase: {phrase!r} (sub-goal {goal.kind}). "
+            f"Landmark phrase: {phrase!r} (sub-goal {_goal_text(goal)}). "
+            f"Your heading: {data['heading_deg']:.1f} deg.{_route_text(route_hint or {})} "
             "Candidates and their descriptions:\n"
             + "\n".join(
                 f"- {x['id']}: {x['description']} [match: {x['match']}]"
+                + ("" if c.description is None else _position_text(x))
                 + (f" [memory: {x['memory_note']}]" if x["memory_note"] else "")
-                for x in listed
+                for c, x in zip(candidates, listed, strict=True)
             )
             + "\nRank the candidates from most to least likely to be the landmark of the phrase, "
             "taking the sub-goal's direction and distance into account. Answer as "

@@ -169,7 +169,7 @@ def table1_label(label: str, agent: AgentConfig) -> tuple[str, str | None]:
     """
     if agent.name not in LLM_AGENTS:
         return label, None
-    backend = agent.llm.backend
+    backend = agent.llm.answered_by
     kind = stand_in_kind(backend)
     if kind is not None:
         marker, note = STAND_IN_MARKERS[kind]

@@ -236,8 +236,9 @@ def _dynamics(
 def llm_backend(config: RunConfig) -> str | None:
     """The backend that answered the agent's LLM calls (``rule``, ``openai:gpt-4o``, ...),
     recorded in every result so that a table can tell a stand-in from a model; ``None``
-    for an agent without LLM modules."""
-    return config.agent.llm.backend if config.agent.name in LLM_AGENTS else None
+    for an agent without LLM modules. A server sent the task data is marked (``task-data:
+    openai:gpt-4o``): what answered may be a stand-in reading it, not the model named."""
+    return config.agent.llm.answered_by if config.agent.name in LLM_AGENTS else None
 
 
 def run_episode_task(task: EpisodeTask) -> EpisodeResult:

@@ -6,7 +6,7 @@ import re
 import urllib.parse
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
@@ -84,6 +84,10 @@ def _checked_server(url: str, where: str) -> str:
     else:
         hint = ": a server is an http:// or https:// URL"
     raise ValueError(f"{where} {url!r} is not an http(s) URL with a host{hint}")
+
+
+#: How :attr:`LLMConfig.answered_by` marks a backend whose server is sent the task data.
+TASK_DATA_PREFIX: Final = "task-data:"
 
 
 class LLMConfig(BaseModel):
@@ -224,6 +228,13 @@ class LLMConfig(BaseModel):
         backend's own rule, :meth:`~skyvln_eval.llm.base.LLMBackend.missing_key`), else
         ``None``. Makes the backend: its optional dependencies are imported."""
         return create_backend(self.backend, **self.backend_options()).missing_key()
+
+    @property
+    def answered_by(self) -> str:
+        """What answers the calls, as the results record it: the backend, marked
+        ``task-data:`` when the server is sent each request's task data (a test server
+        answers from it as the rule stand-in does: not a model's answer)."""
+        return f"{TASK_DATA_PREFIX}{self.backend}" if self.send_task_data else self.backend
 
     def backend_options(self) -> dict[str, Any]:
         name = self.backend.partition(":")[0]

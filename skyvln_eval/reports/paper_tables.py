@@ -38,6 +38,11 @@ STAND_IN_MARKERS = {
     "rule": ("†", "† LLM modules answered by the rule-based stand-in (not an LLM)."),
     "random": ("‡", "‡ LLM modules answered at random (not an LLM)."),
     "scripted": ("§", "§ LLM modules answered by a script (a test double)."),
+    "task-data": (
+        "¶",
+        "¶ the server was sent each request's task data (a test set-up: a test server "
+        "answers from it as the rule-based stand-in does), so not a model's answers.",
+    ),
 }
 
 

@@ -88,6 +88,27 @@ def test_without_tbma_there_is_no_memory_of_the_path() -> None:
     assert with_memory["odometry"] is not None and with_memory["memory"] is not None
 
 
+def test_the_ranking_prompt_tells_the_model_every_value_the_stand_in_ranks_by() -> None:
+    """The rule stand-in ranks HSD's candidates by their distance and bearing against the
+    route's direction and distance to go: the prose says each of them, so a model is
+    told as much as the stand-in reads from the task data."""
+    backend = RecordingRule()
+    run(AgentConfig.model_validate(PERFECT), backend=backend)
+    ranks = [(data, messages) for data, messages in backend.requests if data["task"] == "hsd_rank"]
+    assert ranks
+    for data, messages in ranks:
+        text = messages[-1].text
+        assert f"Your heading: {data['heading_deg']:.1f} deg." in text
+        hint = data["route_hint"]
+        assert isinstance(hint, dict) and hint["direction_deg"] is not None  # "Go north."
+        assert f"the route heads {hint['direction_deg']:.0f} deg" in text
+        candidates = data["candidates"]
+        assert isinstance(candidates, list) and candidates
+        for c in candidates:
+            line = next(line for line in text.splitlines() if line.startswith(f"- {c['id']}:"))
+            assert f"{c['distance_m']:.0f} m away at bearing {c['bearing_deg']:.0f} deg" in line
+
+
 def motion_texts(config: AgentConfig) -> list[str]:
     """The text of every motion request of an episode (the user message's prose)."""
     backend = RecordingRule()

@@ -125,7 +125,13 @@ def test_a_dead_endpoint_is_an_error_in_every_table_and_fails_the_command(
     # is marked the best or second of the backends on any column.
     for row in (dead_row, rule):
         assert not [cell for cell in row.values() if "**" in cell or "<u>" in cell], row
-    assert "Not ranked (a reference, not a competitor): rule-based (not an LLM)." in table2
+    # The servers of these rows are sent the task data (the loopback answers from it as
+    # the rule stand-in does): marked, and not ranked either, whatever model they name.
+    assert (
+        "Not ranked (a reference, not a competitor): rule-based (not an LLM), "
+        "unpriced model ¶, junk sub-goals ¶." in table2
+    )
+    assert "¶ the server was sent each request's task data" in table2
     cost_table = (out / "tables" / "cost.md").read_text()
     cost_header = [c.strip() for c in cost_table.splitlines()[2].strip("|").split("|")]
     cost_row = dict(zip(cost_header, _row(cost_table, "unpriced model"), strict=True))
