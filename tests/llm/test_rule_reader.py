@@ -326,3 +326,36 @@ def test_the_reader_knows_no_word_only_the_held_out_phrasings_use() -> None:
     modules = [*(PACKAGE / "vocabulary").glob("*.py"), *(PACKAGE / "llm" / "rule").glob("*.py")]
     reader = _words(text for path in sorted(modules) for text in _reader_literals(path))
     assert (reader & only_held_out) - ORDINARY_HELD_OUT_WORDS == set()
+
+
+#: Phrases of the reader that only test_unseen's phrasings use, each judged ordinary.
+ORDINARY_HELD_OUT_PHRASES = frozenset({"of the"})
+
+
+def _phrase_text(texts: Any) -> str:
+    """Texts lower-cased to their words (slots dropped), one ``|`` between texts."""
+    return " | ".join(
+        " ".join(re.findall(r"[a-z']+", _SLOT.sub(" ", text.lower()))) for text in texts
+    )
+
+
+def _says(text: str, phrase: str) -> bool:
+    return re.search(rf"\b{re.escape(phrase)}\b", text) is not None
+
+
+def test_the_reader_knows_no_phrase_only_the_held_out_phrasings_use() -> None:
+    # The word check above misses a phrase whose words each occur elsewhere: a cue of
+    # several words taken from a held-out frame is refused here the same way.
+    from skyvln_eval.worlds.sample.phrasebook import FAMILIES
+
+    held_out = SPLIT_FAMILIES["test_unseen"]
+    theirs = _phrase_text(_family_strings([FAMILIES[name] for name in held_out]))
+    others = _phrase_text(
+        _family_strings([f for name, f in FAMILIES.items() if name not in held_out])
+    )
+    assert _says(theirs, "dead ahead") and not _says(others, "dead ahead")  # the check can see
+    modules = [*(PACKAGE / "vocabulary").glob("*.py"), *(PACKAGE / "llm" / "rule").glob("*.py")]
+    literals = [text for path in sorted(modules) for text in _reader_literals(path)]
+    phrases = {p for p in _phrase_text(literals).split(" | ") if " " in p}
+    only_held_out = {p for p in phrases if _says(theirs, p) and not _says(others, p)}
+    assert only_held_out - ORDINARY_HELD_OUT_PHRASES == set()
