@@ -253,6 +253,7 @@ class LLMConfig(BaseModel):
                 "base_url": self.base_url,
                 "system_role": self.system_role,
                 "extra_body": self.extra_body,
+                "send_task_data": self.send_task_data,
             }
         return {}
 

@@ -210,6 +210,8 @@ class OpenAIBackend(LLMBackend):
             identity["system_role"] = False
         if self.extra_body:  # other request fields, other answers
             identity["extra_body"] = self.extra_body
+        if self.send_task_data:  # a test server may answer from it: never the model's answers
+            identity["task_data"] = True
         return identity
 
     @property

@@ -135,6 +135,7 @@ class ReplayBackend(LLMBackend):
         base_url: str | None = None,
         system_role: bool = True,
         extra_body: dict[str, Any] | None = None,
+        send_task_data: bool = False,
     ) -> None:
         from skyvln_eval.llm.registry import backend_identity
 
@@ -143,6 +144,8 @@ class ReplayBackend(LLMBackend):
         options: dict[str, Any] = {} if system_role else {"system_role": False}  # openai's
         if extra_body:
             options["extra_body"] = extra_body
+        if send_task_data:  # the answers of a server sent the task data: replayed as such
+            options["send_task_data"] = True
         self._identity = backend_identity(model, base_url=base_url, **options)
 
     @classmethod

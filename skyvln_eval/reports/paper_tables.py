@@ -35,7 +35,12 @@ from skyvln_eval.reports.tables import (
 
 #: Row markers (both tables) for systems whose LLM modules a stand-in answered.
 STAND_IN_MARKERS = {
-    "rule": ("†", "† LLM modules answered by the rule-based stand-in (not an LLM)."),
+    "rule": (
+        "†",
+        "† LLM modules answered by the rule-based stand-in (not an LLM). On the synthetic "
+        "sample it was developed with the train and validation splits' phrasings; only "
+        "test_unseen's are held out from it.",
+    ),
     "random": ("‡", "‡ LLM modules answered at random (not an LLM)."),
     "scripted": ("§", "§ LLM modules answered by a script (a test double)."),
     "task-data": (
@@ -206,23 +211,27 @@ def paper_table(
 def _questions_note(
     scores: pd.DataFrame, rows: Sequence[str], spec: TableSpec, mode: str
 ) -> list[str]:
-    """Which rows asked the simulated commander (who knows the goal) and how often: help
-    the other rows did not get, which their differences include."""
-    if "questions_asked" not in scores.columns:
+    """Which rows the simulated commander (who knows the goal) answered and how often: help
+    the other rows did not get, which their differences include. A question it did not
+    answer (``max_questions`` spent, or 0) was no help and is not counted."""
+    column = next((c for c in ("questions_answered", "questions_asked") if c in scores), None)
+    if column is None:
         return []
     splits = [split for split, _ in spec.groups]
     sel = scores[scores["split"].isin(splits) & (scores["mode"] == mode)]
     parts = []
     for row in rows:
-        asked = sel.loc[sel["system"] == row, "questions_asked"].dropna()
-        if len(asked) and asked.sum() > 0:
+        answered = sel.loc[sel["system"] == row, column].dropna()
+        if len(answered) and answered.sum() > 0:
             parts.append(
-                f"{row} {int(asked.sum())} in {int((asked > 0).sum())} of {len(asked)} episodes"
+                f"{row} {int(answered.sum())} in {int((answered > 0).sum())} of "
+                f"{len(answered)} episodes"
             )
     if not parts:
         return []
+    what = "answered by" if column == "questions_answered" else "asked of"
     return [
-        "Questions asked of the simulated commander, who knows the goal (help the other "
+        f"Questions {what} the simulated commander, who knows the goal (help the other "
         f"rows did not get): {'; '.join(parts)}."
     ]
 

@@ -137,6 +137,27 @@ def test_fields_of_the_users_go_in_every_request_and_in_the_cache_identity() -> 
         create_backend("openai:o-model", extra_body={"when": object()})
 
 
+def test_answers_of_a_server_sent_the_task_data_are_never_replayed_as_the_model_s(
+    tmp_path: Path,
+) -> None:
+    """A test server answers from the task data as the rule stand-in does: its cached
+    answers have keys of their own, which neither the model nor its replay finds; a
+    replay that asks for them is recorded as what it is."""
+    from skyvln_eval.llm import LLMConfig, build_client
+
+    url = "http://127.0.0.1:9/v1"
+    fed = LLMConfig(backend="openai:gpt-4o", base_url=url, send_task_data=True)
+    model = fed.model_copy(update={"send_task_data": False})
+    fed_identity = build_client(fed).backend.identity()
+    assert fed_identity != build_client(model).backend.identity()
+    replayed = {"backend": "replay:openai:gpt-4o", "cache_path": str(tmp_path / "cache.sqlite")}
+    replay = model.model_copy(update=replayed)
+    assert build_client(replay).backend.identity() != fed_identity
+    fed_replay = fed.model_copy(update=replayed)
+    assert build_client(fed_replay).backend.identity() == fed_identity
+    assert fed_replay.answered_by == "task-data:replay:openai:gpt-4o"
+
+
 def test_a_refused_system_role_points_to_the_setting() -> None:
     message = "Unsupported value: 'messages[0].role' does not support 'system' with this model."
     with LoopbackOpenAIServer([status(400, message=message)] * 2) as server:

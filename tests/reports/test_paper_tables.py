@@ -55,7 +55,10 @@ def _scores() -> pd.DataFrame:
                 system="gemma",
                 split="test_unseen",
                 episode_id=f"1913__{k}_1",
-                extra={"llm_backend": "openai:gemma", "questions": [{"step": 0}] * k},
+                extra={
+                    "llm_backend": "openai:gemma",
+                    "questions": [{"step": 0, "answer": "go north"}] * k,
+                },
                 llm_calls=(_call(), _call(cached=True)),
             )
         )
@@ -99,7 +102,13 @@ def test_table_ii_marks_errors_references_unequal_episodes_and_cache_replays() -
     again = to_markdown(paper_table(named, TABLE_II, MetricConventions()))
     assert "| rule-based (not an LLM) |" in again and "† LLM modules" not in again
     assert "Replayed from the response cache" in md and "gemma on Unseen Testing: 50%" in md
-    assert "simulated commander, who knows the goal" in md and "gemma 1 in 1 of 2 episodes" in md
+    assert "answered by the simulated commander, who knows the goal" in md
+    assert "gemma 1 in 1 of 2 episodes" in md
+    # Questions it did not answer (max_questions spent, or 0) were no help: no note.
+    unanswered = _scores().assign(questions_answered=0.0)
+    assert "simulated commander" not in to_markdown(
+        paper_table(unanswered, TABLE_II, MetricConventions())
+    )
 
 
 def test_table_i_marks_a_stand_in_row_and_says_why() -> None:
