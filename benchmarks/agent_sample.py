@@ -84,7 +84,7 @@ def run_split(split: str, limit: int | None, worlds: dict[str, WorldTile]) -> di
 def report(split: str, tallies: dict[str, Tally]) -> None:
     n = len(tallies[FULL].success)
     print(f"\n{split}: {n} ANDH episodes")
-    row = "{:<22} {:>6} {:>7} {:>8} {:>9} {:>8} {:>10} {:>8} {:>7}"
+    row = "{:<30} {:>6} {:>7} {:>8} {:>9} {:>8} {:>10} {:>8} {:>7}"
     print(
         row.format(
             "system",

@@ -44,10 +44,16 @@ from skyvln_eval.worlds.sample import (
 )
 
 
-def frames_in(sources: DialogSources, split: str, families: Sequence[str]) -> int:
-    """Distinct sentence frames of ``split``'s dialogs when ``families`` phrase them."""
+def frames_in(
+    sources: DialogSources, split: str, families: Sequence[str], records: Sequence[AvdnRecord]
+) -> int:
+    """Distinct sentence frames of the dialogs of ``records`` (of ``split``) when
+    ``families`` phrase them."""
+    wanted = {(r.map_name, r.route_index.split("_")[0]) for r in records}
     used = set()
     for t in sources.trajectories[split]:
+        if (t.map_name, t.trajectory) not in wanted:
+            continue
         for utterance in render_trajectory(t.rounds, families, t.wording_seed):
             used |= set(utterance.frames)
     return len(used)
@@ -107,7 +113,7 @@ def main() -> None:
             chosen = SPLIT_FAMILIES[split] if families is None else families
             phrased = records if own else rephrase_records(records, sources, split, chosen)
             rates[label], seconds = success_rate(phrased, split, worlds)
-            frames = frames_in(sources, split, chosen)
+            frames = frames_in(sources, split, chosen, records)
             print(
                 row.format(
                     split, len(records), label, f"{rates[label]:.1f}", frames, f"{seconds:.2f}"
@@ -117,7 +123,7 @@ def main() -> None:
         gaps.append(gap)
         print(row.format(split, "", "gap seen - held-out", f"{gap:+.1f}", "", ""))
     print(f"\nmean gap (seen-style minus held-out): {np.mean(gaps):+.1f} points")
-    print("(frames: distinct sentence frames the split's dialogs use in that phrasing)")
+    print("(frames: distinct sentence frames the dialogs of these episodes use in that phrasing)")
 
 
 if __name__ == "__main__":

@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from skyvln_eval.harness import RunConfig, run
+from skyvln_eval.harness.preflight import PreflightError
 from skyvln_eval.harness.store import RESULTS_FILE
 from skyvln_eval.llm.local_server import (
     MODEL_ALIAS,
@@ -91,13 +92,13 @@ def measure(label: str, llm: dict[str, Any], args: argparse.Namespace, out: Path
         f"({100 * fallbacks / max(1, decisions):.0f}%)"
     )
     print(
-        f"calls                      {sum(c.final for c in calls)} requests, {len(calls)} "
+        f"calls                      {sum(c.final for c in calls)} calls, {len(calls)} "
         f"attempts, {sum(c.outcome == 'invalid' for c in calls)} unusable answers, "
         f"{sum(c.repair and c.final for c in calls)} repairs, "
         f"{sum(c.outcome == 'failed' and c.final for c in calls)} without an answer"
     )
     print(f"tokens                     {tokens} ({tokens / max(1, len(results)):.0f} per episode)")
-    print(f"mean latency per call      {latency:.2f} s")
+    print(f"mean latency per answer    {latency:.2f} s (over the answered attempts)")
     print(
         f"SR / SPL / NE              {100 * scores.success.mean():.1f}% / "
         f"{100 * scores.spl.mean():.1f}% / {scores.ne_m.mean():.1f} m"
@@ -140,7 +141,10 @@ def main() -> None:
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp, server(args.base_url) as url:
         llm = llm_settings(url, timeout_s=600.0)
-        measure(f"Full, {MODEL_ALIAS} (llama.cpp)", llm, args, Path(tmp) / "model")
+        try:
+            measure(f"Full, {MODEL_ALIAS} (llama.cpp)", llm, args, Path(tmp) / "model")
+        except PreflightError as error:  # e.g. nothing listens at --base-url: said plainly
+            raise SystemExit(f"no real local LLM: {error}") from None
         measure(
             "Full, rule-based stand-in (not an LLM)", {"backend": "rule"}, args, Path(tmp) / "rule"
         )

@@ -1,6 +1,7 @@
 """Settings of the MPC controllers (NMPC and linear MPC), with documented defaults.
 
-The weights are those measured in ``NMPC_NOTES.md``: ``Qx = diag(10, 10, 10, 1, 1, 1, .5, .5)``,
+The weights are those the project's NMPC notes measured:
+``Qx = diag(10, 10, 10, 1, 1, 1, .5, .5)``,
 ``Qu = diag(.5, 5, 5)``, ``Q_du = diag(.5, 20, 20)`` around ``u_ref`` (hover thrust plus the
 reference's feed-forward), N = 20 steps of dt = 0.1 s.
 """

@@ -16,7 +16,7 @@ track world-frame roll / pitch references whatever the heading ("after the relev
 in the paper), so yaw never enters the translational dynamics.
 
 Default values are those of an AscTec Firefly identified in ETH's mav_control_rw (the
-values measured in ``NMPC_NOTES.md``).
+values measured in the project's NMPC notes).
 """
 
 from __future__ import annotations
