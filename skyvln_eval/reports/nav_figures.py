@@ -20,6 +20,7 @@ ground-truth oracle flew are labelled as references
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -82,7 +83,9 @@ def _selected(
     scores: pd.DataFrame, systems: Sequence[str] | None, splits: Sequence[str] | None
 ) -> tuple[pd.DataFrame, list[str]]:
     """The rows of ``splits`` (all by default) and the systems to draw, in order; refuses
-    a split or system that has no scores there, naming those there are."""
+    a split or a named system that has no scores there, naming those there are. Without
+    named systems, those with no scores on ``splits`` are left out, with a warning (a
+    reproduction's Table II rows ran test_unseen only)."""
     names = _systems(scores, systems)
     scores = scores[scores["system"].isin(names)]
     if splits:
@@ -94,10 +97,18 @@ def _selected(
             )
         scores = scores[scores["split"].isin(list(splits))]
         absent = [n for n in names if n not in set(scores["system"])]
-        if absent:
+        if absent and systems:
             raise MetricInputError(
                 f"system(s) {listed(absent)} have no scores on {listed(list(splits))}"
             )
+        if absent:
+            warnings.warn(
+                f"left out: system(s) {listed(absent)}, which have no scores on "
+                f"{listed(list(splits))}",
+                UserWarning,
+                stacklevel=3,
+            )
+            names = [n for n in names if n not in set(absent)]
     return scores, names
 
 

@@ -3,13 +3,22 @@ facts negotiation and ``system_role`` rest on), and the agent's calls answered b
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
+import os
 import re
+import signal
+import subprocess
+import sys
+import time
 import urllib.error
 import urllib.request
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
+
+import pytest
 
 from skyvln_eval.agent.actions import Stop, decision_json_schema
 from skyvln_eval.agent.calls import CUT_OFF_REQUEST, call_json
@@ -22,7 +31,7 @@ from skyvln_eval.agent.subgoals import (
 )
 from skyvln_eval.llm import GenerationConfig, LLMClient, Message
 from skyvln_eval.llm.config import LLMConfig, RepairPolicy, build_client
-from skyvln_eval.llm.local_server import MODEL_ALIAS, llm_settings
+from skyvln_eval.llm.local_server import MODEL_ALIAS, find_local_llama, llm_settings
 
 SCHEMA = {
     "type": "object",
@@ -191,3 +200,58 @@ def test_a_prompt_longer_than_the_context_is_its_own_failure_and_not_retried(
     record = result.records[0]
     assert record.outcome == "failed" and record.error is not None
     assert record.error.startswith("LLMContextOverflowError: the prompt does not fit")
+
+
+def _children(pid: int) -> list[int]:
+    """Processes whose parent is ``pid`` (from /proc)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:  # ended while listed
+            continue
+        if int(fields[1]) == pid:
+            found.append(int(stat.parent.name))
+    return found
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="the server dies with its parent on Linux")
+def test_the_server_ends_with_the_process_that_started_it_even_when_killed() -> None:
+    """A kill -9 (or a SIGTERM, which Python answers by ending at once) of a benchmark or
+    test run skips the ``finally`` that stops the server: it must end all the same."""
+    llama = find_local_llama()
+    if isinstance(llama, str):
+        pytest.skip(f"no real local LLM: {llama}")
+    code = (
+        "import sys\n"
+        "from skyvln_eval.llm.local_server import find_local_llama, local_llama_server\n"
+        "with local_llama_server(find_local_llama(), n_threads=1) as url:\n"
+        "    print(url, flush=True)\n"
+        "    sys.stdin.read()\n"  # until killed
+    )
+    parent = subprocess.Popen(
+        [sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
+    server = None
+    try:
+        assert parent.stdout is not None and parent.stdout.readline().startswith("http://")
+        (server,) = _children(parent.pid)
+        parent.kill()
+        parent.wait()
+        deadline = time.monotonic() + 30
+        while Path(f"/proc/{server}").exists() and time.monotonic() < deadline:
+            time.sleep(0.2)
+            with contextlib.suppress(ChildProcessError):
+                os.waitpid(server, os.WNOHANG)  # not ours: reaped by init, normally
+        assert not Path(f"/proc/{server}").exists() or "Z" in _state(server)
+    finally:
+        parent.kill()
+        if server is not None and _state(server) not in ("gone", "Z"):
+            os.kill(server, signal.SIGKILL)  # the failure is asserted; no server is left
+
+
+def _state(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return "gone"

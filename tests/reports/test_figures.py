@@ -305,6 +305,10 @@ def test_systems_of_different_splits_are_not_pooled_silently() -> None:
         sr_vs_threshold_figure(scores, MetricConventions(), splits=["val_unseen"])
     with pytest.raises(MetricInputError, match="system\\(s\\) 'rule' have no scores on"):
         ne_distribution_figure(scores, systems=["Full", "rule"], splits=["val_seen"])
+    # Not named, a system without scores there is left out, and said to be.
+    with pytest.warns(UserWarning, match="left out: system\\(s\\) 'rule', which have no"):
+        only_full = ne_distribution_figure(scores, splits=["val_seen"])
+    assert [entry.split(" (")[0] for entry in _legend(only_full)] == ["Full"]
     with pytest.raises(MetricInputError, match="'Ful'; the scores have the systems 'Full'"):
         ne_distribution_figure(scores, systems=["Ful"])
 
