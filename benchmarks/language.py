@@ -49,7 +49,7 @@ def frames_in(
 ) -> int:
     """Distinct sentence frames of the dialogs of ``records`` (of ``split``) when
     ``families`` phrase them."""
-    wanted = {(r.map_name, r.route_index.split("_")[0]) for r in records}
+    wanted = {(r.map_name, r.trajectory_index) for r in records}
     used = set()
     for t in sources.trajectories[split]:
         if (t.map_name, t.trajectory) not in wanted:

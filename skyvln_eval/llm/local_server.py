@@ -31,7 +31,7 @@ import tempfile
 import time
 import urllib.error
 import urllib.request
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
@@ -84,12 +84,16 @@ def _packaged_model(python: str) -> Path | None:
     return path if path is not None and path.is_file() else None
 
 
-def _die_with_parent() -> None:
-    """In the server's process before it starts (Linux): SIGTERM when the process that
-    started it ends, however it ends. A SIGTERM or kill -9 of a benchmark or a test run
-    skips the ``finally`` that stops the server, which then kept its gigabytes."""
-    libc = ctypes.CDLL(None, use_errno=True)
-    libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+def _die_with_parent() -> Callable[[], None] | None:
+    """What the server's process runs before it starts (Linux; else None): ask for SIGTERM
+    when the process that started it ends, however it ends. A SIGTERM or kill -9 of a
+    benchmark or a test run skips the ``finally`` that stops the server, which then kept
+    its gigabytes. libc is opened here, in the parent: between fork and exec the child
+    of a threaded process must not take the loader's locks."""
+    if sys.platform != "linux":
+        return None
+    prctl = ctypes.CDLL(None, use_errno=True).prctl
+    return lambda: prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
 def find_local_llama() -> LocalLlama | str:
@@ -172,7 +176,7 @@ def local_llama_server(
             command,
             stdout=server_log,
             stderr=subprocess.STDOUT,
-            preexec_fn=_die_with_parent if sys.platform == "linux" else None,
+            preexec_fn=_die_with_parent(),
         )
         try:
             try:
