@@ -252,7 +252,7 @@ def _undecodable_maps(
     """The map images (and world layers) of ``records`` that exist but do not decode (a
     truncated download), each named once with how many records use it; ``checked``
     holds the maps already decoded (another split's)."""
-    from skyvln_eval.errors import MapImageError
+    from skyvln_eval.errors import FormatVersionError, MapImageError
     from skyvln_eval.worlds.loading import load_world
 
     users: dict[str, list[AvdnRecord]] = {}
@@ -265,7 +265,7 @@ def _undecodable_maps(
         checked.add((data_dir, map_name))
         try:
             load_world(data_dir, map_name, using[0].georef)
-        except MapImageError as exc:
+        except (MapImageError, FormatVersionError) as exc:
             problems.append(f"{exc} ({len(using)} record(s) use map {map_name})")
     return problems
 

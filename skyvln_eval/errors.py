@@ -103,7 +103,7 @@ class AvdnValidationError(DataError):
 
 
 class MapImageError(DataError):
-    """A map image is missing or cannot be decoded."""
+    """A map image, or a file of its world layers, is missing or cannot be decoded."""
 
     def __init__(self, path: str, message: str, episode_id: str | None = None) -> None:
         where = f" (episode {episode_id})" if episode_id else ""

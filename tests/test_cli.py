@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -63,6 +64,42 @@ def test_validate_decodes_the_map_images(dataset_factory: Callable[..., Path]) -
     assert result.exit_code == 1, result.output
     assert str(image) in result.output and "(2 record(s) use map 1913)" in result.output
     assert runner.invoke(app, ["validate", str(root), "--no-images"]).exit_code == 0
+
+
+def test_validate_names_a_bad_landmarks_file_and_its_field(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    """A synthetic map's landmarks.json that is not JSON, lacks a landmark's field or has
+    another format version: each is a problem naming the file (it crashed validate)."""
+    from skyvln_eval.worlds.layers import LAYERS_FORMAT, LAYERS_FORMAT_VERSION
+
+    root = dataset_factory({"val_unseen": [make_record()]})
+    landmarks = root / "world_layers" / "1913" / "landmarks.json"
+    landmarks.parent.mkdir(parents=True)
+    header = {"format": LAYERS_FORMAT, "version": LAYERS_FORMAT_VERSION, "map_name": "1913"}
+    item = {
+        "landmark_id": 1,
+        "name": "a",
+        "category": "building",
+        "description": "d",
+        "centre": [1, 2],
+        "footprint": [[0, 0], [1, 0], [1, 1]],
+    }
+    cases = {
+        "{cut": "not a JSON file",
+        json.dumps({**header, "landmarks": [item]}): "landmark 0, field 'height_m': missing",
+        json.dumps({**header, "landmarks": [{**item, "height_m": 3, "centre": [1]}]}): (
+            "landmark 0, field 'centre': invalid"
+        ),
+        json.dumps({**header, "version": 0, "landmarks": []}): "format version 0",
+    }
+    for text, problem in cases.items():
+        landmarks.write_text(text)
+        result = runner.invoke(app, ["validate", str(root)])
+        assert result.exit_code == 1, result.output
+        output = " ".join(result.output.split())
+        assert f"{landmarks}: " in output and problem in output, output
+        assert "(1 record(s) use map 1913)" in output
 
 
 def test_validate_a_folder_without_annotations(tmp_path: Path) -> None:

@@ -225,12 +225,13 @@ class PlannedRun:
 def _kept_answers(llm: dict[str, Any], out_dir: Path) -> dict[str, Any]:
     """``llm`` with its response cache in the output folder: a remote model's answers are
     kept, so a resumed or repeated run does not pay for them again (the cache key starts
-    with the model and server), and a plan's relative ``cache_path`` is taken inside
-    ``--out``, with everything else the plan writes, not in the working directory."""
+    with the model and server), a replay reads them from there, and a plan's relative
+    ``cache_path`` is taken inside ``--out``, with everything else the plan writes, not in
+    the working directory."""
     cache = llm.get("cache_path")
     if cache and not Path(cache).is_absolute():
         return {**llm, "cache_path": str(out_dir / cache)}
-    if not cache and str(llm.get("backend", "")).startswith("openai:"):
+    if not cache and str(llm.get("backend", "")).startswith(("openai:", "replay:")):
         return {**llm, "cache_path": str(out_dir / "llm-cache.sqlite")}
     return llm
 

@@ -203,6 +203,16 @@ class LLMConfig(BaseModel):
         # Over the defaults: {motion: 4096} alone left the other modules at max_tokens.
         return {**DEFAULT_BUDGETS, **budgets}
 
+    @model_validator(mode="after")
+    def _replay_has_a_cache(self) -> LLMConfig:
+        # Checked on load: without one, every episode of the run failed on its own.
+        if self.backend.startswith("replay:") and not self.cache_path:
+            raise ValueError(
+                f"backend {self.backend!r} answers only from the response cache: set "
+                "cache_path to the cache the replayed backend's run wrote"
+            )
+        return self
+
     def generation(self, module: str | None = None, **overrides: Any) -> GenerationConfig:
         """Decoding settings for ``module``'s calls (``json_schema`` etc. as overrides)."""
         budget = self.budgets.get(module, self.max_tokens) if module else self.max_tokens

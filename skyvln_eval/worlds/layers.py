@@ -9,8 +9,9 @@ lossless, byte-identical for identical input, and viewable with any image tool.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import cv2
 import numpy as np
@@ -23,6 +24,8 @@ from skyvln_eval.worlds.tile import Landmark
 LAYERS_DIR = "world_layers"
 LAYERS_FORMAT = "skyvln-eval/world-layers"
 LAYERS_FORMAT_VERSION = 1
+
+T = TypeVar("T")
 
 
 def layers_dir(data_dir: str | Path, map_name: str) -> Path:
@@ -95,11 +98,20 @@ LAYER_FILES = ("semantic.png", "instance.png", "height_dm.png")
 
 
 def read_landmarks(data_dir: str | Path, map_name: str) -> tuple[Landmark, ...] | None:
-    """The landmarks of a synthetic map, or None when the map has no layers (real xView)."""
+    """The landmarks of a synthetic map, or None when the map has no layers (real xView).
+
+    A file that is not JSON, or a landmark without a field, raises :class:`MapImageError`
+    naming the file, the landmark's position in its list and the field.
+    """
     meta_path = layers_dir(data_dir, map_name) / "landmarks.json"
     if not meta_path.is_file():
         return None
-    info = json.loads(meta_path.read_text(encoding="utf-8"))
+    try:
+        info = json.loads(meta_path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise MapImageError(str(meta_path), f"not a JSON file ({exc})") from exc
+    if not isinstance(info, dict):
+        raise MapImageError(str(meta_path), "expected a JSON object")
     if info.get("format") != LAYERS_FORMAT or info.get("version") != LAYERS_FORMAT_VERSION:
         raise FormatVersionError(
             str(meta_path),
@@ -107,17 +119,36 @@ def read_landmarks(data_dir: str | Path, map_name: str) -> tuple[Landmark, ...] 
             LAYERS_FORMAT_VERSION,
             "Regenerate the synthetic dataset with this version (`skyvln-eval sample --force`).",
         )
-    return tuple(
-        Landmark(
-            landmark_id=int(item["landmark_id"]),
-            name=item["name"],
-            category=item["category"],
-            description=item["description"],
-            centre=(float(item["centre"][0]), float(item["centre"][1])),
-            footprint=tuple((float(p[0]), float(p[1])) for p in item["footprint"]),
-            height_m=float(item["height_m"]),
-        )
-        for item in info["landmarks"]
+    items = info.get("landmarks")
+    if not isinstance(items, list):
+        raise MapImageError(str(meta_path), "field 'landmarks': expected a list")
+    return tuple(_landmark(meta_path, index, item) for index, item in enumerate(items))
+
+
+def _point(value: Any) -> tuple[float, float]:
+    return (float(value[0]), float(value[1]))
+
+
+def _landmark(meta_path: Path, index: int, item: Any) -> Landmark:
+    """Landmark ``index`` of ``landmarks.json``, or an error naming it and its field."""
+
+    def field(name: str, convert: Callable[[Any], T]) -> T:
+        try:
+            return convert(item[name])
+        except (KeyError, IndexError, TypeError, ValueError) as exc:
+            problem = "missing" if isinstance(exc, KeyError) else f"invalid ({exc})"
+            raise MapImageError(
+                str(meta_path), f"landmark {index}, field '{name}': {problem}"
+            ) from exc
+
+    return Landmark(
+        landmark_id=field("landmark_id", int),
+        name=field("name", str),
+        category=field("category", str),
+        description=field("description", str),
+        centre=field("centre", _point),
+        footprint=field("footprint", lambda points: tuple(_point(p) for p in points)),
+        height_m=field("height_m", float),
     )
 
 

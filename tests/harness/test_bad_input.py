@@ -228,7 +228,10 @@ def test_known_names_and_aliases_still_load(tmp_path: Path) -> None:
     path = tmp_path / "alias.yaml"
     path.write_text("system: x\ndynamics: {controller: lmpc}\nagent: {llm: {backend: rule}}\n")
     assert load_run_config(path).dynamics.controller == "lmpc"
-    assert LLMConfig(backend="replay:openai:gpt-4o").backend == "replay:openai:gpt-4o"
+    replay = LLMConfig(backend="replay:openai:gpt-4o", cache_path=str(tmp_path / "c.sqlite"))
+    assert replay.backend == "replay:openai:gpt-4o"
+    with pytest.raises(Exception, match="answers only from the response cache: set cache_path"):
+        LLMConfig(backend="replay:openai:gpt-4o")  # refused on load, not in every episode
     with pytest.raises(Exception, match="unknown LLM backend 'opena'"):
         LLMConfig(backend="opena:gpt-4o")
 

@@ -11,6 +11,7 @@ from typer.testing import CliRunner
 
 from skyvln_eval.cli import app
 from skyvln_eval.errors import ConfigError
+from skyvln_eval.harness import plan as plan_module
 from skyvln_eval.harness.plan import environment_backends, load_plan, planned_runs, slug
 from skyvln_eval.harness.reproduce import CONTROL_COLUMNS, WALL_CLOCK_METRICS, reproduce
 from skyvln_eval.llm import LLMConfig
@@ -329,6 +330,10 @@ def test_every_way_of_naming_a_backend_gives_its_full_configuration(
     }
     assert runs["local-gemma"].agent.llm.cache_path == str(tmp_path / "llm-cache.sqlite")
     assert runs["local-gemma"].agent.llm.base_url == "http://127.0.0.1:8765/v1"
+    # A replay of a model reads the answers from that same cache (a replay without a cache
+    # is refused on load).
+    replayed = plan_module._kept_answers({"backend": "replay:openai:gpt-4o-mini"}, tmp_path)
+    assert LLMConfig.model_validate(replayed).cache_path == str(tmp_path / "llm-cache.sqlite")
     # The local-llm plan's relative cache_path lands inside --out (an audit found it in the
     # working directory), for Table I's model rows as for Table II's.
     local = [r.config for r in planned_runs(load_plan("local-llm"), tmp_path, 1, "threads")]

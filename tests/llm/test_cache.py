@@ -77,8 +77,11 @@ def test_replay_with_an_empty_cache_fails_clearly(tmp_path: Path) -> None:
     )
     with pytest.raises(CacheMissError, match="replay of openai:gpt-4o: no cached answer"):
         client.call("motion", PROMPT, CONFIG)
-    with pytest.raises(ConfigError, match="cache"):
-        build_client(LLMConfig(backend="replay:openai:gpt-4o"))
+    with pytest.raises(ValueError, match="set cache_path"):
+        LLMConfig(backend="replay:openai:gpt-4o")
+    uncached = LLMConfig().model_copy(update={"backend": "replay:openai:gpt-4o"})
+    with pytest.raises(ConfigError, match="cache"):  # a copy skips the config's checks
+        build_client(uncached)
 
 
 @pytest.mark.parametrize("system_role", [True, False])
