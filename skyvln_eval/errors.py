@@ -34,7 +34,8 @@ class ValidationIssue:
 
     ``record_index`` is the 0-based position of the record in the file's JSON list and
     ``field`` a path such as ``gt_path_corners[3][1]``; either is ``None`` when the problem
-    concerns the whole file or the whole record.
+    concerns the whole file or the whole record. ``line`` is the record's 1-based line in a
+    file of one record per line (JSON Lines), where an editor finds it.
     """
 
     file: str
@@ -42,6 +43,7 @@ class ValidationIssue:
     record_index: int | None = None
     episode_id: str | None = None
     field: str | None = None
+    line: int | None = None
 
     @property
     def record_location(self) -> str:
@@ -49,6 +51,8 @@ class ValidationIssue:
         where = self.file
         if self.record_index is not None:
             where += f", record {self.record_index}"
+        if self.line is not None:
+            where += f" on line {self.line}"
         if self.episode_id is not None:
             where += f" (episode {self.episode_id})"
         return where

@@ -151,7 +151,7 @@ def _parse_row(text: bytes, path: Path, line: int) -> EpisodeResult | str:
     except (ValueError, RecursionError) as error:
         return f"not usable JSON: {error}"
     try:
-        return result_from_json_dict(data, str(path), line - 1)
+        return result_from_json_dict(data, str(path), line - 2, line)
     except ResultRecordError as error:
         issue = error.issue
         return f"not a valid row: {issue.field + ': ' if issue.field else ''}{issue.message}"

@@ -24,6 +24,7 @@ file, row and field of any problem. Writers write to a temporary name and rename
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 from collections.abc import Callable, Iterable, Sequence
@@ -90,9 +91,14 @@ def result_to_json_dict(result: EpisodeResult) -> dict[str, Any]:
 
 
 def _where(
-    file: str, row: int, episode_id: str | None, field: str, message: str
+    file: str,
+    row: int,
+    episode_id: str | None,
+    field: str,
+    message: str,
+    line: int | None = None,
 ) -> ResultRecordError:
-    return ResultRecordError(ValidationIssue(file, message, row, episode_id, field))
+    return ResultRecordError(ValidationIssue(file, message, row, episode_id, field, line))
 
 
 def _records(items: Any, name: str, parse: Callable[[Any], T]) -> tuple[T, ...]:
@@ -114,25 +120,33 @@ def _records(items: Any, name: str, parse: Callable[[Any], T]) -> tuple[T, ...]:
     return tuple(out)
 
 
-def result_from_json_dict(data: Any, file: str = "<json>", row: int = 0) -> EpisodeResult:
-    """Parse one row; errors name ``file``, ``row``, the episode and the field."""
+def result_from_json_dict(
+    data: Any, file: str = "<json>", row: int = 0, line: int | None = None
+) -> EpisodeResult:
+    """Parse one row; errors name ``file``, ``row`` (and its ``line`` in a JSON Lines
+    file), the episode and the field."""
+
+    def error(field: str, message: str) -> ResultRecordError:
+        return _where(file, row, eid, field, message, line)
+
+    eid = None
     if not isinstance(data, dict):
-        raise _where(file, row, None, "", f"expected a JSON object, got {type(data).__name__}")
+        raise error("", f"expected a JSON object, got {type(data).__name__}")
     eid = data.get("episode_id") if isinstance(data.get("episode_id"), str) else None
     missing = [k for k in _FIELDS if k not in data]
     if missing:
-        raise _where(file, row, eid, missing[0], f"missing required key(s) {missing}")
+        raise error(missing[0], f"missing required key(s) {missing}")
     unknown = sorted(set(data) - set(_FIELDS) - set(_DERIVED))
     if unknown:
-        raise _where(file, row, eid, unknown[0], f"unknown key(s) {unknown}")
+        raise error(unknown[0], f"unknown key(s) {unknown}")
     try:
-        control = None if data["control"] is None else ControlSummary(**data["control"])
+        control = _control_summary(data["control"])
         calls = _records(data["llm_calls"], "llm_calls", LlmCall.from_json_dict)
         failures = _records(
             data["module_failures"], "module_failures", ModuleFailure.from_json_dict
         )
         if not isinstance(data["extra"], dict):
-            raise _where(file, row, eid, "extra", "must be a JSON object")
+            raise error("extra", "must be a JSON object")
         return EpisodeResult(
             episode_id=data["episode_id"],
             split=data["split"],
@@ -140,9 +154,7 @@ def result_from_json_dict(data: Any, file: str = "<json>", row: int = 0) -> Epis
             system=data["system"],
             status=data["status"],
             error=data["error"],
-            visited_views=np.asarray(data["visited_views"], dtype=np.float64)
-            if data["visited_views"]
-            else np.zeros((0, 4, 2)),
+            visited_views=data["visited_views"] or np.zeros((0, 4, 2)),
             gt_path_corners=data["gt_path_corners"],
             control=control,
             control_log=data["control_log"],
@@ -152,10 +164,27 @@ def result_from_json_dict(data: Any, file: str = "<json>", row: int = 0) -> Epis
             extra=data["extra"],
         )
     except ResultRecordError as exc:
-        issue = exc.issue
-        raise _where(file, row, eid, issue.field or "", issue.message) from None
-    except (TypeError, ValueError) as exc:
-        raise _where(file, row, eid, "", str(exc)) from None
+        raise error(exc.issue.field or "", exc.issue.message) from None
+    except (TypeError, ValueError) as exc:  # not one of the checks above: no field to name
+        raise error("", str(exc)) from None
+
+
+def _control_summary(data: Any) -> ControlSummary | None:
+    def problem(message: str) -> ResultRecordError:
+        return ResultRecordError(ValidationIssue("<json>", message, field="control"))
+
+    if data is None:
+        return None
+    if not isinstance(data, dict):
+        raise problem("must be a JSON object or null")
+    keys = {f.name: f.default is dataclasses.MISSING for f in dataclasses.fields(ControlSummary)}
+    missing = [name for name, required in keys.items() if required and name not in data]
+    if missing:
+        raise problem(f"missing required key(s) {missing}")
+    unknown = sorted(set(data) - set(keys))
+    if unknown:
+        raise problem(f"unknown key(s) {unknown}")
+    return ControlSummary(**data)
 
 
 def check_unique(results: Sequence[EpisodeResult], file: str = "<results>") -> None:
@@ -223,14 +252,9 @@ def results_from_jsonl_bytes(data: bytes, file: str = "<jsonl>") -> list[Episode
         try:
             obj = json.loads(line)
         except json.JSONDecodeError as exc:
-            raise _where(
-                file,
-                row,
-                None,
-                "",
-                f"not valid JSON (line {row + 2}, column {exc.colno}: {exc.msg})",
-            ) from None
-        results.append(result_from_json_dict(obj, file, row))
+            message = f"not valid JSON (column {exc.colno}: {exc.msg})"
+            raise _where(file, row, None, "", message, line=row + 2) from None
+        results.append(result_from_json_dict(obj, file, row, line=row + 2))
     check_unique(results, file)
     return results
 

@@ -113,7 +113,8 @@ def test_bad_rows_are_located(tmp_path: Path) -> None:
     lines[2] = json.dumps(row)
     path.write_text("\n".join(lines))
     with pytest.raises(
-        ResultRecordError, match=r"run.jsonl, record 1 \(episode 1913__1_2\), field 'status'"
+        ResultRecordError,
+        match=r"run.jsonl, record 1 on line 3 \(episode 1913__1_2\), field 'status'",
     ):
         read_results(path)
     row["status"] = "error"
@@ -143,7 +144,19 @@ def test_bad_rows_are_located(tmp_path: Path) -> None:
     with pytest.raises(ResultRecordError) as not_an_object:
         read_results(path)
     assert "field" not in str(not_an_object.value)
-    assert "record 1: expected a JSON object, got list" in str(not_an_object.value)
+    assert "record 1 on line 3: expected a JSON object, got list" in str(not_an_object.value)
+    row["gt_path_corners"] = [square]
+    full = json.loads(lines[1])["control"]
+    assert full is not None
+    for control, message in (
+        ("fast", "field 'control': must be a JSON object or null"),
+        ({"controller": "nmpc"}, r"field 'control': missing required key\(s\) \['scenario'"),
+        ({**full, "speed": 1}, r"field 'control': unknown key\(s\) \['speed'\]"),
+    ):  # a TypeError inside: the field was named nowhere
+        lines[2] = json.dumps({**row, "control": control})
+        path.write_text("\n".join(lines))
+        with pytest.raises(ResultRecordError, match=message):
+            read_results(path)
 
 
 def test_duplicates_and_unknown_suffixes_are_refused(tmp_path: Path) -> None:
