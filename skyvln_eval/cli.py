@@ -270,6 +270,20 @@ def _undecodable_maps(
     return problems
 
 
+def _validate_run_directory(run_dir: Path) -> int:
+    """Print what checking a run directory's rows and episode files found; the problems."""
+    from skyvln_eval.harness.run_check import check_run_directory
+
+    check = check_run_directory(run_dir)
+    for problem in check.problems:
+        _echo_problem(problem)
+    for note in check.notes:
+        typer.echo(f"{run_dir}: note: {note}")
+    status = f"{len(check.problems)} problem(s)" if check.problems else "ok"
+    typer.echo(f"{run_dir}: run directory, {check.rows} result row(s), {status}")
+    return len(check.problems)
+
+
 @app.command()
 def validate(
     targets: Annotated[
@@ -285,21 +299,29 @@ def validate(
         typer.Option("--no-images", help="Do not check that map images exist and decode"),
     ] = False,
 ) -> None:
-    """Report every problem in the given datasets or MCAP logs; exit 1 if there is any.
+    """Report every problem in the given datasets, MCAP logs or run directories; exit 1 if
+    there is any.
 
     MCAP files are checked byte by byte (CRCs), message by message (JSON schema of their
     channel) and for their format version; folders of converted logs also against their
-    manifest (a run directory's logs have none: only their files are checked).
+    manifest (a run directory's logs have none: only their files are checked). A run
+    directory's result rows are parsed, and each recorded episode's run log must be there
+    and its control log read.
     """
     from skyvln_eval.avdn import SPLITS, annotation_file_name, check_split, undefined_fields
     from skyvln_eval.converters.commands import is_mcap_target, run_validate_mcap
+    from skyvln_eval.harness.run_check import is_run_directory
 
     problems = 0
     checked_maps: set[tuple[Path, str]] = set()
     for target in targets:
         path = data_dir_argument(target)  # "sample" as summary and convert read it
+        run_dir = is_run_directory(path)
+        if run_dir:
+            problems += _validate_run_directory(path)
         if is_mcap_target(path):
             problems += run_validate_mcap(path, typer.echo, _echo_problem)
+        if run_dir or is_mcap_target(path):
             continue
         found = False
         for split in SPLITS:

@@ -20,6 +20,7 @@ that have no row; the result rows (and so the scores) are those of an uninterrup
 from __future__ import annotations
 
 import hashlib
+import io
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -29,8 +30,13 @@ from typing import Any
 from skyvln_eval.control.registry import controller_config
 from skyvln_eval.converters.batch import convert_split
 from skyvln_eval.converters.convert import ConvertOptions
-from skyvln_eval.converters.reader import read_episode
-from skyvln_eval.errors import AvdnValidationError, ConfigError, ForeignRowsError
+from skyvln_eval.converters.reader import check_file_ends, read_episode
+from skyvln_eval.errors import (
+    AvdnValidationError,
+    ConfigError,
+    ForeignRowsError,
+    McapLogError,
+)
 from skyvln_eval.fileio import (
     atomic_write_json,
     atomic_write_text,
@@ -207,13 +213,41 @@ def foreign_rows(config: RunConfig, results: Sequence[EpisodeResult]) -> list[st
     return found
 
 
+#: The bytes a parquet file starts and ends with.
+_PARQUET_MAGIC = b"PAR1"
+
+
+def file_damage(path: Path) -> str | None:
+    """Why the episode file ``path`` (a run MCAP or a control parquet) cannot be kept:
+    missing, or cut short (its closing magic gone), read from its two ends only; None when
+    it looks whole. A resume runs its episode again: counted done, the file stayed bad."""
+    if not path.is_file():
+        return "missing"
+    if path.suffix == ".mcap":
+        try:
+            with path.open("rb") as handle:
+                check_file_ends(handle, path.name)
+        except McapLogError as error:
+            return f"damaged: {str(error).removeprefix(f'{path.name}: ')}"
+        return None
+    with path.open("rb") as handle:
+        head = handle.read(len(_PARQUET_MAGIC))
+        size = handle.seek(0, io.SEEK_END)
+        handle.seek(max(0, size - len(_PARQUET_MAGIC)))
+        tail = handle.read()
+    if head != _PARQUET_MAGIC or tail != _PARQUET_MAGIC or size < 3 * len(_PARQUET_MAGIC):
+        return "damaged: truncated or not a parquet file"
+    return None
+
+
 def lost_files(
     config: RunConfig, run_dir: Path, store: ResultStore, keys: Sequence[RowKey]
 ) -> dict[RowKey, str]:
     """Of the recorded episodes ``keys``, those whose run MCAP (when the run writes logs)
-    or control log (a flown episode) is gone, with the first missing file: a resume would
-    otherwise count them done with their logs lost. Error rows are left be (an episode
-    that raised wrote none; ``--retry-failed`` runs them again)."""
+    or control log (a flown episode) is missing or cut short, with the first such file and
+    what is wrong with it: a resume would otherwise count them done with their logs lost.
+    Error rows are left be (an episode that raised wrote none; ``--retry-failed`` runs
+    them again)."""
     lost: dict[RowKey, str] = {}
     for key in keys:
         row = store.get(key)
@@ -223,9 +257,11 @@ def lost_files(
         wanted = [log_path(run_dir, split, episode_id)] if config.write_logs else []
         if row.control is not None:
             wanted.append(run_dir / control_log_name(split, episode_id))
-        gone = [path for path in wanted if not path.is_file()]
-        if gone:
-            lost[key] = str(gone[0].relative_to(run_dir))
+        for path in wanted:
+            damage = file_damage(path)
+            if damage is not None:
+                lost[key] = f"{path.relative_to(run_dir)}: {damage}"
+                break
     return lost
 
 
@@ -472,8 +508,8 @@ def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = Fal
         todo = [key for key in logs if key in again]
         first = next(iter(lost.values()))
         notes.append(
-            f"{len(lost)} recorded episode(s) run again: a file of theirs was missing "
-            f"(e.g. {first})"
+            f"{len(lost)} recorded episode(s) run again: a file of theirs was missing or "
+            f"damaged (e.g. {first})"
         )
     report.already_done = len(logs) - len(todo)
     if todo:  # a launch that makes rows: the code that makes them is recorded

@@ -7,6 +7,7 @@ A run directory (``skyvln-eval run --out DIR``) holds ``config.yaml`` and
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -42,7 +43,7 @@ def run_results(
         return [r for one in runs for r in _all_rows(one, allow_incomplete)]
     rows: dict[RowKey, EpisodeResult] = {}
     for one in runs:
-        for row in ResultStore(one, repair=False).results():
+        for row in _opened(one).results():
             key = key_of(row)
             if key in rows:  # e.g. two systems' runs in one folder
                 raise DataError(
@@ -92,9 +93,27 @@ def _run_dirs_in(folder: Path) -> bool:
     return any((d / CONFIG_FILE).is_file() for d in folder.iterdir() if d.is_dir())
 
 
+def _opened(run_dir: Path) -> ResultStore:
+    """The run's store, read only (the run's own process repairs it); its damaged lines
+    are told, with what becomes of their episodes: read past in silence, an episode whose
+    only row was damaged looked never run, or, with ``allow_incomplete``, was left out."""
+    store = ResultStore(run_dir, repair=False)
+    damaged = store.recovery.damaged
+    if damaged:
+        shown = "; ".join(f"line {row.line}: {row.reason}" for row in damaged[:5])
+        more = f"; and {len(damaged) - 5} more" if len(damaged) > 5 else ""
+        warnings.warn(
+            f"{store.path}: {len(damaged)} damaged line(s) read past ({shown}{more}); an "
+            "episode no other row holds counts as not run (`skyvln-eval run` on the run "
+            "directory sets the lines aside and runs those episodes again)",
+            UserWarning,
+            stacklevel=3,
+        )
+    return store
+
+
 def _all_rows(run_dir: Path, allow_incomplete: bool) -> list[EpisodeResult]:
-    store = ResultStore(run_dir, repair=False)  # a reader: the run's own process repairs
-    results = store.results()
+    results = _opened(run_dir).results()
     if allow_incomplete:
         return [r for r in results if "fatal" not in r.extra]
     from skyvln_eval.reports.run_coverage import run_coverage  # it reads harness.run

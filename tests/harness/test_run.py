@@ -461,8 +461,34 @@ def test_a_recorded_episode_whose_run_log_is_gone_runs_again_on_resume(
     again = run(config, run_dir)
     assert (again.ran_now, again.already_done) == (1, 1)
     assert any(
-        "1 recorded episode(s) run again: a file of theirs was missing" in n for n in again.notes
+        "1 recorded episode(s) run again: a file of theirs was missing or damaged" in n
+        for n in again.notes
     )
     assert lost.is_file() and not check_log(lost).issues
     after = {r.episode_id: r for r in read_results(run_dir / RESULTS_FILE)}
     assert [comparable(after[r.episode_id]) for r in before] == [comparable(r) for r in before]
+    # A log cut short is as lost as a deleted one (only its presence was checked).
+    lost.write_bytes(lost.read_bytes()[:-20])
+    again = run(config, run_dir)
+    assert (again.ran_now, again.already_done) == (1, 1)
+    assert any("missing or damaged" in n and "truncated" in n for n in again.notes), again.notes
+    assert not check_log(lost).issues
+
+
+def test_an_episode_file_cut_short_is_damaged(tmp_path: Path) -> None:
+    """What a resume checks of a recorded episode's files: present and with both ends."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from skyvln_eval.harness.run import file_damage
+
+    control = tmp_path / "episode.parquet"
+    pq.write_table(pa.table({"t": [0.0, 0.1]}), control)
+    assert file_damage(control) is None
+    control.write_bytes(control.read_bytes()[:-6])
+    assert file_damage(control) == "damaged: truncated or not a parquet file"
+    assert file_damage(tmp_path / "none.parquet") == "missing"
+    log = tmp_path / "episode.mcap"
+    log.write_bytes(b"\x89MCAP0\r\n" + b"\0" * 40)
+    damage = file_damage(log)
+    assert damage is not None and damage.startswith("damaged: truncated or unfinished MCAP")

@@ -83,3 +83,17 @@ def test_a_folder_of_split_runs_reads_as_all_of_them(two_splits: Path, tmp_path:
     assert "its folders 'full' hold run directories" in str(above.value)
     with pytest.raises(DataError, match="pass its folder"):
         run_results(system / "val_seen" / "results.jsonl")
+
+
+def test_damaged_lines_are_told_not_read_past_in_silence(two_splits: Path, tmp_path: Path) -> None:
+    """A damaged row made its episode look never run (or, with allow_incomplete, left it
+    out) without a word."""
+    run = run_dir(tmp_path / "run", config(two_splits, limit=2), IDS[:2])
+    results = run / "results.jsonl"
+    lines = results.read_bytes().splitlines(keepends=True)
+    results.write_bytes(b"".join(lines[:2]) + lines[2][:40] + b"\n")  # its second row cut
+    with pytest.warns(UserWarning, match=r"results\.jsonl: 1 damaged line\(s\) read past \(line 3"):
+        rows = run_results(run, allow_incomplete=True)
+    assert [r.episode_id for r in rows] == [IDS[0]]
+    with pytest.warns(UserWarning, match="counts as not run"), pytest.raises(IncompleteRunError):
+        run_results(run)

@@ -1,0 +1,92 @@
+"""Checking a run directory as ``skyvln-eval validate`` does: its result rows, the files
+each recorded episode keeps, and whether it covers the episodes its config selects.
+
+The run MCAP logs themselves are checked byte by byte by the MCAP validator (their folder
+``logs/<split>/`` is a folder of logs); here a recorded episode whose log is missing is
+found, and its control log (dynamics mode) is read and checked, as ``score`` reads it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from skyvln_eval.errors import ForeignRowsError, SkyvlnError
+from skyvln_eval.harness.run import REPORT_FILE, file_damage
+from skyvln_eval.harness.runner import control_log_name, log_path
+from skyvln_eval.harness.store import RESULTS_FILE, ResultStore
+
+
+def is_run_directory(path: Path) -> bool:
+    """A run's folder: its ``run.json`` or ``results.jsonl`` is there."""
+    return (path / REPORT_FILE).is_file() or (path / RESULTS_FILE).is_file()
+
+
+@dataclass
+class RunCheck:
+    """What checking one run directory found: ``problems`` (damage), ``notes`` (its state:
+    an unfinished run is not damaged), and how many rows it has."""
+
+    run_dir: Path
+    rows: int = 0
+    problems: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+
+def check_run_directory(run_dir: Path) -> RunCheck:
+    """Every row of ``results.jsonl`` parses (a damaged line is a problem naming its
+    line), its rows are the run config's, each recorded episode that ended keeps its run
+    MCAP and a control log that reads, and the rows cover the selected episodes (a note
+    when they do not: a run still going, or stopped)."""
+    from skyvln_eval.metrics.safety import read_control_log
+    from skyvln_eval.reports.run_coverage import read_run_config, run_coverage
+
+    check = RunCheck(run_dir)
+    try:
+        store = ResultStore(run_dir, repair=False)  # read only: a run may hold its lock
+        config = read_run_config(run_dir)
+    except SkyvlnError as error:
+        check.problems.append(str(error))
+        return check
+    results = store.results()
+    check.rows = len(results)
+    results_file = run_dir / RESULTS_FILE
+    for row in store.recovery.damaged:
+        check.problems.append(f"{results_file} line {row.line}: damaged row ({row.reason})")
+    for result in results:
+        if result.status == "error" or "fatal" in result.extra:
+            continue  # an episode that raised wrote no files
+        episode = f"episode {result.split}/{result.episode_id}"
+        log = log_path(run_dir, result.split, result.episode_id)
+        if config.write_logs and not log.is_file():
+            check.problems.append(f"{log}: missing (the run log of {episode})")
+        if result.control is None:
+            continue
+        control = run_dir / control_log_name(result.split, result.episode_id)
+        damage = file_damage(control)
+        if damage is not None:
+            check.problems.append(f"{control}: {damage} (the control log of {episode})")
+            continue
+        try:
+            read_control_log(control)
+        except SkyvlnError as error:
+            check.problems.append(f"{error} (the control log of {episode})")
+    try:
+        coverage = run_coverage(run_dir, results)
+    except ForeignRowsError as error:  # rows another configuration made
+        check.problems.append(str(error))
+        return check
+    except SkyvlnError as error:  # the dataset is not on this machine: not the run's fault
+        check.notes.append(f"coverage not checked: {error}")
+        return check
+    if coverage.missing:
+        check.notes.append(
+            f"{len(coverage.missing)} of its {len(coverage.expected)} episode(s) have no "
+            "result row yet (a run still going, or stopped)"
+        )
+    if coverage.unexpected:
+        check.problems.append(
+            f"{len(coverage.unexpected)} row(s) of episodes its config does not select, e.g. "
+            + "/".join(coverage.unexpected[0])
+        )
+    return check

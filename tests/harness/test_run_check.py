@@ -1,0 +1,63 @@
+"""`skyvln-eval validate RUN_DIR`: a run directory's rows and the files of its episodes."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from skyvln_eval.cli import app
+from skyvln_eval.harness import RunConfig, run
+from skyvln_eval.harness.run_check import check_run_directory
+from skyvln_eval.harness.runner import control_log_name, log_path
+from skyvln_eval.harness.store import RESULTS_FILE
+from skyvln_eval.metrics.results_io import read_results
+
+runner = CliRunner()
+
+
+def test_validate_reads_every_row_and_each_episode_s_files(
+    tmp_path: Path, small_config: Callable[..., RunConfig]
+) -> None:
+    """It said ok on a run directory whose results.jsonl had a damaged row, or whose
+    control log was cut short: only the MCAP logs were checked."""
+    run_dir = tmp_path / "run"
+    config = small_config(mode="dynamics", splits=("val_seen",), limit=2)
+    assert run(config, run_dir).complete
+    result = runner.invoke(app, ["validate", str(run_dir)])
+    assert result.exit_code == 0, result.output
+    assert f"{run_dir}: run directory, 2 result row(s), ok" in result.output
+
+    first, second = read_results(run_dir / RESULTS_FILE)
+    results = run_dir / RESULTS_FILE
+    results.write_bytes(results.read_bytes() + b'{"episode_id": "cut\n')
+    control = run_dir / control_log_name(first.split, first.episode_id)
+    control.write_bytes(control.read_bytes()[:-8])
+    log = log_path(run_dir, second.split, second.episode_id)
+    log.unlink()
+    check = check_run_directory(run_dir)
+    assert check.rows == 2 and len(check.problems) == 3, check.problems
+    damaged, cut, gone = check.problems
+    assert damaged.startswith(f"{results} line 4: damaged row (not JSON")
+    assert cut == (
+        f"{control}: damaged: truncated or not a parquet file (the control log of episode "
+        f"{first.split}/{first.episode_id})"
+    )
+    assert gone == f"{log}: missing (the run log of episode {second.split}/{second.episode_id})"
+    result = runner.invoke(app, ["validate", str(run_dir)])
+    assert result.exit_code == 1
+    assert f"{run_dir}: run directory, 2 result row(s), 3 problem(s)" in result.output
+
+
+def test_an_unfinished_run_is_a_note_not_a_problem(
+    tmp_path: Path, small_config: Callable[..., RunConfig]
+) -> None:
+    run_dir = tmp_path / "run"
+    assert run(small_config(limit=1), run_dir).complete
+    (run_dir / "config.yaml").write_text(
+        (run_dir / "config.yaml").read_text().replace("limit: 1", "limit: 2")
+    )
+    result = runner.invoke(app, ["validate", str(run_dir)])
+    assert result.exit_code == 0, result.output
+    assert "note: 1 of its 2 episode(s) have no result row yet" in result.output
