@@ -229,11 +229,17 @@ class ResultStore:
         # Appended and synced before results.jsonl is rewritten without them: killed in
         # between, the rows are set aside again next time (twice in the side file, never lost).
         found = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
-        new = not self.damaged_path.exists() or self.damaged_path.stat().st_size == 0
         head = {"format": DAMAGED_FORMAT, "version": DAMAGED_VERSION, "of": RESULTS_FILE}
         body = b"".join(_line(row.to_json() | {"set_aside": found}) for row in rows)
-        with self.damaged_path.open("ab") as handle:
-            handle.write((_line(head) if new else b"") + body)
+        with self.damaged_path.open("a+b") as handle:
+            size = handle.seek(0, os.SEEK_END)
+            if size:  # a line cut short by a kill mid-append ends here: not joined to ours
+                handle.seek(size - 1)
+                torn = handle.read(1) != b"\n"
+                start = b"\n" if torn else b""
+            else:
+                start = _line(head)
+            handle.write(start + body)
             handle.flush()
             os.fsync(handle.fileno())
 

@@ -141,6 +141,20 @@ def test_a_damaged_last_row_ending_with_a_newline_is_set_aside(tmp_path: Path) -
     assert [row["line"] for row in _side_rows(tmp_path)] == [5]
 
 
+def test_a_side_file_cut_mid_append_keeps_the_next_rows_whole(tmp_path: Path) -> None:
+    """Killed while setting rows aside, the side file ended in half a line: the next rows
+    set aside were appended to it, and the first of them was lost in that line."""
+    path, lines = _damaged_file(tmp_path)
+    path.write_bytes(b"\n".join([*lines[:2], b"garbage one", *lines[2:]]))
+    ResultStore(tmp_path)
+    side = tmp_path / DAMAGED_FILE
+    side.write_bytes(side.read_bytes()[:-15])  # the kill
+    path.write_bytes(path.read_bytes() + b"garbage two\n")
+    ResultStore(tmp_path)
+    last = side.read_bytes().split(b"\n")[-2]
+    assert json.loads(last)["text"] == "garbage two"
+
+
 def test_rows_that_are_json_but_not_rows_and_a_damaged_header(tmp_path: Path) -> None:
     path, lines = _damaged_file(tmp_path)
     row = json.loads(lines[2])
