@@ -310,18 +310,18 @@ def validate(
     """
     from skyvln_eval.avdn import SPLITS, annotation_file_name, check_split, undefined_fields
     from skyvln_eval.converters.commands import is_mcap_target, run_validate_mcap
-    from skyvln_eval.harness.run_check import is_run_directory
+    from skyvln_eval.harness.run_check import run_directories_at
 
     problems = 0
     checked_maps: set[tuple[Path, str]] = set()
     for target in targets:
         path = data_dir_argument(target)  # "sample" as summary and convert read it
-        run_dir = is_run_directory(path)
-        if run_dir:
-            problems += _validate_run_directory(path)
+        runs = run_directories_at(path)
+        for run_dir in runs:
+            problems += _validate_run_directory(run_dir)
         if is_mcap_target(path):
             problems += run_validate_mcap(path, typer.echo, _echo_problem)
-        if run_dir or is_mcap_target(path):
+        if runs or is_mcap_target(path):
             continue
         found = False
         for split in SPLITS:

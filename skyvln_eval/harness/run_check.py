@@ -22,6 +22,17 @@ def is_run_directory(path: Path) -> bool:
     return (path / REPORT_FILE).is_file() or (path / RESULTS_FILE).is_file()
 
 
+def run_directories_at(path: Path) -> list[Path]:
+    """``path`` if it is a run directory, else the run directories below it (a
+    reproduction's ``runs/``, or its whole output), in name order; none for a dataset."""
+    if is_run_directory(path):
+        return [path]
+    if not path.is_dir() or (path / "annotations").is_dir():
+        return []
+    found = {p.parent for name in (REPORT_FILE, RESULTS_FILE) for p in path.rglob(name)}
+    return sorted(run_dir for run_dir in found if is_run_directory(run_dir))
+
+
 @dataclass
 class RunCheck:
     """What checking one run directory found: ``problems`` (damage), ``notes`` (its state:

@@ -45,9 +45,11 @@ def test_validate_reads_every_row_and_each_episode_s_files(
         f"{first.split}/{first.episode_id})"
     )
     assert gone == f"{log}: missing (the run log of episode {second.split}/{second.episode_id})"
-    result = runner.invoke(app, ["validate", str(run_dir)])
-    assert result.exit_code == 1
-    assert f"{run_dir}: run directory, 2 result row(s), 3 problem(s)" in result.output
+    # A folder of runs (a reproduction's runs/) checks each of them.
+    for target in (run_dir, tmp_path):
+        result = runner.invoke(app, ["validate", str(target)])
+        assert result.exit_code == 1
+        assert f"{run_dir}: run directory, 2 result row(s), 3 problem(s)" in result.output
 
 
 def test_an_unfinished_run_is_a_note_not_a_problem(
