@@ -133,7 +133,9 @@ class NavGPTAgent(Agent):
             + f"{roads_text(panorama.road_bearings_deg, self._odometer.start_roads)}\n"
             + f"{self._odometer.text()}\n"
             + f"## History\n{history or '(none)'}\n"
-            + feedback_prompt(observation.feedback, observation.actions_left)
+            + feedback_prompt(
+                observation.feedback, observation.step_index, observation.actions_left
+            )
         )
         images = []
         if self.client.backend.takes_images:

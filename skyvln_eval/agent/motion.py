@@ -83,11 +83,13 @@ ACTION_SPACE: Final = (
 )
 
 
-def feedback_prompt(feedback: str | None, actions_left: int) -> str:
-    """What the last action did, and how many actions are left."""
+def feedback_prompt(feedback: str | None, actions_taken: int, actions_left: int) -> str:
+    """What the last action did, and how many actions were taken and are left (the task
+    data has both: what a stand-in reads the prompt says)."""
     return (
         f"## Feedback\n{feedback or 'This is the first step.'}\n"
-        f"Actions left before the episode ends: {actions_left}.\n"
+        f"Actions taken: {actions_taken}. Actions left before the episode ends: "
+        f"{actions_left}.\n"
     )
 
 

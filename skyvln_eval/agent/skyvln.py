@@ -341,7 +341,9 @@ class SkyVLNAgent(Agent):
         return (
             ACTION_SPACE
             + commander_prompt(st.dialog)
-            + feedback_prompt(observation.feedback, observation.actions_left)
+            + feedback_prompt(
+                observation.feedback, observation.step_index, observation.actions_left
+            )
             + pose_prompt(pose)
             + navigation_prompt(landmarks, memory, "\n".join(lines))
         )

@@ -64,6 +64,8 @@ class PlantSettings(_Strict):
     All zero by default: the nominal plant, the controller's own equations integrated more
     finely, with exact state feedback, so the closed loop shows the best case. Wind (a
     mean and a seeded gust) and sensor noise make the model mismatch a real flight has.
+    The noise is the controller's state feedback's; the agent's pose (its odometry, an
+    AVDN agent's view centre) stays the flown one.
     """
 
     wind_mean_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -92,7 +94,7 @@ class PlantSettings(_Strict):
             return "nominal plant (the controller's model, no wind, exact state)"
         wind = math.hypot(*self.wind_mean_m_s[:2])
         return (
-            f"plant with wind {wind:g} m/s (gusts {self.gust_std_m_s:g} m/s) and sensor noise "
+            f"plant with wind {wind:g} m/s (gusts {self.gust_std_m_s:g} m/s) and feedback noise "
             f"{self.position_noise_std_m:g} m, {self.velocity_noise_std_m_s:g} m/s, "
             f"{self.attitude_noise_std_rad:g} rad"
         )

@@ -109,6 +109,18 @@ def test_the_ranking_prompt_tells_the_model_every_value_the_stand_in_ranks_by() 
             assert f"{c['distance_m']:.0f} m away at bearing {c['bearing_deg']:.0f} deg" in line
 
 
+def test_the_motion_prompt_says_how_many_actions_were_taken() -> None:
+    """The stand-in reckons the distance flown without memory from the task data's
+    ``step``: the prose says it too (an audit found only the actions left there)."""
+    backend = RecordingRule()
+    run(AgentConfig.model_validate({**PERFECT, "tbma": False}), backend=backend)
+    motions = [(data, msgs) for data, msgs in backend.requests if data["task"] == "motion"]
+    assert len(motions) >= 2
+    for data, messages in motions:
+        told = f"Actions taken: {data['step']}. Actions left before the episode ends: "
+        assert f"{told}{data['actions_left']}." in messages[-1].text
+
+
 def motion_texts(config: AgentConfig) -> list[str]:
     """The text of every motion request of an episode (the user message's prose)."""
     backend = RecordingRule()

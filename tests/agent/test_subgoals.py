@@ -307,12 +307,19 @@ def test_the_random_backend_plans_one_heading_the_parser_accepts() -> None:
     assert len(headings) > 1  # random, not one fixed heading
 
 
-@pytest.mark.parametrize("instruction", ["Keep going.", "日本", "é"])
-def test_the_rule_stand_in_and_the_parser_agree_that_words_need_a_sub_goal(
-    instruction: str,
+@pytest.mark.parametrize(
+    ("instruction", "understood"), [("Keep going.", True), ("日本", False), ("é", False)]
+)
+def test_the_rule_stand_in_s_failed_reading_is_refused_not_hidden(
+    instruction: str, understood: bool
 ) -> None:
-    # Both read words by one definition (vocabulary.words): the stand-in never answers an
-    # instruction with an empty plan that the parser then refuses.
+    # Words the stand-in has no cue for get an empty plan, which the parser refuses (both
+    # read words by one definition, vocabulary.words): the agent records a failed module,
+    # where a guess of "ahead" passed for a reading.
     dialog = DialogText((), None, instruction)
     answer = create_backend("rule").generate(subgoal_messages(dialog), GenerationConfig()).text
-    assert parse_subgoals(answer, dialog).subgoals
+    if understood:
+        assert parse_subgoals(answer, dialog).subgoals
+    else:
+        with pytest.raises(ActionParseError, match="'subgoals' is empty"):
+            parse_subgoals(answer, dialog)

@@ -118,12 +118,12 @@ PACKAGE = REPO / "skyvln_eval"
             None,
             [{"kind": "turn", "direction": "left", "landmark": "the church"}],
         ),
-        # No cue the reader knows: the commander lets the follower go on.
-        (
-            "Yes, that's right. No idea what else to say",
-            None,
-            [{"kind": "head", "direction": "ahead"}],
-        ),
+        # Told to go on, without where: ahead.
+        ("Yes, that's right, keep going.", None, [{"kind": "head", "direction": "ahead"}]),
+        # No cue the reader knows: no plan, a failed reading the agent records (a guess
+        # of "ahead" made "On target, hold" fly on, the episode still "ok").
+        ("Yes, that's right. No idea what else to say", None, []),
+        ("On target, hold", None, []),
     ],
 )
 def test_the_reader_understands_phrasings_it_was_not_written_for(

@@ -39,7 +39,9 @@ def _clarify(data: dict[str, Any]) -> dict[str, Any]:
     reason = data.get("reason", "I am not sure where I am")
     goal = data.get("goal")
     about = f" Is {goal!r} somewhere else?" if goal else ""
-    return {"question": f"I went back because {reason}.{about} Where should I head from here?"}
+    # The reason is the agent's (a landmark that was not there, two that look alike): the
+    # question says it as given, and nothing it did not do ("I went back" was said always).
+    return {"question": f"I am not sure of the way: {reason}.{about} Where should I head now?"}
 
 
 class RuleBackend(LLMBackend):

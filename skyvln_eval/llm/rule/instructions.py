@@ -28,6 +28,7 @@ from typing import Any
 from skyvln_eval.llm.rule.clauses import ClauseReading, read_clause
 from skyvln_eval.llm.rule.text import Word, sentences_of, words_of
 from skyvln_eval.vocabulary import NEGATIVE_ANSWERS, compass_points_in
+from skyvln_eval.vocabulary.cues import MOTION_VERBS
 from skyvln_eval.vocabulary.words import phrase_words
 
 Goal = dict[str, Any]
@@ -195,9 +196,10 @@ def parse_instruction(text: str, question: str | None = None) -> list[dict[str, 
         for k, clause in enumerate(clauses):
             sentence.read(k, read_clause(clause))
         sentence.settle()
-    if not goals and phrase_words(text):
-        # Words without a cue this reader knows ("Yes, keep going"): the commander lets
-        # the follower go on, which is a sub-goal too (an empty plan is a failed reading).
+    if not goals and MOTION_VERBS & set(phrase_words(text)):
+        # Told to go on without where ("Yes, keep going"): a sub-goal too. Words with no
+        # cue at all ("On target, hold") give no plan: a failed reading, which the agent
+        # records (a guess of "ahead" there made a failure look like a reading).
         goals.append({"kind": "head", "direction": "ahead"})
     return goals
 
