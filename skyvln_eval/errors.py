@@ -252,6 +252,10 @@ class ResultRecordError(DataError):
         super().__init__(str(issue))
 
 
+class AlteredGroundTruthError(DataError):
+    """Result rows hold another ground truth than their episodes' in the dataset."""
+
+
 class IncompleteRunError(DataError):
     """A run does not cover every episode of its split (or covers unknown ones).
 

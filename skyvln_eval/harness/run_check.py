@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from skyvln_eval.errors import ForeignRowsError, SkyvlnError
+from skyvln_eval.errors import AlteredGroundTruthError, ForeignRowsError, SkyvlnError
 from skyvln_eval.harness.run import REPORT_FILE, file_damage
 from skyvln_eval.harness.runner import control_log_name, log_path
 from skyvln_eval.harness.store import RESULTS_FILE, ResultStore
@@ -84,7 +84,7 @@ def check_run_directory(run_dir: Path) -> RunCheck:
             check.problems.append(f"{error} (the control log of {episode})")
     try:
         coverage = run_coverage(run_dir, results)
-    except ForeignRowsError as error:  # rows another configuration made
+    except (ForeignRowsError, AlteredGroundTruthError) as error:  # not this run's rows
         check.problems.append(str(error))
         return check
     except SkyvlnError as error:  # the dataset is not on this machine: not the run's fault

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from skyvln_eval.avdn.constants import EpisodeMode
-from skyvln_eval.errors import ConfigError, DataError
+from skyvln_eval.errors import ConfigError, DataError, listed
 
 if TYPE_CHECKING:
     from skyvln_eval.metrics import EpisodeResult, MetricConventions
@@ -261,14 +261,20 @@ def score(
         title += (" OF INCOMPLETE RESULTS" if incomplete else "") + " (see the warnings)"
     table = Table(title=title, caption=conventions.describe())
     shown = [m for m in PRINTED_METRICS if m in set(summary.metric)]
-    for column in ("system", "split", "n", *shown):
-        table.add_column(column, justify="left" if column in ("system", "split") else "right")
+    # Two rows of one system and split are told apart by their mode (ANDH, ANDH-Full).
+    modes = summary["mode"].nunique() > 1
+    keys = ("system", "split", *(("mode",) if modes else ()))
+    for column in (*keys, "n", *shown):
+        table.add_column(column, justify="left" if column in keys else "right")
     oracles = set(oracle_systems(scores))
-    for (sys_name, split_name, _), group in summary.groupby(["system", "split", "mode"], sort=True):
+    for (sys_name, split_name, mode_name), group in summary.groupby(
+        ["system", "split", "mode"], sort=True
+    ):
         by_metric = group.set_index("metric")
         cells = [_cell(by_metric, m) for m in shown]
         name = oracle_label(str(sys_name)) if sys_name in oracles else str(sys_name)
-        table.add_row(name, str(split_name), str(int(group.n.max())), *cells)
+        where = (name, str(split_name), *((str(mode_name),) if modes else ()))
+        table.add_row(*where, str(int(group.n.max())), *cells)
     console = Console(width=160)
     for warning in warnings:
         console.print(f"WARNING: {warning}", style="bold red", markup=False, highlight=False)
@@ -336,13 +342,20 @@ def table(
         raise ConfigError(f"--kind must be one of {sorted(TABLES)}, not {kind!r}")
     if fmt not in RENDERERS:
         raise ConfigError(f"--format must be one of {sorted(RENDERERS)}, not {fmt!r}")
+    episode_mode = _mode(mode)
+    given = [name for name, value in (("--resamples", resamples), ("--seed", seed),
+                                      ("--ci-unit", ci_unit)) if value is not None]  # fmt: skip
+    if given and not ci:  # they make the intervals: without them, silently nothing
+        raise ConfigError(f"{', '.join(given)} set how --ci intervals are made: add --ci")
     frame, conventions = read_many_scores(scores)
+    _check_mode_rows(frame, episode_mode, row)
     layout = layout_beside(scores)
     made = layout.tables.get(kind) if layout is not None else None
     # What scoring warned of (an incomplete run's scores) goes with every table of them.
     warned = [f"WARNING: {w}" for w in scores_warnings(frame)]
     for warning in warned:
         typer.echo(warning, err=True)
+    task = [ANDH_FULL_NOTE] if episode_mode == "andh-full" else []
     shaped = paper_table(
         frame,
         TABLES[kind],
@@ -350,8 +363,8 @@ def table(
         rows=row or (list(made.rows) if made is not None else None),
         # The reproduction's notes hold with --row too: what was sensed and how each row
         # ran (a note may name a row not shown).
-        notes=[*warned, *(made.notes if made is not None else ())],
-        mode=mode,
+        notes=[*warned, *task, *(made.notes if made is not None else ())],
+        mode=episode_mode,
         digits=digits,
         show_ci=ci,
         resamples=resamples or (layout.resamples if layout is not None else 1000),
@@ -365,6 +378,36 @@ def table(
     else:
         atomic_write_text(out, text)
         typer.echo(f"wrote {out}")
+
+
+#: What a table of ANDH-Full episodes says it is over (the task differs from ANDH's).
+ANDH_FULL_NOTE = (
+    "ANDH-Full: one episode per whole trajectory, flown through all of its dialog rounds."
+)
+
+
+def _check_mode_rows(frame: Any, mode: str, rows: list[str] | None) -> None:
+    """Systems whose scores are all of the other mode: a named one is refused, saying
+    --mode; otherwise they are left out of the table with a warning (they were dropped
+    without a word)."""
+    ours = set(frame.loc[frame["mode"] == mode, "system"].astype(str))
+    others = {
+        system: sorted(set(group["mode"].astype(str)))
+        for system, group in frame[frame["mode"] != mode].groupby("system", sort=True)
+        if system not in ours
+    }
+    for name in rows or ():
+        if name in others:
+            raise ConfigError(
+                f"system {name!r} has scores of mode {listed(others[name])} only; add "
+                f"--mode {others[name][0]}"
+            )
+    if others and not rows:
+        typer.echo(
+            f"WARNING: left out: system(s) {listed(list(others))}, whose scores are of "
+            f"another mode than {mode!r} (--mode chooses)",
+            err=True,
+        )
 
 
 @plot_app.command("control")
@@ -394,6 +437,10 @@ _SPLIT_HELP = (
     "system ran the same ones, else one panel per split"
 )
 _SYSTEM_HELP = "Only this system, as the scores name it (repeat for more, in legend order)"
+_MODE_HELP = (
+    "Episode mode, andh or andh-full (different tasks, never drawn together); by default "
+    "the scores' only one"
+)
 
 
 @plot_app.command("sr-threshold")
@@ -405,6 +452,7 @@ def plot_sr_threshold(
     max_threshold_m: Annotated[float, typer.Option(help="Largest radius shown, metres")] = 100.0,
     split: Annotated[list[str] | None, typer.Option(help=_SPLIT_HELP)] = None,
     system: Annotated[list[str] | None, typer.Option(help=_SYSTEM_HELP)] = None,
+    mode: Annotated[str | None, typer.Option(help=_MODE_HELP)] = None,
 ) -> None:
     """R2R success rate vs success radius, one line per system: one panel pooling the
     splits (its title names them) when every system ran the same ones, else one panel per
@@ -416,7 +464,9 @@ def plot_sr_threshold(
     from skyvln_eval.reports.render import save_figure
 
     frame, conventions = read_many_scores(scores)
-    figure = sr_vs_threshold_figure(frame, conventions, system, max_threshold_m, split)
+    figure = sr_vs_threshold_figure(
+        frame, conventions, system, max_threshold_m, split, _mode(mode) if mode else None
+    )
     typer.echo(f"wrote {save_figure(_warned(figure, frame), out)}")
 
 
@@ -428,6 +478,7 @@ def plot_ne(
     ),
     split: Annotated[list[str] | None, typer.Option(help=_SPLIT_HELP)] = None,
     system: Annotated[list[str] | None, typer.Option(help=_SYSTEM_HELP)] = None,
+    mode: Annotated[str | None, typer.Option(help=_MODE_HELP)] = None,
 ) -> None:
     """Distribution of the navigation error, one histogram per system, in panels as
     `plot sr-threshold` makes them (the title names the splits): error episodes count
@@ -438,7 +489,7 @@ def plot_ne(
     from skyvln_eval.reports.render import save_figure
 
     frame, _ = read_many_scores(scores)
-    figure = ne_distribution_figure(frame, system, splits=split)
+    figure = ne_distribution_figure(frame, system, splits=split, mode=_mode(mode) if mode else None)
     typer.echo(f"wrote {save_figure(_warned(figure, frame), out)}")
 
 

@@ -79,13 +79,35 @@ def _ordered_splits(splits: Sequence[str]) -> list[str]:
     return known + [s for s in dict.fromkeys(splits) if s not in set(SPLITS)]
 
 
+def _of_one_mode(scores: pd.DataFrame, mode: str | None) -> pd.DataFrame:
+    """The episodes of ``mode``; without one, the scores' only mode. ANDH and ANDH-Full
+    are different tasks whose episode ids overlap (a trajectory's first round): drawn as
+    one line, a system's episodes were counted twice under one n."""
+    have = sorted(set(scores["mode"].astype(str))) if "mode" in scores else []
+    if mode is None:
+        if len(have) > 1:
+            raise MetricInputError(
+                f"the scores hold episodes of the modes {listed(have)}, which are different "
+                "tasks: choose one (--mode)"
+            )
+        return scores
+    if mode not in have:
+        raise MetricInputError(f"no scores of mode {mode!r}; the scores have {listed(have)}")
+    return scores[scores["mode"] == mode]
+
+
 def _selected(
-    scores: pd.DataFrame, systems: Sequence[str] | None, splits: Sequence[str] | None
+    scores: pd.DataFrame,
+    systems: Sequence[str] | None,
+    splits: Sequence[str] | None,
+    mode: str | None = None,
 ) -> tuple[pd.DataFrame, list[str]]:
-    """The rows of ``splits`` (all by default) and the systems to draw, in order; refuses
-    a split or a named system that has no scores there, naming those there are. Without
-    named systems, those with no scores on ``splits`` are left out, with a warning (a
-    reproduction's Table II rows ran test_unseen only)."""
+    """The rows of ``mode`` (the scores' only one by default) and ``splits`` (all by
+    default) and the systems to draw, in order; refuses a split or a named system that has
+    no scores there, naming those there are. Without named systems, those with no scores
+    on ``splits`` are left out, with a warning (a reproduction's Table II rows ran
+    test_unseen only)."""
+    scores = _of_one_mode(scores, mode)
     names = _systems(scores, systems)
     scores = scores[scores["system"].isin(names)]
     if splits:
@@ -129,15 +151,17 @@ def _panels(scores: pd.DataFrame, names: Sequence[str]) -> list[_Panel]:
         name: tuple(_ordered_splits(list(scores.loc[scores["system"] == name, "split"])))
         for name in names
     }
+    # ANDH-Full is said (one episode per whole trajectory); ANDH, the usual task, is not.
+    kind = "ANDH-Full episodes" if set(scores.get("mode", ())) == {"andh-full"} else "episodes"
     if len(set(ran.values())) == 1:
         splits = next(iter(ran.values()))
         pooled = " pooled" if len(splits) > 1 else ""
-        return [_Panel(scores, f"episodes of {', '.join(splits)}{pooled}")]
+        return [_Panel(scores, f"{kind} of {', '.join(splits)}{pooled}")]
     every = _ordered_splits(list(scores["split"].astype(str)))
     return [
         _Panel(
             scores[scores["split"] == split],
-            f"episodes of {split} (one panel per split: the systems ran different splits)",
+            f"{kind} of {split} (one panel per split: the systems ran different splits)",
         )
         for split in every
     ]
@@ -214,6 +238,7 @@ def sr_vs_threshold_figure(
     systems: Sequence[str] | None = None,
     max_threshold_m: float = 100.0,
     splits: Sequence[str] | None = None,
+    mode: str | None = None,
 ) -> Figure:
     """R2R success rate as a function of the success radius, per system.
 
@@ -224,12 +249,13 @@ def sr_vs_threshold_figure(
     touched an obstacle (the legend says how many crashed); a 'degraded' episode is
     scored on its views.
 
-    ``systems`` and ``splits`` choose what is drawn (all by default). When every system
+    ``systems``, ``splits`` and ``mode`` choose what is drawn (all systems and splits;
+    the scores' one mode, else ``mode`` must be given). When every system
     ran the same splits, one panel pools them and its title names them; otherwise there
     is one panel per split, each line one system's episodes of that split (its n in the
     legend). A system has one colour and line style in every panel, unlike any other's.
     """
-    scores, names = _selected(scores, systems, splits)
+    scores, names = _selected(scores, systems, splits, mode)
     panels = _panels(scores, names)
     references = oracle_systems(scores)
     thresholds = np.linspace(0.0, max_threshold_m, 401)
@@ -290,6 +316,7 @@ def ne_distribution_figure(
     systems: Sequence[str] | None = None,
     bins: int = 30,
     splits: Sequence[str] | None = None,
+    mode: str | None = None,
 ) -> Figure:
     """Histogram of the official NE (metres) per system, with each median marked. An
     'error' episode counts where it stopped, as in the tables' NE (the legend counts
@@ -301,7 +328,7 @@ def ne_distribution_figure(
     :func:`sr_vs_threshold_figure` makes them: one pooling the splits, which its title
     names, when every system ran the same ones, else one per split. Every panel has the
     same bins."""
-    scores, names = _selected(scores, systems, splits)
+    scores, names = _selected(scores, systems, splits, mode)
     panels = _panels(scores, names)
     references = oracle_systems(scores)
     errors_only = {n for n in names if _system_rows(scores, n, references).all_errors}

@@ -11,23 +11,31 @@ one, and a limited run is not compared with its whole split.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+from numpy.typing import NDArray
+
 from skyvln_eval.avdn.constants import EpisodeMode
 from skyvln_eval.errors import (
+    AlteredGroundTruthError,
     ConfigError,
     DataError,
     ForeignRowsError,
     IncompleteRunError,
     SkyvlnError,
+    listed,
 )
 from skyvln_eval.harness.config import RunConfig, run_config_from_mapping
 from skyvln_eval.harness.run import CONFIG_FILE, REPORT_FILE, check_own_rows, selected
 from skyvln_eval.harness.store import RESULTS_FILE, RowKey
 from skyvln_eval.metrics.records import EpisodeResult
 from skyvln_eval.metrics.results_io import stopped_run_error
+
+#: An episode's views as (K, 4, 2) [lat, lng] corners.
+Views = NDArray[np.float64]
 
 
 def run_dir_of(results_file: Path) -> Path | None:
@@ -77,13 +85,43 @@ def run_data_dir(config: RunConfig, run_dir: Path) -> Path:
 
 def selected_episodes(config: RunConfig, data_dir: Path) -> list[RowKey]:
     """The episodes ``config`` runs on ``data_dir``, in run order (see the module docstring)."""
+    return list(_selected_ground_truth(config, data_dir))
+
+
+def _selected_ground_truth(config: RunConfig, data_dir: Path) -> dict[RowKey, Views]:
+    """The episodes ``config`` runs on ``data_dir`` with their ground-truth views."""
     from skyvln_eval.avdn import load_split
 
-    keys: list[RowKey] = []
+    out: dict[RowKey, Views] = {}
     for split in config.splits:
         episodes = load_split(data_dir, split, check_map_images=False).episodes(config.episode_mode)
-        keys += [(split, e) for e in selected(config, [e.episode_id for e in episodes])]
-    return keys
+        truth = {e.episode_id: e.gt_path_corners for e in episodes}
+        out |= {(split, e): truth[e] for e in selected(config, list(truth))}
+    return out
+
+
+def altered_ground_truth(
+    results: Iterable[EpisodeResult], truth: Mapping[RowKey, Views]
+) -> list[RowKey]:
+    """The rows whose ground truth (the views they are scored against, kept in the row)
+    is not their episode's in the dataset: a hand-edited row, or a stale one of a dataset
+    since made again, would be scored silently against a goal the dataset does not have."""
+    return [
+        (r.split, r.episode_id)
+        for r in results
+        if (r.split, r.episode_id) in truth
+        and not np.array_equal(r.gt_path_corners, truth[(r.split, r.episode_id)])
+    ]
+
+
+def altered_error(where: str, altered: Sequence[RowKey], data_dir: Path) -> AlteredGroundTruthError:
+    shown = listed(["/".join(key) for key in altered], 5)
+    return AlteredGroundTruthError(
+        f"{where}: {len(altered)} row(s) hold another ground truth than their episode's in "
+        f"{data_dir} ({shown}): rows edited by hand, or made on another version of the "
+        "dataset, would be scored against a goal it does not have; run them again (or "
+        "score them against the dataset they were made on, --data-dir)"
+    )
 
 
 @dataclass(frozen=True)
@@ -171,11 +209,15 @@ def run_coverage(
     check_own_rows(config, results, run_dir / RESULTS_FILE)
     data_dir = data_dir if data_dir is not None else run_data_dir(config, run_dir)
     try:
-        expected = selected_episodes(config, data_dir)
+        truth = _selected_ground_truth(config, data_dir)
     except SkyvlnError as error:  # e.g. a split the dataset does not have
         raise DataError(
             f"cannot tell which episodes run {run_dir} covers from {data_dir}: {error}"
         ) from None
+    expected = list(truth)
+    altered = altered_ground_truth(results, truth)
+    if altered:  # never scored, allowed incomplete or not
+        raise altered_error(f"run {run_dir}", altered, data_dir)
     rows = {(r.split, r.episode_id): r for r in results}
     stopped = [key for key in expected if key in rows and "fatal" in rows[key].extra]
     missing = [key for key in expected if key not in rows or "fatal" in rows[key].extra]
@@ -202,13 +244,13 @@ def covered_results(
     """
     rows: list[EpisodeResult] = []
     warnings: list[str] = []
-    plain: dict[tuple[str, str, EpisodeMode], list[str]] = {}  # (system, split, mode) -> episodes
+    plain: dict[tuple[str, str, EpisodeMode], list[EpisodeResult]] = {}  # by system, split, mode
     for name, results in sources:
         try:
             run_dir = run_dir_of(Path(name))
             coverage = None if run_dir is None else run_coverage(run_dir, results, data_dir)
-        except ForeignRowsError:
-            raise  # rows of another configuration: not this run's, allowed or not
+        except (ForeignRowsError, AlteredGroundTruthError):
+            raise  # rows not this run's, or not its dataset's: allowed or not
         except (ConfigError, DataError) as error:  # which episodes the run covers is unknown
             if not allow_incomplete:
                 raise
@@ -220,7 +262,7 @@ def covered_results(
             results = _ran(name, results, allow_incomplete, warnings)
             rows += results
             for r in results:
-                plain.setdefault((r.system, r.split, r.mode), []).append(r.episode_id)
+                plain.setdefault((r.system, r.split, r.mode), []).append(r)
             if data_dir is None:  # nothing to compare them with: say so, in every table
                 warnings.append(
                     f"NOT CHECKED whether {name} covers its episodes (not in a run directory, "
@@ -274,15 +316,23 @@ def _one_configuration_per_system(name: str, results: Sequence[EpisodeResult]) -
 
 
 def _split_coverage(
-    plain: dict[tuple[str, str, EpisodeMode], list[str]], data_dir: Path, allow_incomplete: bool
+    plain: dict[tuple[str, str, EpisodeMode], list[EpisodeResult]],
+    data_dir: Path,
+    allow_incomplete: bool,
 ) -> list[str]:
-    """A warning per (system, split, mode) of ``plain`` (its episode ids) that lacks some
-    episodes of its split in ``data_dir`` (with ``allow_incomplete``, else it raises)."""
+    """A warning per (system, split, mode) of ``plain`` (its rows) that lacks some
+    episodes of its split in ``data_dir`` (with ``allow_incomplete``, else it raises);
+    rows whose ground truth is not their episode's there always raise."""
     from skyvln_eval.metrics import check_complete, ground_truth_episodes
 
     warnings = []
-    for (system, split, mode), ids in sorted(plain.items()):
+    for (system, split, mode), results in sorted(plain.items()):
+        ids = [r.episode_id for r in results]
         episodes = ground_truth_episodes(data_dir, split, mode)
+        truth = {(split, e.episode_id): e.gt_path_corners for e in episodes}
+        altered = altered_ground_truth(results, truth)
+        if altered:
+            raise altered_error(f"run {system}/{split}/{mode}", altered, data_dir)
         try:
             check_complete(ids, [e.episode_id for e in episodes], f"run {system}/{split}/{mode}")
         except IncompleteRunError as error:

@@ -37,10 +37,10 @@ def result(
     views = np.asarray(visited, dtype=np.float64).reshape(-1, 4, 2)
     if status == "error":
         kwargs.setdefault("error", "test error")
+    kwargs.setdefault("mode", "andh")
     return EpisodeResult(
         episode_id=episode_id,
         split=split,
-        mode="andh",
         system=system,
         status=status,  # type: ignore[arg-type]
         visited_views=views,

@@ -387,3 +387,41 @@ def test_the_plot_help_says_how_error_episodes_are_drawn(command: str, says: lis
     text = " ".join(shown.output.replace("│", " ").split())
     assert all(phrase in text for phrase in says), text
     assert "left out" not in text
+
+
+def test_tables_and_the_score_printout_keep_the_two_modes_apart(tmp_path: Path) -> None:
+    """An audit: table dropped the systems of the other mode without a word (and --row
+    denied they existed), score printed two rows of one system and split alike, and
+    --seed or --ci-unit without --ci did nothing."""
+    g = [square(0, 0), square(100, 0)]
+    rows = [
+        result([g[0], square(100, 3 * k)], g, episode_id=f"m__{k}_1", split=split,
+               system=system, mode=mode)
+        for system, mode in (("A", "andh"), ("A", "andh-full"), ("F", "andh-full"))
+        for split in ("val_seen", "val_unseen", "test_unseen")
+        for k in range(3)
+    ]  # fmt: skip
+    write_results(tmp_path / "run.jsonl", rows)
+    out = tmp_path / "scores"
+    scored = runner.invoke(app, ["score", str(tmp_path / "run.jsonl"), "--out", str(out)])
+    assert scored.exit_code == 0, scored.output
+    header = next(line for line in scored.output.splitlines() if " success " in line)
+    assert header.split()[1:7:2] == ["system", "split", "mode"]  # between the box rules
+    assert sum(" andh-full " in line for line in scored.output.splitlines()) == 6
+    scores = str(out / "scores.csv")
+    shown = runner.invoke(app, ["table", scores])
+    assert shown.exit_code == 0, shown.output
+    assert "WARNING: left out: system(s) 'F', whose scores are of another mode" in shown.output
+    assert "| F " not in shown.output and "ANDH-Full" not in shown.output
+    named = runner.invoke(app, ["table", scores, "--row", "F"])
+    assert named.exit_code != 0
+    told = "system 'F' has scores of mode 'andh-full' only; add --mode andh-full"
+    assert told in str(named.exception)
+    full = runner.invoke(app, ["table", scores, "--mode", "andh-full", "--row", "F"])
+    assert full.exit_code == 0, full.output
+    assert "| F " in full.output and "ANDH-Full: one episode per whole trajectory" in full.output
+    for option in (["--seed", "5"], ["--ci-unit", "trajectory"], ["--resamples", "7"]):
+        refused = runner.invoke(app, ["table", scores, *option])
+        assert refused.exit_code != 0
+        told = f"{option[0]} set how --ci intervals are made: add --ci"
+        assert told in str(refused.exception)

@@ -313,6 +313,30 @@ def test_systems_of_different_splits_are_not_pooled_silently() -> None:
         ne_distribution_figure(scores, systems=["Ful"])
 
 
+def test_the_two_episode_modes_are_never_drawn_as_one_line() -> None:
+    """ANDH and ANDH-Full episodes of one system (their ids overlap) were drawn as one
+    line under one n, the shared episodes counted twice."""
+    g = [square(0, 0), square(100, 0)]
+    rows = [
+        result([g[0], square(100 + k, 0)], g, episode_id=f"e{k}", mode=mode)
+        for mode, count in (("andh", 3), ("andh-full", 2))
+        for k in range(count)
+    ]
+    scores = score_results(rows)
+    with pytest.raises(MetricInputError, match=r"modes 'andh', 'andh-full'.*choose one"):
+        sr_vs_threshold_figure(scores, MetricConventions())
+    with pytest.raises(MetricInputError, match="choose one"):
+        ne_distribution_figure(scores)
+    andh = sr_vs_threshold_figure(scores, MetricConventions(), mode="andh")
+    assert _legend(andh)[0].startswith("agent (n=3")
+    assert andh.get_axes()[0].get_title() == "episodes of val_seen"
+    full = ne_distribution_figure(scores, mode="andh-full")
+    assert _legend(full)[0].startswith("agent (n=2")
+    assert full.get_axes()[0].get_title() == "ANDH-Full episodes of val_seen"
+    with pytest.raises(MetricInputError, match="no scores of mode 'andh-full'"):
+        ne_distribution_figure(score_results(rows[:3]), mode="andh-full")
+
+
 def test_every_system_has_a_style_of_its_own_and_its_axis_label_shows() -> None:
     # With 11 systems the colour cycle wrapped: the 1st and 11th lines looked the same,
     # and the y-axis label was cut off at the top.

@@ -194,3 +194,30 @@ def test_an_interrupted_run_then_resumed(sample_dir: Path, tmp_path: Path) -> No
     assert len(read_results(results)) == 3
     scored = score(run_path, "--out", tmp_path / "o")
     assert scored.exit_code == 0, scored.output
+
+
+def test_a_row_with_another_ground_truth_than_its_episode_is_never_scored(
+    dataset: Path, tmp_path: Path
+) -> None:
+    """The goal a row is scored against is kept in the row: edited to the drone's last
+    view, SR rose, and neither score (even with --data-dir) nor validate saw it."""
+    run_path = run_dir(tmp_path / "run", config(dataset, limit=2), IDS[:2])
+    results = read_results(run_path / "results.jsonl")
+    views = results[1].gt_path_corners.copy()
+    views[-1] += 0.001  # the goal moved by about 100 m
+    edited = result(results[1].visited_views, views, episode_id=IDS[1])
+    write_results(run_path / "results.jsonl", [results[0], edited])
+    for extra in ([], ["--allow-incomplete"], ["--data-dir", str(dataset)]):
+        refused = score(run_path, "--out", tmp_path / "scores", *extra)
+        assert refused.exit_code != 0
+        message = str(refused.exception)
+        assert "1 row(s) hold another ground truth than their episode's" in message
+        assert f"('val_seen/{IDS[1]}')" in message
+    checked = runner.invoke(app, ["validate", str(run_path)])
+    assert checked.exit_code == 1
+    assert "hold another ground truth" in checked.output
+    # A results file outside a run directory is checked against --data-dir's episodes.
+    loose = tmp_path / "loose.jsonl"
+    write_results(loose, [results[0], edited])
+    refused = score(loose, "--data-dir", dataset, "--out", tmp_path / "l", "--allow-incomplete")
+    assert "hold another ground truth" in str(refused.exception)
