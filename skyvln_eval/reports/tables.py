@@ -14,7 +14,8 @@ In every column the best value is bold and the second best underlined (higher is
 except NE, errors, costs and times); ranks use the displayed (rounded) values, so tied
 values share a mark, a column where every row shows the same value has no mark, and the
 second best is marked only when it is not also the worst. Reference rows (an oracle) and
-cells whose every episode ended in error are never ranked.
+cells whose every episode ended in error are never ranked, and nothing is marked on a
+split whose rows ran different numbers of episodes (a note says so).
 
 A failure never reads as a score: a path metric's cell (SR, SPL, NE, ...) whose every
 episode ended in error shows ``error``, not the 0 its episodes score as failures; one where
@@ -28,6 +29,7 @@ the exact conventions as a comment), CSV as comment lines.
 from __future__ import annotations
 
 import csv
+import decimal
 import io
 import math
 from collections.abc import Collection, Sequence
@@ -173,9 +175,20 @@ class Table:
         return to_markdown(self)
 
 
+def fixed(value: float, digits: int) -> str:
+    """``value`` with ``digits`` decimals, a half rounded away from zero, as a reader
+    rounds (Python's rounding of the binary value showed 62.5 as 62 and 37.5 as 38 in one
+    column); the value is taken as its shortest decimal repr."""
+    if not math.isfinite(value):
+        return f"{value:.{digits}f}"
+    quantum = decimal.Decimal(1).scaleb(-digits)
+    shown = decimal.Decimal(repr(value)).quantize(quantum, rounding=decimal.ROUND_HALF_UP)
+    return f"{shown:f}" if shown else f"{abs(shown):f}"  # no "-0.00"
+
+
 def _ranks(values: dict[str, float], lower_is_better: bool, digits: int) -> dict[str, int]:
     """Best (1) and second best (2) by the shown values; no second when it is the worst."""
-    shown = {row: round(v, digits) for row, v in values.items() if not math.isnan(v)}
+    shown = {row: float(fixed(v, digits)) for row, v in values.items() if not math.isnan(v)}
     distinct = sorted(set(shown.values()), reverse=not lower_is_better)
     marked = 2 if len(distinct) > 2 else 1 if len(distinct) == 2 else 0
     return {row: distinct.index(v) + 1 for row, v in shown.items() if v in distinct[:marked]}
@@ -229,6 +242,7 @@ def build_table(
     cells: dict[str, dict[tuple[str, str], Cell | None]] = {r: {} for r in row_names}
     titles = dict(spec.groups)
     bounded: list[str] = []  # cells shown as a lower bound
+    unmarked: dict[str, None] = {}  # splits whose ranked rows ran different episode counts
     for split, _ in spec.groups:
         for metric, _ in spec.metrics:
             present = {}
@@ -248,6 +262,10 @@ def build_table(
                 if v is not None and r not in unranked and not 0 < counts[r][0] == counts[r][1]
             }
             ranks = _ranks(means, metric in LOWER_IS_BETTER, spec.digits_of(metric, digits))
+            ran = {errors[(r, split)][0] for r in means if (r, split) in errors}
+            if len(ran) > 1:  # not like with like: no marks
+                ranks = {}
+                unmarked.setdefault(titles[split], None)
             for row, v in present.items():
                 if v is None:
                     cells[row][(split, metric)] = None
@@ -268,6 +286,11 @@ def build_table(
                 cells[row][(split, metric)] = cell
     notes = [*notes, *_error_notes(errors, row_names, spec, titles)]
     notes += _episode_count_notes(errors, cells, row_names, spec)
+    if unmarked:
+        notes.append(
+            f"No best or second marked on {', '.join(unmarked)}: its rows ran different "
+            "numbers of episodes, so their values are not over the same episodes."
+        )
     if {"llm_cost_usd", "llm_latency_s"} & set(dict(spec.metrics)):
         notes += _cached_notes(index, row_names, spec, titles)
     notes += _not_run_notes(cells, row_names, spec, titles, withheld)
@@ -465,8 +488,8 @@ def _number(cell: Cell | None, digits: int, with_ci: bool, withheld: bool = Fals
     if math.isnan(cell.mean):
         return "n/a"  # unknown (e.g. a cost without a price), never shown as a number
     if cell.lower_bound:
-        return f"{AT_LEAST}{cell.mean:.{digits}f}" + (SOME_ERRORS if cell.errors else "")
-    text = f"{cell.mean:.{digits}f}"
+        return f"{AT_LEAST}{fixed(cell.mean, digits)}" + (SOME_ERRORS if cell.errors else "")
+    text = fixed(cell.mean, digits)
     if with_ci and cell.shows_interval:
         text += f" {_bracket(cell, digits)}"
     return text + (SOME_ERRORS if cell.errors else "")
@@ -476,7 +499,7 @@ def _bracket(cell: Cell, digits: int) -> str:
     """A cell's interval, ``[low, high]``, or ``[n/a]`` where it has none."""
     if cell.ci_low is None or cell.ci_high is None or math.isnan(cell.ci_low):
         return "[n/a]"
-    return f"[{cell.ci_low:.{digits}f}, {cell.ci_high:.{digits}f}]"
+    return f"[{fixed(cell.ci_low, digits)}, {fixed(cell.ci_high, digits)}]"
 
 
 def _arrow(metric: str) -> str:

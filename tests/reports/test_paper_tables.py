@@ -157,13 +157,23 @@ def test_the_table_command_makes_the_same_table(tmp_path: Path) -> None:
 def test_scores_without_the_backend_column_read_and_rank_as_labelled(tmp_path: Path) -> None:
     # Files scored before results said what answered the LLM calls: no stand-in is known.
     path = tmp_path / "scores.csv"
-    write_scores(path, _scores().drop(columns=["llm_backend"]), MetricConventions())
+    scores = _scores().drop(columns=["llm_backend"])
+    # Every row over 2 episodes: rows over different numbers are not marked at all.
+    scores = scores[~((scores["system"] == "rule") & (scores["episode_id"] == "1913__2_1"))]
+    write_scores(path, scores, MetricConventions())
     back, conventions = read_scores(path)
     assert back["llm_backend"].isna().all()
     table = paper_table(back, TABLE_II, conventions)
     rule = table.cells["rule"][("test_unseen", "llm_cost_usd")]
     assert rule is not None and rule.rank == 1  # ranked: nothing says it is a stand-in
     assert "Not ranked" not in to_markdown(table)
+    # Ranked rows over different numbers of episodes (rule 3, gemma 2) are not marked:
+    # an audit found a row of 4 episodes marked best over one of 8.
+    unequal = paper_table(_scores().drop(columns=["llm_backend"]), TABLE_II, conventions)
+    md = to_markdown(unequal)
+    assert all(cell is None or cell.rank is None for cell in unequal.cells["rule"].values())
+    assert "**" not in md and "<u>" not in md
+    assert "No best or second marked on Unseen Testing: its rows ran different" in md
 
 
 def test_table_i_says_how_many_flights_crashed_and_how_they_were_scored() -> None:

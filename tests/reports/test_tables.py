@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 from pathlib import Path
 
 import pandas as pd
@@ -376,3 +377,13 @@ def test_a_model_without_a_price_whose_calls_all_failed_has_no_lower_bound() -> 
     assert "≥" not in row and "n/a" in row
     # The priced model's failed attempt leaves its cost known from below, and only its.
     assert "a provider may bill them: Priced on Unseen Testing." in md
+
+
+def test_cells_round_halves_away_from_zero_as_a_reader_does() -> None:
+    """Python's rounding showed 37.5 as 38 and 62.5 as 62 in one column (half to even)."""
+    from skyvln_eval.reports.tables import fixed
+
+    assert [fixed(v, 0) for v in (37.5, 62.5, -2.5)] == ["38", "63", "-3"]
+    assert fixed(2.675, 2) == "2.68"  # its shortest repr, not its binary value 2.67499...
+    assert fixed(-0.001, 2) == "0.00" and fixed(46.666666, 2) == "46.67"
+    assert fixed(math.inf, 1) == "inf"
