@@ -396,6 +396,11 @@ def _check_mode_rows(frame: Any, mode: str, rows: list[str] | None) -> None:
         for system, group in frame[frame["mode"] != mode].groupby("system", sort=True)
         if system not in ours
     }
+    if not ours and others:
+        modes = sorted({m for found in others.values() for m in found})
+        raise ConfigError(
+            f"the scores have no {mode!r} episodes, only {listed(modes)}: add --mode {modes[0]}"
+        )
     for name in rows or ():
         if name in others:
             raise ConfigError(

@@ -420,6 +420,14 @@ def test_tables_and_the_score_printout_keep_the_two_modes_apart(tmp_path: Path) 
     full = runner.invoke(app, ["table", scores, "--mode", "andh-full", "--row", "F"])
     assert full.exit_code == 0, full.output
     assert "| F " in full.output and "ANDH-Full: one episode per whole trajectory" in full.output
+    f_only = tmp_path / "f_only"
+    write_results(tmp_path / "f.jsonl", [r for r in rows if r.system == "F"])
+    assert (
+        runner.invoke(app, ["score", str(tmp_path / "f.jsonl"), "--out", str(f_only)]).exit_code
+        == 0
+    )
+    alone = runner.invoke(app, ["table", str(f_only / "scores.csv")])
+    assert "no 'andh' episodes, only 'andh-full': add --mode andh-full" in str(alone.exception)
     for option in (["--seed", "5"], ["--ci-unit", "trajectory"], ["--resamples", "7"]):
         refused = runner.invoke(app, ["table", scores, *option])
         assert refused.exit_code != 0
