@@ -356,7 +356,7 @@ def validate(
                 f"{path}: no such file or directory"
                 if missing
                 else f"{path}: no annotations/<split>_data.json found (not a dataset), and "
-                "no MCAP logs or run directory (no run.json or results.jsonl) in it"
+                "no MCAP logs or run directory (no config.yaml or results.jsonl) in it"
             )
             problems += 1
     if problems:

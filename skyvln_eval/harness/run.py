@@ -240,6 +240,15 @@ def file_damage(path: Path) -> str | None:
     return None
 
 
+def episode_files(config: RunConfig, run_dir: Path, row: EpisodeResult) -> list[Path]:
+    """The files a recorded episode keeps: its run MCAP (when the run writes logs) and,
+    flown, its control log."""
+    wanted = [log_path(run_dir, row.split, row.episode_id)] if config.write_logs else []
+    if row.control is not None:
+        wanted.append(run_dir / control_log_name(row.split, row.episode_id))
+    return wanted
+
+
 def lost_files(
     config: RunConfig, run_dir: Path, store: ResultStore, keys: Sequence[RowKey]
 ) -> dict[RowKey, str]:
@@ -253,11 +262,7 @@ def lost_files(
         row = store.get(key)
         if row is None or row.status == "error":
             continue
-        split, episode_id = key
-        wanted = [log_path(run_dir, split, episode_id)] if config.write_logs else []
-        if row.control is not None:
-            wanted.append(run_dir / control_log_name(split, episode_id))
-        for path in wanted:
+        for path in episode_files(config, run_dir, row):
             damage = file_damage(path)
             if damage is not None:
                 lost[key] = f"{path.relative_to(run_dir)}: {damage}"

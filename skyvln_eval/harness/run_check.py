@@ -12,14 +12,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from skyvln_eval.errors import AlteredGroundTruthError, ForeignRowsError, SkyvlnError
-from skyvln_eval.harness.run import REPORT_FILE, file_damage
-from skyvln_eval.harness.runner import control_log_name, log_path
+from skyvln_eval.harness.run import CONFIG_FILE, episode_files, file_damage
+from skyvln_eval.harness.run_reading import is_run_directory
 from skyvln_eval.harness.store import RESULTS_FILE, ResultStore
-
-
-def is_run_directory(path: Path) -> bool:
-    """A run's folder: its ``run.json`` or ``results.jsonl`` is there."""
-    return (path / REPORT_FILE).is_file() or (path / RESULTS_FILE).is_file()
 
 
 def run_directories_at(path: Path) -> list[Path]:
@@ -29,7 +24,7 @@ def run_directories_at(path: Path) -> list[Path]:
         return [path]
     if not path.is_dir() or (path / "annotations").is_dir():
         return []
-    found = {p.parent for name in (REPORT_FILE, RESULTS_FILE) for p in path.rglob(name)}
+    found = {p.parent for name in (CONFIG_FILE, RESULTS_FILE) for p in path.rglob(name)}
     return sorted(run_dir for run_dir in found if is_run_directory(run_dir))
 
 
@@ -68,20 +63,19 @@ def check_run_directory(run_dir: Path) -> RunCheck:
         if result.status == "error" or "fatal" in result.extra:
             continue  # an episode that raised wrote no files
         episode = f"episode {result.split}/{result.episode_id}"
-        log = log_path(run_dir, result.split, result.episode_id)
-        if config.write_logs and not log.is_file():
-            check.problems.append(f"{log}: missing (the run log of {episode})")
-        if result.control is None:
-            continue
-        control = run_dir / control_log_name(result.split, result.episode_id)
-        damage = file_damage(control)
-        if damage is not None:
-            check.problems.append(f"{control}: {damage} (the control log of {episode})")
-            continue
-        try:
-            read_control_log(control)
-        except SkyvlnError as error:
-            check.problems.append(f"{error} (the control log of {episode})")
+        for path in episode_files(config, run_dir, result):
+            if path.suffix == ".mcap":  # its bytes are the MCAP validator's to check
+                if not path.is_file():
+                    check.problems.append(f"{path}: missing (the run log of {episode})")
+                continue
+            damage = file_damage(path)
+            if damage is not None:
+                check.problems.append(f"{path}: {damage} (the control log of {episode})")
+                continue
+            try:
+                read_control_log(path)
+            except SkyvlnError as error:
+                check.problems.append(f"{error} (the control log of {episode})")
     try:
         coverage = run_coverage(run_dir, results)
     except (ForeignRowsError, AlteredGroundTruthError) as error:  # not this run's rows

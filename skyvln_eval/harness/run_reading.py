@@ -65,6 +65,11 @@ def _row_key(folder: Path, key: Sequence[str]) -> RowKey:
     return (key[0], key[1]) if len(key) == 2 else (key[1], key[3])
 
 
+def is_run_directory(folder: Path) -> bool:
+    """A run's folder: the ``config.yaml`` a run writes first, or its ``results.jsonl``."""
+    return (folder / CONFIG_FILE).is_file() or (folder / RESULTS_FILE).is_file()
+
+
 def run_directories(folder: Path) -> list[Path]:
     """``folder`` if it is a run directory, else the run directories in it (as
     ``reproduce`` writes a system's splits); refuses what is neither, saying what it is.
@@ -76,9 +81,7 @@ def run_directories(folder: Path) -> list[Path]:
         raise DataError(f"{folder}: no such run directory")
     if (folder / CONFIG_FILE).is_file() or (folder / RESULTS_FILE).exists():
         return [folder]
-    runs = sorted(
-        d for d in folder.iterdir() if (d / CONFIG_FILE).is_file() or (d / RESULTS_FILE).is_file()
-    )
+    runs = sorted(d for d in folder.iterdir() if is_run_directory(d))
     if runs:
         return runs
     deeper = sorted(d.name for d in folder.iterdir() if d.is_dir() and _run_dirs_in(d))

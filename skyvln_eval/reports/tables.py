@@ -182,7 +182,8 @@ def fixed(value: float, digits: int) -> str:
     if not math.isfinite(value):
         return f"{value:.{digits}f}"
     quantum = decimal.Decimal(1).scaleb(-digits)
-    shown = decimal.Decimal(repr(value)).quantize(quantum, rounding=decimal.ROUND_HALF_UP)
+    # repr of a Python float (numpy's scalars repr as "np.float64(...)").
+    shown = decimal.Decimal(repr(float(value))).quantize(quantum, rounding=decimal.ROUND_HALF_UP)
     return f"{shown:f}" if shown else f"{abs(shown):f}"  # no "-0.00"
 
 
