@@ -308,7 +308,7 @@ def validate(
     directory's result rows are parsed, and each recorded episode's run log must be there
     and its control log read.
     """
-    from skyvln_eval.avdn import SPLITS, annotation_file_name, check_split, undefined_fields
+    from skyvln_eval.avdn import SPLITS, annotation_file_name, check_split, undefined_fields_note
     from skyvln_eval.converters.commands import is_mcap_target, run_validate_mcap
     from skyvln_eval.harness.run_check import run_directories_at
 
@@ -340,12 +340,9 @@ def validate(
             bad = len({i.record_index for i in issues})
             status = "ok" if not issues else f"{len(issues)} problem(s) in {bad} record(s)"
             typer.echo(f"{path} {split}: {len(records)} valid record(s), {status}")
-            undefined = undefined_fields(records)
-            if undefined:  # kept as they are, but a misspelt optional field reads as absent
-                typer.echo(
-                    f"{path} {split}: note: fields the AVDN format does not define (kept as "
-                    f"they are): {'; '.join(undefined)}"
-                )
+            note = undefined_fields_note(records)
+            if note is not None:
+                typer.echo(f"{path} {split}: note: {note}")
             if not no_images:
                 for problem in _undecodable_maps(path, records, checked_maps):
                     _echo_problem(problem)

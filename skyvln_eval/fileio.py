@@ -109,6 +109,19 @@ def ensure_directory(path: str | Path, what: str) -> Path:
     return path
 
 
+def ensure_writable_directory(path: str | Path, what: str) -> Path:
+    """:func:`ensure_directory`, then a probe file created and deleted there: a folder that
+    exists but takes no files (read-only, no permission) fails here, once and clearly,
+    not on every file of a batch."""
+    path = ensure_directory(path, what)
+    try:
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as error:
+        raise ConfigError(f"{what} {path} cannot take files: {error.strerror or error}") from None
+    return path
+
+
 @contextlib.contextmanager
 def exclusive_lock(path: str | Path) -> Iterator[None]:
     """Hold an exclusive OS lock on the file ``path`` (created if missing) for the block.

@@ -48,6 +48,15 @@ def test_validate_notes_fields_the_format_does_not_define(
         "val_seen: note: fields the AVDN format does not define (kept as they are): "
         "'destinaton' in 1 record(s); did you mean 'destination'?; 'x' in 1 record(s)"
     ) in " ".join(result.output.split())
+    # convert says so too: its logs carry the fields as they are, the typo as no destination.
+    out = root / "logs"
+    result = runner.invoke(
+        app, ["convert", "--data-dir", str(root), "--split", "val_seen", "--out", str(out)]
+    )
+    assert result.exit_code == 0, result.output
+    assert "'destinaton' in 1 record(s); did you mean 'destination'?" in " ".join(
+        result.output.split()
+    )
 
 
 def test_validate_passes_on_a_clean_dataset(dataset_factory: Callable[..., Path]) -> None:

@@ -68,7 +68,12 @@ from skyvln_eval.avdn.step import (
     replay_ground_truth,
 )
 from skyvln_eval.avdn.summary import SplitSummary, summarise_split
-from skyvln_eval.avdn.validation import parse_record, parse_records, undefined_fields
+from skyvln_eval.avdn.validation import (
+    parse_record,
+    parse_records,
+    undefined_fields,
+    undefined_fields_note,
+)
 
 __all__ = [
     "DEFAULT_MAX_ACTION_LEN",
@@ -121,6 +126,7 @@ __all__ = [
     "resize_to_degree_grid",
     "summarise_split",
     "undefined_fields",
+    "undefined_fields_note",
     "view_axes",
     "view_centre",
     "view_edge_m",

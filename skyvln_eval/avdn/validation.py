@@ -52,6 +52,21 @@ _MAP_NAME = re.compile(r"[0-9A-Za-z_-]+")
 #: Plain decimal, ASCII digits, no leading zeros: "6_2" and "6_02" (or "٦_٢") would be
 #: different ids of one round, which a trajectory would hold twice.
 _ROUTE_INDEX = re.compile(r"(0|[1-9][0-9]*)_([1-9][0-9]*)")
+#: Files are named after the episode id (``<id>.mcap``, ``.<id>.mcap.XXXXXXXX.tmp`` while
+#: written, ``<id>.parquet``); 200 ASCII characters keep every such name within the
+#: 255 bytes a file system allows. Real ids are about 10.
+MAX_EPISODE_ID_CHARS = 200
+
+
+def is_episode_id(text: str) -> bool:
+    """Whether ``text`` is an id a valid record has: ``<map_name>__<route_index>``."""
+    map_name, sep, route = text.rpartition("__")
+    return (
+        bool(sep)
+        and len(text) <= MAX_EPISODE_ID_CHARS
+        and _MAP_NAME.fullmatch(map_name) is not None
+        and _ROUTE_INDEX.fullmatch(route) is not None
+    )
 
 
 @dataclass
@@ -155,6 +170,14 @@ def _check_scalars(raw: dict[str, Any], report: Any) -> bool:
                 f"zeros, round >= 1, got {route!r}",
             )
             ok = False
+    if ok and len(episode_id_of(map_name, route)) > MAX_EPISODE_ID_CHARS:
+        longer = "route_index" if len(route) >= len(map_name) else "map_name"
+        report(
+            longer,
+            f"the episode id map_name__route_index is {len(map_name) + 2 + len(route)} "
+            f"characters long, more than {MAX_EPISODE_ID_CHARS}: files are named after it",
+        )
+        ok = False
     last = raw.get("last_round_idx")
     if "last_round_idx" in raw and (type(last) is not int or last < 1):
         report("last_round_idx", f"expected an integer >= 1, got {shown(last)}")
@@ -526,3 +549,12 @@ def undefined_fields(records: Sequence[AvdnRecord]) -> list[str]:
         hint = f"; did you mean {close[0]!r}?" if close else ""
         described.append(f"{key!r} in {count} record(s){hint}")
     return described
+
+
+def undefined_fields_note(records: Sequence[AvdnRecord]) -> str | None:
+    """A note naming the :func:`undefined_fields` of ``records``, or None when all are
+    defined: such fields are kept as they are, but a misspelt optional field reads as absent."""
+    undefined = undefined_fields(records)
+    if not undefined:
+        return None
+    return f"fields the AVDN format does not define (kept as they are): {'; '.join(undefined)}"

@@ -35,8 +35,10 @@ from skyvln_eval.avdn import (
     load_split,
     map_image_path,
     parse_record,
+    undefined_fields_note,
 )
 from skyvln_eval.avdn.constants import IMAGES_DIR
+from skyvln_eval.avdn.validation import is_episode_id
 from skyvln_eval.converters import topics
 from skyvln_eval.converters.convert import (
     DEFAULT_OPTIONS,
@@ -56,7 +58,7 @@ from skyvln_eval.converters.manifest import (
 from skyvln_eval.converters.reader import read_log
 from skyvln_eval.converters.writer import McapLogWriter
 from skyvln_eval.errors import AvdnValidationError, SkyvlnError, ValidationIssue
-from skyvln_eval.fileio import sha256_bytes, sha256_file
+from skyvln_eval.fileio import ensure_writable_directory, sha256_bytes, sha256_file
 from skyvln_eval.worlds import WorldTile
 
 Status = Literal["converted", "skipped", "failed"]
@@ -116,6 +118,11 @@ class ConvertReport:
     skipped_records: list[SkippedRecord] = field(default_factory=list)
     incomplete: list[ValidationIssue] = field(default_factory=list)
     removed_stale: list[RemovedLog] = field(default_factory=list)
+    #: MCAP files in the folder that no conversion wrote, left in place.
+    foreign_files: list[str] = field(default_factory=list)
+    #: A note on record fields the AVDN format does not define (kept in the logs as they
+    #: are), with the field each may misspell; None when there are none.
+    undefined_fields_note: str | None = None
 
     @property
     def left_out_path(self) -> Path:
@@ -271,6 +278,9 @@ def run_map_job(job: MapJob) -> list[EpisodeOutcome]:
             )
         except SkyvlnError as exc:
             outcomes.append(EpisodeOutcome(_first_id(raw), "failed", note=str(exc)))
+        except OSError as exc:  # this episode's file only (the folder was checked to take files)
+            note = f"its log cannot be written or read: {exc}"
+            outcomes.append(EpisodeOutcome(_first_id(raw), "failed", note=note))
     return outcomes
 
 
@@ -285,8 +295,9 @@ def _jobs(
     annotation_file: str,
     out_dir: Path,
     options: ConvertOptions,
+    recorded: Mapping[str, ManifestRow],
 ) -> list[MapJob]:
-    recorded = _recorded_files(out_dir / MANIFEST_NAME)
+    """One job per map; ``recorded``: the last manifest's rows by file name."""
     by_map: dict[str, list[Episode]] = {}
     for episode in episodes:
         by_map.setdefault(episode.map_name, []).append(episode)
@@ -337,17 +348,30 @@ def _removal_reasons(report: ConvertReport) -> dict[str, str]:
     return reasons
 
 
-def _remove_stale(out_dir: Path, keep: set[str], reasons: dict[str, str]) -> list[RemovedLog]:
-    """Delete this folder's episode logs that this run did not write, and temp files."""
-    removed = []
+def _remove_stale(
+    out_dir: Path, keep: set[str], listed: set[str], reasons: dict[str, str]
+) -> tuple[list[RemovedLog], list[str]]:
+    """Delete the episode logs of an earlier conversion that this one did not write, and
+    temp files; (what was removed, the names of other MCAP files, left in place).
+
+    An earlier conversion's log is one the last manifest ``listed`` or one named as an
+    episode log (``<map_name>__<route_index>.mcap``, e.g. of a conversion cut short before
+    its manifest). Any other ``.mcap`` (a recording put here by hand) is not this tool's to
+    delete; validate reports it as not listed in the manifest.
+    """
+    removed, foreign = [], []
     for path in sorted(out_dir.glob("*.mcap")):
-        if path.name not in keep:
+        if path.name in keep:
+            continue
+        if path.name in listed or is_episode_id(path.name.removesuffix(".mcap")):
             path.unlink()
             reason = reasons.get(path.name, "not an episode of this split and mode")
             removed.append(RemovedLog(path.name, reason))
+        else:
+            foreign.append(path.name)
     for tmp in out_dir.glob(".*.mcap.*.tmp"):
         tmp.unlink(missing_ok=True)
-    return removed
+    return removed, foreign
 
 
 def convert_split(
@@ -368,16 +392,17 @@ def convert_split(
     )
     if incomplete and not skip_invalid:
         raise AvdnValidationError(incomplete)
-    target = split_output_dir(out_dir, split, mode)
-    target.mkdir(parents=True, exist_ok=True)
+    target = ensure_writable_directory(split_output_dir(out_dir, split, mode), "output folder")
     report = ConvertReport(
         target,
         target / MANIFEST_NAME,
         invalid=list(loaded.skipped),
         skipped_records=list(loaded.skipped_records),
         incomplete=incomplete,
+        undefined_fields_note=undefined_fields_note(loaded.records),
     )
-    jobs = _jobs(episodes, data_dir, str(loaded.annotation_path), target, options)
+    recorded = _recorded_files(report.manifest_path)
+    jobs = _jobs(episodes, data_dir, str(loaded.annotation_path), target, options, recorded)
     results: dict[str, EpisodeOutcome] = {}
     for outcomes in _run(jobs, workers):
         for outcome in outcomes:
@@ -386,8 +411,8 @@ def convert_split(
             on_progress(len(outcomes))
     report.outcomes = [results[e.episode_id] for e in episodes]
     report.rows = [o.row for o in report.outcomes if o.row is not None]
-    report.removed_stale = _remove_stale(
-        target, {r.file_name for r in report.rows}, _removal_reasons(report)
+    report.removed_stale, report.foreign_files = _remove_stale(
+        target, {r.file_name for r in report.rows}, set(recorded), _removal_reasons(report)
     )
     # What was left out first, the manifest last: the manifest marks a finished conversion
     # (validate checks the folder against it), so it never stands beside an older list.

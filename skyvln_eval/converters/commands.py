@@ -59,6 +59,13 @@ def run_convert(
         problem(f"failed: {outcome.episode_id}: {outcome.note}")
     for removed in report.removed_stale:
         problem(f"removed {report.out_dir / removed.file_name}: {removed.reason}")
+    if report.undefined_fields_note is not None:
+        problem(f"note: {report.undefined_fields_note}")
+    for name in report.foreign_files:
+        problem(
+            f"left in place {report.out_dir / name}: not a log a conversion writes (validate "
+            "reports it as not listed in the manifest: keep such files elsewhere)"
+        )
     size_mb = sum(r.size_bytes for r in report.rows) / 1e6
     echo(
         f"{split} ({mode}): {report.count('converted')} converted, "

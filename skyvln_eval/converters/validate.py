@@ -4,7 +4,9 @@ For a file: every byte verified (magic, footer, summary, data and chunk CRCs, st
 see :func:`read_log`), the format and own-schema versions, the episode records
 re-parsed, each topic written with its declared schema, and every message decoded as JSON
 and validated against the JSON schema stored in its own channel (plus: ``timestamp``
-equals the log time, base64 image data decodes). For a folder with a manifest: every
+equals the log time, base64 image data decodes); for an episode log (not a run's), every
+message but the images equal to what its metadata's records make, and as many images as
+its metadata says. For a folder with a manifest: every
 listed file present, named after its episode id, with the listed content hash (so it is
 the very file the conversion wrote), and no unlisted logs; its ``left_out.json`` (what the
 conversion left out, and why) the one whose hash the manifest records, readable and
@@ -17,13 +19,16 @@ from __future__ import annotations
 
 import base64
 import binascii
+import io
 import json
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
+from skyvln_eval.avdn import Episode
 from skyvln_eval.converters import topics
+from skyvln_eval.converters.convert import CLOCK_STEP_NS, convert_episode
 from skyvln_eval.converters.left_out import LEFT_OUT_NAME, LeftOut, read_left_out
 from skyvln_eval.converters.manifest import (
     MANIFEST_NAME,
@@ -39,6 +44,7 @@ from skyvln_eval.converters.reader import (
     read_log,
     read_log_bytes,
 )
+from skyvln_eval.converters.writer import McapLogWriter
 from skyvln_eval.errors import SkyvlnError, ValidationIssue
 from skyvln_eval.fileio import sha256_file
 
@@ -220,15 +226,76 @@ def check_loaded_log(log: McapLog) -> LogCheck:
     episode_id = None
     if topics.EPISODE_METADATA in log.metadata:
         try:
-            episode_id = episode_from_log(log).episode_id
+            episode = episode_from_log(log)
         except SkyvlnError as exc:
             issues.append(ValidationIssue(log.path, str(exc)))
+        else:
+            episode_id = episode.episode_id
+            if topics.RUN_METADATA not in log.metadata:  # an episode log, not a run's
+                issues.extend(_content_issues(log, episode))
     issues.extend(_message_issues(log))
     if episode_id is not None:
         issues = [
             ValidationIssue(i.file, i.message, i.record_index, episode_id, i.field) for i in issues
         ]
     return LogCheck(log.path, len(log.messages), tuple(issues))
+
+
+#: Topics drawn from the map image, which checking a log does not have at hand.
+_IMAGE_TOPICS: Final = frozenset({topics.TOPIC_MAP_TILE, topics.TOPIC_GT_OBSERVATION})
+
+
+def _content_issues(log: McapLog, episode: Episode) -> list[ValidationIssue]:
+    """An episode log must hold what its records make: every message but the images is
+    written again from the metadata's records and compared byte for byte; the images are
+    counted (one map tile when it has one, one observation per view when it has them).
+    A log whose messages were edited after conversion says one thing in its metadata (what
+    replays and scores read) and shows another."""
+    meta = log.metadata[topics.EPISODE_METADATA]
+    buffer = io.BytesIO()
+    with McapLogWriter(buffer) as writer:
+        convert_episode(episode, None, writer)
+    expected = read_log_bytes(buffer.getvalue()).messages
+    found = [m for m in log.messages if m.topic not in _IMAGE_TOPICS]
+    issues = []
+    for want, got in zip(expected, found, strict=False):  # unequal counts: after the loop
+        if (want.topic, want.log_time_ns, want.data) != (got.topic, got.log_time_ns, got.data):
+            issues.append(
+                ValidationIssue(
+                    log.path,
+                    f"message {got.sequence} is not what the episode's records make "
+                    f"(expected {want.topic} at {want.log_time_ns} ns: changed after "
+                    "conversion?)",
+                    field=got.topic,
+                )
+            )
+            break  # the rest follows from the first difference
+    if not issues and len(expected) != len(found):
+        issues.append(
+            ValidationIssue(
+                log.path,
+                f"{len(found)} messages besides images, the episode's records make {len(expected)}",
+            )
+        )
+    views = len(episode.gt_path_corners)
+    for topic, wanted in (
+        (topics.TOPIC_MAP_TILE, [0] if meta.get("map_tile_max_side_px", "0") != "0" else []),
+        (
+            topics.TOPIC_GT_OBSERVATION,
+            [k * CLOCK_STEP_NS for k in range(views)] if meta.get("observations") == "true" else [],
+        ),
+    ):
+        times = [m.log_time_ns for m in log.messages if m.topic == topic]
+        if times != wanted:
+            issues.append(
+                ValidationIssue(
+                    log.path,
+                    f"{len(times)} message(s), its metadata says {len(wanted)} "
+                    + ("(one per view, a second apart)" if topic != topics.TOPIC_MAP_TILE else ""),
+                    field=topic,
+                )
+            )
+    return issues
 
 
 def is_run_logs_folder(folder: str | Path) -> bool:

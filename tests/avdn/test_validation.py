@@ -12,6 +12,7 @@ from typing import Any
 import pytest
 
 from skyvln_eval.avdn import check_split, load_split, parse_record
+from skyvln_eval.avdn.validation import MAX_EPISODE_ID_CHARS, is_episode_id
 from skyvln_eval.errors import AvdnFileError, AvdnValidationError, ValidationIssue
 from tests.conftest import make_record
 
@@ -249,6 +250,20 @@ def test_a_route_index_in_another_spelling_of_its_numbers_is_refused(
     # "6_2" and "6_02" are one round: both would have joined trajectory 6, round 2 twice.
     issue = only_issue(dataset_factory, [make_record(route_index=route)])
     assert issue.field == "route_index" and "without leading zeros" in issue.message
+
+
+def test_an_episode_id_too_long_for_a_file_name_is_refused(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    # Logs are named after the id: 300 digits made convert fail with "File name too long".
+    issue = only_issue(dataset_factory, [make_record(route_index="1" * 300 + "_1")])
+    assert issue.field == "route_index" and "files are named after it" in issue.message
+    longest = "1" * (MAX_EPISODE_ID_CHARS - len("1913__") - 2) + "_1"
+    assert is_episode_id(f"1913__{longest}") and not is_episode_id(f"1913__1{longest}")
+    _, issues = check_split(
+        dataset_factory({"val_seen": [make_record(route_index=longest)]}), "val_seen"
+    )
+    assert issues == []
 
 
 def test_an_attention_centre_off_the_map_is_refused(dataset_factory: Callable[..., Path]) -> None:

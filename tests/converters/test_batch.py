@@ -2,18 +2,21 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import shutil
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
+from skyvln_eval import fileio
 from skyvln_eval.avdn import distance_m, load_split, view_centre
 from skyvln_eval.converters import ConvertOptions, batch, read_log
 from skyvln_eval.converters import topics as t
@@ -26,7 +29,7 @@ from skyvln_eval.converters.manifest import (
     write_manifest,
 )
 from skyvln_eval.converters.validate import check_manifest_folder
-from skyvln_eval.errors import AvdnValidationError, FormatVersionError
+from skyvln_eval.errors import AvdnValidationError, ConfigError, FormatVersionError
 from skyvln_eval.fileio import sha256_file
 from tests.conftest import make_record
 from tests.converters.conftest import ConvertedSample
@@ -353,3 +356,59 @@ def test_a_map_image_that_does_not_decode_is_read_once_and_fails_each_episode(
     assert report.count("failed") == 3 and len(reads) == 1  # not decoded again per episode
     notes = {outcome.note for outcome in report.outcomes if outcome.status == "failed"}
     assert len(notes) == 1 and "1913.tif" in notes.pop()
+
+
+def test_an_episode_whose_log_cannot_be_written_fails_alone(
+    dataset_factory: Callable[..., Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # An OSError of one file (disk full, a name too long) stopped the whole batch, with no
+    # manifest and no list of what was left out.
+    root = dataset_factory({"val_seen": [make_record(route_index=f"{i}_1") for i in range(3)]})
+    real = batch.convert_episode
+
+    def disk_full_on_the_second(episode: Any, *args: Any, **kwargs: Any) -> None:
+        if episode.episode_id == "1913__1_1":
+            raise OSError(errno.ENOSPC, "No space left on device")
+        real(episode, *args, **kwargs)
+
+    monkeypatch.setattr(batch, "convert_episode", disk_full_on_the_second)
+    report = convert_split(root, "val_seen", tmp_path)
+    assert [(o.episode_id, o.status) for o in report.outcomes] == [
+        ("1913__0_1", "converted"),
+        ("1913__1_1", "failed"),
+        ("1913__2_1", "converted"),
+    ]
+    assert "No space left on device" in (report.failed[0].note or "")
+    assert [e.episode_id for e in read_left_out(report.left_out_path)] == ["1913__1_1"]
+    assert sorted(p.name for p in report.out_dir.glob("*.mcap")) == [
+        "1913__0_1.mcap",
+        "1913__2_1.mcap",
+    ]
+
+
+def test_an_output_folder_that_takes_no_files_is_one_clear_error(
+    dataset_factory: Callable[..., Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    root = dataset_factory({"val_seen": [make_record(route_index="1_1")]})
+
+    def read_only(*args: Any, **kwargs: Any) -> Any:
+        raise PermissionError(errno.EROFS, "Read-only file system")
+
+    monkeypatch.setattr(fileio.tempfile, "TemporaryFile", read_only)
+    with pytest.raises(ConfigError, match=r"output folder .*val_seen/andh cannot take files"):
+        convert_split(root, "val_seen", tmp_path)
+
+
+def test_a_rerun_deletes_only_logs_a_conversion_wrote(
+    dataset_factory: Callable[..., Path], tmp_path: Path
+) -> None:
+    root = dataset_factory({"val_seen": [make_record(route_index="1_1")]})
+    folder = convert_split(root, "val_seen", tmp_path).out_dir
+    (folder / "flight notes.mcap").write_bytes(b"a user's own recording")
+    (folder / "1913__5_1.mcap").write_bytes(b"named as an episode log: a conversion's")
+    report = convert_split(root, "val_seen", tmp_path)
+    assert [r.file_name for r in report.removed_stale] == ["1913__5_1.mcap"]
+    assert report.foreign_files == ["flight notes.mcap"]
+    assert (folder / "flight notes.mcap").read_bytes() == b"a user's own recording"
+    # validate still says the folder holds a file its manifest does not list.
+    assert [i.message for i in check_manifest_folder(folder)] == [f"not listed in {MANIFEST_NAME}"]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -13,6 +14,8 @@ from skyvln_eval.converters import McapLogWriter, read_episode, read_episode_byt
 from skyvln_eval.converters import topics as t
 from skyvln_eval.converters.convert import DEFAULT_OPTIONS, episode_metadata
 from skyvln_eval.converters.messages import log
+from skyvln_eval.converters.reader import LogMessage, read_log_bytes
+from skyvln_eval.converters.validate import check_log_bytes
 from skyvln_eval.errors import FormatVersionError, McapLogError
 from tests.conftest import make_record
 from tests.converters.conftest import chunk_payload_span, convert_to_bytes, synthetic_world
@@ -137,3 +140,51 @@ def test_missing_file_and_folder(tmp_path: Path) -> None:
         read_episode(tmp_path / "nope.mcap")
     with pytest.raises(McapLogError, match="is a folder"):
         read_episode(tmp_path)
+
+
+def _rewritten(edit: Callable[[LogMessage], bytes | None]) -> bytes:
+    """GOOD written again (valid framing, CRCs, schemas) with ``edit`` applied to each
+    message: the new bytes, or None to leave the message out."""
+    import io
+
+    log = read_log_bytes(GOOD, "good.mcap")
+    buffer = io.BytesIO()
+    with McapLogWriter(buffer) as writer:
+        for name, values in log.metadata.items():
+            writer.add_metadata(name, values)
+        for message in log.messages:
+            data = edit(message)
+            if data is not None:
+                writer.write(message.topic, message.schema_name, data, message.log_time_ns)
+    return buffer.getvalue()
+
+
+def test_validate_finds_messages_that_differ_from_the_records() -> None:
+    # The metadata's records are what replays and scores read; a log whose messages were
+    # edited after conversion (here the commander's words) showed another episode in a viewer.
+    assert check_log_bytes(GOOD).issues == ()
+    assert check_log_bytes(_rewritten(lambda m: m.data)).issues == ()
+
+    def other_words(message: LogMessage) -> bytes:
+        if message.topic != t.TOPIC_DIALOG:
+            return message.data
+        return message.data.replace(b'"text":"', b'"text":"Turn back. ')
+
+    (issue,) = check_log_bytes(_rewritten(other_words), "edited.mcap").issues
+    assert issue.field == t.TOPIC_DIALOG and "not what the episode's records make" in issue.message
+    assert issue.episode_id == EPISODE.episode_id
+
+
+def test_validate_counts_the_images_a_log_says_it_holds() -> None:
+    first_view = True
+
+    def drop_first_observation(message: LogMessage) -> bytes | None:
+        nonlocal first_view
+        if message.topic == t.TOPIC_GT_OBSERVATION and first_view:
+            first_view = False
+            return None
+        return message.data
+
+    (issue,) = check_log_bytes(_rewritten(drop_first_observation)).issues
+    assert issue.field == t.TOPIC_GT_OBSERVATION
+    assert issue.message.startswith("3 message(s), its metadata says 4")
