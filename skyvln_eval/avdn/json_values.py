@@ -12,6 +12,27 @@ import math
 from typing import Any, TypeGuard
 
 
+class UnderflowedNumber(float):
+    """A JSON number that is not zero but that a 64-bit float reads as 0.0 (``1e-400``);
+    ``literal`` is its text. Kept apart so a check can refuse it, as it refuses ``1e400``
+    (infinite): a record whose number silently became another is not the one written."""
+
+    literal: str
+
+    def __new__(cls, literal: str) -> UnderflowedNumber:
+        number = super().__new__(cls, 0.0)
+        number.literal = literal
+        return number
+
+
+def read_json_float(literal: str) -> float:
+    """A ``parse_float`` for :func:`json.loads` that marks an underflowed literal."""
+    value = float(literal)
+    if value == 0.0 and any(digit in literal.split("e")[0].split("E")[0] for digit in "123456789"):
+        return UnderflowedNumber(literal)
+    return value
+
+
 def is_number(value: Any) -> bool:
     # bool is a subclass of int in Python but a different JSON type.
     return type(value) is float or type(value) is int
@@ -19,6 +40,8 @@ def is_number(value: Any) -> bool:
 
 def number_problem(value: Any, what: str = "value") -> str | None:
     """Why ``value`` is not a finite number a 64-bit float holds (None if it is one)."""
+    if isinstance(value, UnderflowedNumber):
+        return f"{value.literal} is too small for a 64-bit float (it would read as 0)"
     if not is_number(value):
         return f"expected a number, got {shown(value)}"
     try:
@@ -38,6 +61,8 @@ def unwritable(value: Any, path: str) -> tuple[str, str] | None:
     JSON.parse, orjson): no writing of these reads back as the same value."""
     if type(value) is float and not math.isfinite(value):
         return path, f"NaN or infinite value ({value!r}): strict JSON has none"
+    if isinstance(value, UnderflowedNumber):
+        return path, str(number_problem(value))
     if isinstance(value, str):
         try:
             value.encode("utf-8")

@@ -8,6 +8,7 @@ that each map image exists, and either raises with every problem or, with
 from __future__ import annotations
 
 import json
+import re
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
@@ -24,6 +25,7 @@ from skyvln_eval.avdn.constants import (
     annotation_file_name,
 )
 from skyvln_eval.avdn.imagery import map_image_path
+from skyvln_eval.avdn.json_values import read_json_float
 from skyvln_eval.avdn.records import AvdnRecord, Episode
 from skyvln_eval.avdn.validation import parse_records_indexed, record_place
 from skyvln_eval.errors import (
@@ -266,12 +268,19 @@ def object_keeping_repeats(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     return out
 
 
+_MAYBE_TINY_NUMBER = re.compile(rb"[eE]-0*[1-9][0-9]{2,}|0{100,}")
+
+
 def read_annotation_file(path: Path) -> list[object]:
     """Decode an annotation file; raises :class:`AvdnFileError` unless it is a JSON list."""
     if not path.is_file():
         raise AvdnFileError(str(path), "annotation file not found")
+    raw = path.read_bytes()
+    # Only a file that may hold a number too small for a float is read with the slower
+    # per-number hook (such a number has an exponent or a run of zeros beyond 160).
+    tiny = read_json_float if _MAYBE_TINY_NUMBER.search(raw) else None
     try:
-        data = json.loads(path.read_bytes(), object_pairs_hook=object_keeping_repeats)
+        data = json.loads(raw, object_pairs_hook=object_keeping_repeats, parse_float=tiny)
     except json.JSONDecodeError as exc:
         raise AvdnFileError(
             str(path), f"not valid JSON (line {exc.lineno}, column {exc.colno}: {exc.msg})"

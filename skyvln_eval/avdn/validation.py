@@ -128,10 +128,32 @@ def _corner_array(
     elif isinstance(value, list) and name == "gt_path_corners" and not value:
         report(name, "empty gt_path_corners: at least the start view is required")
     else:
-        shape = "x".join(str(n) for n in expected_tail)
-        got = "x".join(str(n) for n in arr.shape) if arr is not None else "ragged"
-        report(name, f"expected views of shape {shape} ([lat, lng] corners), got {got}")
+        if name == "gt_path_corners" and isinstance(value, list):  # a list of views
+            views = [(view, f"{name}[{i}]") for i, view in enumerate(value)]
+        else:  # one view
+            views = [(value, name)]
+        for view, path in views:
+            misshapen = _misshapen_view(view, path)
+            if misshapen is not None:
+                report(*misshapen)
+                break
+        else:  # not reached: a list of 4x2 number lists has that shape
+            report(name, "expected views of 4 [lat, lng] corners")
     return None
+
+
+def _misshapen_view(view: Any, path: str) -> tuple[str, str] | None:
+    """(path, problem) of the first part of a view that is not 4 corners of [lat, lng]."""
+    if not isinstance(view, list) or len(view) != 4:
+        return path, f"expected a view of 4 [lat, lng] corners, got {_list_or_value(view)}"
+    for j, corner in enumerate(view):
+        if not isinstance(corner, list) or len(corner) != 2:
+            return f"{path}[{j}]", f"expected a corner [lat, lng], got {_list_or_value(corner)}"
+    return None
+
+
+def _list_or_value(value: Any) -> str:
+    return f"a list of {len(value)}" if isinstance(value, list) else shown(value)
 
 
 def _check_latlng(value: Any, name: str, report: Any) -> bool:

@@ -118,6 +118,26 @@ def test_an_integer_too_large_for_a_float_is_a_problem_not_a_crash(
     assert "an integer of 401 digits is too large for a 64-bit float" in issue.message
 
 
+@pytest.mark.parametrize("literal", ["1e-400", "-2.5E-0400", "0." + "0" * 400 + "3"])
+@pytest.mark.parametrize(
+    ("path", "field"),
+    [(("angle",), "angle"), (("gt_path_corners", 0, 1, 0), "gt_path_corners[0][1][0]")],
+)
+def test_a_number_too_small_for_a_float_is_a_problem_not_a_silent_zero(
+    dataset_factory: Callable[..., Path], literal: str, path: tuple[Any, ...], field: str
+) -> None:
+    # 1e400 was refused (infinite) while 1e-400 silently read as 0.0.
+    good = make_record(route_index="1_1")
+    good["angle"] = 0.0  # a zero, and a tiny number a float holds, are numbers
+    good["scale"] = 1e-310  # below the normal range, still not zero
+    root = dataset_factory({"val_seen": [_with(make_record(), path, "TINY"), good]})
+    annotations = root / "annotations" / "val_seen_data.json"
+    annotations.write_text(annotations.read_text().replace('"TINY"', literal))
+    issue = only_issue(lambda *_: root, [])
+    assert (issue.record_index, issue.field) == (0, field)
+    assert issue.message == f"{literal} is too small for a 64-bit float (it would read as 0)"
+
+
 def test_an_integer_beyond_int64_that_a_float_holds_is_a_number(
     dataset_factory: Callable[..., Path],
 ) -> None:
@@ -198,10 +218,22 @@ def test_empty_gt_path(dataset_factory: Callable[..., Path]) -> None:
 
 def test_wrong_view_shape(dataset_factory: Callable[..., Path]) -> None:
     record = make_record()
-    record["gt_path_corners"][0] = record["gt_path_corners"][0][:3]
+    record["gt_path_corners"][1] = record["gt_path_corners"][1][:3]
     issue = only_issue(dataset_factory, [record])
-    assert issue.field == "gt_path_corners"
-    assert "shape 4x2" in issue.message
+    assert issue.field == "gt_path_corners[1]"  # which view (it said "got ragged")
+    assert issue.message == "expected a view of 4 [lat, lng] corners, got a list of 3"
+    record = make_record()
+    record["gt_path_corners"][2][3] = [24.0]
+    issue = only_issue(dataset_factory, [record])
+    assert issue.field == "gt_path_corners[2][3]"
+    assert issue.message == "expected a corner [lat, lng], got a list of 1"
+    record = make_record(route_index="1_1")
+    record["destination"] = record["destination"][:2]
+    issue = only_issue(dataset_factory, [record])
+    assert (issue.field, issue.message) == (
+        "destination",
+        "expected a view of 4 [lat, lng] corners, got a list of 2",
+    )
 
 
 def test_degenerate_view(dataset_factory: Callable[..., Path]) -> None:
