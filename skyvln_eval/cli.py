@@ -42,8 +42,9 @@ err_console = Console(stderr=True, width=None if sys.stderr.isatty() else 110)
 
 DATASET_SIZES = ("sample", "full")
 FAIL_ON_ERROR_HELP = (
-    "Largest share of episodes (0-1) that may end in error (no usable LLM answer, or the "
-    "episode raised) before the command fails; 0: any error fails, 1: never"
+    "Largest share of episodes (0-1) that may end in error (no usable LLM answer, an LLM "
+    "call the endpoint never answered, or the episode raised) before the command fails; "
+    "0: any error fails, 1: never"
 )
 
 

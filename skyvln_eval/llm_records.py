@@ -29,7 +29,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from typing import Any, Final, Literal, get_args
 
-from skyvln_eval.errors import ResultRecordError, ValidationIssue
+from skyvln_eval.errors import LLMTransientError, ResultRecordError, ValidationIssue
 
 CallOutcome = Literal["ok", "invalid", "failed", "refused"]
 #: Outcomes of an attempt that got no answer (the server's, a transport's or a refusal).
@@ -137,6 +137,17 @@ class LlmCall:
     def answered(self) -> bool:
         """Whether the request got an answer (usable or not)."""
         return self.outcome not in UNANSWERED
+
+    @property
+    def unanswered_after_retries(self) -> bool:
+        """Whether this attempt ended its call with no answer after the retries of a
+        transient fault (an outage, a timeout, a server error): the endpoint's failure, not
+        the model's (a prompt beyond its context, refused, is the model's)."""
+        return (
+            self.final
+            and self.outcome == "failed"
+            and (self.error or "").startswith(f"{LLMTransientError.__name__}:")
+        )
 
     @property
     def tokens(self) -> int | None:

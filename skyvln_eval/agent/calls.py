@@ -140,6 +140,12 @@ def call_json(
             )
             follow_up = REPAIR_REQUEST.format(reason=reason)
             budget = current.max_tokens
+        elif not text.strip():
+            # Nothing to parse (a reply of tool calls only, or no content): say so, to the
+            # record and to the model asked again, not "not a JSON object".
+            reason = "the answer had no text"
+            follow_up = REPAIR_REQUEST.format(reason=reason)
+            budget = current.max_tokens
         else:
             try:
                 out.value = parse(text)

@@ -261,7 +261,7 @@ class LLMClient:
         self._keep_refused(base, completion.refused, records, queue_s)
         completion = replace(completion, refused=())  # recorded: the answer is its own
         records.append(self.answered(base, completion, len(records) + 1, queue_s[0]))
-        if self.cache is not None and key is not None:
+        if self.cache is not None and key is not None and completion.is_answer:
             self.cache.put(key, completion)
         return CallResult(completion, tuple(records))
 

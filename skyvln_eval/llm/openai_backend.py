@@ -481,7 +481,17 @@ class OpenAIBackend(LLMBackend):
         prompt_tokens, completion_tokens = reported_usage(response)
         try:
             choice = response.choices[0]
-            text = choice.message.content or ""
+            content = choice.message.content
+            text = _content_text(content)
+            if text is None:
+                shown = json.dumps(content, default=str)[:80]
+                fault = LLMTransientError(
+                    f"malformed response: the message content is {type(content).__name__} "
+                    f"{self._scrub(shown)}, not text"
+                )
+                fault.prompt_tokens, fault.completion_tokens = prompt_tokens, completion_tokens
+                raise fault
+            text = self._scrub(text)
             # As the server said it: None when it gave no reason (not "stop", which would
             # say the model ended its answer itself).
             reason = getattr(choice, "finish_reason", None)
@@ -489,7 +499,16 @@ class OpenAIBackend(LLMBackend):
             declined = getattr(choice.message, "refusal", None)
             if not text and isinstance(declined, str) and declined:
                 # OpenAI's structured outputs: the model declined; its reason is the answer.
-                text, finish = declined, "refusal"
+                text, finish = self._scrub(declined), "refusal"
+            if finish == "error":
+                # Gateways end a generation that failed on their side with this reason:
+                # what came before it is not an answer. Retried as a fault.
+                fault = LLMTransientError(
+                    "the server's generation failed (finish_reason 'error'); what came back: "
+                    f"{excerpt(text, self._secret())}"
+                )
+                fault.prompt_tokens, fault.completion_tokens = prompt_tokens, completion_tokens
+                raise fault
         except (AttributeError, IndexError, TypeError) as error:
             # Gateways (OpenRouter) answer HTTP 200 with an error object when the model
             # behind them failed: what it says is the reason.
@@ -516,3 +535,17 @@ class OpenAIBackend(LLMBackend):
             server_defaults=server_defaults,
             refused=refused,
         )
+
+
+def _content_text(content: Any) -> str | None:
+    """A message's content as text: a string; a list of content parts (some servers answer
+    in the request's form) as its text parts joined; none as empty; ``None`` for anything
+    else (no text: a malformed response)."""
+    if content is None or isinstance(content, str):
+        return content or ""
+    if isinstance(content, list) and all(
+        isinstance(part, dict) and part.get("type") == "text" and isinstance(part.get("text"), str)
+        for part in content
+    ):
+        return "".join(part["text"] for part in content)
+    return None

@@ -37,7 +37,8 @@ _CONTEXT_OVERFLOW = re.compile(
 )
 #: Words in an error body that say the server cannot do the requested response format.
 _FORMAT_WORDS = re.compile(
-    r"response[_ ]format|json[_ ]schema|json[_ ]object|schema|grammar|structured output",
+    r"response[_ ]format|json[_ ]schema|json[_ ]object|schema|grammar|structured output"
+    r"|guided[_ ](?:decoding|json)",  # vLLM's words for its constrained decoding
     re.IGNORECASE,
 )
 #: Request fields other than the response format an error body may name as its cause (a
@@ -195,9 +196,15 @@ def status_error(error: Any, body: str, request: dict[str, Any], asker: Asker) -
         # the rest of the process: the server's words are the error.
         return LLMError(
             f"request refused (HTTP 400: {excerpt}); the server names no structured-output "
-            "format as the cause, so the request was not sent again at a lower level"
+            "format as the cause, so the request was not sent again at a lower level (if "
+            "the format is the cause, pin one in the backend config: structured_output: "
+            "json_object, or prompt)"
         )
-    if has_format and (status == 400 or (status >= 500 and _FORMAT_WORDS.search(body))):
+    if has_format and (
+        status == 400
+        # 422: a request validator (FastAPI servers) naming the field it does not take.
+        or ((status == 422 or status >= 500) and _FORMAT_WORDS.search(body))
+    ):
         return FormatRefused(status, body)
     if status >= 500:
         return LLMTransientError(

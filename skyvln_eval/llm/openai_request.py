@@ -7,7 +7,6 @@ message for models without a system role) and the tokens a response reports.
 from __future__ import annotations
 
 import base64
-import contextlib
 import dataclasses
 import json
 from collections.abc import Sequence
@@ -89,16 +88,32 @@ def messages_payload(
     return out
 
 
+#: More tokens than any model takes or writes in one call: a count beyond it is not one.
+MAX_PLAUSIBLE_TOKENS: Final = 100_000_000
+
+
+def _token_count(value: Any) -> int | None:
+    """A reported token count, or ``None`` when it is not one: a boolean (``true`` would
+    count 1), a fraction (100.7 is no count, not 100), a negative or implausibly large
+    number (a cost of 1e25 USD). Whole numbers in a float or a decimal string are counts."""
+    if isinstance(value, bool):
+        return None
+    if (isinstance(value, float) and value.is_integer()) or (
+        isinstance(value, str) and value.isascii() and value.isdigit()
+    ):
+        value = int(value)
+    if not isinstance(value, int):
+        return None
+    return value if 0 <= value <= MAX_PLAUSIBLE_TOKENS else None
+
+
 def reported_usage(response: Any) -> tuple[int | None, int | None]:
     """The prompt and completion tokens a response reports (``None``: not reported, or
     not a count: see below)."""
     usage = getattr(response, "usage", None)
     counts = []
     for name in ("prompt_tokens", "completion_tokens"):
-        value = getattr(usage, name, None) if usage is not None else None
-        with contextlib.suppress(TypeError, ValueError):
-            value = None if value is None else int(value)
-        counts.append(value if isinstance(value, int) and value >= 0 else None)
+        counts.append(_token_count(getattr(usage, name, None) if usage is not None else None))
     if counts[0] == 0:
         # A prompt was sent, so a server saying 0 prompt tokens counts nothing (some
         # gateways fill the usage object with zeros): taken at its word, the call would

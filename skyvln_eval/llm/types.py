@@ -136,3 +136,13 @@ class Completion:
     structured_output: StructuredLevel | None = None
     server_defaults: tuple[str, ...] = ()
     refused: tuple[RefusedRequest, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.text, str):  # a cache entry or a backend gone wrong
+            raise TypeError(f"a completion's text is a string, got {type(self.text).__name__}")
+
+    @property
+    def is_answer(self) -> bool:
+        """Whether the model answered something: not an empty text, not a server's filter
+        stopping it. Only answers are cached: a non-answer asked again may get one."""
+        return bool(self.text.strip()) and self.finish_reason != "content_filter"

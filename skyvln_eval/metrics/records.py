@@ -30,9 +30,11 @@ ResultStatus = Literal["ok", "degraded", "error"]
 #: ``ok``: the agent flew the episode with every answer it asked for; ``degraded``: it
 #: flew it, but some decision used a fallback action, some module's answer could not be
 #: used, or (flown) some control step's solve failed and the controller fell back;
-#: ``error``: the episode raised (harness, agent or controller), or no LLM call of it
-#: gave a usable answer. The rates of each are reported; an ``error`` episode never
-#: counts as a success (its distances still describe whatever it flew).
+#: ``error``: the episode raised (harness, agent or controller), no LLM call of it
+#: gave a usable answer, or a call got no answer at all after its retries (an outage:
+#: the episode measures the endpoint, not the model). The rates of each are reported; an
+#: ``error`` episode never counts as a success (its distances still describe whatever it
+#: flew).
 RESULT_STATUSES: tuple[ResultStatus, ...] = get_args(ResultStatus)
 #: What names one episode's row in scores and cost tables: :attr:`EpisodeResult.key`.
 KEY_COLUMNS: tuple[str, str, str, str] = ("system", "split", "mode", "episode_id")
@@ -54,6 +56,16 @@ def judge_status(
     if calls and not any(c.outcome == "ok" for c in calls):
         first = _first_error(calls)
         return "error", f"no LLM call of the episode gave a usable answer; first error: {first}"
+    unanswered = next((c for c in calls if c.unanswered_after_retries), None)
+    if unanswered is not None:
+        # The endpoint never answered (an outage, a timeout after every retry): what the
+        # agent then did measures the endpoint, not the model. An answer the model gave
+        # but that could not be used, or a request the server refused for its content (a
+        # prompt beyond the model's context), is the model's and only degrades the episode.
+        return "error", (
+            f"an LLM call got no answer (module {unanswered.module}, "
+            f"{unanswered.attempt} attempt(s)); {unanswered.error}"
+        )
     if failures or solve_failures:
         return "degraded", None
     return "ok", None

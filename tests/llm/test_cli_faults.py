@@ -116,6 +116,34 @@ def test_a_context_overflow_is_recorded_and_structured_output_stays_on(
     assert row.status == "degraded"
 
 
+def test_an_outage_of_one_module_is_an_error_and_retry_failed_runs_it_again(
+    tmp_path: Path, sample_dir: Path, cli: Cli, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The sub-goals were answered, every motion call got 503s: each decision fell back to
+    # STOP, and the episode was a 'degraded' failure to navigate, with exit 0 and no way
+    # to run it again once the endpoint was back.
+    monkeypatch.setenv("SKYVLN_TEST_KEY", "sk-test")
+    outage = [status(503, task="motion") for _ in range(2 * FAST_RETRY["max_attempts"])]
+    run_dir = tmp_path / "run"
+    with LoopbackOpenAIServer(outage) as server:
+        path = _config_file(tmp_path, sample_dir, server.base_url, limit=2)
+        down = cli("run", str(path), "--out", str(run_dir))
+        assert not server.script, "every motion call of the two episodes met the outage"
+        rows = read_results(run_dir / RESULTS_FILE)
+        resumed = cli("run", str(path), "--out", str(run_dir))
+        again = cli("run", str(path), "--out", str(run_dir), "--retry-failed")
+    assert down.code == 1, down
+    assert [r.status for r in rows] == ["error", "error"]
+    assert all(any(c.module == "subgoals" and c.outcome == "ok" for c in r.llm_calls) for r in rows)
+    assert (rows[0].error or "").startswith(
+        "an LLM call got no answer (module motion, 2 attempt(s)); LLMTransientError: "
+    )
+    assert "--retry-failed" in down.err
+    assert resumed.code == 1, "a resume leaves error rows be"
+    assert again.code == 0, again
+    assert [r.status for r in read_results(run_dir / RESULTS_FILE)] == ["ok", "ok"]
+
+
 def test_a_400_digit_distance_is_refused_with_a_reason_and_repaired(
     tmp_path: Path, sample_dir: Path, cli: Cli, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -22,6 +22,7 @@ from skyvln_eval.llm.loopback import (
     error_body,
     hang,
     malformed,
+    raw,
     status,
     truncated,
 )
@@ -315,3 +316,25 @@ def test_a_gateways_error_object_in_a_200_is_a_retried_fault_that_says_why() -> 
     assert failed.outcome == "failed" and "no choices" in (failed.error or "")
     assert "upstream model overloaded" in (failed.error or "")  # what the gateway said
     assert answered.outcome == "ok" and answered.attempt == 2
+
+
+@pytest.mark.parametrize(
+    ("code", "body"),
+    [
+        # FastAPI's request validation naming the field it does not take.
+        (
+            422,
+            '{"detail": [{"loc": ["body", "response_format"], "msg": "extra fields not '
+            'permitted", "type": "value_error.extra"}]}',
+        ),
+        # vLLM's words; "model" in it was taken for another cause, and every call failed.
+        (400, '{"error": {"message": "unsupported guided decoding backend for this model"}}'),
+    ],
+)
+def test_a_refusal_of_the_format_in_other_words_steps_down(code: int, body: str) -> None:
+    with LoopbackOpenAIServer([raw(body, code=code), answer("{}")]) as server:
+        result = _client(server, []).call("motion", HELLO, STRUCTURED)
+        formats = [r["body"]["response_format"]["type"] for r in server.requests]
+    assert formats == ["json_schema", "json_object"]
+    assert result.completion is not None
+    assert [r.outcome for r in result.records] == ["refused", "ok"]

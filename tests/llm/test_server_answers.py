@@ -4,13 +4,16 @@ HTTP 200, a ``finish_reason`` of null."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from skyvln_eval.agent.calls import call_json
 from skyvln_eval.errors import ActionParseError
 from skyvln_eval.llm import GenerationConfig, LLMClient, Message
+from skyvln_eval.llm.cache import ResponseCache
 from skyvln_eval.llm.config import RepairPolicy
 from skyvln_eval.llm.loopback import LoopbackOpenAIServer, answer, echo_key, key_forms, raw
 from skyvln_eval.llm.redact import REDACTED, scrub
@@ -152,3 +155,112 @@ def test_a_null_finish_reason_is_recorded_as_none_and_length_is_still_caught() -
     assert cut.records[0].finish_reason == "length" and "cut off" in (cut.records[0].error or "")
     assert cut.value is not None and cut.repairs == 1
     assert plain.value is not None and plain.records[0].finish_reason == "stop"
+
+
+def _completion_body(message: dict[str, Any], finish: str | None = "stop", **extra: Any) -> str:
+    """A chat-completion body around ``message``, as a server would write it."""
+    choice = {"index": 0, "message": {"role": "assistant", **message}, "finish_reason": finish}
+    return json.dumps({"id": "c", "object": "chat.completion", "choices": [choice], **extra})
+
+
+@pytest.mark.parametrize(
+    ("prompt_tokens", "counted"),
+    [
+        (True, None),  # int(True) counted 1 token, at a known cost
+        (100.7, None),  # cut to 100
+        (1e30, None),  # a cost of 1e25 USD an episode
+        (-5, None),
+        ("100", 100),
+        (100.0, 100),
+        (120, 120),
+    ],
+)
+def test_only_a_whole_plausible_number_is_a_token_count(
+    prompt_tokens: Any, counted: int | None, tmp_path: Path
+) -> None:
+    usage = {"prompt_tokens": prompt_tokens, "completion_tokens": 20}
+    body = _completion_body({"content": '{"greeting": "hi"}'}, usage=usage)
+    with LoopbackOpenAIServer([raw(body)]) as server:
+        priced = loopback_client(server, 1, prices=fake_model_prices(server, tmp_path))
+        [record] = priced.call("motion", HELLO, CONFIG).records
+    assert record.outcome == "ok" and record.prompt_tokens == counted
+    assert (record.cost_usd is None) == (counted is None)
+
+
+def test_content_in_parts_is_read_and_content_that_is_no_text_is_a_fault(tmp_path: Path) -> None:
+    parts = [{"type": "text", "text": '{"greeting": '}, {"type": "text", "text": '"hi"}'}]
+    script = [
+        raw(_completion_body({"content": parts})),
+        raw(_completion_body({"content": 42})),  # crashed the agent ('int' has no len())
+        raw(_completion_body({"content": [{"type": "image_url"}]})),
+        answer('{"greeting": "hello"}'),
+    ]
+    cache = ResponseCache(tmp_path / "cache.sqlite")
+    with LoopbackOpenAIServer(script) as server:
+        client = loopback_client(server, 3)
+        client.cache = cache
+        joined = client.call("motion", HELLO, CONFIG)
+        retried = client.call("motion", [*HELLO, Message("user", "again")], CONFIG)
+    assert joined.completion is not None and joined.completion.text == '{"greeting": "hi"}'
+    assert retried.completion is not None and retried.completion.text == '{"greeting": "hello"}'
+    assert [r.outcome for r in retried.records] == ["failed", "failed", "ok"]
+    errors = [r.error or "" for r in retried.records[:2]]
+    assert "the message content is int 42" in errors[0]
+    assert "the message content is list" in errors[1]
+
+
+def test_what_is_no_answer_is_not_cached_and_is_asked_again(tmp_path: Path) -> None:
+    # A content filter's stop or an empty reply came back from the cache on every resume:
+    # --retry-failed could not reach the server that answered by then.
+    script = [
+        raw(_completion_body({"content": '{"greeting": "hi"}'}, finish="content_filter")),
+        raw(_completion_body({"content": None, "tool_calls": []})),
+        answer('{"greeting": "hello"}'),
+    ]
+    cache = ResponseCache(tmp_path / "cache.sqlite")
+    with LoopbackOpenAIServer(script) as server:
+        client = loopback_client(server, 1)
+        client.cache = cache
+        finishes = []
+        for _ in range(3):
+            completion = client.call("motion", HELLO, CONFIG).completion
+            assert completion is not None
+            finishes.append((completion.finish_reason, completion.text, len(cache)))
+        cached = client.call("motion", HELLO, CONFIG).completion
+        sent = len(server.requests)
+    assert finishes == [
+        ("content_filter", '{"greeting": "hi"}', 0),
+        ("stop", "", 0),
+        ("stop", '{"greeting": "hello"}', 1),
+    ]
+    assert sent == 3 and cached is not None and cached.cached
+
+
+def test_an_answer_without_text_says_so() -> None:
+    with LoopbackOpenAIServer(
+        [raw(_completion_body({"content": None, "tool_calls": []}))]
+    ) as server:
+        out = call_json(_client(server, attempts=1), "motion", HELLO, CONFIG, _greeting)
+    assert out.value is None and out.error == "the answer had no text"
+
+
+def test_a_key_echoed_in_an_answer_is_scrubbed(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("ECHO_KEY", KEY)
+    body = _completion_body({"content": f"your key is {KEY}"})
+    with LoopbackOpenAIServer([raw(body)]) as server:
+        result = _client(server, api_key_env="ECHO_KEY").call("motion", HELLO, CONFIG)
+    assert result.completion is not None
+    assert result.completion.text == f"your key is {REDACTED}"
+
+
+def test_a_generation_that_failed_on_the_servers_side_is_a_retried_fault() -> None:
+    script = [
+        raw(_completion_body({"content": '{"greeting": "half'}, finish="error")),
+        answer('{"greeting": "hello"}'),
+    ]
+    with LoopbackOpenAIServer(script) as server:
+        result = _client(server).call("motion", HELLO, CONFIG)
+    assert [r.outcome for r in result.records] == ["failed", "ok"]
+    assert "the server's generation failed (finish_reason 'error')" in (
+        result.records[0].error or ""
+    )
