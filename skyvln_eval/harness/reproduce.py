@@ -70,6 +70,7 @@ from skyvln_eval.reports.table_layout import (
     TableLayout,
     write_layout,
 )
+from skyvln_eval.reports.tables import fixed
 
 TABLE_METRICS = ("success", "oracle_success", "spl", "gp_m", "ne_m", "path_length_m")
 HEALTH_METRICS = (
@@ -324,7 +325,7 @@ def _metric_table(
             else:
                 # A share is the mean of 0/1 values, in percent.
                 value = 100.0 * values.mean() if how == "share" else getattr(values, how)()
-                cells.append(f"{value:.{_DECIMALS.get(metric, 3)}f}")
+                cells.append(fixed(value, _DECIMALS.get(metric, 3)))  # as the tables round
         episodes = str(len(group))
         if counted is not None and counted in group.columns:
             with_values = int(group[counted].fillna(False).astype(bool).sum())

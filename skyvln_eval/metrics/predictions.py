@@ -40,6 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyvln_eval.avdn.constants import EpisodeMode
+from skyvln_eval.avdn.loader import RepeatedKeys, object_keeping_repeats
 from skyvln_eval.avdn.records import Episode
 from skyvln_eval.errors import (
     DataError,
@@ -194,7 +195,7 @@ def read_predictions_json(path: str | Path) -> dict[str, Prediction]:
     if not path.is_file():
         raise DataError(f"{path}: predictions file not found")
     try:
-        data = json.loads(path.read_bytes())
+        data = json.loads(path.read_bytes(), object_pairs_hook=object_keeping_repeats)
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise DataError(f"{path}: not valid JSON ({exc})") from None
     if not isinstance(data, dict) or data.get("format") != PREDICTIONS_FORMAT:
@@ -209,6 +210,19 @@ def read_predictions_json(path: str | Path) -> dict[str, Prediction]:
     episodes = data.get("episodes")
     if not isinstance(episodes, dict):
         raise DataError(f"{path}: 'episodes' must be an object of episode id -> prediction")
+    # JSON keeps the last of a repeated key silently: which one is meant is not known.
+    if isinstance(data, RepeatedKeys):
+        raise DataError(f"{path}: key(s) given more than once: {', '.join(data.repeated)}")
+    if isinstance(episodes, RepeatedKeys):
+        raise DataError(
+            f"{path}: 'episodes' lists episode(s) more than once: {', '.join(episodes.repeated)}"
+        )
+    for episode_id, entry in episodes.items():
+        if isinstance(entry, RepeatedKeys):
+            raise DataError(
+                f"{path}: episode {episode_id}: key(s) given more than once: "
+                f"{', '.join(entry.repeated)}"
+            )
     return {k: _prediction(k, v, str(path), row) for row, (k, v) in enumerate(episodes.items())}
 
 

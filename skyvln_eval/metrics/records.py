@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from skyvln_eval.avdn.constants import EPISODE_MODES, EpisodeMode
+from skyvln_eval.avdn.json_values import shown
 from skyvln_eval.errors import ResultRecordError, ValidationIssue
 from skyvln_eval.llm_records import LlmCall, ModuleFailure, module_usage
 
@@ -89,10 +90,28 @@ def _issue(message: str, field_name: str, episode_id: str | None) -> ResultRecor
     )
 
 
+def _check_numbers(value: list[Any], field_name: str, episode_id: str | None) -> None:
+    """Every leaf of the nested lists ``value`` is a JSON number (not a boolean, a string)."""
+    stack: list[tuple[Any, str]] = [(value, field_name)]
+    while stack:
+        item, where = stack.pop()
+        if isinstance(item, list):
+            stack.extend((x, f"{where}[{i}]") for i, x in reversed(list(enumerate(item))))
+        elif isinstance(item, np.ndarray):  # of an official .npy: numbers unless it says not
+            if item.dtype.kind not in "fiu":
+                raise _issue(f"expected numbers, got an array of {item.dtype}", where, episode_id)
+        elif isinstance(item, bool | np.bool_) or not isinstance(
+            item, int | float | np.integer | np.floating
+        ):
+            raise _issue(f"expected a number, got {shown(item)}", where, episode_id)
+
+
 def as_views(
     value: ArrayLike, field_name: str, episode_id: str | None, min_len: int
 ) -> NDArray[np.float64]:
     """A read-only ``(K, 4, 2)`` float64 copy of ``value``, checked finite, ``K >= min_len``."""
+    if isinstance(value, list):  # e.g. read from JSON: numpy takes true for 1.0, "37.7" for 37.7
+        _check_numbers(value, field_name, episode_id)
     try:
         arr = np.array(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:

@@ -37,10 +37,12 @@ PRINTED_METRICS = ("success", "oracle_success", "spl", "gp_m", "ne_m", "path_len
 
 
 def _cell(by_metric: Any, metric: str) -> str:
+    from skyvln_eval.reports.tables import fixed
+
     if metric not in by_metric.index:
         return "-"
     mean = float(by_metric.loc[metric, "mean"])
-    return "n/a" if math.isnan(mean) else f"{mean:.2f}"
+    return "n/a" if math.isnan(mean) else fixed(mean, 2)  # rounded as the tables round
 
 
 def _mode(mode: str) -> EpisodeMode:
@@ -240,7 +242,7 @@ def score(
 
     from skyvln_eval.fileio import atomic_write_text
     from skyvln_eval.metrics import score_results, summarise
-    from skyvln_eval.metrics.aggregate import oracle_systems
+    from skyvln_eval.metrics.aggregate import oracle_systems, unit_of
     from skyvln_eval.metrics.scores_io import summary_csv_text, write_scores
     from skyvln_eval.reports.paper_tables import ORACLE_NOTE, oracle_label
     from skyvln_eval.reports.run_coverage import covered_results
@@ -261,11 +263,15 @@ def score(
         title += (" OF INCOMPLETE RESULTS" if incomplete else "") + " (see the warnings)"
     table = Table(title=title, caption=conventions.describe())
     shown = [m for m in PRINTED_METRICS if m in set(summary.metric)]
-    # Two rows of one system and split are told apart by their mode (ANDH, ANDH-Full).
-    modes = summary["mode"].nunique() > 1
+    # Two rows of one system and split are told apart by their mode (ANDH, ANDH-Full); a
+    # printout of ANDH-Full alone says so too (ANDH is the default task).
+    modes = summary["mode"].nunique() > 1 or set(summary["mode"]) == {"andh-full"}
     keys = ("system", "split", *(("mode",) if modes else ()))
-    for column in (*keys, "n", *shown):
+    for column in (*keys, "n"):
         table.add_column(column, justify="left" if column in keys else "right")
+    for metric in shown:  # with its unit: scores.csv holds shares as fractions, this in %
+        unit = unit_of(metric)
+        table.add_column(f"{metric}\n({unit})" if unit else metric, justify="right")
     oracles = set(oracle_systems(scores))
     for (sys_name, split_name, mode_name), group in summary.groupby(
         ["system", "split", "mode"], sort=True

@@ -647,7 +647,8 @@ def to_csv(table: Table) -> str:
                 unknown = math.isnan(cell.mean) or cell.lower_bound
                 out.append("n/a" if unknown else repr(cell.mean))
             if table.show_ci:
-                bounds = [] if cell is None else [cell.ci_low, cell.ci_high]
+                # A cell of errors only has no value: nor an interval (md and LaTeX show none).
+                bounds = [] if cell is None or cell.all_errors else [cell.ci_low, cell.ci_high]
                 out += [_csv_number(x) for x in bounds] or ["", ""]
         for split in splits:
             out += _episode_counts(table, row, split)

@@ -16,6 +16,7 @@ import pytest
 
 from skyvln_eval.avdn import hull_iou, point_in_view_strict
 from skyvln_eval.errors import (
+    DataError,
     IncompleteRunError,
     NoGroundTruthError,
     ResultRecordError,
@@ -193,3 +194,32 @@ def test_real_test_unseen_without_ground_truth_cannot_be_scored(
         ground_truth_episodes(root, "test_unseen")
     root = dataset_factory({"val_seen": [make_record()]})
     assert [e.episode_id for e in ground_truth_episodes(root, "val_seen")] == ["1913__0_1"]
+
+
+def test_json_predictions_refuse_what_json_reads_as_another_number(tmp_path: Path) -> None:
+    # A `true` corner scored as 1.0 degree (a path of 2,046 km), "37.77" as 37.77, and an
+    # episode listed twice kept its last entry: each scored without a word.
+    rollouts = load_rollouts()[:2]
+    npy = tmp_path / "p.npy"
+    save_official_npy(npy, rollouts)
+    path = tmp_path / "p.json"
+    write_predictions_json(path, read_predictions(npy))
+    good = json.loads(path.read_text())
+    first = rollouts[0]["instr_id"]
+    for bad, shown in ((True, "true"), ("37.77", "string '37.77'")):
+        data = json.loads(json.dumps(good))
+        data["episodes"][first]["path_corners"][0][2][1] = bad
+        path.write_text(json.dumps(data))
+        with pytest.raises(ResultRecordError) as info:
+            read_predictions(path)
+        message = str(info.value)
+        assert "field 'path_corners[0][2][1]'" in message and str(path) in message
+        assert f"expected a number, got {shown}" in message
+    text = json.dumps(good)
+    entry = json.dumps(good["episodes"][first])
+    path.write_text(text.replace(f'"{first}": {entry}', f'"{first}": {entry}, "{first}": {entry}'))
+    with pytest.raises(DataError, match=f"'episodes' lists episode\\(s\\) more than once: {first}"):
+        read_predictions(path)
+    path.write_text(text.replace('"status": ', '"status": "error", "status": ', 1))
+    with pytest.raises(DataError, match="key\\(s\\) given more than once: status"):
+        read_predictions(path)

@@ -405,7 +405,7 @@ def test_tables_and_the_score_printout_keep_the_two_modes_apart(tmp_path: Path) 
     out = tmp_path / "scores"
     scored = runner.invoke(app, ["score", str(tmp_path / "run.jsonl"), "--out", str(out)])
     assert scored.exit_code == 0, scored.output
-    header = next(line for line in scored.output.splitlines() if " success " in line)
+    header = next(line for line in scored.output.splitlines() if " system " in line)
     assert header.split()[1:7:2] == ["system", "split", "mode"]  # between the box rules
     assert sum(" andh-full " in line for line in scored.output.splitlines()) == 6
     scores = str(out / "scores.csv")
@@ -422,10 +422,12 @@ def test_tables_and_the_score_printout_keep_the_two_modes_apart(tmp_path: Path) 
     assert "| F " in full.output and "ANDH-Full: one episode per whole trajectory" in full.output
     f_only = tmp_path / "f_only"
     write_results(tmp_path / "f.jsonl", [r for r in rows if r.system == "F"])
-    assert (
-        runner.invoke(app, ["score", str(tmp_path / "f.jsonl"), "--out", str(f_only)]).exit_code
-        == 0
-    )
+    f_scored = runner.invoke(app, ["score", str(tmp_path / "f.jsonl"), "--out", str(f_only)])
+    assert f_scored.exit_code == 0, f_scored.output
+    # ANDH-Full alone says so (nothing did), and shares say they are in % (scores.csv
+    # holds them as fractions).
+    assert sum(" andh-full " in line for line in f_scored.output.splitlines()) == 3
+    assert "(%)" in f_scored.output and "(m)" in f_scored.output
     alone = runner.invoke(app, ["table", str(f_only / "scores.csv")])
     assert "no 'andh' episodes, only 'andh-full': add --mode andh-full" in str(alone.exception)
     for option in (["--seed", "5"], ["--ci-unit", "trajectory"], ["--resamples", "7"]):

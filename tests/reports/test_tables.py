@@ -197,6 +197,13 @@ def test_a_cell_whose_every_episode_failed_says_error_and_is_not_ranked() -> Non
     assert by_row["Ours Full"]["val_seen:error_episodes"] == "100"
     latex = to_latex(table)
     assert r"0.20$^\diamond$" in latex and "error & error" in latex
+    # With intervals: an error cell has none in the CSV either (it gave one, over failures).
+    data = with_errors(summary(True), {("Ours Full", "val_seen"): 100.0})
+    shown = build_table(data, TABLE_I, MetricConventions(), show_ci=True)
+    dead_row = {r[shown.spec.row_header]: r for r in csv_records(shown)}["Ours Full"]
+    assert dead_row["val_seen:spl"] == "error"
+    assert (dead_row["val_seen:spl:ci_low"], dead_row["val_seen:spl:ci_high"]) == ("", "")
+    assert dead_row["val_unseen:spl:ci_low"] != ""
 
 
 def test_a_dead_endpoint_shows_its_health_numbers_but_is_never_ranked_on_them() -> None:
