@@ -249,6 +249,11 @@ class RunConfig(_Strict):
         text = yaml.safe_dump(relevant, sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:12]
 
+    def settings_yaml(self) -> str:
+        """The YAML of what :meth:`settings_digest` covers."""
+        relevant = self.model_dump(mode="json", exclude=set(HOW_IT_RUNS | {"limit", "episodes"}))
+        return yaml.safe_dump(relevant, sort_keys=False, allow_unicode=True)
+
     def to_yaml(self) -> str:
         return yaml.safe_dump(self.model_dump(mode="json"), sort_keys=False, allow_unicode=True)
 

@@ -122,16 +122,16 @@ def hold_run_dir(run_dir: str | Path) -> RunDirLock:
 _TEMPORARY = re.compile(r"^\.(?P<target>.+)\.[a-z0-9_]{8}\.tmp$")
 
 
-def remove_leftover_temporaries(
+def leftover_temporaries(
     run_dir: str | Path, top_level: Collection[str], folders: Mapping[str, Collection[str]]
-) -> int:
-    """Delete the temporary files that writers killed before their rename left in the run
-    directory; only the lock's holder may. Returns how many.
+) -> list[Path]:
+    """The temporary files that writers killed before their rename left in the run
+    directory.
 
     Only the run's own: at the top, those of the files in ``top_level``; under each
     folder of ``folders`` (any depth), those of files with one of its suffixes. A run
     directory may be a folder that holds other things (``--out .``): a file that merely
-    looks temporary is not the run's to delete.
+    looks temporary is not the run's.
     """
     run_dir = Path(run_dir)
     leftovers = [p for p in run_dir.glob(".*.tmp") if _target(p) in top_level]
@@ -141,8 +141,15 @@ def remove_leftover_temporaries(
             for p in (run_dir / folder).rglob(".*.tmp")
             if (target := _target(p)) is not None and Path(target).suffix in suffixes
         ]
+    return sorted(leftovers)
+
+
+def remove_leftover_temporaries(
+    run_dir: str | Path, top_level: Collection[str], folders: Mapping[str, Collection[str]]
+) -> int:
+    """Delete the :func:`leftover_temporaries`; only the lock's holder may. Returns how many."""
     removed = 0
-    for leftover in leftovers:
+    for leftover in leftover_temporaries(run_dir, top_level, folders):
         if leftover.is_file():
             leftover.unlink(missing_ok=True)
             removed += 1

@@ -398,8 +398,8 @@ def error_verdict(reports: Sequence[RunReport], fail_on_error: float) -> str | N
             lines.append(f"{report.system}: the run stopped early: {report.stopped}")
             lines.append(
                 f"  {len(report.missing)} of {len(report.expected)} selected episode(s) have "
-                "no result; once the cause is fixed, the same command runs them, and the "
-                f"episode that stopped the run, again: {rerun}"
+                "no result (the one that stopped the run among them); once the cause is "
+                f"fixed, the same command runs them: {rerun}"
             )
         if report.errors and report.error_share > fail_on_error:
             lines.append(
@@ -546,7 +546,9 @@ def _finish(job: RunJob, wall_s: float, runs_in_pass: int = 1, finished: bool = 
     report = job.report
     report.wall_s = wall_s
     report.runs_in_pass = runs_in_pass
-    results = {key_of(r): r for r in job.store.results()}
+    # A row that stopped the run (refused credentials, a full disk) says nothing of its
+    # episode, which the next launch runs again: it has no result yet, and is no error.
+    results = {key_of(r): r for r in job.store.results() if "fatal" not in r.extra}
     report.missing = [key for key in report.expected if key not in results]
     report.statuses = {}
     for key in report.expected:

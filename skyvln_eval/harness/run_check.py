@@ -12,7 +12,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from skyvln_eval.errors import AlteredGroundTruthError, ForeignRowsError, SkyvlnError
-from skyvln_eval.harness.run import CONFIG_FILE, episode_files, file_damage
+from skyvln_eval.harness.lock import leftover_temporaries
+from skyvln_eval.harness.run import (
+    CONFIG_FILE,
+    RUN_FILES,
+    RUN_FOLDERS,
+    episode_files,
+    file_damage,
+)
 from skyvln_eval.harness.run_reading import is_run_directory
 from skyvln_eval.harness.store import RESULTS_FILE, ResultStore
 
@@ -59,6 +66,12 @@ def check_run_directory(run_dir: Path) -> RunCheck:
     results_file = run_dir / RESULTS_FILE
     for row in store.recovery.damaged:
         check.problems.append(f"{results_file} line {row.line}: damaged row ({row.reason})")
+    leftovers = leftover_temporaries(run_dir, RUN_FILES, RUN_FOLDERS)
+    if leftovers:  # a state, not damage: what a killed writer left, never renamed into place
+        check.notes.append(
+            f"{len(leftovers)} temporary file(s) of writers stopped before they finished, "
+            f"e.g. {leftovers[0].relative_to(run_dir)} (the next run or resume removes them)"
+        )
     for result in results:
         if result.status == "error" or "fatal" in result.extra:
             continue  # an episode that raised wrote no files

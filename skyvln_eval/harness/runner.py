@@ -77,24 +77,18 @@ def _config(config_json: str) -> RunConfig:
 
 @functools.lru_cache(maxsize=4)
 def _config_texts(config_json: str) -> tuple[str, str]:
-    """The config's digest and YAML, made once per run rather than per episode."""
+    """The digest and YAML of what decides an episode's result (made once per run): the
+    config without how it runs (workers, executor) and without the selection (``limit``,
+    ``episodes``), so an episode's row and log are the same whichever executor ran it and
+    however the run grew."""
     config = _config(config_json)
-    return config.digest(), config.to_yaml()
+    return config.settings_digest(), config.settings_yaml()
 
 
 def config_marks(config: RunConfig, config_json: str) -> dict[str, Any]:
     """What a row records of the config that made it: a resume and ``score`` refuse a row
     whose marks are not the run's (:func:`~skyvln_eval.harness.run.foreign_rows`)."""
-    return {
-        "config_digest": _config_texts(config_json)[0],
-        "settings_digest": _settings_digest(config_json),
-        "execution_mode": config.mode,
-    }
-
-
-@functools.lru_cache(maxsize=4)
-def _settings_digest(config_json: str) -> str:
-    return _config(config_json).settings_digest()
+    return {"settings_digest": _config_texts(config_json)[0], "execution_mode": config.mode}
 
 
 _worlds: OrderedDict[tuple[str, str], WorldTile] = OrderedDict()

@@ -167,6 +167,16 @@ def test_one_and_two_workers_give_identical_results(
     two = sorted(read_results(tmp_path / "two" / RESULTS_FILE), key=lambda r: r.key)
     assert [comparable(r) for r in one] == [comparable(r) for r in two]
     assert scores_of(one) == scores_of(two)
+    # The logs' run metadata too (their messages hold call latencies): it recorded the
+    # executor and the worker count.
+    logs = sorted(p.relative_to(tmp_path / "one") for p in (tmp_path / "one").rglob("*.mcap"))
+    assert len(logs) == 4
+    for log in logs:
+        one_meta, two_meta = (
+            read_log(tmp_path / folder / log).metadata[t.RUN_METADATA] for folder in ("one", "two")
+        )
+        assert one_meta == two_meta, log
+        assert "executor" not in one_meta["config"] and "limit" not in one_meta["config"]
 
 
 def test_a_run_killed_with_sigkill_resumes_to_the_same_rows_and_scores(

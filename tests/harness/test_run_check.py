@@ -63,3 +63,12 @@ def test_an_unfinished_run_is_a_note_not_a_problem(
     result = runner.invoke(app, ["validate", str(run_dir)])
     assert result.exit_code == 0, result.output
     assert "note: 1 of its 2 episode(s) have no result row yet" in result.output
+    # A writer killed before its rename left a temporary file: said (it said ok).
+    [row] = read_results(run_dir / RESULTS_FILE)
+    log = log_path(run_dir, row.split, row.episode_id)
+    (log.parent / f".{log.name}.k3j9x2a1.tmp").write_bytes(b"half a log")
+    result = runner.invoke(app, ["validate", str(run_dir)])
+    assert result.exit_code == 0, result.output
+    said = " ".join(result.output.split())
+    assert "1 temporary file(s) of writers stopped before they finished" in said
+    assert "(the next run or resume removes them)" in said
