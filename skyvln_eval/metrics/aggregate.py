@@ -340,6 +340,11 @@ def summarise(
     summary = pd.DataFrame(rows)
     if "n_trajectories" in summary.columns:  # a count, not a float
         summary["n_trajectories"] = summary["n_trajectories"].astype("Int64")
+    if n_resamples and "ci_method" in summary.columns:
+        # Another seed or count gives other bootstrap bounds: which made these goes along.
+        drawn = summary["ci_method"].astype(str).str.contains("bootstrap")
+        summary["ci_resamples"] = pd.array([n_resamples if d else None for d in drawn], "Int64")
+        summary["ci_seed"] = pd.array([seed if d else None for d in drawn], "Int64")
     if CONVENTIONS_ATTR in scores.attrs:  # which conventions scored it goes along
         summary.attrs[CONVENTIONS_ATTR] = scores.attrs[CONVENTIONS_ATTR]
     return summary

@@ -110,6 +110,7 @@ class Cell:
     errors: int = 0  # how many of them ended in error (scored as failures)
     lower_bound: bool = False  # the mean is unknown; ``mean`` is a known lower bound of it
     ci_method: str = ""  # how the interval was made (a key of CI_METHODS)
+    ci_draws: str = ""  # a bootstrap's resamples and seed ("1000 resamples, seed 0")
     trajectories: int = 0  # the units of a trajectory interval (0: not one, or not known)
 
     @property
@@ -275,7 +276,7 @@ def build_table(
                 high = float(v["ci_high"]) if show_ci else None
                 cell = Cell(float(v["mean"]), low, high, ranks.get(row), *in_cell[row])
                 if show_ci:
-                    cell = replace(cell, ci_method=str(v["ci_method"]))
+                    cell = replace(cell, ci_method=str(v["ci_method"]), ci_draws=_draws(v))
                     units = v.get("n_trajectories", math.nan)
                     if not pd.isna(units):
                         cell = replace(cell, trajectories=int(units))
@@ -323,6 +324,14 @@ def _summary_mean(index: pd.DataFrame, key: tuple[str, str, str]) -> float | Non
     return None if math.isnan(mean) else mean
 
 
+def _draws(summary_row: pd.Series) -> str:
+    """A bootstrap interval's resamples and seed, from its summary row ('' if unsaid)."""
+    resamples, seed = summary_row.get("ci_resamples"), summary_row.get("ci_seed")
+    if resamples is None or seed is None or pd.isna(resamples) or pd.isna(seed):
+        return ""
+    return f"{int(resamples)} resamples, seed {int(seed)}"
+
+
 def _interval_notes(
     cells: dict[str, dict[tuple[str, str], Cell | None]],
     rows: Sequence[str],
@@ -344,14 +353,14 @@ def _interval_notes(
             if cell.ci_low is not None and math.isnan(cell.ci_low):
                 unavailable = True
                 continue
-            by_method.setdefault(cell.ci_method, {})[labels[metric]] = None
+            method = f"{CI_METHODS.get(cell.ci_method, cell.ci_method)}" + (
+                f" ({cell.ci_draws})" if cell.ci_draws else ""
+            )
+            by_method.setdefault(method, {})[labels[metric]] = None
     if not by_method and not unavailable:
         return []
     level = ", ".join(f"{100.0 * c:g}%" for c in levels)
-    parts = [
-        f"{CI_METHODS.get(method, method)}: {', '.join(columns)}"
-        for method, columns in sorted(by_method.items())
-    ]
+    parts = [f"{method}: {', '.join(columns)}" for method, columns in sorted(by_method.items())]
     if units:  # few dialogs make a wide interval: say how few
         low, high = min(units), max(units)
         span = f"{low}" if low == high else f"{low} to {high}"
