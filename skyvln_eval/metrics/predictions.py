@@ -67,6 +67,8 @@ class Prediction:
     path_corners: NDArray[np.float64]
     status: ResultStatus = "ok"
     error: str | None = None
+    #: The file it was read from ('' when made in Python), for messages.
+    source: str = ""
 
 
 def _allowed_globals() -> dict[tuple[str, str], Any]:
@@ -159,7 +161,9 @@ def _views_of(path_corners: Any) -> list[Any]:
     """Official entries are ``(corners, heading)`` tuples; JSON entries are bare corners."""
     views = []
     for entry in path_corners:
-        if isinstance(entry, tuple | list) and len(entry) == 2 and np.shape(entry[0]) == (4, 2):
+        if (isinstance(entry, tuple) and len(entry) == 2) or (
+            isinstance(entry, list) and len(entry) == 2 and np.shape(entry[0]) == (4, 2)
+        ):  # official: (corners, heading)
             views.append(entry[0])
         else:
             views.append(entry)
@@ -186,7 +190,9 @@ def _prediction(episode_id: str, entry: Any, file: str, row: int) -> Prediction:
         views = as_views(_views_of(entry["path_corners"]), "path_corners", episode_id, 0)
     except ResultRecordError as exc:
         raise bad(exc.issue.field or "path_corners", exc.issue.message) from None
-    return Prediction(episode_id=episode_id, path_corners=views, status=status, error=error)
+    if len(views) == 0 and status != "error":  # flown from its start view at least
+        raise bad("path_corners", f"a {status!r} episode's path includes at least its start view")
+    return Prediction(episode_id, views, status, error, source=file)
 
 
 def read_predictions_json(path: str | Path) -> dict[str, Prediction]:
@@ -285,7 +291,8 @@ def results_from_predictions(
         gt = dict(ground_truth)
     else:
         gt = {ep.episode_id: ep.gt_path_corners for ep in ground_truth}
-    what = f"predictions of {system!r} on {split}"
+    sources = sorted({p.source for p in predictions.values() if p.source})
+    what = f"predictions of {system!r} on {split}" + (f" ({', '.join(sources)})" if sources else "")
     if allow_missing:
         gt = {eid: views for eid, views in gt.items() if eid in predictions}
     check_complete(predictions, gt, what)

@@ -116,7 +116,14 @@ def as_views(
         arr = np.array(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         for k, view in enumerate(value if isinstance(value, list | tuple) else ()):
-            if not isinstance(view, list | tuple) or len(view) != 4:  # a ragged view
+            if isinstance(view, np.ndarray):  # of an official .npy
+                if view.shape != (4, 2):
+                    raise _issue(
+                        f"a view is 4 [lat, lng] corners, got an array of shape {view.shape}",
+                        f"{field_name}[{k}]",
+                        episode_id,
+                    ) from None
+            elif not isinstance(view, list | tuple) or len(view) != 4:  # a ragged view
                 shown = len(view) if isinstance(view, list | tuple) else type(view).__name__
                 raise _issue(
                     f"a view is 4 [lat, lng] corners, got {shown}", f"{field_name}[{k}]", episode_id

@@ -223,3 +223,35 @@ def test_json_predictions_refuse_what_json_reads_as_another_number(tmp_path: Pat
     path.write_text(text.replace('"status": ', '"status": "error", "status": ', 1))
     with pytest.raises(DataError, match="key\\(s\\) given more than once: status"):
         read_predictions(path)
+
+
+def test_prediction_errors_name_the_file_and_the_view(tmp_path: Path) -> None:
+    rollouts = json.loads(json.dumps(load_rollouts()[:2]))
+    first = rollouts[0]["instr_id"]
+    # A view of 4x3 numbers in an official .npy was "path_corners[0] ... got ndarray".
+    rollouts[0]["path_corners"][1] = [[*corner, 0.0] for corner in rollouts[0]["path_corners"][1]]
+    npy = tmp_path / "p.npy"
+    save_official_npy(npy, rollouts)
+    with pytest.raises(ResultRecordError) as info:
+        read_predictions(npy)
+    message = str(info.value)
+    assert str(npy) in message and "field 'path_corners[1]'" in message
+    assert "a view is 4 [lat, lng] corners, got an array of shape (4, 3)" in message
+    # An 'ok' path without even its start view: the file's problem, said as such.
+    path = tmp_path / "p.json"
+    path.write_text(
+        json.dumps(
+            {"format": "skyvln-eval.predictions", "version": 1,
+             "episodes": {first: {"path_corners": [], "status": "ok"}}}
+        )
+    )  # fmt: skip
+    with pytest.raises(ResultRecordError, match="at least its start view") as empty:
+        read_predictions(path)
+    assert str(path) in str(empty.value)
+    # A path that starts elsewhere names the file too.
+    good = load_rollouts()[:1]
+    save_official_npy(npy, good)
+    elsewhere = {good[0]["instr_id"]: np.array([good[0]["start_view"]]) + 0.01}
+    with pytest.raises(DataError, match="does not begin with the episode's start view") as moved:
+        results_from_predictions(read_predictions(npy), elsewhere, "x", "test_unseen")
+    assert f"predictions of 'x' on test_unseen ({npy})" in str(moved.value)
