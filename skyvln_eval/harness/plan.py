@@ -102,7 +102,7 @@ class ReproducePlan(_Strict):
     limit: int | None = Field(default=None, ge=1, description="episodes per split (quick plans)")
     resamples: int = Field(default=1000, ge=0)
     ci_unit: CiUnit = Field(
-        default="episode", description="what intervals resample: episodes or trajectories"
+        default="trajectory", description="what intervals resample: trajectories or episodes"
     )
     sensors: SensorConfig = SensorConfig()
     commander: CommanderSettings = CommanderSettings()

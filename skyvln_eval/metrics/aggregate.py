@@ -259,7 +259,7 @@ def summarise(
     n_resamples: int = 0,
     confidence: float = 0.95,
     seed: int = 0,
-    ci_unit: CiUnit = "episode",
+    ci_unit: CiUnit = "trajectory",
 ) -> pd.DataFrame:
     """Per (system, split, mode, metric): n, mean and, if ``n_resamples``, an interval
     (``ci_low``, ``ci_high``, ``confidence``, ``ci_method``: see the module docstring),
@@ -437,7 +437,7 @@ def compare_systems(
     mode: str = "andh",
     n_resamples: int = 10_000,
     seed: int = 0,
-    ci_unit: CiUnit = "episode",
+    ci_unit: CiUnit = "trajectory",
 ) -> pd.Series:
     """Paired bootstrap and sign-flip test of ``metric`` between two systems on one split.
 

@@ -165,7 +165,7 @@ CiUnitOption = Annotated[
     typer.Option(
         help="What the intervals resample: 'episode', or 'trajectory' (the rounds of a "
         "dialog together: they share a route, so episode intervals are too narrow); default: "
-        "episode, or for table the reproduction's"
+        "trajectory, or for table the reproduction's"
     ),
 ]
 
@@ -293,10 +293,11 @@ def score(
 
 
 def _ci_unit(text: str | None) -> CiUnit:
-    """``--ci-unit`` checked against the units an interval can resample (None: episodes)."""
+    """``--ci-unit`` checked against the units an interval can resample (None:
+    trajectories, the honest default for AVDN's rounds of one dialog)."""
     from skyvln_eval.metrics.aggregate import CI_UNITS, ci_unit_named
 
-    unit = ci_unit_named(text or "episode")
+    unit = ci_unit_named(text or "trajectory")
     if unit is None:
         raise ConfigError(f"--ci-unit must be one of {', '.join(CI_UNITS)}, not {text!r}")
     return unit

@@ -354,7 +354,7 @@ def _interval_notes(
                 unavailable = True
                 continue
             method = f"{CI_METHODS.get(cell.ci_method, cell.ci_method)}" + (
-                f" ({cell.ci_draws})" if cell.ci_draws else ""
+                f", {cell.ci_draws}" if cell.ci_draws else ""
             )
             by_method.setdefault(method, {})[labels[metric]] = None
     if not by_method and not unavailable:

@@ -329,7 +329,9 @@ def test_a_comparison_over_trajectories_flips_and_resamples_whole_dialogs() -> N
         rows.append({"system": "A", "episode_id": episode, "ne_m": 10.0 if a_wins else 30.0})
         rows.append({"system": "B", "episode_id": episode, "ne_m": 30.0 if a_wins else 10.0})
     scores = pd.DataFrame(rows).assign(split="val_seen", mode="andh")
-    by_episode = compare_systems(scores, "A", "B", "ne_m", "val_seen", n_resamples=4000)
+    by_episode = compare_systems(
+        scores, "A", "B", "ne_m", "val_seen", n_resamples=4000, ci_unit="episode"
+    )
     by_dialog = compare_systems(
         scores, "A", "B", "ne_m", "val_seen", n_resamples=4000, ci_unit="trajectory"
     )

@@ -25,16 +25,20 @@ def interval(summary: pd.DataFrame, metric: str) -> tuple[float, float, str]:
 
 
 def test_a_rate_of_all_failures_or_all_successes_has_its_wilson_interval_not_a_point() -> None:
-    none = summarise(frame(success=[0.0] * 10), ["success"], n_resamples=200)
+    none = summarise(frame(success=[0.0] * 10), ["success"], n_resamples=200, ci_unit="episode")
     low, high, method = interval(none, "success")
     assert (low, method) == (0.0, "wilson") and high == pytest.approx(27.75, abs=0.005)
-    every = summarise(frame(success=[1.0] * 10), ["success"], n_resamples=200)
+    every = summarise(frame(success=[1.0] * 10), ["success"], n_resamples=200, ci_unit="episode")
     low, high, method = interval(every, "success")
     assert low == pytest.approx(72.25, abs=0.005) and (high, method) == (100.0, "wilson")
     # Closed form: no seed or resample count changes it; other levels are other widths.
-    again = summarise(frame(success=[1.0] * 10), ["success"], n_resamples=7, seed=3)
+    again = summarise(
+        frame(success=[1.0] * 10), ["success"], n_resamples=7, seed=3, ci_unit="episode"
+    )
     assert interval(again, "success") == interval(every, "success")
-    wider = summarise(frame(success=[1.0] * 10), ["success"], n_resamples=7, confidence=0.99)
+    wider = summarise(
+        frame(success=[1.0] * 10), ["success"], n_resamples=7, confidence=0.99, ci_unit="episode"
+    )
     assert interval(wider, "success")[0] < low
 
 
@@ -51,11 +55,13 @@ def test_every_0_1_metric_gets_wilson_and_a_value_other_than_0_or_1_is_refused()
     assert not {"spl", "ndtw", "fallback_rate", "llm_call_failure_rate"} & BINARY_METRICS
     damaged = r"A/test_unseen/andh success: .* e\.g\. 0\.5 in episode e01"
     with pytest.raises(MetricInputError, match=damaged):
-        summarise(frame(success=[0.0, 0.5, 1.0]), ["success"], n_resamples=10)
+        summarise(frame(success=[0.0, 0.5, 1.0]), ["success"], n_resamples=10, ci_unit="episode")
 
 
 def test_a_continuous_metric_of_one_episode_has_no_interval() -> None:
-    summary = summarise(frame(ne_m=[12.5], success=[1.0]), ["ne_m", "success"], n_resamples=100)
+    summary = summarise(
+        frame(ne_m=[12.5], success=[1.0]), ["ne_m", "success"], n_resamples=100, ci_unit="episode"
+    )
     low, high, method = interval(summary, "ne_m")
     assert math.isnan(low) and math.isnan(high) and method == "bootstrap"
     assert summary.set_index("metric").loc["ne_m", "mean"] == 12.5
@@ -65,7 +71,7 @@ def test_a_continuous_metric_of_one_episode_has_no_interval() -> None:
 
 def test_a_continuous_metric_of_many_episodes_keeps_its_bootstrap_interval() -> None:
     ne = np.random.default_rng(3).gamma(2.0, 30.0, size=25)
-    summary = summarise(frame(ne_m=list(ne)), ["ne_m"], n_resamples=500, seed=9)
+    summary = summarise(frame(ne_m=list(ne)), ["ne_m"], n_resamples=500, seed=9, ci_unit="episode")
     expected = bootstrap_ci(ne, 500, seed=9)  # the same episodes, in episode-id order
     assert interval(summary, "ne_m") == (expected.low, expected.high, "bootstrap")
     assert expected.low < expected.high
@@ -83,13 +89,15 @@ def test_a_pooled_share_with_no_failure_is_wilson_over_the_episodes() -> None:
         fallback_rate=[1.0] * 10,
     )
     rates = ["llm_call_failure_rate", "fallback_rate"]
-    summary = summarise(calls, rates, n_resamples=100)
+    summary = summarise(calls, rates, n_resamples=100, ci_unit="episode")
     low, high, method = interval(summary, "llm_call_failure_rate")
     assert (low, method) == (0.0, "wilson") and high == pytest.approx(27.75, abs=0.005)
     low, high, method = interval(summary, "fallback_rate")  # every decision fell back
     assert low == pytest.approx(72.25, abs=0.005) and (high, method) == (100.0, "wilson")
     one_failed = calls.assign(llm_failed_calls=[1.0] + [0.0] * 9)
-    low, high, method = interval(summarise(one_failed, rates, n_resamples=100), rates[0])
+    low, high, method = interval(
+        summarise(one_failed, rates, n_resamples=100, ci_unit="episode"), rates[0]
+    )
     assert method == "bootstrap" and low < 100 / 30 < high
 
 
@@ -97,7 +105,7 @@ def test_a_continuous_metric_without_spread_has_no_interval() -> None:
     # SPL of 0 in each of ten failed episodes: every resample is 0, which says nothing of
     # how far the mean may be; the SR beside it has its Wilson interval.
     zeros = frame(spl=[0.0] * 10, success=[0.0] * 10)
-    summary = summarise(zeros, ["spl", "success"], n_resamples=200)
+    summary = summarise(zeros, ["spl", "success"], n_resamples=200, ci_unit="episode")
     low, high, method = interval(summary, "spl")
     assert math.isnan(low) and math.isnan(high) and method == "bootstrap"
     assert interval(summary, "success")[1] == pytest.approx(27.75, abs=0.005)
@@ -119,7 +127,7 @@ def test_trajectory_intervals_draw_the_rounds_of_a_dialog_together() -> None:
     rng = np.random.default_rng(1)
     outcomes = [[float(rng.random() < 0.4)] * 3 for _ in range(20)]
     scores = rounds_frame(outcomes, "success").assign(spl=lambda f: f["success"] * 0.8)
-    by_episode = summarise(scores, ["success", "spl"], n_resamples=2000)
+    by_episode = summarise(scores, ["success", "spl"], n_resamples=2000, ci_unit="episode")
     by_trajectory = summarise(scores, ["success", "spl"], n_resamples=2000, ci_unit="trajectory")
     for metric in ("success", "spl"):
         low_e, high_e, _ = interval(by_episode, metric)

@@ -86,7 +86,10 @@ def test_score_then_table_then_plots(tmp_path: Path) -> None:
     assert r"\multicolumn{2}{c}{\textbf{Unseen Testing}}" in latex.output
     assert r"\scriptsize[" in latex.output and '"threshold_m":10.0' in latex.output
     # Which resamples and seed made the bootstrap bounds (score's may have used others).
-    assert "percentile bootstrap of the episodes (200 resamples, seed 0)" in latex.output
+    assert (
+        "percentile bootstrap of the trajectories (the rounds of a dialog drawn together), "
+        "200 resamples, seed 0: " in latex.output
+    )
     md_path = tmp_path / "t2.md"
     rows = ["--row", "w/o HSD", "--row", "Ours Full"]
     md = runner.invoke(

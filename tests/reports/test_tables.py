@@ -133,7 +133,7 @@ def test_a_table_says_how_its_intervals_were_made_and_shows_a_missing_one_as_suc
         result([g[0], square(30 + k, 0)], g, episode_id=f"e{k}", system="Ten") for k in range(10)
     ]
     scores = score_results(results)
-    data = summarise(scores, ["spl", "success"], n_resamples=200)
+    data = summarise(scores, ["spl", "success"], n_resamples=200, ci_unit="episode")
     table = build_table(data, TABLE_I, MetricConventions(), show_ci=True)
     md = to_markdown(table)
     assert "| One | **100.00 [n/a]** | **100.00 [20.65, 100.00]** |" in md
