@@ -2,8 +2,8 @@
 
 Left: the map (2-D, map pixels) over the camera view below the drone. Middle: the 3-D
 scene (ENU metres, the map on the ground, the eye on the flight) over the control plots.
-Right: the decision, HSD, memory, dialog and LLM texts in tabs, over the logs. Everything
-can be rearranged in the viewer.
+Right: the episode card, the decision, HSD, memory, dialog and LLM texts in tabs, over
+the logs. Everything can be rearranged in the viewer.
 """
 
 from __future__ import annotations
@@ -40,12 +40,13 @@ def episode_blueprint(
         rrb.TimeSeriesView(origin=f"{e.CONTROL}/{origin}", name=title) for title, origin in PLOTS
     ]
     texts = [
+        # The episode first: its status (an error, a degraded run) is what to see first.
+        rrb.TextDocumentView(origin=e.EPISODE_INFO, name="episode"),
         rrb.TextDocumentView(origin=e.AGENT_STEP, name="decision"),
         rrb.TextDocumentView(origin=e.AGENT_HSD, name="HSD"),
         rrb.TextDocumentView(origin=e.AGENT_MEMORY, name="memory graph"),
         rrb.TextDocumentView(origin=f"{e.DIALOG}/all", name="dialog"),
         *[rrb.TextDocumentView(origin=f"{e.LLM}/{m}", name=f"LLM {m}") for m in modules],
-        rrb.TextDocumentView(origin=e.EPISODE_INFO, name="episode"),
     ]
     logs = rrb.TextLogView(
         origin="/",

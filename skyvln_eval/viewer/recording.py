@@ -9,6 +9,7 @@ recomputed from the dataset or the harness. Entity paths are in :mod:`.entities`
 
 from __future__ import annotations
 
+import binascii
 import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -20,6 +21,7 @@ import numpy as np
 import yaml
 
 from skyvln_eval.converters import topics as t
+from skyvln_eval.errors import McapLogError
 from skyvln_eval.viewer import entities as e
 from skyvln_eval.viewer import scene, static_content, text
 from skyvln_eval.viewer.blueprint import Focus, episode_blueprint
@@ -54,10 +56,20 @@ class RecordingSummary:
     gt_views: int
 
 
-def recording_id(ref: EpisodeLogRef, run: Mapping[str, str]) -> str:
-    """Unique per (run configuration, split, episode), so several runs can be opened together."""
+def recording_id(ref: EpisodeLogRef, run: Mapping[str, str], mode: str) -> str:
+    """Unique per (run configuration, split, mode, episode), so several runs, or an episode's
+    ANDH and ANDH-Full logs, can be opened together."""
     digest = run.get("config_digest", "episode-log")
-    return f"{ref.split}/{ref.episode_id}@{digest}"
+    return f"{ref.split}/{mode}/{ref.episode_id}@{digest}"
+
+
+def recording_name(ref: EpisodeLogRef, run: Mapping[str, str], mode: str) -> str:
+    """The name the viewer lists: the system, the episode and, unless ok, its status (an
+    episode that ended in error must not look like one that went as planned)."""
+    system = run.get("system", "episode log")
+    status = run.get("status", "")
+    flagged = f" [{status.upper()}]" if status and status != "ok" else ""
+    return f"{system}: {ref.split}/{mode}/{ref.episode_id}{flagged}"
 
 
 def _image_px(run: Mapping[str, str]) -> tuple[int, int]:
@@ -80,8 +92,13 @@ def _decision_times(log: RunLogStream) -> list[int]:
 class _Recorder:
     """Logs one episode's time-ordered messages onto a canvas (one handler per topic)."""
 
-    def __init__(self, canvas: Canvas, image_px: tuple[int, int]) -> None:
+    def __init__(self, canvas: Canvas, image_px: tuple[int, int], run_log: bool) -> None:
         self.canvas = canvas
+        #: A run's log (an agent flew it), not an episode log (its poses are the GT route).
+        self.run_log = run_log
+        #: Per LLM module, the decision time of its last exchange and the documents of its
+        #: exchanges at that time: a first answer and its repair are shown together.
+        self.exchanges: dict[str, tuple[int, list[str]]] = {}
         self.rr: ModuleType = canvas.rr
         self.image_px = image_px
         self.flight = scene.Flight()
@@ -132,7 +149,7 @@ class _Recorder:
 
     def _flight_so_far(self) -> None:
         points = self.flight.array()
-        if len(points):
+        if len(points) and self.run_log:  # an episode log's poses are the GT route, drawn already
             strip = [scene.Strip(points, scene.FLOWN_RGBA, False)]
             self.canvas.put(e.MAP_PATH, self.canvas.strips2d(strip, 2.0))
             self.canvas.put(e.WORLD_TRAJECTORY, self.canvas.strips3d(strip, 2.0))
@@ -210,7 +227,14 @@ class _Recorder:
             self.modules.append(module)
         level = "ERROR" if exchange.get("error") else "INFO"
         self.canvas.put(e.LLM_LOG, self.rr.TextLog(text.exchange_line(exchange), level=level))
-        self.canvas.markdown(f"{e.LLM}/{module}", text.exchange_document(exchange))
+        # One document per module and decision: several exchanges at one time (HSD's calls,
+        # an answer and its repair) would each hide the one before.
+        t_ns, documents = self.exchanges.get(module, (-1, []))
+        if t_ns != self.canvas.t_ns:
+            t_ns, documents = self.canvas.t_ns, []
+        documents.append(text.exchange_document(exchange))
+        self.exchanges[module] = (t_ns, documents)
+        self.canvas.markdown(f"{e.LLM}/{module}", "\n---\n\n".join(documents))
 
     def _control(self, step: Json) -> None:
         self.signals.add(step, self.canvas.t_ns, self.canvas.decision)
@@ -283,10 +307,26 @@ def _record(rr: ModuleType, rec: Any, log: RunLogStream, ref: EpisodeLogRef) -> 
     episode = log.episode()
     canvas = Canvas(rr, rec, e.MapFrame(episode.georef), _decision_times(log))
     static_content.episode_card(canvas, episode, log.run_metadata, log.path)
-    recorder = _Recorder(canvas, _image_px(log.run_metadata))
+    recorder = _Recorder(canvas, _image_px(log.run_metadata), t.RUN_METADATA in log.metadata)
     for topic, t_ns, message in log.messages():
-        recorder.on(topic, t_ns, message)
+        try:
+            recorder.on(topic, t_ns, message)
+        except (ValueError, TypeError, KeyError, IndexError, binascii.Error) as error:
+            raise McapLogError(
+                str(log.path),
+                f"its {topic} message at {t_ns / 1e9:g} s cannot be shown "
+                f"({type(error).__name__}: {error}); `skyvln-eval validate` checks the log",
+            ) from None
     recorder.finish()
+    run = log.run_metadata
+    if run.get("status") in ("error", "degraded"):  # said where the eye lands, at the end
+        canvas.put(
+            e.AGENT_LOG,
+            rr.TextLog(
+                f"the episode ended {run['status']}: {run.get('error') or 'see the episode tab'}",
+                level="ERROR" if run["status"] == "error" else "WARN",
+            ),
+        )
     blueprint = episode_blueprint(rr, recorder.modules, recorder.detection_views, recorder.focus())
     rec.send_blueprint(blueprint)
     return recorder
@@ -304,12 +344,15 @@ def write_recording(ref: EpisodeLogRef, out: str | Path) -> RecordingSummary:
         run_log = t.RUN_METADATA in log.metadata
         decisions = log.topic_counts.get(t.TOPIC_AGENT_STEP, 0)
         gt_views = 0 if run_log else log.topic_counts.get(t.TOPIC_GPS, 0)
-        rec_id = recording_id(ref, log.run_metadata)
-        rec = rr.RecordingStream(e.APPLICATION_ID, recording_id=rec_id)
+        mode = log.episode().mode
+        rec_id = recording_id(ref, log.run_metadata, mode)
+        # An application per recording: the viewer keeps one layout per application, and
+        # episodes differ in theirs (their LLM tabs, where the 3-D eye looks).
+        rec = rr.RecordingStream(f"{e.APPLICATION_ID}:{rec_id}", recording_id=rec_id)
+        rec.set_log_time_enabled(False)  # the two timelines are simulated time and decisions
         try:
             rec.save(tmp)
-            system = log.run_metadata.get("system", "episode log")
-            rec.send_recording_name(f"{system}: {ref.split}/{ref.episode_id}")
+            rec.send_recording_name(recording_name(ref, log.run_metadata, mode))
             recorder = _record(rr, rec, log, ref)
             rec.flush()
             rec.disconnect()  # writes the footer: the file is complete only after this

@@ -57,7 +57,8 @@ def status_line(run: Mapping[str, str]) -> str | None:
 def episode_card_text(episode: Episode, run: Mapping[str, str], path: Path) -> str:
     """The episode card: what the episode is, which log, and what the run said of it."""
     lines = [f"# {episode.split} {episode.episode_id}", ""]
-    lines += [f"- map: {episode.map_name}", f"- log: {path}"]
+    task = "ANDH-Full (the whole trajectory)" if episode.mode == "andh-full" else "ANDH"
+    lines += [f"- mode: {task}", f"- map: {episode.map_name}", f"- log: {path}"]
     if run.get("system"):
         lines.append(f"- system: {run['system']}")
     # The status first after the system: a degraded or failed episode must not read as a

@@ -158,7 +158,10 @@ def exchange_document(exchange: Mapping[str, Any]) -> str:
     lines += [f"- {k}: {_scalar(v)}" for k, v in exchange_fields(exchange)]
     for message in exchange.get("prompt") or []:
         images = message.get("images") or 0
-        note = f" ({images} image(s) attached, not stored)" if images else ""
+        if isinstance(images, list):  # the views' names (the run log keeps no pixels here)
+            note = f" (images attached, not stored: {', '.join(map(str, images))})"
+        else:
+            note = f" ({images} image(s) attached, not stored)" if images else ""
         lines += ["", f"## {message.get('role', '?')}{note}", "", fenced(str(message.get("text")))]
     response = exchange.get("response")
     lines += ["", "## response", "", fenced(str(response)) if response is not None else "(none)"]

@@ -320,3 +320,73 @@ def test_a_recording_of_an_episode_log_counts_ground_truth_views_not_decisions(
     line = describe(summary)  # the log's 3 GPS fixes were printed as "3 decision(s)"
     assert "3 ground-truth view(s)" in line and "decision" not in line, line
     assert (summary.run_log, summary.decisions, summary.gt_views) == (False, 0, 3)
+    # No agent flew it: its poses are the GT route, not drawn again as a flown path.
+    from skyvln_eval.viewer import entities as e
+
+    assert e.MAP_PATH not in summary.rows and e.WORLD_TRAJECTORY not in summary.rows
+    assert summary.recording_id == "val_seen/andh/1913__0_1@episode-log"
+
+
+def test_a_message_the_viewer_cannot_show_is_named_not_a_traceback(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    pytest.importorskip("rerun", reason="rerun-sdk is not installed (pip install '.[viewer]')")
+    from skyvln_eval.viewer import recording, write_recording
+
+    real = recording._Recorder.on
+
+    def bad_dialog(self: recording._Recorder, topic: str, t_ns: int, message: object) -> None:
+        if topic == t.TOPIC_DIALOG:
+            raise ValueError("could not convert string to float: 'abc'")
+        real(self, topic, t_ns, message)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(recording._Recorder, "on", bad_dialog)
+    (ref,) = find_episode_logs(_episode_log(tmp_path))
+    with pytest.raises(McapLogError) as info:
+        write_recording(ref, tmp_path / "e.rrd")
+    said = str(info.value)
+    assert str(ref.path) in said and f"its {t.TOPIC_DIALOG} message at 0 s cannot be shown" in said
+    assert not list(tmp_path.glob("*.rrd")) and not list(tmp_path.glob(".*.tmp"))
+
+
+def test_an_episode_s_name_says_its_status_unless_ok() -> None:
+    from skyvln_eval.viewer.recording import recording_name
+
+    ref = EpisodeLogRef(Path("x.mcap"), "val_seen", "9101__5_1")
+    run = {"system": "audit", "status": "error"}
+    assert recording_name(ref, run, "andh") == "audit: val_seen/andh/9101__5_1 [ERROR]"
+    assert recording_name(ref, {**run, "status": "ok"}, "andh") == "audit: val_seen/andh/9101__5_1"
+
+
+class _Canvas:
+    """What the recorder's LLM exchanges touch of a canvas: the time and the documents."""
+
+    def __init__(self) -> None:
+        import rerun
+
+        self.rr = rerun
+        self.t_ns = 0
+        self.documents: dict[str, str] = {}
+
+    def put(self, entity: str, value: object) -> None:
+        pass
+
+    def markdown(self, entity: str, document: str) -> None:
+        self.documents[entity] = document
+
+
+def test_every_llm_exchange_of_a_decision_stays_readable() -> None:
+    # HSD's several calls, or an answer and its repair, at one decision: each document
+    # replaced the one before at the same time, so half the exchanges could not be seen.
+    pytest.importorskip("rerun", reason="rerun-sdk is not installed (pip install '.[viewer]')")
+    from skyvln_eval.viewer.recording import _Recorder
+
+    canvas = _Canvas()
+    recorder = _Recorder(canvas, (512, 512), True)  # type: ignore[arg-type]
+    for response in ("first", "repaired"):
+        recorder._exchange({"module": "subgoals", "step_index": 0, "response": response})
+    document = canvas.documents["llm/subgoals"]
+    assert "first" in document and "repaired" in document
+    canvas.t_ns = 10**9  # the next decision starts a new document
+    recorder._exchange({"module": "subgoals", "step_index": 1, "response": "later"})
+    assert "first" not in canvas.documents["llm/subgoals"]

@@ -186,7 +186,7 @@ def test_several_episodes_saved_as_one_file_keep_one_recording_each(
     assert "saved 2 recording(s)" in result.stdout
     printed = rerun_tool(rerun_cli, "rrd", "print", str(out)).stdout
     for split in ("val_seen", "test_unseen"):
-        assert f'"{split}/{ref.episode_id}@' in printed
+        assert f'"{split}/andh/{ref.episode_id}@' in printed
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
     refused = run_skyvln_eval("view", str(out), "--save", str(tmp_path / "again.rrd"))
     assert refused.returncode == 2 and "already a recording" in refused.stderr
