@@ -29,7 +29,13 @@ from skyvln_eval.converters.reader import (
     check_file_ends,
     episode_from_log,
 )
-from skyvln_eval.errors import ConfigError, DataError, FormatVersionError, McapLogError
+from skyvln_eval.errors import (
+    ConfigError,
+    DataError,
+    FormatVersionError,
+    McapLogError,
+    SkyvlnError,
+)
 
 LOGS_DIR = "logs"
 _SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.\-]*")
@@ -85,16 +91,54 @@ def find_episode_logs(target: str | Path, episodes: Sequence[str] = ()) -> list[
     if not episodes:
         found = [p for logs in log_dirs for p in sorted(logs.glob("*/*.mcap"))]
         if not found:
-            raise ConfigError(f"{target}: the run has no run MCAPs under {LOGS_DIR}/")
+            raise ConfigError(
+                f"{target}: the run has no run MCAPs under {LOGS_DIR}/"
+                + _raised_before_logging(log_dirs, None, None)
+            )
         return [_ref(p) for p in found]
     refs: list[EpisodeLogRef] = []
     for selector in episodes:
         split, episode_id = _parse_selector(selector)
         hits = [p for logs in log_dirs for p in _lookup(logs, split, episode_id)]
         if not hits:
-            raise ConfigError(_not_found(target, selector, log_dirs))
+            raise ConfigError(
+                _not_found(target, selector, log_dirs)
+                + _raised_before_logging(log_dirs, split, episode_id)
+            )
         refs += [_ref(p) for p in hits if _ref(p) not in refs]
     return refs
+
+
+def _raised_before_logging(
+    log_dirs: Sequence[Path], split: str | None, episode_id: str | None
+) -> str:
+    """What the run's rows say of episodes (all, or the one selected) that ended in error
+    before their run log was written: '' when none did (or the rows cannot be read)."""
+    from skyvln_eval.harness.store import RESULTS_FILE
+    from skyvln_eval.metrics import read_results
+
+    raised = []
+    for logs in log_dirs:
+        try:
+            rows = read_results(logs.parent / RESULTS_FILE, allow_incomplete=True)
+        except SkyvlnError:
+            continue
+        raised += [
+            r
+            for r in rows
+            if r.status == "error"
+            and episode_id in (None, r.episode_id)
+            and split in (None, r.split)
+            and not (logs / r.split / f"{r.episode_id}.mcap").is_file()
+        ]
+    if not raised:
+        return ""
+    first = raised[0]
+    why = (first.error or "error").splitlines()[0]
+    return (
+        f"; {len(raised)} episode(s) ended in error before writing one, e.g. "
+        f"{first.split}/{first.episode_id}: {why}"
+    )
 
 
 def _log_dirs(target: Path) -> list[Path]:
@@ -111,7 +155,10 @@ def _log_dirs(target: Path) -> list[Path]:
         raise ConfigError(f"{error}; view also takes one run .mcap log or an .rrd") from None
     found = [run / LOGS_DIR for run in runs if (run / LOGS_DIR).is_dir()]
     if not found:
-        raise ConfigError(f"{target}: the run has no run MCAPs under {LOGS_DIR}/")
+        raise ConfigError(
+            f"{target}: the run has no run MCAPs under {LOGS_DIR}/"
+            + _raised_before_logging([run / LOGS_DIR for run in runs], None, None)
+        )
     return found
 
 

@@ -63,3 +63,27 @@ def test_the_calls_of_a_decision_that_raised_still_count(
     scores = score_results([row], MetricConventions())
     assert scores.loc[0, "llm_calls"] == sum(c.final for c in made)
     assert scores.loc[0, "llm_prompt_tokens"] == sum(c.prompt_tokens or 0 for c in made) > 0
+
+
+def test_view_says_an_episode_raised_before_writing_its_log(
+    tmp_path: Path, small_config: MakeConfig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # It said "the run has no run MCAPs under logs/" and nothing of why.
+    from skyvln_eval.errors import ConfigError
+    from skyvln_eval.harness import runner
+    from skyvln_eval.viewer.logs import find_episode_logs
+
+    def broken(config: Any, *args: Any) -> Any:
+        raise RuntimeError("a bug before the first decision")
+
+    monkeypatch.setattr(runner, "build_agent", broken)
+    run(small_config(limit=1), tmp_path / "run")
+    [row] = read_results(tmp_path / "run" / RESULTS_FILE)
+    for episodes in ((), (row.episode_id,)):
+        with pytest.raises(ConfigError) as info:
+            find_episode_logs(tmp_path / "run", episodes)
+        said = str(info.value)
+        assert "1 episode(s) ended in error before writing one, e.g. " in said
+        assert f"{row.split}/{row.episode_id}: RuntimeError: a bug before the first decision" in (
+            said
+        )
