@@ -290,8 +290,8 @@ def _content_issues(log: McapLog, episode: Episode) -> list[ValidationIssue]:
             issues.append(
                 ValidationIssue(
                     log.path,
-                    f"{len(times)} message(s), its metadata says {len(wanted)} "
-                    + ("(one per view, a second apart)" if topic != topics.TOPIC_MAP_TILE else ""),
+                    f"{len(times)} message(s), its metadata says {len(wanted)}"
+                    + (" (one per view, a second apart)" if topic != topics.TOPIC_MAP_TILE else ""),
                     field=topic,
                 )
             )

@@ -157,6 +157,8 @@ class DynamicsSettings(_Strict):
 #: Settings that say how a run runs, not what it computes: no digest covers them, and a
 #: run directory may be resumed with others.
 HOW_IT_RUNS = frozenset({"workers", "executor", "threads_per_worker", "ray_address", "write_logs"})
+#: Which episodes a run flies: a run may grow in place (a larger limit) and stay one run.
+SELECTION = frozenset({"limit", "episodes"})
 
 
 class RunConfig(_Strict):
@@ -242,7 +244,7 @@ class RunConfig(_Strict):
     def settings_digest(self) -> str:
         """:meth:`digest` without the selection (``limit``, ``episodes``): the same for
         every row of a run that grew in place, different for a row of another config."""
-        return self._hash({"limit", "episodes"})
+        return self._hash(set(SELECTION))
 
     def _hash(self, also_excluded: set[str]) -> str:
         relevant = self.model_dump(mode="json", exclude=set(HOW_IT_RUNS | also_excluded))
@@ -251,7 +253,7 @@ class RunConfig(_Strict):
 
     def settings_yaml(self) -> str:
         """The YAML of what :meth:`settings_digest` covers."""
-        relevant = self.model_dump(mode="json", exclude=set(HOW_IT_RUNS | {"limit", "episodes"}))
+        relevant = self.model_dump(mode="json", exclude=set(HOW_IT_RUNS | SELECTION))
         return yaml.safe_dump(relevant, sort_keys=False, allow_unicode=True)
 
     def to_yaml(self) -> str:

@@ -124,9 +124,9 @@ def as_views(
                         episode_id,
                     ) from None
             elif not isinstance(view, list | tuple) or len(view) != 4:  # a ragged view
-                shown = len(view) if isinstance(view, list | tuple) else type(view).__name__
+                got = len(view) if isinstance(view, list | tuple) else type(view).__name__
                 raise _issue(
-                    f"a view is 4 [lat, lng] corners, got {shown}", f"{field_name}[{k}]", episode_id
+                    f"a view is 4 [lat, lng] corners, got {got}", f"{field_name}[{k}]", episode_id
                 ) from None
         raise _issue(f"not an array of numbers ({exc})", field_name, episode_id) from None
     if arr.size == 0 and min_len == 0:
