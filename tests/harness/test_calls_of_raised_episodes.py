@@ -87,3 +87,24 @@ def test_view_says_an_episode_raised_before_writing_its_log(
         assert f"{row.split}/{row.episode_id}: RuntimeError: a bug before the first decision" in (
             said
         )
+
+
+def test_the_row_of_an_episode_that_raised_keeps_no_orphan_control_log(
+    tmp_path: Path, small_config: MakeConfig
+) -> None:
+    # A worker killed after the control log, before the run log: its error row has no
+    # control log, and the parquet stayed beside it, read by nothing.
+    from skyvln_eval.converters.reader import read_episode
+    from skyvln_eval.harness.run import prepare_job
+    from skyvln_eval.harness.runner import control_log_name, failed_result
+
+    job = prepare_job(small_config(mode="dynamics", limit=1), tmp_path / "run")
+    try:
+        task = job.tasks[0]
+        orphan = tmp_path / "run" / control_log_name(task.split, task.episode_id)
+        orphan.parent.mkdir(parents=True, exist_ok=True)
+        orphan.write_bytes(b"PAR1 written before the worker died PAR1")
+        row = failed_result(job.config, task, read_episode(task.episode_log), "worker crashed")
+    finally:
+        job.release()
+    assert row.status == "error" and row.control_log is None and not orphan.exists()
