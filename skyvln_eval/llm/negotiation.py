@@ -30,6 +30,8 @@ StructuredSetting = Literal["auto", "json_schema", "json_object_schema", "json_o
 STRUCTURED_SETTINGS: Final = get_args(StructuredSetting)
 
 _levels: dict[str, StructuredLevel] = {}
+#: (endpoint, level) pairs refused once by a bare 400 naming nothing.
+_unexplained: set[tuple[str, StructuredLevel]] = set()
 _lock = threading.Lock()
 
 #: Decoding parameters a server may refuse and a request can go without (the server's
@@ -79,6 +81,17 @@ def negotiated_level(endpoint: str) -> StructuredLevel | None:
         return _levels.get(endpoint)
 
 
+def refused_without_reason(endpoint: str, level: StructuredLevel) -> bool:
+    """Note that ``endpoint`` refused ``level`` with a bare HTTP 400 naming nothing; whether
+    it had done so before. One such refusal may be a one-off fault: the level is given up
+    for the endpoint only when it happens again (a refusal that names the format is
+    believed at once)."""
+    with _lock:
+        seen = (endpoint, level) in _unexplained
+        _unexplained.add((endpoint, level))
+        return seen
+
+
 def remember_level(endpoint: str, level: StructuredLevel) -> None:
     """Keep ``level`` for ``endpoint``: a later call never tries a level above it again."""
     with _lock:
@@ -98,6 +111,7 @@ def forget_levels() -> None:
     servers changed)."""
     with _lock:
         _levels.clear()
+        _unexplained.clear()
         _adaptations.clear()
 
 

@@ -76,6 +76,7 @@ from skyvln_eval.llm.negotiation import (
     adaptation,
     negotiated_level,
     next_level,
+    refused_without_reason,
     remember_adaptation,
     remember_level,
     response_format,
@@ -329,8 +330,12 @@ class OpenAIBackend(LLMBackend):
                     lower = self._step_down(level, refusal)  # raises when nothing is left
                     what = f"structured output level {level!r} refused"
                     refused.append(refusal.record(what, started, level, unsent))
+                    assert level is not None  # _step_down raised otherwise
+                    if refusal.named or refused_without_reason(self.endpoint, level):
+                        # Known now, whatever the next request does; a first bare 400
+                        # (maybe a one-off fault) steps down for this call only.
+                        remember_level(self.endpoint, lower)
                     level = lower
-                    remember_level(self.endpoint, level)  # known now, whatever the next does
                 except ParameterRefused as refusal:
                     found = self._adapt(adapted, refusal)  # raises when nothing is left
                     what = f"parameter {refusal.parameter!r} refused"

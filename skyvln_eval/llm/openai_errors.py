@@ -129,10 +129,12 @@ def brief(body: str, chars: int = 300) -> str:
 
 
 class FormatRefused(Refused):
-    """The server cannot do the response format of this request (the body says why)."""
+    """The server cannot do the response format of this request (the body says why).
+    ``named``: the body names the format (its words), not a bare 400 naming nothing."""
 
     def __init__(self, status: int, body: str) -> None:
         super().__init__(f"HTTP {status}: {brief(body)}")
+        self.named = bool(_FORMAT_WORDS.search(body))
 
 
 class ParameterRefused(Refused):

@@ -71,7 +71,8 @@ def test_a_server_refusing_everything_leaves_one_record_per_request_each_timed()
     # HTTP 400 to every request: json_schema, json_object with the schema and plain
     # json_object are refused formats; the plain request's 400 ends the call; the repair
     # call starts at the remembered level and fails in one request.
-    with LoopbackOpenAIServer([status(400)] * 5, latency_s=LATENCY_S) as server:
+    refusal = "unsupported response_format"  # named: believed at once (see below for a bare 400)
+    with LoopbackOpenAIServer([status(400, message=refusal)] * 5, latency_s=LATENCY_S) as server:
         client = _client(server)
         first = client.call("motion", HELLO, STRUCTURED)
         again = client.call("motion", [*HELLO, Message("user", "again")], STRUCTURED, repair=True)
@@ -206,3 +207,32 @@ def test_a_refusal_message_keeps_what_the_server_said_not_its_traceback() -> Non
     assert "File" not in said and "\n" not in said
     long = str(FormatRefused(500, "schema " * 100))
     assert len(long) == len("HTTP 500: ") + 300 and long.endswith("…")
+
+
+def test_a_bare_400_gives_a_level_up_for_the_endpoint_only_when_it_happens_again() -> None:
+    # One "400 bad request" (a one-off fault) lowered the endpoint's level for the rest of
+    # the process, though the server takes json_schema.
+    with LoopbackOpenAIServer([status(400, message="bad request")], latency_s=0.0) as server:
+        client = _client(server)
+        once = client.call("motion", HELLO, STRUCTURED)
+        after = client.call("motion", [*HELLO, Message("user", "again")], STRUCTURED)
+        formats = [r["body"]["response_format"]["type"] for r in server.requests]
+    assert once.completion is not None and after.completion is not None
+    assert formats == ["json_schema", "json_object", "json_schema"]  # tried again, answered
+    assert after.completion.structured_output == "json_schema"
+    # Refused so again: given up for the endpoint at the second time, the third call
+    # starts one level down.
+    bare = status(400, message="bad request")
+    with LoopbackOpenAIServer([bare, answer("{}"), bare, answer("{}")]) as server:
+        client = _client(server)
+        for k in range(3):
+            assert client.call("motion", [*HELLO, Message("user", str(k))], STRUCTURED).completion
+        sent = [r["body"]["response_format"]["type"] for r in server.requests]
+    assert sent == ["json_schema", "json_object", "json_schema", "json_object", "json_object"]
+    # A refusal that names the format is believed at once.
+    with LoopbackOpenAIServer([answer("{}")], structured="none") as server:
+        client = _client(server)
+        for k in range(2):
+            assert client.call("motion", [*HELLO, Message("user", str(k))], STRUCTURED).completion
+        sent = [(r["body"].get("response_format") or {}).get("type") for r in server.requests]
+    assert sent == ["json_schema", "json_object", "json_object", None, None]
