@@ -277,7 +277,8 @@ def read_annotation_file(path: Path) -> list[object]:
         raise AvdnFileError(str(path), "annotation file not found")
     raw = path.read_bytes()
     # Only a file that may hold a number too small for a float is read with the slower
-    # per-number hook (such a number has an exponent or a run of zeros beyond 160).
+    # per-number hook: such a number needs over 160 in exponent and leading zeros
+    # together, so it has a three-digit negative exponent or a run of 100 zeros.
     tiny = read_json_float if _MAYBE_TINY_NUMBER.search(raw) else None
     try:
         data = json.loads(raw, object_pairs_hook=object_keeping_repeats, parse_float=tiny)

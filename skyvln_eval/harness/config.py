@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+from collections.abc import Collection
 from pathlib import Path
 from typing import Any, Literal
 
@@ -239,22 +240,24 @@ class RunConfig(_Strict):
 
     def digest(self) -> str:
         """A short hash of the settings that decide the results (not workers or executor)."""
-        return self._hash(set())
+        return self._hash(())
 
     def settings_digest(self) -> str:
         """:meth:`digest` without the selection (``limit``, ``episodes``): the same for
         every row of a run that grew in place, different for a row of another config."""
-        return self._hash(set(SELECTION))
+        return self._hash(SELECTION)
 
-    def _hash(self, also_excluded: set[str]) -> str:
-        relevant = self.model_dump(mode="json", exclude=set(HOW_IT_RUNS | also_excluded))
-        text = yaml.safe_dump(relevant, sort_keys=True)
+    def _hash(self, also_excluded: Collection[str]) -> str:
+        text = yaml.safe_dump(self._relevant(also_excluded), sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+    def _relevant(self, also_excluded: Collection[str]) -> dict[str, Any]:
+        """The settings that decide results, without ``also_excluded`` too."""
+        return self.model_dump(mode="json", exclude=set(HOW_IT_RUNS) | set(also_excluded))
 
     def settings_yaml(self) -> str:
         """The YAML of what :meth:`settings_digest` covers."""
-        relevant = self.model_dump(mode="json", exclude=set(HOW_IT_RUNS | SELECTION))
-        return yaml.safe_dump(relevant, sort_keys=False, allow_unicode=True)
+        return yaml.safe_dump(self._relevant(SELECTION), sort_keys=False, allow_unicode=True)
 
     def to_yaml(self) -> str:
         return yaml.safe_dump(self.model_dump(mode="json"), sort_keys=False, allow_unicode=True)

@@ -548,7 +548,7 @@ def _finish(job: RunJob, wall_s: float, runs_in_pass: int = 1, finished: bool = 
     report.runs_in_pass = runs_in_pass
     # A row that stopped the run (refused credentials, a full disk) says nothing of its
     # episode, which the next launch runs again: it has no result yet, and is no error.
-    results = {key_of(r): r for r in job.store.results() if "fatal" not in r.extra}
+    results = {key_of(r): r for r in job.store.results() if not r.stopped_the_run}
     report.missing = [key for key in report.expected if key not in results]
     report.statuses = {}
     for key in report.expected:
@@ -630,7 +630,7 @@ def _execute_jobs(
             if job.config.mode == "dynamics":  # flown time; an official step's is nominal
                 job.report.simulated_s += float(result.extra.get("simulated_s", 0.0))
             progress.episode_done(result, _success(result))
-            if "fatal" in result.extra:  # e.g. refused credentials: no later one can succeed
+            if result.stopped_the_run:  # e.g. refused credentials: no later one can succeed
                 job.report.stopped = str(result.extra["fatal"])
                 break
     except KeyboardInterrupt:  # Ctrl-C, SIGTERM: each run.json says where the launch got

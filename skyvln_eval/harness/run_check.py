@@ -73,7 +73,7 @@ def check_run_directory(run_dir: Path) -> RunCheck:
             f"e.g. {leftovers[0].relative_to(run_dir)} (the next run or resume removes them)"
         )
     for result in results:
-        if result.status == "error" or "fatal" in result.extra:
+        if result.status == "error" or result.stopped_the_run:
             continue  # an episode that raised wrote no files
         episode = f"episode {result.split}/{result.episode_id}"
         for path in episode_files(config, run_dir, result):

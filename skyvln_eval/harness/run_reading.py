@@ -118,7 +118,7 @@ def _opened(run_dir: Path) -> ResultStore:
 def _all_rows(run_dir: Path, allow_incomplete: bool) -> list[EpisodeResult]:
     results = _opened(run_dir).results()
     if allow_incomplete:
-        return [r for r in results if "fatal" not in r.extra]
+        return [r for r in results if not r.stopped_the_run]
     from skyvln_eval.reports.run_coverage import run_coverage  # it reads harness.run
 
     coverage = run_coverage(run_dir, results)
@@ -135,7 +135,7 @@ def _rows_of(
 ) -> list[EpisodeResult]:
     """The rows of ``keys``; one without a row (or with one that only records the run
     stopping) raises, naming them, unless ``allow_incomplete`` leaves it out."""
-    found = {k: r for k, r in rows.items() if "fatal" not in r.extra}
+    found = {k: r for k, r in rows.items() if not r.stopped_the_run}
     missing = ["/".join(key) for key in keys if key not in found]
     if missing and not allow_incomplete:
         stopped = [k for k in keys if k in rows and k not in found]

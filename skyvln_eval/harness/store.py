@@ -317,6 +317,6 @@ class ResultStore:
         out = []
         for key in keys:
             row = self._rows.get(key)
-            if row is None or "fatal" in row.extra or (retry_failed and row.status == "error"):
+            if row is None or row.stopped_the_run or (retry_failed and row.status == "error"):
                 out.append(key)
         return out

@@ -252,6 +252,12 @@ class EpisodeResult:
     extra: Mapping[str, Any] = field(default_factory=dict)
 
     @property
+    def stopped_the_run(self) -> bool:
+        """Whether the row only records the run stopping there (``extra["fatal"]``: refused
+        credentials, a full disk): no result of its episode, which runs again."""
+        return "fatal" in self.extra
+
+    @property
     def has_ground_truth(self) -> bool:
         """Whether there is a route to score against (more than the start view)."""
         return len(self.gt_path_corners) >= 2

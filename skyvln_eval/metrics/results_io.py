@@ -352,10 +352,10 @@ def read_results(path: str | Path, *, allow_incomplete: bool = False) -> list[Ep
     them all, as ``skyvln-eval score`` does).
     """
     rows = read_result_rows(path)
-    stopped = [r for r in rows if "fatal" in r.extra]
+    stopped = [r for r in rows if r.stopped_the_run]
     if stopped and not allow_incomplete:
         raise stopped_run_error(str(path), stopped)
-    return [r for r in rows if "fatal" not in r.extra]
+    return [r for r in rows if not r.stopped_the_run]
 
 
 def read_result_rows(path: str | Path) -> list[EpisodeResult]:

@@ -219,8 +219,8 @@ def run_coverage(
     if altered:  # never scored, allowed incomplete or not
         raise altered_error(f"run {run_dir}", altered, data_dir)
     rows = {(r.split, r.episode_id): r for r in results}
-    stopped = [key for key in expected if key in rows and "fatal" in rows[key].extra]
-    missing = [key for key in expected if key not in rows or "fatal" in rows[key].extra]
+    stopped = [key for key in expected if key in rows and rows[key].stopped_the_run]
+    missing = [key for key in expected if key not in rows or rows[key].stopped_the_run]
     return RunCoverage(
         run_dir=run_dir,
         system=config.system,
@@ -285,7 +285,7 @@ def _ran(
     """``results`` without the rows that only record a run stopping (``extra["fatal"]``),
     which no episode's score is: with them the file raises, unless ``allow_incomplete``
     (then ``warnings`` says they are left out)."""
-    stopped = [r for r in results if "fatal" in r.extra]
+    stopped = [r for r in results if r.stopped_the_run]
     if not stopped:
         return results
     if not allow_incomplete:
@@ -294,7 +294,7 @@ def _ran(
         f"INCOMPLETE: {name}: {len(stopped)} row(s) only record the run stopping there and "
         "are left out; the episodes after them never ran"
     )
-    return [r for r in results if "fatal" not in r.extra]
+    return [r for r in results if not r.stopped_the_run]
 
 
 def _one_configuration_per_system(name: str, results: Sequence[EpisodeResult]) -> None:

@@ -353,7 +353,7 @@ def _interval_notes(
             if cell.ci_low is not None and math.isnan(cell.ci_low):
                 unavailable = True
                 continue
-            method = f"{CI_METHODS.get(cell.ci_method, cell.ci_method)}" + (
+            method = CI_METHODS.get(cell.ci_method, cell.ci_method) + (
                 f", {cell.ci_draws}" if cell.ci_draws else ""
             )
             by_method.setdefault(method, {})[labels[metric]] = None

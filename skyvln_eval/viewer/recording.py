@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from skyvln_eval.avdn import Episode
 from skyvln_eval.converters import topics as t
 from skyvln_eval.errors import McapLogError
 from skyvln_eval.viewer import entities as e
@@ -303,8 +304,7 @@ class _Recorder:
         return Focus(eye.tolist(), centre.tolist())
 
 
-def _record(rr: ModuleType, rec: Any, log: RunLogStream, ref: EpisodeLogRef) -> _Recorder:
-    episode = log.episode()
+def _record(rr: ModuleType, rec: Any, log: RunLogStream, episode: Episode) -> _Recorder:
     canvas = Canvas(rr, rec, e.MapFrame(episode.georef), _decision_times(log))
     static_content.episode_card(canvas, episode, log.run_metadata, log.path)
     recorder = _Recorder(canvas, _image_px(log.run_metadata), t.RUN_METADATA in log.metadata)
@@ -344,16 +344,16 @@ def write_recording(ref: EpisodeLogRef, out: str | Path) -> RecordingSummary:
         run_log = t.RUN_METADATA in log.metadata
         decisions = log.topic_counts.get(t.TOPIC_AGENT_STEP, 0)
         gt_views = 0 if run_log else log.topic_counts.get(t.TOPIC_GPS, 0)
-        mode = log.episode().mode
-        rec_id = recording_id(ref, log.run_metadata, mode)
+        episode = log.episode()  # its records parsed once: read from the metadata
+        rec_id = recording_id(ref, log.run_metadata, episode.mode)
         # An application per recording: the viewer keeps one layout per application, and
         # episodes differ in theirs (their LLM tabs, where the 3-D eye looks).
         rec = rr.RecordingStream(f"{e.APPLICATION_ID}:{rec_id}", recording_id=rec_id)
         rec.set_log_time_enabled(False)  # the two timelines are simulated time and decisions
         try:
             rec.save(tmp)
-            rec.send_recording_name(recording_name(ref, log.run_metadata, mode))
-            recorder = _record(rr, rec, log, ref)
+            rec.send_recording_name(recording_name(ref, log.run_metadata, episode.mode))
+            recorder = _record(rr, rec, log, episode)
             rec.flush()
             rec.disconnect()  # writes the footer: the file is complete only after this
             tmp.replace(out)

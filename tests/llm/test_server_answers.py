@@ -187,7 +187,7 @@ def test_only_a_whole_plausible_number_is_a_token_count(
     assert (record.cost_usd is None) == (counted is None)
 
 
-def test_content_in_parts_is_read_and_content_that_is_no_text_is_a_fault(tmp_path: Path) -> None:
+def test_content_in_parts_is_read_and_content_that_is_no_text_is_a_fault() -> None:
     parts = [{"type": "text", "text": '{"greeting": '}, {"type": "text", "text": '"hi"}'}]
     script = [
         raw(_completion_body({"content": parts})),
@@ -195,10 +195,8 @@ def test_content_in_parts_is_read_and_content_that_is_no_text_is_a_fault(tmp_pat
         raw(_completion_body({"content": [{"type": "image_url"}]})),
         answer('{"greeting": "hello"}'),
     ]
-    cache = ResponseCache(tmp_path / "cache.sqlite")
     with LoopbackOpenAIServer(script) as server:
         client = loopback_client(server, 3)
-        client.cache = cache
         joined = client.call("motion", HELLO, CONFIG)
         retried = client.call("motion", [*HELLO, Message("user", "again")], CONFIG)
     assert joined.completion is not None and joined.completion.text == '{"greeting": "hi"}'
