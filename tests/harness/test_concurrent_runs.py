@@ -50,15 +50,64 @@ def test_the_same_run_launched_twice_at_once_runs_each_episode_once(
     ]
     outputs = [launch.communicate(timeout=300) for launch in launches]
     codes = [launch.returncode for launch in launches]
-    assert sorted(codes) == [0, 2], outputs
-    winner, loser = (0, 1) if codes[0] == 0 else (1, 0)
-    refusal = outputs[loser][1].decode()
-    assert f"run directory {run_dir} is in use by process {launches[winner].pid} (" in refusal
-    assert f"run {config_file} --out {run_dir}), running since " in refusal
-    assert "Wait for it to finish" in refusal and "Traceback" not in refusal
-    assert b"6 run now" in outputs[winner][0]
     rows = read_results(run_dir / RESULTS_FILE)
     assert len(rows) == 6 and len({r.key for r in rows}) == 6  # each episode exactly once
+    # Which launch takes the directory first is up to the scheduler, and so is whether the
+    # other asks while it is held (refused, exit 2) or after it let go (nothing left, exit 0).
+    assert sorted(codes) in ([0, 0], [0, 2]), outputs
+    winner = codes.index(0) if sorted(codes) == [0, 2] else _the_one_that_ran(outputs)
+    loser = 1 - winner
+    assert b"6 run now" in outputs[winner][0], outputs
+    if codes[loser] == 2:
+        refusal = outputs[loser][1].decode()
+        assert f"run directory {run_dir} is in use by process {launches[winner].pid} (" in refusal
+        assert f"run {config_file} --out {run_dir}), running since " in refusal
+        assert "Wait for it to finish" in refusal and "Traceback" not in refusal
+    else:
+        assert b"nothing left to run: every episode was recorded before" in outputs[loser][1]
+
+
+def _the_one_that_ran(outputs: list[tuple[bytes, bytes]]) -> int:
+    ran = [i for i, (stdout, _) in enumerate(outputs) if b"6 run now" in stdout]
+    assert len(ran) == 1, outputs
+    return ran[0]
+
+
+def test_a_launch_on_a_held_run_directory_is_refused_and_names_the_holder(
+    tmp_path: Path, small_config: MakeConfig
+) -> None:
+    """The refusal without a race: a process holds the directory for as long as the test
+    needs, so the second launch always meets it."""
+    config = small_config(limit=1, splits=("val_seen",), write_logs=False, agent={"name": "random"})
+    config_file = tmp_path / "run.yaml"
+    config_file.write_text(yaml.safe_dump(config.model_dump(mode="json")))
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    holder = subprocess.Popen(
+        [sys.executable, "-c", HOLDER, str(run_dir)],
+        cwd=REPO,
+        env=ENV,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout is not None and holder.stdout.readline() == "held\n"
+        launch = subprocess.run(
+            [*_console_script(), "run", str(config_file), "--out", str(run_dir)],
+            cwd=REPO,
+            env={**ENV, "SKYVLN_EVAL_CACHE": str(tmp_path / "cache")},
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+    finally:
+        os.kill(holder.pid, signal.SIGKILL)
+        holder.wait()
+    assert launch.returncode == 2, (launch.stdout, launch.stderr)
+    assert f"run directory {run_dir} is in use by process {holder.pid} (python" in launch.stderr
+    assert "running since " in launch.stderr and "Wait for it to finish" in launch.stderr
+    assert "Traceback" not in launch.stderr
+    assert not (run_dir / RESULTS_FILE).exists()  # the refused launch ran nothing
 
 
 HOLDER = """
