@@ -6,9 +6,10 @@ sample, three times per split, on the same routes and ground truth:
 
 - as generated: each split in its own families of sentence frames;
 - seen-style: every dialog rephrased by the families of the seen splits (train, val_seen);
-- held-out: every dialog rephrased by the families of the unseen splits: val_unseen's
-  (validation phrasings, which the reader's tests read) and test_unseen's (held out: no
-  test reads them, and the idioms only they use are not in the reader's vocabulary).
+- validation-style: rephrased by val_unseen's families (validation phrasings: the
+  reader's tests read them, so they are not held out);
+- held-out: rephrased by test_unseen's families only (no test reads them, and the idioms
+  only they use are not in the reader's vocabulary).
 
 It prints the success rate of each (AVDN success: hull-IoU >= 0.4 and both centres
 strictly inside the other view), the gap seen-style minus held-out, and the number of
@@ -36,7 +37,6 @@ from skyvln_eval.worlds.sample import (
     SPLIT_FAMILIES,
     DialogSources,
     ensure_sample,
-    held_out_families,
     load_dialogs,
     render_trajectory,
     rephrase_records,
@@ -90,13 +90,18 @@ def main() -> None:
     args = parser.parse_args()
     data_dir = ensure_sample()
     sources = load_dialogs(data_dir)
-    seen, held_out = seen_families(), held_out_families()
+    seen = seen_families()
+    validation, held_out = SPLIT_FAMILIES["val_unseen"], SPLIT_FAMILIES["test_unseen"]
     print(f"sample: {data_dir}")
-    print(f"seen-style families: {', '.join(seen)}; held-out families: {', '.join(held_out)}")
+    print(
+        f"seen-style families: {', '.join(seen)}; validation-style: {', '.join(validation)}; "
+        f"held-out: {', '.join(held_out)}"
+    )
     print("system: SkyVLN Full, rule backend (rule-based, not an LLM), official mode\n")
     phrasings: dict[str, tuple[str, ...] | None] = {
         "as generated": None,
         "seen-style": seen,
+        "validation-style": validation,
         "held-out": held_out,
     }
     if args.families:

@@ -11,6 +11,7 @@ shown under both labels.
 from __future__ import annotations
 
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -277,6 +278,7 @@ def planned_runs(
         wanted.append(
             ("table2", backend.label, plan.table2.system, agent, plan.table2.split, run_dir)
         )
+    _check_distinct_rows(wanted, out_dir, in_plan)
     runs: dict[str, PlannedRun] = {}
     for table, label, system, agent, split, run_dir in wanted:
         config = RunConfig(
@@ -313,6 +315,28 @@ def planned_runs(
         else:
             runs[key] = PlannedRun(config, run_dir, ((table, label),))
     return list(runs.values())
+
+
+def _check_distinct_rows(
+    wanted: Sequence[tuple[TableName, str, PlanSystem, AgentConfig, Split, Path]],
+    out_dir: Path,
+    in_plan: str,
+) -> None:
+    """Refuse two rows of a table that would share a run folder (the same label twice, or
+    labels alike once made folder names): they would run into one directory at once, and
+    their scores would be one system's twice."""
+    first: dict[Path, tuple[TableName, str]] = {}
+    for table, label, _, _, _, run_dir in wanted:
+        if run_dir not in first:
+            first[run_dir] = (table, label)
+            continue
+        earlier = first[run_dir]
+        where = run_dir.relative_to(out_dir)
+        same = "the same label twice" if earlier[1] == label else "labels alike as folder names"
+        raise ConfigError(
+            f"{in_plan}: {earlier[0]} row {earlier[1]!r} and {table} row {label!r} would share "
+            f"the run folder {where} ({same}): give each row a label of its own"
+        )
 
 
 def results_digest(config: RunConfig) -> str:

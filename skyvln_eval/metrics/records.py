@@ -22,7 +22,7 @@ from typing import Any, Literal, get_args
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from skyvln_eval.avdn.constants import EPISODE_MODES, EpisodeMode
+from skyvln_eval.avdn.constants import EPISODE_MODES, SPLITS, EpisodeMode
 from skyvln_eval.avdn.json_values import shown
 from skyvln_eval.errors import ResultRecordError, ValidationIssue
 from skyvln_eval.llm_records import LlmCall, ModuleFailure, module_usage
@@ -284,6 +284,8 @@ class EpisodeResult:
             value = getattr(self, name)
             if not isinstance(value, str) or not value:
                 raise _issue(f"must be a non-empty string, got {value!r}", name, eid)
+        if self.split not in SPLITS:  # a table would leave an unknown split out unsaid
+            raise _issue(f"must be one of {SPLITS}, got {self.split!r}", "split", eid)
         if self.mode not in EPISODE_MODES:
             raise _issue(f"must be one of {EPISODE_MODES}, got {self.mode!r}", "mode", eid)
         if self.status not in RESULT_STATUSES:

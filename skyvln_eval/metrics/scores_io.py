@@ -24,6 +24,7 @@ episode's error) are optional: a file without them reads with the cells empty.
 
 from __future__ import annotations
 
+import csv
 import io
 import json
 from collections.abc import Sequence
@@ -32,6 +33,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from skyvln_eval.avdn.constants import SPLITS
 from skyvln_eval.errors import (
     ConfigError,
     DataError,
@@ -142,6 +144,8 @@ def read_scores(path: str | Path) -> tuple[pd.DataFrame, MetricConventions]:
     except ValueError as exc:  # pandas' ParserError and EmptyDataError among them
         reason = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
         raise DataError(f"{path}: the scores table is not valid CSV ({reason})") from None
+    lines_before_rows = 3 + len(warnings)
+    _check_row_lengths(table, path, lines_before_rows)
     # Its old name: it always counted requests (attempts), not calls.
     frame = frame.rename(columns={"llm_unpriced_calls": "llm_unpriced_requests"})
     said = ("oracle",) if version != "1" else ()
@@ -157,7 +161,9 @@ def read_scores(path: str | Path) -> tuple[pd.DataFrame, MetricConventions]:
     for column in CONTROL_COLUMNS:
         if column in frame.columns:
             frame[column] = frame[column].astype("Float64")
-    frame.attrs[_LINES_ATTR] = 3 + len(warnings)
+    frame.attrs[_LINES_ATTR] = lines_before_rows
+    _check_numbers(frame, path)
+    _check_splits(frame, path)
     _read_oracle(frame, path)
     after = "oracle"
     for column in TEXT_COLUMNS:
@@ -169,6 +175,50 @@ def read_scores(path: str | Path) -> tuple[pd.DataFrame, MetricConventions]:
     frame.attrs[CONVENTIONS_ATTR] = conventions
     frame.attrs[WARNINGS_ATTR] = warnings
     return frame, conventions
+
+
+def _check_row_lengths(table: str, path: Path, lines_before_rows: int) -> None:
+    """Refuse a row with fewer cells than the header (a file cut short, or a row edited by
+    hand): pandas would fill the cells it lacks as empty, which reads "not applicable", so
+    a cut-off row would lose its status and its metrics without a word."""
+    rows = csv.reader(io.StringIO(table))
+    header = next(rows, [])
+    for cells in rows:
+        if cells and len(cells) != len(header):
+            # The reader's line count is where the row ends (a quoted cell may hold lines).
+            raise DataError(
+                f"{path}: line {rows.line_num + lines_before_rows - 1} has {len(cells)} of the "
+                f"header's {len(header)} cells (a file cut short, or edited by hand?); score "
+                "the results again with `skyvln-eval score`"
+            )
+
+
+def _check_numbers(frame: pd.DataFrame, path: Path) -> None:
+    """Every metric cell a number or empty: a table would stop at the first text with a
+    bare ValueError; this names the file, line, episode and column."""
+    for column in METRIC_UNITS:
+        if column not in frame.columns or pd.api.types.is_numeric_dtype(frame[column]):
+            continue
+        numbers = pd.to_numeric(frame[column], errors="coerce")
+        _refuse_first(
+            frame, path, column, frame[column].notna() & numbers.isna(), "is not a number"
+        )
+
+
+def _check_splits(frame: pd.DataFrame, path: Path) -> None:
+    """Every row of an AVDN split: a table has a column per split and would leave a row of
+    another out without a word."""
+    _refuse_first(frame, path, "split", ~frame["split"].isin(SPLITS), f"is not one of {SPLITS}")
+
+
+def _refuse_first(frame: pd.DataFrame, path: Path, column: str, bad: pd.Series, what: str) -> None:
+    """Raise for the first ``bad`` row, naming its line, episode and ``column``."""
+    if not bad.any():
+        return
+    row = int(np.flatnonzero(bad.to_numpy())[0])
+    where = (row, str(frame["episode_id"].iloc[row]), column, _line(row, frame))
+    issue = ValidationIssue(str(path), f"{frame[column].iloc[row]!r} {what}", *where)
+    raise ResultRecordError(issue)
 
 
 def scores_warnings(frame: pd.DataFrame) -> list[str]:

@@ -37,12 +37,23 @@ PRINTED_METRICS = ("success", "oracle_success", "spl", "gp_m", "ne_m", "path_len
 
 
 def _cell(by_metric: Any, metric: str) -> str:
-    from skyvln_eval.reports.tables import fixed
+    """A summary mean as the tables show it: their decimals, "n/a" for unknown, "error"
+    where every episode ended in error and the metric scores them as failures (a 0 there
+    would read as a result), the tables' marker where some did."""
+    from skyvln_eval.reports.tables import HEALTH_METRICS, SOME_ERRORS, TABLE_II, fixed
 
     if metric not in by_metric.index:
         return "-"
     mean = float(by_metric.loc[metric, "mean"])
-    return "n/a" if math.isnan(mean) else fixed(mean, 2)  # rounded as the tables round
+    errors = 0.0
+    if metric not in HEALTH_METRICS and "status_error" in by_metric.index:
+        errors = float(by_metric.loc["status_error", "mean"])
+    if errors >= 100.0:
+        return "error"
+    if math.isnan(mean):
+        return "n/a"
+    text = fixed(mean, TABLE_II.digits_of(metric, 2))
+    return text + (SOME_ERRORS if errors > 0.0 else "")
 
 
 def _mode(mode: str) -> EpisodeMode:
@@ -244,8 +255,15 @@ def score(
     from skyvln_eval.metrics import score_results, summarise
     from skyvln_eval.metrics.aggregate import oracle_systems, unit_of
     from skyvln_eval.metrics.scores_io import summary_csv_text, write_scores
-    from skyvln_eval.reports.paper_tables import ORACLE_NOTE, oracle_label
+    from skyvln_eval.reports.paper_tables import (
+        ORACLE_NOTE,
+        STAND_IN_MARKERS,
+        marked_labels,
+        oracle_label,
+        stand_in_systems,
+    )
     from skyvln_eval.reports.run_coverage import covered_results
+    from skyvln_eval.reports.tables import ERRORS_MEANING, SOME_ERRORS
 
     data_dir = None if data_dir_text is None else _data_dir(data_dir_text)
     conventions = _conventions(threshold_m, distance, non_strict, legacy_gp, collisions_succeed)
@@ -273,12 +291,17 @@ def score(
         unit = unit_of(metric)
         table.add_column(f"{metric}\n({unit})" if unit else metric, justify="right")
     oracles = set(oracle_systems(scores))
+    stand_ins = stand_in_systems(scores)
+    stand_in_labels = marked_labels(stand_ins)
+    printed_cells: list[str] = []
     for (sys_name, split_name, mode_name), group in summary.groupby(
         ["system", "split", "mode"], sort=True
     ):
         by_metric = group.set_index("metric")
         cells = [_cell(by_metric, m) for m in shown]
-        name = oracle_label(str(sys_name)) if sys_name in oracles else str(sys_name)
+        printed_cells += cells
+        name = str(sys_name)
+        name = oracle_label(name) if name in oracles else stand_in_labels.get(name, name)
         where = (name, str(split_name), *((str(mode_name),) if modes else ()))
         table.add_row(*where, str(int(group.n.max())), *cells)
     console = Console(width=160)
@@ -287,6 +310,10 @@ def score(
     console.print(table)
     if oracles:
         console.print(ORACLE_NOTE, markup=False, highlight=False)
+    for kind in dict.fromkeys(stand_ins[s] for s in stand_in_labels):
+        console.print(STAND_IN_MARKERS[kind][1], markup=False, highlight=False)
+    if any(cell.endswith(SOME_ERRORS) or cell == "error" for cell in printed_cells):
+        console.print(ERRORS_MEANING, markup=False, highlight=False)
     for warning in warnings:  # again below the table, where the eye lands
         console.print(f"WARNING: {warning}", style="bold red", markup=False, highlight=False)
     console.print(f"wrote {out / 'scores.csv'} and {out / 'summary.csv'}")

@@ -127,7 +127,7 @@ def paper_table(
     resamples: int = 1000,
     seed: int = 0,
     withheld: Collection[str] = (),
-    ci_unit: CiUnit = "episode",
+    ci_unit: CiUnit = "trajectory",
 ) -> Table:
     """``spec`` (:data:`TABLE_I` or :data:`TABLE_II`) from ``scores``.
 
@@ -147,7 +147,7 @@ def paper_table(
     models = model_systems(scores) if spec is TABLE_I else {}
     labels = {
         **{s: named for s, b in models.items() if (named := model_label(s, b)) != s},
-        **_marked_labels(stand_ins),
+        **marked_labels(stand_ins),
         **{o: oracle_label(o) for o in oracles if oracle_label(o) != o},
     }
     systems = set(scores["system"])
@@ -265,7 +265,7 @@ def _crashes_note(
     return [f"Episodes whose flight touched an obstacle, which {how}: {'; '.join(parts)}."]
 
 
-def _marked_labels(stand_ins: dict[str, str]) -> dict[str, str]:
+def marked_labels(stand_ins: dict[str, str]) -> dict[str, str]:
     """Row labels with the marker of their stand-in, where the label does not already say
     what answered it (its marker, "not an LLM" or "stand-in", as reproduce's rows do)."""
     marked = {}

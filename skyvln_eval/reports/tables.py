@@ -129,6 +129,12 @@ class Cell:
 
 #: The marker of a cell where some episodes ended in error.
 SOME_ERRORS = "⋄"
+#: What the marker and an 'error' cell mean.
+ERRORS_MEANING = (
+    f"{SOME_ERRORS} some episodes ended in error (no usable LLM answer, or the episode "
+    "raised): they count as failures (0 in SR and SPL; NE as flown, to where they stopped); "
+    "'error': every episode of the cell did."
+)
 #: Metrics shown as "≥ x" from a known lower bound (another summary metric) when their
 #: mean is unknown: a backend's cost when only failed attempts have none.
 LOWER_BOUNDS: dict[str, str] = {"llm_cost_usd": "llm_cost_lower_usd"}
@@ -340,12 +346,13 @@ def _interval_notes(
 ) -> list[str]:
     """How the shown intervals were made, naming the columns of each method, and what
     '[n/a]' means where a cell has none."""
-    labels = dict(spec.metrics)
-    by_method: dict[str, dict[str, None]] = {}
+    labels, titles = dict(spec.metrics), dict(spec.groups)
+    # method -> column -> the cells (row on split) it made
+    by_method: dict[str, dict[str, list[str]]] = {}
     unavailable = False
     units: set[int] = set()
     for row in rows:
-        for (_, metric), cell in cells[row].items():
+        for (split, metric), cell in cells[row].items():
             if cell is None or not cell.shows_interval:
                 continue
             if cell.trajectories:
@@ -356,11 +363,15 @@ def _interval_notes(
             method = CI_METHODS.get(cell.ci_method, cell.ci_method) + (
                 f", {cell.ci_draws}" if cell.ci_draws else ""
             )
-            by_method.setdefault(method, {})[labels[metric]] = None
+            made = by_method.setdefault(method, {}).setdefault(labels[metric], [])
+            made.append(f"{row} on {titles[split]}")
     if not by_method and not unavailable:
         return []
     level = ", ".join(f"{100.0 * c:g}%" for c in levels)
-    parts = [f"{method}: {', '.join(columns)}" for method, columns in sorted(by_method.items())]
+    parts = [
+        f"{method}: {', '.join(_columns_made(column_cells, method, by_method))}"
+        for method, column_cells in sorted(by_method.items())
+    ]
     if units:  # few dialogs make a wide interval: say how few
         low, high = min(units), max(units)
         span = f"{low}" if low == high else f"{low} to {high}"
@@ -368,6 +379,19 @@ def _interval_notes(
     if unavailable:
         parts.append("[n/a]: no interval (a bootstrap needs episodes whose values differ)")
     return [f"Brackets: {level} intervals; {'; '.join(parts)}."]
+
+
+def _columns_made(
+    column_cells: dict[str, list[str]], method: str, by_method: dict[str, dict[str, list[str]]]
+) -> list[str]:
+    """The columns a method made intervals for; a column whose cells used several methods
+    names the cells of each but its most common one (a reader cannot tell them apart)."""
+    named = []
+    for column, made in column_cells.items():
+        counts = {m: len(c[column]) for m, c in by_method.items() if column in c}
+        most = max(sorted(counts), key=lambda m: counts[m])  # ties: the first by name
+        named.append(column if method == most else f"{column} ({', '.join(made)})")
+    return named
 
 
 def _not_run_notes(
@@ -482,12 +506,7 @@ def _error_notes(
     ]
     if not some:
         return []
-    return [
-        f"{SOME_ERRORS} some episodes ended in error (no usable LLM answer, or the episode "
-        "raised): they count as failures (0 in SR and SPL; NE as flown, to where they stopped); "
-        "'error': every episode of the cell did. Episodes that ended in error: "
-        f"{'; '.join(some)}."
-    ]
+    return [f"{ERRORS_MEANING} Episodes that ended in error: {'; '.join(some)}."]
 
 
 def _number(cell: Cell | None, digits: int, with_ci: bool, withheld: bool = False) -> str:
@@ -549,8 +568,14 @@ RANK_MARKS = "Best in bold, second underlined."
 
 
 def _caption(table: Table) -> str:
-    """The caption every rendering carries: the table's and what its marks mean."""
-    return f"{table.spec.caption} {RANK_MARKS}"
+    """The caption every rendering carries: the table's and what its marks mean (when
+    some cell is marked: a table of references alone ranks nothing)."""
+    ranked = any(
+        cell is not None and cell.rank is not None
+        for row in table.cells.values()
+        for cell in row.values()
+    )
+    return f"{table.spec.caption} {RANK_MARKS}" if ranked else table.spec.caption
 
 
 def _conventions_note(table: Table) -> str:

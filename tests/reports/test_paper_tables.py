@@ -219,9 +219,10 @@ def test_a_table_shows_itself_in_jupyter_as_its_markdown() -> None:
 
 def test_trajectory_intervals_say_how_many_trajectories_they_rest_on() -> None:
     scores = _scores()
-    md = to_markdown(
-        paper_table(scores, TABLE_II, MetricConventions(), show_ci=True, ci_unit="trajectory")
-    )
+    # The default, as summarise's, score's and table's: a dialog's rounds drawn together.
+    md = to_markdown(paper_table(scores, TABLE_II, MetricConventions(), show_ci=True))
     assert "each over 2 to 3 trajectories" in md  # gemma and dead 2 dialogs, rule 3
-    plain = to_markdown(paper_table(scores, TABLE_II, MetricConventions(), show_ci=True))
+    plain = to_markdown(
+        paper_table(scores, TABLE_II, MetricConventions(), show_ci=True, ci_unit="episode")
+    )
     assert "trajector" not in plain.split("Brackets")[1]
