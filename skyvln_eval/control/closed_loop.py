@@ -208,8 +208,8 @@ class Flight:
         # The input the rate limits start from, as floats (the controller replaces it).
         before = self.controller.previous_input.tolist()
         previous_tilt = (before[1], before[2])
-        with NATIVE_CALLS:
-            command = self.controller.step(self.plant.measure(), window, forecast)
+        # The controller takes the native-code lock for its solves itself.
+        command = self.controller.step(self.plant.measure(), window, forecast)
         if not command.is_finite():  # a controller bug must not crash the flight either
             # Eased to hover from the input last applied, not from the non-finite one the
             # controller kept (a hover from NaN is NaN, and so would every state be after).

@@ -47,6 +47,7 @@ from skyvln_eval.control.rti import (
 )
 from skyvln_eval.control.stage_qp import NZ, StageQp
 from skyvln_eval.errors import ConfigError, SolverBuildError
+from skyvln_eval.native_calls import NATIVE_CALLS
 from skyvln_eval.sim.obstacles import ObstacleForecast, row_norms
 from skyvln_eval.sim.quadrotor import NU, NX, DroneState, rk4_symbolic
 from skyvln_eval.sim.reference import ReferenceWindow
@@ -172,21 +173,25 @@ class MpcController(Controller):
         shift = self._warm_start(origin)
         iterations = 0
         solved = False
-        for _ in range(self.config.sqp_iterations):
-            try:
-                ok, qp_iterations = rti.solve(shift)
-            except RuntimeError:  # CasADi reports solver crashes this way
-                ok, qp_iterations = False, 0
-            iterations += max(qp_iterations, 0)
-            if not ok:
-                break
-            solved = True
-            # The shifted guess stays inside the Function: the first iterate always continues.
-            change = np.inf if shift else float(np.max(np.abs(rti.w - rti.guess)))
-            rti.guess[:] = rti.w
-            shift = False
-            if change < self.config.sqp_step_tolerance:
-                break
+        # Controllers of one problem share its Functions (and their HPIPM workspaces and
+        # stats): the solves take the process's native-code lock themselves, so that
+        # controllers stepped from several threads never run them at once, whoever calls.
+        with NATIVE_CALLS:
+            for _ in range(self.config.sqp_iterations):
+                try:
+                    ok, qp_iterations = rti.solve(shift)
+                except RuntimeError:  # CasADi reports solver crashes this way
+                    ok, qp_iterations = False, 0
+                iterations += max(qp_iterations, 0)
+                if not ok:
+                    break
+                solved = True
+                # The shifted guess stays in the Function: the first iterate always goes on.
+                change = np.inf if shift else float(np.max(np.abs(rti.w - rti.guess)))
+                rti.guess[:] = rti.w
+                shift = False
+                if change < self.config.sqp_step_tolerance:
+                    break
         if not solved:
             return self._fallback(start, iterations, "", yaw_ref)
         rti.plan[:] = rti.guess

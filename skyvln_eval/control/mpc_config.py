@@ -60,6 +60,11 @@ class MpcWeights:
         require_positive(self, "terminal_scale", "slack_linear", "slack_quadratic")
 
 
+#: Where classical RK4's stability region meets the negative real axis (|R(z)| = 1 at
+#: z = -2.785...): the largest step, in time constants, that a decaying mode survives.
+RK4_REAL_STABILITY = 2.785
+
+
 @dataclass(frozen=True)
 class MpcConfig:
     """One MPC controller's settings (shared by the NMPC and the linear MPC)."""
@@ -94,6 +99,17 @@ class MpcConfig:
                 )
         require_positive(self, "dt_s", "sqp_step_tolerance")
         require_non_negative(self, "obstacle_margin_m")
+        # The prediction model takes one RK4 step per interval: for a first-order loop of
+        # time constant tau, RK4 is stable only while dt / tau <= 2.785 (its stability
+        # interval on the negative real axis); beyond, the predicted attitude diverges and
+        # the controller flies a model that is not the drone's (an audit's dt 1 s: 53 m off).
+        tau = min(self.params.roll_time_constant_s, self.params.pitch_time_constant_s)
+        if self.dt_s > RK4_REAL_STABILITY * tau:
+            raise ConfigError(
+                f"MpcConfig.dt_s must be at most {RK4_REAL_STABILITY * tau:.3f} s, got "
+                f"{self.dt_s!r}: the model's one RK4 step per interval is unstable for the "
+                f"attitude loop (time constant {tau} s) beyond it"
+            )
         if self.qp_solver not in ("riccati", "hpipm"):
             raise ConfigError(
                 f"MpcConfig.qp_solver must be 'riccati' or 'hpipm', got {self.qp_solver!r}"

@@ -163,7 +163,9 @@ def as_views(
 class ControlSummary:
     """Safety and control statistics of one closed-loop episode (see :mod:`.safety`).
 
-    ``min_clearance_m`` is ``None`` when the episode had no obstacles; the RMSEs are of
+    ``duration_s`` is from the first step's start to the last step's end (``None`` for a
+    log of one step, whose length the log does not hold); ``min_clearance_m`` is ``None``
+    when the episode had no obstacles; the RMSEs are of
     flown minus reference (roll and pitch against the commanded angles, yaw wrapped to
     (-pi, pi]); solve times are over every control step.
     """
@@ -171,7 +173,7 @@ class ControlSummary:
     controller: str
     scenario: str
     steps: int
-    duration_s: float
+    duration_s: float | None
     collision_steps: int
     min_clearance_m: float | None
     constraint_violation_steps: int
@@ -201,7 +203,7 @@ class ControlSummary:
             value = getattr(self, f.name)
             if f.name in ("controller", "scenario"):
                 continue
-            if value is None and f.name in ("min_clearance_m", "soft_steps"):
+            if value is None and f.name in ("duration_s", "min_clearance_m", "soft_steps"):
                 continue
             if (
                 isinstance(value, bool)

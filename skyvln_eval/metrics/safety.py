@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from numpy.typing import NDArray
 
 from skyvln_eval.errors import DataError
 from skyvln_eval.metrics.records import ControlSummary
@@ -142,6 +143,15 @@ def _rmse(err: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(err))))
 
 
+def _duration_s(t: NDArray[np.float64]) -> float | None:
+    """From the first step's start to the last step's end: each row is a step from its
+    ``t_s`` to the next row's, and the last lasts as long as the others (``None`` for one
+    step, whose length the log does not hold)."""
+    if len(t) < 2:
+        return None
+    return float(t.max() - t.min() + np.median(np.diff(np.sort(t))))
+
+
 def summarise_control(log: pd.DataFrame, source: str = "<control log>") -> ControlSummary:
     """The :class:`ControlSummary` of one controller on one scenario (one group)."""
     check_control_log(log, source)
@@ -161,7 +171,10 @@ def summarise_control(log: pd.DataFrame, source: str = "<control log>") -> Contr
         controller=controller,
         scenario=str(log["scenario"].iloc[0]),
         steps=len(log),
-        duration_s=float(t.max() - t.min()),
+        # Each row is a step from its t_s to the next row's: the last one lasts as long.
+        duration_s=float(t.max() - t.min() + np.median(np.diff(np.sort(t))))
+        if len(t) > 1
+        else None,
         collision_steps=int(log["collision"].sum()),
         min_clearance_m=None if np.isposinf(clearance).all() else float(clearance.min()),
         constraint_violation_steps=int(log["constraint_violation"].sum()),

@@ -21,6 +21,7 @@ from skyvln_eval.control import (
     make_controller,
 )
 from skyvln_eval.errors import ConfigError, SettingsError, UnknownNameError
+from skyvln_eval.sim.quadrotor import QuadrotorParams
 from tests.conftest import REPO
 
 CONFIGS = sorted((REPO / "configs" / "controllers").glob("*.yaml"))
@@ -149,3 +150,13 @@ def test_an_exponent_without_its_sign_is_named_as_yaml_text() -> None:
         "must be a number, got '1.0e12' (text: YAML wants a signed exponent, 1.0e+12)"
     )
     assert controller_config("nmpc", yaml.safe_load("weights: {slack_linear: 1.0e+12}"))
+
+
+def test_a_control_step_longer_than_the_model_can_predict_is_refused() -> None:
+    # One RK4 step per interval: for the attitude loop (tau 0.257 s) stable up to
+    # 2.785 tau = 0.716 s. An audit's dt 1 s flew 53 m off a 20 m target, without a word.
+    assert MpcConfig(dt_s=0.7).dt_s == 0.7
+    with pytest.raises(ConfigError, match=r"dt_s must be at most 0\.716 s, got 1\.0"):
+        MpcConfig(dt_s=1.0)
+    slower = QuadrotorParams(roll_time_constant_s=0.5, pitch_time_constant_s=0.5)
+    assert MpcConfig(dt_s=1.0, params=slower).dt_s == 1.0  # the limit is the model's

@@ -56,7 +56,10 @@ def control_log(
 
 def test_control_summary_hand_computed() -> None:
     summary = summarise_control(control_log(offset_m=0.3))
-    assert summary.steps == 50 and summary.duration_s == pytest.approx(4.9)
+    # 50 steps of 0.1 s: from the first's start (t 0) to the last's end (t 4.9 + 0.1).
+    assert summary.steps == 50 and summary.duration_s == pytest.approx(5.0)
+    one_step = summarise_control(control_log(offset_m=0.3).iloc[:1])
+    assert one_step.duration_s is None  # its length is not in the log
     assert summary.rmse_x_m == 0.0 and summary.rmse_y_m == pytest.approx(0.3)
     assert summary.rmse_pitch_rad == pytest.approx(0.02)
     assert summary.rmse_yaw_rad == pytest.approx(0.02)  # wrapped across +-pi, not 2 pi - 0.02
