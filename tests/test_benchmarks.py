@@ -18,6 +18,7 @@ import pytest
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 
 QUICK = {
+    "commander.py": (["--limit", "2", "--splits", "val_seen"], "blind beacon (answers only)"),
     "flight_loop.py": (["--repeat", "1"], "whole / solve"),
     "render.py": (["--poses", "2", "--reference-poses", "1", "--worlds", "1"], "faster than"),
     "detector.py": (["--decisions", "2", "--repeat", "1"], "speed-up"),
