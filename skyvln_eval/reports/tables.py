@@ -654,9 +654,13 @@ def to_latex(table: Table) -> str:
 def to_csv(table: Table) -> str:
     """One line per system: mean (and CI bounds) per split and metric, then per split the
     episodes scored and how many of them ended in error (what the other formats mark with
-    the error marker: a script reading the CSV sees it too); conventions first."""
+    the error marker: a script reading the CSV sees it too); conventions, each metric's
+    label with its unit, and the notes first, as comment lines."""
     buffer = io.StringIO()
     buffer.write(f"# conventions: {table.conventions.to_json()}\n")
+    # The units with the metrics: shares are percent here (fractions in scores.csv).
+    labels = "; ".join(f"{metric} is {label}" for metric, label in table.spec.metrics)
+    buffer.write(f"# columns: {labels}\n")
     for note in table.notes:
         buffer.write(f"# note: {note}\n")
     writer = csv.writer(buffer, lineterminator="\n")

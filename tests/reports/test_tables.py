@@ -112,6 +112,8 @@ def test_confidence_intervals_in_every_format() -> None:
     assert r"\textbf{28.11}\,{\scriptsize[27.11, 29.61]}" in to_latex(table)
     lines = to_csv(table).splitlines()
     assert lines[0].startswith("# conventions: {") and '"threshold_m":3.0' in lines[0]
+    # Each metric's unit: SR is a percent here, a fraction in scores.csv.
+    assert lines[1].startswith("# columns: spl is SPL/%; success is SR/%; ne_m is NE/m;")
     data = [line for line in lines if not line.startswith("#")]  # conventions and notes
     rows = list(csv.DictReader(io.StringIO("\n".join(data))))
     full = next(r for r in rows if r["LLM"] == "Ours Full")
