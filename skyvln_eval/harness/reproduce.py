@@ -159,7 +159,18 @@ def setting_note(plan: ReproducePlan) -> str:
         if plan.limit
         else ""
     )
-    return f"Sensors: {plan.sensors.describe()}; {commander}{how}.{limit}"
+    return f"{_data_note(plan.data)} Sensors: {plan.sensors.describe()}; {commander}{how}.{limit}"
+
+
+def _data_note(data: str) -> str:
+    """Which data the tables are over: the synthetic sets are in AVDN's format, not AVDN."""
+    synthetic = {"sample": "the synthetic sample", "full": "the AVDN-sized synthetic set"}
+    if data in synthetic:
+        return (
+            f"Data: {synthetic[data]} (AVDN's format, not its imagery or dialogs; its "
+            "test_unseen keeps the whole ground truth, which AVDN's release withholds)."
+        )
+    return f"Data: {Path(data).name} (AVDN format)."
 
 
 def table1_label(label: str, agent: AgentConfig) -> tuple[str, str | None]:
@@ -445,7 +456,8 @@ def reproduce(
     (for remote LLMs: their waits overlap)."""
     out_dir = ensure_directory(out_dir, "output folder")
     started = time.perf_counter()
-    data_dir = resolve_data_dir(data or plan.data)
+    plan = plan.model_copy(update={"data": data or plan.data})  # what the notes name
+    data_dir = resolve_data_dir(plan.data)
     # First: it refuses a plan whose model lacks its API key before anything is written.
     runs = planned_runs(plan, out_dir, workers, executor, str(data_dir))
     datasets = _dataset_summary(data_dir)

@@ -81,6 +81,11 @@ def test_the_tables_say_which_rows_flew_and_how_many_episodes_a_quick_look_took(
     assert f"the official AVDN step (no flight, no obstacles): {', '.join(stepped)}" in note
     assert "Episodes: the first 3 of each split" in note
     assert "Episodes:" not in setting_note(load_plan("default"))
+    # Which data: the synthetic sets are AVDN's format, not AVDN (and keep test_unseen's
+    # ground truth); a folder of the user's is named by its folder.
+    assert note.startswith("Data: the synthetic sample (AVDN's format, not its imagery")
+    real = plan.model_copy(update={"data": "/data/avdn"})
+    assert setting_note(real).startswith("Data: avdn (AVDN format). Sensors: ")
 
 
 def test_dynamics_settings_in_an_official_run_are_warned_of(
