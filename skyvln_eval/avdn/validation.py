@@ -349,6 +349,24 @@ def _check_view_geometry(
     shifted = (view_k == 0) & ~degenerate & ~not_square & ~mirrored & (gap > 45.0)
 
     bad: set[int] = set()
+    # A record whose every view is off its map but on it read as [lng, lat]: one issue
+    # that says so, not a mirrored-order and an off-map issue for each of its views.
+    flipped = views[..., ::-1]
+    on_if_swapped = ((flipped >= lo[:, None, :]) & (flipped <= hi[:, None, :])).all(axis=(1, 2))
+    off_map = np.asarray(outside, dtype=bool)
+    on_swapped = np.asarray(on_if_swapped, dtype=bool)
+    swapped = [
+        r for r in range(len(pending)) if off_map[owner == r].all() and on_swapped[owner == r].all()
+    ]
+    for r in swapped:
+        p = pending[r]
+        message = (
+            "every view lies off the map and would lie on it read as [lng, lat]: corners "
+            "are [lat, lng] (swapped?)"
+        )
+        episode = episode_id_of(p.raw["map_name"], p.raw["route_index"])
+        issues.append(ValidationIssue(file, message, p.index, episode, "gt_path_corners"))
+        bad.add(p.index)
     problems = (
         (degenerate, "degenerate view: an edge is shorter than {min} m (sides {sides} m)"),
         (not_square, "view is not square (sides {sides} m, diagonals {diags} m)"),
@@ -363,6 +381,8 @@ def _check_view_geometry(
     )
     for mask, template in problems:
         for v in np.flatnonzero(mask):
+            if owner[v] in swapped:
+                continue
             p = pending[owner[v]]
             message = template.format(
                 facing=f"{facing[v]:.1f}",
@@ -486,6 +506,31 @@ def _check_consistency(
                 )
             )
             bad.add(p.index)
+    return bad | _check_last_rounds([p for p in pending if p.index not in bad], file, issues)
+
+
+def _check_last_rounds(
+    pending: list[_Pending], file: str, issues: list[ValidationIssue]
+) -> set[int]:
+    """No record declares its trajectory's last round (``last_round_idx``) before a round
+    the file holds of it: ANDH-Full would take another record's larger declaration and
+    say nothing. (A declaration beyond the rounds held is a missing round, which building
+    the ANDH-Full episode reports.)"""
+    bad: set[int] = set()
+    rounds: dict[tuple[str, str], list[tuple[int, int, int | None]]] = {}
+    for p in pending:
+        trajectory, number = str(p.raw["route_index"]).split("_")
+        entry = (p.index, int(number), p.raw.get("last_round_idx"))
+        rounds.setdefault((str(p.raw["map_name"]), trajectory), []).append(entry)
+    for (map_name, trajectory), held in rounds.items():
+        latest_index, latest, _ = max(held, key=lambda entry: entry[1])
+        for index, round_index, last in held:
+            if last is None or last >= latest:
+                continue
+            problem = f"{last}, but record {latest_index} holds round {latest} of this trajectory"
+            episode = episode_id_of(map_name, f"{trajectory}_{round_index}")
+            issues.append(ValidationIssue(file, problem, index, episode, "last_round_idx"))
+            bad.add(index)
     return bad
 
 

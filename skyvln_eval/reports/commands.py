@@ -262,13 +262,14 @@ def score(
         oracle_label,
         stand_in_systems,
     )
-    from skyvln_eval.reports.run_coverage import covered_results
+    from skyvln_eval.reports.run_coverage import covered_results, long_path_warnings
     from skyvln_eval.reports.tables import ERRORS_MEANING, SOME_ERRORS
 
     data_dir = None if data_dir_text is None else _data_dir(data_dir_text)
     conventions = _conventions(threshold_m, distance, non_strict, legacy_gp, collisions_succeed)
     sources = _load_results(results, data_dir, split, mode, system, allow_incomplete)
     loaded, warnings = covered_results(sources, data_dir, allow_incomplete)
+    warnings += long_path_warnings(sources)
     scores = score_results(loaded, conventions)
     metrics = [m for m in SUMMARY_METRICS if m in scores]
     summary = summarise(scores, metrics, resamples, seed=seed, ci_unit=_ci_unit(ci_unit))

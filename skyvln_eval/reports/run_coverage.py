@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from skyvln_eval.avdn.constants import EpisodeMode
+from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN, EpisodeMode
 from skyvln_eval.errors import (
     AlteredGroundTruthError,
     ConfigError,
@@ -230,6 +230,22 @@ def run_coverage(
         stopped=tuple(stopped),
         unexpected=tuple(sorted(set(rows) - set(expected))),
     )
+
+
+def long_path_warnings(sources: list[tuple[str, list[EpisodeResult]]]) -> list[str]:
+    """A warning per input whose paths hold more views than AVDN's ``max_action_len`` (10,
+    the start included): OSR and oracle GP count every view visited, so more views make
+    them higher than the paper's protocol allows (a harness run keeps its own limit)."""
+    warnings = []
+    for name, rows in sources:
+        long = [len(r.visited_views) for r in rows if len(r.visited_views) > DEFAULT_MAX_ACTION_LEN]
+        if long:
+            warnings.append(
+                f"{name}: {len(long)} episode(s) visited more than {DEFAULT_MAX_ACTION_LEN} views "
+                f"(up to {max(long)}; AVDN's max_action_len counts the start): oracle success "
+                "and oracle GP count every view, so they are not comparable with the paper's"
+            )
+    return warnings
 
 
 def covered_results(

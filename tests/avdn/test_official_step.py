@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from skyvln_eval.avdn import (
+    DEFAULT_MAX_ACTION_LEN,
     METERS_PER_DEGREE,
     action_target_edge_m,
     action_turn_deg,
@@ -63,8 +64,22 @@ def test_all_official_rollouts_are_reproduced() -> None:
     episodes = json.loads(SHARED_FILE.read_text())
     counts = _check_rollouts(episodes)
     assert len(episodes) == 897
-    assert counts["steps"] == 6729
-    assert counts["full"] >= 6649
+    # Every step of the spec's count, of each kind (an audit counted them independently).
+    kinds = {"full": 6649, "cancelled": 53, "zoom_only": 16, "rotate_only": 11}
+    assert counts == {"steps": 6729, **kinds}
+    for episode in episodes:
+        views, progress = episode["path_corners"], episode["progress"]
+        where = episode["instr_id"]
+        # One action, heading and progress per view, the start included; at most
+        # max_action_len (10) views; the start view's heading is its own, rounded.
+        assert len(episode["actions"]) == len(episode["path_headings"]) == len(progress)
+        assert len(views) == len(progress) <= DEFAULT_MAX_ACTION_LEN, where
+        assert np.array_equal(episode["start_view"], views[0]), where
+        start_heading = round(float(view_heading_deg(np.asarray(views[0])))) % 360
+        assert episode["path_headings"][0] == start_heading, where
+        # The official agent stops once its predicted progress exceeds 0.5, or at the cap.
+        assert not any(p > 0.5 for p in progress[:-1]), where
+        assert progress[-1] > 0.5 or len(views) == DEFAULT_MAX_ACTION_LEN, where
 
 
 def test_step_inside_map_is_full_and_cancels_at_the_border() -> None:

@@ -504,3 +504,26 @@ def test_the_error_counts_records_not_problems() -> None:
     ]
     message = str(AvdnValidationError(issues))
     assert message.startswith("1 invalid record(s), 1 other problem(s) (")
+
+
+def test_views_given_as_lng_lat_are_one_issue_that_says_so(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    # Each view was refused twice (mirrored corners, off the map) with no word of the swap.
+    record = make_record(route_index="0_1")
+    record["gt_path_corners"] = [[c[::-1] for c in view] for view in record["gt_path_corners"]]
+    issue = only_issue(dataset_factory, [record])
+    assert issue.field == "gt_path_corners"
+    assert "would lie on it read as [lng, lat]: corners are [lat, lng] (swapped?)" in issue.message
+
+
+def test_a_last_round_before_a_round_the_file_holds_is_refused(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    # Round 1 says the trajectory ended there while round 3 is in the file: ANDH-Full took
+    # round 3's declaration and nobody heard of round 1's.
+    rounds = [make_record(route_index=f"0_{k}", last_round_idx=3) for k in (1, 2, 3)]
+    rounds[0]["last_round_idx"] = 1
+    issue = only_issue(dataset_factory, rounds)
+    assert (issue.record_index, issue.field) == (0, "last_round_idx")
+    assert issue.message == "1, but record 2 holds round 3 of this trajectory"

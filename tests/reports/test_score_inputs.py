@@ -16,7 +16,7 @@ from skyvln_eval.errors import ConfigError, DataError, ResultRecordError
 from skyvln_eval.harness.plan import load_plan, planned_runs
 from skyvln_eval.metrics import MetricConventions, score_results
 from skyvln_eval.metrics.results_io import write_results
-from skyvln_eval.metrics.scores_io import read_scores, write_scores
+from skyvln_eval.metrics.scores_io import read_scores, scores_warnings, write_scores
 from skyvln_eval.reports import TABLE_II, paper_table, to_markdown
 from skyvln_eval.reports.tables import RANK_MARKS
 from tests.metrics.helpers import result, square
@@ -151,3 +151,16 @@ def test_a_table_of_references_alone_does_not_explain_marks_it_lacks() -> None:
     md = to_markdown(paper_table(references, TABLE_II, MetricConventions()))
     assert RANK_MARKS not in md
     assert RANK_MARKS in to_markdown(paper_table(_two_models(), TABLE_II, MetricConventions()))
+
+
+def test_paths_longer_than_avdns_limit_are_warned_of_in_the_scores(tmp_path: Path) -> None:
+    # OSR counts every view: a 20-view path is scored beyond the paper's protocol (10).
+    long_path = [square(0, 0)] + [square(0, 10 * k) for k in range(1, 20)]
+    rows = [result(long_path, GOAL, episode_id="1913__0_1"), result(GOAL, GOAL, "ok", "1913__1_1")]
+    results = tmp_path / "results.jsonl"
+    write_results(results, rows)
+    out = tmp_path / "s"
+    scored = CliRunner().invoke(app, ["score", str(results), "--out", str(out), "--resamples", "0"])
+    assert scored.exit_code == 0, scored.output
+    warning = f"{results}: 1 episode(s) visited more than 10 views (up to 20;"
+    assert any(w.startswith(warning) for w in scores_warnings(read_scores(out / "scores.csv")[0]))
