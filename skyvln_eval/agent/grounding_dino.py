@@ -34,8 +34,18 @@ import numpy as np
 from skyvln_eval.agent.detectors import Detection, Detector, clip_box
 from skyvln_eval.errors import MissingExtraError
 from skyvln_eval.sensing import CameraImages
+from skyvln_eval.vocabulary.landmarks import CATEGORY_LABELS
 
 DEFAULT_MODEL = "IDEA-Research/grounding-dino-tiny"
+#: What is looked for when no phrase is asked for: the vocabulary's landmark kinds and the
+#: things every aerial view holds.
+OPEN_VOCABULARY: tuple[str, ...] = (
+    *CATEGORY_LABELS.values(),
+    "building",
+    "parking lot",
+    "road",
+    "field",
+)
 _WORD = re.compile(r"[a-z0-9]+")
 _SPECIAL_TOKEN = re.compile(r"\[[A-Z]+\]")  # [CLS], [SEP], [PAD] in decoded text labels
 
@@ -171,9 +181,10 @@ class GroundingDinoDetector(Detector):
         }
 
     def detect(self, images: CameraImages, phrases: Sequence[str] = ()) -> list[Detection]:
-        prompts = clean_phrases(phrases)
-        if not prompts:
-            return []
+        # An agent without landmark phrases of its own (the NavGPT-style baseline) gets
+        # what an open-vocabulary detector would find: the landmark kinds of the toolkit's
+        # vocabulary, not nothing (which would leave it blind on real imagery).
+        prompts = clean_phrases(phrases or OPEN_VOCABULARY)
         loaded = self._loaded
         text = ". ".join(prompts) + "."
         max_tokens = int(loaded.model.config.max_text_len)

@@ -91,10 +91,13 @@ def fine_entry(s: Sighting, heading_deg: float) -> dict[str, Any]:
 
 
 def coarse_entry(s: Sighting) -> dict[str, Any]:
-    """A sighting as the coarse descriptor (HSD off) gives it: view and left/centre/right."""
+    """A sighting as the coarse descriptor (HSD off) gives it: view and left/centre/right.
+    The detector's caption stays: it is perception's, not HSD's (the NavGPT-style
+    baseline gets it too), so w/o HSD takes away the spatial description alone."""
     return {
         "id": s.landmark_id,
         "label": s.label,
+        "caption": s.caption,
         "view": s.view_name,
         "position": coarse_position(s.box_px, s.image_size_px),
         "score": s.score,
@@ -137,7 +140,10 @@ def _position_text(candidate: Mapping[str, Any]) -> str:
 
 
 def coarse_text(e: Mapping[str, Any]) -> str:
-    return f"{e['id']} {e['label']}: view {e['view']}, {e['position']}, score {e['score']:.2f}"
+    return (
+        f"{e['id']} {e['label']} ({e['caption']}): view {e['view']}, {e['position']}, "
+        f"score {e['score']:.2f}"
+    )
 
 
 def matches_text(matches: Sequence[PhraseMatch]) -> str:
@@ -423,8 +429,14 @@ class SpatialDescriptor:
         phrase = goal.landmark or ""
         if not candidates:
             return _RankRequest(goal, phrase, (), False, False, ())
-        levels = [MATCH_LEVELS.index(c.match) if c.match in MATCH_LEVELS else 4 for c in candidates]
-        ambiguous = sum(1 for level in levels if level == min(levels)) > 1
+        unknown = len(MATCH_LEVELS)  # a candidate whose description failed
+        levels = [
+            MATCH_LEVELS.index(c.match) if c.match in MATCH_LEVELS else unknown for c in candidates
+        ]
+        # Two candidates described as matching equally well; failed descriptions are no
+        # tie (a module failure is not a reason to ask the commander).
+        best_level = min(levels)
+        ambiguous = best_level < unknown and levels.count(best_level) > 1
         asked = memory_notes is not None
         if memory_notes is not None:
             # What the memory knows (rejected, already used, from an earlier round) settles
@@ -460,7 +472,9 @@ class SpatialDescriptor:
             "Candidates and their descriptions:\n"
             + "\n".join(
                 f"- {x['id']}: {x['description']} [match: {x['match']}]"
-                + ("" if c.description is None else _position_text(x))
+                # A candidate not described (its call failed) is given by fine_text, which
+                # says where it is already.
+                + (_position_text(x) if c.description else "")
                 + (f" [memory: {x['memory_note']}]" if x["memory_note"] else "")
                 for c, x in zip(candidates, listed, strict=True)
             )

@@ -182,8 +182,9 @@ class TrackBackMemory:
         x, y = self._position(target)
         return WayBack(target, tuple(path), x - pose.x_m, y - pose.y_m, reason)
 
-    def clue(self, pose: ViewPose) -> str:
-        """A summary for instructions without a landmark to hold on to."""
+    def clue(self, pose: ViewPose, with_distance: bool = True) -> str:
+        """A summary for instructions without a landmark to hold on to (``with_distance``:
+        the metres flown too, which the motion prompt's odometry line already says)."""
         places = sorted(
             (n for n, d in self.graph.nodes(data=True) if d["kind"] == "place"),
             key=lambda n: self.graph.nodes[n]["step"],
@@ -192,7 +193,11 @@ class TrackBackMemory:
             n for n, d in self.graph.nodes(data=True) if d["kind"] == "landmark" and d["step"] >= 0
         ]
         path = " -> ".join(places) or "nowhere yet"
-        text = f"You have flown {self.travelled_m:.0f} m through {path}."
+        text = (
+            f"You have flown {self.travelled_m:.0f} m through {path}."
+            if with_distance
+            else f"Your path so far: {path}."
+        )
         if landmarks:
             last = max(landmarks, key=lambda n: self.graph.nodes[n]["step"])
             x, y = self._position(last)
@@ -214,8 +219,9 @@ class TrackBackMemory:
         return out
 
     def prompt_text(self, pose: ViewPose, way_back: WayBack | None) -> str:
-        """The memory's part of the navigation prompt: clue, notes, way back."""
-        text = self.clue(pose)
+        """The memory's part of the navigation prompt: clue, notes, way back (the metres
+        flown are the odometry's line of the same prompt)."""
+        text = self.clue(pose, with_distance=False)
         notes = self.notes([n for n in self.graph.nodes if n.startswith("L")])
         if notes:
             text += "\n" + "\n".join(f"- {k}: {v}" for k, v in notes.items())

@@ -140,7 +140,8 @@ class SkyVLNAgent(Agent):
         pose = observation.pose
         place = None
         if self.memory is not None:
-            instruction = st.brief.instruction
+            # The words being followed now: the commander's answer, once there is one.
+            instruction = st.dialog.instruction or st.brief.instruction
             place = self.memory.add_place(observation.step_index, pose, instruction, st.last_action)
         panorama = self.perception.observe(observation.sensors, pose, st.plan.landmark_phrases)
         detected = self.perception.detector.take_calls()  # a VLM detector's calls, if any
@@ -161,7 +162,9 @@ class SkyVLNAgent(Agent):
         exchanges += verdict.exchanges + hsd.exchanges
         failures += verdict.failures + hsd.failures
         question = verdict.question
-        if question is None:  # HSD cannot tell the stop landmark apart: ask which one
+        # The paper's clarification prompt is TrackBack memory's: without it (w/o TBMA)
+        # the agent does not ask, so the ablation takes the commander's help away too.
+        if question is None and self.memory is not None:  # which one of HSD's tied matches
             asked = self._ask_about_ambiguity(st, hsd.matches, pose)
             question = asked.question
             records += asked.records
@@ -270,11 +273,12 @@ class SkyVLNAgent(Agent):
             None,
         )
         distance = next((g.distance_m for g in goals if g.distance_m), None)
-        flown = st.odometer.travelled_m if self.memory is not None else 0.0  # no memory, no path
-        hint = {
-            "direction_deg": direction,
-            "remaining_m": None if distance is None else max(0.0, distance - flown),
-        }
+        # Without memory the agent does not know how far it has come, so it cannot say how
+        # far is left (the instruction's whole distance would be a false "left to fly").
+        remaining = None
+        if distance is not None and self.memory is not None:
+            remaining = max(0.0, distance - st.odometer.travelled_m)
+        hint = {"direction_deg": direction, "remaining_m": remaining}
         notes = None if self.memory is None else self.memory.notes
         heading = observation.pose.heading_deg
         return self.descriptor.match(pending, panorama, heading, notes, hint)

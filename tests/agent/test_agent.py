@@ -76,7 +76,7 @@ def test_without_hsd_the_descriptor_is_coarse_and_nothing_is_ranked() -> None:
     assert state["descriptor"] == "coarse" and state["matches"] == {}
     landmarks = state["landmarks"]
     assert isinstance(landmarks, list) and landmarks
-    assert all(set(e) == {"id", "label", "view", "position", "score"} for e in landmarks)
+    assert all(set(e) == {"id", "label", "caption", "view", "position", "score"} for e in landmarks)
 
 
 def test_without_tbma_there_is_no_memory_of_the_path() -> None:
@@ -249,3 +249,31 @@ def test_importing_the_agent_imports_no_optional_heavy_dependency() -> None:
         [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO
     )
     assert out.stdout.strip() == "[]"
+
+
+def test_without_tbma_the_ranking_is_not_told_a_distance_left_it_cannot_know() -> None:
+    # Without memory the agent does not know how far it has come: the whole distance of
+    # the instruction, said as "left to fly" at every step, was false after the first.
+    instruction = "Fly north for 200 meters. The destination is a small restaurant with a red roof."
+    for tbma, told in ((False, False), (True, True)):
+        backend = RecordingRule()
+        run(AgentConfig.model_validate({**PERFECT, "tbma": tbma}), instruction, backend=backend)
+        ranks = [(d, m) for d, m in backend.requests if d["task"] == "hsd_rank"]
+        assert ranks
+        hints = [d["route_hint"]["remaining_m"] for d, _ in ranks]  # type: ignore[index]
+        assert any(h is not None for h in hints) is told, hints
+        assert any("m of it to fly" in m[-1].text for _, m in ranks) is told
+
+
+def test_each_prompt_says_a_thing_once() -> None:
+    backend = RecordingRule()
+    run(AgentConfig.model_validate(PERFECT), backend=backend)
+    motions = [m[-1].text for d, m in backend.requests if d["task"] == "motion"]
+    assert motions
+    for text in motions:  # the metres flown: the odometry's line, not the memory's too
+        assert text.count(" m through ") == 0 and text.count("Flown ") <= 1
+    for data, messages in backend.requests:
+        if data["task"] != "hsd_rank":
+            continue
+        for line in messages[-1].text.splitlines():  # a candidate's place, once
+            assert line.count("m away at bearing") <= 1, line

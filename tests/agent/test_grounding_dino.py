@@ -12,7 +12,12 @@ import pytest
 from skyvln_eval.agent import create_detector
 from skyvln_eval.agent.config import DetectorConfig
 from skyvln_eval.agent.detectors import clip_box
-from skyvln_eval.agent.grounding_dino import GroundingDinoDetector, clean_phrases, match_phrase
+from skyvln_eval.agent.grounding_dino import (
+    OPEN_VOCABULARY,
+    GroundingDinoDetector,
+    clean_phrases,
+    match_phrase,
+)
 from skyvln_eval.sensing import CameraImages, SensorConfig
 from skyvln_eval.sim.sensors import SimulatedSensors
 from tests.toy_worlds import town_world
@@ -67,7 +72,11 @@ def test_thresholds_and_phrases_decide_what_is_kept(tiny_model: Path) -> None:
     strict = GroundingDinoDetector(str(tiny_model), box_threshold=1.0)
     assert strict.detect(view, PHRASES) == []  # no score exceeds 1
     loose = GroundingDinoDetector(str(tiny_model), box_threshold=0.0, text_threshold=0.3)
-    assert loose.detect(view, []) == []  # nothing asked for, nothing prompted
+    # Nothing asked for (the NavGPT-style baseline): the open vocabulary, not nothing.
+    found = [(d.label, d.box_px, d.score) for d in loose.detect(view, [])]
+    assert found and found == [
+        (d.label, d.box_px, d.score) for d in loose.detect(view, OPEN_VOCABULARY)
+    ]
     assert len(loose.detect(view, PHRASES)) >= len(
         GroundingDinoDetector(str(tiny_model), box_threshold=0.5).detect(view, PHRASES)
     )

@@ -119,6 +119,8 @@ def test_fine_entries_carry_sector_distance_and_bearing_and_coarse_ones_do_not()
     assert first == {
         "id": "L1",
         "label": "restaurant",
+        # The detector's caption is perception's, not HSD's: w/o HSD keeps it.
+        "caption": "a small restaurant with a black roof",
         "view": "front",
         "position": "left",
         "score": 0.9,
@@ -140,14 +142,17 @@ def test_hsd_describes_each_candidate_then_ranks_them() -> None:
     assert modules.count("hsd_describe") == len(match.candidates) and modules[-1] == "hsd_rank"
 
 
+#: Two churches alike, 20 m and 150 m ahead.
+TWINS = Panorama(
+    views=(),
+    sightings=(
+        sighting("L1", "church", "a church with a cross-shaped red roof", 0.0, 20.0),
+        sighting("L2", "church", "a church with a cross-shaped red roof", 0.0, 150.0),
+    ),
+)
+
+
 def test_hsd_asks_memory_when_candidates_tie_and_the_memory_decides() -> None:
-    twins = Panorama(
-        views=(),
-        sightings=(
-            sighting("L1", "church", "a church with a cross-shaped red roof", 0.0, 20.0),
-            sighting("L2", "church", "a church with a cross-shaped red roof", 0.0, 150.0),
-        ),
-    )
     asked: list[list[str]] = []
 
     def notes(ids: list[str], phrase: str) -> dict[str, str]:
@@ -156,10 +161,10 @@ def test_hsd_asks_memory_when_candidates_tie_and_the_memory_decides() -> None:
 
     hsd = SpatialDescriptor(LLMClient(create_backend("rule")), LLMConfig(), enabled=True)
     goal = SubGoal("destination", landmark="a church with a cross-shaped red roof")
-    [match] = hsd.match([goal], twins, 0.0, memory_notes=notes).matches
+    [match] = hsd.match([goal], TWINS, 0.0, memory_notes=notes).matches
     assert asked == [["L1", "L2"]] and match.asked_memory and match.ambiguous
     assert match.best == "L2"
-    [alone] = hsd.match([goal], twins, 0.0, memory_notes=None).matches
+    [alone] = hsd.match([goal], TWINS, 0.0, memory_notes=None).matches
     assert not alone.asked_memory
 
 
@@ -278,3 +283,22 @@ def test_hsd_calls_a_backend_that_answers_in_process_one_after_another() -> None
     assert len(backend.threads) > len(goals)  # several descriptions, then the rankings
     assert set(backend.threads) == {threading.current_thread().name}
     assert [m.phrase for m in result.matches] == [g.landmark for g in goals]
+
+
+def test_candidates_whose_descriptions_failed_are_no_tie_to_ask_about() -> None:
+    # Twins left undescribed (every description unusable) read as 'unknown' alike:
+    # that is a module failure, not two places that match equally well.
+    ranking = json.dumps({"ranking": ["L1", "L2"], "best": "L1", "confidence": 0.6})
+    script = ["no idea"] * 4 + [ranking]
+    hsd = SpatialDescriptor(LLMClient(ScriptedBackend(script)), LLMConfig(), enabled=True)
+    goal = SubGoal("destination", landmark="a church with a cross-shaped red roof")
+    [match] = hsd.match([goal], TWINS, 0.0, memory_notes=None).matches
+    assert {c.match for c in match.candidates} == {"unknown"}
+    assert not match.ambiguous
+    # Described alike, they are a tie.
+    [described] = hsd_rule().match([goal], TWINS, 0.0, memory_notes=None).matches
+    assert described.ambiguous
+
+
+def hsd_rule() -> SpatialDescriptor:
+    return SpatialDescriptor(LLMClient(create_backend("rule")), LLMConfig(), enabled=True)
