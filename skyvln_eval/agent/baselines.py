@@ -26,9 +26,9 @@ from skyvln_eval.agent.detectors import episode_seed
 from skyvln_eval.agent.hsd import coarse_position
 from skyvln_eval.agent.images import panorama_images
 from skyvln_eval.agent.motion import (
-    ACTION_SPACE,
     SYSTEM_PROMPT,
     MotionGenerator,
+    action_space,
     commander_prompt,
     feedback_prompt,
     pose_prompt,
@@ -126,7 +126,7 @@ class NavGPTAgent(Agent):
             for h in self._history[-8:]
         )
         user = (
-            ACTION_SPACE
+            action_space(fly_to=False)  # nothing to name: its schema has no fly_to either
             + commander_prompt(self._dialog)
             + pose_prompt(pose)
             + f"## What you see\n{seen}\n"

@@ -67,20 +67,29 @@ OUTPUT_FORMAT: Final = (
 
 
 #: The possible actions and the output format: the same text at every step.
-ACTION_SPACE: Final = (
-    "## Possible actions\n"
-    f"- move_forward / move_left / move_right: distance_m (0-{MAX_MOVE_M:.0f}); one step "
-    "covers at most half your view ahead (see Your drone), longer moves are shortened\n"
-    "- turn: degrees (-180..180, positive = right / clockwise)\n"
-    f"- ascend / descend: distance_m (0-{MAX_CLIMB_M:.0f}); height stays within "
-    f"{MIN_HEIGHT_M:.0f}-{MAX_HEIGHT_M:.0f} m\n"
-    "- fly_to: landmark (an id such as L3 from the lists below, or a memory node), "
-    "optional height_m to arrive at\n"
-    "- waypoint: x, y in [-1, 1] (half view edges; x right, y forward) and altitude in "
-    "[0, 1] (view edge 40 + 360 x altitude metres)\n"
-    "- stop: you are at the destination\n"
-    f"Allowed types: {', '.join(ACTION_TYPES)}.\n{OUTPUT_FORMAT}\n"
-)
+def action_space(fly_to: bool = True, memory: bool = True) -> str:
+    """The possible actions, as the decision's schema allows them: without ``fly_to`` (an
+    agent with no landmark ids to name, the NavGPT-style baseline) no such action, and
+    without ``memory`` no memory node to fly to."""
+    target = "an id such as L3 from the lists below" + (", or a memory node" if memory else "")
+    allowed = [kind for kind in ACTION_TYPES if fly_to or kind != "fly_to"]
+    return (
+        "## Possible actions\n"
+        f"- move_forward / move_left / move_right: distance_m (0-{MAX_MOVE_M:.0f}); one step "
+        "covers at most half your view ahead (see Your drone), longer moves are shortened\n"
+        "- turn: degrees (-180..180, positive = right / clockwise)\n"
+        f"- ascend / descend: distance_m (0-{MAX_CLIMB_M:.0f}); height stays within "
+        f"{MIN_HEIGHT_M:.0f}-{MAX_HEIGHT_M:.0f} m\n"
+        + (f"- fly_to: landmark ({target}), optional height_m to arrive at\n" if fly_to else "")
+        + "- waypoint: x, y in [-1, 1] (half view edges; x right, y forward) and altitude in "
+        "[0, 1] (view edge 40 + 360 x altitude metres)\n"
+        "- stop: you are at the destination\n"
+        f"Allowed types: {', '.join(allowed)}.\n{OUTPUT_FORMAT}\n"
+    )
+
+
+#: The actions of the full agent.
+ACTION_SPACE: Final = action_space()
 
 
 def feedback_prompt(feedback: str | None, actions_taken: int, actions_left: int) -> str:

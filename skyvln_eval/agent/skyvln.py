@@ -23,9 +23,9 @@ from skyvln_eval.agent.hsd import HsdResult, PhraseMatch, SpatialDescriptor, mat
 from skyvln_eval.agent.images import panorama_images
 from skyvln_eval.agent.memory import TrackBackMemory
 from skyvln_eval.agent.motion import (
-    ACTION_SPACE,
     SYSTEM_PROMPT,
     MotionGenerator,
+    action_space,
     commander_prompt,
     feedback_prompt,
     navigation_prompt,
@@ -343,7 +343,7 @@ class SkyVLNAgent(Agent):
         if self.memory is not None:  # the path flown is the memory's to tell
             lines.append(st.odometer.text())
         return (
-            ACTION_SPACE
+            action_space(memory=self.memory is not None)
             + commander_prompt(st.dialog)
             + feedback_prompt(
                 observation.feedback, observation.step_index, observation.actions_left

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from skyvln_eval.agent import AgentConfig, Detection, Detector, FlyTo, Stop, build_agent
-from skyvln_eval.agent.motion import ACTION_SPACE
+from skyvln_eval.agent.motion import ACTION_SPACE, action_space
 from skyvln_eval.agent.perception import Perception, PerceptionConfig
 from skyvln_eval.agent.skyvln import SkyVLNAgent
 from skyvln_eval.errors import ConfigError, UnknownNameError
@@ -139,7 +139,10 @@ def test_decision_prompts_begin_with_what_stays_the_same_through_the_episode(nam
     heads = {re.split("## Feedback|## Your drone", text)[0] for text in texts}
     assert len(heads) == 1  # the same text before the feedback or the pose at every step
     [head] = heads
-    assert head.startswith(ACTION_SPACE) and RED in head
+    # The actions its schema allows: the NavGPT-style baseline names no landmark ids.
+    actions = ACTION_SPACE if name == "skyvln" else action_space(fly_to=False)
+    assert head.startswith(actions) and RED in head
+    assert ("fly_to" in head) is (name == "skyvln")
     assert len({text[len(head) :] for text in texts}) == len(texts)  # the rest changes
 
 
@@ -277,3 +280,11 @@ def test_each_prompt_says_a_thing_once() -> None:
             continue
         for line in messages[-1].text.splitlines():  # a candidate's place, once
             assert line.count("m away at bearing") <= 1, line
+
+
+def test_without_tbma_there_is_no_memory_node_to_fly_to() -> None:
+    texts = motion_texts(AgentConfig.model_validate({**PERFECT, "tbma": False}))
+    assert texts and all("or a memory node" not in text for text in texts)
+    assert all(
+        "or a memory node" in text for text in motion_texts(AgentConfig.model_validate(PERFECT))
+    )
