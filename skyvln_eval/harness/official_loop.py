@@ -76,7 +76,15 @@ def official_success(final_view: NDArray[np.float64], gt_end_view: NDArray[np.fl
 def _feedback(action: Action, outcome: str, turn_deg: int) -> str:
     what = json.dumps(action_to_dict(action))
     if outcome == "full":
-        return f"done: {what} (turned {turn_deg} deg)"
+        # The step's turn is clockwise in [0, 360] (360 from its rounded pi): said as the
+        # pilot would, left or right by at most 180 degrees.
+        signed = (turn_deg + 180) % 360 - 180
+        turned = (
+            "no turn"
+            if signed == 0
+            else f"turned {abs(signed)} deg {'right' if signed > 0 else 'left'}"
+        )
+        return f"done: {what} ({turned})"
     if outcome == "cancelled":
         return f"not done: {what} would have left the map; nothing changed"
     if outcome == "zoom_only":

@@ -61,9 +61,12 @@ def test_each_action_moves_the_view_by_the_official_step_and_the_agent_is_told()
     assert rollout.headings_deg == [0, 0, 90]
     moved = np.linalg.norm(rollout.views[1].mean(axis=0) - rollout.views[0].mean(axis=0)) * 111_300
     assert moved == pytest.approx(40.0, abs=0.01)
-    assert agent.observations[1].feedback is not None and agent.observations[1].feedback.startswith(
-        "done"
-    )
+    told = [o.feedback for o in agent.observations[1:]]
+    assert told[0] is not None and told[0].endswith("(no turn)")  # the step's 0 or 360
+    assert told[1] is not None and told[1].endswith("(turned 90 deg right)")
+    left = Scripted(Move("left", 20.0), Stop())
+    run_official_episode(left, town_episode("go"), town_world())
+    assert str(left.observations[1].feedback).endswith("(turned 90 deg left)")  # not 270
     assert rollout.official_actions[1].waypoint == pytest.approx((20.0 / 60.0, 0.0))
 
 
