@@ -121,9 +121,12 @@ class NavGPTAgent(Agent):
             )
             for v in views
         )
+        recent = self._history[-8:]
+        # The last action's outcome is the Feedback block's: said there, not here again.
         history = "\n".join(
-            f"- {json.dumps(h['action'])}: {h['thought']} -> {h.get('feedback')}"
-            for h in self._history[-8:]
+            f"- {json.dumps(h['action'])}: {h['thought']}"
+            + (f" -> {h.get('feedback')}" if k < len(recent) - 1 else "")
+            for k, h in enumerate(recent)
         )
         user = (
             action_space(fly_to=False)  # nothing to name: its schema has no fly_to either

@@ -288,3 +288,13 @@ def test_without_tbma_there_is_no_memory_node_to_fly_to() -> None:
     assert all(
         "or a memory node" in text for text in motion_texts(AgentConfig.model_validate(PERFECT))
     )
+
+
+def test_the_navgpt_prompt_says_the_last_outcome_once() -> None:
+    texts = motion_texts(AgentConfig.model_validate({**PERFECT, "name": "navgpt"}))
+    later = texts[1:]
+    assert later
+    for text in later:  # the last action's feedback: in the Feedback block only
+        history = text.split("## History\n")[1].split("## Feedback")[0].strip().splitlines()
+        assert " -> " not in history[-1], history
+        assert all(" -> " in line for line in history[:-1]), history  # earlier outcomes stay
