@@ -4,8 +4,9 @@ Writes under the output directory:
 
 - ``runs/``: one resumable run directory per (system, split) (results, run MCAPs, control logs);
 - ``scores/scores.csv`` and ``scores/summary.csv``: every episode's scores and the means
-  with 95% intervals (Wilson for 0/1 rates, bootstrap for the rest; ``ci_method`` says
-  which), under the stated metric conventions;
+  with 95% intervals (percentile bootstrap over whole trajectories; Wilson for a 0/1
+  rate whose values are all alike; ``ci_method`` says which), under the stated metric
+  conventions;
 - ``tables/table1.{md,tex,csv}``, ``tables/table2.{md,tex,csv}`` (and ``*_ci.md`` with
   intervals), ``tables/control.md`` (safety and control of the flown systems) and
   ``tables/cost.md`` (LLM calls, tokens, cost and latency per backend);

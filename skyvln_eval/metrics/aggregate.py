@@ -454,8 +454,9 @@ def compare_systems(
     sign-flip permutation test) are different procedures and can disagree near the 5%
     level on a few dozen episodes: the percentile interval is the less conservative there
     (it is too narrow on small samples), so an interval that excludes 0 with a p-value
-    above 0.05 is not a significant difference. Systems that did the same on every
-    episode have no interval (NaN: the differences have no spread to resample).
+    above 0.05 is not a significant difference: ``significant`` is the test's verdict at
+    5% (``p_value < 0.05``), whatever the interval shows. Systems that did the same on
+    every episode have no interval (NaN: the differences have no spread to resample).
     """
 
     checked_scores(scores, [metric])
@@ -488,7 +489,13 @@ def compare_systems(
         cluster_unit="trajectory",
     )
     return pd.Series(
-        {"metric": metric, "system_a": system_a, "system_b": system_b, **result.__dict__}
+        {
+            "metric": metric,
+            "system_a": system_a,
+            "system_b": system_b,
+            **result.__dict__,
+            "significant": bool(result.p_value < 0.05),
+        }
     )
 
 

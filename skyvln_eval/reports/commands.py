@@ -346,8 +346,9 @@ def table(
         bool,
         typer.Option(
             "--ci",
-            help="Show 95% confidence intervals (Wilson for 0/1 rates, bootstrap for the "
-            "rest; a note says which)",
+            help="Show 95% confidence intervals (percentile bootstrap, over whole "
+            "trajectories by default; Wilson for a 0/1 rate whose values are all alike, or "
+            "with --ci-unit episode; a note says which cells used which)",
         ),
     ] = False,
     resamples: Annotated[

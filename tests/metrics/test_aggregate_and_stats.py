@@ -118,6 +118,11 @@ def test_paired_test_finds_a_real_difference_and_not_a_null_one() -> None:
     scores = scores_of_two_systems()
     diff = compare_systems(scores, "A", "B", "success", "val_seen", n_resamples=2000)
     assert diff.difference > 0 and diff.ci_low > 0 and diff.p_value < 0.01
+    assert diff.significant  # the test's verdict at 5%, beside the interval
+    # A few trajectories: the interval can exclude 0 while the test cannot reject (an
+    # audit met [7.7, 62.5] beside p = 0.25): the verdict is the test's.
+    few = compare_systems(scores.iloc[: len(scores) // 10], "A", "B", "success", "val_seen")
+    assert few.significant is (few.p_value < 0.05)
     same = paired_comparison(np.ones(30), np.ones(30), 500)
     assert same.difference == 0.0 and same.p_value == 1.0
     assert math.isnan(same.ci_low) and math.isnan(same.ci_high)  # not a certain [0, 0]
