@@ -194,6 +194,7 @@ def paper_table(
     shown = rows if rows is not None else []
     asked = _questions_note(scores, shown, spec, mode)
     crashes = _crashes_note(scores, shown, spec, mode, conventions)
+    degraded = _degraded_note(scores, shown, spec, mode)
     return build_table(
         summary,
         spec,
@@ -202,7 +203,7 @@ def paper_table(
         mode,
         digits,
         show_ci,
-        list(dict.fromkeys([*notes, *sorted(set(marker_notes)), *crashes, *asked])),
+        list(dict.fromkeys([*notes, *sorted(set(marker_notes)), *crashes, *degraded, *asked])),
         unranked=references,
         withheld=withheld,
     )
@@ -233,6 +234,29 @@ def _questions_note(
     return [
         f"Questions {what} the simulated commander, who knows the goal (help the other "
         f"rows did not get): {'; '.join(parts)}."
+    ]
+
+
+def _degraded_note(
+    scores: pd.DataFrame, rows: Sequence[str], spec: TableSpec, mode: str
+) -> list[str]:
+    """How many episodes of each cell were degraded (a module's answer unusable, and its
+    stand-in used: the STOP fallback, no sub-goals, the proposal order): scored as flown,
+    they are in the cell's numbers without a mark of their own, so the note counts them."""
+    titles = dict(spec.groups)
+    sel = scores[scores["split"].isin(titles) & (scores["mode"] == mode)]
+    parts = []
+    for row in rows:
+        for split, title in spec.groups:
+            cell = sel[(sel["system"] == row) & (sel["split"] == split)]
+            degraded = int((cell["status"] == "degraded").sum())
+            if degraded:
+                parts.append(f"{row} on {title} {degraded} of {len(cell)}")
+    if not parts:
+        return []
+    return [
+        "Degraded episodes (a module's answer was unusable and its stand-in used: the STOP "
+        f"fallback, no sub-goals, HSD's proposal order; scored as flown): {'; '.join(parts)}."
     ]
 
 

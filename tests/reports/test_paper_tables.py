@@ -226,3 +226,24 @@ def test_trajectory_intervals_say_how_many_trajectories_they_rest_on() -> None:
         paper_table(scores, TABLE_II, MetricConventions(), show_ci=True, ci_unit="episode")
     )
     assert "trajector" not in plain.split("Brackets")[1]
+
+
+def test_degraded_episodes_are_counted_in_a_note() -> None:
+    # Scored as flown, they are in the cell's numbers without a mark: the note says so.
+    degraded = result(
+        GOAL,
+        GOAL,
+        "degraded",
+        system="gemma",
+        split="test_unseen",
+        episode_id="1913__2_1",
+        extra={"llm_backend": "openai:gemma"},
+        llm_calls=(_call(),),
+    )
+    scores = pd.concat([_scores(), score_results([degraded], MetricConventions())])
+    md = to_markdown(paper_table(scores, TABLE_II, MetricConventions()))
+    assert "Degraded episodes (a module's answer was unusable" in md
+    assert "scored as flown): gemma on Unseen Testing 1 of 3." in md
+    assert "Degraded episodes" not in to_markdown(
+        paper_table(_scores(), TABLE_II, MetricConventions())
+    )
