@@ -353,12 +353,10 @@ def _check_view_geometry(
     # that says so, not a mirrored-order and an off-map issue for each of its views.
     flipped = views[..., ::-1]
     on_if_swapped = ((flipped >= lo[:, None, :]) & (flipped <= hi[:, None, :])).all(axis=(1, 2))
-    off_map = np.asarray(outside, dtype=bool)
-    on_swapped = np.asarray(on_if_swapped, dtype=bool)
-    swapped = [
-        r for r in range(len(pending)) if off_map[owner == r].all() and on_swapped[owner == r].all()
-    ]
-    for r in swapped:
+    # Per record, how many of its views are off the map and on it swapped: all of them?
+    swapped_views = np.bincount(owner, weights=outside & on_if_swapped, minlength=len(pending))
+    swapped = set(np.flatnonzero(swapped_views == counts).tolist())
+    for r in sorted(swapped):
         p = pending[r]
         message = (
             "every view lies off the map and would lie on it read as [lng, lat]: corners "

@@ -171,10 +171,7 @@ def summarise_control(log: pd.DataFrame, source: str = "<control log>") -> Contr
         controller=controller,
         scenario=str(log["scenario"].iloc[0]),
         steps=len(log),
-        # Each row is a step from its t_s to the next row's: the last one lasts as long.
-        duration_s=float(t.max() - t.min() + np.median(np.diff(np.sort(t))))
-        if len(t) > 1
-        else None,
+        duration_s=_duration_s(t),
         collision_steps=int(log["collision"].sum()),
         min_clearance_m=None if np.isposinf(clearance).all() else float(clearance.min()),
         constraint_violation_steps=int(log["constraint_violation"].sum()),

@@ -17,7 +17,9 @@ from __future__ import annotations
 
 from collections.abc import Collection, Sequence
 
+import numpy as np
 import pandas as pd
+from numpy.typing import NDArray
 
 from skyvln_eval.errors import MetricInputError
 from skyvln_eval.metrics import summarise
@@ -237,21 +239,33 @@ def _questions_note(
     ]
 
 
+def _shown_cells(scores: pd.DataFrame, spec: TableSpec, mode: str) -> pd.DataFrame:
+    """The scores of ``spec``'s splits in ``mode``."""
+    return scores[scores["split"].isin(dict(spec.groups)) & (scores["mode"] == mode)]
+
+
+def _flagged_per_cell(
+    sel: pd.DataFrame, flagged: NDArray[np.bool_], rows: Sequence[str], spec: TableSpec
+) -> list[str]:
+    """``"<row> on <split title> k of n"`` for each cell with ``k`` flagged episodes."""
+    parts = []
+    for row in rows:
+        for split, title in spec.groups:
+            cell = ((sel["system"] == row) & (sel["split"] == split)).to_numpy(bool)
+            count = int(flagged[cell].sum())
+            if count:
+                parts.append(f"{row} on {title} {count} of {int(cell.sum())}")
+    return parts
+
+
 def _degraded_note(
     scores: pd.DataFrame, rows: Sequence[str], spec: TableSpec, mode: str
 ) -> list[str]:
     """How many episodes of each cell were degraded (a module's answer unusable, and its
     stand-in used: the STOP fallback, no sub-goals, the proposal order): scored as flown,
     they are in the cell's numbers without a mark of their own, so the note counts them."""
-    titles = dict(spec.groups)
-    sel = scores[scores["split"].isin(titles) & (scores["mode"] == mode)]
-    parts = []
-    for row in rows:
-        for split, title in spec.groups:
-            cell = sel[(sel["system"] == row) & (sel["split"] == split)]
-            degraded = int((cell["status"] == "degraded").sum())
-            if degraded:
-                parts.append(f"{row} on {title} {degraded} of {len(cell)}")
+    sel = _shown_cells(scores, spec, mode)
+    parts = _flagged_per_cell(sel, (sel["status"] == "degraded").to_numpy(bool), rows, spec)
     if not parts:
         return []
     return [
@@ -269,16 +283,8 @@ def _crashes_note(
 ) -> list[str]:
     """How many episodes of each cell flew into an obstacle, and how they were scored: a
     success rate means something else when most flights crashed."""
-    titles = dict(spec.groups)
-    sel = scores[scores["split"].isin(titles) & (scores["mode"] == mode)]
-    touched = touched_obstacles(sel)
-    parts = []
-    for row in rows:
-        for split, title in spec.groups:
-            cell = ((sel["system"] == row) & (sel["split"] == split)).to_numpy(bool)
-            crashed = int(touched[cell].sum())
-            if crashed:
-                parts.append(f"{row} on {title} {crashed} of {int(cell.sum())}")
+    sel = _shown_cells(scores, spec, mode)
+    parts = _flagged_per_cell(sel, touched_obstacles(sel), rows, spec)
     if not parts:
         return []
     how = (

@@ -3,13 +3,14 @@ once, the second launch says who holds the directory, and a killed holder frees 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -83,15 +84,7 @@ def test_a_launch_on_a_held_run_directory_is_refused_and_names_the_holder(
     config_file.write_text(yaml.safe_dump(config.model_dump(mode="json")))
     run_dir = tmp_path / "run"
     run_dir.mkdir()
-    holder = subprocess.Popen(
-        [sys.executable, "-c", HOLDER, str(run_dir)],
-        cwd=REPO,
-        env=ENV,
-        stdout=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        assert holder.stdout is not None and holder.stdout.readline() == "held\n"
+    with _held(run_dir) as holder:
         launch = subprocess.run(
             [*_console_script(), "run", str(config_file), "--out", str(run_dir)],
             cwd=REPO,
@@ -100,9 +93,6 @@ def test_a_launch_on_a_held_run_directory_is_refused_and_names_the_holder(
             text=True,
             timeout=300,
         )
-    finally:
-        os.kill(holder.pid, signal.SIGKILL)
-        holder.wait()
     assert launch.returncode == 2, (launch.stdout, launch.stderr)
     assert f"run directory {run_dir} is in use by process {holder.pid} (python" in launch.stderr
     assert "running since " in launch.stderr and "Wait for it to finish" in launch.stderr
@@ -121,9 +111,11 @@ time.sleep(600)
 """
 
 
-def test_the_lock_dies_with_its_process_even_when_killed(tmp_path: Path) -> None:
+@contextlib.contextmanager
+def _held(run_dir: Path) -> Iterator[subprocess.Popen[str]]:
+    """A process of its own holding ``run_dir``'s lock until the block ends (then killed)."""
     holder = subprocess.Popen(
-        [sys.executable, "-c", HOLDER, str(tmp_path)],
+        [sys.executable, "-c", HOLDER, str(run_dir)],
         cwd=REPO,
         env=ENV,
         stdout=subprocess.PIPE,
@@ -131,13 +123,18 @@ def test_the_lock_dies_with_its_process_even_when_killed(tmp_path: Path) -> None
     )
     try:
         assert holder.stdout is not None and holder.stdout.readline() == "held\n"
+        yield holder
+    finally:
+        os.kill(holder.pid, signal.SIGKILL)
+        holder.wait()
+
+
+def test_the_lock_dies_with_its_process_even_when_killed(tmp_path: Path) -> None:
+    with _held(tmp_path) as holder:
         with pytest.raises(RunDirBusyError) as busy:
             RunDirLock(tmp_path).acquire()
         assert busy.value.holder["pid"] == holder.pid
         assert f"in use by process {holder.pid} (python" in str(busy.value)
-    finally:
-        os.kill(holder.pid, signal.SIGKILL)
-        holder.wait()
     deadline = time.monotonic() + 10
     lock = RunDirLock(tmp_path)
     while True:  # the kernel drops the lock as the process is reaped
