@@ -98,6 +98,18 @@ def test_the_recorded_frames_are_the_words_of_each_record(sample_dir: Path) -> N
     assert checked > 300
 
 
+def test_a_frame_s_article_agrees_with_the_word_filled_in(sample_dir: Path) -> None:
+    """ "proceed in a {dir_erly} direction" says "an easterly" (it said "a easterly")."""
+    texts = [
+        turn
+        for split in SPLITS
+        for r in load_split(sample_dir, split).records
+        for turn in (r.instructions, *r.pre_dialogs)
+    ]
+    assert not [t for t in texts if re.search(r"\b[Aa] easterly", t)]
+    assert any(re.search(r"\ban easterly\b", t) for t in texts)  # the case occurs
+
+
 def test_facts_rendered_again_give_the_annotations_back_byte_for_byte(sample_dir: Path) -> None:
     sources = load_dialogs(sample_dir)
     for split in SPLITS:

@@ -28,8 +28,19 @@ from skyvln_eval.worlds.sample.wording import compass_erly, compass_ward
 
 #: Version of the dialogs' wording: 1 spoke a handful of fixed frames; 2 speaks families
 #: of frames, disjoint between seen and unseen splits; 3 adds the answer to a follower
-#: who is already there (``answer.arrived``). Part of the sample's cache key.
-DIALOG_VERSION: Final = 3
+#: who is already there (``answer.arrived``); 4 writes "an easterly", not "a easterly".
+#: Part of the sample's cache key.
+DIALOG_VERSION: Final = 4
+
+
+def _with_articles(template: str, values: dict[str, str]) -> str:
+    """``template`` with "a {field}" made "an {field}" where the value starts with a vowel
+    ("an easterly heading"); only the frame's own article, never one inside a value."""
+    for name, value in values.items():
+        if value[:1].lower() in "aeiou":
+            template = re.sub(rf"\b([Aa]) (?=\{{{name}\}})", r"\1n ", template)
+    return template
+
 
 _ANSWER_SLOTS: Final = {
     "which_way": "answer.which_way",
@@ -96,7 +107,8 @@ class Phraser:
         family = self.family()
         frame = family.frame(slot)
         fields = [f for _, f, _, _ in string.Formatter().parse(frame.template) if f]
-        text = frame.template.format(**{f: self._value(family, f, facts) for f in fields})
+        values = {f: self._value(family, f, facts) for f in fields}
+        text = _with_articles(frame.template, values).format(**values)
         return Clause(text, frame.frame_id, family)
 
     def _value(self, family: Family, field: str, facts: dict[str, Value]) -> str:
