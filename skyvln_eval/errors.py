@@ -414,6 +414,13 @@ class LLMTransientError(LLMError):
         self.retry_after_s = retry_after_s
 
 
+class LLMEndpointError(LLMError):
+    """The endpoint cannot serve the request at all (HTTP 404, 405, 410, 402 ...: no such
+    route or model, payment required): not the model's answer, and sending the same
+    request again would not help. Like a transient fault that used up its retries, it
+    leaves the call unanswered: the episode measures the endpoint, not the model."""
+
+
 class LLMContextOverflowError(LLMError):
     """The request is longer than the model's context window: sending it again is useless."""
 

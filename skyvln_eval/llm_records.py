@@ -29,12 +29,19 @@ from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from typing import Any, Final, Literal, get_args
 
-from skyvln_eval.errors import LLMTransientError, ResultRecordError, ValidationIssue
+from skyvln_eval.errors import (
+    LLMEndpointError,
+    LLMTransientError,
+    ResultRecordError,
+    ValidationIssue,
+)
 
 CallOutcome = Literal["ok", "invalid", "failed", "refused"]
 #: Outcomes of an attempt that got no answer (the server's, a transport's or a refusal).
 UNANSWERED: Final = frozenset({"failed", "refused"})
 CALL_OUTCOMES: Final = get_args(CallOutcome)
+#: How a call's record names the errors that leave it with no answer from the endpoint.
+_ENDPOINT_FAILURES: Final = (f"{LLMTransientError.__name__}:", f"{LLMEndpointError.__name__}:")
 #: Modules whose answer is the decision's action: their failure means a fallback action.
 ACTION_MODULES: Final = frozenset({"motion", "navgpt"})
 
@@ -140,13 +147,14 @@ class LlmCall:
 
     @property
     def unanswered_after_retries(self) -> bool:
-        """Whether this attempt ended its call with no answer after the retries of a
-        transient fault (an outage, a timeout, a server error): the endpoint's failure, not
-        the model's (a prompt beyond its context, refused, is the model's)."""
+        """Whether this attempt ended its call with no answer from the endpoint: after the
+        retries of a transient fault (an outage, a timeout, a server error), or refused by
+        an endpoint that cannot serve it (no such route or model). The endpoint's failure,
+        not the model's (a prompt beyond its context, refused, is the model's)."""
         return (
             self.final
             and self.outcome == "failed"
-            and (self.error or "").startswith(f"{LLMTransientError.__name__}:")
+            and (self.error or "").startswith(_ENDPOINT_FAILURES)
         )
 
     @property

@@ -328,6 +328,12 @@ def parse_subgoals(text: str, dialog: DialogText) -> SubGoalPlan:
     wrong."""
     dialog_words = dialog.words()
     data = load_json_object(text)
+    if "subgoals" not in data:
+        others = sorted(set(data) - {"context_landmarks"})
+        raise ActionParseError(
+            "the field 'subgoals' (a list of sub-goal objects) is missing"
+            + (f"; unknown field(s) {', '.join(others)}" if others else "")
+        )
     items = data.get("subgoals")
     if not isinstance(items, list) or len(items) > MAX_SUBGOALS:
         raise ActionParseError(f"'subgoals' must be a list of at most {MAX_SUBGOALS} items")

@@ -526,6 +526,7 @@ def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = Fal
     report.missing = list(todo)
     atomic_write_json(run_dir / REPORT_FILE, report.to_json(), indent=1)
     config_json = config.model_dump_json()
+    rows = {key_of(r): r for r in store.results()}
     tasks = [
         EpisodeTask(
             config_json,
@@ -534,6 +535,10 @@ def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = Fal
             split,
             episode_id,
             str(logs[(split, episode_id)]),
+            # Run again after an error: its answers come from the endpoint, not the cache.
+            fresh_answers=retry_failed
+            and (split, episode_id) in rows
+            and rows[(split, episode_id)].status == "error",
         )
         for split, episode_id in todo
     ]

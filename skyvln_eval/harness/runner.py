@@ -60,7 +60,9 @@ OFFICIAL_STEP_S = 1.0
 
 @dataclass(frozen=True)
 class EpisodeTask:
-    """Everything a worker needs for one episode (small and picklable)."""
+    """Everything a worker needs for one episode (small and picklable). ``fresh_answers``:
+    the episode is run again after an error (``--retry-failed``), so its LLM calls go to
+    the endpoint, not to the response cache, which would give the unusable answers back."""
 
     config_json: str
     data_dir: str
@@ -68,6 +70,7 @@ class EpisodeTask:
     split: str
     episode_id: str
     episode_log: str
+    fresh_answers: bool = False
 
 
 @functools.lru_cache(maxsize=4)
@@ -252,6 +255,8 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
         world = _world(task.data_dir, episode.map_name, episode.georef)
         seed = episode_seed(config, task.split, task.episode_id)
         agent = _agent(config, episode, seed)
+        for client in agent.llm_clients() if task.fresh_answers else ():
+            client.read_cache = False
         made = CallsMade(agent)  # if the episode raises, its calls still count
         control = control_log = None
         rollout: OfficialRollout | DynamicsRollout
@@ -270,7 +275,7 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
                 control = summarise_control(flown.control_log, control_log)
         solve_failures = 0 if control is None else control.solve_failures
         status, error = judge_status(
-            rollout.llm_calls, rollout.failures, rollout.error, solve_failures
+            rollout.llm_calls, rollout.failures, rollout.error, solve_failures, len(rollout.actions)
         )
         extra |= {
             "stop_reason": rollout.stop_reason,

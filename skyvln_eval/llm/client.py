@@ -86,10 +86,17 @@ class _Deadline:
 
 @dataclass
 class LLMClient:
-    """Calls one backend through the cache, the retry policy and a concurrency limit."""
+    """Calls one backend through the cache, the retry policy and a concurrency limit.
+
+    ``read_cache=False`` sends every call to the backend and writes its answer over the
+    cached one: an episode run again because its answers were unusable (``run
+    --retry-failed``) must not get the same answers back from the cache. The ``replay``
+    backend always reads (it answers from nothing else).
+    """
 
     backend: LLMBackend
     cache: ResponseCache | None = None
+    read_cache: bool = True
     retry: RetryPolicy = field(default_factory=RetryPolicy)
     prices: PriceTable = field(default_factory=PriceTable)
     max_concurrency: int = 4
@@ -198,7 +205,8 @@ class LLMClient:
         key = None
         if self.cache is not None:
             key = cache_key(self.backend.identity(), messages, config)
-            hit = self.cache.get(key)
+            reads = self.read_cache or self.backend.kind == "replay"
+            hit = self.cache.get(key) if reads else None
             if hit is not None:
                 return CallResult(hit, (self.answered(base, hit, 1, 0.0),))
         records: list[LlmCall] = []

@@ -314,6 +314,10 @@ class OpenAIBackend(LLMBackend):
         ends_at = time.monotonic() + config.timeout_s
         adapted = adaptation(self.endpoint)
         refused: list[RefusedRequest] = []
+        # A level a bare 400 (naming nothing) made this call step below: kept for the
+        # endpoint only once a lower level is answered. A 400 the plain prompt gets as
+        # well was never about the format (a proxy's fault, a bad request).
+        unexplained: StructuredLevel | None = None
         try:
             while True:
                 request = adapted.apply(kwargs)
@@ -331,10 +335,12 @@ class OpenAIBackend(LLMBackend):
                     what = f"structured output level {level!r} refused"
                     refused.append(refusal.record(what, started, level, unsent))
                     assert level is not None  # _step_down raised otherwise
-                    if refusal.named or refused_without_reason(self.endpoint, level):
-                        # Known now, whatever the next request does; a first bare 400
-                        # (maybe a one-off fault) steps down for this call only.
+                    if refusal.named:  # known now, whatever the next request does
                         remember_level(self.endpoint, lower)
+                    elif refused_without_reason(self.endpoint, level):
+                        # A first bare 400 (maybe a one-off fault) steps down for this
+                        # call only; a second is believed if a lower level is answered.
+                        unexplained = lower
                     level = lower
                 except ParameterRefused as refusal:
                     found = self._adapt(adapted, refusal)  # raises when nothing is left
@@ -343,6 +349,8 @@ class OpenAIBackend(LLMBackend):
                     adapted = found
                     remember_adaptation(self.endpoint, adapted)
             latency = time.perf_counter() - started  # the answered request's own time
+            if unexplained is not None:
+                remember_level(self.endpoint, unexplained)
             return self._completion(response, body, latency, level, unsent, tuple(refused))
         except LLMError as error:
             # The requests refused before this failure were sent all the same: the client

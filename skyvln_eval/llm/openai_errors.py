@@ -1,8 +1,10 @@
 """What an OpenAI-compatible server's errors mean, for :mod:`.openai_backend`.
 
 Errors are told apart by what the server says: 401 / 403 (:class:`LLMAuthError`), a
-context overflow (:class:`LLMContextOverflowError`, not retried), 429 and 5xx
-(transient, retried by the client), other 4xx (refused). Two refusals are not the call's
+context overflow (:class:`LLMContextOverflowError`, not retried), 408, 409, 425, 429 and
+5xx (transient, retried by the client), 400, 413 and 422 (the request refused for its
+content: the model's failure), other 4xx (:class:`LLMEndpointError`: no such route or
+model, not retried, and no answer of the model). Two refusals are not the call's
 error but a reason to send it again in another form: a response format the server cannot
 do (:class:`FormatRefused`: HTTP 400, or a 5xx whose body names the format, the schema or
 a grammar, unless a 400 clearly names another cause) and a decoding parameter the model
@@ -23,11 +25,20 @@ from typing import Any
 from skyvln_eval.errors import (
     LLMAuthError,
     LLMContextOverflowError,
+    LLMEndpointError,
     LLMError,
     LLMTransientError,
 )
 from skyvln_eval.llm.redact import readable_body
 from skyvln_eval.llm.types import RefusedRequest, StructuredLevel
+
+#: HTTP statuses that ask to try again later (RFC 9110: 408 Request Timeout, 409
+#: Conflict, 425 Too Early, 429 Too Many Requests), as 5xx do; the openai client retries
+#: them too.
+TRY_AGAIN_STATUSES = frozenset({408, 409, 425, 429})
+#: HTTP statuses that refuse a request for its content (a prompt too large, a field the
+#: server does not take): the model's or the request's failure, not the endpoint's.
+CONTENT_REFUSED_STATUSES = frozenset({400, 413, 422})
 
 #: Words in an error body that say the request is longer than the model's context.
 _CONTEXT_OVERFLOW = re.compile(
@@ -208,11 +219,17 @@ def status_error(error: Any, body: str, request: dict[str, Any], asker: Asker) -
         or ((status == 422 or status >= 500) and _FORMAT_WORDS.search(body))
     ):
         return FormatRefused(status, body)
-    if status >= 500:
+    if status >= 500 or status in TRY_AGAIN_STATUSES:
+        what = "server error" if status >= 500 else "try again later"
         return LLMTransientError(
-            f"server error (HTTP {status}: {excerpt})", retry_after_s(error.response.headers)
+            f"{what} (HTTP {status}: {excerpt})", retry_after_s(error.response.headers)
         )
-    return LLMError(f"request refused (HTTP {status}: {excerpt})")
+    if status in CONTENT_REFUSED_STATUSES:
+        return LLMError(f"request refused (HTTP {status}: {excerpt})")
+    return LLMEndpointError(
+        f"{asker.where} cannot serve the request (HTTP {status}: {excerpt}); check its "
+        f"base_url and that it serves the model {asker.model!r}"
+    )
 
 
 def _names_another_cause(error: Any, body: str, model: str) -> bool:

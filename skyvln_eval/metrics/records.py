@@ -32,10 +32,11 @@ ResultStatus = Literal["ok", "degraded", "error"]
 #: flew it, but some decision used a fallback action, some module's answer could not be
 #: used, or (flown) some control step's solve failed and the controller fell back;
 #: ``error``: the episode raised (harness, agent or controller), no LLM call of it
-#: gave a usable answer, or a call got no answer at all after its retries (an outage:
-#: the episode measures the endpoint, not the model). The rates of each are reported; an
-#: ``error`` episode never counts as a success (its distances still describe whatever it
-#: flew).
+#: gave a usable answer, every decision's action was the fallback (the model chose none
+#: of its moves), or a call got no answer from the endpoint (an outage after the retries,
+#: no such route or model: the episode measures the endpoint, not the model). The rates
+#: of each are reported; an ``error`` episode never counts as a success (its distances
+#: still describe whatever it flew).
 RESULT_STATUSES: tuple[ResultStatus, ...] = get_args(ResultStatus)
 #: What names one episode's row in scores and cost tables: :attr:`EpisodeResult.key`.
 KEY_COLUMNS: tuple[str, str, str, str] = ("system", "split", "mode", "episode_id")
@@ -46,12 +47,15 @@ def judge_status(
     failures: Sequence[ModuleFailure],
     agent_error: str | None,
     solve_failures: int = 0,
+    decisions: int = 0,
 ) -> tuple[ResultStatus, str | None]:
     """An episode's status and, for ``error``, why (the first error text: of a request that
     failed or gave an unusable answer, ahead of a form the server refused, see
     :func:`_first_error`). ``solve_failures``: the flight's control steps whose solve
     failed (the controller fell back: hover, a shifted plan), whose flying is then not the
-    controller's."""
+    controller's. ``decisions``: how many the agent made; when the action of every one
+    was the fallback, the model chose none of the episode's moves and the flight is the
+    fallback's, not a result of the model."""
     if agent_error is not None:
         return "error", agent_error
     if calls and not any(c.outcome == "ok" for c in calls):
@@ -62,10 +66,18 @@ def judge_status(
         # The endpoint never answered (an outage, a timeout after every retry): what the
         # agent then did measures the endpoint, not the model. An answer the model gave
         # but that could not be used, or a request the server refused for its content (a
-        # prompt beyond the model's context), is the model's and only degrades the episode.
+        # prompt beyond the model's context), is the model's: it degrades the episode, or,
+        # when no decision's action was the model's, makes it an error (below).
         return "error", (
             f"an LLM call got no answer (module {unanswered.module}, "
             f"{unanswered.attempt} attempt(s)); {unanswered.error}"
+        )
+    # After the endpoint's failure, which says why: the model's own failure to act.
+    fallbacks = [f for f in failures if f.action_fallback]
+    if decisions and len({f.step_index for f in fallbacks}) >= decisions:
+        return "error", (
+            f"no action of the episode was the model's: all {decisions} decision(s) fell back "
+            f"to the {fallbacks[0].substitute} ({fallbacks[0].module}: {fallbacks[0].reason})"
         )
     if failures or solve_failures:
         return "degraded", None

@@ -194,6 +194,17 @@ def fixed(value: float, digits: int) -> str:
     return f"{shown:f}" if shown else f"{abs(shown):f}"  # no "-0.00"
 
 
+def nonzero_fixed(value: float, digits: int) -> str:
+    """:func:`fixed`, with more decimals (two significant digits, at most 8) for a value
+    other than zero that ``digits`` would show as zero: a cost of $0.00004 per episode is
+    not "0.0000", nor its known part "≥0.0000"."""
+    text = fixed(value, digits)
+    if value == 0.0 or not math.isfinite(value) or text.strip("-0.") or digits >= 8:
+        return text
+    needed = 1 - math.floor(math.log10(abs(value)))
+    return fixed(value, min(8, max(digits, needed)))
+
+
 def _ranks(values: dict[str, float], lower_is_better: bool, digits: int) -> dict[str, int]:
     """Best (1) and second best (2) by the shown values; no second when it is the worst."""
     shown = {row: float(fixed(v, digits)) for row, v in values.items() if not math.isnan(v)}
@@ -517,8 +528,10 @@ def _number(cell: Cell | None, digits: int, with_ci: bool, withheld: bool = Fals
     if math.isnan(cell.mean):
         return "n/a"  # unknown (e.g. a cost without a price), never shown as a number
     if cell.lower_bound:
-        return f"{AT_LEAST}{fixed(cell.mean, digits)}" + (SOME_ERRORS if cell.errors else "")
-    text = fixed(cell.mean, digits)
+        return f"{AT_LEAST}{nonzero_fixed(cell.mean, digits)}" + (
+            SOME_ERRORS if cell.errors else ""
+        )
+    text = nonzero_fixed(cell.mean, digits)
     if with_ci and cell.shows_interval:
         text += f" {_bracket(cell, digits)}"
     return text + (SOME_ERRORS if cell.errors else "")

@@ -130,6 +130,8 @@ def test_the_prompt_carries_earlier_rounds_and_the_current_one() -> None:
         ),
         # The instruction has words, so a plan without sub-goals is a failed extraction.
         ({"subgoals": [], "context_landmarks": []}, "'subgoals' is empty"),
+        # Another object altogether: the repair is told what is missing and what is not ours.
+        ({"answer": 42}, "the field 'subgoals' .* is missing; unknown field.s. answer"),
         # Copied, but only where, not what (Gemma 3 270M: ten sub-goals "pass 'left'").
         ({"subgoals": [{"kind": "pass", "landmark": "the west"}]}, "'the west' names no landmark"),
         (

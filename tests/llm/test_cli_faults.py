@@ -106,7 +106,9 @@ def test_a_context_overflow_is_recorded_and_structured_output_stays_on(
         path = _config_file(tmp_path, sample_dir, server.base_url, limit=1)
         outcome = cli("run", str(path), "--out", str(tmp_path / "run"))
         requests = [r for r in server.requests if r["task"] == "motion"]
-    assert outcome.code == 0, outcome  # one module failed: degraded, not an error
+    # The one decision's call overflowed, so its action was the fallback: the model chose
+    # no move of the episode, an error (exit 1), whose reason is the overflow.
+    assert outcome.code == 1, outcome
     [row] = read_results(tmp_path / "run" / RESULTS_FILE)
     failed = [c for c in row.llm_calls if c.outcome == "failed"]
     assert len(failed) == 1 and "LLMContextOverflowError" in (failed[0].error or "")
@@ -117,7 +119,8 @@ def test_a_context_overflow_is_recorded_and_structured_output_stays_on(
     assert all(r["body"]["response_format"]["type"] == "json_schema" for r in requests)
     report = json.loads((tmp_path / "run" / "run.json").read_text())
     assert report["structured_output"] == {"openai:test-model": "json_schema"}
-    assert row.status == "degraded"
+    assert row.status == "error" and "maximum context length" in (row.error or "")
+    assert (row.error or "").startswith("no action of the episode was the model's")
 
 
 def test_an_outage_of_one_module_is_an_error_and_retry_failed_runs_it_again(
@@ -146,6 +149,40 @@ def test_an_outage_of_one_module_is_an_error_and_retry_failed_runs_it_again(
     assert resumed.code == 1, "a resume leaves error rows be"
     assert again.code == 0, again
     assert [r.status for r in read_results(run_dir / RESULTS_FILE)] == ["ok", "ok"]
+
+
+def test_a_model_that_never_chose_an_action_is_an_error_and_retry_failed_asks_it_again(
+    tmp_path: Path, sample_dir: Path, cli: Cli, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Every motion answer had the wrong shape: each episode's one decision fell back to
+    # STOP, and the run was 'degraded' with exit 0 (a table of zeros as a result). Then
+    # --retry-failed, the endpoint fixed, replayed the unusable answers from the response
+    # cache and sent nothing.
+    monkeypatch.setenv("SKYVLN_TEST_KEY", "sk-test")
+    wrong = [answer('{"answer": 42}', task="motion") for _ in range(40)]
+    run_dir = tmp_path / "run"
+    with LoopbackOpenAIServer(wrong) as server:
+        path = _config_file(tmp_path, sample_dir, server.base_url, limit=2)
+        llm = yaml.safe_load(path.read_text())
+        llm["agent"]["llm"]["cache_path"] = str(tmp_path / "llm-cache")
+        path.write_text(yaml.safe_dump(llm))
+        down = cli("run", str(path), "--out", str(run_dir))
+        rows = read_results(run_dir / RESULTS_FILE)
+        server.script.clear()  # the endpoint is fixed: it answers as the rule backend
+        before = len(server.requests)
+        again = cli("run", str(path), "--out", str(run_dir), "--retry-failed")
+        asked = [r["task"] for r in server.requests[before:]]
+    assert down.code == 1, down
+    assert [r.status for r in rows] == ["error", "error"]
+    assert all(r.decisions == 1 and r.fallback_decisions == 1 for r in rows)
+    assert (rows[0].error or "").startswith(
+        "no action of the episode was the model's: all 1 decision(s) fell back to the stop"
+    )
+    assert "motion" in asked and "subgoals" in asked, "the retried episodes asked the endpoint"
+    assert again.code == 0, again
+    retried = read_results(run_dir / RESULTS_FILE)
+    assert [r.status for r in retried] == ["ok", "ok"]
+    assert not any(c.cached for r in retried for c in r.llm_calls)
 
 
 def test_a_400_digit_distance_is_refused_with_a_reason_and_repaired(

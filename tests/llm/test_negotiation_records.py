@@ -229,6 +229,16 @@ def test_a_bare_400_gives_a_level_up_for_the_endpoint_only_when_it_happens_again
             assert client.call("motion", [*HELLO, Message("user", str(k))], STRUCTURED).completion
         sent = [r["body"]["response_format"]["type"] for r in server.requests]
     assert sent == ["json_schema", "json_object", "json_schema", "json_object", "json_object"]
+    # A burst of bare 400s (a proxy's fault) that the plain request gets as well was never
+    # about the format: no level is given up, the next call starts at the top again.
+    with LoopbackOpenAIServer([bare] * 8 + [answer("{}")]) as server:
+        client = _client(server)
+        for k in range(2):
+            client.call("motion", [*HELLO, Message("user", str(k))], STRUCTURED)
+        client.call("motion", [*HELLO, Message("user", "after")], STRUCTURED)
+        sent = [(r["body"].get("response_format") or {}).get("type") for r in server.requests]
+    assert sent[-1] == "json_schema"
+    assert negotiated_level(client.backend.endpoint) is None  # type: ignore[attr-defined]
     # A refusal that names the format is believed at once.
     with LoopbackOpenAIServer([answer("{}")], structured="none") as server:
         client = _client(server)

@@ -80,12 +80,29 @@ def test_the_client_gives_up_after_the_last_attempt_and_says_why() -> None:
     assert len(result.records) == 8 and all("HTTP 500" in (r.error or "") for r in result.records)
 
 
-def test_a_client_error_is_not_retried() -> None:
-    with LoopbackOpenAIServer([status(404)]) as server:
+@pytest.mark.parametrize(
+    ("code", "error_class"),
+    [(404, "LLMEndpointError"), (405, "LLMEndpointError"), (413, "LLMError")],
+)
+def test_a_client_error_is_not_retried(code: int, error_class: str) -> None:
+    """A route or model the endpoint does not have is the endpoint's failure (the call got
+    no answer of the model); a request refused for its size is the request's."""
+    with LoopbackOpenAIServer([status(code)]) as server:
         result = _client(server, []).call("motion", HELLO, CONFIG)
         assert len(server.requests) == 1
-    assert result.completion is None and "HTTP 404" in (result.error or "")
+    assert result.completion is None and f"HTTP {code}" in (result.error or "")
     assert [r.outcome for r in result.records] == ["failed"]
+    assert (result.records[0].error or "").startswith(f"{error_class}:")
+    assert result.records[0].unanswered_after_retries is (error_class == "LLMEndpointError")
+
+
+@pytest.mark.parametrize("code", [408, 409, 425])
+def test_a_status_that_asks_to_try_again_is_retried(code: int) -> None:
+    with LoopbackOpenAIServer([status(code), answer('{"greeting": "hello"}')]) as server:
+        result = _client(server, []).call("motion", HELLO, CONFIG)
+        assert len(server.requests) == 2
+    assert result.completion is not None
+    assert f"LLMTransientError: try again later (HTTP {code}" in (result.records[0].error or "")
 
 
 def test_refused_credentials_stop_at_once_naming_the_key_variable() -> None:

@@ -257,6 +257,13 @@ def test_a_cost_known_only_from_below_shows_its_bound_and_is_not_ranked() -> Non
     assert r"$\geq$0.0014" in to_latex(table)
     row = next(r for r in csv.reader(io.StringIO(to_csv(table))) if r[0] == "Ours Full")
     assert "n/a" in row and not any("0.0014" in cell for cell in row)
+    # A bound (or a cost) too small for the column's 4 decimals keeps two significant
+    # digits: "≥0.0000" read as "at least nothing".
+    tiny = data.copy()
+    tiny.loc[tiny["metric"] == "llm_cost_lower_usd", "mean"] = 4.2e-5
+    tiny.loc[(tiny["system"] == "Random") & (tiny["metric"] == "llm_cost_usd"), "mean"] = 4.2e-5
+    md = to_markdown(build_table(tiny, TABLE_II, MetricConventions()))
+    assert "| ≥0.000042 |" in md and "| 0.000042 |" in md and "0.0000 |" not in md
 
 
 def test_reference_rows_are_not_ranked_and_withheld_splits_say_so() -> None:
