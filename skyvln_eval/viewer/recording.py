@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import binascii
 import os
+import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -62,6 +63,13 @@ def recording_id(ref: EpisodeLogRef, run: Mapping[str, str], mode: str) -> str:
     ANDH and ANDH-Full logs, can be opened together."""
     digest = run.get("config_digest", "episode-log")
     return f"{ref.split}/{mode}/{ref.episode_id}@{digest}"
+
+
+def application_id(rec_id: str) -> str:
+    """The recording's application id: Rerun takes letters, digits, '-', '_' and ':' in
+    one (it rewrites others with a warning on stderr, one per recording, and a hash
+    appended), so the recording id's '/' and '@' become '-'."""
+    return f"{e.APPLICATION_ID}:{re.sub(r'[^A-Za-z0-9_:-]', '-', rec_id)}"
 
 
 def recording_name(ref: EpisodeLogRef, run: Mapping[str, str], mode: str) -> str:
@@ -348,7 +356,7 @@ def write_recording(ref: EpisodeLogRef, out: str | Path) -> RecordingSummary:
         rec_id = recording_id(ref, log.run_metadata, episode.mode)
         # An application per recording: the viewer keeps one layout per application, and
         # episodes differ in theirs (their LLM tabs, where the 3-D eye looks).
-        rec = rr.RecordingStream(f"{e.APPLICATION_ID}:{rec_id}", recording_id=rec_id)
+        rec = rr.RecordingStream(application_id(rec_id), recording_id=rec_id)
         rec.set_log_time_enabled(False)  # the two timelines are simulated time and decisions
         try:
             rec.save(tmp)

@@ -125,3 +125,21 @@ def test_map_pixels_are_the_official_ones(flown_run: Path) -> None:
     width, height = frame.size_px
     assert official[:, 0].min() > 0 and official[:, 0].max() < width
     assert official[:, 1].min() > 0 and official[:, 1].max() < height
+
+
+def test_the_application_id_is_one_rerun_takes_as_it_is(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    # Rerun rewrote ids with '/' and '@', warning on stderr once per recording (20 lines
+    # from reproduce) and appending a hash, so the viewer showed another id than ours.
+    import rerun as rr
+
+    from skyvln_eval.viewer.recording import application_id
+
+    app = application_id("val_seen/andh/9101__10_1@e9ecfa839f98")
+    assert app == "skyvln-eval:val_seen-andh-9101__10_1-e9ecfa839f98"
+    rec = rr.RecordingStream(app, recording_id="check")
+    rec.save(tmp_path / "check.rrd")
+    rec.flush()
+    rec.disconnect()
+    assert "migrat" not in capfd.readouterr().err
