@@ -25,6 +25,7 @@ from skyvln_eval.worlds.sample import (
 from skyvln_eval.worlds.sample.cache import dataset_dir_name
 from skyvln_eval.worlds.sample.dialogs import DIALOG_VERSION
 from skyvln_eval.worlds.sample.phrasebook import SLOTS, TOPICS, all_frames
+from skyvln_eval.worlds.sample.pilot import FLIGHT_VERSION
 from skyvln_eval.worlds.sample.wording import (
     compass_colloquial,
     compass_erly,
@@ -152,7 +153,7 @@ def test_the_sample_folder_name_carries_the_dialog_version() -> None:
     from skyvln_eval.worlds.sample import SAMPLE_SPEC
 
     assert DIALOG_VERSION >= 2
-    assert f"d{DIALOG_VERSION}-" in dataset_dir_name(SAMPLE_SPEC)
+    assert f"f{FLIGHT_VERSION}d{DIALOG_VERSION}-" in dataset_dir_name(SAMPLE_SPEC)
 
 
 def test_the_commander_answers_a_clarification_question_from_route_facts() -> None:

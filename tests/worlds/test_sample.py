@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from skyvln_eval.avdn import SPLITS, hull_iou, load_split, replay_ground_truth, view_centre
+from skyvln_eval.avdn.geometry import view_heading_deg
 from skyvln_eval.avdn.step import action_between_views
 from skyvln_eval.worlds import load_world
 from skyvln_eval.worlds.sample import DatasetSpec, build_dataset
@@ -93,6 +94,33 @@ def test_dialogs_follow_the_avdn_format(splits) -> None:
                     assert len(r.attention_list) > len(prev.attention_list)
                     assert r.attention_list[: len(prev.attention_list)] == prev.attention_list
             assert rounds[-1].destination is not None
+
+
+def _first_step_bearing_deg(corners: np.ndarray) -> float:
+    """Compass bearing (degrees) from the first view's centre to the second's."""
+    (lat0, lng0), (lat1, lng1) = view_centre(corners[:2])
+    return float(np.degrees(np.arctan2(lng1 - lng0, lat1 - lat0)) % 360.0)
+
+
+def test_a_trajectory_s_start_heading_says_nothing_of_its_route(splits) -> None:
+    """Round 1 starts facing a direction of its own (it faced along the route: the first
+    step was straight ahead in every record); later rounds start as the last one ended."""
+    off = []
+    for loaded in splits.values():
+        for rounds in loaded.trajectories().values():
+            first = rounds[0]
+            turn = first.start_heading_deg - _first_step_bearing_deg(first.gt_path_corners)
+            off.append(abs((turn + 180.0) % 360.0 - 180.0))
+            for r in rounds[1:]:
+                assert (
+                    r.start_heading_deg
+                    == round(float(view_heading_deg(r.gt_path_corners[0]))) % 360
+                )
+    # Uniform headings put about 2 in 9 within 20 degrees of the first step; along the
+    # route, all of them were.
+    assert len(off) >= 40
+    assert np.mean(np.asarray(off) <= 20.0) < 0.5
+    assert np.median(off) > 45.0
 
 
 def test_worlds_load_with_layers_on_the_resized_grid(sample_dir: Path, splits) -> None:

@@ -35,7 +35,14 @@ from skyvln_eval.worlds.layers import write_world_layers
 from skyvln_eval.worlds.sample.dialogs import DIALOG_VERSION, attention_circles, render_trajectory
 from skyvln_eval.worlds.sample.facts import FactFinder, RoundFacts
 from skyvln_eval.worlds.sample.phrasebook import SPLIT_FAMILIES
-from skyvln_eval.worlds.sample.pilot import PilotFailed, PlanGeo, fly_route, plan_edges
+from skyvln_eval.worlds.sample.pilot import (
+    FLIGHT_VERSION,
+    PilotFailed,
+    PlanGeo,
+    fly_route,
+    plan_edges,
+    start_heading_deg,
+)
 from skyvln_eval.worlds.sample.routes import plan_route
 from skyvln_eval.worlds.sample.sources import DIALOGS_FILE, TrajectoryDialog, dialogs_document
 from skyvln_eval.worlds.tile import Landmark
@@ -183,13 +190,15 @@ def _trajectory_records(
     seed: int,
 ) -> tuple[list[dict[str, Any]], TrajectoryDialog]:
     """Plan, fly and describe one trajectory; one AVDN record per round."""
+    start_heading = start_heading_deg(seed)
     for _ in range(300):
         route = plan_route(rng, city.plan, n_rounds)
         if route is None:
             continue
         size = float(np.ptp(route.destination.polygon, axis=0).max())
         try:
-            start_heading, rounds = fly_route(rng, route, geo, plan_edges(rng, n_rounds, size))
+            flight = plan_edges(rng, n_rounds, size)
+            rounds = fly_route(rng, route, geo, flight, start_heading)
         except PilotFailed:
             continue
         break
@@ -334,6 +343,7 @@ def build_dataset(
         "format": "skyvln-eval/synthetic-avdn",
         "generator_version": GENERATOR_VERSION,
         "dialog_version": DIALOG_VERSION,
+        "flight_version": FLIGHT_VERSION,
         "spec": {**asdict(spec), "records": dict(spec.records)},
         "records": counts,
         "maps": {name: list(splits) for name, splits in maps},

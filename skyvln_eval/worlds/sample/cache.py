@@ -2,8 +2,8 @@
 
 The sample is generated, not shipped: on first use it is built into the cache
 (``$SKYVLN_EVAL_CACHE``, else ``$XDG_CACHE_HOME/skyvln-eval``, else
-``~/.cache/skyvln-eval``) under a name that includes the generator and dialog versions and a hash of
-the spec, in a temporary folder renamed into place when complete.
+``~/.cache/skyvln-eval``) under a name that includes the generator, flight and dialog
+versions and a hash of the spec, in a temporary folder renamed into place when complete.
 :func:`write_dataset` builds one into a folder of the caller's choice instead
 (``skyvln-eval sample --out DIR`` writes DIR itself).
 """
@@ -24,11 +24,12 @@ from skyvln_eval.paths import cache_root
 from skyvln_eval.worlds.city.generate import GENERATOR_VERSION
 from skyvln_eval.worlds.sample.build import DATASET_INFO, SPECS, DatasetSpec, build_dataset
 from skyvln_eval.worlds.sample.dialogs import DIALOG_VERSION
+from skyvln_eval.worlds.sample.pilot import FLIGHT_VERSION
 
 
 def dataset_dir_name(spec: DatasetSpec) -> str:
     digest = hashlib.sha256(json.dumps(_spec_json(spec), sort_keys=True).encode()).hexdigest()[:10]
-    return f"{spec.name}-g{GENERATOR_VERSION}d{DIALOG_VERSION}-{digest}"
+    return f"{spec.name}-g{GENERATOR_VERSION}f{FLIGHT_VERSION}d{DIALOG_VERSION}-{digest}"
 
 
 def is_complete(path: Path) -> bool:
@@ -91,6 +92,7 @@ def holds_dataset(spec: DatasetSpec, path: Path) -> bool:
         isinstance(info, dict)
         and info.get("generator_version") == GENERATOR_VERSION
         and info.get("dialog_version") == DIALOG_VERSION
+        and info.get("flight_version") == FLIGHT_VERSION
         and info.get("spec") == json.loads(json.dumps(_spec_json(spec)))
     )
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Final
 
 import numpy as np
 from numpy.typing import NDArray
@@ -20,6 +21,12 @@ from skyvln_eval.avdn.geometry import view_centre, view_from_pose, view_heading_
 from skyvln_eval.avdn.imagery import MapGeoref
 from skyvln_eval.avdn.step import official_step_detailed
 from skyvln_eval.worlds.sample.routes import Route, compass_bearing
+
+#: Version of the flights: 1 started a trajectory facing along its route (the start
+#: heading gave its first leg away: the first step was straight ahead in every record);
+#: 2 starts it facing a direction of its own stream (:func:`start_heading_deg`). Part of
+#: the sample's cache key.
+FLIGHT_VERSION: Final = 2
 
 View = NDArray[np.float64]
 
@@ -80,16 +87,27 @@ def _edge_now(rng: np.random.Generator, start: float, end: float, fraction: floa
     return start + (end - start) * fraction + rng.uniform(-8, 8)
 
 
+def start_heading_deg(seed: int) -> float:
+    """A trajectory's start heading (whole degrees, 0 = north, clockwise), from a stream of
+    its own: nothing of the route, so an agent learns the way from the words, not from the
+    way it faces (the first pilot's step turns if need be). Later rounds start as the one
+    before ended, as in AVDN."""
+    return float(np.random.default_rng(np.random.SeedSequence([seed, 0x5EED])).integers(360))
+
+
 def fly_route(
-    rng: np.random.Generator, route: Route, geo: PlanGeo, flight: FlightPlan
-) -> tuple[float, list[list[View]]]:
-    """Fly the route; returns the start heading (float degrees) and the views of each round.
+    rng: np.random.Generator,
+    route: Route,
+    geo: PlanGeo,
+    flight: FlightPlan,
+    start_heading: float,
+) -> list[list[View]]:
+    """Fly the route from ``start_heading`` (degrees); returns the views of each round.
 
     Each round's list starts with the view the previous round ended on. Raises
     :class:`PilotFailed` when a step would leave the map (the official step would cancel it).
     """
     start_xy = route.points_m[0]
-    start_heading = route.bearing_at(0.0, lookahead=30.0)
     start_edge = min(flight.start_edge_m, int(geo.max_edge_m(start_xy)))
     if start_edge < MIN_VIEW_EDGE_M:
         raise PilotFailed("start too close to the map border")
@@ -151,4 +169,4 @@ def fly_route(
             raise PilotFailed("round without movement")
         rounds.append(views)
         round_start_edge = float(np.linalg.norm(view[0] - view[1])) * METERS_PER_DEGREE
-    return start_heading, rounds
+    return rounds
