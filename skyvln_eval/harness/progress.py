@@ -1,5 +1,9 @@
 """A progress bar for runs: episodes done, ETA, running success rate and LLM cost so far.
 
+The rate, cost and counts are of the episodes this launch runs: a resumed run (or one
+run again with ``--retry-failed``) says "SR this launch", since the episodes recorded
+before are not in it.
+
 The cost reads "n/a" while it is unknown: before the first episode, and for good once an
 episode had an unpriced call (a model without a price, a server that reported no tokens,
 an attempt refused for its credentials). An episode that raised keeps the calls it made
@@ -42,6 +46,7 @@ class RichRunProgress(RunProgress):
         self._spent_usd = 0.0  # of the priced calls; the total only if nothing is unpriced
         self._cost_unknown = False
         self._nothing_to_run = False
+        self._resumed = False  # episodes recorded before: the live SR is of this launch's
 
     @property
     def cost_usd(self) -> float | None:
@@ -60,10 +65,12 @@ class RichRunProgress(RunProgress):
         health = (f", {self.errors} error" if self.errors else "") + (
             f", {self.degraded} degraded" if self.degraded else ""
         )
-        return f"SR {rate} | LLM {cost}{health}"
+        label = "SR this launch" if self._resumed else "SR"
+        return f"{label} {rate} | LLM {cost}{health}"
 
     def start(self, description: str, total: int, already_done: int) -> None:
         self._nothing_to_run = total > 0 and already_done >= total
+        self._resumed = already_done > 0
         self._bar = Progress(
             TextColumn("[bold]{task.description}"),
             BarColumn(),

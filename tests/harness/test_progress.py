@@ -71,3 +71,12 @@ def test_a_resumed_run_with_nothing_left_says_so() -> None:
     progress.start("run", total=4, already_done=4)
     assert progress._stats() == "nothing left to run: every episode was recorded before"
     progress.finish([])
+
+
+def test_a_resumed_run_s_live_sr_says_it_is_this_launch_s() -> None:
+    # A --retry-failed launch showed "SR 0.0%" for a run standing at 1 ok of 3 (33%).
+    progress = RichRunProgress(Console(file=io.StringIO(), width=200))
+    progress.start("run", total=3, already_done=1)
+    progress.episode_done(flown(), success=False)
+    assert progress._stats().startswith("SR this launch   0.0%")
+    progress.finish([])
