@@ -205,6 +205,12 @@ class ModuleFailure:
         return cls(**_known_keys(cls, data))
 
 
+def fallback_steps(failures: Sequence[ModuleFailure]) -> set[int]:
+    """The decisions (step indices) whose action was the fallback: their action module
+    failed, however many of its failures a decision recorded."""
+    return {f.step_index for f in failures if f.action_fallback}
+
+
 def module_usage(
     calls: Sequence[LlmCall], failures: Sequence[ModuleFailure]
 ) -> dict[str, dict[str, Any]]:

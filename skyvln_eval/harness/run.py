@@ -526,7 +526,6 @@ def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = Fal
     report.missing = list(todo)
     atomic_write_json(run_dir / REPORT_FILE, report.to_json(), indent=1)
     config_json = config.model_dump_json()
-    rows = {key_of(r): r for r in store.results()}
     tasks = [
         EpisodeTask(
             config_json,
@@ -536,13 +535,16 @@ def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = Fal
             episode_id,
             str(logs[(split, episode_id)]),
             # Run again after an error: its answers come from the endpoint, not the cache.
-            fresh_answers=retry_failed
-            and (split, episode_id) in rows
-            and rows[(split, episode_id)].status == "error",
+            fresh_answers=retry_failed and _recorded_error(store, (split, episode_id)),
         )
         for split, episode_id in todo
     ]
     return RunJob(config, run_dir, store, report, tasks, lock)
+
+
+def _recorded_error(store: ResultStore, key: RowKey) -> bool:
+    row = store.get(key)
+    return row is not None and row.status == "error"
 
 
 def _finish(job: RunJob, wall_s: float, runs_in_pass: int = 1, finished: bool = True) -> None:

@@ -255,8 +255,9 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
         world = _world(task.data_dir, episode.map_name, episode.georef)
         seed = episode_seed(config, task.split, task.episode_id)
         agent = _agent(config, episode, seed)
-        for client in agent.llm_clients() if task.fresh_answers else ():
-            client.read_cache = False
+        if task.fresh_answers:
+            for client in agent.llm_clients():
+                client.read_cache = False
         made = CallsMade(agent)  # if the episode raises, its calls still count
         control = control_log = None
         rollout: OfficialRollout | DynamicsRollout

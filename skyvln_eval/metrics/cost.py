@@ -41,7 +41,7 @@ from collections.abc import Sequence
 
 import pandas as pd
 
-from skyvln_eval.llm_records import ModuleFailure
+from skyvln_eval.llm_records import ModuleFailure, fallback_steps
 from skyvln_eval.metrics.records import KEY_COLUMNS, EpisodeResult, LlmCall
 
 #: Per-episode LLM columns and their units.
@@ -114,7 +114,7 @@ def call_totals(
     """Totals over some calls (and the decisions they served), keyed as :data:`COST_COLUMNS`."""
     finals = [c for c in calls if c.final]
     failed = sum(c.outcome == "failed" for c in finals)
-    fallback_steps = {f.step_index for f in failures if f.action_fallback}
+    fallbacks = fallback_steps(failures)
     return {
         "llm_calls": float(len(finals)),
         "llm_requests": float(len(calls)),
@@ -132,8 +132,8 @@ def call_totals(
         "llm_latency_s": float(sum(c.latency_s for c in calls)),
         "llm_queue_s": float(sum(c.queue_s for c in calls)),
         "decisions": float(decisions),
-        "fallback_decisions": float(len(fallback_steps)),
-        "fallback_rate": len(fallback_steps) / decisions if decisions else math.nan,
+        "fallback_decisions": float(len(fallbacks)),
+        "fallback_rate": len(fallbacks) / decisions if decisions else math.nan,
         "module_failures": float(len(failures)),
     }
 

@@ -25,7 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 from skyvln_eval.avdn.constants import EPISODE_MODES, SPLITS, EpisodeMode
 from skyvln_eval.avdn.json_values import shown
 from skyvln_eval.errors import ResultRecordError, ValidationIssue
-from skyvln_eval.llm_records import LlmCall, ModuleFailure, module_usage
+from skyvln_eval.llm_records import LlmCall, ModuleFailure, fallback_steps, module_usage
 
 ResultStatus = Literal["ok", "degraded", "error"]
 #: ``ok``: the agent flew the episode with every answer it asked for; ``degraded``: it
@@ -73,11 +73,11 @@ def judge_status(
             f"{unanswered.attempt} attempt(s)); {unanswered.error}"
         )
     # After the endpoint's failure, which says why: the model's own failure to act.
-    fallbacks = [f for f in failures if f.action_fallback]
-    if decisions and len({f.step_index for f in fallbacks}) >= decisions:
+    if decisions and len(fallback_steps(failures)) >= decisions:
+        fell = next(f for f in failures if f.action_fallback)
         return "error", (
             f"no action of the episode was the model's: all {decisions} decision(s) fell back "
-            f"to the {fallbacks[0].substitute} ({fallbacks[0].module}: {fallbacks[0].reason})"
+            f"to the {fell.substitute} ({fell.module}: {fell.reason})"
         )
     if failures or solve_failures:
         return "degraded", None
@@ -285,7 +285,7 @@ class EpisodeResult:
     @property
     def fallback_decisions(self) -> int:
         """Decisions whose action was the safe fallback (the action module failed)."""
-        return len({f.step_index for f in self.module_failures if f.action_fallback})
+        return len(fallback_steps(self.module_failures))
 
     def llm_modules(self) -> dict[str, dict[str, Any]]:
         """Per agent module: calls, failed calls, parse failures, repairs, fallbacks, tokens

@@ -189,7 +189,9 @@ def _trajectory_records(
     families: tuple[str, ...],
     seed: int,
 ) -> tuple[list[dict[str, Any]], TrajectoryDialog]:
-    """Plan, fly and describe one trajectory; one AVDN record per round."""
+    """Plan, fly and describe one trajectory; one AVDN record per round. ``seed``: the
+    trajectory's wording seed, which seeds its start heading's stream too (apart from the
+    route's ``rng``)."""
     start_heading = start_heading_deg(seed)
     for _ in range(300):
         route = plan_route(rng, city.plan, n_rounds)

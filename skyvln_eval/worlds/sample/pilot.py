@@ -90,7 +90,7 @@ def _edge_now(rng: np.random.Generator, start: float, end: float, fraction: floa
 def start_heading_deg(seed: int) -> float:
     """A trajectory's start heading (whole degrees, 0 = north, clockwise), from a stream of
     its own: nothing of the route, so an agent learns the way from the words, not from the
-    way it faces (the first pilot's step turns if need be). Later rounds start as the one
+    way it faces (the pilot's first step turns if need be). Later rounds start as the one
     before ended, as in AVDN."""
     return float(np.random.default_rng(np.random.SeedSequence([seed, 0x5EED])).integers(360))
 
