@@ -43,7 +43,8 @@ err_console = Console(stderr=True, width=None if sys.stderr.isatty() else 110)
 DATASET_SIZES = ("sample", "full")
 FAIL_ON_ERROR_HELP = (
     "Largest share of episodes (0-1) that may end in error (no usable LLM answer, an LLM "
-    "call the endpoint never answered, or the episode raised) before the command fails; "
+    "call the endpoint never answered or refused as one it cannot serve (HTTP 404), every "
+    "decision's action the fallback, or the episode raised) before the command fails; "
     "0: any error fails, 1: never"
 )
 

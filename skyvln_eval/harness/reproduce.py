@@ -528,6 +528,7 @@ def reproduce(
         plan.resamples,
         seed=plan.seed,
         ci_unit=plan.ci_unit,
+        warn_errors=False,  # the tables and SUMMARY.md show them
     )
     write_scores(out_dir / "scores" / "scores.csv", scores, conventions)
     atomic_write_text(out_dir / "scores" / "summary.csv", summary_csv_text(summary, conventions))

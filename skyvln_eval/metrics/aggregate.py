@@ -20,6 +20,7 @@ with the missing ids.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Literal, get_args
@@ -260,11 +261,19 @@ def summarise(
     confidence: float = 0.95,
     seed: int = 0,
     ci_unit: CiUnit = "trajectory",
+    *,
+    warn_errors: bool = True,
 ) -> pd.DataFrame:
     """Per (system, split, mode, metric): n, mean and, if ``n_resamples``, an interval
     (``ci_low``, ``ci_high``, ``confidence``, ``ci_method``: see the module docstring),
     and ``oracle`` (whether the harness's ground-truth oracle flew the system) where the
     scores say.
+
+    ``n_error`` counts the group's episodes that ended in error (where the scores have a
+    ``status``): they are in the means, scored as failures (the tables mark such cells, or
+    show ``error`` where every episode did), so a dead endpoint's SR 0 is not a result.
+    A :class:`ErroredEpisodesWarning` names the groups with errors unless ``warn_errors``
+    is false (the tables, which show them).
 
     ``ci_unit="trajectory"`` resamples whole trajectories (:func:`trajectory_of`) instead
     of episodes: the rounds of one dialog fly one route and succeed or fail together more
@@ -284,6 +293,9 @@ def summarise(
     metrics = list(metrics or [m for m in METRIC_UNITS if m in scores.columns])
     checked_scores(scores, metrics)
     oracles = set(oracle_systems(scores)) if "oracle" in scores.columns else None
+    errors = error_counts(scores)
+    if warn_errors:
+        warn_of_errors(errors, "summarise")
     rows = []
     for key, unordered in scores.groupby(GROUP_KEYS, sort=True):
         group = unordered.sort_values("episode_id", kind="stable")
@@ -293,6 +305,8 @@ def summarise(
             row = dict(zip(GROUP_KEYS, key, strict=True))
             if oracles is not None:  # a reference row says so wherever it is read
                 row["oracle"] = row["system"] in oracles
+            if errors is not None:
+                row["n_error"] = errors.get(key, (0, 0))[1]
             row.update(metric=metric, unit=unit_of(metric))
             what = f"{'/'.join(map(str, key))} {metric}"
             if metric in UNKNOWN_IF_ANY_UNKNOWN and not present.all():
@@ -338,8 +352,9 @@ def summarise(
                     row.update(_percentiles(estimates, confidence, resampling.bootstrap))
             rows.append(row)
     summary = pd.DataFrame(rows)
-    if "n_trajectories" in summary.columns:  # a count, not a float
-        summary["n_trajectories"] = summary["n_trajectories"].astype("Int64")
+    for count in ("n_trajectories", "n_error"):
+        if count in summary.columns:  # a count, not a float
+            summary[count] = summary[count].astype("Int64")
     if n_resamples and "ci_method" in summary.columns:
         # Another seed or count gives other bootstrap bounds: which made these goes along.
         drawn = summary["ci_method"].astype(str).str.contains("bootstrap")
@@ -348,6 +363,37 @@ def summarise(
     if CONVENTIONS_ATTR in scores.attrs:  # which conventions scored it goes along
         summary.attrs[CONVENTIONS_ATTR] = scores.attrs[CONVENTIONS_ATTR]
     return summary
+
+
+class ErroredEpisodesWarning(UserWarning):
+    """Scores of episodes that ended in error are being averaged (as failures)."""
+
+
+def error_counts(scores: pd.DataFrame) -> dict[tuple[str, str, str], tuple[int, int]] | None:
+    """Per (system, split, mode): (episodes, episodes that ended in error); None when
+    the scores have no ``status``."""
+    if "status" not in scores.columns:
+        return None
+    failed = scores["status"].astype(str).eq("error")
+    counts = failed.groupby([scores[k] for k in GROUP_KEYS], sort=True).agg(["size", "sum"])
+    return {key: (int(n), int(e)) for key, n, e in counts.itertuples(name=None)}
+
+
+def warn_of_errors(errors: dict[tuple[str, str, str], tuple[int, int]] | None, where: str) -> None:
+    """Warn, naming them, of groups with episodes that ended in error: their means count
+    those episodes as failures, which a bare number does not say."""
+    failed = {key: c for key, c in (errors or {}).items() if c[1]}
+    if not failed:
+        return
+    shown = "; ".join(f"{'/'.join(map(str, key))}: {e} of {n}" for key, (n, e) in failed.items())
+    warnings.warn(
+        f"{where}: episodes that ended in error (no usable LLM answer, or the episode "
+        f"raised) are scored as failures: {shown}. Their rows say so (n_error; the "
+        "tables show 'error' or mark the cell); a mean over them measures the failure, "
+        "not the agent",
+        ErroredEpisodesWarning,
+        stacklevel=3,
+    )
 
 
 def _interval(low: float, high: float, method: CiMethod, confidence: float) -> dict[str, object]:
@@ -457,6 +503,10 @@ def compare_systems(
     above 0.05 is not a significant difference: ``significant`` is the test's verdict at
     5% (``p_value < 0.05``), whatever the interval shows. Systems that did the same on
     every episode have no interval (NaN: the differences have no spread to resample).
+
+    ``errors_a`` / ``errors_b`` count each system's episodes that ended in error (scored
+    as failures; an :class:`ErroredEpisodesWarning` says so): against a dead endpoint the
+    difference measures the failure, not the model.
     """
 
     checked_scores(scores, [metric])
@@ -478,6 +528,11 @@ def compare_systems(
             f"only {system_a!r}: {listed(only_a, 10)}; only {system_b!r}: {listed(only_b, 10)}"
         )
     b = b.loc[a.index]
+    errors = error_counts(
+        scores[scores.system.isin([system_a, system_b]) & (scores.split == split)
+               & (scores["mode"] == mode)]
+    )  # fmt: skip
+    warn_of_errors(errors, "compare_systems")
     scale = 100.0 if metric in PERCENT_METRICS else 1.0
     clusters = None if ci_unit == "episode" else [trajectory_of(e) for e in a.index]
     result = paired_comparison(
@@ -495,6 +550,14 @@ def compare_systems(
             "system_b": system_b,
             **result.__dict__,
             "significant": bool(result.p_value < 0.05),
+            **(
+                {}
+                if errors is None
+                else {
+                    f"errors_{side}": errors.get((system, split, mode), (0, 0))[1]
+                    for side, system in (("a", system_a), ("b", system_b))
+                }
+            ),
         }
     )
 
@@ -507,7 +570,9 @@ def _no_scores_for(scores: pd.DataFrame, system: str, split: str, mode: str) -> 
         systems = list(dict.fromkeys(scores["system"].astype(str)))
         # A run's own name, where the scores label it by what answered it ("Full †").
         marked = [s for s in systems if s.startswith(f"{system} ")]
-        hint = f" (did you mean {listed(marked)}?)" if marked else ""
+        # A table's label, which marks a stand-in's rows ("Full rule †"): its system's name.
+        unmarked = [s for s in systems if system.startswith(f"{s} ")]
+        hint = f" (did you mean {listed(marked or unmarked)}?)" if marked or unmarked else ""
         return (
             f"no scores for system {system!r}{hint}; the scores have the systems {listed(systems)}"
         )

@@ -58,15 +58,31 @@ class TableSpec:
     def digits_of(self, metric: str, default: int) -> int:
         return dict(self.digits).get(metric, default)
 
+    def over(self, *splits: str) -> TableSpec:
+        """The same table over other splits (e.g. Table II, the paper's over the unseen
+        test split, over ``val_seen``): one column group per split, in the order given."""
+        unknown = [s for s in splits if s not in SPLIT_TITLES]
+        if not splits or unknown:
+            raise MetricInputError(
+                f"{self.name}.over: splits must be some of {listed(list(SPLIT_TITLES))}, "
+                f"got {listed(list(splits))}"
+            )
+        return replace(self, groups=tuple((s, SPLIT_TITLES[s]) for s in splits))
+
+
+#: How the tables title each split.
+SPLIT_TITLES = {
+    "train": "Training",
+    "val_seen": "Seen Validation",
+    "val_unseen": "Unseen Validation",
+    "test_unseen": "Unseen Testing",
+}
+
 
 TABLE_I = TableSpec(
     name="table1",
     row_header="Model",
-    groups=(
-        ("val_seen", "Seen Validation"),
-        ("val_unseen", "Unseen Validation"),
-        ("test_unseen", "Unseen Testing"),
-    ),
+    groups=tuple((s, SPLIT_TITLES[s]) for s in ("val_seen", "val_unseen", "test_unseen")),
     metrics=(("spl", "SPL/%"), ("success", "SR/%")),
     caption="Comparison on the validation and unseen test sets (AVDN-format data).",
     label="tab:results_systems",
@@ -74,7 +90,7 @@ TABLE_I = TableSpec(
 TABLE_II = TableSpec(
     name="table2",
     row_header="LLM",
-    groups=(("test_unseen", "Unseen Testing"),),
+    groups=(("test_unseen", SPLIT_TITLES["test_unseen"]),),
     metrics=(
         ("spl", "SPL/%"),
         ("success", "SR/%"),
@@ -194,15 +210,18 @@ def fixed(value: float, digits: int) -> str:
     return f"{shown:f}" if shown else f"{abs(shown):f}"  # no "-0.00"
 
 
+def nonzero_digits(value: float, digits: int) -> int:
+    """``digits``, or more decimals (two significant digits, at most 8) for a value other
+    than zero that ``digits`` would show as zero: a cost of $0.00004 per episode is not
+    "0.0000", nor its known part "≥0.0000"."""
+    if value == 0.0 or not math.isfinite(value) or fixed(value, digits).strip("-0."):
+        return digits
+    return min(8, max(digits, 1 - math.floor(math.log10(abs(value)))))
+
+
 def nonzero_fixed(value: float, digits: int) -> str:
-    """:func:`fixed`, with more decimals (two significant digits, at most 8) for a value
-    other than zero that ``digits`` would show as zero: a cost of $0.00004 per episode is
-    not "0.0000", nor its known part "≥0.0000"."""
-    text = fixed(value, digits)
-    if value == 0.0 or not math.isfinite(value) or text.strip("-0.") or digits >= 8:
-        return text
-    needed = 1 - math.floor(math.log10(abs(value)))
-    return fixed(value, min(8, max(digits, needed)))
+    """:func:`fixed` with the decimals of :func:`nonzero_digits`."""
+    return fixed(value, nonzero_digits(value, digits))
 
 
 def _ranks(values: dict[str, float], lower_is_better: bool, digits: int) -> dict[str, int]:
@@ -239,7 +258,8 @@ def build_table(
     if not set(splits) & (set(sel["split"]) | set(withheld)):  # a table of dashes
         raise MetricInputError(
             f"{spec.name} is over {listed(splits)}, and the scores have only "
-            f"{listed(sorted(set(sel['split'].astype(str))))}"
+            f"{listed(sorted(set(sel['split'].astype(str))))} (a spec's .over(split, ...) "
+            "is the same table over other splits)"
         )
     if show_ci and "ci_low" not in sel.columns:
         raise MetricInputError("confidence intervals were asked for but the summary has none")
@@ -538,9 +558,11 @@ def _number(cell: Cell | None, digits: int, with_ci: bool, withheld: bool = Fals
 
 
 def _bracket(cell: Cell, digits: int) -> str:
-    """A cell's interval, ``[low, high]``, or ``[n/a]`` where it has none."""
+    """A cell's interval, ``[low, high]``, or ``[n/a]`` where it has none; with as many
+    decimals as its value shows (``0.0019 [0.0012, 0.0031]``, not ``[0.00, 0.00]``)."""
     if cell.ci_low is None or cell.ci_high is None or math.isnan(cell.ci_low):
         return "[n/a]"
+    digits = nonzero_digits(cell.mean, digits)
     return f"[{fixed(cell.ci_low, digits)}, {fixed(cell.ci_high, digits)}]"
 
 

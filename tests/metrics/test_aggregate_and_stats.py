@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,7 @@ from skyvln_eval.avdn import load_split, replay_ground_truth
 from skyvln_eval.errors import DataError, FormatVersionError, IncompleteRunError, MetricInputError
 from skyvln_eval.metrics import (
     EpisodeResult,
+    ErroredEpisodesWarning,
     MetricConventions,
     bootstrap_ci,
     check_complete,
@@ -84,6 +86,33 @@ def test_summary_is_per_system_in_percent_with_seeded_intervals() -> None:
         summarise(scores.iloc[:0])
 
 
+def test_summary_and_comparison_say_which_episodes_ended_in_error() -> None:
+    # An audit: summarise and compare_systems gave a dead endpoint's system ordinary
+    # figures (SR 0, NE as from the start), nothing saying its episodes had errored.
+    g0, g1 = square(0, 0), square(100, 0)
+    results = []
+    for k in range(6):
+        results.append(result([g0, g1], [g0, g1], episode_id=f"e{k}", system="live"))
+        status = "error" if k < 4 else "ok"  # 4 of 6 raised: they stayed at the start
+        results.append(result([g0], [g0, g1], status, episode_id=f"e{k}", system="dead"))
+    scores = score_results(results)
+    with pytest.warns(ErroredEpisodesWarning, match=r"dead/val_seen/andh: 4 of 6") as caught:
+        summary = summarise(scores, ["success", "ne_m"])
+    assert "live" not in str(caught[0].message)
+    counts = summary.set_index(["system", "metric"])["n_error"]
+    assert counts[("dead", "success")] == 4 and counts[("dead", "ne_m")] == 4
+    assert counts[("live", "success")] == 0
+    assert str(summary["n_error"].dtype) == "Int64"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the tables show errors themselves: no warning
+        summarise(scores, ["success"], warn_errors=False)
+    with pytest.warns(ErroredEpisodesWarning, match="compare_systems"):
+        diff = compare_systems(scores, "live", "dead", "success", "val_seen", n_resamples=200)
+    assert diff.errors_a == 0 and diff.errors_b == 4
+    without = scores.drop(columns="status")  # a frame that does not say: no column
+    assert "n_error" not in summarise(without, ["success"]).columns
+
+
 def test_intervals_and_paired_tests_do_not_depend_on_row_order() -> None:
     # A parallel run records episodes in the order they finish: the numbers must not care.
     scores = scores_of_two_systems()
@@ -140,6 +169,9 @@ def test_compare_systems_names_the_systems_there_are_and_says_how_many_it_cut() 
     marked = scores.replace({"system": {"A": "A †"}})  # reproduce labels stand-in rows so
     with pytest.raises(MetricInputError, match=r"system 'A' \(did you mean 'A †'\?\)"):
         compare_systems(marked, "A", "B", "success", "val_seen")
+    # ... and a table marks a run's rows: its label names the system without the marker.
+    with pytest.raises(MetricInputError, match=r"system 'A †' \(did you mean 'A'\?\)"):
+        compare_systems(scores, "A †", "B", "success", "val_seen")
     with pytest.raises(MetricInputError, match=r"'A' on val_unseen/andh; it has 'val_seen/andh'"):
         compare_systems(scores, "A", "B", "success", "val_unseen")
     # Only A has the last 15 episodes: 10 are named, and the 5 others counted.

@@ -104,6 +104,16 @@ def test_table_ii_marks_errors_references_unequal_episodes_and_cache_replays() -
     assert "Replayed from the response cache" in md and "gemma on Unseen Testing: 50%" in md
     assert "answered by the simulated commander, who knows the goal" in md
     assert "gemma 1 in 1 of 2 episodes" in md
+    # Over another split (an audit compared backends on val_seen: refused, no way round):
+    # the same table, its rule row still a reference and the dead endpoint's cells 'error'.
+    on_seen = _scores().assign(split="val_seen")
+    with pytest.raises(MetricInputError, match=r"only 'val_seen' \(a spec's \.over"):
+        paper_table(on_seen, TABLE_II, MetricConventions())
+    seen = to_markdown(paper_table(on_seen, TABLE_II.over("val_seen"), MetricConventions()))
+    assert "Seen Validation SR/%" in seen and "Unseen Testing" not in seen
+    assert "| dead | error | error | error |" in seen and "Not ranked" in seen
+    with pytest.raises(MetricInputError, match="splits must be some of"):
+        TABLE_II.over("validation")
     # Questions it did not answer (max_questions spent, or 0) were no help: no note.
     unanswered = _scores().assign(questions_answered=0.0)
     assert "simulated commander" not in to_markdown(

@@ -264,6 +264,11 @@ def test_a_cost_known_only_from_below_shows_its_bound_and_is_not_ranked() -> Non
     tiny.loc[(tiny["system"] == "Random") & (tiny["metric"] == "llm_cost_usd"), "mean"] = 4.2e-5
     md = to_markdown(build_table(tiny, TABLE_II, MetricConventions()))
     assert "| ≥0.000042 |" in md and "| 0.000042 |" in md and "0.0000 |" not in md
+    # Its interval has the value's decimals: an audit saw "0.0019 [0.00, 0.00]".
+    tiny.loc[tiny["metric"] == "llm_cost_usd", ["ci_low", "ci_high"]] = (3.1e-5, 5.06e-5)
+    tiny = tiny.assign(ci_method="bootstrap", confidence=0.95)
+    shown = to_markdown(build_table(tiny, TABLE_II, MetricConventions(), show_ci=True))
+    assert "| 0.000042 [0.000031, 0.000051] |" in shown
 
 
 def test_reference_rows_are_not_ranked_and_withheld_splits_say_so() -> None:
@@ -387,7 +392,7 @@ def test_a_model_without_a_price_whose_calls_all_failed_has_no_lower_bound() -> 
         result(g, g, "error", f"d{k}", "Dead", "test_unseen", llm_calls=dead) for k in range(2)
     ] + [result(g, g, "ok", f"p{k}", "Priced", "test_unseen", llm_calls=live) for k in range(2)]
     metrics = ["spl", "success", "ne_m", "llm_cost_usd", "llm_cost_lower_usd"]
-    data = summarise(score_results(results), metrics)
+    data = summarise(score_results(results), metrics, warn_errors=False)
     md = to_markdown(build_table(data, TABLE_II, MetricConventions()))
     row = next(line for line in md.splitlines() if line.startswith("| Dead |"))
     assert "≥" not in row and "n/a" in row
