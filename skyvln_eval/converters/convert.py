@@ -221,7 +221,7 @@ def write_static_content(
         writer.write(t.TOPIC_ATTENTION, t.SCENE_UPDATE, update, 0)
     writer.write(t.TOPIC_START_POSE, t.POSE_IN_FRAME, fx.pose_in_frame(0, t.MAP_FRAME, path[0]), 0)
     camera = fx.frame_transform(
-        0, t.DRONE_FRAME, t.CAMERA_FRAME, fx.vector3(0, 0, 0), fx.CAMERA_FROM_BODY_QUATERNION
+        0, t.DRONE_FRAME, t.CAMERA_FRAME, fx.vector3(0, 0, 0), fx.CAMERA_FROM_DRONE_QUATERNION
     )
     writer.write(t.TOPIC_TF, t.FRAME_TRANSFORM, camera, 0)
 

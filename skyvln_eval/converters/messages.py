@@ -57,9 +57,27 @@ def yaw_quaternion(yaw_rad: float) -> Json:
     return {"x": 0.0, "y": 0.0, "z": math.sin(half), "w": math.cos(half)}
 
 
-#: Body (x forward, y left, z up) to the downward camera's optical frame (x right, y down
-#: in the image = backwards, z into the scene = down): a half turn about (1, -1, 0) / sqrt 2.
-CAMERA_FROM_BODY_QUATERNION: Final[Json] = {
+def attitude_quaternion(roll_rad: float, pitch_rad: float, yaw_rad: float) -> Json:
+    """The airframe's orientation in the map: yaw about +z, then the quadrotor model's
+    world-frame roll about x (east) and pitch about y (north), ``Ry(pitch) Rx(roll)
+    Rz(yaw)``, so the thrust axis is the model's ``Ry(pitch) Rx(roll) e_z``."""
+    sr, cr = math.sin(0.5 * roll_rad), math.cos(0.5 * roll_rad)
+    sp, cp = math.sin(0.5 * pitch_rad), math.cos(0.5 * pitch_rad)
+    sy, cy = math.sin(0.5 * yaw_rad), math.cos(0.5 * yaw_rad)
+    # (cp + sp j)(cr + sr i) = cp cr + cp sr i + sp cr j - sp sr k, then times (cy + sy k).
+    w, x, y, z = cp * cr, cp * sr, sp * cr, -sp * sr
+    return {
+        "x": x * cy + y * sy,
+        "y": y * cy - x * sy,
+        "z": z * cy + w * sy,
+        "w": w * cy - z * sy,
+    }
+
+
+#: The drone's heading frame (x forward, y left, z up) to the downward camera's optical
+#: frame (x right, y down in the image = backwards, z into the scene = down): a half turn
+#: about (1, -1, 0) / sqrt 2.
+CAMERA_FROM_DRONE_QUATERNION: Final[Json] = {
     "x": math.sqrt(0.5),
     "y": -math.sqrt(0.5),
     "z": 0.0,

@@ -47,11 +47,15 @@ CONVERSION_METADATA: Final = "skyvln_eval.conversion"
 RUN_METADATA: Final = "skyvln_eval.run"
 
 # Frames. ``map`` is the ENU frame of skyvln_eval.frames (x east, y north, metres from the
-# map's south-west corner); ``drone`` is the body (x forward, y left, z up); ``camera`` is
-# the downward camera's optical frame (x right, y down in the image, z into the scene).
+# map's south-west corner); ``drone`` is the drone's level heading frame (x forward, y left,
+# z up: its position and yaw, no roll or pitch), on which the gimballed downward camera
+# hangs; ``camera`` is that camera's optical frame (x right, y down in the image, z into
+# the scene); ``body`` (flown runs only) is the airframe: the drone's position with its
+# full attitude (the model's world-frame roll and pitch after its yaw), a child of ``map``.
 MAP_FRAME: Final = "map"
 DRONE_FRAME: Final = "drone"
 CAMERA_FRAME: Final = "camera"
+BODY_FRAME: Final = "body"
 MAP_TILE_FRAME: Final = "map_tile"
 
 # Schema names.

@@ -1,11 +1,13 @@
 """The run log's per-control-step messages (``/tf`` and ``/control/step``), written fast.
 
-A dynamics episode has hundreds of control steps, each with two messages. Building a
+A dynamics episode has hundreds of control steps, each with three messages: the drone's
+level heading frame and the airframe with its roll and pitch (``/tf``), and the step. Building a
 dict per message and handing it to the writer's JSON encoder cost most of a run log's
 time, so rows are turned into the writer's JSON text here, column by column.
 
 The text must be byte for byte what :func:`~skyvln_eval.converters.writer.encode_json`
-writes for the dicts :func:`control_step_message` and :func:`drone_tf` build (the
+writes for the dicts :func:`control_step_message`, :func:`drone_tf` and :func:`body_tf`
+build (the
 reference; the tests compare the two). That holds because the JSON encoder writes a
 float as ``float.__repr__``, an int as ``int.__repr__``, a bool as ``true``/``false``
 and a string by ``json.dumps`` rules, and the templates are the reference dicts with
@@ -71,6 +73,17 @@ def drone_tf(t_ns: int, pose: ViewPose) -> Any:
     )
 
 
+def body_tf(t_ns: int, pose: ViewPose, roll_rad: float, pitch_rad: float) -> Any:
+    """The airframe at ``pose`` tilted by the model's world-frame roll and pitch."""
+    return fx.frame_transform(
+        t_ns,
+        t.MAP_FRAME,
+        t.BODY_FRAME,
+        fx.vector3(pose.x_m, pose.y_m, pose.z_m),
+        fx.attitude_quaternion(roll_rad, pitch_rad, pose.yaw_rad),
+    )
+
+
 def _finite_or_none(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
 
@@ -109,11 +122,13 @@ def control_step_message(columns: dict[str, Any], i: int, t_ns: int, pose: ViewP
 
 
 def _row_dicts(columns: dict[str, Any], i: int) -> list[Message]:
-    """Row ``i``'s two messages as dicts: the path for rows the fast text does not cover."""
+    """Row ``i``'s messages as dicts: the path for rows the fast text does not cover."""
     t_ns = ns(float(columns["t_s"][i]))
     pose = ViewPose(*(float(columns[c][i]) for c in (*_POSITION, "yaw_rad")))
+    roll, pitch = (float(columns[c][i]) for c in ("roll_rad", "pitch_rad"))
     return [
         (t_ns, t.TOPIC_TF, drone_tf(t_ns, pose)),
+        (t_ns, t.TOPIC_TF, body_tf(t_ns, pose, roll, pitch)),
         (t_ns, t.TOPIC_CONTROL_STEP, control_step_message(columns, i, t_ns, pose)),
     ]
 
@@ -126,6 +141,17 @@ def _tf_template() -> JsonTemplate:
     message["timestamp"] = fx.timestamp_slots()
     message["translation"] = {"x": slot(2), "y": slot(3), "z": slot(4)}
     message["rotation"] = message["rotation"] | {"z": slot(5), "w": slot(6)}
+    return JsonTemplate(message)
+
+
+@functools.cache
+def _body_tf_template() -> JsonTemplate:
+    """:func:`body_tf` with slots: seconds, nanoseconds, x, y, z, then the quaternion's x,
+    y, z and w."""
+    message = body_tf(0, ViewPose(0.0, 0.0, 0.0, 0.0), 0.0, 0.0)
+    message["timestamp"] = fx.timestamp_slots()
+    message["translation"] = {"x": slot(2), "y": slot(3), "z": slot(4)}
+    message["rotation"] = {k: slot(5 + n) for n, k in enumerate(("x", "y", "z", "w"))}
     return JsonTemplate(message)
 
 
@@ -237,14 +263,19 @@ def control_messages(log: pd.DataFrame) -> list[Message]:
     # fast text does not cover get zeros here; their texts are not used.
     half_turns = [0.5 * yaw if math.isfinite(yaw) else 0.0 for yaw in yaws]
     quaternion = np.array([(math.sin(h), math.cos(h)) for h in half_turns]).reshape(n_rows, 2)
-    table = np.column_stack([floats[:, 1:], clearance, quaternion])
+    angles = floats[:, [FLOAT_COLUMNS.index(c) for c in _ATTITUDE]]
+    angles[~np.isfinite(angles)] = 0.0
+    attitude = np.array(
+        [tuple(fx.attitude_quaternion(*row).values()) for row in angles.tolist()]
+    ).reshape(n_rows, 4)
+    table = np.column_stack([floats[:, 1:], clearance, quaternion, attitude])
     table[~np.isfinite(table)] = 0.0
     width, named = table.shape[1], len(FLOAT_COLUMNS) - 1
     flat = float_texts(table.ravel())
     iterations = columns["iterations"].tolist()
     strings = {c: _json_strings(columns[c].tolist()) for c in _STRING_COLUMNS}
     bools = {c: [_json_bool(v) for v in columns[c].tolist()] for c in _BOOL_COLUMNS}
-    tf, step = _tf_template(), _control_step_template()
+    tf, body, step = _tf_template(), _body_tf_template(), _control_step_template()
     messages: list[Message] = []
     for i in range(n_rows):
         if not fast_rows[i]:
@@ -253,8 +284,9 @@ def control_messages(log: pd.DataFrame) -> list[Message]:
         t_ns = ns(times[i])
         sec, nsec = fx.timestamp_texts(t_ns)
         row = flat[i * width : (i + 1) * width]
-        clearance_text, qz, qw = row[named:]
+        clearance_text, qz, qw, *tilted = row[named:]
         messages.append((t_ns, t.TOPIC_TF, tf.fill(sec, nsec, row[0], row[1], row[2], qz, qw)))
+        messages.append((t_ns, t.TOPIC_TF, body.fill(sec, nsec, *row[:3], *tilted)))
         text = step.fill(
             sec,
             nsec,

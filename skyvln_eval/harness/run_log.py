@@ -220,13 +220,7 @@ def _agent_messages(
     images = _ImageEncoder(options)
     for step in steps:
         t_ns = ns(step.t_s)
-        pose = view_to_pose(step.view, episode.georef)
-        if t_ns not in flown_at:
-            out.add(t_ns, t.TOPIC_TF, drone_tf(t_ns, pose))
-        # Where the drone is on the globe, as an episode log says it: Foxglove's Map panel
-        # reads /drone/gps, so one layout shows both kinds of log.
-        lat, lng = view_centre(np.asarray(step.view, dtype=np.float64)[None])[0]
-        out.add(t_ns, t.TOPIC_GPS, fx.location_fix(t_ns, t.DRONE_FRAME, lat, lng, pose.z_m))
+        _place_drone(out, episode, step.view, t_ns, t_ns not in flown_at)
         if world is not None and observations:
             key = np.asarray(step.view, dtype=np.float64).tobytes()
             if key not in encoded:
@@ -272,10 +266,29 @@ def _agent_messages(
             out.add(t_ns, t.TOPIC_AGENT_TARGET, fx.pose_in_frame(t_ns, t.MAP_FRAME, target))
 
 
-def _path_messages(out: _Messages, episode: Episode, content: RunLogContent) -> None:
+def _place_drone(
+    out: _Messages, episode: Episode, view: Any, t_ns: int, transform: bool = True
+) -> None:
+    """The drone at ``view`` at ``t_ns``: its ``/tf`` (unless a control step placed it
+    then) and where it is on the globe, as an episode log says it (Foxglove's Map panel
+    reads ``/drone/gps``, so one layout shows both kinds of log)."""
+    pose = view_to_pose(view, episode.georef)
+    if transform:
+        out.add(t_ns, t.TOPIC_TF, drone_tf(t_ns, pose))
+    lat, lng = view_centre(np.asarray(view, dtype=np.float64)[None])[0]
+    out.add(t_ns, t.TOPIC_GPS, fx.location_fix(t_ns, t.DRONE_FRAME, lat, lng, pose.z_m))
+
+
+def _path_messages(
+    out: _Messages, episode: Episode, content: RunLogContent, placed: frozenset[int]
+) -> None:
+    """The path and view squares at each view; the drone placed at a view no decision or
+    control step placed it at (``placed``): where it ended, after its last move."""
     poses: list[Any] = []
     for k, (view, t_s) in enumerate(zip(content.views, content.view_times_s, strict=True)):
         t_ns = ns(t_s)
+        if t_ns not in placed:
+            _place_drone(out, episode, view, t_ns)
         pose = view_to_pose(view, episode.georef)
         poses.append(fx.pose(pose.x_m, pose.y_m, pose.z_m, pose.yaw_rad))
         out.add(t_ns, t.TOPIC_RUN_PATH, fx.poses_in_frame(t_ns, t.MAP_FRAME, list(poses)))
@@ -387,7 +400,7 @@ def _write_run_log(
     log = content.control_log
     flown_at = frozenset(ns(s) for s in log["t_s"].tolist()) if log is not None else frozenset()
     _agent_messages(out, episode, world, content.steps, options, observations, flown_at)
-    _path_messages(out, episode, content)
+    _path_messages(out, episode, content, flown_at | {ns(step.t_s) for step in content.steps})
     if log is not None and len(log):
         _control_messages(out, log)
     _obstacle_messages(out, content.obstacle_segments)

@@ -75,7 +75,7 @@ def test_a_log_without_predictions_writes_null() -> None:
         columns=[PREDICTED_PATH_COLUMN]
     )
     _assert_fast_and_equal(log)
-    assert all(b'"predicted_positions_m":null}' in m for _, topic, m in _written(log)[1::2])
+    assert all(b'"predicted_positions_m":null}' in m for _, topic, m in _written(log)[2::3])
 
 
 @pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
@@ -89,10 +89,10 @@ def test_a_non_finite_row_keeps_its_dicts_and_the_writer_refuses_it(bad: float, 
         return
     messages = cm.control_messages(log)
     kinds = [isinstance(message, bytes) for _, _, message in messages]
-    assert kinds == [True, True, False, False, True, True]
-    assert messages[:2] + messages[4:] == _reference(log, [0, 2])
+    assert kinds == [True] * 3 + [False] * 3 + [True] * 3
+    assert messages[:3] + messages[6:] == _reference(log, [0, 2])
     with pytest.raises(ValueError, match="Out of range float"):
-        encode_json(messages[3][2])
+        encode_json(messages[5][2])
 
 
 def test_a_log_of_other_column_types_keeps_the_dicts() -> None:
@@ -106,8 +106,39 @@ def test_a_log_of_other_column_types_keeps_the_dicts() -> None:
 def test_messages_come_in_row_order_on_their_topics() -> None:
     log = log_frame([_row(k, v) for k, v in enumerate(TRICKY)])
     messages = cm.control_messages(log)
-    assert [topic for _, topic, _ in messages] == [t.TOPIC_TF, t.TOPIC_CONTROL_STEP] * len(TRICKY)
-    assert [t_ns for t_ns, _, _ in messages[::2]] == [cm.ns(0.05 * k) for k in range(len(TRICKY))]
+    topics = [t.TOPIC_TF, t.TOPIC_TF, t.TOPIC_CONTROL_STEP]
+    assert [topic for _, topic, _ in messages] == topics * len(TRICKY)
+    assert [t_ns for t_ns, _, _ in messages[::3]] == [cm.ns(0.05 * k) for k in range(len(TRICKY))]
+
+
+def _rotation(axis: int, angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    i, j = (axis + 1) % 3, (axis + 2) % 3  # the plane it turns, in right-hand order
+    matrix = np.eye(3)
+    matrix[i, i], matrix[i, j], matrix[j, i], matrix[j, j] = c, -s, s, c
+    return matrix
+
+
+def test_the_airframe_carries_the_models_roll_and_pitch_and_the_heading_frame_stays_level() -> None:
+    # An audit: /tf's map->drone had only yaw while /control/step said 6 deg of roll.
+    log = log_frame([_row(0, 0.5, roll_rad=0.106, pitch_rad=-0.2, yaw_rad=2.0)])
+    heading, body, _ = (json.loads(m) for _, _, m in _written(log))
+    assert heading["child_frame_id"] == t.DRONE_FRAME
+    assert heading["rotation"]["x"] == heading["rotation"]["y"] == 0.0
+    assert (body["parent_frame_id"], body["child_frame_id"]) == (t.MAP_FRAME, t.BODY_FRAME)
+    assert body["translation"] == heading["translation"]
+    x, y, z, w = (body["rotation"][k] for k in "xyzw")
+    assert math.isclose(x * x + y * y + z * z + w * w, 1.0, rel_tol=1e-12)
+    rotation = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+    # The model's R = Ry(pitch) Rx(roll) after the yaw: its thrust axis is R e_z.
+    expected = _rotation(1, -0.2) @ _rotation(0, 0.106) @ _rotation(2, 2.0)
+    np.testing.assert_allclose(rotation, expected, atol=1e-12)
 
 
 finite = st.floats(allow_nan=False, allow_infinity=False)

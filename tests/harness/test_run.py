@@ -121,6 +121,17 @@ def test_dynamics_run_flies_with_a_controller_and_logs_it(
     log = read_log(run_dir / "logs" / "val_unseen" / f"{result.episode_id}.mcap")
     assert len(log.topic(t.TOPIC_CONTROL_STEP)) == result.control.steps
     assert log.topic(t.TOPIC_OBSTACLES) and log.topic(t.TOPIC_AGENT_TARGET)
+    # An audit: the airframe's roll and pitch were in /control/step only, and the drone's
+    # last place (after its last control step) was on /run/path but in no /tf nor fix.
+    transforms = [m.decode() for m in log.topic(t.TOPIC_TF)]
+    body = [m for m in transforms if m["child_frame_id"] == t.BODY_FRAME]
+    assert len(body) == result.control.steps
+    assert any(abs(m["rotation"]["x"]) + abs(m["rotation"]["y"]) > 1e-3 for m in body)
+    drone = [m for m in transforms if m["child_frame_id"] == t.DRONE_FRAME]
+    assert all(m["rotation"]["x"] == m["rotation"]["y"] == 0.0 for m in drone)  # level
+    last_view = log.topic(t.TOPIC_RUN_PATH)[-1].log_time_ns
+    for topic in (t.TOPIC_TF, t.TOPIC_GPS):
+        assert max(m.log_time_ns for m in log.topic(topic)) == last_view, topic
     assert not check_log(run_dir / "logs" / "val_unseen" / f"{result.episode_id}.mcap").issues
 
 
