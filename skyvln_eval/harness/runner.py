@@ -198,11 +198,19 @@ def _official(
 
 def _dynamics(
     agent: Agent, episode: Episode, world: WorldTile, config: RunConfig, seed: int
-) -> tuple[DynamicsRollout, RunLogContent, dict[str, Any]]:
+) -> tuple[DynamicsRollout, RunLogContent, dict[str, Any], dict[str, Any]]:
+    """The flown episode, its run log's content, its result's extras, and what its control
+    log keeps of how it was flown (the controller's settings as built: its horizon, limits,
+    whether compiled and which QP solver ran; the flight's: speeds, scenario)."""
     settings = config.dynamics
     controller = _controller(
         settings.controller, json.dumps(settings.controller_settings, sort_keys=True)
     )
+    flown_with = {
+        "controller": settings.controller,
+        "controller_settings": controller.settings(),
+        "flight": settings.model_dump(mode="json", exclude={"controller_settings"}),
+    }
     rollout = run_dynamics_episode(
         agent,
         episode,
@@ -227,7 +235,7 @@ def _dynamics(
         "simulated_s": rollout.simulated_s,
         "segments_reached": [bool(r) for r in rollout.reached],
     }
-    return rollout, content, extra
+    return rollout, content, extra, flown_with
 
 
 def llm_backend(config: RunConfig) -> str | None:
@@ -264,15 +272,16 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
         if config.mode == "official":
             rollout, content, extra = _official(agent, episode, world, config, seed)
         else:
-            flown, content, extra = _dynamics(agent, episode, world, config, seed)
+            flown, content, extra, flown_with = _dynamics(agent, episode, world, config, seed)
             rollout = flown
             if len(flown.control_log):
                 control_log = control_log_name(task.split, task.episode_id)
                 save_flight_log(
                     flown.control_log.assign(episode_id=task.episode_id),
                     Path(task.run_dir) / control_log,
-                    {"controller": config.dynamics.controller},
+                    flown_with,
                 )
+                flown.control_log.attrs["settings"] = flown_with  # as the file read back has
                 control = summarise_control(flown.control_log, control_log)
         solve_failures = 0 if control is None else control.solve_failures
         status, error = judge_status(

@@ -15,7 +15,9 @@ error wrapped to (-pi, pi]) and solve-time mean / median / 95th percentile / max
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -136,7 +138,21 @@ def read_control_log(path: str | Path) -> pd.DataFrame:
         shown = ", ".join(str(c) for c in log.columns[:6]) + ("..." if len(log.columns) > 6 else "")
         raise DataError(f"{path}: not a control log (its columns: {shown}); {CONTROL_LOG_HINT}")
     check_control_log(log, str(path))
+    if path.suffix == ".parquet":  # how it was flown, where the harness wrote it
+        log.attrs["settings"] = _flight_settings(path)
     return log
+
+
+def _flight_settings(path: Path) -> dict[str, Any]:
+    """The settings a flight log keeps in its Parquet metadata (``{}`` where none)."""
+    import pyarrow.parquet as pq
+
+    stored = (pq.read_schema(path).metadata or {}).get(b"skyvln_settings")
+    try:
+        settings = json.loads(stored) if stored else {}
+    except ValueError:
+        raise DataError(f"{path}: its stored settings are not JSON") from None
+    return settings if isinstance(settings, dict) else {}
 
 
 def _rmse(err: np.ndarray) -> float:
@@ -162,10 +178,6 @@ def summarise_control(log: pd.DataFrame, source: str = "<control log>") -> Contr
     t = log["t_s"].to_numpy(np.float64)
     solve = log["solve_time_ms"].to_numpy(np.float64)
     clearance = log["min_clearance_m"].to_numpy(np.float64)
-    # Here, not at the top: the control package imports CasADi, which scoring and
-    # notebooks reading scores do not need.
-    from skyvln_eval.control.registry import has_obstacle_constraint
-
     controller = str(log["controller"].iloc[0])
     return ControlSummary(
         controller=controller,
@@ -187,9 +199,21 @@ def summarise_control(log: pd.DataFrame, source: str = "<control log>") -> Contr
         solve_time_p95_ms=float(np.percentile(solve, 95)),
         solve_time_max_ms=float(solve.max()),
         soft_steps=None
-        if has_obstacle_constraint(controller) is False
+        if not _kept_out_by_a_constraint(controller, log.attrs.get("settings", {}))
         else int((log["status"] == "solved_soft").sum()),
     )
+
+
+def _kept_out_by_a_constraint(controller: str, settings: dict[str, Any]) -> bool:
+    """Whether the controller's plan had an obstacle constraint to relax: not one without
+    any (the PID), nor an MPC built with no obstacle slots (``max_obstacles: 0``, where
+    the flight log's settings say so); an unknown controller is given the benefit."""
+    # Here, not at the top: the control package imports CasADi, which scoring and
+    # notebooks reading scores do not need.
+    from skyvln_eval.control.registry import has_obstacle_constraint
+
+    slots = settings.get("controller_settings", {}).get("max_obstacles")
+    return has_obstacle_constraint(controller) is not False and slots != 0
 
 
 def control_metrics(log: pd.DataFrame, source: str = "<control log>") -> pd.DataFrame:
@@ -202,7 +226,9 @@ def control_metrics(log: pd.DataFrame, source: str = "<control log>") -> pd.Data
     keys = ["controller", "scenario"] + (["episode_id"] if "episode_id" in log.columns else [])
     rows = []
     for key, group in log.groupby(keys, sort=True):
-        summary = summarise_control(group.reset_index(drop=True), f"{source} {key}")
+        group = group.reset_index(drop=True)
+        group.attrs = dict(log.attrs)  # the flight's settings, where the log has them
+        summary = summarise_control(group, f"{source} {key}")
         row = summary.to_json_dict()
         if "episode_id" in keys:
             row["episode_id"] = key[2]

@@ -27,7 +27,7 @@ from skyvln_eval.harness import RunConfig, load_run_config, make_executor, run, 
 from skyvln_eval.harness.config import run_config_from_mapping
 from skyvln_eval.harness.run import error_verdict
 from skyvln_eval.harness.store import RESULTS_FILE
-from skyvln_eval.metrics import MetricConventions, read_results, score_results
+from skyvln_eval.metrics import MetricConventions, read_control_log, read_results, score_results
 from tests.conftest import REPO
 from tests.harness.compare import comparable, scores_of
 
@@ -115,6 +115,13 @@ def test_dynamics_run_flies_with_a_controller_and_logs_it(
     assert result.control is not None and result.control.steps > 50
     assert result.control.controller == "nmpc" and result.control.scenario == "crossing"
     assert result.control_log is not None and (run_dir / result.control_log).is_file()
+    # How it was flown goes with the log (an audit found only the controller's name):
+    # the controller as built (horizon, limits, which QP solver ran) and the flight's.
+    flown_with = read_control_log(run_dir / result.control_log).attrs["settings"]
+    built = flown_with["controller_settings"]
+    assert (built["name"], built["horizon_steps"], built["dt_s"]) == ("nmpc", 20, 0.1)
+    assert built["qp_solver_used"] in ("riccati", "hpipm") and "compiled" in built
+    assert flown_with["flight"]["cruise_speed_m_s"] == config.dynamics.cruise_speed_m_s
     assert result.extra["simulated_s"] > 5.0
     assert report.simulated_s == result.extra["simulated_s"]  # flown now
     assert run(config, run_dir).simulated_s == 0.0  # nothing flown on resume

@@ -69,6 +69,11 @@ def test_control_summary_hand_computed() -> None:
     assert summarise_control(soft).soft_steps == 3  # the obstacle constraint relaxed 3 times
     # The PID has no obstacle constraint: nothing to relax is no value, not 0.
     assert summarise_control(control_log("pid")).soft_steps is None
+    # Nor has an MPC built without obstacle slots (an audit saw its "relaxed steps" 0).
+    blind = control_log("mpc")
+    blind.attrs["settings"] = {"controller_settings": {"max_obstacles": 0}}
+    assert summarise_control(blind).soft_steps is None
+    assert control_metrics(blind)["soft_steps"].isna().all()
     assert summary.collision_steps == 0 and not summary.collided
     assert summary.solve_failures == 1 and summary.constraint_violation_steps == 2
     assert summary.solve_time_max_ms == pytest.approx(1.2)
