@@ -26,14 +26,25 @@ class Focus:
 
 
 def episode_blueprint(
-    rr: ModuleType, modules: Sequence[str], views: Sequence[str], focus: Focus | None = None
+    rr: ModuleType,
+    modules: Sequence[str],
+    views: Sequence[str],
+    focus: Focus | None = None,
+    run_log: bool = True,
 ) -> Any:
-    """The layout; ``modules`` are the LLM modules and ``views`` the detection views logged."""
+    """The layout; ``modules`` are the LLM modules and ``views`` the detection views
+    logged; an episode log (not ``run_log``) shows its ground-truth views where a run's
+    log shows what the agent saw."""
     rrb = rr.blueprint
     eye = None
     if focus is not None:
         eye = rrb.EyeControls3D(position=focus.eye_m, look_target=focus.target_m, eye_up=[0, 0, 1])
-    camera_views = [rrb.Spatial2DView(origin=e.CAMERA_OBSERVATION, name="official view")] + [
+    below = (
+        rrb.Spatial2DView(origin=e.CAMERA_OBSERVATION, name="official view")
+        if run_log
+        else rrb.Spatial2DView(origin=e.CAMERA_GT_OBSERVATION, name="ground-truth view")
+    )
+    camera_views = [below] + [
         rrb.Spatial2DView(origin=e.camera_view(v), name=f"camera: {v}") for v in views
     ]
     plots = [

@@ -33,11 +33,19 @@ class Canvas:
         self.t_ns = 0
         self.decision = 0
 
-    def at(self, t_ns: int) -> None:
-        """Log what follows at ``t_ns`` on the ``sim_time`` and ``decision`` timelines."""
+    def at(self, t_ns: int, continuous: bool = False) -> None:
+        """Log what follows at ``t_ns`` on the ``sim_time`` and ``decision`` timelines.
+
+        A ``continuous`` signal (the flight's poses, control steps, obstacles) is on the
+        decision timeline only at a decision's own time: logged there between decisions,
+        decision k would show the drone where it was just before decision k+1, away from
+        the view, image and text of decision k."""
         self.t_ns = t_ns
         self.decision = max(0, bisect.bisect_right(self.decision_times_ns, t_ns) - 1)
-        self.rec.set_time(e.DECISION_TIMELINE, sequence=self.decision)
+        if continuous and self.decision_times_ns[self.decision] != t_ns:
+            self.rec.disable_timeline(e.DECISION_TIMELINE)
+        else:
+            self.rec.set_time(e.DECISION_TIMELINE, sequence=self.decision)
         self.rec.set_time(e.SIM_TIMELINE, duration=np.timedelta64(t_ns, "ns"))
 
     def put(self, path: str, archetype: Any, static: bool = False) -> None:

@@ -12,6 +12,7 @@ import shlex
 import subprocess
 import tempfile
 import time
+from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
@@ -28,10 +29,27 @@ from skyvln_eval.viewer.serve import serve_recordings
 
 #: Serving more recordings than this at once is slow in a browser; say so.
 MANY_RECORDINGS = 50
+#: How an .rrd file begins: Rerun's stream header, "RRF" and a format version ("RRF2" from
+#: the installed Rerun).
+RRD_MAGIC = b"RRF"
 
 
-def recording_file_name(ref: EpisodeLogRef) -> str:
-    return f"{ref.split}__{ref.episode_id}.rrd"
+def recording_file_names(refs: Sequence[EpisodeLogRef]) -> list[str]:
+    """A file name per episode log, all different: ``<split>__<id>.rrd``, after the run's
+    folder name where runs of one folder hold the same episode (a folder of runs, e.g. a
+    reproduction's, flies each episode once per system: one file replaced the other), and
+    numbered where even that is the same."""
+    plain = [f"{ref.split}__{ref.episode_id}" for ref in refs]
+    named = [
+        f"{ref.run_name}__{name}" if plain.count(name) > 1 and ref.run_name else name
+        for ref, name in zip(refs, plain, strict=True)
+    ]
+    seen: Counter[str] = Counter()
+    unique = []
+    for name in named:
+        seen[name] += 1
+        unique.append(name if named.count(name) == 1 else f"{name}__{seen[name]}")
+    return [f"{name}.rrd" for name in unique]
 
 
 def build_recordings(
@@ -41,8 +59,8 @@ def build_recordings(
 ) -> list[RecordingSummary]:
     """One ``.rrd`` per episode in ``out_dir``, built one after the other (streaming each)."""
     summaries = []
-    for ref in refs:
-        summary = write_recording(ref, out_dir / recording_file_name(ref))
+    for ref, name in zip(refs, recording_file_names(refs), strict=True):
+        summary = write_recording(ref, out_dir / name)
         summaries.append(summary)
         if on_done is not None:
             on_done(summary)
@@ -151,6 +169,12 @@ def _view(target: Path, episodes: Sequence[str], save: Path | None, serve: bool,
             raise ConfigError(f"{target} is already a recording: --episode and --save do not apply")
         if not target.is_file():
             raise ConfigError(f"{target}: no such recording")
+        with target.open("rb") as handle:
+            magic = handle.read(len(RRD_MAGIC))
+        if magic != RRD_MAGIC:  # else the viewer is served with nothing in it, and no error
+            raise ConfigError(
+                f"{target}: not a Rerun recording (it does not start as an .rrd file does)"
+            )
         _serve([target], port)
         return
     refs = find_episode_logs(target, episodes)

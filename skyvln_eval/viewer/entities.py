@@ -42,7 +42,8 @@ MAP_FINAL_VIEW: Final = "map/final_view"
 
 WORLD: Final = "world"
 WORLD_MAP: Final = "world/map"
-WORLD_DRONE: Final = "world/drone"
+WORLD_DRONE: Final = "world/drone"  # the level heading frame (position and yaw)
+WORLD_DRONE_BODY: Final = "world/drone/body"  # the airframe's box, tilted in flown runs
 WORLD_TRAJECTORY: Final = "world/trajectory"
 WORLD_GT_ROUTE: Final = "world/gt_route"
 WORLD_GOAL: Final = "world/goal"

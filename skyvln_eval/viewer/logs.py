@@ -53,6 +53,12 @@ class EpisodeLogRef:
     def key(self) -> str:
         return f"{self.split}/{self.episode_id}"
 
+    @property
+    def run_name(self) -> str:
+        """The name of the run directory holding the log (``<run>/logs/<split>/``), or
+        '' for a log elsewhere."""
+        return self.path.parents[2].name if self.path.parent.parent.name == LOGS_DIR else ""
+
 
 def _ref(path: Path) -> EpisodeLogRef:
     return EpisodeLogRef(path, path.parent.name, path.stem)
@@ -182,9 +188,15 @@ def _check_holds(ref: EpisodeLogRef, selector: str) -> None:
 
 
 def _not_found(target: Path, selector: str, log_dirs: Sequence[Path]) -> str:
-    known = sorted({p.stem for logs in log_dirs for p in logs.glob("*/*.mcap")})
-    close = difflib.get_close_matches(selector.rpartition("/")[2], known, n=3)
-    hint = f" Did you mean {', '.join(close)}?" if close else ""
+    logs = [p for folder in log_dirs for p in folder.glob("*/*.mcap")]
+    known = sorted({p.stem for p in logs})
+    episode_id = selector.rpartition("/")[2]
+    elsewhere = sorted({f"{p.parent.name}/{p.stem}" for p in logs if p.stem == episode_id})
+    if elsewhere:  # the id is there, under another split
+        hint = f" It is there as {', '.join(elsewhere)}."
+    else:
+        close = difflib.get_close_matches(episode_id, known, n=3)
+        hint = f" Did you mean {', '.join(close)}?" if close else ""
     return f"{target}: no run MCAP for episode {selector!r}.{hint} ({len(known)} episode(s) in it)"
 
 

@@ -36,6 +36,8 @@ Json = Mapping[str, Any]
 #: Topics whose message times are the decisions: agent steps (run logs), else one GPS fix
 #: per ground-truth view (episode logs).
 _CLOCK_TOPICS = (t.TOPIC_AGENT_STEP, t.TOPIC_GPS)
+#: What flows between decisions: on the decision timeline only at a decision's time.
+_CONTINUOUS_TOPICS = frozenset({t.TOPIC_TF, t.TOPIC_CONTROL_STEP, t.TOPIC_OBSTACLES})
 _DEFAULT_IMAGE_PX = 224
 
 
@@ -118,6 +120,8 @@ class _Recorder:
         self.last_view: tuple[scene.Strip, int] | None = None
         self.views_seen = 0
         self.horizon_shown = False
+        #: The heading frame's last rotation (x, y, z, w): the body's tilt is relative to it.
+        self.heading_xyzw = [0.0, 0.0, 0.0, 1.0]
         self.handlers: dict[str, Callable[[Json], None]] = {
             t.TOPIC_TF: self._tf,
             t.TOPIC_RUN_PATH: lambda _: self._flight_so_far(),
@@ -138,15 +142,19 @@ class _Recorder:
         if (static := static_content.HANDLERS.get(topic)) is not None:
             static(self.canvas, message)
         elif (handler := self.handlers.get(topic)) is not None:
-            self.canvas.at(t_ns)
+            self.canvas.at(t_ns, continuous=topic in _CONTINUOUS_TOPICS)
             handler(message)
 
     def _tf(self, message: Json) -> None:
-        if message.get("child_frame_id") != t.DRONE_FRAME:
+        child = message.get("child_frame_id")
+        if child == t.BODY_FRAME:  # a flown run's airframe: the box tilts as it did
+            self._tilt(scene.quaternion_xyzw(message.get("rotation", {})))
+        if child != t.DRONE_FRAME:
             return  # the fixed drone -> camera mounting
         rr, canvas = self.rr, self.canvas
         position = scene.xyz(message.get("translation", {}))
-        rotation = rr.Quaternion(xyzw=scene.quaternion_xyzw(message.get("rotation", {})))
+        self.heading_xyzw = scene.quaternion_xyzw(message.get("rotation", {}))
+        rotation = rr.Quaternion(xyzw=self.heading_xyzw)
         canvas.put(e.WORLD_DRONE, rr.Transform3D(translation=position, quaternion=rotation))
         dot = rr.Points2D(
             np.asarray([canvas.frame.pixels(position)]),
@@ -155,6 +163,14 @@ class _Recorder:
         )
         canvas.put(e.MAP_DRONE, dot)
         self.flight.add(position)
+
+    def _tilt(self, body_xyzw: list[float]) -> None:
+        """The airframe's box and axes under the level heading frame (``world/drone``,
+        whose transform at the same time came first): the body's rotation relative to it."""
+        relative = scene.relative_rotation_xyzw(self.heading_xyzw, body_xyzw)
+        self.canvas.put(
+            e.WORLD_DRONE_BODY, self.rr.Transform3D(quaternion=self.rr.Quaternion(xyzw=relative))
+        )
 
     def _flight_so_far(self) -> None:
         points = self.flight.array()
@@ -261,6 +277,8 @@ class _Recorder:
         elif self.horizon_shown:  # no prediction this step (a fallback): no stale horizon
             self.canvas.put(e.WORLD_HORIZON, self.rr.Clear(recursive=False))
             self.horizon_shown = False
+        #: The heading frame's last rotation (x, y, z, w): the body's tilt is relative to it.
+        self.heading_xyzw = [0.0, 0.0, 0.0, 1.0]
 
     def _obstacles(self, message: Json) -> None:
         spheres = scene.scene_spheres(message)
@@ -335,7 +353,9 @@ def _record(rr: ModuleType, rec: Any, log: RunLogStream, episode: Episode) -> _R
                 level="ERROR" if run["status"] == "error" else "WARN",
             ),
         )
-    blueprint = episode_blueprint(rr, recorder.modules, recorder.detection_views, recorder.focus())
+    blueprint = episode_blueprint(
+        rr, recorder.modules, recorder.detection_views, recorder.focus(), recorder.run_log
+    )
     rec.send_blueprint(blueprint)
     return recorder
 

@@ -43,6 +43,19 @@ def quaternion_xyzw(rotation: Json) -> list[float]:
     return [float(rotation.get(k, 1.0 if k == "w" else 0.0)) for k in ("x", "y", "z", "w")]
 
 
+def relative_rotation_xyzw(parent: Sequence[float], child: Sequence[float]) -> list[float]:
+    """The rotation taking frame ``parent`` to ``child`` (both given in one frame, as
+    x, y, z, w): ``conj(parent) * child``."""
+    px, py, pz, pw = (-parent[0], -parent[1], -parent[2], parent[3])
+    cx, cy, cz, cw = child
+    return [
+        pw * cx + px * cw + py * cz - pz * cy,
+        pw * cy - px * cz + py * cw + pz * cx,
+        pw * cz + px * cy - py * cx + pz * cw,
+        pw * cw - px * cx - py * cy - pz * cz,
+    ]
+
+
 def pose_positions(message: Json) -> NDArray[np.float64]:
     """Positions (n x 3, metres) of a ``PosesInFrame``."""
     points = [xyz(p.get("position", {})) for p in message.get("poses", [])]

@@ -8,7 +8,8 @@ Series (under ``control/``; a plot's origin groups a state with its reference):
 ``x_m``, ``y_m``, ``z_m``, ``yaw_rad`` (``state`` and ``reference``), ``roll_rad`` and
 ``pitch_rad`` (``state`` and ``command``: the attitude references the controller sends),
 ``velocity_m_s/{x,y,z}``, ``thrust_m_s2/command``, ``solve_time_ms``, ``iterations``,
-``min_clearance_m``.
+``min_clearance_m``, and ``flags/{relaxed,solve_failed,constraint_violation,collision}``
+(1 on a step so flagged, else 0).
 """
 
 from __future__ import annotations
@@ -25,6 +26,15 @@ def _item(key: str, index: int) -> Callable[[Json], Any]:
     def get(step: Json) -> Any:
         values = step.get(key)
         return values[index] if isinstance(values, list) and len(values) > index else None
+
+    return get
+
+
+def _flag(key: str, when: Any = True) -> Callable[[Json], Any]:
+    """1.0 where the step's ``key`` is ``when``, else 0.0 (None where the step lacks it)."""
+
+    def get(step: Json) -> Any:
+        return None if key not in step else float(step[key] == when)
 
     return get
 
@@ -60,6 +70,12 @@ SERIES: dict[str, Callable[[Json], Any]] = {
     "solve_time_ms": _field("solve_time_ms"),
     "iterations": _field("iterations"),
     "min_clearance_m": _field("min_clearance_m"),
+    # Steps flagged (1) or not (0): the plan relaxed the obstacle constraint (its slack
+    # used), the solve failed (the controller fell back), inside the keep-out sphere, a crash.
+    "flags/relaxed": _flag("status", "solved_soft"),
+    "flags/solve_failed": _flag("solve_failed"),
+    "flags/constraint_violation": _flag("constraint_violation"),
+    "flags/collision": _flag("collision"),
 }
 
 #: Plot groups for the default layout: title and the series origins it shows.
@@ -73,7 +89,9 @@ PLOTS: tuple[tuple[str, str], ...] = (
     ("velocity (m/s)", "velocity_m_s"),
     ("thrust (m/s²)", "thrust_m_s2"),
     ("solve time (ms)", "solve_time_ms"),
+    ("QP iterations", "iterations"),
     ("clearance (m)", "min_clearance_m"),
+    ("flagged steps (0/1)", "flags"),
 )
 
 

@@ -138,9 +138,10 @@ def start_pose(canvas: Canvas, message: Json) -> None:
 
 
 def drone_body(canvas: Canvas) -> None:
-    """A box with axes that moves with the ``world/drone`` transform."""
+    """A box with axes that moves with the ``world/drone`` transform (and tilts with the
+    airframe's, where a flown run's log has it)."""
     rr = canvas.rr
-    body = f"{e.WORLD_DRONE}/body"
+    body = e.WORLD_DRONE_BODY
     canvas.rec.log(
         body, rr.Boxes3D(half_sizes=[[2.0, 1.5, 0.4]], colors=[scene.DRONE_RGBA]), static=True
     )

@@ -40,6 +40,9 @@ def test_episodes_are_selected_by_id_or_split_and_id(flown_run: Path, tmp_path: 
     typo = only.episode_id[:-1] + "9"
     with pytest.raises(ConfigError, match=f"Did you mean {only.episode_id}"):
         find_episode_logs(flown_run, [typo])
+    # The right id under another split: where it is, not a list of look-alikes.
+    with pytest.raises(ConfigError, match=f"It is there as {only.key}"):
+        find_episode_logs(flown_run, [f"val_seen/{only.episode_id}"])
     for bad in ("../logs", "a/b/c", ""):
         with pytest.raises(ConfigError, match="not an episode id"):
             find_episode_logs(flown_run, [bad])

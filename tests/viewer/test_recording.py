@@ -61,6 +61,10 @@ def test_entities_and_counts_match_the_run_mcap(recording, rerun_cli: Path) -> N
 
     assert rows[f"/{e.WORLD_DRONE}"] == len(poses)
     assert rows[f"/{e.MAP_DRONE}"] == len(poses)
+    # The airframe tilts as flown (an audit: the box hung level on the heading frame).
+    body = [m for m in log.topic(t.TOPIC_TF) if m.decode()["child_frame_id"] == t.BODY_FRAME]
+    assert len(body) == counts[t.TOPIC_CONTROL_STEP]
+    assert summary.rows[e.WORLD_DRONE_BODY] == len(body) <= rows[f"/{e.WORLD_DRONE_BODY}"]
     assert rows[f"/{e.CAMERA_OBSERVATION}"] == counts[t.TOPIC_OBSERVATION] > 0
     views = {path for path in rows if path.startswith(f"/{e.MAP_VIEWS}/")}
     assert len(views) == counts[t.TOPIC_RUN_VIEWS] > 0
@@ -143,3 +147,32 @@ def test_the_application_id_is_one_rerun_takes_as_it_is(
     rec.flush()
     rec.disconnect()
     assert "migrat" not in capfd.readouterr().err
+
+
+class _Stream:
+    """What a recording stream is told of time, call by call."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[str, ...]] = []
+
+    def set_time(self, timeline: str, **value: object) -> None:
+        self.calls.append(("set", timeline))
+
+    def disable_timeline(self, timeline: str) -> None:
+        self.calls.append(("off", timeline))
+
+
+def test_the_flight_between_decisions_is_not_put_on_the_decision_timeline() -> None:
+    # An audit: control-step poses took the last decision's index, so at decision k the
+    # drone stood where it was just before decision k+1, away from decision k's view.
+    from skyvln_eval.viewer.canvas import Canvas
+
+    stream = _Stream()
+    canvas = Canvas(None, stream, None, [0, 10_000])  # type: ignore[arg-type]
+    for t_ns, continuous in ((0, True), (5_000, True), (5_000, False), (10_000, True)):
+        stream.calls.clear()
+        canvas.at(t_ns, continuous=continuous)
+        decision = stream.calls[0]
+        assert decision[1] == e.DECISION_TIMELINE and ("set", e.SIM_TIMELINE) in stream.calls
+        on_decisions = t_ns in (0, 10_000) or not continuous
+        assert decision[0] == ("set" if on_decisions else "off"), (t_ns, continuous)

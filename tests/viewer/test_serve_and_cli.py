@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -13,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from skyvln_eval.viewer.commands import recording_file_names
 from skyvln_eval.viewer.logs import find_episode_logs
 from skyvln_eval.viewer.privacy import rerun_environment
 from tests.conftest import REPO
@@ -190,6 +192,30 @@ def test_several_episodes_saved_as_one_file_keep_one_recording_each(
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
     refused = run_skyvln_eval("view", str(out), "--save", str(tmp_path / "again.rrd"))
     assert refused.returncode == 2 and "already a recording" in refused.stderr
+    # An .rrd that is not one was served as an empty viewer, with no error (an audit).
+    fake = tmp_path / "fake.rrd"
+    fake.write_text("# not a recording\n")
+    refused = run_skyvln_eval("view", str(fake), "--port", "1")
+    assert refused.returncode == 2 and f"{fake}: not a Rerun recording" in refused.stderr
+
+
+def test_runs_of_one_folder_that_flew_the_same_episode_keep_a_file_each(
+    flown_run: Path, tmp_path: Path
+) -> None:
+    # An audit: two runs of a folder (e.g. runs/ after two configs) holding one episode
+    # were built into one temporary name: the second replaced the first, and "saved 4"
+    # meant 3.
+    for name in ("first", "second"):
+        shutil.copytree(flown_run, tmp_path / "runs" / name)
+    refs = find_episode_logs(tmp_path / "runs")
+    assert len(refs) == 2 and refs[0].key == refs[1].key
+    out = tmp_path / "out"
+    result = run_skyvln_eval("view", str(tmp_path / "runs"), "--save", str(out))
+    assert result.returncode == 0, result.stderr
+    episode = f"{refs[0].split}__{refs[0].episode_id}.rrd"
+    assert sorted(p.name for p in out.iterdir()) == [f"first__{episode}", f"second__{episode}"]
+    twice = [f"first__{episode[:-4]}__{k}.rrd" for k in (1, 2)]  # one run named twice
+    assert recording_file_names([refs[0], refs[0]]) == twice
 
 
 @pytest.mark.skipif(sys.platform != "linux", reason="the parent-death signal is Linux's")
