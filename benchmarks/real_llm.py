@@ -13,15 +13,19 @@ reference row.
     python benchmarks/real_llm.py [--episodes 10] [--max-steps 10] [--base-url URL]
 
 Gemma 3 270M is a small base model: expect a low SR. Measured on 2 cores (10 episodes of
-test_unseen): 145 calls, 12.4 s each on average, 30 minutes in all; 90 of 90 decisions
-parsed (no fallback), 23 unusable answers (7 rankings, all repaired; 16 sub-goal answers,
-12 of them a "landmark" that is only a direction such as "northeast", 4 a distance out
-of range), 15 repairs; 2 episodes "ok", 8 "degraded" (their sub-goals not extracted);
-SR 0%, NE 187.9 m. Each module's unusable answers are counted by reason (values
-blanked). Before direction-only landmarks were refused, the same model's plans (e.g. ten
-sub-goals "pass 'left'") were taken: 8 episodes "ok", NE 196.8 m. Before the sub-goal
-schema was made per dialog (phrases a pattern of the dialog's words) its sub-goals were
-refused in every episode ("}, {" for a landmark).
+test_unseen, 2026-11-29, the machine shared with other work, so the latency is high):
+json_object_schema negotiated (the server refuses json_schema with HTTP 500), 127 calls
+(128 attempts), 24.6 s each on average, 53 minutes in all; 90 of 90 decisions parsed (no
+fallback), 18 unusable answers, all sub-goal answers (11 a "landmark" that is only a
+direction such as "northeast", 5 such context landmarks, 2 a distance out of range), 9
+repairs, 0 calls without an answer, 159,606 tokens; 1 episode "ok", 9 "degraded" (their
+sub-goals not extracted); SR 0%, NE 296.3 m (the rule stand-in on the same episodes: SR
+60%, NE 79.3 m). Each module's unusable answers are counted by reason (values blanked).
+Earlier (before the synthetic start headings got a stream of their own): 145 calls,
+12.4 s each on a quiet machine, 2 "ok", NE 187.9 m. Before direction-only landmarks were
+refused, the same model's plans (e.g. ten sub-goals "pass 'left'") were taken. Before the
+sub-goal schema was made per dialog (phrases a pattern of the dialog's words) its
+sub-goals were refused in every episode ("}, {" for a landmark).
 The server reuses the previous prompt's computed prefix: of a decision prompt, the
 first ~500 tokens (system prompt, actions, the commander's words) are the same at every
 step of an episode and are not computed again.

@@ -20,9 +20,8 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Any, Final, Literal, TypeVar
 
-import cv2
-
 from skyvln_eval.agent.calls import JsonCall, call_json
+from skyvln_eval.agent.images import jpeg_image
 from skyvln_eval.agent.parsing import load_json_object
 from skyvln_eval.agent.perception import Panorama, Sighting
 from skyvln_eval.agent.subgoals import SubGoal
@@ -268,13 +267,15 @@ def _rank_parser(ids: Sequence[str]) -> Callable[[str], tuple[list[str], str | N
     return parse
 
 
-def _crop_png(panorama: Panorama, s: Sighting) -> ImagePart:
+def _crop(panorama: Panorama, s: Sighting, max_side_px: int) -> tuple[ImagePart, ...]:
+    """The sighting's box (and a margin) as a JPEG no larger than ``max_side_px``, as
+    every image the agent sends is (none if it cannot be encoded)."""
     view = panorama.views[s.view_index]
     x0, y0, x1, y1 = s.box_px
     pad = 8
     crop = view.images.rgb[max(0, y0 - pad) : y1 + pad, max(0, x0 - pad) : x1 + pad]
-    ok, buf = cv2.imencode(".png", cv2.cvtColor(crop, cv2.COLOR_RGB2BGR))
-    return ImagePart(buf.tobytes() if ok else b"", label=f"{s.landmark_id} in view {view.name}")
+    part = jpeg_image(crop, max_side_px, f"{s.landmark_id} in view {view.name}")
+    return () if part is None else (part,)
 
 
 class SpatialDescriptor:
@@ -293,6 +294,7 @@ class SpatialDescriptor:
         )
         self.rank_config = llm.generation("hsd_rank", schema_name="rank")  # schema per call
         self.repair = llm.repair_policy()
+        self.image_max_side_px = llm.image_max_side_px
         self.enabled = enabled
         self.top_k = top_k
 
@@ -402,7 +404,9 @@ class SpatialDescriptor:
             '{"description": "...", "match": "strong" | "partial" | "weak" | "none"}.\n'
         )
         images = (
-            (_crop_png(panorama, by_id[c.entry["id"]]),) if self.client.backend.takes_images else ()
+            _crop(panorama, by_id[c.entry["id"]], self.image_max_side_px)
+            if self.client.backend.takes_images
+            else ()
         )
         messages = [
             Message("system", HSD_SYSTEM),

@@ -204,7 +204,10 @@ def environment_backends(
     name of an entry of the backends file), each with its full configuration."""
     resolved = _environment_backends(variable, backends_file_from_env(backends_file))
     return [
-        BackendPlan(label=label, llm=config.model_dump(exclude_defaults=True))
+        # What the entry (and the file's defaults) set, defaults included, as a plan that
+        # lists the backend gives it: left out, a value equal to the default gave way to
+        # the plan system's own.
+        BackendPlan(label=label, llm=config.model_dump(exclude_unset=True))
         for label, config in resolved
     ]
 

@@ -44,6 +44,7 @@ class RichRunProgress(RunProgress):
         self.errors = 0
         self.degraded = 0
         self._spent_usd = 0.0  # of the priced calls; the total only if nothing is unpriced
+        self._cached_usd = 0.0  # the part of it replayed from the response cache (not paid now)
         self._cost_unknown = False
         self._nothing_to_run = False
         self._resumed = False  # episodes recorded before: the live SR is of this launch's
@@ -62,6 +63,10 @@ class RichRunProgress(RunProgress):
         else:  # nothing finished yet, or nothing with a ground truth to score against
             rate = "n/a (no ground truth)" if self.finished else "  n/a"
         cost = "n/a" if self.cost_usd is None else f"${self.cost_usd:.4f}"
+        if self.cost_usd is not None and self._cached_usd > 0.0:
+            # A cached answer counts the cost of the call that made it, as the tables do;
+            # paid now it was not.
+            cost += f" (${self._cached_usd:.4f} of it from the cache)"
         health = (f", {self.errors} error" if self.errors else "") + (
             f", {self.degraded} degraded" if self.degraded else ""
         )
@@ -97,6 +102,9 @@ class RichRunProgress(RunProgress):
         self.degraded += int(result.status == "degraded")
         priced = [c.cost_usd for c in result.llm_calls if c.cost_usd is not None]
         self._spent_usd += sum(priced)
+        self._cached_usd += sum(
+            c.cost_usd for c in result.llm_calls if c.cached and c.cost_usd is not None
+        )
         self._cost_unknown |= len(priced) < len(result.llm_calls)
         if self._bar is not None and self._task is not None:
             self._bar.update(self._task, advance=1, stats=self._stats())

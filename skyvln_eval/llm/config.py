@@ -264,6 +264,7 @@ class LLMConfig(BaseModel):
                 "system_role": self.system_role,
                 "extra_body": self.extra_body,
                 "send_task_data": self.send_task_data,
+                "structured_output": self.structured_output,
             }
         return {}
 

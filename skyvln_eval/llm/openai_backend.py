@@ -213,6 +213,10 @@ class OpenAIBackend(LLMBackend):
             identity["extra_body"] = self.extra_body
         if self.send_task_data:  # a test server may answer from it: never the model's answers
             identity["task_data"] = True
+        if self.structured_output != "auto":
+            # A pinned level shapes the request (a response format, or none): its answers
+            # are not another level's (negotiated ones, "auto", are keyed as before).
+            identity["structured_output"] = self.structured_output
         return identity
 
     @property
@@ -497,10 +501,11 @@ class OpenAIBackend(LLMBackend):
             content = choice.message.content
             text = _content_text(content)
             if text is None:
-                shown = json.dumps(content, default=str)[:80]
+                # Scrubbed, then cut: a key cut first is no longer the key scrub knows.
+                shown = self._scrub(json.dumps(content, default=str))[:80]
                 fault = LLMTransientError(
                     f"malformed response: the message content is {type(content).__name__} "
-                    f"{self._scrub(shown)}, not text"
+                    f"{shown}, not text"
                 )
                 fault.prompt_tokens, fault.completion_tokens = prompt_tokens, completion_tokens
                 raise fault

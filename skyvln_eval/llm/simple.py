@@ -136,6 +136,7 @@ class ReplayBackend(LLMBackend):
         system_role: bool = True,
         extra_body: dict[str, Any] | None = None,
         send_task_data: bool = False,
+        structured_output: str = "auto",
     ) -> None:
         from skyvln_eval.llm.registry import backend_identity
 
@@ -146,6 +147,8 @@ class ReplayBackend(LLMBackend):
             options["extra_body"] = extra_body
         if send_task_data:  # the answers of a server sent the task data: replayed as such
             options["send_task_data"] = True
+        if structured_output != "auto":  # the answers of a run pinned to a level
+            options["structured_output"] = structured_output
         self._identity = backend_identity(model, base_url=base_url, **options)
 
     @classmethod

@@ -394,9 +394,12 @@ def table(
     for warning in warned:
         typer.echo(warning, err=True)
     task = [ANDH_FULL_NOTE] if episode_mode == "andh-full" else []
+    spec = TABLES[kind]
+    if made is not None and made.splits:  # a reproduction's table over other splits
+        spec = spec.over(*made.splits)
     shaped = paper_table(
         frame,
-        TABLES[kind],
+        spec,
         conventions,
         rows=row or (list(made.rows) if made is not None else None),
         # The reproduction's notes hold with --row too: what was sensed and how each row

@@ -27,10 +27,12 @@ LAYOUT_VERSION = 1
 
 @dataclass(frozen=True)
 class TableLayout:
-    """One table as `reproduce` made it: its rows in order and the caller's notes."""
+    """One table as `reproduce` made it: its rows in order, the caller's notes and, where
+    they are not the table's own (a plan's Table II over another split), its splits."""
 
     rows: tuple[str, ...]
     notes: tuple[str, ...]
+    splits: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -58,6 +60,7 @@ def write_layout(scores_dir: Path, layout: ReproducedTables) -> Path:
             "withheld": list(layout.withheld),
             "tables": {
                 name: {"rows": list(t.rows), "notes": list(t.notes)}
+                | ({"splits": list(t.splits)} if t.splits else {})
                 for name, t in layout.tables.items()
             },
         },
@@ -108,6 +111,7 @@ def _table(path: Path, name: str, value: Any) -> TableLayout:
     return TableLayout(
         rows=_strings(path, f"tables.{name}.rows", value.get("rows")),
         notes=_strings(path, f"tables.{name}.notes", value.get("notes")),
+        splits=_strings(path, f"tables.{name}.splits", value.get("splits", [])),
     )
 
 

@@ -171,6 +171,19 @@ def test_a_model_that_takes_images_gets_the_views_as_jpeg_and_the_log_names_them
         assert all(r["images"] == [] for r in server.requests)
 
 
+def test_hsd_crops_go_as_jpeg_within_the_size_cap_too() -> None:
+    # An audit: HSD's candidate crops went as full-size PNG whatever image_max_side_px said.
+    with LoopbackOpenAIServer() as server:
+        llm = _llm(server.base_url, takes_images=True, image_max_side_px=32)
+        run_official_episode(build_agent(AgentConfig(llm=llm)), town_episode(RED), town_world())
+        described = [r for r in server.requests if r["task"] == "hsd_describe"]
+    assert described  # the red roof was a candidate to describe
+    for request in described:
+        [image] = request["images"]
+        assert image["error"] is None and image["mime_type"] == "image/jpeg"
+        assert max(image["shape"][:2]) <= 32
+
+
 def test_each_decision_is_sent_a_schema_naming_only_the_landmarks_it_may_fly_to() -> None:
     with LoopbackOpenAIServer() as server:
         config = AgentConfig(llm=_llm(server.base_url))

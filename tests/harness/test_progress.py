@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+from dataclasses import replace
 
 import numpy as np
 from rich.console import Console
@@ -52,6 +53,12 @@ def test_a_known_cost_is_shown_and_a_known_zero_stays_zero() -> None:
     assert "LLM $0.0000" in shown(flown(0.0, 0.0), flown(0.0))  # the rule stand-in, a free model
     assert "LLM $0.0000" in shown(flown())  # an agent that calls no LLM
     assert "LLM n/a" in shown(flown(0.002), flown(None), flown(0.001))  # once unknown, stays
+    # Replayed from the response cache: the cost of the call that made it, said to be so
+    # (an audit saw a run of cached answers only shown as money spent).
+    fresh, replayed = flown(0.002, 0.001).llm_calls
+    cached = result([GT[0], square(100, 0)], GT, llm_calls=(fresh, replace(replayed, cached=True)))
+    assert "LLM $0.0030 ($0.0010 of it from the cache)" in shown(cached)
+    assert "from the cache" not in shown(flown(0.002))
 
 
 def test_the_live_sr_leaves_the_oracles_episodes_out() -> None:

@@ -301,7 +301,16 @@ def test_every_way_of_naming_a_backend_gives_its_full_configuration(
                         "base_url": "http://127.0.0.1:8765/v1",
                         "structured_output": "json_object_schema",
                         "takes_images": True,
-                    }
+                    },
+                    # The toolkit's defaults, said outright: kept over the plan system's.
+                    "as-default": {
+                        "backend": "openai:m",
+                        "base_url": "http://127.0.0.1:8766/v1",
+                        "timeout_s": 60.0,
+                        "structured_output": "auto",
+                        "max_concurrency": 4,
+                        "takes_images": False,
+                    },
                 },
             }
         )
@@ -330,6 +339,21 @@ def test_every_way_of_naming_a_backend_gives_its_full_configuration(
     }
     assert runs["local-gemma"].agent.llm.cache_path == str(tmp_path / "llm-cache.sqlite")
     assert runs["local-gemma"].agent.llm.base_url == "http://127.0.0.1:8765/v1"
+    # An entry's values equal to the defaults are its own too (an audit: they gave way to
+    # the plan system's, while the same entry listed in the plan kept them).
+    monkeypatch.setenv("SKYVLN_TEST_BACKENDS", "as-default")
+    system = plan.table2.system
+    chosen = {"timeout_s": 300.0, "structured_output": "prompt", "max_concurrency": 1}
+    agent = {**system.agent, "llm": {"backend": "rule", "takes_images": True, **chosen}}
+    table2 = plan.table2.model_copy(update={"system": system.model_copy(update={"agent": agent})})
+    (named,) = [
+        r.config.agent.llm
+        for r in planned_runs(plan.model_copy(update={"table2": table2}), tmp_path, 1, "threads")
+        if ("table2", "as-default") in r.rows
+    ]
+    assert named is not None
+    assert (named.timeout_s, named.structured_output, named.max_concurrency) == (60.0, "auto", 4)
+    assert named.takes_images is False
     # A replay of a model reads the answers from that same cache (a replay without a cache
     # is refused on load).
     replayed = plan_module._kept_answers({"backend": "replay:openai:gpt-4o-mini"}, tmp_path)

@@ -145,3 +145,17 @@ def test_backends_have_distinct_identities() -> None:
         "model": "gpt-4o",
         "base_url": "http://127.0.0.1:9/v1",
     }
+    # A pinned structured-output level is another request: an audit saw a run pinned to
+    # json_schema served the answers a run pinned to plain prompting had cached.
+    pinned = {
+        level: create_backend(
+            "openai:gpt-4o", base_url="http://127.0.0.1:9/v1/", structured_output=level
+        ).identity()
+        for level in ("json_schema", "prompt")
+    }
+    assert pinned["json_schema"] != pinned["prompt"] != openai.identity()
+    assert pinned["prompt"] == {**openai.identity(), "structured_output": "prompt"}
+    replay = create_backend(
+        "replay:openai:gpt-4o", base_url="http://127.0.0.1:9/v1/", structured_output="prompt"
+    )
+    assert replay.identity() == pinned["prompt"]  # a replay of that run finds its answers

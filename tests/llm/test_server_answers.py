@@ -100,6 +100,15 @@ def test_a_usage_object_of_zeros_is_no_count_and_no_known_cost(tmp_path: Path) -
             "application/json",
             "no choices (AttributeError): the body is '[\"[API key]\"]'",
         ),
+        (  # content not text, the key across the 80 characters shown (an audit: cut first,
+            # a prefix of the key was no longer the key, and was shown)
+            '{"choices": [{"index": 0, "message": {"role": "assistant", "content": '
+            + '{"pad": "'
+            + "x" * 60
+            + '", "k": "KEY"}}, "finish_reason": "stop"}]}',
+            "application/json",
+            "the message content is dict",
+        ),
     ],
 )
 def test_a_body_that_is_no_completion_is_shown_in_the_error(
@@ -113,7 +122,8 @@ def test_a_body_that_is_no_completion_is_shown_in_the_error(
     [record] = result.records
     error = record.error or ""
     assert record.outcome == "failed" and "malformed response" in error and says in error, error
-    assert KEY not in error and REDACTED in error
+    assert KEY not in error and KEY[:8] not in error  # nor a prefix of it, cut short
+    assert REDACTED in error or error.endswith('"[A, not text')  # what was cut is the marker
 
 
 def test_a_long_body_is_shown_by_its_start() -> None:
