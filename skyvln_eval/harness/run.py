@@ -636,10 +636,12 @@ def _execute_jobs(
             job.report.ran_now += 1
             if job.config.mode == "dynamics":  # flown time; an official step's is nominal
                 job.report.simulated_s += float(result.extra.get("simulated_s", 0.0))
-            progress.episode_done(result, _success(result))
             if result.stopped_the_run:  # e.g. refused credentials: no later one can succeed
+                # Not an episode's result (the summary counts it as not run): the bar
+                # does not count it done, nor as an error.
                 job.report.stopped = str(result.extra["fatal"])
                 break
+            progress.episode_done(result, _success(result))
     except KeyboardInterrupt:  # Ctrl-C, SIGTERM: each run.json says where the launch got
         for job in jobs:
             _finish(job, time.perf_counter() - started, len(jobs), finished=False)

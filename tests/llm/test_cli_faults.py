@@ -85,6 +85,7 @@ def test_refused_credentials_stop_the_run_at_once_and_the_run_resumes_once_fixed
         "command runs them" in said
     )
     assert "ended in error" not in said and "--retry-failed" not in said
+    assert "1 error" not in said  # nor on the progress bar (an audit: "1/2 ... 1 error")
     assert sent <= 2, "at once: one request per worker, not one per episode"
     everything = stopped.out + stopped.err + resumed.out + resumed.err
     everything += "".join(p.read_text(errors="replace") for p in run_dir.rglob("*") if p.is_file())
