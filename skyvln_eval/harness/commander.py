@@ -5,7 +5,10 @@ When the agent asks (TrackBack memory lost its way, or HSD could not tell the st
 landmark apart), the harness's :class:`SimulatedCommander` answers, at most
 ``max_questions`` times per episode, in the synthetic commander's language (the phrasing
 families of the episode's split): which way to the episode's goal from where the drone is
-and how far, or, within half a view of it, that the drone is there and should stop.
+and how far, or, once the drone's view would be a success there (AVDN's test: the views
+overlap by 0.4 of their hull and each holds the other's centre), that it is there and
+should stop. (Said within half a view of the goal, it told agents to stop where they
+then failed: an audit saw it lower the full agent's SR by 3.3 points.)
 
 The goal is the end of the ground truth the episode is scored against. In an ANDH
 episode of an intermediate round that is the round's end: on the synthetic data the place
@@ -30,6 +33,7 @@ from skyvln_eval.avdn.geometry import view_centre
 from skyvln_eval.avdn.records import DialogTurn, Episode
 from skyvln_eval.frames import latlng_to_enu, view_to_pose
 from skyvln_eval.harness.dynamics_loop import derived_seed
+from skyvln_eval.harness.official_loop import official_success
 from skyvln_eval.vocabulary import compass_word
 from skyvln_eval.worlds.sample import SPLIT_FAMILIES, AnswerFacts, commander_answer, seen_families
 from skyvln_eval.worlds.tile import WorldTile
@@ -96,7 +100,7 @@ class SimulatedCommander:
             landmark=self._destination,
             is_destination=self._destination is not None,
             wrong_heading=compass_word(here.heading_deg) if off > WRONG_HEADING_DEG else None,
-            arrived=distance_m <= self._half_edge_m(),
+            arrived=official_success(view, self.episode.gt_end_view),
         )
         seed = derived_seed(self.seed, "commander", self.episode.episode_id, step_index)
         text = commander_answer(facts, self._families, seed).text

@@ -3,7 +3,8 @@
 The summary is a long table, one row per (system, split, mode, metric): ``n`` episodes,
 ``mean`` (rates in percent, lengths in metres) and, when asked, an interval made as
 ``ci_method`` says (:data:`CI_METHODS`): the Wilson score interval for a rate of 0/1
-values (:data:`BINARY_METRICS`), a seeded percentile bootstrap over episodes for the rest,
+values (:data:`BINARY_METRICS`), a seeded percentile bootstrap for the rest (over whole
+trajectories by default, or episodes: ``ci_unit``),
 NaN (shown "n/a") where a bootstrap has no spread to resample (one episode, or values
 that are all the same: SPL 0 in every episode of an SR of 0/10). Rules: a frame
 that repeats an episode, or misses an official metric's value, is refused

@@ -25,8 +25,9 @@ if TYPE_CHECKING:
 DistanceMode = Literal["2d", "3d"]
 
 #: Version of the metric definitions; bumped when a formula changes (2: a flight that
-#: touched an obstacle never succeeds, ``collision_fails``).
-METRICS_VERSION = 2
+#: touched an obstacle never succeeds, ``collision_fails``; 3: an episode that ended in
+#: error has nDTW and CLS 0, as one that raised before its first view had).
+METRICS_VERSION = 3
 
 
 @dataclass(frozen=True)

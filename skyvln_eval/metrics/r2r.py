@@ -12,7 +12,10 @@ visited points, ``R`` the ground-truth points and ``d_th`` the threshold:
   LS = EPL / (EPL + |EPL - TL|), and LS = 1 when EPL = TL (both 0 included).
 
 Explicit rules: failed episodes and empty paths have SR = OSR = SPL = SDTW = 0; an empty
-path stands at the ground-truth start for NE and TL = 0, and has nDTW = CLS = 0.
+path stands at the ground-truth start for NE and TL = 0, and has nDTW = CLS = 0. So has
+an episode that ended in error, whatever it flew (``errored``): its path fidelity is the
+failure's, not the agent's, and one that raised (no views) and one whose model never
+answered (the start view) score alike. Its TL and NE still describe where it went.
 """
 
 from __future__ import annotations
@@ -110,9 +113,15 @@ def _under(distance: FloatArray, conventions: MetricConventions) -> NDArray[np.b
 
 
 def r2r_metrics(
-    visited: ViewBatch, gt: ViewBatch, ok: NDArray[np.bool_], conventions: MetricConventions
+    visited: ViewBatch,
+    gt: ViewBatch,
+    ok: NDArray[np.bool_],
+    conventions: MetricConventions,
+    errored: NDArray[np.bool_] | None = None,
 ) -> dict[str, FloatArray]:
-    """R2R-family per-episode metrics (see the module docstring); arrays ``(E,)``."""
+    """R2R-family per-episode metrics (see the module docstring); arrays ``(E,)``.
+    ``ok``: the episodes a success can count for; ``errored``: those that ended in error
+    (nDTW and CLS 0)."""
     n = len(ok)
     rows = np.arange(n)
     d_th = conventions.threshold_m
@@ -133,12 +142,13 @@ def r2r_metrics(
         spl = np.where(ref_len > 0, sr * ref_len / np.maximum(tl, ref_len), 0.0)
 
     dtw, coverage = dtw_and_coverage(p, p_len, r, r_len, d_th)
-    ndtw = np.where(visited.empty, 0.0, np.exp(-dtw / (r_len * d_th)))
+    no_fidelity = visited.empty if errored is None else visited.empty | errored
+    ndtw = np.where(no_fidelity, 0.0, np.exp(-dtw / (r_len * d_th)))
     epl = coverage * ref_len
     denom = epl + np.abs(epl - tl)
     with np.errstate(divide="ignore", invalid="ignore"):
         length_score = np.where(denom > 0, epl / denom, 1.0)
-    cls = np.where(visited.empty, 0.0, coverage * length_score)
+    cls = np.where(no_fidelity, 0.0, coverage * length_score)
 
     return {
         "r2r_tl_m": tl,

@@ -141,7 +141,8 @@ def score_results(
         }
     )
     metrics = official_metrics(visited, gt, ok, legacy_gp=conventions.legacy_gp)
-    metrics.update(r2r_metrics(visited, gt, ok, conventions))
+    errored = np.array([r.status == "error" for r in results], dtype=bool)
+    metrics.update(r2r_metrics(visited, gt, ok, conventions, errored))
     for name, values in metrics.items():
         frame[name] = values
     for status in RESULT_STATUSES:  # rates of each status, reported like any metric

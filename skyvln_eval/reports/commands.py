@@ -26,7 +26,8 @@ plot_app = typer.Typer(
 )
 
 SUMMARY_METRICS = ("success", "oracle_success", "spl", "gp_m", "oracle_gp_m", "ne_m",
-                   "path_length_m", "r2r_sr", "r2r_spl", "ndtw", "sdtw", "cls",
+                   "path_length_m", "r2r_sr", "r2r_osr", "r2r_spl", "r2r_ne_m", "r2r_tl_m",
+                   "ndtw", "sdtw", "cls",
                    "status_error", "status_degraded", "fallback_rate", "llm_call_failure_rate",
                    "llm_cost_usd", "llm_latency_s", "collided", "min_clearance_m",
                    "solve_failures", "soft_steps", "constraint_violation_steps")  # fmt: skip

@@ -6,6 +6,8 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+import numpy as np
+
 from skyvln_eval.agent import AgentConfig, build_agent
 from skyvln_eval.avdn.records import Episode
 from skyvln_eval.harness import RunConfig, official_success, run, run_official_episode
@@ -93,6 +95,16 @@ def test_a_drone_already_over_the_goal_is_told_to_stop_not_to_fly_on() -> None:
         [_, far] = commander.answer(1, "Here?", episode.start_view)
         assert there.text in ARRIVED, there.text
         assert far.text not in ARRIVED and "north" in far.text.lower(), far.text
+    # Near, not there: the goal's centre in the view but the views overlapping too little
+    # for a success (an audit: told "stop here" 62 m from the goal, the agent failed).
+    goal = np.asarray(episode.gt_end_view, dtype=np.float64)
+    edge = np.linalg.norm(goal[0] - goal[1])
+    shift = np.array([0.4 * edge, 0.0])  # along a side: 0.4 of an edge
+    near = goal + shift
+    assert not official_success(near, goal)
+    assert np.linalg.norm(near.mean(axis=0) - goal.mean(axis=0)) < edge / 2  # was "there"
+    [_, told] = SimulatedCommander(episode, world, seed=0).answer(0, "Here?", near)
+    assert told.text not in ARRIVED, told.text
 
 
 #: Every family's answer to a follower who is there, as the commander says it.

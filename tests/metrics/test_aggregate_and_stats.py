@@ -312,7 +312,7 @@ def test_a_scores_file_says_which_systems_the_oracle_flew_and_an_old_one_says_no
         read_scores(tmp_path / "v4.csv")
     # Scored by older formulas (metrics v1: a crashed flight could succeed): refused, the
     # file named, and what to do said.
-    old = "\n".join(lines).replace('"metrics_version":2', '"metrics_version":1')
+    old = "\n".join(lines).replace('"metrics_version":3', '"metrics_version":1')
     (tmp_path / "old.csv").write_text(old)
     with pytest.raises(DataError, match=r"old.csv: scored with metrics_version 1; .* score"):
         read_scores(tmp_path / "old.csv")

@@ -106,6 +106,24 @@ def test_spl_uses_the_gt_path_length_and_is_zero_for_a_zero_length_reference() -
     assert still.r2r_sr == 1.0 and still.r2r_spl == 0.0
 
 
+def test_an_episode_that_ended_in_error_has_no_path_fidelity_however_it_was_recorded() -> None:
+    # An audit: an error row at its start view kept nDTW 0.024 and CLS 0.134, the same
+    # error with no views (it raised) 0 and 0; an error that flew the route kept 0.39.
+    ref = [square(0, 0), square(0, 60), square(0, 120)]
+    rows = [
+        result(ref, ref, "error", episode_id="e1"),  # flew it all, then its model failed
+        result([square(0, 0)], ref, "error", episode_id="e2"),  # never answered
+        result(np.zeros((0, 4, 2)), ref, "error", episode_id="e3"),  # raised at once
+        result(ref, ref, episode_id="e4"),
+    ]
+    scores = score_results(rows).set_index("episode_id")
+    assert (scores.loc[["e1", "e2", "e3"], ["ndtw", "cls", "sdtw"]] == 0.0).all().all()
+    assert scores.loc["e4", "ndtw"] == scores.loc["e4", "cls"] == 1.0
+    # Its distances still say where it went.
+    assert scores.loc["e1", "r2r_ne_m"] == pytest.approx(0.0, abs=1e-9)
+    assert scores.loc["e2", "r2r_ne_m"] == scores.loc["e3", "r2r_ne_m"] > 100.0
+
+
 def test_conventions_are_validated() -> None:
     from skyvln_eval.errors import ConfigError
 
