@@ -1,7 +1,8 @@
 """Asking the commander: the LLM turns what went wrong into one clarification question.
 
-TrackBack memory asks when a landmark the agent flew to was not there; HSD's ambiguity
-(two candidates match a stop landmark equally well) makes the agent ask which one. The
+TrackBack memory asks when a landmark the agent flew to was not there, and, when HSD's
+descriptions match two candidates for a stop landmark equally well, which one (the
+paper's clarification prompt is the memory's: without it the agent never asks). The
 question goes to the harness, whose simulated commander may answer it (within a budget);
 the answer joins the dialog the agent sees at its next step.
 """

@@ -295,6 +295,22 @@ def _table1_rows(runs: Sequence[PlannedRun], plan: ReproducePlan) -> tuple[list[
     }
     labelled = [table1_label(s.label, agents[s.label]) for s in plan.table1.systems]
     notes = [note for _, note in labelled if note]
+    # What each SkyVLN row has switched off, whatever its label says ("w NMPC" is the
+    # agent without HSD and memory, flown with the NMPC).
+    switched_off: dict[str, list[str]] = {}
+    for system, (shown, _) in zip(plan.table1.systems, labelled, strict=True):
+        agent = agents[system.label]
+        if agent.name == "skyvln":
+            off = [part for part, on in (("HSD", agent.hsd), ("TrackBack memory", agent.tbma))
+                   if not on]  # fmt: skip
+            if off:
+                switched_off.setdefault(" and ".join(off), []).append(shown)
+    if switched_off:
+        notes.append(
+            "SkyVLN parts switched off: "
+            + "; ".join(f"{', '.join(rows)}: {parts}" for parts, rows in switched_off.items())
+            + "."
+        )
     # A controller slower than the reference is a confound a reader must see.
     for planned in runs:
         cap = speed_cap_note(planned.config)
