@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import io
 import json
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +40,8 @@ from skyvln_eval.errors import DataError, FormatVersionError
 from skyvln_eval.fileio import atomic_write_bytes
 
 LOG_FORMAT = "skyvln-flight-log"
+#: The Parquet metadata key under which a flight log keeps its settings (JSON).
+SETTINGS_KEY = b"skyvln_settings"
 LOG_FORMAT_VERSION = 1
 LOG_COLUMNS: tuple[str, ...] = (
     "controller",
@@ -106,7 +109,7 @@ def save_flight_log(
     metadata = dict(table.schema.metadata or {})
     metadata[b"skyvln_format"] = LOG_FORMAT.encode()
     metadata[b"skyvln_format_version"] = str(LOG_FORMAT_VERSION).encode()
-    metadata[b"skyvln_settings"] = json.dumps(settings or {}, default=str).encode()
+    metadata[SETTINGS_KEY] = json.dumps(settings or {}, default=str).encode()
     table = table.replace_schema_metadata(metadata)
     buffer = io.BytesIO()
     # Dictionary pages only for the text columns: on the floats they cost most of the
@@ -136,5 +139,16 @@ def load_flight_log(path: str | Path) -> pd.DataFrame:
             str(path), version, LOG_FORMAT_VERSION, "Record the run again with this version."
         )
     frame = table.to_pandas()
-    frame.attrs["settings"] = json.loads(metadata.get(b"skyvln_settings", b"{}"))
+    frame.attrs["settings"] = stored_settings(metadata, path)
     return frame
+
+
+def stored_settings(metadata: Mapping[bytes, bytes] | None, path: Path) -> dict[str, Any]:
+    """The settings :func:`save_flight_log` kept in a Parquet file's metadata (``{}``
+    where none), for every reader of flight logs."""
+    stored = (metadata or {}).get(SETTINGS_KEY)
+    try:
+        settings = json.loads(stored) if stored else {}
+    except ValueError:
+        raise DataError(f"{path}: its stored settings are not JSON") from None
+    return settings if isinstance(settings, dict) else {}

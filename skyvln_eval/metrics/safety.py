@@ -15,7 +15,6 @@ error wrapped to (-pi, pi]) and solve-time mean / median / 95th percentile / max
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -144,15 +143,13 @@ def read_control_log(path: str | Path) -> pd.DataFrame:
 
 
 def _flight_settings(path: Path) -> dict[str, Any]:
-    """The settings a flight log keeps in its Parquet metadata (``{}`` where none)."""
+    """The settings the harness kept in a flight log's Parquet metadata (``{}`` where none)."""
     import pyarrow.parquet as pq
 
-    stored = (pq.read_schema(path).metadata or {}).get(b"skyvln_settings")
-    try:
-        settings = json.loads(stored) if stored else {}
-    except ValueError:
-        raise DataError(f"{path}: its stored settings are not JSON") from None
-    return settings if isinstance(settings, dict) else {}
+    # Here, not at the top: the control package imports CasADi (see summarise_control).
+    from skyvln_eval.control.flight_log import stored_settings
+
+    return stored_settings(pq.read_schema(path).metadata, path)
 
 
 def _rmse(err: np.ndarray) -> float:

@@ -40,15 +40,16 @@ def recording_file_names(refs: Sequence[EpisodeLogRef]) -> list[str]:
     reproduction's, flies each episode once per system: one file replaced the other), and
     numbered where even that is the same."""
     plain = [f"{ref.split}__{ref.episode_id}" for ref in refs]
+    shared = Counter(plain)
     named = [
-        f"{ref.run_name}__{name}" if plain.count(name) > 1 and ref.run_name else name
+        f"{ref.run_name}__{name}" if shared[name] > 1 and ref.run_name else name
         for ref, name in zip(refs, plain, strict=True)
     ]
-    seen: Counter[str] = Counter()
+    total, seen = Counter(named), Counter[str]()
     unique = []
     for name in named:
         seen[name] += 1
-        unique.append(name if named.count(name) == 1 else f"{name}__{seen[name]}")
+        unique.append(name if total[name] == 1 else f"{name}__{seen[name]}")
     return [f"{name}.rrd" for name in unique]
 
 

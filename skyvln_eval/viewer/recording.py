@@ -277,8 +277,6 @@ class _Recorder:
         elif self.horizon_shown:  # no prediction this step (a fallback): no stale horizon
             self.canvas.put(e.WORLD_HORIZON, self.rr.Clear(recursive=False))
             self.horizon_shown = False
-        #: The heading frame's last rotation (x, y, z, w): the body's tilt is relative to it.
-        self.heading_xyzw = [0.0, 0.0, 0.0, 1.0]
 
     def _obstacles(self, message: Json) -> None:
         spheres = scene.scene_spheres(message)
