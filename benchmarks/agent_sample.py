@@ -23,8 +23,9 @@ import numpy as np
 
 from skyvln_eval.agent import AgentConfig, FlyTo, action_record, build_agent
 from skyvln_eval.avdn import Episode, distance_m, load_split, view_centre
-from skyvln_eval.harness import OfficialRollout, official_success, run_official_episode
+from skyvln_eval.harness import OfficialRollout, run_official_episode
 from skyvln_eval.harness.oracle import ground_truth_oracle
+from skyvln_eval.metrics import view_success
 from skyvln_eval.worlds import WorldTile, load_world
 from skyvln_eval.worlds.sample import ensure_sample
 
@@ -51,7 +52,7 @@ class Tally:
     plans: list[list[dict[str, object]]] = field(default_factory=list)
 
     def add(self, rollout: OfficialRollout, episode: Episode) -> None:
-        self.success.append(official_success(rollout.final_view, episode.gt_end_view))
+        self.success.append(view_success(rollout.final_view, episode.gt_end_view))
         gap = distance_m(view_centre(rollout.final_view), view_centre(episode.gt_end_view))
         self.error_m.append(float(gap))
         self.actions.append(len(rollout.actions))

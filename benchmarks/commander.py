@@ -33,8 +33,9 @@ from skyvln_eval.avdn import Episode, load_split
 from skyvln_eval.avdn.constants import METERS_PER_DEGREE
 from skyvln_eval.avdn.geometry import view_centre
 from skyvln_eval.avdn.imagery import MapGeoref
-from skyvln_eval.harness import official_success, run_official_episode
+from skyvln_eval.harness import run_official_episode
 from skyvln_eval.harness.commander import SimulatedCommander
+from skyvln_eval.metrics import view_success
 from skyvln_eval.vocabulary import COMPASS, compass_points_in
 from skyvln_eval.vocabulary.quantities import distances_in
 from skyvln_eval.worlds import WorldTile, load_world
@@ -97,7 +98,7 @@ def fly(agent: Agent, episodes: list[Episode], questions: int) -> tuple[float, f
         world = _world(episode.map_name, episode.georef)
         commander = SimulatedCommander(episode, world, questions) if questions else None
         rollout = run_official_episode(agent, episode, world, commander=commander)
-        wins.append(official_success(rollout.final_view, episode.gt_end_view))
+        wins.append(view_success(rollout.final_view, episode.gt_end_view))
         gap = view_centre(rollout.final_view) - view_centre(episode.gt_end_view)
         errors_m.append(float(np.linalg.norm(gap)) * METERS_PER_DEGREE)
         answered.append(commander.answered if commander else 0)

@@ -30,7 +30,8 @@ import numpy as np
 
 from skyvln_eval.agent import AgentConfig, build_agent
 from skyvln_eval.avdn import AvdnRecord, Episode, load_split
-from skyvln_eval.harness import official_success, run_official_episode
+from skyvln_eval.harness import run_official_episode
+from skyvln_eval.metrics import view_success
 from skyvln_eval.worlds import WorldTile, load_world
 from skyvln_eval.worlds.sample import (
     FAMILIES,
@@ -75,7 +76,7 @@ def success_rate(
                 data_dir, episode.map_name, episode.georef
             )
         rollout = run_official_episode(agent, episode, world)
-        wins.append(official_success(rollout.final_view, episode.gt_end_view))
+        wins.append(view_success(rollout.final_view, episode.gt_end_view))
     seconds = (time.perf_counter() - started) / max(1, len(records))
     return 100.0 * float(np.mean(wins)) if wins else float("nan"), seconds
 

@@ -385,7 +385,8 @@ class SolverBuildError(SkyvlnError):
 
 
 class ActionParseError(SkyvlnError):
-    """An agent's (LLM's) output is not one valid action of the closed vocabulary."""
+    """An LLM module's output is unusable: not one valid action of the closed vocabulary,
+    or not the JSON its module asked for (sub-goals, HSD, a question, detections)."""
 
 
 class LLMError(SkyvlnError):

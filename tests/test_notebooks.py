@@ -34,6 +34,7 @@ def test_notebook_runs(path: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPat
     monkeypatch.setenv("PATH", str(Path(sys.executable).parent) + os.pathsep + os.environ["PATH"])
     monkeypatch.setenv("PYTHONPATH", str(REPO))
     monkeypatch.setenv("MPLBACKEND", "Agg")
+    monkeypatch.setenv("SKYVLN_EVAL_NOTEBOOK_OUTPUT", str(tmp_path))
     notebook = nbformat.read(path, as_version=4)
     client = NotebookClient(
         notebook, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(REPO)}}
@@ -57,6 +58,8 @@ def test_notebook_runs(path: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPat
         if "image/png" in output.get("data", {})
     ]
     assert len(images) == IMAGES[path.stem]
+    # Its files are in its own output folder (they were in temporary folders, left behind).
+    assert any((tmp_path / path.stem).iterdir())
 
 
 def test_notebooks_read_runs_checked() -> None:

@@ -104,10 +104,6 @@ class Decision:
     failures: tuple[ModuleFailure, ...] = ()
     question: str | None = None
 
-    @property
-    def fallback_action(self) -> bool:
-        return any(f.action_fallback for f in self.failures)
-
 
 class Agent(ABC):
     """One small interface for every agent; ``settings`` is logged with every run."""

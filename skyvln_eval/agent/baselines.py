@@ -36,7 +36,6 @@ from skyvln_eval.agent.motion import (
 from skyvln_eval.agent.odometry import Odometer, llm_agent_settings, pose_summary, roads_text
 from skyvln_eval.agent.perception import Panorama, Perception
 from skyvln_eval.agent.subgoals import DialogText
-from skyvln_eval.errors import ActionParseError
 from skyvln_eval.llm.client import LLMClient
 from skyvln_eval.llm.config import LLMConfig
 from skyvln_eval.llm.simple import random_action
@@ -92,7 +91,7 @@ class NavGPTAgent(Agent):
 
     def act(self, observation: Observation) -> Decision:
         if not hasattr(self, "_brief"):
-            raise ActionParseError("NavGPTAgent.act called before reset(brief)")
+            raise RuntimeError("NavGPTAgent.act called before reset(brief)")  # a harness bug
         pose = observation.pose
         if self._history:
             self._history[-1]["feedback"] = observation.feedback

@@ -42,7 +42,6 @@ from skyvln_eval.agent.subgoals import (
     subgoals_json_schema,
 )
 from skyvln_eval.avdn.records import DialogTurn
-from skyvln_eval.errors import ActionParseError
 from skyvln_eval.frames import ViewPose
 from skyvln_eval.llm.client import LLMClient
 from skyvln_eval.llm.config import LLMConfig
@@ -123,7 +122,7 @@ class SkyVLNAgent(Agent):
     def act(self, observation: Observation) -> Decision:
         st = self._state
         if st is None:
-            raise ActionParseError("SkyVLNAgent.act called before reset(brief)")
+            raise RuntimeError("SkyVLNAgent.act called before reset(brief)")  # a harness bug
         records: list[LlmCall] = []
         exchanges: list[dict[str, Any]] = []
         failures: list[ModuleFailure] = []

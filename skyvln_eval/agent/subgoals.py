@@ -10,7 +10,6 @@ those rounds ended, so TrackBack memory can recognise them near the start.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Any, Final, Literal
@@ -411,12 +410,3 @@ def parse_subgoals(text: str, dialog: DialogText) -> SubGoalPlan:
         _check_copied(phrase, dialog_words, f"context_landmarks[{i}]")
         _check_names_a_landmark(phrase, f"context_landmarks[{i}]")
     return SubGoalPlan(tuple(goals), tuple(context))
-
-
-def plan_to_json(plan: SubGoalPlan) -> str:
-    return json.dumps(
-        {
-            "subgoals": [g.to_dict() for g in plan.subgoals],
-            "context_landmarks": list(plan.context_landmarks),
-        }
-    )

@@ -151,4 +151,6 @@ def stored_settings(metadata: Mapping[bytes, bytes] | None, path: Path) -> dict[
         settings = json.loads(stored) if stored else {}
     except ValueError:
         raise DataError(f"{path}: its stored settings are not JSON") from None
-    return settings if isinstance(settings, dict) else {}
+    if not isinstance(settings, dict):  # another writer's metadata: not ours to read as {}
+        raise DataError(f"{path}: its stored settings are not a JSON object")
+    return settings

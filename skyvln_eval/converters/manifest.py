@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import io
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Final
 
@@ -138,7 +138,3 @@ def read_manifest(path: str | Path) -> list[ManifestRow]:
         ManifestRow(**{f.name: row[f.name] for f in fields(ManifestRow)})
         for row in table.to_pylist()
     ]
-
-
-def rows_as_dicts(rows: Sequence[ManifestRow]) -> list[dict[str, object]]:
-    return [asdict(r) for r in rows]

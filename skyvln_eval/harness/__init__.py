@@ -21,7 +21,6 @@ from skyvln_eval.harness.dynamics_loop import DynamicsRollout, run_dynamics_epis
 from skyvln_eval.harness.executors import EXECUTOR_KINDS, Executor, make_executor
 from skyvln_eval.harness.official_loop import (
     OfficialRollout,
-    official_success,
     run_official_episode,
 )
 from skyvln_eval.harness.run import Progress, RunReport, resolve_data_dir, run
@@ -43,7 +42,6 @@ __all__ = [
     "RunReport",
     "load_run_config",
     "make_executor",
-    "official_success",
     "resolve_data_dir",
     "run",
     "run_config_from_mapping",

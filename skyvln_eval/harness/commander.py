@@ -33,7 +33,7 @@ from skyvln_eval.avdn.geometry import view_centre
 from skyvln_eval.avdn.records import DialogTurn, Episode
 from skyvln_eval.frames import latlng_to_enu, view_to_pose
 from skyvln_eval.harness.dynamics_loop import derived_seed
-from skyvln_eval.harness.official_loop import official_success
+from skyvln_eval.metrics.official import view_success
 from skyvln_eval.vocabulary import compass_word
 from skyvln_eval.worlds.sample import SPLIT_FAMILIES, AnswerFacts, commander_answer, seen_families
 from skyvln_eval.worlds.tile import WorldTile
@@ -100,7 +100,7 @@ class SimulatedCommander:
             landmark=self._destination,
             is_destination=self._destination is not None,
             wrong_heading=compass_word(here.heading_deg) if off > WRONG_HEADING_DEG else None,
-            arrived=official_success(view, self.episode.gt_end_view),
+            arrived=view_success(view, self.episode.gt_end_view),
         )
         seed = derived_seed(self.seed, "commander", self.episode.episode_id, step_index)
         text = commander_answer(facts, self._families, seed).text

@@ -103,7 +103,8 @@ def run_dynamics_episode(
     georef = episode.georef
     (lat0, lng0), (lat1, lng1) = georef.gps_botm_left, georef.gps_top_right
     width_m, height_m = (lng1 - lng0) * METERS_PER_DEGREE, (lat1 - lat0) * METERS_PER_DEGREE
-    view = np.array(episode.start_view, dtype=np.float64)  # not a view of the route
+    # A copy: the episode's start view stays as it was.
+    view = np.array(episode.start_view, dtype=np.float64)
     pose = view_to_pose(view, georef)
     obstacles = settings.obstacles
     flight = Flight(

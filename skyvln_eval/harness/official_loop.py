@@ -13,22 +13,19 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import NDArray
 
-from skyvln_eval.agent.actions import Action, action_record, action_to_dict
+from skyvln_eval.agent.actions import Action, action_to_dict
 from skyvln_eval.agent.base import Agent
 from skyvln_eval.agent.mapping import to_official_action
 from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN
-from skyvln_eval.avdn.geometry import hull_iou
 from skyvln_eval.avdn.records import Episode
 from skyvln_eval.avdn.step import OfficialAction, official_step_detailed
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.frames import view_to_pose
 from skyvln_eval.harness.rollout import Rollout, episode_brief
-from skyvln_eval.metrics.official import official_success as metrics_official_success
 from skyvln_eval.sensing import SensorConfig
 
 if TYPE_CHECKING:
@@ -43,34 +40,6 @@ class OfficialRollout(Rollout):
 
     official_actions: list[OfficialAction] = field(default_factory=list)
     step_outcomes: list[str] = field(default_factory=list)
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-able form (traces included)."""
-        return {
-            "episode_id": self.episode_id,
-            "views": [v.tolist() for v in self.views],
-            "headings_deg": list(self.headings_deg),
-            "actions": [action_record(a) for a in self.actions],
-            "official_actions": [
-                {"waypoint": list(a.waypoint), "altitude": a.altitude}
-                for a in self.official_actions
-            ],
-            "step_outcomes": list(self.step_outcomes),
-            "thoughts": list(self.thoughts),
-            "stop_reason": self.stop_reason,
-            "error": self.error,
-            "llm_calls": [c.to_json_dict() for c in self.llm_calls],
-            "module_failures": [f.to_json_dict() for f in self.failures],
-            "traces": self.traces,
-        }
-
-
-def official_success(final_view: NDArray[np.float64], gt_end_view: NDArray[np.float64]) -> bool:
-    """AVDN success of one final view (the metrics package's test, for one episode)."""
-    final = np.asarray(final_view, dtype=np.float64)[None]
-    gt_end = np.asarray(gt_end_view, dtype=np.float64)[None]
-    iou = np.atleast_1d(hull_iou(final, gt_end))
-    return bool(metrics_official_success(final, gt_end, iou)[0])
 
 
 def _feedback(action: Action, outcome: str, turn_deg: int) -> str:
@@ -109,7 +78,8 @@ def run_official_episode(
         raise ConfigError(f"max_steps must be >= 1 (views, start included), got {max_steps}")
     georef = episode.georef
     bounds = (georef.gps_botm_left, georef.gps_top_right)
-    view = np.array(episode.start_view, dtype=np.float64)  # not a view of the route
+    # A copy: the episode's start view stays as it was.
+    view = np.array(episode.start_view, dtype=np.float64)
     rollout = OfficialRollout(
         episode.episode_id, [view], [episode.start_heading_deg], max_steps=max_steps
     )

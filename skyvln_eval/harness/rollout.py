@@ -10,6 +10,7 @@ from numpy.typing import NDArray
 
 from skyvln_eval.agent.actions import Action, Stop
 from skyvln_eval.agent.base import Agent, Decision, EpisodeBrief, Observation, episode_key
+from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN
 from skyvln_eval.avdn.records import DialogTurn, Episode
 from skyvln_eval.errors import CacheMissError, LLMAuthError, SkyvlnError
 from skyvln_eval.frames import ViewPose, view_to_pose
@@ -92,7 +93,7 @@ class Rollout:
     episode_id: str
     views: list[NDArray[np.float64]]
     headings_deg: list[int]
-    max_steps: int = 10
+    max_steps: int = DEFAULT_MAX_ACTION_LEN  # views, the start included (AVDN's max_action_len)
     actions: list[Action] = field(default_factory=list)
     thoughts: list[str] = field(default_factory=list)
     feedbacks: list[str | None] = field(default_factory=list)

@@ -46,7 +46,6 @@ from skyvln_eval.fileio import (
 from skyvln_eval.harness.config import HOW_IT_RUNS, RunConfig, run_config_from_mapping
 from skyvln_eval.harness.executors import Executor, make_executor
 from skyvln_eval.harness.lock import RunDirLock, hold_run_dir, remove_leftover_temporaries
-from skyvln_eval.harness.official_loop import official_success
 from skyvln_eval.harness.preflight import preflight
 from skyvln_eval.harness.provenance import mixed_versions_note, record_launch
 from skyvln_eval.harness.runner import (
@@ -60,6 +59,7 @@ from skyvln_eval.harness.runner import (
 )
 from skyvln_eval.harness.store import DAMAGED_FILE, RESULTS_FILE, ResultStore, RowKey, key_of
 from skyvln_eval.llm_records import LlmCall
+from skyvln_eval.metrics.official import view_success
 from skyvln_eval.metrics.records import EpisodeResult
 from skyvln_eval.metrics.scoring import can_succeed, touched_an_obstacle
 from skyvln_eval.paths import cache_root
@@ -438,7 +438,7 @@ def _success(result: EpisodeResult) -> bool | None:
     flew, crashed = len(result.visited_views) > 0, touched_an_obstacle(result)
     if not can_succeed([result.status], [flew], [crashed])[0]:
         return False
-    return official_success(result.visited_views[-1], result.gt_path_corners[-1])
+    return view_success(result.visited_views[-1], result.gt_path_corners[-1])
 
 
 def _crash_result(config: RunConfig, task: EpisodeTask, error: BaseException) -> EpisodeResult:

@@ -31,7 +31,7 @@ from skyvln_eval.metrics.aggregate import (
 )
 from skyvln_eval.metrics.conventions import METRICS_VERSION, MetricConventions
 from skyvln_eval.metrics.cost import COST_COLUMNS, episode_costs, module_costs, summarise_costs
-from skyvln_eval.metrics.official import OFFICIAL_COLUMNS, official_metrics
+from skyvln_eval.metrics.official import OFFICIAL_COLUMNS, official_metrics, view_success
 from skyvln_eval.metrics.predictions import (
     Prediction,
     ground_truth_episodes,
@@ -133,6 +133,7 @@ __all__ = [
     "tracking_errors",
     "trajectory_of",
     "unit_of",
+    "view_success",
     "wilson_interval",
     "write_predictions_json",
     "write_results",

@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyvln_eval.avdn.constants import SUCCESS_IOU
-from skyvln_eval.avdn.geometry import distance_m, point_in_view_strict
+from skyvln_eval.avdn.geometry import distance_m, hull_iou, point_in_view_strict
 from skyvln_eval.metrics.batch import ViewBatch, step_distances_m
 from skyvln_eval.metrics.view_overlap import sparse_hull_iou
 
@@ -65,6 +65,14 @@ def official_success(
         p_in_g = point_in_view_strict(p_last[idx].mean(axis=-2), g_last[idx])
         success[idx] = np.asarray(g_in_p) & np.asarray(p_in_g)
     return success
+
+
+def view_success(final_view: FloatArray, gt_end_view: FloatArray) -> bool:
+    """AVDN success of one episode's final view: :func:`official_success` for one pair."""
+    final = np.asarray(final_view, dtype=np.float64)[None]
+    gt_end = np.asarray(gt_end_view, dtype=np.float64)[None]
+    iou = np.atleast_1d(hull_iou(final, gt_end))
+    return bool(official_success(final, gt_end, iou)[0])
 
 
 def official_metrics(

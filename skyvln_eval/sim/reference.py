@@ -100,10 +100,6 @@ class ReferenceTrajectory:
         for k in range(steps):
             yield ReferenceWindow(times_s[k], states[k], inputs[k], yaw[k])
 
-    @property
-    def final_position_m(self) -> NDArray[np.float64]:
-        return np.asarray(self.path(np.array([self.end_time_s]))[0][0])
-
 
 def _clip(values: NDArray[np.float64], low: float, high: float) -> NDArray[np.float64]:
     """``np.clip`` for these short arrays without its per-call overhead (same values)."""

@@ -14,11 +14,12 @@ from skyvln_eval.agent.motion import ACTION_SPACE, action_space
 from skyvln_eval.agent.perception import Perception, PerceptionConfig
 from skyvln_eval.agent.skyvln import SkyVLNAgent
 from skyvln_eval.errors import ConfigError, UnknownNameError
-from skyvln_eval.harness import OfficialRollout, official_success, run_official_episode
+from skyvln_eval.harness import OfficialRollout, run_official_episode
 from skyvln_eval.harness.oracle import ground_truth_oracle
 from skyvln_eval.llm import GenerationConfig, LLMClient, LLMConfig, create_backend, read_task_data
 from skyvln_eval.llm.rule import RuleBackend
 from skyvln_eval.llm.types import Completion, Message
+from skyvln_eval.metrics import view_success
 from skyvln_eval.sensing import CameraImages, SemanticClass
 from tests.toy_worlds import town_episode, town_world
 
@@ -57,7 +58,7 @@ def motion_states(config: AgentConfig) -> list[dict[str, object]]:
 
 def test_the_full_agent_finds_the_described_landmark_and_stops_over_it() -> None:
     rollout = run(AgentConfig.model_validate(PERFECT))
-    assert official_success(rollout.final_view, town_episode(RED).gt_end_view)
+    assert view_success(rollout.final_view, town_episode(RED).gt_end_view)
     assert rollout.stop_reason == "stop" and isinstance(rollout.actions[0], FlyTo)
     modules = {r.module for r in rollout.llm_calls}
     assert {"subgoals", "hsd_describe", "hsd_rank", "motion"} <= modules
@@ -205,7 +206,7 @@ def test_baselines_are_built_by_name_and_the_ground_truth_only_by_the_harness() 
     with pytest.raises(ConfigError, match="oracle the harness builds"):
         build_agent(AgentConfig(name="ground_truth"))
     gt = run_official_episode(ground_truth_oracle(episode), episode, town_world())
-    assert official_success(gt.final_view, episode.gt_end_view) and isinstance(gt.actions[-1], Stop)
+    assert view_success(gt.final_view, episode.gt_end_view) and isinstance(gt.actions[-1], Stop)
     assert ground_truth_oracle(episode).settings()["oracle"] is True
     random = run_official_episode(
         build_agent(AgentConfig(name="random", seed=3)), episode, town_world()

@@ -22,6 +22,7 @@ from skyvln_eval.control import (
     save_flight_log,
 )
 from skyvln_eval.control.closed_loop import _step_windows
+from skyvln_eval.control.flight_log import SETTINGS_KEY
 from skyvln_eval.errors import DataError, FormatVersionError
 from skyvln_eval.frames import ViewPose
 from skyvln_eval.sim import DroneState, ScenarioSpec, make_scenario
@@ -115,6 +116,22 @@ def test_reading_something_else_is_a_clear_error(tmp_path: Path) -> None:
         load_flight_log(tmp_path / "missing.parquet")
     with pytest.raises(DataError, match="column"):
         save_flight_log(pd.DataFrame({"t_s": [0.0]}), tmp_path / "bad.parquet")
+
+
+@pytest.mark.parametrize(
+    ("stored", "complaint"), [(b"[1, 2]", "not a JSON object"), (b"{", "not JSON")]
+)
+def test_stored_settings_that_are_not_an_object_are_a_clear_error(
+    tmp_path: Path, stored: bytes, complaint: str
+) -> None:
+    # They were read as no settings: the readers then described the flight with defaults.
+    path = save_flight_log(log_frame([]), tmp_path / "odd.parquet", {"controller": "nmpc"})
+    table = pq.read_table(path)
+    pq.write_table(
+        table.replace_schema_metadata({**table.schema.metadata, SETTINGS_KEY: stored}), path
+    )
+    with pytest.raises(DataError, match=f"odd.parquet: its stored settings are {complaint}"):
+        load_flight_log(path)
 
 
 def test_a_log_of_another_format_version_says_what_to_do(tmp_path: Path) -> None:

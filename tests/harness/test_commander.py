@@ -10,10 +10,10 @@ import numpy as np
 
 from skyvln_eval.agent import AgentConfig, build_agent
 from skyvln_eval.avdn.records import Episode
-from skyvln_eval.harness import RunConfig, official_success, run, run_official_episode
+from skyvln_eval.harness import RunConfig, run, run_official_episode
 from skyvln_eval.harness.commander import SimulatedCommander
 from skyvln_eval.harness.store import RESULTS_FILE
-from skyvln_eval.metrics import MetricConventions, read_results, score_results
+from skyvln_eval.metrics import MetricConventions, read_results, score_results, view_success
 from skyvln_eval.worlds.sample.phrasebook import all_frames
 from tests.toy_worlds import town_episode, town_world
 
@@ -35,7 +35,7 @@ def test_hsd_ambiguity_makes_the_agent_ask_and_the_answer_settles_it() -> None:
     # The answer reached the agent as a new round, and it planned again from it.
     replans = [e for t in rollout.traces[1:] for e in t["exchanges"] if e["module"] == "subgoals"]
     assert replans and asked["answer"] in replans[0]["prompt"][-1]["text"]
-    assert official_success(rollout.final_view, episode.gt_end_view)
+    assert view_success(rollout.final_view, episode.gt_end_view)
 
 
 def test_without_a_commander_questions_stay_unanswered_and_the_budget_holds() -> None:
@@ -101,7 +101,7 @@ def test_a_drone_already_over_the_goal_is_told_to_stop_not_to_fly_on() -> None:
     edge = np.linalg.norm(goal[0] - goal[1])
     shift = np.array([0.4 * edge, 0.0])  # along a side: 0.4 of an edge
     near = goal + shift
-    assert not official_success(near, goal)
+    assert not view_success(near, goal)
     assert np.linalg.norm(near.mean(axis=0) - goal.mean(axis=0)) < edge / 2  # was "there"
     [_, told] = SimulatedCommander(episode, world, seed=0).answer(0, "Here?", near)
     assert told.text not in ARRIVED, told.text

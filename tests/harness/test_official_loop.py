@@ -19,8 +19,9 @@ from skyvln_eval.agent import (
 )
 from skyvln_eval.avdn import load_split
 from skyvln_eval.errors import ConfigError, PerceptionError
-from skyvln_eval.harness import official_success, run_official_episode
+from skyvln_eval.harness import run_official_episode
 from skyvln_eval.harness.oracle import ground_truth_oracle
+from skyvln_eval.metrics import view_success
 from skyvln_eval.worlds import load_world
 from tests.toy_worlds import town_episode, town_world
 
@@ -105,6 +106,6 @@ def test_on_the_sample_the_rule_agent_beats_random_and_ground_truth_replay_succe
         for name, agent in {**agents, "ground_truth": ground_truth_oracle(episode)}.items():
             rollout = run_official_episode(agent, episode, world)
             assert len(rollout.views) <= 10
-            wins[name] += official_success(rollout.final_view, episode.gt_end_view)
+            wins[name] += view_success(rollout.final_view, episode.gt_end_view)
     assert wins["ground_truth"] == len(episodes)
     assert wins["skyvln"] >= len(episodes) // 2 > wins["random"]

@@ -6,7 +6,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from skyvln_eval.avdn.imagery import MapGeoref
 from skyvln_eval.worlds.city.layout import plan_city
 from skyvln_eval.worlds.city.paint import Canvas, paint_plan
 from skyvln_eval.worlds.city.plan import CityPlan
@@ -23,20 +22,6 @@ class CityTile:
     plan: CityPlan
     canvas: Canvas
     metres_per_px: float
-
-    def metres_to_latlng(self, points_m: np.ndarray, georef: MapGeoref) -> np.ndarray:
-        """Plan metres (x east, y north from the south-west corner) to ``[lat, lng]``.
-
-        The tile's pixel grid is the official resized grid, so metres map to degrees
-        through the flat 111,300 m/deg on both axes, like every view in the toolkit.
-        """
-        p = np.asarray(points_m, dtype=np.float64)
-        mpd = self.metres_per_px / georef.lat_ratio  # metres per degree (111,300)
-        lat = (
-            georef.gps_top_right[0] - (self.canvas.height_px * self.metres_per_px - p[..., 1]) / mpd
-        )
-        lng = georef.gps_botm_left[1] + p[..., 0] / mpd
-        return np.stack([lat, lng], axis=-1)
 
 
 def generate_city(
