@@ -102,7 +102,6 @@ def named_views(
 class RunLogContent:
     """Everything a run log shows, from either execution mode."""
 
-    run_metadata: dict[str, str]
     steps: list[Step]
     views: list[NDArray[np.float64]]
     view_times_s: list[float]
@@ -111,6 +110,9 @@ class RunLogContent:
     #: The fixed time between decisions (official mode: one second), or None when each
     #: comes at its own simulated time (dynamics mode).
     clock_step_ns: int | None = None
+    #: The run's and the episode's outcome (system, config, seed, status, ...), known
+    #: once the episode is judged.
+    run_metadata: dict[str, str] = field(default_factory=dict)
 
 
 class _Messages:

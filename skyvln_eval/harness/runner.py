@@ -15,12 +15,14 @@ solver objects are not thread-safe).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import threading
 import time
 import traceback
 from collections import OrderedDict
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -35,6 +37,7 @@ from skyvln_eval.avdn.records import Episode
 from skyvln_eval.control import Controller, make_controller, save_flight_log
 from skyvln_eval.converters.reader import read_episode
 from skyvln_eval.errors import stops_the_run
+from skyvln_eval.frames import ViewPose
 from skyvln_eval.harness.commander import SimulatedCommander
 from skyvln_eval.harness.config import RunConfig
 from skyvln_eval.harness.control_messages import ns
@@ -152,8 +155,12 @@ def control_log_name(split: str, episode_id: str) -> str:
     return f"{CONTROL_DIR}/{split}/{episode_id}.parquet"
 
 
-def _steps(rollout: OfficialRollout | DynamicsRollout, times_s: list[float]) -> list[Step]:
-    targets = getattr(rollout, "targets", [])
+def _steps(
+    rollout: OfficialRollout | DynamicsRollout,
+    times_s: list[float],
+    targets: Sequence[ViewPose] = (),
+) -> list[Step]:
+    """The run log's steps: one per decision, with its action's target pose when flown."""
     return [
         Step(
             t_s=times_s[k],
@@ -172,7 +179,9 @@ def _steps(rollout: OfficialRollout | DynamicsRollout, times_s: list[float]) -> 
     ]
 
 
-def _commander(config: RunConfig, episode: Episode, world: WorldTile, seed: int) -> Any:
+def _commander(
+    config: RunConfig, episode: Episode, world: WorldTile, seed: int
+) -> SimulatedCommander | None:
     if config.commander.max_questions == 0 or config.agent.name not in LLM_AGENTS:
         return None
     return SimulatedCommander(episode, world, config.commander.max_questions, seed)
@@ -187,7 +196,7 @@ def _official(
     )
     times = [k * OFFICIAL_STEP_S for k in range(len(rollout.views))]
     content = RunLogContent(
-        {}, _steps(rollout, times), rollout.views, times, clock_step_ns=ns(OFFICIAL_STEP_S)
+        _steps(rollout, times), rollout.views, times, clock_step_ns=ns(OFFICIAL_STEP_S)
     )
     extra = {
         "step_outcomes": list(rollout.step_outcomes),
@@ -224,8 +233,7 @@ def _dynamics(
     )
     view_times = [0.0, *rollout.segment_end_times_s][: len(rollout.views)]
     content = RunLogContent(
-        {},
-        _steps(rollout, rollout.decision_times_s),
+        _steps(rollout, rollout.decision_times_s, rollout.targets),
         rollout.views,
         view_times,
         rollout.control_log,
@@ -297,7 +305,7 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
             "questions": rollout.questions,
         }
         if config.write_logs:
-            content.run_metadata = {
+            run_metadata = {
                 "system": config.system,
                 "split": task.split,
                 "execution_mode": config.mode,
@@ -314,7 +322,7 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
                 log_path(task.run_dir, task.split, task.episode_id),
                 episode,
                 world,
-                content,
+                dataclasses.replace(content, run_metadata=run_metadata),
                 config.observations_in_logs,
             )
         return EpisodeResult(

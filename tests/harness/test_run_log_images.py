@@ -39,7 +39,7 @@ def test_a_repeated_view_is_encoded_once_and_logged_at_every_step(
             zip(views, [Turn(90.0), Move("forward", 50.0), Move("forward", 50.0)], strict=True)
         )
     ]
-    content = RunLogContent({}, steps, views, [0.0, 1.0, 2.0])
+    content = RunLogContent(steps, views, [0.0, 1.0, 2.0])
     path = tmp_path / "run.mcap"
     run_log.write_run_log(path, episode, world, content)
     assert len(encoded) == 2
@@ -74,7 +74,7 @@ def test_the_same_captured_pixels_are_encoded_once_and_logged_at_every_capture(
         for k, views in enumerate(captures)
     ]
     path = tmp_path / "run.mcap"
-    run_log.write_run_log(path, episode, None, RunLogContent({}, steps, [start], [0.0]))
+    run_log.write_run_log(path, episode, None, RunLogContent(steps, [start], [0.0]))
     assert sorted(encoded) == sorted([seen[..., ::-1].tobytes(), other[..., ::-1].tobytes()])
     logged = [m.decode() for m in read_log(path).topic(t.TOPIC_CAMERA_VIEWS)]
     assert [m["frame_id"].rsplit("/", 1)[-1] for m in logged] == ["front", "again", "front", "down"]

@@ -23,7 +23,7 @@ def _write(
     episode = town_episode("fly to the red restaurant")
     start = np.asarray(episode.gt_path_corners[0], dtype=np.float64)
     steps = [Step(0.0, 0, start, "", Turn(90.0), None, {})]
-    content = RunLogContent({}, steps, [start], [0.0], clock_step_ns=clock_step_ns)
+    content = RunLogContent(steps, [start], [0.0], clock_step_ns=clock_step_ns)
     run_log.write_run_log(path, episode, world, content, observations)
     log = read_log(path)
     meta = log.metadata[t.EPISODE_METADATA]
