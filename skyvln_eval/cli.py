@@ -55,10 +55,13 @@ def _echo_problem(text: str, colour: str = "red") -> None:
 
 
 @contextmanager
-def _stoppable(progress: RichRunProgress | None = None) -> Iterator[None]:
+def _stoppable(
+    progress: RichRunProgress | None = None,
+    said: str = "the episodes that finished are kept{finished}; the same command runs the rest",
+) -> Iterator[None]:
     """A long job that Ctrl-C or SIGTERM stops: its workers ended, what finished kept, a
-    line that says so (how many finished, from ``progress``), exit code 130 (as a shell
-    reports an interrupted command)."""
+    line that says so (``said``, with how many finished from ``progress``), exit code 130
+    (as a shell reports an interrupted command)."""
     from skyvln_eval.interrupts import terminate_like_ctrl_c
 
     try:
@@ -70,10 +73,7 @@ def _stoppable(progress: RichRunProgress | None = None) -> Iterator[None]:
             if progress is not None
             else ""
         )
-        _echo_problem(
-            f"interrupted: the episodes that finished are kept{finished}; the same command "
-            "runs the rest"
-        )
+        _echo_problem(f"interrupted: {said.format(finished=finished)}")
         sys.stdout.flush()
         sys.stderr.flush()
         # Ended here, not by returning: episodes running in threads cannot be stopped, and
@@ -387,7 +387,11 @@ def convert(
     if mode not in EPISODE_MODES:
         raise typer.BadParameter(f"--mode must be one of {', '.join(EPISODE_MODES)}")
     dataset = data_dir_argument(data_dir)
-    with _progress("converting") as progress:
+    stopped = (
+        "the episode logs written are kept (no partial file is left under a log's name); "
+        "the same command converts the rest"
+    )
+    with _stoppable(said=stopped), _progress("converting") as progress:
         task = progress.add_task(split, total=None)
         failures = run_convert(
             dataset,

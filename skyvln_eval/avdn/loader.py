@@ -35,6 +35,7 @@ from skyvln_eval.errors import (
     NoGroundTruthError,
     ValidationIssue,
 )
+from skyvln_eval.fileio import undecodable_at
 
 TrajectoryKey = tuple[str, str]
 
@@ -287,7 +288,8 @@ def read_annotation_file(path: Path) -> list[object]:
             str(path), f"not valid JSON (line {exc.lineno}, column {exc.colno}: {exc.msg})"
         ) from exc
     except UnicodeDecodeError as exc:
-        raise AvdnFileError(str(path), f"not UTF-8 text ({exc.reason})") from exc
+        where = f"{undecodable_at(raw, exc)}{_undecodable_record(raw)}"
+        raise AvdnFileError(str(path), f"not UTF-8 text ({exc.reason}): {where}") from exc
     except ValueError as exc:  # Python reads no integer of more than 4,300 digits
         reason = str(exc).split(";")[0]  # its advice (set_int_max_str_digits) is not ours
         raise AvdnFileError(str(path), f"cannot be read: {reason}") from exc
@@ -295,6 +297,41 @@ def read_annotation_file(path: Path) -> list[object]:
         kind = type(data).__name__.replace("dict", "object")
         raise AvdnFileError(str(path), f"expected a JSON list of records, got a JSON {kind}")
     return data
+
+
+def _undecodable_record(raw: bytes) -> str:
+    """`` in record i, field f`` where the first text that is not UTF-8 is (AVDN files are
+    one line: a byte offset alone leaves a user searching), else ``""``."""
+    try:
+        data = json.loads(raw.decode("utf-8", "surrogateescape"))
+    except ValueError:
+        return ""
+    if not isinstance(data, list):
+        return ""
+    for index, record in enumerate(data):
+        field = _undecodable_field(record)
+        if field is not None:
+            return f" in record {index}{f', field {field!r}' if field else ''}"
+    return ""
+
+
+def _undecodable_field(value: Any, at: str = "") -> str | None:
+    """The dotted path of the first string in ``value`` holding an undecodable byte (kept
+    as a lone surrogate), ``None`` when there is none."""
+    if isinstance(value, str):
+        return at if any("\udc80" <= c <= "\udcff" for c in value) else None
+    if isinstance(value, dict):
+        for key, item in value.items():
+            name = f"{at}.{key}" if at else str(key)
+            found = _undecodable_field(key, name) or _undecodable_field(item, name)
+            if found is not None:
+                return found
+    if isinstance(value, list):
+        for i, item in enumerate(value):
+            found = _undecodable_field(item, f"{at}[{i}]")
+            if found is not None:
+                return found
+    return None
 
 
 def _missing_map_issues(

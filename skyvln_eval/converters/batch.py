@@ -26,6 +26,7 @@ from typing import Any, Final, Literal, NamedTuple
 
 import skyvln_eval
 from skyvln_eval.avdn import (
+    AvdnSplit,
     Episode,
     EpisodeMode,
     MapGeoref,
@@ -58,7 +59,12 @@ from skyvln_eval.converters.manifest import (
 from skyvln_eval.converters.reader import read_log
 from skyvln_eval.converters.writer import McapLogWriter
 from skyvln_eval.errors import AvdnValidationError, SkyvlnError, ValidationIssue
-from skyvln_eval.fileio import ensure_writable_directory, sha256_bytes, sha256_file
+from skyvln_eval.fileio import (
+    ensure_writable_directory,
+    exclusive_lock,
+    sha256_bytes,
+    sha256_file,
+)
 from skyvln_eval.worlds import WorldTile
 
 Status = Literal["converted", "skipped", "failed"]
@@ -392,6 +398,28 @@ def convert_split(
     )
     if incomplete and not skip_invalid:
         raise AvdnValidationError(incomplete)
+    # One conversion of a split and mode into a folder at a time: each removes the stale
+    # logs and temporary files it finds there, which another's may be (a run converting
+    # into the shared cache while `convert` writes the same folder lost logs to it).
+    with exclusive_lock(Path(out_dir) / f".{split}-{mode}.lock"):
+        return _convert_loaded(
+            data_dir, loaded, episodes, incomplete, out_dir, split, mode, workers, options,
+            on_progress,
+        )  # fmt: skip
+
+
+def _convert_loaded(
+    data_dir: Path,
+    loaded: AvdnSplit,
+    episodes: list[Episode],
+    incomplete: list[ValidationIssue],
+    out_dir: str | Path,
+    split: str,
+    mode: EpisodeMode,
+    workers: int,
+    options: ConvertOptions,
+    on_progress: Callable[[int], None] | None,
+) -> ConvertReport:
     target = ensure_writable_directory(split_output_dir(out_dir, split, mode), "output folder")
     report = ConvertReport(
         target,

@@ -34,13 +34,13 @@ from skyvln_eval.converters.reader import check_file_ends, read_episode
 from skyvln_eval.errors import (
     AvdnValidationError,
     ConfigError,
+    DataError,
     ForeignRowsError,
     McapLogError,
 )
 from skyvln_eval.fileio import (
     atomic_write_json,
     atomic_write_text,
-    exclusive_lock,
     read_yaml_mapping,
 )
 from skyvln_eval.harness.config import HOW_IT_RUNS, RunConfig, run_config_from_mapping
@@ -110,26 +110,39 @@ def selected(config: RunConfig, episode_ids: Sequence[str]) -> list[str]:
 
 
 def episode_logs(config: RunConfig, data_dir: Path) -> dict[RowKey, Path]:
-    """The episode MCAP of every episode the run covers, in run order (converted if needed,
-    one process at a time: the cache is shared by every run on the data)."""
+    """The episode MCAP of every episode the run covers, in run order (converted if needed
+    into the cache every run on the data shares; the converter takes its turn there).
+
+    An episode the run covers whose log could not be written (its map image unreadable,
+    a full disk) stops the run, naming why: left out, it went unseen until scoring, and a
+    ``limit`` took the next episode in its place."""
     out: dict[RowKey, Path] = {}
     wanted = set(config.episodes) if config.episodes is not None else None
     found: set[str] = set()  # all of them: a listed episode past the limit exists all the same
+    unconverted: list[str] = []
     root = episode_logs_root(data_dir)
     for split in config.splits:
-        # The cache is shared by every run on this data: one process converts a split at a
-        # time (a converter clears what it takes for another's stale temporary files).
-        with exclusive_lock(root / f".{split}-{config.episode_mode}.lock"):
-            try:
-                report = convert_split(
-                    data_dir, split, root, config.episode_mode, options=EPISODE_LOG_OPTIONS
-                )
-            except AvdnValidationError as error:  # a run has no way to leave records out
-                raise AvdnValidationError(error.issues, RUN_INVALID_HINT) from None
+        try:
+            report = convert_split(
+                data_dir, split, root, config.episode_mode, options=EPISODE_LOG_OPTIONS
+            )
+        except AvdnValidationError as error:  # a run has no way to leave records out
+            raise AvdnValidationError(error.issues, RUN_INVALID_HINT) from None
         files = {row.episode_id: row.file_name for row in report.rows}
-        found.update(files)
-        for episode_id in selected(config, list(files)):
-            out[(split, episode_id)] = report.out_dir / files[episode_id]
+        failed = {o.episode_id: o.note for o in report.failed}
+        episode_ids = [o.episode_id for o in report.outcomes]
+        found.update(episode_ids)
+        for episode_id in selected(config, episode_ids):
+            if episode_id in failed:
+                unconverted.append(f"{split}/{episode_id}: {failed[episode_id]}")
+            else:
+                out[(split, episode_id)] = report.out_dir / files[episode_id]
+    if unconverted:
+        raise DataError(
+            f"{len(unconverted)} episode(s) of the run could not be converted to episode "
+            f"logs (under {root}): " + "; ".join(unconverted[:5])
+            + ("; ..." if len(unconverted) > 5 else "")
+        )  # fmt: skip
     if wanted is not None:
         unknown = wanted - found
         if unknown:

@@ -447,6 +447,23 @@ def test_file_that_is_not_a_json_list(
     assert "val_seen_data.json" in str(info.value)
 
 
+def test_a_file_that_is_not_utf8_names_the_byte_record_and_field(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    # AVDN files are one line: "not UTF-8 text (invalid start byte)" left a user searching.
+    root = dataset_factory({"val_seen": []})
+    text = json.dumps([make_record(), make_record(route_index="1_1", instructions="[INS] go @")])
+    raw = text.encode().replace(b"go @", b"go \xff")
+    (root / "annotations" / "val_seen_data.json").write_bytes(raw)
+    offset = raw.index(b"\xff")
+    with pytest.raises(AvdnFileError) as info:
+        load_split(root, "val_seen")
+    assert str(info.value).endswith(
+        f"not UTF-8 text (invalid start byte): byte 0xff on line 1, byte offset {offset} "
+        "in record 1, field 'instructions'"
+    )
+
+
 def test_missing_annotation_file(tmp_path: Path) -> None:
     with pytest.raises(AvdnFileError, match="annotation file not found"):
         load_split(tmp_path, "val_unseen")

@@ -412,3 +412,25 @@ def test_a_rerun_deletes_only_logs_a_conversion_wrote(
     assert (folder / "flight notes.mcap").read_bytes() == b"a user's own recording"
     # validate still says the folder holds a file its manifest does not list.
     assert [i.message for i in check_manifest_folder(folder)] == [f"not listed in {MANIFEST_NAME}"]
+
+
+def test_conversions_into_one_folder_take_turns(
+    dataset_factory: Callable[..., Path], tmp_path: Path
+) -> None:
+    # An audit: two `convert` runs into one folder at once removed each other's temporary
+    # files and a finished log (one reported 40 converted; the folder held 39).
+    import threading
+
+    root = dataset_factory({"val_seen": [make_record(route_index=f"{i}_1") for i in range(2)]})
+    out = tmp_path / "out"
+    reports: list[Any] = []
+    with fileio.exclusive_lock(out / ".val_seen-andh.lock"):  # another conversion's turn
+        waiting = threading.Thread(
+            target=lambda: reports.append(convert_split(root, "val_seen", out))
+        )
+        waiting.start()
+        waiting.join(timeout=3.0)
+        assert waiting.is_alive() and not reports, "it converted during another's turn"
+    waiting.join()
+    assert reports[0].count("converted") == 2
+    assert check_manifest_folder(reports[0].out_dir) == []

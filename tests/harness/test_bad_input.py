@@ -349,6 +349,44 @@ def test_an_invalid_record_is_named_with_what_a_run_can_do_about_it(
     assert outcome.code == 2 and "`--skip-invalid` with `skyvln-eval summary`" in outcome.err
 
 
+def test_an_episode_whose_log_cannot_be_made_stops_the_run_that_covers_it(
+    tmp_path: Path,
+    dataset_factory: Callable[..., Path],
+    cli: Cli,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # An audit: the run went on without it (29 of 30 episodes, no note) and a limit took
+    # the next episode in its place.
+    import errno
+
+    from skyvln_eval.converters import batch
+    from tests.conftest import make_record
+
+    def disk_full_for_1914(episode: Any, *args: Any, **kwargs: Any) -> Any:
+        if episode.map_name == "1914":
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return convert(episode, *args, **kwargs)
+
+    convert = batch.convert_episode
+    monkeypatch.setattr(batch, "convert_episode", disk_full_for_1914)
+    data = dataset_factory(
+        {"val_unseen": [make_record(), make_record(map_name="1914")]}, maps=("1913", "1914")
+    )
+    path = tmp_path / "run.yaml"
+    random = {"data": str(data), "agent": {"name": "random"}}
+    path.write_text(yaml.safe_dump({**_config(data), **random, "limit": 2}))
+    _refused(
+        cli("run", str(path), "--out", str(tmp_path / "run")),
+        "1 episode(s) of the run could not be converted to episode logs",
+        "val_unseen/1914__0_1: ",
+    )
+    assert not (tmp_path / "run" / "results.jsonl").exists(), "no episode may run"
+    # A run that does not cover it goes on: the limit is counted over every episode.
+    path.write_text(yaml.safe_dump({**_config(data), **random, "limit": 1}))
+    outcome = cli("run", str(path), "--out", str(tmp_path / "first"))
+    assert outcome.code == 0, outcome
+
+
 def test_a_bad_option_is_named_as_the_option_not_as_the_config(
     tmp_path: Path, sample_dir: Path, cli: Cli
 ) -> None:

@@ -136,3 +136,38 @@ def test_ctrl_c_stops_episodes_waiting_on_a_slow_llm_in_threads_at_once(
     # The episodes did not go on calling the model until they ended (each has many calls
     # left): at most the calls already on their way when Ctrl-C came.
     assert sent_after <= threads
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="reads the process tree from Linux /proc")
+def test_a_conversion_stopped_from_outside_says_so_and_leaves_whole_files(
+    tmp_path: Path, sample_dir: Path
+) -> None:
+    # An audit: SIGTERM ended `convert` with exit 143, no word, and a temporary file left.
+    out = tmp_path / "logs"
+    folder = out / "train" / "andh"
+    command = skyvln_eval_command(
+        "convert", "--data-dir", str(sample_dir), "--split", "train", "--out", str(out),
+        "--workers", "2",
+    )  # fmt: skip
+    with _running(command) as process:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and process.poll() is None:
+            if folder.is_dir() and any(folder.glob("*.mcap")):  # the workers are under way
+                break
+            time.sleep(0.02)
+        workers = children(process.pid)
+        assert workers and process.poll() is None, "it ended before it could be stopped"
+        process.send_signal(signal.SIGTERM)
+        out_text, err = process.communicate(timeout=60)
+    assert process.returncode == 130, err
+    assert "interrupted: the episode logs written are kept" in err
+    assert "Traceback" not in out_text + err
+    deadline = time.monotonic() + 10
+    while any(alive(pid) for pid in workers) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(alive(pid) for pid in workers)
+    again = subprocess.run(
+        command, stdin=subprocess.DEVNULL, capture_output=True, text=True, cwd=REPO, timeout=300
+    )
+    assert again.returncode == 0, again.stderr
+    assert not list(folder.glob(".*.tmp")), "the next conversion clears what was cut short"
