@@ -56,9 +56,10 @@ def number_problem(value: Any, what: str = "value") -> str | None:
 def unwritable(value: Any, path: str) -> tuple[str, str] | None:
     """(path, problem) for the first part of ``value`` that strict JSON in UTF-8 cannot
     hold, though Python's json reads it: a string or key that is not valid Unicode (a
-    lone surrogate escape such as ``"\\ud83d"``, half an emoji) or a NaN or infinite
-    number. Records are kept verbatim in every log, as strict JSON (the viewer's
-    JSON.parse, orjson): no writing of these reads back as the same value."""
+    lone surrogate escape such as ``"\\ud83d"``, half an emoji), a NaN or infinite
+    number, or an object that gave a key more than once (only its last value is held).
+    Records are kept verbatim in every log, as strict JSON (the viewer's JSON.parse,
+    orjson): no writing of these reads back as the same value."""
     if type(value) is float and not math.isfinite(value):
         return path, f"NaN or infinite value ({value!r}): strict JSON has none"
     if isinstance(value, UnderflowedNumber):
@@ -75,6 +76,9 @@ def unwritable(value: Any, path: str) -> tuple[str, str] | None:
             if found := unwritable(item, f"{path}[{i}]"):
                 return found
     elif isinstance(value, dict):
+        # The loader's RepeatedKeys: the values before the last were dropped, silently.
+        for key in getattr(value, "repeated", ()):
+            return f"{path}[{key!a}]", "key given more than once (JSON keeps the last value)"
         for key, item in value.items():
             name = f"{path}[{key!a}]"
             if found := unwritable(key, name) or unwritable(item, name):

@@ -288,7 +288,9 @@ class Episode:
         return self.records[-1].destination
 
     def dialog(self) -> list[DialogTurn]:
-        """The dialog the agent receives: earlier rounds and the current one(s)."""
+        """The dialog the agent receives at the start: ANDH, the earlier rounds and this
+        round's; ANDH-Full, every round's (AVDN's ANDH-Full gives the whole dialog at the
+        start, the later rounds' words included)."""
         if self.mode == "andh":
             return self.first.dialog()
         turns: list[DialogTurn] = []

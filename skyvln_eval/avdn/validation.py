@@ -463,21 +463,35 @@ def _check_attention_on_map(
     return bad
 
 
+def _first_records(data: Sequence[Any]) -> dict[str, int]:
+    """The first record of each episode id in ``data``, valid or not: a valid record
+    whose id an invalid one gave first is a duplicate all the same (it was written out
+    under that id while the list of what was left out named it too)."""
+    first: dict[str, int] = {}
+    for index, raw in enumerate(data):
+        if isinstance(raw, dict):
+            map_name, route = raw.get("map_name"), raw.get("route_index")
+            if text_ok(map_name) and text_ok(route):
+                first.setdefault(episode_id_of(map_name, route), index)
+    return first
+
+
 def _check_consistency(
-    pending: list[_Pending], file: str, issues: list[ValidationIssue]
+    pending: list[_Pending], first_records: dict[str, int], file: str, issues: list[ValidationIssue]
 ) -> set[int]:
-    """Duplicate episode ids and maps whose records disagree on the geo-reference."""
+    """Duplicate episode ids (``first_records``: each id's first record) and maps whose
+    records disagree on the geo-reference."""
     bad: set[int] = set()
-    first_of_episode: dict[str, int] = {}
     georef_of_map: dict[str, tuple[int, tuple[Any, ...]]] = {}  # map -> first record, georef
     for p in pending:
         raw = p.raw
         episode = episode_id_of(raw["map_name"], raw["route_index"])
-        if episode in first_of_episode:
+        first_seen = first_records.get(episode, p.index)
+        if first_seen != p.index:
             issues.append(
                 ValidationIssue(
                     file,
-                    f"duplicate episode id (first seen in record {first_of_episode[episode]})",
+                    f"duplicate episode id (first seen in record {first_seen})",
                     p.index,
                     episode,
                     "route_index",
@@ -485,7 +499,6 @@ def _check_consistency(
             )
             bad.add(p.index)
             continue
-        first_of_episode[episode] = p.index
         georef = tuple(
             tuple(value) if isinstance(value, list) else value
             for value in (raw[field] for field in _GEOREF_FIELDS)
@@ -575,7 +588,7 @@ def parse_records_indexed(
         | _check_attention_on_map(pending, file, issues)
     )
     good = [p for p in pending if p.index not in bad]
-    bad |= _check_consistency(good, file, issues)
+    bad |= _check_consistency(good, _first_records(data), file, issues)
     kept = [p for p in good if p.index not in bad]
     issues.sort(key=lambda issue: issue.record_index if issue.record_index is not None else -1)
     return [p.index for p in kept], [_build(p) for p in kept], issues

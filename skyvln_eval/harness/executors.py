@@ -23,6 +23,7 @@ import concurrent.futures as cf
 import contextlib
 import gc
 import multiprocessing
+import os
 import pickle
 import queue
 import signal
@@ -30,7 +31,7 @@ import threading
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from multiprocessing import connection as mp_connection
-from typing import Any, Literal, Protocol, TypeVar
+from typing import Any, Final, Literal, Protocol, TypeVar
 
 from skyvln_eval.errors import ConfigError, UnknownNameError
 
@@ -88,6 +89,12 @@ def _native_threads_off(parallel: bool) -> Iterator[None]:
         cv2.setNumThreads(before)
 
 
+#: What a task may raise that is its own failure, recorded as such: any error, and a
+#: ``sys.exit`` in code it calls (which would otherwise end a run, or hang a worker
+#: process whose episode loop it ended). Ctrl-C is not a task's failure.
+TASK_FAILURES: Final = (Exception, SystemExit)
+
+
 @dataclass(frozen=True)
 class SerialExecutor:
     def map_unordered(
@@ -96,7 +103,7 @@ class SerialExecutor:
         for task in tasks:
             try:
                 yield task, fn(task)
-            except Exception as exc:  # recorded by the caller as a failed episode
+            except TASK_FAILURES as exc:  # recorded by the caller as a failed episode
                 yield task, exc
 
 
@@ -126,7 +133,7 @@ def _drain(
                 task = running.pop(future)
                 try:
                     outcome: R | BaseException = future.result()
-                except Exception as exc:  # the caller records it
+                except TASK_FAILURES as exc:  # the caller records it
                     outcome = exc
                 yield task, outcome
                 submit_next()
@@ -158,10 +165,15 @@ class ThreadExecutor:
 
 class WorkerDied(RuntimeError):
     """The worker process running a task ended before the task did (a crash in native
-    code, a kill), or none was left to run it."""
+    code, a kill)."""
 
 
-def _sendable(exc: Exception) -> Exception:
+class NoWorkerLeft(WorkerDied):
+    """The task never started: every worker process died (each one, say, while starting
+    up). Not the task's outcome: a caller runs it again once the cause is fixed."""
+
+
+def _sendable(exc: BaseException) -> BaseException:
     """``exc`` if it survives pickling, else a RuntimeError with its type and message."""
     try:
         pickle.loads(pickle.dumps(exc))
@@ -180,8 +192,8 @@ def _process_worker(
     thread receives (episodes in a thread of their own took 25 MB more per process).
 
     Ctrl-C is the parent's to handle (it reaches the whole process group in a terminal):
-    the parent ends its workers. A parent gone without a word ends the worker quietly
-    once its episode is done: there is no one to send the result to."""
+    the parent ends its workers. A parent gone without a word (killed) ends the worker at
+    once, its episode unfinished: there is no one to send the result to."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     episodes_are_the_parallelism()
     collect_for_a_worker()
@@ -199,14 +211,20 @@ def _process_worker(
                 send(("start", index, None))
                 try:
                     outcome: tuple[str, int, Any] = ("done", index, fn(task))
-                except Exception as exc:  # the caller records it as a failed episode
+                except TASK_FAILURES as exc:  # the caller records it as a failed episode
                     outcome = ("error", index, _sendable(exc))
                 send(outcome)
 
     def receive() -> None:
-        with contextlib.suppress(EOFError, OSError):
+        try:
             while (message := conn.recv()) is not None:
                 inbox.put(message)
+        except (EOFError, OSError):
+            # The parent is gone (killed): end at once. Finishing the episode under way
+            # sent its result to no one, and wrote into a run directory whose lock was
+            # gone, beside a resume that ran the same episode again (an audit saw a log
+            # appear 10 s after the parent died).
+            os._exit(0)
         with contextlib.suppress(queue.Empty):  # the parent stopped: start nothing more
             while True:
                 inbox.get_nowait()
@@ -214,7 +232,8 @@ def _process_worker(
             inbox.put(None)
 
     if threads == 1:
-        receiver = threading.Thread(target=receive, name="receiver")
+        # A daemon: were the episode loop to end another way, the process still ends.
+        receiver = threading.Thread(target=receive, name="receiver", daemon=True)
         receiver.start()
         run_tasks()
         receiver.join()
@@ -305,7 +324,7 @@ class ProcessExecutor:
                 if not any(w.alive for w in workers):
                     break
             for index, _ in reversed(todo):  # only if every process died
-                yield tasks[index], WorkerDied("no worker process left to run the episode")
+                yield tasks[index], NoWorkerLeft("no worker process left to run the episode")
         except KeyboardInterrupt:
             # Ctrl-C (or SIGTERM, see skyvln_eval.interrupts): the episodes under way are
             # dropped at once, not waited for; a resumed run runs them again.
@@ -453,10 +472,10 @@ def make_executor(
         )
     if address is not None and kind != "ray":
         raise ConfigError(f"ray_address ({address!r}) is for the ray executor, not {kind!r}")
-    if kind == "processes" and threads_per_worker > 1 and workers == 1:
-        return ThreadExecutor(threads_per_worker)
-    if kind == "serial" or (kind == "processes" and workers == 1):
+    if kind == "serial":
         return SerialExecutor()
+    # One worker process too: it was run in this process, where a crash in native code
+    # ended the run, and every resume crashed at the same episode.
     if kind == "processes":
         return ProcessExecutor(workers, threads_per_worker)
     if kind == "threads":

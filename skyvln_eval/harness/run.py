@@ -44,7 +44,7 @@ from skyvln_eval.fileio import (
     read_yaml_mapping,
 )
 from skyvln_eval.harness.config import HOW_IT_RUNS, RunConfig, run_config_from_mapping
-from skyvln_eval.harness.executors import Executor, make_executor
+from skyvln_eval.harness.executors import Executor, NoWorkerLeft, make_executor
 from skyvln_eval.harness.lock import RunDirLock, hold_run_dir, remove_leftover_temporaries
 from skyvln_eval.harness.preflight import preflight
 from skyvln_eval.harness.provenance import mixed_versions_note, record_launch
@@ -640,6 +640,12 @@ def _execute_jobs(
     try:
         for task, outcome in executor.map_unordered(task_function, tasks):
             job = by_dir[task.run_dir]
+            if isinstance(outcome, NoWorkerLeft):  # it never ran: no row, a resume runs it
+                why = f"{outcome}: every worker process died; the episodes left did not run"
+                for unfinished in jobs:
+                    if unfinished.report.ran_now < len(unfinished.tasks):
+                        unfinished.report.stopped = why
+                break
             result = (
                 outcome
                 if isinstance(outcome, EpisodeResult)

@@ -42,6 +42,7 @@ from skyvln_eval.harness.commander import SimulatedCommander
 from skyvln_eval.harness.config import RunConfig
 from skyvln_eval.harness.control_messages import ns
 from skyvln_eval.harness.dynamics_loop import DynamicsRollout, derived_seed, run_dynamics_episode
+from skyvln_eval.harness.executors import TASK_FAILURES
 from skyvln_eval.harness.official_loop import OfficialRollout, run_official_episode
 from skyvln_eval.harness.oracle import ground_truth_oracle, is_oracle
 from skyvln_eval.harness.rollout import CallsMade
@@ -341,7 +342,7 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
             module_failures=tuple(rollout.failures),
             extra=extra | {"wall_s": round(time.perf_counter() - started, 6)},
         )
-    except Exception as exc:  # the episode failed: record it and let the run go on
+    except TASK_FAILURES as exc:  # the episode failed: record it and let the run go on
         episode = episode or read_episode(task.episode_log)
         error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
         fatal = stops_the_run(exc)

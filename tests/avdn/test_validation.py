@@ -206,6 +206,19 @@ def test_nan_in_an_unknown_key_is_a_problem(
     ]
 
 
+def test_a_key_repeated_inside_an_unknown_field_is_a_problem(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    # An audit: '"notes": {"who": "alice", "who": "bob"}' passed, and the log kept only bob.
+    root = dataset_factory({"val_seen": [make_record(notes={"who": "alice"})]})
+    path = root / "annotations" / "val_seen_data.json"
+    path.write_text(path.read_text().replace('"who": "alice"', '"who": "alice", "who": "bob"'))
+    _, issues = check_split(root, "val_seen")
+    assert [(i.field, i.message) for i in issues] == [
+        ("notes['who']", "key given more than once (JSON keeps the last value)")
+    ]
+
+
 def test_nan_in_json_text_is_caught(tmp_path: Path, dataset_factory: Callable[..., Path]) -> None:
     root = dataset_factory({"val_seen": [make_record()]})
     path = root / "annotations" / "val_seen_data.json"
@@ -398,6 +411,17 @@ def test_duplicate_episode_id(dataset_factory: Callable[..., Path]) -> None:
     )
     assert (issue.record_index, issue.episode_id, issue.field) == (1, "1913__0_1", "route_index")
     assert "duplicate episode id (first seen in record 0)" in issue.message
+
+
+def test_a_duplicate_of_an_invalid_record_is_reported_too(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    # An audit: only the first copy's problem was reported, the second was converted under
+    # the id the list of what was left out named, and the duplicate never mentioned.
+    root = dataset_factory({"val_seen": [make_record(angle="x"), make_record()]})
+    _, issues = check_split(root, "val_seen")
+    assert [(i.record_index, i.field) for i in issues] == [(0, "angle"), (1, "route_index")]
+    assert "duplicate episode id (first seen in record 0)" in issues[1].message
 
 
 def test_inconsistent_georeference_on_one_map(dataset_factory: Callable[..., Path]) -> None:

@@ -89,6 +89,29 @@ def test_view_says_an_episode_raised_before_writing_its_log(
         )
 
 
+def test_an_episode_that_calls_sys_exit_is_an_error_row_and_the_run_goes_on(
+    tmp_path: Path, small_config: MakeConfig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # An audit: a sys.exit in code an episode called ended the run (exit code 5, no row).
+    import sys
+
+    from skyvln_eval.harness import runner
+
+    build = runner.build_agent
+    calls = iter(range(100))
+
+    def exits_once(config: Any, *args: Any) -> Any:
+        if next(calls) == 0:
+            sys.exit(5)
+        return build(config, *args)
+
+    monkeypatch.setattr(runner, "build_agent", exits_once)
+    report = run(small_config(limit=2), tmp_path / "run")
+    rows = read_results(tmp_path / "run" / RESULTS_FILE)
+    assert report.complete and sorted(r.status for r in rows)[0] == "error"
+    assert sum("SystemExit: 5" in (r.error or "") for r in rows) == 1
+
+
 def test_the_row_of_an_episode_that_raised_keeps_no_orphan_control_log(
     tmp_path: Path, small_config: MakeConfig
 ) -> None:

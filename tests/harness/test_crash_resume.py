@@ -128,3 +128,23 @@ def test_a_worker_process_killed_in_an_episode_costs_that_episode_and_the_run_go
         read_results(tmp_path / "killed" / RESULTS_FILE),
         read_results(tmp_path / "reference" / RESULTS_FILE),
     )
+
+
+def test_episodes_no_worker_process_could_run_are_not_recorded_and_a_resume_runs_them(
+    tmp_path: Path, small_config: MakeConfig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # An audit: workers that all died while starting up left every episode an 'error' row
+    # ("no worker process left"), which a resume kept: they looked like the agent's.
+    from tests.harness.dies_in_workers import PARENT_ENV, identity
+
+    config = small_config(limit=3, agent={"name": "random"}, workers=2, executor="processes")
+    monkeypatch.setenv(PARENT_ENV, str(os.getpid()))
+    report = run(config, tmp_path / "run", task_function=identity)  # type: ignore[arg-type]
+    assert report.stopped is not None and "no worker process left" in report.stopped
+    assert not report.complete and len(report.missing) == 3 and not report.errors
+    assert not (tmp_path / "run" / RESULTS_FILE).is_file() or not read_results(
+        tmp_path / "run" / RESULTS_FILE
+    )
+    monkeypatch.delenv(PARENT_ENV)
+    resumed = run(config, tmp_path / "run")
+    assert resumed.complete and resumed.ran_now == 3 and not resumed.errors

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -16,6 +17,17 @@ def square_or_fail(x: int) -> int:
     if x == 3:
         raise ValueError("three")
     return x * x
+
+
+def exit_on_three(x: int) -> int:
+    if x == 3:
+        sys.exit(3)  # a library that ends the program: the task's failure, not the run's end
+    return x
+
+
+def sleep_long(x: int) -> int:
+    time.sleep(120)
+    return x
 
 
 def crash_worker(x: int) -> int:
@@ -78,6 +90,48 @@ def test_a_worker_process_that_dies_costs_only_the_episode_it_was_running() -> N
     assert {k: v for k, v in results.items() if k != 2} == {k: k for k in range(8) if k != 2}
 
 
+@pytest.mark.parametrize("threads", [1, 2])
+def test_one_worker_process_is_a_process_too(threads: int) -> None:
+    # An audit: one worker ran in the caller's process, where a crash in native code ended
+    # the run (and every resume crashed at the same episode).
+    executor = make_executor("processes", 1, threads_per_worker=threads)
+    results = dict(executor.map_unordered(crash_worker, list(range(5))))
+    assert isinstance(results[2], RuntimeError) and "exited with code 1" in str(results[2])
+    assert sum(not isinstance(v, Exception) for v in results.values()) >= 5 - threads
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="reads the process tree from Linux /proc")
+def test_workers_of_a_killed_parent_end_at_once_not_after_their_episode() -> None:
+    # An audit: they finished their episode (a log appeared 10 s after the parent died),
+    # writing into a run directory whose lock was gone, beside a resume running it again.
+    import signal
+    import subprocess
+
+    from tests.conftest import REPO
+    from tests.processes import alive, children
+
+    script = (
+        "from skyvln_eval.harness.executors import make_executor\n"
+        "from tests.harness.test_executors import sleep_long\n"
+        "list(make_executor('processes', 2).map_unordered(sleep_long, [0, 1]))\n"
+    )
+    parent = subprocess.Popen([sys.executable, "-c", script], cwd=REPO)
+    try:
+        deadline = time.monotonic() + 60
+        while len(children(parent.pid)) < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(2.0)  # the episodes under way (each worker imports, then sleeps)
+        workers = children(parent.pid)
+        assert len(workers) >= 2 and parent.poll() is None
+    finally:
+        parent.send_signal(signal.SIGKILL)
+        parent.wait(timeout=10)
+    deadline = time.monotonic() + 20  # well short of the episodes' 120 s
+    while any(alive(pid) for pid in workers) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(alive(pid) for pid in workers)
+
+
 def test_workers_that_die_while_starting_up_are_not_started_again(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -118,6 +172,18 @@ def test_worker_processes_keep_one_task_queued_and_a_caller_that_stops_starts_no
     outcomes.close()  # as the harness's loop does when it breaks: the pool shuts down
     started = sorted(int(p.name) for p in tmp_path.iterdir())
     assert started == [0, 1, 2, 3], started  # two running, then each worker's queued one
+
+
+@pytest.mark.parametrize(
+    ("kind", "threads"), [("serial", 1), ("threads", 1), ("processes", 1), ("processes", 2)]
+)
+def test_a_task_that_calls_sys_exit_is_its_own_failure(kind: str, threads: int) -> None:
+    # An audit: it hung the processes executor (the worker's receiver thread kept the
+    # process alive) and ended a run of the others with exit code 5 and no row.
+    executor = make_executor(kind, 2, threads_per_worker=threads)  # type: ignore[arg-type]
+    results = dict(executor.map_unordered(exit_on_three, list(range(6))))
+    assert isinstance(results.pop(3), SystemExit)
+    assert results == {k: k for k in range(6) if k != 3}
 
 
 def test_bad_executor_settings() -> None:
