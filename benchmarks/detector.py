@@ -31,11 +31,10 @@ from typing import Any
 import numpy as np
 
 from skyvln_eval.agent import Perception, PerceptionConfig
-from skyvln_eval.agent.base import episode_key
+from skyvln_eval.agent.base import episode_key, episode_seed
 from skyvln_eval.agent.detectors import (
     Detection,
     SimulatedDetector,
-    episode_seed,
 )
 from skyvln_eval.avdn import load_split
 from skyvln_eval.frames import view_to_pose

@@ -66,6 +66,12 @@ def episode_key(episode_id: str) -> int:
     return zlib.crc32(episode_id.encode("utf-8"))
 
 
+def episode_seed(seed: int, episode_key: int) -> int:
+    """An agent's seed for one episode, from its own seed and the episode's key
+    (:attr:`EpisodeBrief.episode_key`)."""
+    return (seed * 1_000_003 + episode_key) % (2**32)
+
+
 @dataclass(frozen=True, eq=False)
 class Observation:
     """What the agent gets at one step.

@@ -21,8 +21,7 @@ from skyvln_eval.agent.actions import (
     action_record,
     decision_json_schema,
 )
-from skyvln_eval.agent.base import Agent, Decision, EpisodeBrief, Observation
-from skyvln_eval.agent.detectors import episode_seed
+from skyvln_eval.agent.base import Agent, Decision, EpisodeBrief, Observation, episode_seed
 from skyvln_eval.agent.hsd import coarse_position
 from skyvln_eval.agent.images import panorama_images
 from skyvln_eval.agent.motion import (

@@ -556,9 +556,3 @@ def known_detectors() -> list[str]:
 def create_detector(name: str, **options: Any) -> Detector:
     """A detector by registry name (``simulated``, ``grounding_dino``, ``vlm``)."""
     return detector_class(name)(**options)
-
-
-def episode_seed(seed: int, episode_key: int) -> int:
-    """A per-episode seed from an agent's seed and the episode's key
-    (:attr:`~skyvln_eval.agent.base.EpisodeBrief.episode_key`)."""
-    return (seed * 1_000_003 + episode_key) % (2**32)

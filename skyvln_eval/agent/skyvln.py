@@ -15,10 +15,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from skyvln_eval.agent.actions import Action, FlyTo, action_record, decision_json_schema
-from skyvln_eval.agent.base import Agent, Decision, EpisodeBrief, Observation
+from skyvln_eval.agent.base import Agent, Decision, EpisodeBrief, Observation, episode_seed
 from skyvln_eval.agent.calls import call_json
 from skyvln_eval.agent.clarify import Clarification, ask_commander
-from skyvln_eval.agent.detectors import episode_seed
 from skyvln_eval.agent.hsd import HsdResult, PhraseMatch, SpatialDescriptor, matches_text
 from skyvln_eval.agent.images import panorama_images
 from skyvln_eval.agent.memory import TrackBackMemory

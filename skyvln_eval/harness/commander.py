@@ -32,7 +32,7 @@ from skyvln_eval.avdn.constants import METERS_PER_DEGREE
 from skyvln_eval.avdn.geometry import view_centre
 from skyvln_eval.avdn.records import DialogTurn, Episode
 from skyvln_eval.frames import latlng_to_enu, view_to_pose
-from skyvln_eval.harness.dynamics_loop import derived_seed
+from skyvln_eval.harness.seeds import derived_seed
 from skyvln_eval.metrics.official import view_success
 from skyvln_eval.vocabulary import compass_word
 from skyvln_eval.worlds.sample import SPLIT_FAMILIES, AnswerFacts, commander_answer, seen_families

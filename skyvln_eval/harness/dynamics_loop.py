@@ -11,7 +11,6 @@ The per-step control log covers the whole episode.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 from dataclasses import dataclass, field
@@ -30,6 +29,7 @@ from skyvln_eval.errors import ConfigError
 from skyvln_eval.frames import ViewPose, enu_yaw_to_compass_deg, pose_to_view, view_to_pose
 from skyvln_eval.harness.config import DynamicsSettings
 from skyvln_eval.harness.rollout import Rollout, episode_brief
+from skyvln_eval.harness.seeds import derived_seed
 from skyvln_eval.sensing import SensorConfig
 
 if TYPE_CHECKING:
@@ -42,12 +42,6 @@ from skyvln_eval.worlds.tile import WorldTile
 
 #: A segment shorter than this gets no obstacles (they are placed where the drone cruises).
 MIN_ROUTE_FOR_OBSTACLES_M = 5.0
-
-
-def derived_seed(*parts: object) -> int:
-    """A 31-bit seed from any parts: independent of run order and worker count."""
-    digest = hashlib.sha256("/".join(str(p) for p in parts).encode()).digest()
-    return int.from_bytes(digest[:4], "big") & 0x7FFFFFFF
 
 
 @dataclass(eq=False)

@@ -41,12 +41,13 @@ from skyvln_eval.frames import ViewPose
 from skyvln_eval.harness.commander import SimulatedCommander
 from skyvln_eval.harness.config import RunConfig
 from skyvln_eval.harness.control_messages import ns
-from skyvln_eval.harness.dynamics_loop import DynamicsRollout, derived_seed, run_dynamics_episode
+from skyvln_eval.harness.dynamics_loop import DynamicsRollout, run_dynamics_episode
 from skyvln_eval.harness.executors import TASK_FAILURES
 from skyvln_eval.harness.official_loop import OfficialRollout, run_official_episode
 from skyvln_eval.harness.oracle import ground_truth_oracle, is_oracle
 from skyvln_eval.harness.rollout import CallsMade
 from skyvln_eval.harness.run_log import RunLogContent, Step, named_views, write_run_log
+from skyvln_eval.harness.seeds import run_episode_seed
 from skyvln_eval.llm_records import LlmCall
 from skyvln_eval.metrics.cost import call_totals
 from skyvln_eval.metrics.records import EpisodeResult, judge_status
@@ -141,10 +142,6 @@ def _agent(config: RunConfig, episode: Episode, seed: int) -> Agent:
     if is_oracle(config.agent.name):
         return ground_truth_oracle(episode)
     return build_agent(config.agent.model_copy(update={"seed": seed}))
-
-
-def episode_seed(config: RunConfig, split: str, episode_id: str) -> int:
-    return derived_seed(config.seed, split, episode_id)
 
 
 def log_path(run_dir: str | Path, split: str, episode_id: str) -> Path:
@@ -270,7 +267,7 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
                 f"expected {task.split}/{task.episode_id}"
             )
         world = _world(task.data_dir, episode.map_name, episode.georef)
-        seed = episode_seed(config, task.split, task.episode_id)
+        seed = run_episode_seed(config.seed, task.split, task.episode_id)
         agent = _agent(config, episode, seed)
         if task.fresh_answers:
             for client in agent.llm_clients():

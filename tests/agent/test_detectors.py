@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from skyvln_eval.agent import Perception, PerceptionConfig, SimulatedDetector
-from skyvln_eval.agent.base import episode_key
+from skyvln_eval.agent.base import episode_key, episode_seed
 from skyvln_eval.agent.detectors import (
     _NAMED_COLOURS,
     _PALETTE,
@@ -22,7 +22,6 @@ from skyvln_eval.agent.detectors import (
     _nearest_colours,
     _nearest_colours_by_box,
     colour_name,
-    episode_seed,
 )
 from skyvln_eval.avdn import load_split
 from skyvln_eval.frames import view_to_pose
