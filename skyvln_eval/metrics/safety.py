@@ -165,8 +165,13 @@ def _duration_s(t: NDArray[np.float64]) -> float | None:
     return float(t.max() - t.min() + np.median(np.diff(np.sort(t))))
 
 
-def summarise_control(log: pd.DataFrame, source: str = "<control log>") -> ControlSummary:
-    """The :class:`ControlSummary` of one controller on one scenario (one group)."""
+def summarise_control(
+    log: pd.DataFrame, source: str = "<control log>", settings: dict[str, Any] | None = None
+) -> ControlSummary:
+    """The :class:`ControlSummary` of one controller on one scenario (one group);
+    ``settings``: how it was flown (else the log's ``attrs["settings"]``, as
+    :func:`read_control_log` and ``load_flight_log`` give them)."""
+    settings = log.attrs.get("settings", {}) if settings is None else settings
     check_control_log(log, source)
     for column in ("controller", "scenario"):
         if log[column].nunique() != 1:
@@ -196,7 +201,7 @@ def summarise_control(log: pd.DataFrame, source: str = "<control log>") -> Contr
         solve_time_p95_ms=float(np.percentile(solve, 95)),
         solve_time_max_ms=float(solve.max()),
         soft_steps=None
-        if not _kept_out_by_a_constraint(controller, log.attrs.get("settings", {}))
+        if not _kept_out_by_a_constraint(controller, settings)
         else int((log["status"] == "solved_soft").sum()),
     )
 
