@@ -16,7 +16,7 @@ import pytest
 import yaml
 
 from skyvln_eval.converters.validate import check_log
-from skyvln_eval.harness import RunConfig, run
+from skyvln_eval.harness import RunConfig, make_executor, run
 from skyvln_eval.harness.crashpoints import CRASH_ENV, SITES
 from skyvln_eval.harness.store import DAMAGED_FILE, RESULTS_FILE, ResultStore
 from skyvln_eval.metrics import read_results
@@ -137,14 +137,14 @@ def test_episodes_no_worker_process_could_run_are_not_recorded_and_a_resume_runs
     # ("no worker process left"), which a resume kept: they looked like the agent's.
     from tests.harness.dies_in_workers import PARENT_ENV, identity
 
-    config = small_config(limit=3, agent={"name": "random"}, workers=2, executor="processes")
+    config = small_config(limit=2, agent={"name": "random"}, workers=2, executor="processes")
     monkeypatch.setenv(PARENT_ENV, str(os.getpid()))
     report = run(config, tmp_path / "run", task_function=identity)  # type: ignore[arg-type]
     assert report.stopped is not None and "no worker process left" in report.stopped
-    assert not report.complete and len(report.missing) == 3 and not report.errors
+    assert not report.complete and len(report.missing) == 2 and not report.errors
     assert not (tmp_path / "run" / RESULTS_FILE).is_file() or not read_results(
         tmp_path / "run" / RESULTS_FILE
     )
     monkeypatch.delenv(PARENT_ENV)
-    resumed = run(config, tmp_path / "run")
-    assert resumed.complete and resumed.ran_now == 3 and not resumed.errors
+    resumed = run(config, tmp_path / "run", executor=make_executor("serial", 1))
+    assert resumed.complete and resumed.ran_now == 2 and not resumed.errors
