@@ -178,6 +178,19 @@ def test_a_backend_spec_is_checked_whole_in_backends_files_and_the_environment(
         environment_backends("SKYVLN_TEST_BACKENDS", BackendsFile())
 
 
+def test_the_shipped_backends_file_loads_and_asks_the_local_server_as_the_plan_does() -> None:
+    from skyvln_eval.harness.plan import load_plan
+    from skyvln_eval.llm.backends_file import load_backends_file
+    from tests.conftest import REPO
+
+    shipped = load_backends_file(REPO / "skyvln_eval" / "configs" / "llm" / "backends.yaml")
+    assert {"gpt-4o-mini", "local-gemma"} <= set(shipped.backends)
+    planned = LLMConfig.model_validate(load_plan("local-llm").table2.backends[0].llm)
+    local = shipped.backends["local-gemma"]
+    same = ("backend", "base_url", "system_role", "timeout_s", "max_concurrency", "budgets")
+    assert {k: getattr(local, k) for k in same} == {k: getattr(planned, k) for k in same}
+
+
 def test_an_option_the_executor_would_not_use_is_refused() -> None:
     from skyvln_eval.harness.executors import make_executor
 

@@ -43,6 +43,7 @@ from skyvln_eval.fileio import atomic_write_json, atomic_write_text, ensure_dire
 from skyvln_eval.harness.executors import ExecutorKind, make_executor
 from skyvln_eval.harness.oracle import is_oracle
 from skyvln_eval.harness.plan import PlannedRun, ReproducePlan, planned_runs
+from skyvln_eval.harness.preflight import PreflightError, absent_local_servers
 from skyvln_eval.harness.run import (
     RUN_INVALID_HINT,
     Progress,
@@ -481,8 +482,14 @@ def reproduce(
     started = time.perf_counter()
     plan = plan.model_copy(update={"data": data or plan.data})  # what the notes name
     data_dir = resolve_data_dir(plan.data)
-    # First: it refuses a plan whose model lacks its API key before anything is written.
+    # First: it refuses a plan whose model lacks its API key before anything is written,
+    # and one whose model is served on this machine where nothing listens (each run
+    # checks too, but after the run folders before it were made).
     runs = planned_runs(plan, out_dir, workers, executor, str(data_dir))
+    for planned in runs:
+        absent = absent_local_servers(planned.config.agent)
+        if absent:
+            raise PreflightError(f"{planned.config.system!r}: {'; '.join(absent)}")
     datasets = _dataset_summary(data_dir)
     atomic_write_json(
         out_dir / "dataset_summary.json",

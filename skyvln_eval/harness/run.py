@@ -210,6 +210,7 @@ def foreign_rows(config: RunConfig, results: Sequence[EpisodeResult]) -> list[st
     the rows of a run that grew in place are its own). Rows of older runs that did not
     record their settings are checked on system and mode alone."""
     settings = config.settings_digest()
+    legacy = config.legacy_settings_digest()  # official runs recorded before 2026-11-29
     found = []
     for r in results:
         differs = []
@@ -219,7 +220,7 @@ def foreign_rows(config: RunConfig, results: Sequence[EpisodeResult]) -> list[st
         if mode is not None and mode != config.mode:
             differs.append(f"execution mode {mode!r}, not {config.mode!r}")
         made = r.extra.get("settings_digest")
-        if made is not None and made != settings:
+        if made is not None and made not in (settings, legacy):
             differs.append(f"settings {made}, not {settings}")
         if differs:
             found.append(f"{r.split}/{r.episode_id}: {'; '.join(differs)}")

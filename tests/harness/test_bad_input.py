@@ -408,7 +408,7 @@ def test_a_bad_option_is_named_as_the_option_not_as_the_config(
 
 
 def test_a_local_model_server_that_is_not_running_is_refused_before_any_episode(
-    tmp_path: Path, sample_dir: Path, cli: Cli
+    tmp_path: Path, sample_dir: Path, cli: Cli, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # Without the server, every call failed and the run (or the local-llm plan) ended as
     # columns of "error" cells, the reason found only in each episode's record.
@@ -422,6 +422,13 @@ def test_a_local_model_server_that_is_not_running_is_refused_before_any_episode(
     outcome = cli("run", str(path), "--out", str(tmp_path / "run"))
     _refused(outcome, f"run 'bad input': agent.llm: nothing answers at {url}", "start the server")
     assert not list((tmp_path / "run").glob("**/results.jsonl")), "no episode may run"
+    # Named in $SKYVLN_EVAL_BACKENDS, reproduce refuses it before any run folder is made
+    # (an audit found all 28 made first, each with a run.json saying "not finished").
+    monkeypatch.setenv("SKYVLN_EVAL_BACKENDS", f"openai:gemma@{url}")
+    out = tmp_path / "reproduce"
+    outcome = cli("reproduce", "--data-dir", str(sample_dir), "--out", str(out), "--limit", "1")
+    _refused(outcome, f"agent.llm: nothing answers at {url}")
+    assert not (out / "runs").exists()
     with socket.socket() as server:  # something listening there: the run goes ahead
         server.bind(("127.0.0.1", port))
         server.listen()

@@ -427,6 +427,35 @@ def test_rows_another_configuration_made_are_refused_by_resume_and_score(
     assert alone.code == 2 and "has rows made by different settings" in alone.err, alone
 
 
+def test_an_official_run_records_no_flight_settings_and_keeps_rows_made_with_them(
+    tmp_path: Path, small_config: MakeConfig
+) -> None:
+    # An audit: official-mode runs recorded "dynamics: {controller: nmpc, obstacles:
+    # crossing}" in config.yaml and every run MCAP, though nothing flew, and a changed
+    # flight setting (unused) refused the resume.
+    import dataclasses
+
+    from skyvln_eval.harness.run import foreign_rows
+    from skyvln_eval.harness.runner import log_path
+
+    config = small_config(limit=1)
+    assert config.mode == "official"
+    run_dir = tmp_path / "run"
+    assert run(config, run_dir).complete
+    assert "dynamics" not in yaml.safe_load((run_dir / "config.yaml").read_text())
+    [row] = read_results(run_dir / RESULTS_FILE)
+    meta = read_log(log_path(run_dir, row.split, row.episode_id)).metadata[t.RUN_METADATA]
+    assert "dynamics" not in yaml.safe_load(meta["config"]) and "seed" in meta["config"]
+    changed = small_config(limit=1, dynamics={"cruise_speed_m_s": 10.0})
+    assert run(changed, run_dir).ran_now == 0
+    # Rows recorded while the settings digest covered the unused flight settings.
+    legacy = config.legacy_settings_digest()
+    assert legacy is not None and legacy != config.settings_digest()
+    older = dataclasses.replace(row, extra=row.extra | {"settings_digest": legacy})
+    assert foreign_rows(config, [older]) == []
+    assert small_config(limit=1, mode="dynamics").legacy_settings_digest() is None
+
+
 def test_a_resume_with_other_code_is_recorded_and_warns_that_the_run_mixes_versions(
     tmp_path: Path, small_config: MakeConfig
 ) -> None:
