@@ -18,6 +18,8 @@ from skyvln_eval.avdn.constants import EpisodeMode
 from skyvln_eval.errors import ConfigError, DataError, listed
 
 if TYPE_CHECKING:
+    import pandas as pd
+
     from skyvln_eval.metrics import EpisodeResult, MetricConventions
     from skyvln_eval.metrics.aggregate import CiUnit
 
@@ -249,22 +251,10 @@ def score(
     splits, episodes and limit); other results, given --data-dir, every episode of their
     split. An incomplete run is refused unless --allow-incomplete.
     """
-    from rich.console import Console
-    from rich.table import Table
-
     from skyvln_eval.fileio import atomic_write_text
     from skyvln_eval.metrics import score_results, summarise
-    from skyvln_eval.metrics.aggregate import oracle_systems, unit_of
     from skyvln_eval.metrics.scores_io import summary_csv_text, write_scores
-    from skyvln_eval.reports.paper_tables import (
-        ORACLE_NOTE,
-        STAND_IN_MARKERS,
-        marked_labels,
-        oracle_label,
-        stand_in_systems,
-    )
     from skyvln_eval.reports.run_coverage import covered_results, long_path_warnings
-    from skyvln_eval.reports.tables import ERRORS_MEANING, SOME_ERRORS
 
     data_dir = None if data_dir_text is None else _data_dir(data_dir_text)
     conventions = _conventions(threshold_m, distance, non_strict, legacy_gp, collisions_succeed)
@@ -279,11 +269,33 @@ def score(
     out.mkdir(parents=True, exist_ok=True)
     write_scores(out / "scores.csv", scores, conventions, warnings)
     atomic_write_text(out / "summary.csv", summary_csv_text(summary, conventions, warnings))
+    _print_summary(summary, scores, conventions.describe(), warnings)
+    typer.echo(f"wrote {out / 'scores.csv'} and {out / 'summary.csv'}")
+
+
+def _print_summary(
+    summary: pd.DataFrame, scores: pd.DataFrame, conventions: str, warnings: list[str]
+) -> None:
+    """The per-system summary as a table on the terminal, with the warnings above and
+    below it and the notes its marks need (oracle, stand-ins, error cells)."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from skyvln_eval.metrics.aggregate import oracle_systems, unit_of
+    from skyvln_eval.reports.paper_tables import (
+        ORACLE_NOTE,
+        STAND_IN_MARKERS,
+        marked_labels,
+        oracle_label,
+        stand_in_systems,
+    )
+    from skyvln_eval.reports.tables import ERRORS_MEANING, SOME_ERRORS
+
     title = "scores"
     if warnings:
         incomplete = any(w.startswith("INCOMPLETE") for w in warnings)
         title += (" OF INCOMPLETE RESULTS" if incomplete else "") + " (see the warnings)"
-    table = Table(title=title, caption=conventions.describe())
+    table = Table(title=title, caption=conventions)
     shown = [m for m in PRINTED_METRICS if m in set(summary.metric)]
     # Two rows of one system and split are told apart by their mode (ANDH, ANDH-Full); a
     # printout of ANDH-Full alone says so too (ANDH is the default task).
@@ -320,7 +332,6 @@ def score(
         console.print(ERRORS_MEANING, markup=False, highlight=False)
     for warning in warnings:  # again below the table, where the eye lands
         console.print(f"WARNING: {warning}", style="bold red", markup=False, highlight=False)
-    console.print(f"wrote {out / 'scores.csv'} and {out / 'summary.csv'}")
 
 
 def _ci_unit(text: str | None) -> CiUnit:
