@@ -34,6 +34,11 @@ def test_ci_fails_unless_pytest_ran_tests_and_passed(
     fake.parent.mkdir()
     fake.write_text(FAKE_PYTHON)
     fake.chmod(fake.stat().st_mode | stat.S_IXUSR)
+    # A chromium on PATH: without one, the script (as root) runs apt-get, which a test must
+    # not (the machine's packages; the network; left running when the timeout kills bash).
+    browser = tmp_path / "bin" / "chromium"
+    browser.write_text("#!/bin/sh\nexit 0\n")
+    browser.chmod(browser.stat().st_mode | stat.S_IXUSR)
     env = {
         **os.environ,
         "PATH": f"{fake.parent}{os.pathsep}{os.environ['PATH']}",

@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any, Final
 
 from skyvln_eval.errors import LLMError
+from skyvln_eval.paths import cache_root
 
 #: prctl option: the signal a process gets when its parent ends (linux/prctl.h).
 PR_SET_PDEATHSIG: Final = 1
@@ -75,9 +76,32 @@ def _has_llama_cpp(python: str) -> bool:
     return subprocess.run([python, "-c", probe], capture_output=True, check=False).returncode == 0
 
 
+#: Where the model file is assembled from its package's chunks: the toolkit's cache (the
+#: package's own default is a folder of the user's home, left there by every test run).
+#: Assembled under a temporary name first: the package writes its target in place, and
+#: one cut short was "a file with an unexpected sha256" that stopped every later start.
+_ASSEMBLE = """
+import os, sys
+from pathlib import Path
+from {package} import assemble
+target = Path(sys.argv[1])
+if not target.exists():
+    part = target.with_name(f".{{target.name}}.{{os.getpid()}}.tmp")
+    try:
+        assemble(part)
+        os.replace(part, target)
+    finally:
+        part.unlink(missing_ok=True)
+print(assemble(target))
+"""
+
+
 def _packaged_model(python: str) -> Path | None:
-    code = f"from {GGUF_PACKAGE} import assemble; print(assemble())"
-    done = subprocess.run([python, "-c", code], capture_output=True, text=True, check=False)
+    target = cache_root() / "models" / f"{GGUF_PACKAGE}.gguf"
+    code = _ASSEMBLE.format(package=GGUF_PACKAGE)
+    done = subprocess.run(
+        [python, "-c", code, str(target)], capture_output=True, text=True, check=False
+    )
     if done.returncode != 0:
         return None
     path = Path(done.stdout.strip().splitlines()[-1]) if done.stdout.strip() else None

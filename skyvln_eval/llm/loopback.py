@@ -305,8 +305,14 @@ class _QuietServer(ThreadingHTTPServer):
             super().handle_error(request, client_address)
 
 
+#: The one endpoint the server answers (OpenAI's chat completions under ``base_url``).
+CHAT_PATH = "/v1/chat/completions"
+
+
 class LoopbackOpenAIServer:
-    """``with LoopbackOpenAIServer(script) as server:``; ``server.base_url`` ends in /v1."""
+    """``with LoopbackOpenAIServer(script) as server:``; ``server.base_url`` ends in /v1.
+
+    It answers only POST /v1/chat/completions with a bearer key (any), as a real server."""
 
     def __init__(
         self,
@@ -375,7 +381,18 @@ class LoopbackOpenAIServer:
 
             def do_POST(self) -> None:
                 length = int(self.headers.get("Content-Length", "0"))
-                body = json.loads(self.rfile.read(length) or b"{}")
+                raw = self.rfile.read(length)
+                # As a real server: only its chat endpoint, and only with a key (OpenAI's
+                # answers 401 without one; llama.cpp and vLLM take any). A client that
+                # posted elsewhere or sent no key passed every test against an earlier
+                # version of this server, which answered any request.
+                if self.path.split("?")[0].rstrip("/") != CHAT_PATH:
+                    self._error(404, message=f"no such endpoint: POST {self.path}")
+                    return
+                if not self.headers.get("Authorization", "").startswith("Bearer "):
+                    self._error(401, message="missing bearer token (Authorization header)")
+                    return
+                body = json.loads(raw or b"{}")
                 data = _task_data(body)
                 task = None if data is None else str(data["task"])
                 with outer._lock:

@@ -161,8 +161,10 @@ def test_obstacles_added_per_segment_keep_moving_across_segments() -> None:
 def test_more_obstacles_than_slots_are_still_avoided() -> None:
     ctl = controller("nmpc", max_obstacles=2)
     flight = Flight(ctl, START, scenario=scenario("crossing", seed=5, n_obstacles=5))
-    log = flight.fly_to(TARGET).log
-    assert (log.min_clearance_m >= 0).all()
+    result = flight.fly_to(TARGET)
+    # It got there, kept out of them, and they came close (or keeping out proved nothing).
+    assert result.reached and (result.log.min_clearance_m >= 0).all()
+    assert result.log.min_clearance_m.min() < 0.5
 
 
 def test_a_long_segment_gets_the_time_it_needs_by_default() -> None:

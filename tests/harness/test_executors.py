@@ -25,7 +25,9 @@ def exit_on_three(x: int) -> int:
     return x
 
 
-def sleep_long(x: int) -> int:
+def sleep_long(task: tuple[str, int]) -> int:
+    folder, x = task
+    (Path(folder) / str(x)).touch()  # under way
     time.sleep(120)
     return x
 
@@ -101,7 +103,7 @@ def test_one_worker_process_is_a_process_too(threads: int) -> None:
 
 
 @pytest.mark.skipif(sys.platform != "linux", reason="reads the process tree from Linux /proc")
-def test_workers_of_a_killed_parent_end_at_once_not_after_their_episode() -> None:
+def test_workers_of_a_killed_parent_end_at_once_not_after_their_episode(tmp_path: Path) -> None:
     # An audit: they finished their episode (a log appeared 10 s after the parent died),
     # writing into a run directory whose lock was gone, beside a resume running it again.
     import signal
@@ -111,22 +113,23 @@ def test_workers_of_a_killed_parent_end_at_once_not_after_their_episode() -> Non
     from tests.processes import alive, children
 
     script = (
+        "import sys\n"
         "from skyvln_eval.harness.executors import make_executor\n"
         "from tests.harness.test_executors import sleep_long\n"
-        "list(make_executor('processes', 2).map_unordered(sleep_long, [0, 1]))\n"
+        "tasks = [(sys.argv[1], 0), (sys.argv[1], 1)]\n"
+        "list(make_executor('processes', 2).map_unordered(sleep_long, tasks))\n"
     )
-    parent = subprocess.Popen([sys.executable, "-c", script], cwd=REPO)
+    parent = subprocess.Popen([sys.executable, "-c", script, str(tmp_path)], cwd=REPO)
     try:
-        deadline = time.monotonic() + 60
-        while len(children(parent.pid)) < 2 and time.monotonic() < deadline:
-            time.sleep(0.05)
-        time.sleep(2.0)  # the episodes under way (each worker imports, then sleeps)
+        deadline = time.monotonic() + 120
+        while len(list(tmp_path.iterdir())) < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)  # until both episodes are under way
         workers = children(parent.pid)
-        assert len(workers) >= 2 and parent.poll() is None
+        assert len(list(tmp_path.iterdir())) == 2 and parent.poll() is None
     finally:
         parent.send_signal(signal.SIGKILL)
         parent.wait(timeout=10)
-    deadline = time.monotonic() + 20  # well short of the episodes' 120 s
+    deadline = time.monotonic() + 60  # well short of the episodes' 120 s
     while any(alive(pid) for pid in workers) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert not any(alive(pid) for pid in workers)

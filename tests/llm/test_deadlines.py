@@ -25,11 +25,15 @@ from skyvln_eval.llm.loopback import LoopbackOpenAIServer, answer, status, trick
 from skyvln_eval.metrics import read_results
 
 HELLO = [Message("user", "Say hello.")]
-#: About 300 bytes at 50 ms each: the whole answer would take some 15 s, every byte of it
-#: well within any read timeout.
-SLOW = trickle('{"greeting": "hello"}', 0.05)
-#: Time a bounded call may overrun its bound: thread hand-over and a loaded machine.
-SLACK_S = 0.4
+#: About 300 bytes at 200 ms each: the whole answer would take about a minute, every byte
+#: of it well within any read timeout.
+SLOW = trickle('{"greeting": "hello"}', 0.2)
+#: What a call bounded at half a second may not reach: half the answer's minute. Far above
+#: the bound, so that a loaded machine cannot fail the test (one failed at 6 s, the openai
+#: client's first import included, while another suite ran); far below what an unbounded
+#: call takes, so that a bound that does not hold does. What is checked besides is counted:
+#: attempts and their errors, not clock readings.
+CUT_OFF_S = 30.0
 
 
 def test_a_byte_at_a_time_answer_is_cut_off_at_the_timeout() -> None:
@@ -38,24 +42,26 @@ def test_a_byte_at_a_time_answer_is_cut_off_at_the_timeout() -> None:
         started = time.monotonic()
         with pytest.raises(LLMTransientError, match=r"within 0\.5 s .*connect to last byte"):
             backend.generate(HELLO, GenerationConfig(timeout_s=0.5))
-        assert time.monotonic() - started < 0.5 + SLACK_S
+        assert time.monotonic() - started < CUT_OFF_S
         # The backend is not left stuck on the abandoned request: the next call is answered.
         completion = backend.generate(HELLO, GenerationConfig(timeout_s=5.0))
     assert completion.text == '{"greeting": "hi"}'
 
 
 def test_retries_fit_in_the_calls_deadline() -> None:
-    policy = RetryPolicy(max_attempts=5, initial_delay_s=0.05, jitter=0.0, deadline_s=1.2)
-    with LoopbackOpenAIServer([SLOW] * 5) as server:
+    # Twenty 0.5 s attempts would take 10 s: the 1.2 s deadline leaves room for two or
+    # three, which the records count (their number, not a clock, is what is checked).
+    policy = RetryPolicy(max_attempts=20, initial_delay_s=0.05, jitter=0.0, deadline_s=1.2)
+    with LoopbackOpenAIServer([SLOW] * 20) as server:
         backend = create_backend("openai:slow-model", base_url=server.base_url)
         client = LLMClient(backend, retry=policy)
         started = time.monotonic()
         result = client.call("motion", HELLO, GenerationConfig(timeout_s=0.5))
         elapsed = time.monotonic() - started
     assert result.completion is None
-    assert elapsed < 1.2 + SLACK_S, "five 0.5 s attempts must not outlast a 1.2 s deadline"
     assert 2 <= len(result.records) <= 3
-    assert all(r.latency_s < 0.5 + SLACK_S for r in result.records)
+    assert elapsed < CUT_OFF_S, "twenty 0.5 s attempts must not outlast a 1.2 s deadline"
+    assert all(r.latency_s < CUT_OFF_S for r in result.records)
     for record in result.records:  # each attempt cut off, the last one maybe by the deadline
         error = record.error or ""
         assert "connect to last byte" in error or "deadline" in error
@@ -114,12 +120,8 @@ def test_a_run_against_a_byte_at_a_time_server_ends_within_its_deadlines(
     rows = read_results(tmp_path / "run" / RESULTS_FILE)
     calls = [c for row in rows for c in row.llm_calls]
     assert len(rows) == 3 and calls
-    assert all(c.latency_s < 0.5 + SLACK_S for c in calls), [c.latency_s for c in calls]
-    # Each logical call (a first attempt and its retries) within its 1 s deadline.
-    per_call: list[float] = []
-    for call in calls:
-        if call.attempt == 1:
-            per_call.append(0.0)
-        per_call[-1] += call.latency_s
-    assert max(per_call) < 1.0 + SLACK_S
-    assert elapsed < sum(per_call) + 3 * 5.0  # LLM time plus a generous per-episode overhead
+    assert all(c.latency_s < CUT_OFF_S for c in calls), [c.latency_s for c in calls]
+    # Each logical call is a first attempt and its one retry: none ran to its answer.
+    assert all(c.attempt in (1, 2) for c in calls)
+    assert all("connect to last byte" in (c.error or "") for c in calls)
+    assert elapsed < len(calls) * CUT_OFF_S  # were any answer waited for, one alone took 60 s

@@ -272,3 +272,27 @@ def test_a_generation_that_failed_on_the_servers_side_is_a_retried_fault() -> No
     assert "the server's generation failed (finish_reason 'error')" in (
         result.records[0].error or ""
     )
+
+
+def test_the_loopback_server_answers_only_its_endpoint_and_only_with_a_key() -> None:
+    # The test server answered any request: a client that posted elsewhere, or sent no
+    # key, passed every test against it. It now refuses them as a real server would.
+    import urllib.error
+    import urllib.request
+
+    def post(url: str, headers: dict[str, str]) -> int:
+        request = urllib.request.Request(url, data=b"{}", headers=headers, method="POST")
+        try:
+            with urllib.request.urlopen(request, timeout=10) as response:
+                return int(response.status)
+        except urllib.error.HTTPError as error:
+            return int(error.code)
+
+    key = {"Authorization": "Bearer sk-test", "Content-Type": "application/json"}
+    with LoopbackOpenAIServer() as server:
+        assert post(f"{server.base_url}/chat/completions", key) == 200
+        assert post(f"{server.base_url}/completions", key) == 404
+        assert post(f"{server.base_url}/chat/completions", {}) == 401
+        assert len(server.requests) == 1  # only the one it answered
+        # The toolkit's client posts where a real server listens, with its key.
+        assert _client(server).call("motion", HELLO, CONFIG).text
