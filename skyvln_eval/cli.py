@@ -302,7 +302,7 @@ def validate(
     ] = False,
 ) -> None:
     """Report every problem in the given datasets, MCAP logs or run directories; exit 1 if
-    there is any.
+    there is any, 2 for a path that is none of them.
 
     MCAP files are checked byte by byte (CRCs), message by message (JSON schema of their
     channel) and for their format version; folders of converted logs also against their
@@ -314,7 +314,7 @@ def validate(
     from skyvln_eval.converters.commands import is_mcap_target, run_validate_mcap
     from skyvln_eval.harness.run_check import run_directories_at
 
-    problems = 0
+    problems = unreadable = 0
     checked_maps: set[tuple[Path, str]] = set()
     for target in targets:
         path = data_dir_argument(target)  # "sample" as summary and convert read it
@@ -350,16 +350,28 @@ def validate(
                     _echo_problem(problem)
                     problems += 1
         if not found:
-            missing = not Path(path).exists()
-            _echo_problem(
-                f"{path}: no such file or directory"
-                if missing
-                else f"{path}: no annotations/<split>_data.json found (not a dataset), and "
-                "no MCAP logs or run directory (no config.yaml or results.jsonl) in it"
-            )
-            problems += 1
+            _echo_problem(_not_validated(Path(path)))
+            unreadable += 1
+    if unreadable:  # a wrong argument, as other commands answer one
+        raise typer.Exit(2)
     if problems:
         raise typer.Exit(1)
+
+
+def _not_validated(path: Path) -> str:
+    """Why ``validate`` cannot read ``path`` as a dataset, MCAP logs or a run directory."""
+    if not path.exists():
+        return f"{path}: no such file or directory"
+    if path.is_file():
+        run_dir = f"; validate its run directory, {path.parent}" if path.suffix == ".jsonl" else ""
+        return (
+            f"{path}: a file validate does not read (it reads datasets, MCAP logs and run "
+            f"directories){run_dir}"
+        )
+    return (
+        f"{path}: no annotations/<split>_data.json found (not a dataset), and no MCAP logs "
+        "or run directory (no config.yaml or results.jsonl) in it"
+    )
 
 
 @app.command()

@@ -112,11 +112,18 @@ def test_validate_names_a_bad_landmarks_file_and_its_field(
 
 
 def test_validate_a_folder_without_annotations(tmp_path: Path) -> None:
+    # What validate cannot read is a wrong argument: exit 2, as other commands answer one
+    # (it was 1, a problem found in what it checked).
     result = runner.invoke(app, ["validate", str(tmp_path)])
-    assert result.exit_code == 1
+    assert result.exit_code == 2
     assert "no annotations" in result.output
     missing = runner.invoke(app, ["validate", str(tmp_path / "nope")])
-    assert missing.exit_code == 1 and "nope: no such file or directory" in missing.output
+    assert missing.exit_code == 2 and "nope: no such file or directory" in missing.output
+    rows = tmp_path / "run" / "results.jsonl"
+    rows.parent.mkdir()
+    rows.write_text("{}\n")
+    given = runner.invoke(app, ["validate", str(rows)])
+    assert given.exit_code == 2 and f"validate its run directory, {rows.parent}" in given.output
 
 
 def test_summary_skip_invalid_reports_what_it_skipped(dataset_factory: Callable[..., Path]) -> None:

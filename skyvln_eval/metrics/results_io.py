@@ -253,6 +253,13 @@ def results_from_jsonl_bytes(data: bytes, file: str = "<jsonl>") -> list[Episode
             obj = json.loads(line)
         except json.JSONDecodeError as exc:
             message = f"not valid JSON (column {exc.colno}: {exc.msg})"
+            if row + 2 == len(lines) and not data.endswith(b"\n"):
+                # The last row, without its line end: a write cut short (a killed run).
+                message += (
+                    "; it is the last row and has no line end: a write cut short, as a "
+                    "killed run leaves; resume the run (the same command) to set it aside "
+                    "and run its episode again"
+                )
             raise _where(file, row, None, "", message, line=row + 2) from None
         results.append(result_from_json_dict(obj, file, row, line=row + 2))
     check_unique(results, file)

@@ -98,11 +98,14 @@ def _input_files(path: Path) -> list[Path]:
     if path.is_dir():
         if (path / RESULTS_FILE).is_file():
             return [path / RESULTS_FILE]
-        runs = sorted(d / RESULTS_FILE for d in path.iterdir() if (d / RESULTS_FILE).is_file())
+        from skyvln_eval.harness.run_check import run_directories_at
+
+        # The run directories below it, at any depth: a reproduction's output or its runs/.
+        runs = [d / RESULTS_FILE for d in run_directories_at(path) if (d / RESULTS_FILE).is_file()]
         if runs:
             return runs
         raise DataError(
-            f"{path}: a directory without {RESULTS_FILE}, here or in its folders, so not a run "
+            f"{path}: a directory without {RESULTS_FILE}, here or below, so not a run "
             "directory nor a folder of them (or runs that recorded no episode yet); give a run "
             "directory, a results file (.jsonl, .parquet) or a predictions file (.npy, .json)"
         )
@@ -255,6 +258,7 @@ def score(
     from skyvln_eval.metrics import score_results, summarise
     from skyvln_eval.metrics.scores_io import summary_csv_text, write_scores
     from skyvln_eval.reports.run_coverage import covered_results, long_path_warnings
+    from skyvln_eval.reports.table_layout import LAYOUT_FILE, read_layout
 
     data_dir = None if data_dir_text is None else _data_dir(data_dir_text)
     conventions = _conventions(threshold_m, distance, non_strict, legacy_gp, collisions_succeed)
@@ -267,6 +271,15 @@ def score(
         scores, metrics, resamples, seed=seed, ci_unit=_ci_unit(ci_unit), warn_errors=False
     )
     out.mkdir(parents=True, exist_ok=True)
+    # Reproduce's layout of the scores these replace: kept while it places every system
+    # scored (the same runs scored again, say with another threshold), else removed: the
+    # tables made from these scores left the systems it did not know out, without a word.
+    layout = out / LAYOUT_FILE
+    if layout.is_file():
+        placed = {row for t in read_layout(layout).tables.values() for row in t.rows}
+        if not set(scores["system"].astype(str)) <= placed:
+            layout.unlink()
+            typer.echo(f"removed {layout}: it laid out other systems than these scores'")
     write_scores(out / "scores.csv", scores, conventions, warnings)
     atomic_write_text(out / "summary.csv", summary_csv_text(summary, conventions, warnings))
     _print_summary(summary, scores, conventions.describe(), warnings)

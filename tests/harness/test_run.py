@@ -549,3 +549,33 @@ def test_an_episode_file_cut_short_is_damaged(tmp_path: Path) -> None:
     log.write_bytes(b"\x89MCAP0\r\n" + b"\0" * 40)
     damage = file_damage(log)
     assert damage is not None and damage.startswith("damaged: truncated or unfinished MCAP")
+
+
+def test_score_reads_the_runs_below_a_folder_and_drops_a_layout_of_other_systems(
+    tmp_path: Path, small_config: MakeConfig, cli: Any
+) -> None:
+    # An audit: `score` refused a reproduction's output ("a directory without
+    # results.jsonl") where validate found its runs, and scores written into a folder
+    # holding another reproduction's tables.json made tables that left their systems out.
+    from skyvln_eval.reports.table_layout import (
+        LAYOUT_FILE,
+        ReproducedTables,
+        TableLayout,
+        write_layout,
+    )
+
+    config = small_config(limit=1, agent={"name": "random"})
+    assert run(config, tmp_path / "rep" / "runs" / "test-system" / "val_unseen").complete
+    out = tmp_path / "rep" / "scores"
+    out.mkdir()
+    others = ReproducedTables({"table1": TableLayout(("Random",), ())}, 10, 0, ())
+    write_layout(out, others)
+    scored = cli("score", str(tmp_path / "rep"), "--out", str(out), "--resamples", "0")
+    assert scored.code == 0, scored
+    assert f"removed {out / LAYOUT_FILE}" in scored.out and not (out / LAYOUT_FILE).exists()
+    # A layout that places the system scored (the same runs scored again) is kept.
+    own = ReproducedTables({"table1": TableLayout((config.system,), ())}, 10, 0, ())
+    write_layout(out, own)
+    again = cli("score", str(tmp_path / "rep" / "runs"), "--out", str(out), "--resamples", "0")
+    assert again.code == 0, again
+    assert (out / LAYOUT_FILE).is_file()

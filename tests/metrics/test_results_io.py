@@ -159,6 +159,22 @@ def test_bad_rows_are_located(tmp_path: Path) -> None:
             read_results(path)
 
 
+def test_a_last_row_cut_short_says_it_was_a_killed_write_and_what_to_do(tmp_path: Path) -> None:
+    # An audit: "record 3 on line 5: not valid JSON", with no cause and no way out.
+    path = tmp_path / "results.jsonl"
+    write_results(path, rich_results())
+    text = path.read_text()
+    path.write_text(text[: len(text) - 40])  # the last row's write cut short
+    with pytest.raises(DataError, match=r"has no line end: a write cut short.*resume the run"):
+        read_results(path)
+    lines = text.splitlines()  # a broken row with its line end is no cut write: not said
+    lines[1] = lines[1][:30]
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DataError) as refused:
+        read_results(path)
+    assert "not valid JSON" in str(refused.value) and "cut short" not in str(refused.value)
+
+
 def test_duplicates_and_unknown_suffixes_are_refused(tmp_path: Path) -> None:
     one = rich_results()[0]
     with pytest.raises(ResultRecordError, match="duplicate"):
