@@ -19,7 +19,7 @@ from skyvln_eval.converters.convert import (
     convert_episode,
     episode_metadata,
 )
-from skyvln_eval.converters.hf import export_parquet, to_hf_dataset
+from skyvln_eval.converters.hf import export_parquet, read_episode_table, to_hf_dataset
 from skyvln_eval.converters.left_out import LEFT_OUT_NAME, LeftOut, read_left_out
 from skyvln_eval.converters.manifest import (
     MANIFEST_NAME,
@@ -70,6 +70,7 @@ __all__ = [
     "message_digest",
     "read_episode",
     "read_episode_bytes",
+    "read_episode_table",
     "read_left_out",
     "read_log",
     "read_log_bytes",

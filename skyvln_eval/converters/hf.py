@@ -3,8 +3,14 @@
 For users who prefer tables to logs. Rows are built from verified episode logs (so a
 table can never hold what a damaged file would have given): ids, dialog, GT views as
 arrays (``[lat, lng]`` degrees and ENU poses), lengths in metres, the verbatim source
-records, and optionally the GT observation images (JPEG/PNG bytes). ``datasets`` is
-imported only when these functions run.
+records, and optionally the GT observation images (JPEG/PNG bytes), and where each row
+came from: the log's toolkit version and, for a log ``convert`` wrote, the fingerprint of
+its input (records, map image, options) and of its map image. ``datasets`` is imported
+only when these functions run.
+
+The rows hold their source's data: the AVDN records (and, with observations, crops of
+the map images: xView's for the real dataset) come under their own terms, which the
+table's description repeats; the synthetic sample is the toolkit's own.
 """
 
 from __future__ import annotations
@@ -57,6 +63,9 @@ def _features(include_observations: bool) -> datasets.Features:
         "d_net_m": datasets.Value("float64"),
         "records_json": datasets.Value("string"),
         "file_name": datasets.Value("string"),
+        "toolkit_version": datasets.Value("string"),
+        "input_sha256": datasets.Value("string"),
+        "map_image_sha256": datasets.Value("string"),
     }
     if include_observations:
         columns["gt_observations"] = datasets.Sequence(datasets.Value("binary"))
@@ -72,6 +81,7 @@ def episode_row(path: str | Path, include_observations: bool = False) -> dict[st
     """
     log = read_log(path)
     episode = episode_from_log(log)
+    conversion = log.metadata.get(topics.CONVERSION_METADATA, {})
     views = episode.gt_path_corners
     poses = [view_to_pose(v, episode.georef) for v in views]
     gt_length, d_net = gt_lengths_m(episode)
@@ -96,6 +106,10 @@ def episode_row(path: str | Path, include_observations: bool = False) -> dict[st
         "d_net_m": d_net,
         "records_json": log.metadata[topics.EPISODE_METADATA]["records"],
         "file_name": Path(path).name,
+        "toolkit_version": log.metadata[topics.EPISODE_METADATA].get("toolkit_version", ""),
+        # "" for a log not written by `convert` (a run's episode log has no conversion).
+        "input_sha256": conversion.get("input_sha256", ""),
+        "map_image_sha256": conversion.get("map_image_sha256", ""),
     }
     if include_observations:
         images = [m.decode() for m in log.topic(topics.TOPIC_GT_OBSERVATION)]
@@ -125,11 +139,54 @@ def to_hf_dataset(
     rows = [episode_row(p, include_observations) for p in _log_paths(source)]
     features = _features(include_observations)
     columns = {name: [row[name] for row in rows] for name in features}
-    table = datasets.Dataset.from_dict(columns, features=features)
+    info = datasets.DatasetInfo(description=DESCRIPTION, features=features)
+    return _float64_arrays(datasets.Dataset.from_dict(columns, info=info))
+
+
+#: The table's description (kept in its parquet file's metadata).
+DESCRIPTION = (
+    "AVDN-format aerial vision-and-dialog navigation episodes, one row per episode, "
+    "converted from episode logs by skyvln-eval. The records and images keep their "
+    "source's terms: the AVDN annotations and xView imagery for the real dataset, the "
+    "toolkit's own for its synthetic sample. gt_views_latlng: each view's four corners "
+    "[lat, lng] in degrees; gt_poses_enu: x_m, y_m, z_m (height = edge / 2), yaw_rad in "
+    "the map's ENU frame; lengths in metres; records_json: the verbatim source records; "
+    "input_sha256 / map_image_sha256: the conversion's input and map image."
+)
+
+
+def _float64_arrays(table: datasets.Dataset) -> datasets.Dataset:
     table.set_format(
         "numpy", columns=list(ARRAY_COLUMNS), output_all_columns=True, dtype=np.float64
     )
     return table
+
+
+#: The parquet metadata key of the table's description (``datasets`` keeps only features).
+DESCRIPTION_KEY = b"skyvln_eval.description"
+
+
+def _describe_parquet(path: Path, description: str) -> None:
+    """Put ``description`` into the parquet file's metadata (rewritten in place)."""
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(path)
+    metadata = {**(table.schema.metadata or {}), DESCRIPTION_KEY: description.encode()}
+    pq.write_table(table.replace_schema_metadata(metadata), path)
+
+
+def read_episode_table(path: str | Path) -> datasets.Dataset:
+    """A table :func:`export_parquet` wrote, with its description, its array columns
+    float64 as written (``datasets``' own reading gives float32 in NumPy format: about a
+    metre off)."""
+    import datasets
+    import pyarrow.parquet as pq
+
+    table = datasets.Dataset.from_parquet(str(path))
+    described = (pq.read_schema(path).metadata or {}).get(DESCRIPTION_KEY)
+    if described is not None:
+        table.info.description = described.decode()
+    return _float64_arrays(table)
 
 
 def export_parquet(dataset: datasets.Dataset, path: str | Path) -> Path:
@@ -140,6 +197,7 @@ def export_parquet(dataset: datasets.Dataset, path: str | Path) -> Path:
     os.close(fd)
     try:
         dataset.to_parquet(tmp)
+        _describe_parquet(Path(tmp), dataset.info.description or DESCRIPTION)
         usual_permissions(tmp)
         Path(tmp).replace(path)
     except BaseException:

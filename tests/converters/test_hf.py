@@ -10,7 +10,12 @@ import numpy as np
 
 from skyvln_eval.avdn import observe_view, parse_record
 from skyvln_eval.converters.batch import episode_file_name
-from skyvln_eval.converters.hf import export_parquet, records_of_row, to_hf_dataset
+from skyvln_eval.converters.hf import (
+    export_parquet,
+    read_episode_table,
+    records_of_row,
+    to_hf_dataset,
+)
 from skyvln_eval.frames import view_to_pose
 from skyvln_eval.worlds import load_world
 from tests.converters.conftest import ConvertedSample
@@ -48,6 +53,16 @@ def test_one_row_per_episode_with_gt_views_as_arrays(
     back = datasets.Dataset.from_parquet(str(path))
     assert back.num_rows == table.num_rows and back.column_names == table.column_names
     assert [p.name for p in path.parent.iterdir()] == ["val_seen.parquet"]
+    # Read back with the toolkit's reader, the arrays are the float64 written (datasets'
+    # own NumPy format gave float32, ~0.4 m off in latitude), and the table says what it
+    # holds and where each row came from.
+    again = read_episode_table(path)
+    for row, original in zip(again, table, strict=True):
+        assert row["gt_views_latlng"].dtype == np.float64
+        assert np.array_equal(row["gt_views_latlng"], original["gt_views_latlng"])
+        assert len(row["input_sha256"]) == 64 and len(row["map_image_sha256"]) == 64
+        assert row["toolkit_version"]
+    assert "source's terms" in again.info.description
 
 
 def test_a_list_of_files_without_observations(converted_sample: ConvertedSample) -> None:
