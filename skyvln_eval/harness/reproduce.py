@@ -493,7 +493,9 @@ def reproduce(
     datasets = _dataset_summary(data_dir)
     atomic_write_json(
         out_dir / "dataset_summary.json",
-        {"data_dir": str(data_dir), "splits": [dataclasses.asdict(s) for s in datasets]},
+        # The data as the plan names it ("sample", or the folder given), not where this
+        # machine's cache keeps it: the file is the same wherever it is made.
+        {"data": plan.data, "splits": [dataclasses.asdict(s) for s in datasets]},
         indent=1,
     )
     jobs: list[RunJob] = []

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import json
 from pathlib import Path
 
 import pytest
@@ -127,6 +128,8 @@ def test_a_small_plan_writes_tables_figures_and_summary_and_resumes(
         if name != "SUMMARY.md":
             assert f"]({path.relative_to(tmp_path / 'out').as_posix()})" in summary, name
     assert {"table2_ci.md", "tables.json", "dataset_summary.json"} <= set(report.files)
+    summarised = json.loads(report.files["dataset_summary.json"].read_text())
+    assert summarised["data"] == plan.data and "data_dir" not in summarised  # as named
     assert any(name.startswith("control_runs/") for name in report.files)
     # The scored rows outnumber the episodes by the shared run's, and the page says why.
     shared = "Full † (Table I) and rule-based (not an LLM) (Table II) are one run"
