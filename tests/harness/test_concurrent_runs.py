@@ -182,6 +182,7 @@ def test_runs_converting_the_same_episodes_at_once_do_not_trip_over_each_other(
         thread.start()
     for thread in threads:
         thread.join()
+    assert len(outcomes) == 4, outcomes  # all() of none would pass
     assert all(isinstance(o, dict) and len(o) == 40 for o in outcomes), outcomes
     assert all(path.is_file() for o in outcomes for path in o.values())  # type: ignore[union-attr]
 

@@ -3,11 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
-import signal
-import subprocess
-import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -195,55 +190,6 @@ def test_one_and_two_workers_give_identical_results(
         )
         assert one_meta == two_meta, log
         assert "executor" not in one_meta["config"] and "limit" not in one_meta["config"]
-
-
-def test_a_run_killed_with_sigkill_resumes_to_the_same_rows_and_scores(
-    tmp_path: Path, small_config: MakeConfig
-) -> None:
-    config = small_config(limit=5, splits=("val_seen", "val_unseen"))
-    config_file = tmp_path / "run.yaml"
-    config_file.write_text(yaml.safe_dump(config.model_dump(mode="json")))
-    command = [
-        sys.executable,
-        "-m",
-        "skyvln_eval.cli",
-        "run",
-        str(config_file),
-        "--out",
-        str(tmp_path / "killed"),
-    ]
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    process = subprocess.Popen(
-        command,
-        cwd=REPO,
-        env=env,
-        start_new_session=True,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    results_file = tmp_path / "killed" / RESULTS_FILE
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline:
-        if results_file.exists() and results_file.read_bytes().count(b"\n") >= 4:  # header + 3 rows
-            break
-        time.sleep(0.05)
-    os.killpg(process.pid, signal.SIGKILL)
-    process.wait()
-    rows_at_kill = results_file.read_bytes().count(b"\n") - 1
-    assert 3 <= rows_at_kill < 10, "the run must be killed midway"
-    finished = subprocess.run(
-        command, cwd=REPO, env=env, capture_output=True, text=True, timeout=300
-    )
-    assert finished.returncode == 0, finished.stdout + finished.stderr
-    assert f"{rows_at_kill} already done" in finished.stdout
-
-    run(config, tmp_path / "uninterrupted")
-    resumed = read_results(results_file)
-    reference = read_results(tmp_path / "uninterrupted" / RESULTS_FILE)
-    assert len({r.key for r in resumed}) == len(resumed) == 10  # none missing, none twice
-    by_key = {r.key: r for r in reference}
-    assert all(comparable(r) == comparable(by_key[r.key]) for r in resumed)
-    assert scores_of(resumed) == scores_of(reference)
 
 
 def test_an_agent_that_raises_marks_its_episode_error_and_the_run_goes_on(

@@ -74,6 +74,10 @@ def test_control_summary_hand_computed() -> None:
     blind.attrs["settings"] = {"controller_settings": {"max_obstacles": 0}}
     assert summarise_control(blind).soft_steps is None
     assert control_metrics(blind)["soft_steps"].isna().all()
+    # Given by argument (as the harness does: pandas deep-copies attrs at every column read).
+    slots = {"controller_settings": {"max_obstacles": 0}}
+    assert summarise_control(control_log("mpc"), settings=slots).soft_steps is None
+    assert summarise_control(control_log("mpc"), settings={}).soft_steps == 0
     assert summary.collision_steps == 0 and not summary.collided
     assert summary.solve_failures == 1 and summary.constraint_violation_steps == 2
     assert summary.solve_time_max_ms == pytest.approx(1.2)
@@ -106,6 +110,13 @@ def test_bad_control_logs_are_located() -> None:
     bad.loc[3, "x_m"] = np.nan
     with pytest.raises(DataError, match="row 3, column 'x_m': non-finite"):
         control_metrics(bad)
+    numbers = control_log().assign(collision=0)  # 0/1, not booleans
+    with pytest.raises(DataError, match="column 'collision' must be boolean, got int64"):
+        control_metrics(numbers)
+    unnamed = control_log()
+    unnamed.loc[5, "status"] = None
+    with pytest.raises(DataError, match="row 5, column 'status': missing value"):
+        control_metrics(unnamed)
     assert set(CONTROL_LOG_COLUMNS) <= set(control_log().columns)
 
 
