@@ -27,6 +27,7 @@ from skyvln_eval.sensing import Sensors
 
 if TYPE_CHECKING:
     from skyvln_eval.llm.client import LLMClient
+    from skyvln_eval.llm.config import LLMConfig
 
 
 @dataclass(frozen=True)
@@ -131,3 +132,17 @@ class Agent(ABC):
         the calls made count an episode's calls when a decision raised before handing
         them on; none for an agent that calls no LLM."""
         return ()
+
+
+def llm_agent_settings(
+    name: str, seed: int, client: LLMClient, llm: LLMConfig, perception: Any, **extra: Any
+) -> dict[str, Any]:
+    """The settings an LLM-driven agent records in every run."""
+    return {
+        "name": name,
+        **extra,
+        "seed": seed,
+        "backend": client.backend.label,
+        "llm": llm.model_dump(),
+        "perception": perception.settings(),
+    }

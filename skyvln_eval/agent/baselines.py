@@ -21,7 +21,14 @@ from skyvln_eval.agent.actions import (
     action_record,
     decision_json_schema,
 )
-from skyvln_eval.agent.base import Agent, Decision, EpisodeBrief, Observation, episode_seed
+from skyvln_eval.agent.base import (
+    Agent,
+    Decision,
+    EpisodeBrief,
+    Observation,
+    episode_seed,
+    llm_agent_settings,
+)
 from skyvln_eval.agent.hsd import coarse_position
 from skyvln_eval.agent.images import panorama_images
 from skyvln_eval.agent.motion import (
@@ -32,7 +39,7 @@ from skyvln_eval.agent.motion import (
     feedback_prompt,
     pose_prompt,
 )
-from skyvln_eval.agent.odometry import Odometer, llm_agent_settings, pose_summary, roads_text
+from skyvln_eval.agent.odometry import Odometer, pose_summary, roads_text
 from skyvln_eval.agent.perception import Panorama, Perception
 from skyvln_eval.agent.subgoals import DialogText
 from skyvln_eval.llm.client import LLMClient

@@ -9,11 +9,8 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 from skyvln_eval.frames import ViewPose
-from skyvln_eval.llm.client import LLMClient
-from skyvln_eval.llm.config import LLMConfig
 
 
 @dataclass
@@ -78,17 +75,3 @@ def roads_text(here: Sequence[float], at_start: Sequence[float] | None) -> str:
 
     text = f"Roads leaving from below you (compass deg): {show(here)}"
     return text + ("." if at_start is None else f"; at the start: {show(at_start)}.")
-
-
-def llm_agent_settings(
-    name: str, seed: int, client: LLMClient, llm: LLMConfig, perception: Any, **extra: Any
-) -> dict[str, Any]:
-    """The settings an LLM-driven agent records in every run."""
-    return {
-        "name": name,
-        **extra,
-        "seed": seed,
-        "backend": client.backend.label,
-        "llm": llm.model_dump(),
-        "perception": perception.settings(),
-    }

@@ -15,7 +15,14 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from skyvln_eval.agent.actions import Action, FlyTo, action_record, decision_json_schema
-from skyvln_eval.agent.base import Agent, Decision, EpisodeBrief, Observation, episode_seed
+from skyvln_eval.agent.base import (
+    Agent,
+    Decision,
+    EpisodeBrief,
+    Observation,
+    episode_seed,
+    llm_agent_settings,
+)
 from skyvln_eval.agent.calls import call_json
 from skyvln_eval.agent.clarify import Clarification, ask_commander
 from skyvln_eval.agent.hsd import HsdResult, PhraseMatch, SpatialDescriptor, matches_text
@@ -30,7 +37,7 @@ from skyvln_eval.agent.motion import (
     navigation_prompt,
     pose_prompt,
 )
-from skyvln_eval.agent.odometry import Odometer, llm_agent_settings, pose_summary, roads_text
+from skyvln_eval.agent.odometry import Odometer, pose_summary, roads_text
 from skyvln_eval.agent.perception import Panorama, Perception
 from skyvln_eval.agent.pursuit import Pursuit, Verdict, check_pursuit
 from skyvln_eval.agent.subgoals import (
