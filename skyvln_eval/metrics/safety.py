@@ -120,6 +120,8 @@ def read_control_log(path: str | Path) -> pd.DataFrame:
     table, or a table of something else) is a :class:`DataError` naming it and saying what
     a control log is."""
     path = Path(path)
+    if path.is_dir():
+        raise DataError(f"{path}: a folder, not a control log; {CONTROL_LOG_HINT}")
     if not path.is_file():
         raise DataError(f"{path}: control log not found")
     if path.suffix not in (".parquet", ".csv"):

@@ -94,9 +94,17 @@ def summary_csv_text(
 def read_scores(path: str | Path) -> tuple[pd.DataFrame, MetricConventions]:
     """Read a scores CSV; checks the format version and parses the conventions."""
     path = Path(path)
+    what = "`skyvln-eval score` writes one as OUT/scores.csv (--out, default scores/)"
+    if path.is_dir():
+        inside = path / "scores.csv"
+        if inside.is_file():
+            raise DataError(f"{path}: a folder; its scores are {inside}")
+        raise DataError(
+            f"{path}: a folder, not a scores file (a run directory? score it first: "
+            f"skyvln-eval score {path}); {what}"
+        )
     if not path.is_file():
         raise DataError(f"{path}: scores file not found")
-    what = "`skyvln-eval score` writes one as OUT/scores.csv (--out, default scores/)"
     try:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError:

@@ -252,7 +252,7 @@ def test_score_takes_a_run_directory_and_names_what_it_cannot_score(tmp_path: Pa
     )
     empty = runner.invoke(app, ["score", str(tmp_path / "scores")])
     assert isinstance(empty.exception, DataError)
-    assert "a directory without results.jsonl, here or in its folders" in str(empty.exception)
+    assert "a directory without results.jsonl, here or below" in str(empty.exception)
     absent = runner.invoke(app, ["score", str(tmp_path / "preds.npy")])
     assert str(absent.exception) == f"{tmp_path / 'preds.npy'}: no such file or directory"
 
@@ -288,6 +288,10 @@ def test_plots_of_the_wrong_file_say_what_it_should_be(tmp_path: Path, cli: Cli)
         (("sr-threshold", log), f"{log}: not a scores file (not UTF-8 text)"),
         (("ne", binary_csv), f"{binary_csv}: not a scores file (not UTF-8 text)"),
         (("ne", torn), f"{torn}: the scores table is not valid CSV (Error tokenizing data"),
+        # Folders (an audit: "scores file not found", "control log not found" for them).
+        (("ne", scores.parent), f"{scores.parent}: a folder; its scores are {scores}"),
+        (("ne", tmp_path), f"{tmp_path}: a folder, not a scores file (a run directory? score"),
+        (("control", tmp_path), f"{tmp_path}: a folder, not a control log"),
     ]
     for (kind, path), needle in cases:
         outcome = cli("plot", kind, str(path), "--out", str(tmp_path / "figure.png"))
