@@ -187,16 +187,17 @@ def _split_table(summaries: list[SplitSummary]) -> Table:
             "/".join(str(s.rounds.get(k, 0)) for k in (1, 2, 3))
             + f"/{sum(v for k, v in s.rounds.items() if k >= 4)}"
         )
+        none = s.records == 0  # every record skipped: no means to show ("nan" was shown)
         table.add_row(
             s.split,
             str(s.records),
             str(s.trajectories),
             str(s.maps),
             rounds,
-            f"{s.mean_views:.1f}",
-            f"{s.mean_gt_length_m:.0f}",
-            f"{s.mean_d_net_m:.0f}",
-            f"{s.min_edge_m:.0f}-{s.max_edge_m:.0f}",
+            "-" if none else f"{s.mean_views:.1f}",
+            "-" if none else f"{s.mean_gt_length_m:.0f}",
+            "-" if none else f"{s.mean_d_net_m:.0f}",
+            "-" if none else f"{s.min_edge_m:.0f}-{s.max_edge_m:.0f}",
             replay,
         )
     return table

@@ -134,6 +134,11 @@ def test_summary_skip_invalid_reports_what_it_skipped(dataset_factory: Callable[
     assert result.exit_code == 0, result.output
     assert "skipped: " in result.output and "field 'angle'" in result.output
     assert "skipped 1 invalid record(s), loaded 1" in result.output
+    # Every record skipped: no means to show, and none made up ("nan", "nan-nan" were).
+    none = dataset_factory({"val_seen": [make_record(angle="x")]})
+    result = runner.invoke(app, ["summary", str(none), "--skip-invalid"], env={"COLUMNS": "200"})
+    assert result.exit_code == 0, result.output
+    assert "skipped 1 invalid record(s), loaded 0" in result.output and "nan" not in result.output
 
 
 def test_summary_of_a_folder_without_a_dataset_is_an_error(tmp_path: Path, cli: Cli) -> None:

@@ -628,7 +628,9 @@ def _trajectory_row(
 
 @plot_app.command("trajectory")
 def plot_trajectory(
-    results: Annotated[Path, typer.Argument(help="Result rows (.jsonl or .parquet)")],
+    results: Annotated[
+        Path, typer.Argument(help="A run directory or its result rows (.jsonl or .parquet)")
+    ],
     episode: Annotated[str, typer.Option(help="Episode id, e.g. 1913__3_1")],
     data_dir_text: Annotated[
         str,
@@ -649,7 +651,10 @@ def plot_trajectory(
     from skyvln_eval.reports.trajectory_figure import trajectory_figure, trajectory_labels
     from skyvln_eval.worlds import load_world
 
-    # One episode's figure: the episodes an unfinished run has are drawn.
+    # One episode's figure: the episodes an unfinished run has are drawn. A run directory
+    # is read by its rows (as score and view take it; it was refused as "a directory").
+    if results.is_dir() and (results / "results.jsonl").is_file():
+        results = results / "results.jsonl"
     row = _trajectory_row(results, read_results(results, allow_incomplete=True), episode, system)
     data_dir = _data_dir(data_dir_text)
     records = [r for r in load_split(data_dir, row.split).records if r.episode_id == episode]

@@ -367,12 +367,13 @@ def test_plot_trajectory_of_an_error_episode_is_titled_with_its_error(
     (record,) = load_split(data_dir, "val_seen").records
     gt = record.gt_path_corners
     failed = result(gt[:2], gt, status="error", error="TimeoutError: no answer\nTraceback ...")
-    results = tmp_path / "results.jsonl"
+    results = tmp_path / "run" / "results.jsonl"  # given by its run directory, as score takes it
+    results.parent.mkdir()
     write_results(results, [failed])
     drawn: list[Figure] = []
     monkeypatch.setattr(render, "save_figure", lambda figure, path: drawn.append(figure) or path)
     outcome = cli(
-        "plot", "trajectory", str(results), "--episode", failed.episode_id,
+        "plot", "trajectory", str(results.parent), "--episode", failed.episode_id,
         "--data-dir", str(data_dir), "--out", str(tmp_path / "t.png"),
     )  # fmt: skip
     assert outcome.code == 0, outcome
