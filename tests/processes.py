@@ -38,3 +38,13 @@ def alive(pid: int) -> bool:
     """Whether ``pid`` runs (a zombie has ended; only its parent's reaping is left)."""
     known = _state_and_parent(Path(f"/proc/{pid}"))
     return known is not None and known[0] != "Z"
+
+
+def still_alive_after(pids: list[int], seconds: float) -> list[int]:
+    """Those of ``pids`` still running once all have ended or ``seconds`` have passed."""
+    import time
+
+    deadline = time.monotonic() + seconds
+    while any(alive(pid) for pid in pids) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return [pid for pid in pids if alive(pid)]

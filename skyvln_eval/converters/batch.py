@@ -26,7 +26,6 @@ from typing import Any, Final, Literal, NamedTuple
 
 import skyvln_eval
 from skyvln_eval.avdn import (
-    AvdnSplit,
     Episode,
     EpisodeMode,
     MapGeoref,
@@ -402,51 +401,33 @@ def convert_split(
     # logs and temporary files it finds there, which another's may be (a run converting
     # into the shared cache while `convert` writes the same folder lost logs to it).
     with exclusive_lock(Path(out_dir) / f".{split}-{mode}.lock"):
-        return _convert_loaded(
-            data_dir, loaded, episodes, incomplete, out_dir, split, mode, workers, options,
-            on_progress,
-        )  # fmt: skip
-
-
-def _convert_loaded(
-    data_dir: Path,
-    loaded: AvdnSplit,
-    episodes: list[Episode],
-    incomplete: list[ValidationIssue],
-    out_dir: str | Path,
-    split: str,
-    mode: EpisodeMode,
-    workers: int,
-    options: ConvertOptions,
-    on_progress: Callable[[int], None] | None,
-) -> ConvertReport:
-    target = ensure_writable_directory(split_output_dir(out_dir, split, mode), "output folder")
-    report = ConvertReport(
-        target,
-        target / MANIFEST_NAME,
-        invalid=list(loaded.skipped),
-        skipped_records=list(loaded.skipped_records),
-        incomplete=incomplete,
-        undefined_fields_note=undefined_fields_note(loaded.records),
-    )
-    recorded = _recorded_files(report.manifest_path)
-    jobs = _jobs(episodes, data_dir, str(loaded.annotation_path), target, options, recorded)
-    results: dict[str, EpisodeOutcome] = {}
-    for outcomes in _run(jobs, workers):
-        for outcome in outcomes:
-            results[outcome.episode_id] = outcome
-        if on_progress is not None:
-            on_progress(len(outcomes))
-    report.outcomes = [results[e.episode_id] for e in episodes]
-    report.rows = [o.row for o in report.outcomes if o.row is not None]
-    report.removed_stale, report.foreign_files = _remove_stale(
-        target, {r.file_name for r in report.rows}, set(recorded), _removal_reasons(report)
-    )
-    # What was left out first, the manifest last: the manifest marks a finished conversion
-    # (validate checks the folder against it), so it never stands beside an older list.
-    left_out_sha256 = write_left_out(report.left_out_path, split, mode, report.left_out())
-    write_manifest(report.manifest_path, report.rows, left_out_sha256)
-    return report
+        target = ensure_writable_directory(split_output_dir(out_dir, split, mode), "output folder")
+        report = ConvertReport(
+            target,
+            target / MANIFEST_NAME,
+            invalid=list(loaded.skipped),
+            skipped_records=list(loaded.skipped_records),
+            incomplete=incomplete,
+            undefined_fields_note=undefined_fields_note(loaded.records),
+        )
+        recorded = _recorded_files(report.manifest_path)
+        jobs = _jobs(episodes, data_dir, str(loaded.annotation_path), target, options, recorded)
+        results: dict[str, EpisodeOutcome] = {}
+        for outcomes in _run(jobs, workers):
+            for outcome in outcomes:
+                results[outcome.episode_id] = outcome
+            if on_progress is not None:
+                on_progress(len(outcomes))
+        report.outcomes = [results[e.episode_id] for e in episodes]
+        report.rows = [o.row for o in report.outcomes if o.row is not None]
+        report.removed_stale, report.foreign_files = _remove_stale(
+            target, {r.file_name for r in report.rows}, set(recorded), _removal_reasons(report)
+        )
+        # What was left out first, the manifest last: the manifest marks a finished conversion
+        # (validate checks the folder against it), so it never stands beside an older list.
+        left_out_sha256 = write_left_out(report.left_out_path, split, mode, report.left_out())
+        write_manifest(report.manifest_path, report.rows, left_out_sha256)
+        return report
 
 
 def _run(jobs: list[MapJob], workers: int) -> Iterable[list[EpisodeOutcome]]:

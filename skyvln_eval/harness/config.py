@@ -240,51 +240,42 @@ class RunConfig(_Strict):
 
     def digest(self) -> str:
         """A short hash of the settings that decide the results (not workers or executor)."""
-        return self._hash(())
+        return self._hash(self._undeciding())
 
     def settings_digest(self) -> str:
         """:meth:`digest` without the selection (``limit``, ``episodes``): the same for
         every row of a run that grew in place, different for a row of another config."""
-        return self._hash(SELECTION)
-
-    def _hash(self, also_excluded: Collection[str]) -> str:
-        text = yaml.safe_dump(self._relevant(also_excluded), sort_keys=True)
-        return hashlib.sha256(text.encode()).hexdigest()[:12]
+        return self._hash(self._undeciding() | SELECTION)
 
     def legacy_settings_digest(self) -> str | None:
         """The :meth:`settings_digest` an official-mode run's rows recorded while it
         covered the unused flight settings too (``None`` in dynamics mode, which always
         used them): their rows are this config's all the same."""
-        if self.mode != "official":
-            return None
-        text = yaml.safe_dump(
-            self.model_dump(mode="json", exclude=set(HOW_IT_RUNS) | set(SELECTION)),
-            sort_keys=True,
-        )
+        return self._hash(HOW_IT_RUNS | SELECTION) if self._unflown() else None
+
+    def _hash(self, excluded: Collection[str]) -> str:
+        text = yaml.safe_dump(self.model_dump(mode="json", exclude=set(excluded)), sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:12]
 
-    def _relevant(self, also_excluded: Collection[str]) -> dict[str, Any]:
-        """The settings that decide results, without ``also_excluded`` too. An official-mode
-        run flies nothing: its flight settings (``dynamics``) decide nothing, and recorded
-        with it, they said it flew an NMPC through obstacles."""
-        return self.model_dump(mode="json", exclude=self._unused() | set(also_excluded))
+    def _unflown(self) -> frozenset[str]:
+        """The flight settings of a run that flies nothing (official mode): they decide
+        nothing, and recorded with it, they said it flew an NMPC through obstacles."""
+        return frozenset({"dynamics"}) if self.mode == "official" else frozenset()
 
-    def _unused(self) -> set[str]:
-        """What does not decide this run's results: how it runs, and the flight settings
-        of a run that flies nothing."""
-        return set(HOW_IT_RUNS) | ({"dynamics"} if self.mode == "official" else set())
+    def _undeciding(self) -> frozenset[str]:
+        """What does not decide this run's results: how it runs, and unflown settings."""
+        return HOW_IT_RUNS | self._unflown()
 
     def settings_yaml(self) -> str:
         """The YAML of what :meth:`settings_digest` covers."""
-        return yaml.safe_dump(self._relevant(SELECTION), sort_keys=False, allow_unicode=True)
+        relevant = self.model_dump(mode="json", exclude=set(self._undeciding() | SELECTION))
+        return yaml.safe_dump(relevant, sort_keys=False, allow_unicode=True)
 
     def to_yaml(self) -> str:
         """The whole config (what a run directory keeps to resume with), without flight
         settings an official-mode run does not use."""
-        unused = {"dynamics"} if self.mode == "official" else set()
-        return yaml.safe_dump(
-            self.model_dump(mode="json", exclude=unused), sort_keys=False, allow_unicode=True
-        )
+        kept = self.model_dump(mode="json", exclude=set(self._unflown()))
+        return yaml.safe_dump(kept, sort_keys=False, allow_unicode=True)
 
 
 def check_controller_settings(controller: str, settings: dict[str, Any], field: str) -> None:

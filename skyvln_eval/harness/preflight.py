@@ -100,14 +100,20 @@ def check_keys(agent: AgentConfig, source: str) -> None:
         raise PreflightError(f"{source}: {'; '.join(missing)}")
 
 
+def check_local_servers(agent: AgentConfig, source: str) -> None:
+    """Refuse ``agent`` (of ``source``) when a model it calls is served on this machine
+    where nothing listens (:func:`absent_local_servers`)."""
+    absent = absent_local_servers(agent)
+    if absent:
+        raise PreflightError(f"{source}: {'; '.join(absent)}")
+
+
 def preflight(config: RunConfig, data_dir: Path, map_names: Iterable[str]) -> None:
     """Refuse ``config`` if a model its agent calls lacks its API key or is served on this
     machine where nothing listens, its detector needs a sensor that is off, or the data
     cannot feed a sensor that is on (see the module docstring)."""
     check_keys(config.agent, f"run {config.system!r}")
-    absent = absent_local_servers(config.agent)
-    if absent:
-        raise PreflightError(f"run {config.system!r}: {'; '.join(absent)}")
+    check_local_servers(config.agent, f"run {config.system!r}")
     if config.agent.name not in LLM_AGENTS:
         return  # random actions and the oracle do not look
     detector = config.agent.detector

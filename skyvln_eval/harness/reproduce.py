@@ -43,7 +43,7 @@ from skyvln_eval.fileio import atomic_write_json, atomic_write_text, ensure_dire
 from skyvln_eval.harness.executors import ExecutorKind, make_executor
 from skyvln_eval.harness.oracle import is_oracle
 from skyvln_eval.harness.plan import PlannedRun, ReproducePlan, planned_runs
-from skyvln_eval.harness.preflight import PreflightError, absent_local_servers
+from skyvln_eval.harness.preflight import check_local_servers
 from skyvln_eval.harness.run import (
     RUN_INVALID_HINT,
     Progress,
@@ -487,9 +487,7 @@ def reproduce(
     # checks too, but after the run folders before it were made).
     runs = planned_runs(plan, out_dir, workers, executor, str(data_dir))
     for planned in runs:
-        absent = absent_local_servers(planned.config.agent)
-        if absent:
-            raise PreflightError(f"{planned.config.system!r}: {'; '.join(absent)}")
+        check_local_servers(planned.config.agent, repr(planned.config.system))
     datasets = _dataset_summary(data_dir)
     atomic_write_json(
         out_dir / "dataset_summary.json",

@@ -646,6 +646,7 @@ def plot_trajectory(
     """An episode's GT and flown views drawn over its map tile; the title says an episode's
     status unless ok (an error episode's with its first error line)."""
     from skyvln_eval.avdn import load_split
+    from skyvln_eval.harness.store import RESULTS_FILE
     from skyvln_eval.metrics import read_results
     from skyvln_eval.reports.render import save_figure
     from skyvln_eval.reports.trajectory_figure import trajectory_figure, trajectory_labels
@@ -653,8 +654,8 @@ def plot_trajectory(
 
     # One episode's figure: the episodes an unfinished run has are drawn. A run directory
     # is read by its rows (as score and view take it; it was refused as "a directory").
-    if results.is_dir() and (results / "results.jsonl").is_file():
-        results = results / "results.jsonl"
+    if results.is_dir() and (results / RESULTS_FILE).is_file():
+        results = results / RESULTS_FILE
     row = _trajectory_row(results, read_results(results, allow_incomplete=True), episode, system)
     data_dir = _data_dir(data_dir_text)
     records = [r for r in load_split(data_dir, row.split).records if r.episode_id == episode]

@@ -110,7 +110,7 @@ def test_workers_of_a_killed_parent_end_at_once_not_after_their_episode(tmp_path
     import subprocess
 
     from tests.conftest import REPO
-    from tests.processes import alive, children
+    from tests.processes import children, still_alive_after
 
     script = (
         "import sys\n"
@@ -129,10 +129,7 @@ def test_workers_of_a_killed_parent_end_at_once_not_after_their_episode(tmp_path
     finally:
         parent.send_signal(signal.SIGKILL)
         parent.wait(timeout=10)
-    deadline = time.monotonic() + 60  # well short of the episodes' 120 s
-    while any(alive(pid) for pid in workers) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert not any(alive(pid) for pid in workers)
+    assert not still_alive_after(workers, 60)  # well short of the episodes' 120 s
 
 
 def test_workers_that_die_while_starting_up_are_not_started_again(

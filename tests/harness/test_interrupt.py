@@ -19,7 +19,7 @@ from skyvln_eval.harness import RunConfig
 from skyvln_eval.harness.store import RESULTS_FILE, ResultStore
 from skyvln_eval.llm.loopback import LoopbackOpenAIServer
 from tests.conftest import REPO
-from tests.processes import alive, as_a_terminal_job, children
+from tests.processes import as_a_terminal_job, children, still_alive_after
 from tests.viewer.tools import skyvln_eval_command
 
 EPISODES = 30
@@ -53,6 +53,17 @@ def _running(
             process.wait(timeout=10)
 
 
+def _under_way(process: subprocess.Popen[str], started: Callable[[], bool]) -> list[int]:
+    """The worker processes of ``process`` once ``started()`` says its work is under way
+    (it must not have ended by then: there would be nothing left to stop)."""
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and process.poll() is None and not started():
+        time.sleep(0.02)
+    workers = children(process.pid)
+    assert workers and process.poll() is None, "it ended before it could be stopped"
+    return workers
+
+
 @pytest.mark.skipif(sys.platform != "linux", reason="reads the process tree from Linux /proc")
 @pytest.mark.parametrize("stop", ["ctrl-c", "sigterm"])
 def test_a_run_stopped_from_outside_ends_its_workers_and_resumes(
@@ -64,13 +75,7 @@ def test_a_run_stopped_from_outside_ends_its_workers_and_resumes(
     run_dir = tmp_path / "run"
     command = skyvln_eval_command("run", str(path), "--out", str(run_dir))
     with _running(command) as process:
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and process.poll() is None:
-            if _rows(run_dir) >= 2:  # the workers are under way
-                break
-            time.sleep(0.05)
-        workers = children(process.pid)
-        assert workers and process.poll() is None, "the run ended before it could be stopped"
+        workers = _under_way(process, lambda: _rows(run_dir) >= 2)
         if stop == "ctrl-c":
             os.killpg(process.pid, signal.SIGINT)
         else:
@@ -82,10 +87,7 @@ def test_a_run_stopped_from_outside_ends_its_workers_and_resumes(
     assert "Traceback" not in out + err
     # The workers end with the run (and multiprocessing's resource tracker as soon as it
     # sees the run's end of its pipe close).
-    deadline = time.monotonic() + 10
-    while any(alive(pid) for pid in workers) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert not any(alive(pid) for pid in workers)
+    assert not still_alive_after(workers, 10)
     kept = _rows(run_dir)
     assert 2 <= kept < EPISODES
     resumed = subprocess.run(
@@ -150,22 +152,13 @@ def test_a_conversion_stopped_from_outside_says_so_and_leaves_whole_files(
         "--workers", "2",
     )  # fmt: skip
     with _running(command) as process:
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and process.poll() is None:
-            if folder.is_dir() and any(folder.glob("*.mcap")):  # the workers are under way
-                break
-            time.sleep(0.02)
-        workers = children(process.pid)
-        assert workers and process.poll() is None, "it ended before it could be stopped"
+        workers = _under_way(process, lambda: folder.is_dir() and any(folder.glob("*.mcap")))
         process.send_signal(signal.SIGTERM)
         out_text, err = process.communicate(timeout=60)
     assert process.returncode == 130, err
     assert "interrupted: the episode logs written are kept" in err
     assert "Traceback" not in out_text + err
-    deadline = time.monotonic() + 10
-    while any(alive(pid) for pid in workers) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert not any(alive(pid) for pid in workers)
+    assert not still_alive_after(workers, 10)
     again = subprocess.run(
         command, stdin=subprocess.DEVNULL, capture_output=True, text=True, cwd=REPO, timeout=300
     )
