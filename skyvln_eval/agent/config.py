@@ -1,7 +1,9 @@
 """Typed agent configuration, loadable from YAML, and construction of agents by name.
 
 ``AgentConfig(name="skyvln", hsd=False)`` is the w/o-HSD ablation, ``tbma=False`` the
-w/o-TBMA one; ``name="navgpt"``, ``"random"`` and ``"ground_truth"`` are the baselines.
+w/o-TBMA one; ``name="navgpt"`` and ``"random"`` are the baselines, and ``"ground_truth"``
+names the oracle, a labelled reference that the harness builds (:func:`build_agent`
+refuses it).
 Every part is switchable here, and :meth:`Agent.settings` records the result in the run.
 """
 

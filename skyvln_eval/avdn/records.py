@@ -3,7 +3,8 @@
 An :class:`AvdnRecord` is one element of an ``*_data.json`` list (one dialog round, a
 "sub-trajectory"). An :class:`Episode` is what an agent is evaluated on: one record in
 ANDH mode, a whole trajectory (all rounds) in ANDH-Full mode. Records keep the JSON they
-were parsed from (``source``), so files written from them carry the record verbatim.
+were parsed from (``source``), so files written from them carry the record's values exactly (keys in
+their order, numbers as parsed), not its text.
 """
 
 from __future__ import annotations

@@ -3,7 +3,9 @@
 Layout of an episode log (names in :mod:`skyvln_eval.converters.topics`):
 
 - metadata ``skyvln_eval.episode``: episode id, split, mode, map, the source record(s)
-  verbatim (JSON list), toolkit and format versions, clock step, options;
+  as parsed (JSON list: every key in its order, every number exactly, as compact JSON,
+  not the file's own spacing, escapes or float spelling), toolkit and format versions,
+  clock step, options;
 - static content at log time 0, written first: the downsampled map tile, the GT path
   (``PosesInFrame``), GT view squares, destination and attention circles
   (``SceneUpdate`` lines in the ``map`` frame, ENU metres), the start pose, and the fixed

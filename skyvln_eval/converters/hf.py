@@ -2,8 +2,8 @@
 
 For users who prefer tables to logs. Rows are built from verified episode logs (so a
 table can never hold what a damaged file would have given): ids, dialog, GT views as
-arrays (``[lat, lng]`` degrees and ENU poses), lengths in metres, the verbatim source
-records, and optionally the GT observation images (JPEG/PNG bytes), and where each row
+arrays (``[lat, lng]`` degrees and ENU poses), lengths in metres, the source
+records as parsed, and optionally the GT observation images (JPEG/PNG bytes), and where each row
 came from: the log's toolkit version and, for a log ``convert`` wrote, the fingerprint of
 its input (records, map image, options) and of its map image. ``datasets`` is imported
 only when these functions run.

@@ -6,7 +6,7 @@ not an MCAP file, truncated (no end magic or footer), a summary or data-section 
 mismatch (any flipped byte), a chunk CRC or decompression failure, or message counts that
 disagree with the file's own statistics. There is no partial result.
 
-:func:`read_episode` then checks the format version and re-parses the verbatim AVDN
+:func:`read_episode` then checks the format version and re-parses the AVDN
 records stored in the metadata with :func:`skyvln_eval.avdn.parse_record`, so the
 episode equals the one the AVDN reader produced.
 """

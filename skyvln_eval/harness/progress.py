@@ -41,6 +41,7 @@ class RichRunProgress(RunProgress):
         self.successes = 0
         self.scored = 0  # episodes with a ground truth to score against
         self.finished = 0
+        self.oracle = 0  # the oracle's episodes: a reference, never in the live SR
         self.errors = 0
         self.degraded = 0
         self._spent_usd = 0.0  # of the priced calls; the total only if nothing is unpriced
@@ -60,8 +61,12 @@ class RichRunProgress(RunProgress):
             return "nothing left to run: every episode was recorded before"
         if self.scored:
             rate = f"{100.0 * self.successes / self.scored:5.1f}%"
-        else:  # nothing finished yet, or nothing with a ground truth to score against
-            rate = "n/a (no ground truth)" if self.finished else "  n/a"
+        elif not self.finished:
+            rate = "  n/a"
+        elif self.oracle == self.finished:  # it has a ground truth: it flies it
+            rate = "n/a (the oracle: a reference)"
+        else:  # nothing with a ground truth to score against
+            rate = "n/a (no ground truth)"
         cost = "n/a" if self.cost_usd is None else f"${self.cost_usd:.4f}"
         if self.cost_usd is not None and self._cached_usd > 0.0:
             # A cached answer counts the cost of the call that made it, as the tables do;
@@ -95,7 +100,9 @@ class RichRunProgress(RunProgress):
     def episode_done(self, result: EpisodeResult, success: bool | None) -> None:
         self.finished += 1
         # The oracle's episodes are a reference, not a result: never in the live SR.
-        counted = success is not None and result.extra.get("oracle") is not True
+        oracle = result.extra.get("oracle") is True
+        self.oracle += int(oracle)
+        counted = success is not None and not oracle
         self.scored += int(counted)
         self.successes += int(counted and bool(success))
         self.errors += int(result.status == "error")

@@ -2,11 +2,13 @@
 
 The summary is a long table, one row per (system, split, mode, metric): ``n`` episodes,
 ``mean`` (rates in percent, lengths in metres) and, when asked, an interval made as
-``ci_method`` says (:data:`CI_METHODS`): the Wilson score interval for a rate of 0/1
-values (:data:`BINARY_METRICS`), a seeded percentile bootstrap for the rest (over whole
-trajectories by default, or episodes: ``ci_unit``),
-NaN (shown "n/a") where a bootstrap has no spread to resample (one episode, or values
-that are all the same: SPL 0 in every episode of an SR of 0/10). Rules: a frame
+``ci_method`` says (:data:`CI_METHODS`): a seeded percentile bootstrap over whole
+trajectories (the default ``ci_unit``), or over episodes, where a rate of 0/1 values
+(:data:`BINARY_METRICS`) gets the Wilson score interval instead; over trajectories, a
+0/1 rate gets Wilson only where every value is the same (a bootstrap of ten zeros would
+say [0, 0]); NaN (shown "n/a") where a bootstrap has no spread to resample (one episode,
+or values that are all the same: SPL 0 in every episode of an SR of 0/10), and no
+interval at all for an unknown mean. Rules: a frame
 that repeats an episode, or misses an official metric's value, is refused
 (:func:`checked_scores`); a group with no value for a metric (e.g. no control summary)
 has no row for it; NaN / inf never reach a mean (they raise); a metric that can be
@@ -116,8 +118,9 @@ LOWER_IS_BETTER = frozenset(
 
 
 #: Metrics whose per-episode values are 0 or 1 by definition (unit "0/1": success, a
-#: status, a collision): their rate's interval is the Wilson score interval, which a
-#: bootstrap of ten zeros (every resample 0) would give as [0, 0].
+#: status, a collision): over episodes, their rate's interval is the Wilson score
+#: interval, which a bootstrap of ten zeros (every resample 0) would give as [0, 0]; over
+#: trajectories, where every value is the same.
 BINARY_METRICS = frozenset(m for m, unit in METRIC_UNITS.items() if unit == "0/1")
 
 #: How a summary's interval was made (its ``ci_method``), as a table's note says it.
@@ -313,10 +316,8 @@ def summarise(
             if metric in UNKNOWN_IF_ANY_UNKNOWN and not present.all():
                 # A mean over the known part would pass for the whole: it is unknown.
                 row.update(n=len(column), mean=math.nan)
-                if n_resamples:
-                    row.update(
-                        _interval(math.nan, math.nan, _bootstrap_method(ci_unit), confidence)
-                    )
+                if n_resamples:  # nothing was resampled: no method, count or seed
+                    row.update(ci_low=math.nan, ci_high=math.nan, confidence=confidence)
                 rows.append(row)
                 continue
             if not present.any():

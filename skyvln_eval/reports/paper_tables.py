@@ -62,8 +62,9 @@ ORACLE_NOTE = (
 
 
 def oracle_label(system: str) -> str:
-    """How a system the oracle flew is shown: marked, unless its name already says so."""
-    return system if "oracle" in system.lower() else f"{system} {ORACLE_MARK}"
+    """How a system the oracle flew is shown: marked, unless its name already carries the
+    mark (a name that only contains the word, "Non-oracle planner", is marked)."""
+    return system if ORACLE_MARK in system.lower() else f"{system} {ORACLE_MARK}"
 
 
 def stand_in_kind(backend: str | None) -> str | None:

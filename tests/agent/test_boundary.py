@@ -97,6 +97,52 @@ def test_no_agent_module_reads_private_names_or_looks_behind_objects() -> None:
     assert not offending, offending
 
 
+#: Modules that import by a name made at run time, past the import check above (an
+#: audit's agent loaded the dataset loader so, found its record by its start view and
+#: flew the route). Only the detector registry may, and only modules of this package.
+DYNAMIC_IMPORTS = ("importlib", "runpy", "pkgutil")
+REGISTRY = AGENT_PACKAGE / "detectors.py"
+
+
+def _dynamic_imports(path: Path) -> Iterator[str]:
+    label = path.relative_to(REPO) if path.is_relative_to(REPO) else path.name
+    for name in _imports(path):
+        if name.split(".")[0] in DYNAMIC_IMPORTS:
+            yield f"{label} imports {name}"
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Attribute) and node.attr == "import_module":
+            yield f"{label}:{node.lineno} {ast.unparse(node)}"
+
+
+def test_no_agent_module_imports_by_a_name_made_at_run_time() -> None:
+    offending = [
+        reach
+        for path in sorted(AGENT_PACKAGE.rglob("*.py"))
+        if path != REGISTRY
+        for reach in _dynamic_imports(path)
+    ]
+    assert not offending, offending
+    from skyvln_eval.agent.detectors import _DETECTORS  # the one that may: what it imports
+
+    outside = [t for t in _DETECTORS.values() if not t.startswith("skyvln_eval.agent.")]
+    assert not outside, outside
+
+
+def test_the_dynamic_import_check_finds_what_it_forbids(tmp_path: Path) -> None:
+    sneaky = tmp_path / "sneaky_agent.py"
+    sneaky.write_text(
+        "import importlib\n"
+        "def route(brief):\n"
+        "    return importlib.import_module('skyvln_eval.avdn.loader').load_split\n",
+        encoding="utf-8",
+    )
+    found = list(_dynamic_imports(sneaky))
+    assert found == [
+        "sneaky_agent.py imports importlib",
+        "sneaky_agent.py:3 importlib.import_module",
+    ]
+
+
 def test_the_private_reach_check_finds_what_it_forbids(tmp_path: Path) -> None:
     sneaky = tmp_path / "sneaky_agent.py"
     sneaky.write_text(

@@ -45,7 +45,7 @@ def test_every_sample_episode_round_trips(
         path = report.out_dir / episode_file_name(episode.episode_id)
         back = read_episode(path)
         assert back == episode
-        # The records are the source JSON verbatim, not just equal once typed.
+        # The records are the source JSON's values exactly, not just equal once typed.
         assert [r.to_json_dict() for r in back.records] == [
             r.to_json_dict() for r in episode.records
         ]

@@ -87,3 +87,10 @@ def test_a_resumed_run_s_live_sr_says_it_is_this_launch_s() -> None:
     progress.episode_done(flown(), success=False)
     assert progress._stats().startswith("SR this launch   0.0%")
     progress.finish([])
+
+
+def test_an_oracle_run_says_why_it_shows_no_success_rate() -> None:
+    oracle = replace(flown(), extra={"oracle": True})
+    assert "SR n/a (the oracle: a reference)" in shown(oracle, oracle)
+    # Its ground truth exists: "no ground truth" is for episodes that have none.
+    assert "SR 100.0%" in shown(oracle, flown())  # the agent's episode alone is scored

@@ -203,6 +203,11 @@ def test_failed_attempts_add_the_tokens_they_reported_and_leave_the_cost_unknown
     assert scores.llm_unpriced_requests.tolist() == [1.0, 1.0, 0.0]
     # Only failed attempts unpriced: what the answered calls cost is a known lower bound.
     assert scores.llm_cost_lower_usd.tolist() == pytest.approx([0.005, 0.005, 0.005])
+    # Its mean is unknown: nothing was resampled, so no interval method, count or seed.
+    cost = summarise(scores, ["llm_cost_usd", "success"], n_resamples=50).set_index("metric")
+    assert np.isnan(cost.loc["llm_cost_usd", "mean"]) and np.isnan(cost.ci_low["llm_cost_usd"])
+    assert cost.loc["llm_cost_usd", ["ci_method", "ci_resamples", "ci_seed"]].isna().all()
+    assert cost.ci_method["success"] == "wilson_trajectories"  # a known mean keeps its own
     unpriced = _call("motion", prompt_tokens=500, completion_tokens=50)  # answered, no price
     alone = score_results([result(g, g, episode_id="d", llm_calls=[answered, unpriced])])
     assert np.isnan(alone.llm_cost_lower_usd[0]) and np.isnan(alone.llm_cost_usd[0])

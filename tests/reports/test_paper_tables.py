@@ -21,6 +21,7 @@ from skyvln_eval.llm_records import LlmCall
 from skyvln_eval.metrics import MetricConventions, score_results
 from skyvln_eval.metrics.scores_io import read_scores, write_scores
 from skyvln_eval.reports import TABLE_I, TABLE_II, paper_table, to_markdown
+from skyvln_eval.reports.paper_tables import oracle_label
 from tests.metrics.helpers import result, square
 
 GOAL = [square(0, 0), square(0, 120)]
@@ -257,3 +258,10 @@ def test_degraded_episodes_are_counted_in_a_note() -> None:
     assert "Degraded episodes" not in to_markdown(
         paper_table(_scores(), TABLE_II, MetricConventions())
     )
+
+
+def test_an_oracle_row_is_marked_unless_its_name_carries_the_mark() -> None:
+    assert oracle_label("GT replay (oracle)") == "GT replay (oracle)"
+    assert oracle_label("GT replay") == "GT replay (oracle)"
+    # Containing the word is not the mark: the audit's row showed SR 100 unmarked.
+    assert oracle_label("Non-oracle planner") == "Non-oracle planner (oracle)"
