@@ -252,6 +252,14 @@ def llm_backend(config: RunConfig) -> str | None:
     return config.agent.llm.answered_by if config.agent.name in LLM_AGENTS else None
 
 
+def detector_name(config: RunConfig) -> str | None:
+    """The detector that found the agent's landmarks (``simulated``, ``grounding_dino``,
+    ``vlm``), recorded in every result so that a table can say which rows read the
+    simulator's landmark segmentation rather than pixels; ``None`` for an agent that does
+    not perceive (the perceiving agents are the LLM agents)."""
+    return config.agent.detector.name if config.agent.name in LLM_AGENTS else None
+
+
 def run_episode_task(task: EpisodeTask) -> EpisodeResult:
     """Run one episode; never raises for the episode's own failures (see the module docstring)."""
     config = _config(task.config_json)
@@ -301,6 +309,7 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
             **config_marks(config, task.config_json),
             "oracle": is_oracle(config.agent.name),
             "llm_backend": llm_backend(config),
+            "detector": detector_name(config),
             "questions": rollout.questions,
         }
         if config.write_logs:
@@ -384,6 +393,7 @@ def failed_result(
         **config_marks(config, task.config_json),
         "oracle": is_oracle(config.agent.name),
         "llm_backend": llm_backend(config),
+        "detector": detector_name(config),
     }
     if wall_s is not None:
         extra["wall_s"] = round(wall_s, 6)

@@ -28,7 +28,7 @@ from skyvln_eval.metrics.results_io import check_unique
 
 #: Text columns of the scores frame, after ``oracle``, each empty where not said:
 #: what answered the LLM calls, how the episode ran, and the first line of its error.
-TEXT_COLUMNS = ("llm_backend", "execution_mode", "error")
+TEXT_COLUMNS = ("llm_backend", "detector", "execution_mode", "error")
 
 #: Control columns of the scores frame (NaN-free: missing summaries leave them empty,
 #: ``has_control`` says which rows have them; ``min_clearance_m`` is empty without
@@ -133,7 +133,8 @@ def score_results(
             "episode_id": [r.episode_id for r in results],
             "status": [r.status for r in results],
             "oracle": pd.array([_oracle(r) for r in results], dtype="boolean"),
-            "llm_backend": pd.array([_llm_backend(r) for r in results], dtype="string"),
+            "llm_backend": pd.array([_said(r, "llm_backend") for r in results], dtype="string"),
+            "detector": pd.array([_said(r, "detector") for r in results], dtype="string"),
             "execution_mode": pd.array([_execution_mode(r) for r in results], dtype="string"),
             "error": pd.array([_first_line(r.error) for r in results], dtype="string"),
             "n_views": visited.lengths,
@@ -200,11 +201,12 @@ def _first_line(error: str | None) -> str | None:
     return None if not error else error.strip().splitlines()[0]
 
 
-def _llm_backend(result: EpisodeResult) -> str | None:
-    """The backend that answered ``result``'s LLM calls (its ``extra["llm_backend"]``),
-    ``None`` for an agent without LLM modules or a run that did not say."""
-    value = result.extra.get("llm_backend")
+def _said(result: EpisodeResult, key: str) -> str | None:
+    """What ``result``'s run said of it in ``extra[key]``: ``llm_backend``, the backend
+    that answered its LLM calls, or ``detector``, the detector that found its landmarks;
+    ``None`` for an agent without them or a run that did not say."""
+    value = result.extra.get(key)
     if value is None or isinstance(value, str):
         return value
     where = "/".join(result.key)
-    raise MetricInputError(f"{where}: extra.llm_backend must be a string, got {value!r}")
+    raise MetricInputError(f"{where}: extra.{key} must be a string, got {value!r}")

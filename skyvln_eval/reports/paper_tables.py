@@ -203,6 +203,7 @@ def paper_table(
     asked = _questions_note(scores, shown, spec, mode)
     crashes = _crashes_note(scores, shown, spec, mode, conventions)
     degraded = _degraded_note(scores, shown, spec, mode)
+    detector = _detector_note(scores, shown, spec, mode)
     return build_table(
         summary,
         spec,
@@ -211,7 +212,11 @@ def paper_table(
         mode,
         digits,
         show_ci,
-        list(dict.fromkeys([*notes, *sorted(set(marker_notes)), *crashes, *degraded, *asked])),
+        list(
+            dict.fromkeys(
+                [*notes, *sorted(set(marker_notes)), *detector, *crashes, *degraded, *asked]
+            )
+        ),
         unranked=references,
         withheld=withheld,
     )
@@ -262,6 +267,29 @@ def _flagged_per_cell(
             if count:
                 parts.append(f"{row} on {title} {count} of {int(cell.sum())}")
     return parts
+
+
+#: What a row whose landmarks the ``simulated`` detector found rests on, said in the tables:
+#: it reads the simulator's segmentation of the landmarks, not pixels.
+SIMULATED_DETECTOR_NOTE = (
+    "Landmarks found by the simulated detector: the simulator's segmentation of the "
+    "landmarks with their true categories, colours measured in the pixels, and seeded "
+    "misses, false positives and wrong labels; not a detector on pixels"
+)
+
+
+def _detector_note(
+    scores: pd.DataFrame, rows: Sequence[str], spec: TableSpec, mode: str
+) -> list[str]:
+    """Which rows found their landmarks with the ``simulated`` detector: their numbers
+    rest on it as much as on the agent (a detector on pixels, ``grounding_dino``, finds
+    fewer and worse)."""
+    if "detector" not in scores.columns:
+        return []
+    sel = _shown_cells(scores, spec, mode)
+    simulated = sel.loc[sel["detector"] == "simulated", "system"]
+    named = [row for row in rows if row in set(simulated)]
+    return [f"{SIMULATED_DETECTOR_NOTE} ({', '.join(named)})."] if named else []
 
 
 def _degraded_note(

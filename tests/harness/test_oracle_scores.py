@@ -28,6 +28,12 @@ def test_a_table_made_from_scores_never_ranks_the_oracle(
     oracle_rows = read_results(tmp_path / "ground_truth" / RESULTS_FILE)
     assert [r.extra["oracle"] for r in oracle_rows] == [True, True]
     assert not any(r.extra["oracle"] for r in read_results(tmp_path / "random" / RESULTS_FILE))
+    # Which detector found the landmarks: only an agent that perceives has one.
+    detectors = {
+        agent: {r.extra["detector"] for r in read_results(tmp_path / agent / RESULTS_FILE)}
+        for agent in systems.values()
+    }
+    assert detectors == {"ground_truth": {None}, "random": {None}, "navgpt": {"simulated"}}
 
     out = tmp_path / "scores"
     runs = [str(tmp_path / agent) for agent in systems.values()]

@@ -265,3 +265,31 @@ def test_an_oracle_row_is_marked_unless_its_name_carries_the_mark() -> None:
     assert oracle_label("GT replay") == "GT replay (oracle)"
     # Containing the word is not the mark: the audit's row showed SR 100 unmarked.
     assert oracle_label("Non-oracle planner") == "Non-oracle planner (oracle)"
+
+
+def test_rows_whose_landmarks_the_simulated_detector_found_say_so() -> None:
+    # An audit: the simulated detector labels the simulator's landmark segmentation with
+    # its true categories; a table did not say which rows rested on it.
+    results = [
+        result(
+            [square(0, 0), square(0, 60)],
+            GOAL,
+            system=system,
+            split="val_seen",
+            episode_id=f"1913__{k}_1",
+            extra={"detector": detector},
+        )
+        for system, detector in (("Full", "simulated"), ("DINO", "grounding_dino"), ("PID", None))
+        for k in range(2)
+    ]
+    scores = score_results(results)
+    said = scores.drop_duplicates("system").set_index("system").detector
+    assert said["Full"] == "simulated" and said["DINO"] == "grounding_dino"
+    assert pd.isna(said["PID"])
+    md = to_markdown(paper_table(scores, TABLE_I, MetricConventions()))
+    note = next(line for line in md.splitlines() if "simulated detector" in line)
+    assert note.endswith("not a detector on pixels (Full).")
+    # Scores made before the column: nothing is said.
+    assert "simulated detector" not in to_markdown(
+        paper_table(scores.drop(columns="detector"), TABLE_I, MetricConventions())
+    )
