@@ -6,9 +6,10 @@
    episodes/s, wall time (aim: at most 60 s on 2 cores) and the simulated-to-wall-clock
    time ratio.
 
-Each row gives the CPU time of the run (its worker processes and this one) and the peak
-resident memory of every worker process (``ru_maxrss`` read in the worker after each
-episode).
+Each row gives the CPU time of the run (its worker processes and this one), the episodes
+by status (a run with an error episode, or an incomplete one, stops the benchmark: its
+throughput would not be the agent's) and the peak resident memory of every worker
+process (its own ``VmHWM``, read in the worker after each episode).
 3. LLM concurrency, against a loopback OpenAI-compatible server (in a process of its
    own, as a remote model is) that answers after 200 ms: 64 raw calls one after another
    vs 16 at a time (aim: at least 10x); 16 episodes of the agent with the ``openai``
@@ -57,9 +58,23 @@ from skyvln_eval.llm.types import GenerationConfig, Message
 from skyvln_eval.metrics.results_io import read_results
 
 
+def own_peak_kib() -> int:
+    """This process's own peak resident memory (KiB): ``VmHWM``, which starts afresh at
+    ``exec``. (``ru_maxrss`` does not: a spawned worker inherits the peak of the parent
+    it was forked from, so a parent of 1.2 GiB showed every worker at 1.2 GiB.)"""
+    try:
+        with Path("/proc/self/status").open(encoding="ascii") as status:
+            for line in status:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1])
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # not Linux: an upper bound
+
+
 def _measured(fn: Callable[[Any], Any], task: Any) -> tuple[Any, int, int]:
-    """``fn(task)``, the worker's process id and its peak resident memory so far (KiB)."""
-    return fn(task), os.getpid(), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    """``fn(task)``, the worker's process id and its own peak resident memory so far."""
+    return fn(task), os.getpid(), own_peak_kib()
 
 
 class PeakMemory:
@@ -95,6 +110,11 @@ def harness_rows(label: str, config: RunConfig, run_dir: Path, rounds: int) -> N
         )
 
 
+def _statuses(statuses: dict[str, int]) -> str:
+    """``ok 405, degraded 6``: a row of degraded episodes is not a row of the agent's."""
+    return ", ".join(f"{status} {count}" for status, count in sorted(statuses.items()))
+
+
 def harness_row(label: str, config: RunConfig, run_dir: Path) -> tuple[float, int]:
     """One run of ``config`` and its row; returns the wall time and the episodes."""
     prepare_job(config, run_dir)  # episode logs converted once, not timed
@@ -107,6 +127,8 @@ def harness_row(label: str, config: RunConfig, run_dir: Path) -> tuple[float, in
     # neighbours, the CPU time much less so.
     cpu = cpu_seconds() - cpu_before
     n = len(report.expected)
+    if not report.complete or report.errors:  # a throughput of failures is no figure
+        raise SystemExit(f"{label}: {report.statuses}, errors {report.errors}")
     ratio = report.simulated_s / wall if wall else float("nan")
     peaks = ", ".join(f"{kib / 1024:.0f}" for kib in sorted(executor.peak_kib.values()))
     # Official mode flies nothing: its nominal step time is not simulated time.
@@ -118,7 +140,7 @@ def harness_row(label: str, config: RunConfig, run_dir: Path) -> tuple[float, in
     print(
         f"{label:<28} {n:>5} episodes {wall:>7.1f} s  {n / wall:>6.2f} episodes/s  {simulated}"
         f"CPU {cpu:.0f} s ({1000 * cpu / n:.0f} ms per episode)  "
-        f"errors {len(report.errors)}  peak RSS per worker (MiB): {peaks}"
+        f"{_statuses(report.statuses)}  peak RSS per worker (MiB): {peaks}"
     )
     return wall, n
 

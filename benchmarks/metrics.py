@@ -144,6 +144,8 @@ def main() -> None:
     line("score_results (official + R2R + cost)", t_score, "aim < 10 s for 100,000 episodes")
     line(f"naive per-episode loop, {m:,} episodes", t_naive, f"-> {naive_total:.1f} s scaled")
     print(f"  ratio naive / score_results: {naive_total / t_score:.1f}x (agree on subset: {agree})")
+    if not agree:  # a faster scorer that scores otherwise is no result
+        raise SystemExit("score_results and the naive per-episode scorer disagree")
     sr, osr = scores.success.mean() * 100, scores.oracle_success.mean() * 100
     print(f"  SR {sr:.1f} %, OSR {osr:.1f} %, SPL {scores.spl.mean() * 100:.1f} %")
 
