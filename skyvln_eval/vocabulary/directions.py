@@ -5,12 +5,19 @@ abbreviation ("NE", in capitals), as an adverb or adjective ("northward", "north
 "north-easterly", "northbound", "northern") or colloquially ("up north", where "up" is
 only colour). :func:`compass_point` reads one word; :func:`compass_points_in` reads a
 sequence of words, joining "north" + "east" written apart.
+
+Directions relative to the drone are read too: clock hours ("at your 2 o'clock", "two o
+clock": 12 is straight ahead, 3 the right, 6 behind, 9 the left; :func:`clock_at`) and
+the words of turning back ("turn around", "make a U-turn", "fly back": :data:`TURN_AROUND`).
+:func:`relative_compass` turns either into a compass point given the drone's heading.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from typing import Final
+
+from skyvln_eval.vocabulary.quantities import NUMBER_WORDS
 
 #: Compass points and their bearings, degrees clockwise from north.
 COMPASS: Final[dict[str, float]] = {
@@ -46,6 +53,30 @@ AHEAD_PHRASES: Final = (
     ("directly", "ahead"),
     ("ahead",),
 )
+
+#: Words after an hour that make it a clock direction ("2 o'clock", "2 o clock", "2 oclock").
+CLOCK_WORDS: Final[tuple[tuple[str, ...], ...]] = (("o'clock",), ("oclock",), ("o", "clock"))
+#: Saying to fly the way the drone came from, or the opposite way to its heading.
+TURN_AROUND: Final[tuple[tuple[str, ...], ...]] = (
+    ("turn", "around"),
+    ("turn", "round"),
+    ("turn", "back"),
+    ("u-turn",),
+    ("u", "turn"),
+    ("uturn",),
+    ("go", "back"),
+    ("fly", "back"),
+    ("head", "back"),
+    ("come", "back"),
+    ("move", "back"),
+    ("backward",),
+    ("backwards",),
+    ("reverse",),
+    ("opposite", "direction"),
+    ("opposite", "way"),
+)
+#: Hours of the clock, degrees clockwise from straight ahead.
+CLOCK_HOUR_DEG: Final = 30.0
 
 
 def compass_point(word: str) -> str | None:
@@ -86,3 +117,22 @@ def compass_word(bearing_deg: float) -> str:
     """The nearest of the eight compass points."""
     names = list(COMPASS)
     return names[int(((bearing_deg % 360.0) + 22.5) // 45.0) % 8]
+
+
+def clock_at(words: Sequence[str], i: int) -> tuple[int, int] | None:
+    """The clock hour written from ``words[i]`` on ("2 o'clock", "two o clock", "12
+    oclock"; lower-case words) and the index after it; None if there is none."""
+    word = words[i]
+    hour = int(word) if word.isdigit() else NUMBER_WORDS.get(word)
+    if hour is None or not 1 <= hour <= 12:
+        return None
+    for cue in CLOCK_WORDS:
+        if tuple(words[i + 1 : i + 1 + len(cue)]) == cue:
+            return hour, i + 1 + len(cue)
+    return None
+
+
+def relative_compass(offset_deg: float, heading_deg: float) -> str:
+    """The compass point ``offset_deg`` clockwise from the drone's heading (compass degrees),
+    the nearest of the eight: 60 deg off a heading of 0 is "northeast"."""
+    return compass_word(heading_deg + offset_deg)

@@ -308,6 +308,9 @@ ORDINARY_HELD_OUT_WORDS = frozenset(
         *("all", "are", "before", "could", "or", "so", "under", "with", "same", "last"),
         *("bear", "corner", "crossing", "crossroads", "past", "hover", "hold", "wrong"),
         *("called", "named", "end", "ends", "it'll", "you'll"),
+        # The commonest landmark word of real AVDN dialogs ("the grey building"): generic
+        # structures are landmarks to the reader (vocabulary/landmarks.py GENERIC_PHRASES).
+        "building",
         # Field names and messages of the backend's answers, not words it reads.
         *("instruction", "place", "position"),
     }
