@@ -1,9 +1,10 @@
 """What one clause of an instruction says, read word by word against the vocabulary.
 
-A clause is scanned for landmark mentions first (a category word with the adjectives
-before it and, after "with" / "that" / ..., the rest of its description), then the words
-outside them for cues: compass points (and whether a negation denies them), left / right
-as a turn or as a side, ahead, junctions and ordinals, distances, and the words that
+A clause is scanned for landmark mentions first (a category or generic word, "the church
+roof" or "the parking lot" as one, with the adjectives before it and, after "with" /
+"that" / ..., the rest of its description), then the words outside them for cues: compass
+points (and whether a negation denies them), clock directions and turning back, left /
+right as a turn or as a side, ahead, junctions and ordinals, distances, and the words that
 make a clause about stopping, the destination or passing something.
 """
 
@@ -11,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Final
 
 from skyvln_eval.llm.rule.text import NAME, Word
 from skyvln_eval.vocabulary import (
@@ -20,6 +22,7 @@ from skyvln_eval.vocabulary import (
     DESCRIPTION_GOES_ON,
     DESTINATION_CUES,
     DETERMINERS,
+    GENERIC_PHRASES,
     JUNCTIONS,
     MOTION_VERBS,
     NEGATIONS,
@@ -30,8 +33,10 @@ from skyvln_eval.vocabulary import (
     RIGHT_AS_JUST_BEFORE,
     SIDE_PREPOSITIONS,
     STOP_CUES,
+    TURN_AROUND,
     TURN_VERBS,
     Cue,
+    clock_at,
     compass_point,
     compass_points_in,
     distance_at,
@@ -39,9 +44,13 @@ from skyvln_eval.vocabulary import (
     ordinal_of,
 )
 
-#: Category phrases as word tuples, longest first ("water tower" before "tower").
-_CATEGORY_WORDS = sorted(
-    ((tuple(p.split()), c) for c, phrases in CATEGORY_PHRASES.items() for p in phrases),
+#: Category phrases (and generic ones, category None) as word tuples, longest first
+#: ("water tower" before "tower").
+_CATEGORY_WORDS: list[tuple[tuple[str, ...], str | None]] = sorted(
+    [
+        *((tuple(p.split()), c) for c, phrases in CATEGORY_PHRASES.items() for p in phrases),
+        *((tuple(p.split()), None) for phrases in GENERIC_PHRASES.values() for p in phrases),
+    ],
     key=lambda item: -len(item[0]),
 )
 # First words of stop and destination cues end a description ("a red church where you
@@ -49,28 +58,51 @@ _CATEGORY_WORDS = sorted(
 _CUE_STARTS = frozenset(c[0] for c in (*STOP_CUES, *DESTINATION_CUES) if c[0] != "get")
 _LEFT_STOPS = PREPOSITIONS | PRONOUNS | TURN_VERBS | MOTION_VERBS | DESCRIPTION_ENDS | _CUE_STARTS
 _TRAILING = PREPOSITIONS | DETERMINERS | frozenset({"and", "or", "it", "straight", "just"})
+#: Words that place one landmark by another ("the house next to the pond").
+_LOCATING: Final = frozenset(
+    {
+        ("beside",),
+        ("next", "to"),
+        ("near",),
+        ("behind",),
+        ("opposite",),
+        ("close", "to"),
+        ("across", "from"),
+        ("adjacent", "to"),
+    }
+)
+#: Clock hours that say on which side a landmark is seen.
+_CLOCK_SIDES = {
+    **dict.fromkeys(range(1, 6), "right"),
+    **dict.fromkeys(range(7, 12), "left"),
+    12: "ahead",
+}
 _BEFORE_A_TURN = TURN_VERBS | MOTION_VERBS | frozenset({"a", "the", "hard", "sharp", "slight"})
 
 
 @dataclass
 class Mention:
     """A landmark mentioned in a clause: its phrase as written (lower case), its category
-    and where it is in the clause (word indexes, end excluded)."""
+    (None for a generic one: "the grey building") and where it is in the clause (word
+    indexes, end excluded)."""
 
     phrase: str
-    category: str
+    category: str | None
     start: int
     end: int
 
 
 @dataclass
 class ClauseReading:
-    """What a clause says: headings (and denied ones), a turn or a side, a junction and its
-    ordinal, landmarks and proper names, a distance, and whether it speaks of stopping,
-    of the destination or of passing, or denies something."""
+    """What a clause says: headings (and denied ones), a clock direction (``clock``, the
+    hour) or turning back (``around``), a turn or a side, a junction and its ordinal,
+    landmarks and proper names, a distance, and whether it speaks of stopping, of the
+    destination or of passing, or denies something."""
 
     headings: list[str] = field(default_factory=list)
     denied: list[str] = field(default_factory=list)
+    clock: int | None = None
+    around: bool = False
     turn: str | None = None
     side: str | None = None
     junction: bool = False
@@ -88,11 +120,24 @@ class ClauseReading:
         return next((m for m in self.mentions if m.category == "roundabout"), None)
 
 
-def _category_at(words: Sequence[str], i: int) -> tuple[int, str] | None:
-    for phrase, category in _CATEGORY_WORDS:
-        if tuple(words[i : i + len(phrase)]) == phrase:
-            return len(phrase), category
-    return None
+def _category_at(words: Sequence[str], i: int) -> tuple[int, str | None] | None:
+    """(length, category) of the landmark words at ``words[i]``, run together ("the church
+    roof", "the parking lot building"): the first category among them, None if all are
+    generic."""
+    length, category, found = 0, None, False
+    while i + length < len(words):
+        hit = next(
+            (
+                (len(phrase), c)
+                for phrase, c in _CATEGORY_WORDS
+                if tuple(words[i + length : i + length + len(phrase)]) == phrase
+            ),
+            None,
+        )
+        if hit is None:
+            break
+        length, category, found = length + hit[0], category or hit[1], True
+    return (length, category) if found else None
 
 
 def _is_boundary(words: Sequence[str], k: int) -> bool:
@@ -103,6 +148,7 @@ def _is_boundary(words: Sequence[str], k: int) -> bool:
         or compass_point(w) is not None
         or distance_at(words, k) is not None
         or ordinal_of(w) is not None
+        or w in ("o'clock", "oclock", "clock")
     )
 
 
@@ -138,6 +184,11 @@ def _mentions(words: Sequence[str]) -> list[Mention]:
                 end += 1
         while end > i + length and words[end - 1] in _TRAILING:
             end -= 1
+        last = found[-1] if found else None
+        if last is not None and tuple(words[last.end : start]) in _LOCATING:
+            # "the long building beside the field": one landmark, placed by another.
+            start, category = last.start, last.category or category
+            found.pop()
         found.append(Mention(" ".join(words[start:end]), category, start, end))
         i = end
     return found
@@ -192,6 +243,10 @@ def read_clause(clause: Sequence[Word]) -> ClauseReading:
     for i, point in points:  # "not north", "no more west": denied unless a point comes between
         denied = any(q < i and not any(q < j < i for j, _ in points) for q in negations)
         (reading.denied if denied else reading.headings).append(point)
+    reading.clock = next(
+        (hit[0] for i in range(len(words)) if (hit := clock_at(words, i)) is not None), None
+    )
+    reading.around = _has_cue(words, TURN_AROUND) is not None
     reading.destination = _has_cue(words, DESTINATION_CUES) is not None
     reading.stop = _has_cue(words, STOP_CUES) is not None
     reading.passing = _has_cue(words, PASS_CUES) is not None
@@ -217,6 +272,11 @@ def read_clause(clause: Sequence[Word]) -> ClauseReading:
         reading.ordinal = ordinal_of(words[at - 1]) if at > 0 else None
     if reading.side is None and _has_cue(words, AHEAD_PHRASES) is not None and not turning:
         reading.side = "ahead"
+    moving = turning or any(w in MOTION_VERBS for w in words)
+    # "At 3 o'clock you will see a pond": where a landmark is, not where to fly.
+    seen_at = not (moving or reading.destination or reading.stop or reading.side)
+    if reading.clock in _CLOCK_SIDES and reading.mentions and seen_at:
+        reading.side, reading.clock = _CLOCK_SIDES[reading.clock], None
     distances = distances_in(words)
     reading.distance_m = distances[0][1] if distances else None
     return reading

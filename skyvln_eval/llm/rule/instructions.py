@@ -7,6 +7,11 @@ is read for those (:mod:`.clauses`); a sentence then puts its clauses together, 
 order a commander chooses does not matter:
 
 - a compass point not denied ("not north any more") is a heading;
+- a clock direction ("at your 2 o'clock") or turning back ("turn around", "fly back") is
+  a heading too, the compass point that far round from the drone's heading when the
+  instruction is read (12 o'clock straight on); without a heading, 12 o'clock is ahead,
+  1 to 5 a right turn, 7 to 11 a left turn, and 6 or turning back two right turns (the
+  sub-goals have no "back");
 - a left / right with a verb of turning or at a junction is a turn; a junction's ordinal
   ("the second crossing") or landmark ("by the church", "the roundabout") qualifies the
   turn said in the same clause or next to it ("At the first intersection, turn left");
@@ -27,8 +32,9 @@ from typing import Any
 
 from skyvln_eval.llm.rule.clauses import ClauseReading, read_clause
 from skyvln_eval.llm.rule.text import Word, sentences_of, words_of
-from skyvln_eval.vocabulary import NEGATIVE_ANSWERS, compass_points_in
+from skyvln_eval.vocabulary import NEGATIVE_ANSWERS, compass_points_in, relative_compass
 from skyvln_eval.vocabulary.cues import MOTION_VERBS
+from skyvln_eval.vocabulary.directions import CLOCK_HOUR_DEG
 from skyvln_eval.vocabulary.words import phrase_words
 
 Goal = dict[str, Any]
@@ -39,10 +45,11 @@ _JUNCTION = "junction"  # a junction said before (or without) its turn
 class _Sentence:
     """The goals one sentence adds, and what its clauses left for the others to settle."""
 
-    def __init__(self, goals: list[Goal], denied: set[str]) -> None:
+    def __init__(self, goals: list[Goal], denied: set[str], heading_deg: float | None) -> None:
         self.goals = goals  # the whole instruction's, appended to in order
         self.start = len(goals)
         self.denied = denied
+        self.heading_deg = heading_deg
         self.turn_waiting: Goal | None = None
         self.junction_waiting: Goal | None = None
         self.free_destination: list[int] = []
@@ -64,6 +71,11 @@ class _Sentence:
         del self.goals[next(i for i, g in enumerate(self.goals) if g is goal)]
 
     def read(self, k: int, r: ClauseReading) -> None:
+        hour = 6 if r.around and r.clock is None else r.clock
+        if hour is not None and not r.negated:
+            for goal in _relative_goals(hour, self.heading_deg):
+                if goal["kind"] == "turn" or self.goals[-1:] != [goal]:
+                    self.add(goal, k)
         for point in r.headings:
             last = self.goals[-1] if self.goals else {}
             if point not in self.denied and last != {"kind": "head", "direction": point}:
@@ -173,6 +185,19 @@ class _Sentence:
         return after[0] if after else (roleless[-1] if roleless else None)
 
 
+def _relative_goals(hour: int, heading_deg: float | None) -> list[Goal]:
+    """The sub-goals of a clock direction (hour 1-12; turning back is 6 o'clock): a heading
+    with the drone's heading known, else turns (see the module docstring)."""
+    if heading_deg is not None:
+        point = relative_compass(hour % 12 * CLOCK_HOUR_DEG, heading_deg)
+        return [{"kind": "head", "direction": point}]
+    if hour == 12:
+        return [{"kind": "head", "direction": "ahead"}]
+    if hour == 6:
+        return [{"kind": "turn", "direction": "right"}, {"kind": "turn", "direction": "right"}]
+    return [{"kind": "turn", "direction": "right" if hour < 6 else "left"}]
+
+
 def _has_stop(goals: list[Goal]) -> bool:
     return any(g["kind"] in ("destination", "stop_at", "stop_after", "stop") for g in goals)
 
@@ -186,13 +211,17 @@ def _denied_by_answer(text: str, question: str | None) -> set[str]:
     return {point for _, point in compass_points_in(asked)}
 
 
-def parse_instruction(text: str, question: str | None = None) -> list[dict[str, Any]]:
+def parse_instruction(
+    text: str, question: str | None = None, heading_deg: float | None = None
+) -> list[dict[str, Any]]:
     """Sub-goals (as JSON dicts) of one instruction, in order; ``question`` is the
-    follower's question the instruction answers, if any."""
+    follower's question the instruction answers, if any; ``heading_deg`` the drone's
+    compass heading as the request gives it (clock directions and turning back are read
+    from it), if any."""
     goals: list[Goal] = []
     denied = _denied_by_answer(text, question)
     for clauses in sentences_of(text):
-        sentence = _Sentence(goals, denied)
+        sentence = _Sentence(goals, denied, heading_deg)
         for k, clause in enumerate(clauses):
             sentence.read(k, read_clause(clause))
         sentence.settle()

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from skyvln_eval.vocabulary import category_of, colours_in, compass_word, content_words
+from skyvln_eval.vocabulary import colours_in, compass_word, content_words, landmark_kind
 
 LEVEL_SCORE = {"strong": 3.0, "partial": 2.0, "weak": 1.0, "none": 0.0, "unknown": 1.0}
 
@@ -18,8 +18,11 @@ LEVEL_SCORE = {"strong": 3.0, "partial": 2.0, "weak": 1.0, "none": 0.0, "unknown
 def compare(phrase: str, label: str, caption: str) -> tuple[str, list[str]]:
     """Match level of a candidate for a phrase, and the reasons."""
     reasons = []
-    wanted_category, seen_category = category_of(phrase), category_of(f"{label} {caption}")
-    same_kind = wanted_category is not None and wanted_category == seen_category
+    # A generic kind ("the grey building") is the same kind only as the same generic word,
+    # and never more than a partial match: it says less than a category.
+    wanted_kind, seen_kind = landmark_kind(phrase), landmark_kind(f"{label} {caption}")
+    same_kind = wanted_kind is not None and wanted_kind == seen_kind
+    generic = wanted_kind is not None and not wanted_kind[1]
     reasons.append(
         f"same kind of place ({label})" if same_kind else f"a {label}, not the kind named"
     )
@@ -36,7 +39,7 @@ def compare(phrase: str, label: str, caption: str) -> tuple[str, list[str]]:
     overlap = len(attributes & content_words(caption)) / len(attributes) if attributes else 1.0
     if attributes:
         reasons.append(f"{overlap:.0%} of the other details agree")
-    if same_kind and not colour_clash and overlap >= 0.5:
+    if same_kind and not colour_clash and overlap >= 0.5 and not generic:
         level = "strong"
     elif same_kind and not colour_clash:
         level = "partial"

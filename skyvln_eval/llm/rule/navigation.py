@@ -21,7 +21,7 @@ import math
 from typing import Any, Final
 
 from skyvln_eval.llm.rule.instructions import parse_instruction
-from skyvln_eval.vocabulary import COMPASS, category_of, text_similarity
+from skyvln_eval.vocabulary import COMPASS, landmark_kind, text_similarity
 
 #: View edge (m) the rule aims for when stopping where nothing says otherwise: the
 #: median end view of the official AVDN agent's real test_unseen rollouts (122 m over
@@ -177,8 +177,8 @@ def _dead_reckon(
 
 
 def _coarse_target(goal: dict[str, Any], landmarks: list[dict[str, Any]]) -> dict[str, Any] | None:
-    category = category_of(goal["landmark"])
-    same = [e for e in landmarks if category is not None and category_of(e["label"]) == category]
+    kind = landmark_kind(goal["landmark"])  # a category, or the same generic word
+    same = [e for e in landmarks if kind is not None and landmark_kind(e["label"]) == kind]
     if not same:
         return None
     return max(same, key=lambda e: (e["view"] == "below", e["score"]))
