@@ -139,7 +139,9 @@ class SkyVLNAgent(Agent):
             st.dialog = DialogText.of(turns, max(t.round_index for t in turns))
             st.plan, st.done = None, set()
         if st.plan is None:
-            st.plan = self._extract_subgoals(st.dialog, records, exchanges, failures)
+            # The way it faces now, from its own pose: the words are said relative to it.
+            heading = observation.pose.heading_deg
+            st.plan = self._extract_subgoals(st.dialog, heading, records, exchanges, failures)
             if self.memory is not None and first_plan:
                 self.memory.reset(st.plan.context_landmarks)
         pose = observation.pose
@@ -243,20 +245,21 @@ class SkyVLNAgent(Agent):
     def _extract_subgoals(
         self,
         dialog: DialogText,
+        heading_deg: float,
         records: list[LlmCall],
         exchanges: list[dict[str, Any]],
         failures: list[ModuleFailure],
     ) -> SubGoalPlan:
-        """The sub-goals of the dialog; when none could be extracted, the failure is
-        recorded and the agent goes on from the commander's words alone (they are in
-        every motion prompt)."""
+        """The sub-goals of the dialog, for a drone facing ``heading_deg`` (compass
+        degrees); when none could be extracted, the failure is recorded and the agent goes
+        on from the commander's words alone (they are in every motion prompt)."""
         # Phrases may be made only of the dialog's words, so the schema is this dialog's.
         schema = subgoals_json_schema(dialog)
         config = self.llm.generation("subgoals", json_schema=schema, schema_name="subgoals")
         call = call_json(
             self.client,
             "subgoals",
-            subgoal_messages(dialog),
+            subgoal_messages(dialog, heading_deg),
             config,
             functools.partial(parse_subgoals, dialog=dialog),
             self.llm.repair_policy(),

@@ -162,8 +162,12 @@ def _without_speaker(line: str) -> str:
     return text if separator and speaker in ("commander", "follower") else line
 
 
-def subgoal_messages(dialog: DialogText) -> list[Message]:
-    """The prompt: earlier rounds as context, the current round to decompose."""
+def subgoal_messages(dialog: DialogText, heading_deg: float | None = None) -> list[Message]:
+    """The prompt: earlier rounds as context, the current round to decompose, and the way
+    the drone faces (``heading_deg``, compass degrees from its own pose, when known):
+    commanders speak relative to it ("at your 2 o'clock", "turn around"), and a head
+    sub-goal takes a compass point."""
+    facing = None if heading_deg is None else round(heading_deg) % 360
     prose = (
         "Decompose the commander's current instruction into sub-goals, in order.\n"
         "Kinds: head (fly towards a compass point: direction), turn (direction left/right, "
@@ -175,13 +179,18 @@ def subgoal_messages(dialog: DialogText) -> list[Message]:
         "Give at least one sub-goal (head ahead when the commander only says to go on). "
         "List landmarks mentioned only in earlier rounds as context_landmarks.\n"
         + dialog.prose()
+        + ("" if facing is None else f"You are facing {facing} degrees (compass bearing).\n")
         + 'Answer as {"subgoals": [{"kind": ..., "landmark": ..., "name": ..., "direction": ..., '
         '"side": ..., "distance_m": ..., "ordinal": ...}], "context_landmarks": [...]} with '
         "null for fields that do not apply.\n"
     )
     return [
         Message("system", SUBGOALS_SYSTEM),
-        task_message(prose, "subgoals", dialog.to_dict()),
+        task_message(
+            prose,
+            "subgoals",
+            dialog.to_dict() | ({} if facing is None else {"heading_deg": facing}),
+        ),
     ]
 
 

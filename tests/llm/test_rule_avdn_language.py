@@ -14,6 +14,8 @@ from typing import Any
 
 import pytest
 
+from skyvln_eval.agent.subgoals import DialogText, parse_subgoals, subgoal_messages
+from skyvln_eval.llm import GenerationConfig, create_backend, read_task_data
 from skyvln_eval.llm.rule.instructions import landmark_phrases, parse_instruction
 from skyvln_eval.llm.rule.matching import compare
 from skyvln_eval.vocabulary import (
@@ -219,3 +221,25 @@ def test_generic_structures_are_landmarks_but_no_category() -> None:
     assert compare("the grey building", "building", "a grey building")[0] == "partial"
     assert compare("the grey church", "church", "a grey church")[0] == "strong"
     assert compare("the round building", "church", "a red church")[0] == "none"
+
+
+def test_the_subgoal_request_says_which_way_the_drone_faces() -> None:
+    dialog = DialogText((), None, "Turn to your 3 o'clock, the destination is the grey building.")
+    messages = subgoal_messages(dialog, 91.6)
+    data = read_task_data(messages)
+    assert data["heading_deg"] == 92
+    assert "You are facing 92 degrees (compass bearing)." in messages[-1].text
+    answer = create_backend("rule").generate(messages, GenerationConfig()).text
+    plan = parse_subgoals(answer, dialog)
+    assert [g.to_dict() for g in plan.subgoals] == [
+        head("south"),
+        goal("destination", "the grey building"),
+    ]
+    # Without a heading the request says nothing of it, and the reader turns right.
+    bare = subgoal_messages(dialog)
+    assert "heading_deg" not in read_task_data(bare) and "facing" not in bare[-1].text
+    answer = create_backend("rule").generate(bare, GenerationConfig()).text
+    assert parse_subgoals(answer, dialog).subgoals[0].to_dict() == {
+        "kind": "turn",
+        "direction": "right",
+    }

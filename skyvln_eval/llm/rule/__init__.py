@@ -30,7 +30,9 @@ def _subgoals(data: dict[str, Any]) -> dict[str, Any]:
     for text in data.get("previous_rounds", []):
         context += [p for p in landmark_phrases(text) if p not in context]
     return {
-        "subgoals": parse_instruction(data.get("instruction") or "", data.get("question")),
+        "subgoals": parse_instruction(
+            data.get("instruction") or "", data.get("question"), data.get("heading_deg")
+        ),
         "context_landmarks": context,
     }
 
