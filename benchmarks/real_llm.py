@@ -85,7 +85,10 @@ def measure(label: str, llm: dict[str, Any], args: argparse.Namespace, out: Path
     decisions = sum(r.decisions for r in results)
     fallbacks = sum(r.fallback_decisions for r in results)
     scores = score_results(results, MetricConventions())
-    tokens = sum(c.tokens or 0 for c in answered)
+    # Every attempt's tokens where the server reported them, failed ones included (what
+    # the model was made to read and write); the count says how many reported none.
+    tokens = sum(c.tokens or 0 for c in calls)
+    untold = sum(c.tokens is None for c in calls)
     latency = sum(c.latency_s for c in answered) / max(1, len(answered))
     print(f"\n## {label}: {len(results)} episodes in {wall:.0f} s")
     print(f"structured output          {report.structured_output or 'none requested'}")
@@ -101,7 +104,10 @@ def measure(label: str, llm: dict[str, Any], args: argparse.Namespace, out: Path
         f"{sum(c.repair and c.final for c in calls)} repairs, "
         f"{sum(c.outcome == 'failed' and c.final for c in calls)} without an answer"
     )
-    print(f"tokens                     {tokens} ({tokens / max(1, len(results)):.0f} per episode)")
+    print(
+        f"tokens                     {tokens} ({tokens / max(1, len(results)):.0f} per episode; "
+        f"all attempts, {untold} of them without a count)"
+    )
     print(f"mean latency per answer    {latency:.2f} s (over the answered attempts)")
     print(
         f"SR / SPL / NE              {100 * scores.success.mean():.1f}% / "
