@@ -34,9 +34,22 @@ SUMMARY_METRICS = ("success", "oracle_success", "spl", "gp_m", "oracle_gp_m", "n
                    "llm_cost_usd", "llm_latency_s", "collided", "min_clearance_m",
                    "solve_failures", "soft_steps", "constraint_violation_steps")  # fmt: skip
 #: What the terminal table shows (summary.csv has every metric above).
-PRINTED_METRICS = ("success", "oracle_success", "spl", "gp_m", "ne_m", "path_length_m",
-                   "status_error", "status_degraded", "fallback_rate", "llm_cost_usd",
-                   "collided")  # fmt: skip
+#: The metrics the score printout shows, under short headers (the tables' names): the
+#: column names of scores.csv would be cut to fit ("oracle_succe…"); the note under the
+#: printout names the column of each header.
+PRINTED_METRICS: dict[str, str] = {
+    "success": "SR",
+    "oracle_success": "OSR",
+    "spl": "SPL",
+    "gp_m": "GP",
+    "ne_m": "NE",
+    "path_length_m": "TL",
+    "status_error": "Error",
+    "status_degraded": "Degraded",
+    "fallback_rate": "Fallback",
+    "llm_cost_usd": "Cost",
+    "collided": "Collided",
+}
 
 
 def _cell(by_metric: Any, metric: str) -> str:
@@ -317,8 +330,8 @@ def _print_summary(
     for column in (*keys, "n"):
         table.add_column(column, justify="left" if column in keys else "right")
     for metric in shown:  # with its unit: scores.csv holds shares as fractions, this in %
-        unit = unit_of(metric)
-        table.add_column(f"{metric}\n({unit})" if unit else metric, justify="right")
+        unit, header = unit_of(metric), PRINTED_METRICS[metric]
+        table.add_column(f"{header}\n({unit})" if unit else header, justify="right")
     oracles = set(oracle_systems(scores))
     stand_ins = stand_in_systems(scores)
     stand_in_labels = marked_labels(stand_ins)
@@ -337,6 +350,8 @@ def _print_summary(
     for warning in warnings:
         console.print(f"WARNING: {warning}", style="bold red", markup=False, highlight=False)
     console.print(table)
+    columns = "; ".join(f"{PRINTED_METRICS[m]}: {m}" for m in shown)
+    console.print(f"Their columns in scores.csv: {columns}.", markup=False, highlight=False)
     if oracles:
         console.print(ORACLE_NOTE, markup=False, highlight=False)
     for kind in dict.fromkeys(stand_ins[s] for s in stand_in_labels):

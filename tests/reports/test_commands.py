@@ -417,6 +417,12 @@ def test_tables_and_the_score_printout_keep_the_two_modes_apart(tmp_path: Path) 
     assert scored.exit_code == 0, scored.output
     header = next(line for line in scored.output.splitlines() if " system " in line)
     assert header.split()[1:7:2] == ["system", "split", "mode"]  # between the box rules
+    # Metrics under short headers, whole (scores.csv's names were cut: "oracle_succe…"),
+    # and the note says which column each is.
+    names = next(line for line in scored.output.splitlines() if " SR " in line).split()
+    assert [n for n in names if n not in "┃"][:6] == ["SR", "OSR", "SPL", "GP", "NE", "TL"]
+    assert "…" not in scored.output.split("Their columns")[0]
+    assert "SR: success; OSR: oracle_success; SPL: spl;" in " ".join(scored.output.split())
     assert sum(" andh-full " in line for line in scored.output.splitlines()) == 6
     scores = str(out / "scores.csv")
     shown = runner.invoke(app, ["table", scores])
