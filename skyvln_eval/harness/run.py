@@ -491,8 +491,10 @@ def speed_cap_note(config: RunConfig) -> str | None:
     return (
         f"{dynamics.controller}'s max_speed_m_s {cap:g} is below the cruise speed "
         f"{dynamics.cruise_speed_m_s:g} m/s: it lags the reference, so its tracking errors "
-        "and flight times measure the cap (raise it in controller_settings for a like-for-like "
-        "comparison)"
+        "and flight times measure the cap, and so do its collisions and clearance (the "
+        "obstacles cross the reference's path when the reference passes, long before a "
+        "lagging drone does; an audit's PID crashed at 15 m/s and not at 5). Raise it in "
+        "controller_settings for a like-for-like comparison"
     )
 
 

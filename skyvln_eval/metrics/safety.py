@@ -54,7 +54,10 @@ CONTROL_LOG_COLUMNS: dict[str, str] = {
     "constraint_violation": "bool",
 }
 
-#: Flown column -> reference column for the tracking errors.
+#: Flown column -> reference column for the tracking errors. Roll and pitch are measured
+#: against the command (held over the next step): the attitude loop's tracking, about a
+#: quarter of it its steady gain (0.75), not the reference trajectory's attitude
+#: (``ref_roll_rad``, which older logs lack); the README says so beside the paper's.
 TRACKED_AXES: dict[str, tuple[str, str]] = {
     "x": ("x_m", "ref_x_m"),
     "y": ("y_m", "ref_y_m"),

@@ -11,8 +11,13 @@ roll and pitch references are each controller's commanded angles (dotted), and t
 error panels say "minus command": the attitude loop's steady gain is below 1 (about 0.75
 for roll), so a steady offset there is the loop's, not a tracking fault. Errors are flown
 minus reference (yaw wrapped to (-pi, pi]); yaw itself is drawn unwrapped (no vertical
-line at +-180 degrees); angles in degrees. A figure draws one flight per controller: a
-log holding several episodes of one controller is refused (their times would interleave).
+line at +-180 degrees); angles in degrees. Yaw is held by the plant's own heading loop
+under every controller (none of them commands it): its error panel says so, since its
+dips differ between controllers only by when each reference turns. A figure draws one
+flight per controller: a log holding several episodes of one controller is refused
+(their times would interleave); controllers that flew different routes (from dynamics
+runs, where each agent chose its own) are drawn, with a title saying that the comparison
+is not like for like (the same route flown at another pace is one route).
 """
 
 from __future__ import annotations
@@ -97,8 +102,33 @@ def control_figure(
     _plot_clearance(figure.add_subplot(grid[4, :], sharex=first), groups, colours)
     handles, labels = axes[0, 0].get_legend_handles_labels()
     figure.legend(handles, labels, loc="outside lower center", ncols=len(labels))
-    figure.suptitle(title or f"6-DOF curves and errors, scenario: {scenario}")
+    heading = title or f"6-DOF curves and errors, scenario: {scenario}"
+    if not _same_route(groups):
+        # From dynamics runs, each controller flew the route its own agent chose: the
+        # panels compare different flights through different encounters.
+        heading += "\nthe controllers flew different routes: not a like-for-like comparison"
+    figure.suptitle(heading)
     return figure
+
+
+#: How far apart two references' paths may pass and still be one route (m): the spacing
+#: of a reference's points at cruise speed is about 1.2 m.
+_SAME_ROUTE_M = 2.0
+
+
+def _same_route(groups: dict[str, pd.DataFrame]) -> bool:
+    """Whether every controller's reference passes where the first one's does (and back),
+    whatever the timing: on the paper's route each segment starts when the drone arrives,
+    so a slower controller's reference is the same path, later."""
+    from scipy.spatial import cKDTree
+
+    paths = [g[["ref_x_m", "ref_y_m", "ref_z_m"]].to_numpy(np.float64) for g in groups.values()]
+    first = cKDTree(paths[0])
+    for path in paths[1:]:
+        there, back = first.query(path)[0], cKDTree(path).query(paths[0])[0]
+        if max(there.max(), back.max()) > _SAME_ROUTE_M:
+            return False
+    return True
 
 
 def _plot_clearance(ax: object, groups: dict[str, pd.DataFrame], colours: dict[str, str]) -> None:
@@ -179,7 +209,13 @@ def _plot_pair(
     what = "position" if unit == "m" else "angle" + (" (dotted: command)" if is_command else "")
     ax_value.set_title(f"{axis} {what}")
     ax_value.set_ylabel(f"{axis} ({unit})")
-    ax_error.set_title(f"{axis} minus command" if is_command else f"{axis} error")
+    ax_error.set_title(
+        f"{axis} minus command"
+        if is_command
+        else f"{axis} error (the plant's heading loop, under every controller)"
+        if axis == "yaw"
+        else f"{axis} error"
+    )
     ax_error.set_ylabel(f"error ({unit})")
     ax_error.axhline(0.0, color="0.6", lw=0.6)
     for ax in (ax_value, ax_error):

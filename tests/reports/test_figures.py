@@ -62,7 +62,12 @@ def test_control_figure_layout_lines_and_determinism(tmp_path: Path) -> None:
         "pitch angle (dotted: command)",
         "yaw angle",
     ]
-    assert titles[9:12] == ["roll minus command", "pitch minus command", "yaw error"]
+    assert titles[9:12] == [
+        "roll minus command",
+        "pitch minus command",
+        "yaw error (the plant's heading loop, under every controller)",
+    ]
+    assert "not a like-for-like" not in figure.get_suptitle()  # one reference
     labels = [line.get_label() for line in axes[0].get_lines()]
     assert labels == ["reference", "nmpc", "pid"]  # shared reference drawn once
     roll_labels = [line.get_label() for line in axes[6].get_lines()]
@@ -75,6 +80,13 @@ def test_control_figure_layout_lines_and_determinism(tmp_path: Path) -> None:
         assert first == again, fmt
     with pytest.raises(DataError, match="choose one"):
         control_figure(log)
+    # Controllers that flew different routes (dynamics runs: each agent chose its own):
+    # drawn, and the title says the comparison is not like for like.
+    apart = log.assign(ref_y_m=np.where(log.controller == "pid", log.ref_y_m + 5.0, log.ref_y_m))
+    assert "not a like-for-like comparison" in control_figure(apart, "static").get_suptitle()
+    # The same route at another pace (the paper's route: a segment starts on arrival).
+    later = log.assign(t_s=np.where(log.controller == "pid", log.t_s * 1.1, log.t_s))
+    assert "not a like-for-like" not in control_figure(later, "static").get_suptitle()
     # Two episodes of one controller would interleave in time: refused, not drawn.
     episodes = pd.concat(
         [control_log("nmpc", "static").assign(episode_id=e) for e in ("e1", "e2")],
