@@ -393,7 +393,8 @@ class LLMError(SkyvlnError):
     """An LLM backend could not produce a completion.
 
     What the failed request still told, for its record: the tokens the server reported
-    for it (``None``: none reported), and the requests of the same attempt it turned down
+    for it (``None``: none reported; ``cached_prompt_tokens`` the part of the prompt a
+    provider's prompt cache served), and the requests of the same attempt it turned down
     for their form before this one (``refused``:
     :class:`~skyvln_eval.llm.types.RefusedRequest`), each an attempt of its own. The
     backend sets them where it knows them; they default to nothing known.
@@ -401,6 +402,7 @@ class LLMError(SkyvlnError):
 
     prompt_tokens: int | None = None
     completion_tokens: int | None = None
+    cached_prompt_tokens: int | None = None
     refused: tuple[RefusedRequest, ...] = ()
 
 

@@ -90,7 +90,10 @@ class LlmCall:
     output the request used: ``json_schema``, ``json_object_schema``, ``json_object`` or
     ``prompt``) are the decoding settings actually sent; ``server_defaults`` names those the
     model refused, which were not sent (``temperature`` is then ``None``: the server's
-    default). ``repair`` marks a call that
+    default). ``cached_prompt_tokens`` is the part of ``prompt_tokens`` a provider's prompt
+    cache served (OpenAI bills it at its ``cached_input`` price), ``reasoning_tokens`` the
+    part of ``completion_tokens`` a reasoning model spent thinking (``None``: not
+    reported; records written before these fields have none). ``repair`` marks a call that
     asked again after an unusable answer. A cache hit has ``cached=True`` and the
     original call's tokens, cost and latency.
     """
@@ -105,6 +108,8 @@ class LlmCall:
     repair: bool = False
     prompt_tokens: int | None = None
     completion_tokens: int | None = None
+    cached_prompt_tokens: int | None = None
+    reasoning_tokens: int | None = None
     cost_usd: float | None = None
     latency_s: float = 0.0
     queue_s: float = 0.0
@@ -127,6 +132,8 @@ class LlmCall:
             raise _issue(f"must be an integer >= 1, got {self.attempt!r}", "attempt")
         _check_count(self.prompt_tokens, "prompt_tokens", optional=True)
         _check_count(self.completion_tokens, "completion_tokens", optional=True)
+        _check_count(self.cached_prompt_tokens, "cached_prompt_tokens", optional=True)
+        _check_count(self.reasoning_tokens, "reasoning_tokens", optional=True)
         _check_count(self.max_tokens, "max_tokens", optional=True)
         _check_amount(self.cost_usd, "cost_usd", optional=True)
         _check_amount(self.latency_s, "latency_s", optional=False)

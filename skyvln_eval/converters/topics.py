@@ -128,7 +128,7 @@ SCHEMAS: Final[dict[str, SchemaSpec]] = {
         SchemaSpec(SCENE_UPDATE, "foxglove/foxglove.SceneUpdate.json"),
         SchemaSpec(DIALOG_TURN, "skyvln_eval/skyvln_eval.DialogTurn.json", version=1),
         SchemaSpec(AGENT_STEP, "skyvln_eval/skyvln_eval.AgentStep.json", version=1),
-        SchemaSpec(LLM_EXCHANGE, "skyvln_eval/skyvln_eval.LLMExchange.json", version=4),
+        SchemaSpec(LLM_EXCHANGE, "skyvln_eval/skyvln_eval.LLMExchange.json", version=5),
         SchemaSpec(CONTROL_STEP, "skyvln_eval/skyvln_eval.ControlStep.json", version=2),
     )
 }

@@ -51,6 +51,8 @@ _FIELDS: Final = (
 #: Fields added since the first cache format, all tuples (entries written before have
 #: none: empty).
 _LATER_FIELDS: Final = ("server_defaults",)
+#: Counts added since, optional (entries written before have none: unknown).
+_LATER_COUNTS: Final = ("cached_prompt_tokens", "reasoning_tokens")
 
 
 def cache_key(
@@ -210,6 +212,7 @@ class ResponseCache:
             data = json.loads(payload)
             values: dict[str, Any] = {name: data[name] for name in _FIELDS}
             values |= {name: tuple(data.get(name, ())) for name in _LATER_FIELDS}
+            values |= {name: data.get(name) for name in _LATER_COUNTS}
             return Completion(**values, cached=True)
         except (ValueError, KeyError, TypeError) as error:
             log.warning(
@@ -222,7 +225,7 @@ class ResponseCache:
         if self._conn is None:
             return
         payload = json.dumps(
-            {name: getattr(completion, name) for name in (*_FIELDS, *_LATER_FIELDS)}
+            {name: getattr(completion, name) for name in (*_FIELDS, *_LATER_FIELDS, *_LATER_COUNTS)}
         )
         try:
             with self._lock:

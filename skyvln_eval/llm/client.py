@@ -119,10 +119,15 @@ class LLMClient:
             return tuple(self._made[since:])
 
     def _cost(self, completion: Completion) -> float | None:
-        return self._attempt_cost(completion.prompt_tokens, completion.completion_tokens)
+        return self._attempt_cost(
+            completion.prompt_tokens, completion.completion_tokens, completion.cached_prompt_tokens
+        )
 
     def _attempt_cost(
-        self, prompt_tokens: int | None, completion_tokens: int | None
+        self,
+        prompt_tokens: int | None,
+        completion_tokens: int | None,
+        cached_prompt_tokens: int | None = None,
     ) -> float | None:
         """What one request cost: priced from the tokens the server reported for it, answered
         or not; unknown (``None``) when it reported none, since a server may bill a request
@@ -132,7 +137,10 @@ class LLMClient:
         if prompt_tokens is None or completion_tokens is None:
             return None  # the server did not say how many tokens it billed
         return self.prices.cost_usd(
-            price_key(self.backend.identity()), prompt_tokens, completion_tokens
+            price_key(self.backend.identity()),
+            prompt_tokens,
+            completion_tokens,
+            cached_prompt_tokens,
         )
 
     def _refused_cost(self, request: RefusedRequest) -> float | None:
@@ -165,6 +173,8 @@ class LLMClient:
             attempt=attempt,
             prompt_tokens=completion.prompt_tokens,
             completion_tokens=completion.completion_tokens,
+            cached_prompt_tokens=completion.cached_prompt_tokens,
+            reasoning_tokens=completion.reasoning_tokens,
             cost_usd=self._cost(completion),
             latency_s=completion.latency_s,
             queue_s=queue_s,
@@ -233,9 +243,12 @@ class LLMClient:
             records.append(
                 replace(
                     base,
-                    cost_usd=self._attempt_cost(error.prompt_tokens, error.completion_tokens),
+                    cost_usd=self._attempt_cost(
+                        error.prompt_tokens, error.completion_tokens, error.cached_prompt_tokens
+                    ),
                     prompt_tokens=error.prompt_tokens,
                     completion_tokens=error.completion_tokens,
+                    cached_prompt_tokens=error.cached_prompt_tokens,
                     outcome="failed",
                     error=f"{type(error).__name__}: {error}",
                     attempt=len(records) + 1,

@@ -93,6 +93,7 @@ from skyvln_eval.llm.openai_errors import (
 )
 from skyvln_eval.llm.openai_request import (
     TASK_DATA_FIELD,
+    Usage,
     checked_extra_body,
     messages_payload,
     reported_usage,
@@ -495,7 +496,7 @@ class OpenAIBackend(LLMBackend):
     ) -> Completion:
         # Usage first: a response that fails below may still say what it billed, and the
         # failed attempt's record counts it.
-        prompt_tokens, completion_tokens = reported_usage(response)
+        usage = reported_usage(response)
         try:
             choice = response.choices[0]
             content = choice.message.content
@@ -507,8 +508,7 @@ class OpenAIBackend(LLMBackend):
                     f"malformed response: the message content is {type(content).__name__} "
                     f"{shown}, not text"
                 )
-                fault.prompt_tokens, fault.completion_tokens = prompt_tokens, completion_tokens
-                raise fault
+                raise _with_usage(fault, usage)
             text = self._scrub(text)
             # As the server said it: None when it gave no reason (not "stop", which would
             # say the model ended its answer itself).
@@ -525,8 +525,7 @@ class OpenAIBackend(LLMBackend):
                     "the server's generation failed (finish_reason 'error'); what came back: "
                     f"{excerpt(text, self._secret())}"
                 )
-                fault.prompt_tokens, fault.completion_tokens = prompt_tokens, completion_tokens
-                raise fault
+                raise _with_usage(fault, usage)
         except (AttributeError, IndexError, TypeError) as error:
             # Gateways (OpenRouter) answer HTTP 200 with an error object when the model
             # behind them failed: what it says is the reason.
@@ -539,20 +538,28 @@ class OpenAIBackend(LLMBackend):
             fault = LLMTransientError(
                 f"malformed response: no choices ({type(error).__name__}): {detail}"
             )
-            fault.prompt_tokens, fault.completion_tokens = prompt_tokens, completion_tokens
-            raise fault from None
+            raise _with_usage(fault, usage) from None
         return Completion(
             text=text,
             backend=self.name,
             model=self.model,
-            prompt_tokens=prompt_tokens,
-            completion_tokens=completion_tokens,
+            prompt_tokens=usage.prompt_tokens,
+            completion_tokens=usage.completion_tokens,
+            cached_prompt_tokens=usage.cached_prompt_tokens,
+            reasoning_tokens=usage.reasoning_tokens,
             latency_s=latency_s,
             finish_reason=finish,
             structured_output=level,
             server_defaults=server_defaults,
             refused=refused,
         )
+
+
+def _with_usage(fault: LLMTransientError, usage: Usage) -> LLMTransientError:
+    """``fault`` with what its response billed, for the failed attempt's record."""
+    fault.prompt_tokens, fault.completion_tokens = usage.prompt_tokens, usage.completion_tokens
+    fault.cached_prompt_tokens = usage.cached_prompt_tokens
+    return fault
 
 
 def _content_text(content: Any) -> str | None:

@@ -107,16 +107,50 @@ def _token_count(value: Any) -> int | None:
     return value if 0 <= value <= MAX_PLAUSIBLE_TOKENS else None
 
 
-def reported_usage(response: Any) -> tuple[int | None, int | None]:
-    """The prompt and completion tokens a response reports (``None``: not reported, or
-    not a count: see below)."""
+@dataclasses.dataclass(frozen=True)
+class Usage:
+    """The token counts a response reports (``None``: not reported, or not a count).
+
+    ``cached_prompt_tokens`` is the part of the prompt a provider's prompt cache served
+    (OpenAI's ``usage.prompt_tokens_details.cached_tokens``, billed at a discount);
+    ``reasoning_tokens`` the part of the completion a reasoning model spent thinking
+    (``usage.completion_tokens_details.reasoning_tokens``, billed as output, never shown).
+    """
+
+    prompt_tokens: int | None = None
+    completion_tokens: int | None = None
+    cached_prompt_tokens: int | None = None
+    reasoning_tokens: int | None = None
+
+
+def _detail(usage: Any, group: str, name: str) -> int | None:
+    """A count inside a usage detail object (an object or, from some servers, a dict)."""
+    details = getattr(usage, group, None)
+    if isinstance(details, dict):
+        return _token_count(details.get(name))
+    return _token_count(getattr(details, name, None))
+
+
+def reported_usage(response: Any) -> Usage:
+    """The token counts a response reports (see :class:`Usage`)."""
     usage = getattr(response, "usage", None)
-    counts = []
-    for name in ("prompt_tokens", "completion_tokens"):
-        counts.append(_token_count(getattr(usage, name, None) if usage is not None else None))
-    if counts[0] == 0:
-        # A prompt was sent, so a server saying 0 prompt tokens counts nothing (some
-        # gateways fill the usage object with zeros): taken at its word, the call would
-        # cost a known $0 and top the cost ranking. Neither count of it is believed.
-        return None, None
-    return counts[0], counts[1]
+    if usage is None:
+        return Usage()
+    prompt = _token_count(getattr(usage, "prompt_tokens", None))
+    completion = _token_count(getattr(usage, "completion_tokens", None))
+    cached = _detail(usage, "prompt_tokens_details", "cached_tokens")
+    reasoning = _detail(usage, "completion_tokens_details", "reasoning_tokens")
+    if prompt == 0:
+        # A prompt was sent, so 0 prompt tokens counts nothing: taken at its word, the
+        # call would cost a known $0 and top the cost ranking. Ollama says 0 when its
+        # cache served the whole prompt, and its completion count is right: only the
+        # prompt count is unknown. Some gateways fill the whole usage object with zeros:
+        # a completion of 0 tokens beside it is no count either.
+        prompt, cached = None, None
+        if completion == 0:
+            completion, reasoning = None, None
+    if cached is not None and prompt is not None and cached > prompt:
+        cached = None  # more cached than sent: not a count of this prompt
+    if reasoning is not None and completion is not None and reasoning > completion:
+        reasoning = None
+    return Usage(prompt, completion, cached, reasoning)

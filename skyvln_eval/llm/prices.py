@@ -43,18 +43,33 @@ def price_key(identity: Mapping[str, Any]) -> str:
 
 @dataclass(frozen=True)
 class Price:
-    """US dollars per million prompt (input) and completion (output) tokens."""
+    """US dollars per million prompt (input) and completion (output) tokens, and per
+    million prompt tokens a provider's prompt cache served (``cached_input``; ``None``:
+    no discount known, they cost ``input``)."""
 
     input_usd_per_mtok: float
     output_usd_per_mtok: float
+    cached_input_usd_per_mtok: float | None = None
 
-    def cost_usd(self, prompt_tokens: int, completion_tokens: int) -> float:
+    def cost_usd(
+        self, prompt_tokens: int, completion_tokens: int, cached_prompt_tokens: int = 0
+    ) -> float:
+        """The cost of a call; ``cached_prompt_tokens`` (part of ``prompt_tokens``) at the
+        cached-input price when there is one, else at the full input price (an upper
+        bound: no provider charges cached tokens more)."""
+        cached = min(cached_prompt_tokens, prompt_tokens)
+        if self.cached_input_usd_per_mtok is None:
+            cached = 0
+        cached_usd = cached * (self.cached_input_usd_per_mtok or 0.0)
         return (
-            prompt_tokens * self.input_usd_per_mtok + completion_tokens * self.output_usd_per_mtok
+            (prompt_tokens - cached) * self.input_usd_per_mtok
+            + cached_usd
+            + completion_tokens * self.output_usd_per_mtok
         ) / 1e6
 
 
 _WARNED_UNPRICED: set[str] = set()
+_WARNED_NO_CACHED_PRICE: set[str] = set()
 
 
 @dataclass(frozen=True)
@@ -65,9 +80,17 @@ class PriceTable:
     prices: Mapping[str, Price] = field(default_factory=dict)
     as_of: str = ""
 
-    def cost_usd(self, key: str, prompt_tokens: int, completion_tokens: int) -> float | None:
+    def cost_usd(
+        self,
+        key: str,
+        prompt_tokens: int,
+        completion_tokens: int,
+        cached_prompt_tokens: int | None = None,
+    ) -> float | None:
         """Cost of one call priced under ``key`` (:func:`price_key`), or ``None`` when the
-        table has no such key (logged once)."""
+        table has no such key (logged once). ``cached_prompt_tokens`` of the prompt are
+        priced at the key's ``cached_input`` price; without one, at the full input price
+        (an upper bound, logged once per key)."""
         price = self.prices.get(key)
         if price is None:
             if key not in _WARNED_UNPRICED:  # once per process: agents are built per episode
@@ -81,7 +104,20 @@ class PriceTable:
                     else "",
                 )
             return None
-        return price.cost_usd(prompt_tokens, completion_tokens)
+        cached = cached_prompt_tokens or 0
+        if (
+            cached
+            and price.cached_input_usd_per_mtok is None
+            and key not in _WARNED_NO_CACHED_PRICE
+        ):
+            _WARNED_NO_CACHED_PRICE.add(key)
+            log.warning(
+                "%s reports prompt tokens served from its prompt cache, but the price table "
+                "has no cached_input price for it: they are charged at the full input price "
+                "(its cost_usd is an upper bound)",
+                key,
+            )
+        return price.cost_usd(prompt_tokens, completion_tokens, cached)
 
 
 def _number(value: Any, where: str) -> float:
@@ -133,9 +169,18 @@ def _parsed_prices(path: str, mtime_ns: int, size: int) -> PriceTable:
     prices = {}
     for spec, entry in table.items():
         where = f"price table {file}, usd_per_million_tokens.{spec}"
-        if not isinstance(entry, dict) or set(entry) != {"input", "output"}:
-            raise ConfigError(f"{where} must have exactly 'input' and 'output'")
+        if (
+            not isinstance(entry, dict)
+            or not {"input", "output"} <= set(entry)
+            or not set(entry) <= {"input", "output", "cached_input"}
+        ):
+            raise ConfigError(
+                f"{where} must have 'input' and 'output' (and optionally 'cached_input')"
+            )
+        cached = entry.get("cached_input")
         prices[str(spec)] = Price(
-            _number(entry["input"], f"{where}.input"), _number(entry["output"], f"{where}.output")
+            _number(entry["input"], f"{where}.input"),
+            _number(entry["output"], f"{where}.output"),
+            None if cached is None else _number(cached, f"{where}.cached_input"),
         )
     return PriceTable(prices=prices, as_of=str(data.get("as_of", "")))

@@ -114,8 +114,11 @@ class Completion:
     """A backend's answer to one call, with its usage and timing.
 
     Token counts are ``None`` when the server did not report them (or reported a prompt of
-    0 tokens, which no request has). ``finish_reason`` is the server's (``None``: it gave
-    none); the offline backends say ``"stop"``. ``structured_output``
+    0 tokens, which no request has). ``cached_prompt_tokens`` is the part of the prompt a
+    provider's prompt cache served (billed at a discount), ``reasoning_tokens`` the part
+    of the completion a reasoning model spent thinking (billed, never shown).
+    ``finish_reason`` is the server's (``None``: it gave none); the offline backends say
+    ``"stop"``. ``structured_output``
     is the level of structured output the request used (``None``: the call asked for
     free text); ``server_defaults`` the decoding parameters of the call that were not sent
     because the model refuses them (it decoded at the server's defaults). ``latency_s`` is
@@ -130,6 +133,8 @@ class Completion:
     model: str
     prompt_tokens: int | None = None
     completion_tokens: int | None = None
+    cached_prompt_tokens: int | None = None
+    reasoning_tokens: int | None = None
     latency_s: float = 0.0
     finish_reason: str | None = "stop"
     cached: bool = False

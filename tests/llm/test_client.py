@@ -160,6 +160,8 @@ def test_call_records_have_exactly_the_agreed_fields() -> None:
         "repair",
         "prompt_tokens",
         "completion_tokens",
+        "cached_prompt_tokens",
+        "reasoning_tokens",
         "cost_usd",
         "latency_s",
         "queue_s",
