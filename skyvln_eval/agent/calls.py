@@ -7,7 +7,10 @@ filter stopped (``"content_filter"``, Azure OpenAI's and others'), or the model'
 ``invalid`` attempt: its record says why, and the call is asked again (``repair``): the
 invalid answer and the parser's reason go back to the model, at the repair temperature
 (higher than the first try's, so the same answer is not simply repeated) and, for a
-cut-off answer, with a larger budget. The exchange of every request (prompt, answer, error, the
+cut-off answer, with a larger budget. A reasoning model (OpenAI's o-series, gpt-5) whose
+hidden reasoning used the whole budget left nothing visible to shorten: it is asked the
+same again with four times the budget (at most :data:`MAX_BUDGET_TOKENS`), and its record
+says the reasoning used the budget. The exchange of every request (prompt, answer, error, the
 records of its attempts with tokens, latency, decoding settings and finish reason) is
 kept for the run log.
 
@@ -34,6 +37,9 @@ T = TypeVar("T")
 
 NO_REPAIR: Final = RepairPolicy(repairs=0)
 MAX_BUDGET_TOKENS: Final = 32768
+#: How much a budget grows when a model's reasoning used it all before any visible answer:
+#: more than an answer cut short needs, since reasoning grows with the room it is given.
+REASONING_BUDGET_FACTOR: Final = 4.0
 
 REPAIR_REQUEST: Final = (
     "Your previous answer could not be used: {reason}. Answer again with exactly one JSON "
@@ -122,7 +128,21 @@ def call_json(
             out.exchanges.append(exchange(module, asked, current, None, out.error, records))
             return out
         text = completion.text
-        if completion.finish_reason == "length":
+        follow: list[Message] | None = None  # the messages that ask again (None: a repair)
+        if completion.finish_reason == "length" and not text.strip():
+            # Nothing visible was cut: the model's hidden reasoning used the budget (the
+            # server's count says how much, when it gives one). "More briefly" would not
+            # help; the same request with more room does.
+            spent = completion.reasoning_tokens
+            used = "" if spent is None else f" ({spent} reasoning tokens)"
+            reason = (
+                f"the model's reasoning used the whole budget of max_tokens={current.max_tokens}"
+                f"{used} before any visible answer (finish_reason 'length')"
+            )
+            follow_up = ""
+            follow = list(asked)
+            budget = min(MAX_BUDGET_TOKENS, math.ceil(current.max_tokens * REASONING_BUDGET_FACTOR))
+        elif completion.finish_reason == "length":
             reason = (
                 f"the answer was cut off at max_tokens={current.max_tokens} "
                 "(finish_reason 'length')"
@@ -164,7 +184,11 @@ def call_json(
         out.exchanges.append(exchange(module, asked, current, text, reason, records))
         if index < repair.repairs:
             out.repairs += 1
-            asked = [*asked, Message("assistant", text), Message("user", follow_up)]
+            asked = (
+                follow
+                if follow is not None
+                else [*asked, Message("assistant", text), Message("user", follow_up)]
+            )
             current = replace(
                 current, temperature=max(current.temperature, repair.temperature), max_tokens=budget
             )
