@@ -436,6 +436,12 @@ class LLMAuthError(LLMError):
     """
 
 
+class LLMQuotaError(LLMAuthError):
+    """The server refused the request for the account's quota or billing limit (OpenAI's
+    HTTP 429 ``insufficient_quota``): no retry helps, so it stops the run as refused
+    credentials do, naming the quota."""
+
+
 class CacheMissError(SkyvlnError):
     """The ``replay`` backend was asked something its cache does not hold.
 

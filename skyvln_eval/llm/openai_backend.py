@@ -87,6 +87,7 @@ from skyvln_eval.llm.openai_errors import (
     ParameterRefused,
     body_text,
     brief,
+    quota_error,
     retry_after_s,
     status_error,
     timed_out,
@@ -443,6 +444,9 @@ class OpenAIBackend(LLMBackend):
             raw = client.chat.completions.with_raw_response.create(**kwargs)
             return self._parsed(raw), raw.text
         except openai.RateLimitError as error:
+            quota = quota_error(error, self._scrub(body_text(error)), self._where())
+            if quota is not None:
+                raise quota from None
             raise LLMTransientError(
                 f"rate limited (HTTP 429): {brief(self._scrub(body_text(error)), 200)}",
                 retry_after_s(error.response.headers),

@@ -20,13 +20,14 @@ import math
 import re
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Final
 
 from skyvln_eval.errors import (
     LLMAuthError,
     LLMContextOverflowError,
     LLMEndpointError,
     LLMError,
+    LLMQuotaError,
     LLMTransientError,
 )
 from skyvln_eval.llm.redact import readable_body
@@ -91,6 +92,27 @@ def retry_after_s(headers: Any, now: float | None = None) -> float | None:
             when = when.replace(tzinfo=datetime.UTC)
         return max(0.0, when.timestamp() - (time.time() if now is None else now))
     return None
+
+
+#: OpenAI's error codes (and types) of a 429 that no wait mends: the account's quota or
+#: billing limit is used up, not a rate limit.
+BILLING_CODES: Final = frozenset(
+    {"insufficient_quota", "billing_hard_limit_reached", "billing_not_active"}
+)
+
+
+def quota_error(error: Any, body: str, where: str) -> LLMQuotaError | None:
+    """The run-stopping error of a 429 whose ``code`` or ``type`` names the account's quota
+    or billing (see :data:`BILLING_CODES`), else ``None`` (a rate limit: retried)."""
+    said = {str(getattr(error, name, "") or "") for name in ("code", "type")}
+    named = sorted(said & BILLING_CODES)
+    if not named:
+        return None
+    return LLMQuotaError(
+        f"{where} refused the request: the account's quota or billing limit is used up "
+        f"(HTTP 429 {named[0]}: {brief(body)}); no retry helps: add credit or raise the "
+        "limit in the provider's billing settings, then run again"
+    )
 
 
 def body_text(error: Any) -> str:
