@@ -8,7 +8,7 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import asdict, dataclass, field
-from typing import Any, Literal, get_args
+from typing import Any, Final, Literal, get_args
 
 Role = Literal["system", "user", "assistant"]
 
@@ -109,6 +109,11 @@ class RefusedRequest:
     completion_tokens: int | None = None
 
 
+#: Finish reasons of a text that is no answer: a content filter's stop, the model's refusal
+#: (OpenAI's structured outputs), an answer cut off at its budget.
+NOT_ANSWERS: Final = frozenset({"content_filter", "refusal", "length"})
+
+
 @dataclass(frozen=True)
 class Completion:
     """A backend's answer to one call, with its usage and timing.
@@ -149,5 +154,6 @@ class Completion:
     @property
     def is_answer(self) -> bool:
         """Whether the model answered something: not an empty text, not a server's filter
-        stopping it. Only answers are cached: a non-answer asked again may get one."""
-        return bool(self.text.strip()) and self.finish_reason != "content_filter"
+        stopping it, not the model declining (``refusal``), not an answer cut off at its
+        budget (``length``). Only answers are cached: a non-answer asked again may get one."""
+        return bool(self.text.strip()) and self.finish_reason not in NOT_ANSWERS

@@ -15,7 +15,15 @@ from skyvln_eval.errors import ActionParseError
 from skyvln_eval.llm import GenerationConfig, LLMClient, Message
 from skyvln_eval.llm.cache import ResponseCache
 from skyvln_eval.llm.config import RepairPolicy
-from skyvln_eval.llm.loopback import LoopbackOpenAIServer, answer, echo_key, key_forms, raw
+from skyvln_eval.llm.loopback import (
+    LoopbackOpenAIServer,
+    Reply,
+    answer,
+    echo_key,
+    key_forms,
+    raw,
+    refusal,
+)
 from skyvln_eval.llm.redact import REDACTED, scrub
 from skyvln_eval.metrics.cost import call_totals
 from tests.llm.loopback_clients import fake_model_prices, loopback_client
@@ -296,3 +304,27 @@ def test_the_loopback_server_answers_only_its_endpoint_and_only_with_a_key() -> 
         assert len(server.requests) == 1  # only the one it answered
         # The toolkit's client posts where a real server listens, with its key.
         assert _client(server).call("motion", HELLO, CONFIG).text
+
+
+@pytest.mark.parametrize(
+    ("reply", "finish"),
+    [
+        # OpenAI's structured outputs: the model declines (content null, finish "stop").
+        (refusal("I'm sorry, I can't help with that."), "refusal"),
+        (answer('{"greeting": "long long', finish_reason="length"), "length"),  # cut off
+    ],
+    ids=["refusal", "length"],
+)
+def test_a_refusal_or_a_cut_off_answer_is_not_cached(
+    reply: Reply, finish: str, tmp_path: Path
+) -> None:
+    cache = ResponseCache(tmp_path / "cache.sqlite")
+    with LoopbackOpenAIServer([reply, answer('{"greeting": "hello"}')]) as server:
+        client = loopback_client(server, 1)
+        client.cache = cache
+        first = client.call("motion", HELLO, STRUCTURED).completion
+        second = client.call("motion", HELLO, STRUCTURED).completion
+        sent = len(server.requests)
+    assert first is not None and first.finish_reason == finish
+    assert second is not None and not second.cached and second.text == '{"greeting": "hello"}'
+    assert sent == 2 and len(cache) == 1
