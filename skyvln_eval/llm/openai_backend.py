@@ -88,6 +88,7 @@ from skyvln_eval.llm.openai_errors import (
     body_text,
     brief,
     quota_error,
+    rate_limit_wait_s,
     retry_after_s,
     status_error,
     timed_out,
@@ -447,9 +448,12 @@ class OpenAIBackend(LLMBackend):
             quota = quota_error(error, self._scrub(body_text(error)), self._where())
             if quota is not None:
                 raise quota from None
+            headers = error.response.headers
+            wait_s = retry_after_s(headers)
+            if wait_s is None:  # OpenAI's own hints: its message, its rate-limit headers
+                wait_s = rate_limit_wait_s(headers, str(getattr(error, "message", "") or ""))
             raise LLMTransientError(
-                f"rate limited (HTTP 429): {brief(self._scrub(body_text(error)), 200)}",
-                retry_after_s(error.response.headers),
+                f"rate limited (HTTP 429): {brief(self._scrub(body_text(error)), 200)}", wait_s
             ) from None
         except openai.APITimeoutError:
             raise timed_out(self._where(), timeout_s) from None

@@ -115,6 +115,45 @@ def quota_error(error: Any, body: str, where: str) -> LLMQuotaError | None:
     )
 
 
+#: A duration as OpenAI writes it ("6m0s", "1s", "20ms", "41.724s", "1h2m3.5s").
+_DURATION = re.compile(
+    r"(?:(\d+(?:\.\d+)?)h)?(?:(\d+(?:\.\d+)?)m(?!s))?"
+    r"(?:(\d+(?:\.\d+)?)s)?(?:(\d+(?:\.\d+)?)ms)?"
+)
+#: OpenAI's rate-limit message: "... Please try again in 41.724s." / "in 20ms".
+_TRY_AGAIN_IN = re.compile(r"try again in ((?:\d+(?:\.\d+)?(?:ms|h|m|s))+)", re.IGNORECASE)
+
+
+def duration_s(text: str) -> float | None:
+    """Seconds of a duration written as OpenAI writes them (``None``: not one)."""
+    found = _DURATION.fullmatch(text.strip())
+    if found is None or not any(found.groups()):
+        return None
+    hours, minutes, seconds, milliseconds = (float(g or 0) for g in found.groups())
+    return hours * 3600 + minutes * 60 + seconds + milliseconds / 1000
+
+
+def rate_limit_wait_s(headers: Any, message: str) -> float | None:
+    """How long a 429 without Retry-After says to wait: OpenAI's "Please try again in
+    41.724s" in its message (the limit that was hit), else the later of its
+    ``x-ratelimit-reset-requests`` / ``x-ratelimit-reset-tokens`` headers whose limit is
+    used up (all of them when none says so); ``None``: it says nothing (our backoff)."""
+    said = _TRY_AGAIN_IN.search(message)
+    if said is not None and (seconds := duration_s(said.group(1))) is not None:
+        return seconds
+    if headers is None:
+        return None
+    resets: dict[str, float] = {}
+    for limit in ("requests", "tokens"):
+        value = headers.get(f"x-ratelimit-reset-{limit}")
+        seconds = None if value is None else duration_s(str(value))
+        if seconds is not None:
+            resets[limit] = seconds
+    used_up = [s for k, s in resets.items() if headers.get(f"x-ratelimit-remaining-{k}") == "0"]
+    waits = used_up or list(resets.values())
+    return max(waits) if waits else None
+
+
 def body_text(error: Any) -> str:
     """What the server said: the parsed error message and the raw body, as one string."""
     parts = [str(getattr(error, "message", "") or "")]
