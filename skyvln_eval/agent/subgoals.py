@@ -299,7 +299,9 @@ def subgoals_json_schema(dialog: DialogText) -> dict[str, Any]:
 
     others = shape([k for k in SUBGOAL_KINDS if k not in LANDMARK_KINDS], maybe_phrase)
     if phrase is None:
-        shapes, context = [others], {"type": "array", "maxItems": 0}
+        # No words, so no context landmark: an empty array. Its items are said all the same:
+        # OpenAI's strict mode refuses an array schema without them.
+        shapes, context = [others], {"type": "array", "maxItems": 0, "items": {"type": "string"}}
     else:
         shapes = [shape(LANDMARK_KINDS, phrase), others]
         context = {"type": "array", "maxItems": MAX_SUBGOALS, "items": phrase}

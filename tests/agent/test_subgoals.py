@@ -325,3 +325,25 @@ def test_the_rule_stand_in_s_failed_reading_is_refused_not_hidden(
     else:
         with pytest.raises(ActionParseError, match="'subgoals' is empty"):
             parse_subgoals(answer, dialog)
+
+
+def _arrays(schema: object) -> list[dict[str, object]]:
+    if isinstance(schema, dict):
+        own = [schema] if schema.get("type") == "array" else []
+        return own + [a for value in schema.values() for a in _arrays(value)]
+    if isinstance(schema, list):
+        return [a for value in schema for a in _arrays(value)]
+    return []
+
+
+def test_the_schema_of_a_dialog_without_words_gives_every_array_its_items() -> None:
+    # OpenAI's strict mode refused the whole schema ("array schema missing items") for the
+    # empty context_landmarks of a dialog with no words.
+    dialog = DialogText((), None, "?! ...")
+    schema = subgoals_json_schema(dialog)
+    arrays = _arrays(schema)
+    assert len(arrays) == 2 and all("items" in array for array in arrays)
+    assert schema["properties"]["context_landmarks"]["maxItems"] == 0
+    validator = jsonschema.Draft202012Validator(schema)
+    assert validator.is_valid({"subgoals": [], "context_landmarks": []})
+    assert not validator.is_valid({"subgoals": [], "context_landmarks": ["x"]})
