@@ -6,7 +6,9 @@ constrains decoding by a schema attached to ``{"type": "json_object", "schema": 
 others know only ``json_object`` or nothing at all. A backend tries the levels in
 :data:`~skyvln_eval.llm.types.STRUCTURED_LEVELS` order and keeps, per endpoint and for
 the rest of the process, the first level that was answered; :func:`negotiated_levels`
-gives them for a run's provenance.
+gives them for a run's provenance. A refusal of one schema (OpenAI's "Invalid schema for
+response_format '<name>'") is kept for that schema alone, under the endpoint's name and
+the schema's (``<endpoint> schema <name>``), so the endpoint's other schemas keep theirs.
 
 Models differ in the decoding parameters they take too: OpenAI's reasoning models (o1,
 o3, gpt-5) answer ``max_tokens`` with HTTP 400 "Unsupported parameter: 'max_tokens' ...

@@ -103,6 +103,7 @@ from skyvln_eval.llm.openai_request import (
 from skyvln_eval.llm.prices import VENDOR_SERVERS
 from skyvln_eval.llm.redact import excerpt, readable_body, scrub
 from skyvln_eval.llm.types import (
+    STRUCTURED_LEVELS,
     Completion,
     GenerationConfig,
     Message,
@@ -227,11 +228,21 @@ class OpenAIBackend(LLMBackend):
         """``openai:<model>@<base_url>``: how messages and provenance name the endpoint."""
         return f"openai:{self.model}@{self.base_url}"
 
-    def structured_level(self) -> StructuredLevel:
-        """The level the next schema-constrained call starts at."""
+    def structured_level(self, schema_name: str | None = None) -> StructuredLevel:
+        """The level the next schema-constrained call starts at: the endpoint's, or lower
+        where the endpoint refused this schema itself (:meth:`schema_endpoint`)."""
         if self.structured_output != "auto":
             return self.structured_output
-        return negotiated_level(self.endpoint) or "json_schema"
+        known = [negotiated_level(self.endpoint) or "json_schema"]
+        if schema_name is not None:
+            known.append(negotiated_level(self.schema_endpoint(schema_name)) or "json_schema")
+        return max(known, key=STRUCTURED_LEVELS.index)
+
+    def schema_endpoint(self, schema_name: str) -> str:
+        """How the level of one schema is kept, and named in provenance, once the endpoint
+        refused that schema ("Invalid schema for response_format 'subgoals'") while its
+        level stays good for the others."""
+        return f"{self.endpoint} schema {schema_name}"
 
     def _secret(self) -> str | None:
         return os.environ.get(self.api_key_env) or None
@@ -317,7 +328,7 @@ class OpenAIBackend(LLMBackend):
         kwargs = self._request(messages, config)
         level: StructuredLevel | None = None
         if config.json_schema is not None:
-            level = self.structured_level()
+            level = self.structured_level(config.schema_name)
         ends_at = time.monotonic() + config.timeout_s
         adapted = adaptation(self.endpoint)
         refused: list[RefusedRequest] = []
@@ -325,6 +336,11 @@ class OpenAIBackend(LLMBackend):
         # endpoint only once a lower level is answered. A 400 the plain prompt gets as
         # well was never about the format (a proxy's fault, a bad request).
         unexplained: StructuredLevel | None = None
+        # Where the levels this call steps down to are kept: the endpoint, or this schema
+        # alone once the endpoint refused the schema itself (the levels below are refused
+        # for it then: OpenAI takes no schema beside json_object, and refuses that for
+        # every schema).
+        keep_at = self.endpoint
         try:
             while True:
                 request = adapted.apply(kwargs)
@@ -342,8 +358,10 @@ class OpenAIBackend(LLMBackend):
                     what = f"structured output level {level!r} refused"
                     refused.append(refusal.record(what, started, level, unsent))
                     assert level is not None  # _step_down raised otherwise
+                    if refusal.one_schema:
+                        keep_at = self.schema_endpoint(config.schema_name)
                     if refusal.named:  # known now, whatever the next request does
-                        remember_level(self.endpoint, lower)
+                        remember_level(keep_at, lower)
                     elif refused_without_reason(self.endpoint, level):
                         # A first bare 400 (maybe a one-off fault) steps down for this
                         # call only; a second is believed if a lower level is answered.
@@ -357,7 +375,7 @@ class OpenAIBackend(LLMBackend):
                     remember_adaptation(self.endpoint, adapted)
             latency = time.perf_counter() - started  # the answered request's own time
             if unexplained is not None:
-                remember_level(self.endpoint, unexplained)
+                remember_level(keep_at, unexplained)
             return self._completion(response, body, latency, level, unsent, tuple(refused))
         except LLMError as error:
             # The requests refused before this failure were sent all the same: the client

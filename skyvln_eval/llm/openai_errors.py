@@ -200,13 +200,21 @@ def brief(body: str, chars: int = 300) -> str:
     return said if len(said) <= chars else said[: chars - 1] + "…"
 
 
+#: OpenAI's words for a schema its strict mode cannot take (``Invalid schema for
+#: response_format 'subgoals': ... array schema missing items``): that schema's fault, not
+#: the endpoint's, whose other schemas it still takes.
+_ONE_SCHEMA = re.compile(r"invalid schema for response_format", re.IGNORECASE)
+
+
 class FormatRefused(Refused):
     """The server cannot do the response format of this request (the body says why).
-    ``named``: the body names the format (its words), not a bare 400 naming nothing."""
+    ``named``: the body names the format (its words), not a bare 400 naming nothing;
+    ``one_schema``: it refused this request's schema, not the level for every schema."""
 
     def __init__(self, status: int, body: str) -> None:
         super().__init__(f"HTTP {status}: {brief(body)}")
         self.named = bool(_FORMAT_WORDS.search(body))
+        self.one_schema = bool(_ONE_SCHEMA.search(body))
 
 
 class ParameterRefused(Refused):

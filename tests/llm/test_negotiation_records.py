@@ -19,7 +19,7 @@ import pytest
 from skyvln_eval.errors import LLMAuthError
 from skyvln_eval.llm import GenerationConfig, LLMClient, Message
 from skyvln_eval.llm.loopback import LoopbackOpenAIServer, answer, no_choices, status
-from skyvln_eval.llm.negotiation import negotiated_level
+from skyvln_eval.llm.negotiation import negotiated_level, negotiated_levels
 from skyvln_eval.llm.openai_errors import FormatRefused
 from skyvln_eval.llm_records import module_usage
 from skyvln_eval.metrics.cost import call_totals
@@ -246,3 +246,33 @@ def test_a_bare_400_gives_a_level_up_for_the_endpoint_only_when_it_happens_again
             assert client.call("motion", [*HELLO, Message("user", str(k))], STRUCTURED).completion
         sent = [(r["body"].get("response_format") or {}).get("type") for r in server.requests]
     assert sent == ["json_schema", "json_object", "json_object", None, None]
+
+
+def test_a_schema_the_endpoint_refuses_steps_down_for_that_schema_only() -> None:
+    # OpenAI's strict mode refuses one schema ("Invalid schema for response_format ...")
+    # and never takes a schema beside json_object: the audit's endpoint then sent every
+    # later call, of every module, as plain json_object for the rest of the run.
+    subgoals = GenerationConfig(timeout_s=5.0, json_schema=SCHEMA, schema_name="subgoals")
+    script = [
+        status(400, message="Invalid schema for response_format 'subgoals': In context=("
+               "'properties', 'context_landmarks'), array schema missing items."),
+        status(400, message="Unknown parameter: 'response_format.schema'."),
+        answer('{"greeting": "hi"}'),  # subgoals at json_object
+        answer('{"greeting": "hi"}'),  # greeting: still json_schema
+        answer('{"greeting": "hi"}'),  # subgoals again: json_object at once
+    ]  # fmt: skip
+    with LoopbackOpenAIServer(script) as server:
+        client = _client(server)
+        first = client.call("subgoals", HELLO, subgoals)
+        other = client.call("motion", HELLO, STRUCTURED)
+        again = client.call("subgoals", [*HELLO, Message("user", "again")], subgoals)
+        formats = [(r["body"].get("response_format") or {}).get("type") for r in server.requests]
+    assert [r.structured_output for r in first.records] == [
+        "json_schema", "json_object_schema", "json_object"]  # fmt: skip
+    assert [r.structured_output for r in other.records] == ["json_schema"]
+    assert [r.structured_output for r in again.records] == ["json_object"]
+    assert formats == ["json_schema", "json_object", "json_object", "json_schema", "json_object"]
+    # Provenance names the schema that went down, and the endpoint's level is untouched.
+    levels = negotiated_levels()
+    assert list(levels.values()) == ["json_object"]
+    assert next(iter(levels)).endswith(" schema subgoals")
