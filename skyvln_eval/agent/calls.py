@@ -128,7 +128,8 @@ def call_json(
             out.exchanges.append(exchange(module, asked, current, None, out.error, records))
             return out
         text = completion.text
-        follow: list[Message] | None = None  # the messages that ask again (None: a repair)
+        # What the model is told when asked again (None: the same request, asked again).
+        follow_up: str | None
         if completion.finish_reason == "length" and not text.strip():
             # Nothing visible was cut: the model's hidden reasoning used the budget (the
             # server's count says how much, when it gives one). "More briefly" would not
@@ -139,8 +140,7 @@ def call_json(
                 f"the model's reasoning used the whole budget of max_tokens={current.max_tokens}"
                 f"{used} before any visible answer (finish_reason 'length')"
             )
-            follow_up = ""
-            follow = list(asked)
+            follow_up = None
             budget = min(MAX_BUDGET_TOKENS, math.ceil(current.max_tokens * REASONING_BUDGET_FACTOR))
         elif completion.finish_reason == "length":
             reason = (
@@ -184,11 +184,8 @@ def call_json(
         out.exchanges.append(exchange(module, asked, current, text, reason, records))
         if index < repair.repairs:
             out.repairs += 1
-            asked = (
-                follow
-                if follow is not None
-                else [*asked, Message("assistant", text), Message("user", follow_up)]
-            )
+            if follow_up is not None:
+                asked = [*asked, Message("assistant", text), Message("user", follow_up)]
             current = replace(
                 current, temperature=max(current.temperature, repair.temperature), max_tokens=budget
             )

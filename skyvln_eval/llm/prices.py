@@ -57,13 +57,11 @@ class Price:
         """The cost of a call; ``cached_prompt_tokens`` (part of ``prompt_tokens``) at the
         cached-input price when there is one, else at the full input price (an upper
         bound: no provider charges cached tokens more)."""
-        cached = min(cached_prompt_tokens, prompt_tokens)
-        if self.cached_input_usd_per_mtok is None:
-            cached = 0
-        cached_usd = cached * (self.cached_input_usd_per_mtok or 0.0)
+        cached_price = self.cached_input_usd_per_mtok
+        cached = 0 if cached_price is None else min(cached_prompt_tokens, prompt_tokens)
         return (
             (prompt_tokens - cached) * self.input_usd_per_mtok
-            + cached_usd
+            + cached * (cached_price or 0.0)
             + completion_tokens * self.output_usd_per_mtok
         ) / 1e6
 

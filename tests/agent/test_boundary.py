@@ -57,10 +57,22 @@ INTROSPECTION = ("gc", "inspect", "ctypes", "sys")
 OPENING_DUNDERS = ("__dict__", "__self__", "__closure__", "__globals__", "__func__")
 
 
+def _label(path: Path) -> str:
+    """How a finding names its file: from the repository, or a test's own file by name."""
+    return str(path.relative_to(REPO)) if path.is_relative_to(REPO) else path.name
+
+
+def _sneaky(tmp_path: Path, source: str) -> Path:
+    """An agent module of a test's own, written to show what a check finds."""
+    sneaky = tmp_path / "sneaky_agent.py"
+    sneaky.write_text(source, encoding="utf-8")
+    return sneaky
+
+
 def _private_reaches(path: Path) -> Iterator[str]:
     """Where agent code reads a private name of something other than itself: the sensor
     handle keeps its simulator behind a private method, which agent code must not call."""
-    label = path.relative_to(REPO) if path.is_relative_to(REPO) else path.name
+    label = _label(path)
     for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
         dunder = node.attr.startswith("__") if isinstance(node, ast.Attribute) else False
         if isinstance(node, ast.Attribute) and dunder and node.attr in OPENING_DUNDERS:
@@ -105,7 +117,7 @@ REGISTRY = AGENT_PACKAGE / "detectors.py"
 
 
 def _dynamic_imports(path: Path) -> Iterator[str]:
-    label = path.relative_to(REPO) if path.is_relative_to(REPO) else path.name
+    label = _label(path)
     for name in _imports(path):
         if name.split(".")[0] in DYNAMIC_IMPORTS:
             yield f"{label} imports {name}"
@@ -129,12 +141,11 @@ def test_no_agent_module_imports_by_a_name_made_at_run_time() -> None:
 
 
 def test_the_dynamic_import_check_finds_what_it_forbids(tmp_path: Path) -> None:
-    sneaky = tmp_path / "sneaky_agent.py"
-    sneaky.write_text(
+    sneaky = _sneaky(
+        tmp_path,
         "import importlib\n"
         "def route(brief):\n"
         "    return importlib.import_module('skyvln_eval.avdn.loader').load_split\n",
-        encoding="utf-8",
     )
     found = list(_dynamic_imports(sneaky))
     assert found == [
@@ -144,12 +155,11 @@ def test_the_dynamic_import_check_finds_what_it_forbids(tmp_path: Path) -> None:
 
 
 def test_the_private_reach_check_finds_what_it_forbids(tmp_path: Path) -> None:
-    sneaky = tmp_path / "sneaky_agent.py"
-    sneaky.write_text(
+    sneaky = _sneaky(
+        tmp_path,
         "def peek(observation):\n"
         "    world = observation.sensors._sensors()\n"
         "    return getattr(world, '_world'), vars(world), world.capture.__self__\n",
-        encoding="utf-8",
     )
     found = list(_private_reaches(sneaky))
     assert len(found) == 4 and "observation.sensors._sensors" in found[0]
