@@ -362,3 +362,26 @@ def test_the_reader_knows_no_phrase_only_the_held_out_phrasings_use() -> None:
     phrases = {p for p in _phrase_text(literals).split(" | ") if " " in p}
     only_held_out = {p for p in phrases if _says(theirs, p) and not _says(others, p)}
     assert only_held_out - ORDINARY_HELD_OUT_PHRASES == set()
+
+
+@pytest.mark.parametrize(("said_facing", "bearing"), [(0.0, 90), (90.0, 180)])
+def test_navgpt_reads_a_clock_direction_against_where_the_drone_faced_when_told(
+    said_facing: float, bearing: int
+) -> None:
+    # The drone faces east now; the instruction was given where it faced ``said_facing``
+    # (its odometry's start heading), and "your 3 o'clock" means a quarter turn from there.
+    state = {
+        "pose": {"heading_deg": 90.0, "view_edge_m": 60.0, "max_forward_m": 60.0},
+        "dialog": {"instruction": "Turn to your 3 o'clock and fly about 200 meters."},
+        "observation": [],
+        "actions_left": 5,
+        "roads": {"here": [], "at_start": []},
+        "odometry": {
+            "travelled_m": 0.0,
+            "start_east_m": 0.0,
+            "start_north_m": 0.0,
+            "start_heading_deg": said_facing,
+        },
+    }
+    thought = decide_navgpt(state)["thought"]
+    assert thought == f"flying 200 m towards the expected end point at bearing {bearing} deg"

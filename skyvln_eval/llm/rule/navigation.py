@@ -259,7 +259,12 @@ def decide_motion(state: dict[str, Any]) -> dict[str, Any]:
 def decide_navgpt(state: dict[str, Any]) -> dict[str, Any]:
     """A decision for the NavGPT-style task: instruction, view-level observations, history."""
     pose = state["pose"]
-    goals = parse_instruction(state["dialog"]["instruction"], state["dialog"].get("question"))
+    # Clock directions and "turn around" are read against where the drone faced when the
+    # instruction was given (the round's start, from its odometry), not where it faces now.
+    said_facing = (state.get("odometry") or {}).get("start_heading_deg")
+    goals = parse_instruction(
+        state["dialog"]["instruction"], state["dialog"].get("question"), said_facing
+    )
     if _told_to_stop_here(goals):
         return _stop_here()
     goal = next((g for g in goals if g["kind"] in ("destination", "stop_at")), None)
