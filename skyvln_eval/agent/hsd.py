@@ -45,6 +45,8 @@ SECTOR_NAMES: Final = (
     "lower-right",
 )
 MATCH_LEVELS: Final = ("strong", "partial", "weak", "none")
+#: The last level at which a candidate fits the phrase: ties below it are not ambiguity.
+_LAST_FITTING_LEVEL: Final = MATCH_LEVELS.index("partial")
 Match = Literal["strong", "partial", "weak", "none", "unknown"]
 _Ranking = tuple[list[str], str | None, float]
 T = TypeVar("T")
@@ -437,10 +439,10 @@ class SpatialDescriptor:
         levels = [
             MATCH_LEVELS.index(c.match) if c.match in MATCH_LEVELS else unknown for c in candidates
         ]
-        # Two candidates described as matching equally well; failed descriptions are no
-        # tie (a module failure is not a reason to ask the commander).
+        # Two candidates described as matching equally well, and well (strong or partial):
+        # two that hardly fit, or failed descriptions, are no tie to ask the commander about.
         best_level = min(levels)
-        ambiguous = best_level < unknown and levels.count(best_level) > 1
+        ambiguous = best_level <= _LAST_FITTING_LEVEL and levels.count(best_level) > 1
         asked = memory_notes is not None
         if memory_notes is not None:
             # What the memory knows (rejected, already used, from an earlier round) settles

@@ -1,4 +1,5 @@
-"""What an agent knows of its own flight: pose summary, path flown, roads at the start.
+"""What an agent knows of its own flight: pose summary, the path flown since the
+instruction it follows was given, and the roads below it there.
 
 Shared by the SkyVLN agent (where the path is TrackBack memory's to tell) and the
 NavGPT-style baseline (where it is the history NavGPT keeps in its prompt).
@@ -15,7 +16,10 @@ from skyvln_eval.frames import ViewPose
 
 @dataclass
 class Odometer:
-    """The start pose, the last pose, metres flown, and the roads seen at the start."""
+    """Where the instruction being followed was given (its start pose and the roads seen
+    there), the last pose and the metres flown since: an instruction's distances and clock
+    directions are said from there. An agent starts a new one when the commander answers
+    mid-episode (a new round: its words are said from where the drone is then)."""
 
     start: ViewPose | None = None
     previous: ViewPose | None = None
@@ -34,7 +38,8 @@ class Odometer:
         self.previous = pose
 
     def to_dict(self) -> dict[str, float]:
-        """Where the start is from the drone now, and how far it has flown (for prompts)."""
+        """Where the instruction's start is from the drone now, and how far it has flown
+        since (for prompts)."""
         if self.start is None or self.previous is None:
             return {}
         return {
@@ -52,8 +57,9 @@ class Odometer:
         start = math.hypot(east, north)
         bearing = math.degrees(math.atan2(east, north)) % 360.0
         return (
-            f"Flown {self.travelled_m:.0f} m; the start is {start:.0f} m away at bearing "
-            f"{bearing:.0f} deg (you faced {data['start_heading_deg']:.0f} deg there)."
+            f"Flown {self.travelled_m:.0f} m since the current instruction was given; where "
+            f"it was given is {start:.0f} m away at bearing {bearing:.0f} deg (you faced "
+            f"{data['start_heading_deg']:.0f} deg there)."
         )
 
 
@@ -68,10 +74,13 @@ def pose_summary(pose: ViewPose) -> dict[str, float]:
 
 
 def roads_text(here: Sequence[float], at_start: Sequence[float] | None) -> str:
-    """The roads seen below the drone now (and at the start, if remembered), for prompts."""
+    """The roads seen below the drone now (and where the current instruction was given, if
+    remembered), for prompts."""
 
     def show(bearings: Sequence[float]) -> str:
         return ", ".join(f"{b:.0f}" for b in bearings) or "none seen"
 
     text = f"Roads leaving from below you (compass deg): {show(here)}"
-    return text + ("." if at_start is None else f"; at the start: {show(at_start)}.")
+    if at_start is None:
+        return text + "."
+    return text + f"; where the current instruction was given: {show(at_start)}."

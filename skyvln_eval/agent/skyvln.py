@@ -138,6 +138,8 @@ class SkyVLNAgent(Agent):
             st.dialog_turns = turns
             st.dialog = DialogText.of(turns, max(t.round_index for t in turns))
             st.plan, st.done = None, set()
+            # The answer's way and distance are said from here, not from the episode's start.
+            st.odometer = Odometer()
         if st.plan is None:
             # The way it faces now, from its own pose: the words are said relative to it.
             heading = observation.pose.heading_deg

@@ -15,6 +15,7 @@ from skyvln_eval.agent.perception import Perception, PerceptionConfig
 from skyvln_eval.agent.skyvln import SkyVLNAgent
 from skyvln_eval.errors import ConfigError, UnknownNameError
 from skyvln_eval.harness import OfficialRollout, run_official_episode
+from skyvln_eval.harness.commander import SimulatedCommander
 from skyvln_eval.harness.oracle import ground_truth_oracle
 from skyvln_eval.llm import GenerationConfig, LLMClient, LLMConfig, create_backend, read_task_data
 from skyvln_eval.llm.rule import RuleBackend
@@ -299,3 +300,29 @@ def test_the_navgpt_prompt_says_the_last_outcome_once() -> None:
         history = text.split("## History\n")[1].split("## Feedback")[0].strip().splitlines()
         assert " -> " not in history[-1], history
         assert all(" -> " in line for line in history[:-1]), history  # earlier outcomes stay
+
+
+def test_the_commanders_answer_is_followed_from_where_it_was_given() -> None:
+    # The fooled agent asks a question after its wasted flight; the answer's way and
+    # distance are said from where the drone is then, so the odometry restarts there
+    # (it had kept counting from the episode's start: the answer's "100 m east" was then
+    # planned from the start, and the distance flown before it counted against it).
+    backend = RecordingRule()
+    agent = SkyVLNAgent(
+        LLMClient(backend), Perception(PerceptionConfig(), OneFakeRestaurant()), LLMConfig()
+    )
+    episode = town_episode(RED)
+    commander = SimulatedCommander(episode, town_world(), max_questions=1, seed=1)
+    rollout = run_official_episode(agent, episode, town_world(), commander=commander)
+    assert commander.answered == 1
+    motions = [(data, messages) for data, messages in backend.requests if data["task"] == "motion"]
+    # The first decision after the answer: its dialog has a new round.
+    answered = next(
+        k for k, (data, _) in enumerate(motions) if data["dialog"] != motions[0][0]["dialog"]
+    )
+    before, after = motions[answered - 1][0]["odometry"], motions[answered][0]["odometry"]
+    assert before["travelled_m"] > 0.0
+    assert after["travelled_m"] == 0.0
+    assert (after["start_east_m"], after["start_north_m"]) == (0.0, 0.0)
+    assert "Flown 0 m since the current instruction was given" in motions[answered][1][-1].text
+    assert len(rollout.views) > answered

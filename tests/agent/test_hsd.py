@@ -302,3 +302,19 @@ def test_candidates_whose_descriptions_failed_are_no_tie_to_ask_about() -> None:
 
 def hsd_rule() -> SpatialDescriptor:
     return SpatialDescriptor(LLMClient(create_backend("rule")), LLMConfig(), enabled=True)
+
+
+@pytest.mark.parametrize(
+    ("level", "ambiguous"), [("strong", True), ("partial", True), ("weak", False), ("none", False)]
+)
+def test_only_candidates_that_fit_alike_are_a_tie_to_ask_about(level: str, ambiguous: bool) -> None:
+    # Two places that hardly fit the phrase (weak) or not at all (none) are no reason to ask
+    # "which of these two?": the question would say they "look equally like" it.
+    described = json.dumps({"description": "compared", "match": level})
+    ranking = json.dumps({"ranking": ["L1", "L2"], "best": None, "confidence": 0.1})
+    script = [described, described, ranking]
+    hsd = SpatialDescriptor(LLMClient(ScriptedBackend(script)), LLMConfig(), enabled=True)
+    goal = SubGoal("destination", landmark="a church with a cross-shaped red roof")
+    [match] = hsd.match([goal], TWINS, 0.0, memory_notes=None).matches
+    assert [c.match for c in match.candidates] == [level, level]
+    assert match.ambiguous is ambiguous

@@ -385,3 +385,31 @@ def test_navgpt_reads_a_clock_direction_against_where_the_drone_faced_when_told(
     }
     thought = decide_navgpt(state)["thought"]
     assert thought == f"flying 200 m towards the expected end point at bearing {bearing} deg"
+
+
+def test_without_hsd_the_stand_in_does_not_fly_to_a_landmark_memory_rejected() -> None:
+    # Coarse descriptor (w/o HSD): the highest-scoring sighting of the goal's kind, unless
+    # memory's notes say it was rejected (the fine ranking marks such a candidate down too).
+    state: dict[str, Any] = {
+        "descriptor": "coarse",
+        "pose": {"heading_deg": 0.0, "view_edge_m": 60.0, "max_forward_m": 60.0},
+        "subgoals": [{"kind": "destination", "landmark": "a restaurant", "status": "pending"}],
+        "landmarks": [
+            {
+                "id": "L5",
+                "label": "restaurant",
+                "view": "front",
+                "position": "centre",
+                "score": 0.9,
+            },
+            {"id": "L7", "label": "restaurant", "view": "left", "position": "left", "score": 0.6},
+        ],
+        "memory": {"notes": {"L5": "met at step 1; rejected: it was not there when I arrived"}},
+        "actions_left": 5,
+        "last_action": None,
+        "odometry": {},
+        "roads": {"here": [], "at_start": []},
+    }
+    assert decide_motion(state)["action"]["landmark"] == "L7"
+    state["memory"] = None  # no memory (w/o TBMA too): nothing is known against L5
+    assert decide_motion(state)["action"]["landmark"] == "L5"

@@ -176,9 +176,19 @@ def _dead_reckon(
     return thought, _waypoint(_relative(bearing, heading), remaining, half, wanted_edge)
 
 
-def _coarse_target(goal: dict[str, Any], landmarks: list[dict[str, Any]]) -> dict[str, Any] | None:
+def _coarse_target(
+    goal: dict[str, Any], landmarks: list[dict[str, Any]], notes: dict[str, str]
+) -> dict[str, Any] | None:
+    """The highest-scoring sighting of the goal's kind that memory has not rejected (its
+    notes, as in HSD's ranking, keep a known mistake from being made twice)."""
     kind = landmark_kind(goal["landmark"])  # a category, or the same generic word
-    same = [e for e in landmarks if kind is not None and landmark_kind(e["label"]) == kind]
+    same = [
+        e
+        for e in landmarks
+        if kind is not None
+        and landmark_kind(e["label"]) == kind
+        and "rejected" not in notes.get(e["id"], "")
+    ]
     if not same:
         return None
     return max(same, key=lambda e: (e["view"] == "below", e["score"]))
@@ -188,7 +198,8 @@ def _find_target(state: dict[str, Any], goal: dict[str, Any]) -> dict[str, Any] 
     """The sighting taken for the goal's landmark: HSD's confident best, or (coarse) the
     highest-scoring sighting of the same kind."""
     if state["descriptor"] != "fine":
-        return _coarse_target(goal, state["landmarks"])
+        notes = (state.get("memory") or {}).get("notes") or {}
+        return _coarse_target(goal, state["landmarks"], notes)
     match = state.get("matches", {}).get(goal["landmark"])
     if not match or not match.get("best") or match.get("confidence", 0.0) < 0.5:
         return None
