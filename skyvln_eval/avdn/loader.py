@@ -83,6 +83,15 @@ class AvdnSplit:
     #: The skipped records, each with its issues, in file order.
     skipped_records: tuple[SkippedRecord, ...] = field(default=())
 
+    def __repr__(self) -> str:
+        # Short, for notebooks: the default repr printed every record with its arrays
+        # (68 KB for the sample's 40 training records).
+        skipped = f", {len(self.skipped_records)} skipped" if self.skipped_records else ""
+        return (
+            f"AvdnSplit({self.split!r}, {len(self.records)} records{skipped}, "
+            f"{len(self.map_names())} maps, from {str(self.data_dir)!r})"
+        )
+
     @property
     def annotation_path(self) -> Path:
         return self.data_dir / ANNOTATIONS_DIR / annotation_file_name(self.split)

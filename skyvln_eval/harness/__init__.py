@@ -23,7 +23,7 @@ from skyvln_eval.harness.official_loop import (
     OfficialRollout,
     run_official_episode,
 )
-from skyvln_eval.harness.run import Progress, RunReport, resolve_data_dir, run
+from skyvln_eval.harness.run import Progress, RunReport, error_verdict, resolve_data_dir, run
 from skyvln_eval.harness.run_reading import run_results
 from skyvln_eval.harness.runner import EpisodeTask, run_episode_task
 from skyvln_eval.harness.store import ResultStore
@@ -40,6 +40,7 @@ __all__ = [
     "ResultStore",
     "RunConfig",
     "RunReport",
+    "error_verdict",
     "load_run_config",
     "make_executor",
     "resolve_data_dir",

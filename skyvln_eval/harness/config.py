@@ -247,6 +247,12 @@ class RunConfig(_Strict):
         every row of a run that grew in place, different for a row of another config."""
         return self._hash(self._undeciding() | SELECTION)
 
+    def system_digest(self) -> str:
+        """:meth:`settings_digest` without the splits and the data too: the same for every
+        run of one system, whichever episodes it ran, so that rows a table would pool under
+        one system label can be checked to be of one configuration."""
+        return self._hash(self._undeciding() | SELECTION | {"splits", "data"})
+
     def legacy_settings_digest(self) -> str | None:
         """The :meth:`settings_digest` an official-mode run's rows recorded while it
         covered the unused flight settings too (``None`` in dynamics mode, which always

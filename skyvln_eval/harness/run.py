@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import hashlib
 import io
+import json
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -73,6 +74,38 @@ RUN_FILES = frozenset({CONFIG_FILE, VERSIONS_FILE, REPORT_FILE, RESULTS_FILE, DA
 RUN_FOLDERS = {LOGS_DIR: frozenset({".mcap"}), CONTROL_DIR: frozenset({".parquet"})}
 #: Episode logs for the harness carry no images: it needs the episode, not its pictures.
 EPISODE_LOG_OPTIONS = ConvertOptions(observations=False, map_tile_max_side_px=0)
+
+
+#: The key of ``run.json`` that records the folder a relative ``data:`` path named.
+RELATIVE_DATA_KEY = "relative_data_dir"
+
+
+def is_relative_data(data: str) -> bool:
+    """Whether ``data`` is a folder path relative to the directory a command runs in."""
+    return data not in ("sample", "full") and not Path(data).expanduser().is_absolute()
+
+
+def recorded_data_dir(run_dir: Path) -> Path | None:
+    """The folder a relative ``data:`` path named when the run in ``run_dir`` was launched
+    (its ``run.json``), if recorded."""
+    try:
+        recorded = json.loads((run_dir / REPORT_FILE).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    value = recorded.get(RELATIVE_DATA_KEY) if isinstance(recorded, dict) else None
+    return Path(value) if isinstance(value, str) else None
+
+
+def check_same_data(config: RunConfig, data_dir: Path, run_dir: Path) -> None:
+    """Refuse to go on with a run whose relative ``data:`` path named another folder when
+    it was launched (the same command from another directory would read other data)."""
+    before = recorded_data_dir(run_dir) if is_relative_data(config.data) else None
+    if before is not None and before != data_dir:
+        raise ConfigError(
+            f"{run_dir} ran on {before} (data {config.data!r}, a path relative to the "
+            f"directory it was launched from); from here {config.data!r} is {data_dir}: "
+            "run the command from where it was launched, or give data as an absolute path"
+        )
 
 
 def resolve_data_dir(data: str) -> Path:
@@ -161,7 +194,7 @@ def prepare_run_dir(config: RunConfig, run_dir: Path) -> None:
         if existing.digest() != config.digest() and not grows(existing, config):
             raise ConfigError(
                 f"{run_dir} holds a run of another configuration ({existing.system!r}, "
-                f"{existing.digest()}; {config_differences(existing, config)}); resume it "
+                f"{existing.settings_digest()}; {config_differences(existing, config)}); resume it "
                 "with that config or use a new run directory (in place, a run may only "
                 "grow: a larger or no limit, more episodes listed, all else the same)"
             )
@@ -331,6 +364,9 @@ class RunReport:
     #: How many runs shared the pass ``wall_s`` measures (a reproduction runs several
     #: together, their episodes interleaved: no run has a wall time of its own).
     runs_in_pass: int = 1
+    #: The folder a relative ``data:`` path named when the run was launched (it depends
+    #: on the directory the command ran in); None for other data.
+    data_dir: str | None = None
 
     @property
     def complete(self) -> bool:
@@ -371,7 +407,7 @@ class RunReport:
             "server_defaults": self.server_defaults,
             "stopped": self.stopped,
             "notes": self.notes,
-        }
+        } | ({} if self.data_dir is None else {RELATIVE_DATA_KEY: self.data_dir})
 
 
 def structured_levels(results: Iterable[EpisodeResult]) -> dict[str, str]:
@@ -502,6 +538,7 @@ def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = Fal
     """Convert the run's episodes if needed, check the run directory, find what is left."""
     run_dir = Path(run_dir)
     data_dir = resolve_data_dir(config.data)
+    check_same_data(config, data_dir, run_dir)  # before any work on the wrong data
     logs = episode_logs(config, data_dir)
     preflight(config, data_dir, (episode_id.rsplit("__", 1)[0] for _, episode_id in logs))
     # Locked before anything in it is read: a second launch refuses instead of running
@@ -521,6 +558,7 @@ def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = Fal
     cap = speed_cap_note(config)
     notes += [cap] if cap else []
     report = RunReport(run_dir, config.system, list(logs), notes=notes)
+    report.data_dir = str(data_dir) if is_relative_data(config.data) else None
     todo = store.missing(logs, retry_failed=retry_failed)
     pending = set(todo)
     lost = lost_files(config, run_dir, store, [key for key in logs if key not in pending])

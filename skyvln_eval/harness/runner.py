@@ -96,7 +96,11 @@ def _config_texts(config_json: str) -> tuple[str, str]:
 def config_marks(config: RunConfig, config_json: str) -> dict[str, Any]:
     """What a row records of the config that made it: a resume and ``score`` refuse a row
     whose marks are not the run's (:func:`~skyvln_eval.harness.run.foreign_rows`)."""
-    return {"settings_digest": _config_texts(config_json)[0], "execution_mode": config.mode}
+    return {
+        "settings_digest": _config_texts(config_json)[0],
+        "system_digest": _config(config_json).system_digest(),
+        "execution_mode": config.mode,
+    }
 
 
 _worlds: OrderedDict[tuple[str, str], WorldTile] = OrderedDict()

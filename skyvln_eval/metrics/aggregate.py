@@ -290,6 +290,11 @@ def summarise(
     order, so the result does not depend on the order of the rows (a parallel run records
     episodes in the order they finish).
     """
+    if not isinstance(scores, pd.DataFrame):
+        raise MetricInputError(
+            f"summarise takes scores (a DataFrame of score_results(results) or "
+            f"read_scores(path)), not {type(scores).__name__}"
+        )
     if scores.empty:
         raise MetricInputError("no scores to summarise")
     if ci_unit_named(ci_unit) is None:

@@ -265,6 +265,17 @@ class EpisodeResult:
     module_failures: tuple[ModuleFailure, ...] = ()
     extra: Mapping[str, Any] = field(default_factory=dict)
 
+    def __repr__(self) -> str:
+        # Short, for notebooks: the default repr printed every view, call and fact (21 KB
+        # for one sample episode); the fields are all there to read.
+        first = (self.error or "").strip().splitlines()[:1]
+        error = f", error={first[0][:80]!r}" if first else ""
+        return (
+            f"EpisodeResult({self.split}/{self.episode_id}, {self.mode}, {self.system!r}, "
+            f"{self.status}{error}, {len(self.visited_views)} views, "
+            f"{self.decisions} decisions, {len(self.llm_calls)} LLM calls)"
+        )
+
     @property
     def stopped_the_run(self) -> bool:
         """Whether the row only records the run stopping there (``extra["fatal"]``: refused

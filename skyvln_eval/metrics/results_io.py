@@ -214,6 +214,33 @@ def check_unique_files(files: Sequence[tuple[str, Sequence[EpisodeResult]]]) -> 
             raise _where(file, row, result.episode_id, "episode_id", message)
 
 
+def check_one_configuration_per_system(results: Sequence[EpisodeResult]) -> None:
+    """Raise if one system's rows were made by different run configurations (their
+    ``extra["system_digest"]``: the settings that decide a result, whatever the splits,
+    data and selection): a table would pool them in one row, e.g. an official-mode run on
+    one split and a flown one on another under the same label. Rows that do not record it
+    (older runs, predictions) are not checked."""
+    seen: dict[str, tuple[str, EpisodeResult]] = {}  # system -> (digest, first row)
+    for result in results:
+        digest = result.extra.get("system_digest")
+        if not isinstance(digest, str):
+            continue
+        first_digest, first = seen.setdefault(result.system, (digest, result))
+        if first_digest != digest:
+            raise ResultRecordError(
+                ValidationIssue(
+                    "<results>",
+                    f"system {result.system!r} has rows made by different run configurations "
+                    f"({first.split}/{first.episode_id}: {first_digest}, "
+                    f"{result.split}/{result.episode_id}: {digest}; each run's config.yaml "
+                    "says what it ran), which a table would pool in one row; give the runs "
+                    "different system labels",
+                    episode_id=result.episode_id,
+                    field="system",
+                )
+            )
+
+
 def results_to_jsonl_bytes(results: Iterable[EpisodeResult]) -> bytes:
     header = json.dumps({"format": RESULTS_FORMAT, "version": RESULTS_VERSION})
     lines = [header]

@@ -24,7 +24,7 @@ from skyvln_eval.metrics.cost import COST_COLUMNS, episode_totals
 from skyvln_eval.metrics.official import OFFICIAL_COLUMNS, official_metrics
 from skyvln_eval.metrics.r2r import R2R_COLUMNS, r2r_metrics
 from skyvln_eval.metrics.records import RESULT_STATUSES, EpisodeResult
-from skyvln_eval.metrics.results_io import check_unique
+from skyvln_eval.metrics.results_io import check_one_configuration_per_system, check_unique
 
 #: Text columns of the scores frame, after ``oracle``, each empty where not said:
 #: what answered the LLM calls, how the episode ran, and the first line of its error.
@@ -101,20 +101,35 @@ def crashed_flights(scores: pd.DataFrame, conventions: MetricConventions) -> NDA
     return touched_obstacles(scores)
 
 
+def _check_are_results(results: object) -> None:
+    """Refuse what is not a sequence of episode results, saying what it is instead."""
+    takes = "score_results takes episode results (run_results(run_dir), read_results(path))"
+    if isinstance(results, pd.DataFrame):
+        raise MetricInputError(f"{takes}, not a DataFrame: these are scores already")
+    if isinstance(results, str | bytes) or not isinstance(results, Sequence):
+        raise MetricInputError(f"{takes}, not {type(results).__name__}")
+    other = next((r for r in results if not isinstance(r, EpisodeResult)), None)
+    if other is not None:
+        raise MetricInputError(f"{takes}; this sequence holds a {type(other).__name__}")
+
+
 def score_results(
     results: Sequence[EpisodeResult], conventions: MetricConventions | None = None
 ) -> pd.DataFrame:
     """Every per-episode metric of ``results``, one row each, in input order.
 
     Raises :class:`MetricInputError` on empty input,
-    :class:`~skyvln_eval.errors.ResultRecordError` on duplicate episodes and
+    :class:`~skyvln_eval.errors.ResultRecordError` on duplicate episodes or on one
+    system's rows made by different run configurations (a table would pool them), and
     :class:`~skyvln_eval.errors.NoGroundTruthError` on episodes whose ground truth is
     withheld (scored, they would be failures with a negative progress).
     """
     conventions = conventions or MetricConventions()
+    _check_are_results(results)
     if not results:
         raise MetricInputError("no episode results to score")
     check_unique(results)
+    check_one_configuration_per_system(results)
     withheld = [r for r in results if not r.has_ground_truth]
     if withheld:
         split = withheld[0].split

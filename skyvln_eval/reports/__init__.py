@@ -31,7 +31,7 @@ from skyvln_eval.reports.tables import (
     to_latex,
     to_markdown,
 )
-from skyvln_eval.reports.trajectory_figure import trajectory_figure
+from skyvln_eval.reports.trajectory_figure import trajectory_figure, trajectory_labels
 
 __all__ = [
     "FIGURE_FORMATS",
@@ -55,4 +55,5 @@ __all__ = [
     "to_latex",
     "to_markdown",
     "trajectory_figure",
+    "trajectory_labels",
 ]

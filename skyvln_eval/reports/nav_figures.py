@@ -21,7 +21,7 @@ ground-truth oracle flew are labelled as references
 from __future__ import annotations
 
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -96,6 +96,19 @@ def _of_one_mode(scores: pd.DataFrame, mode: str | None) -> pd.DataFrame:
     return scores[scores["mode"] == mode]
 
 
+def _names(given: object, what: str) -> list[str] | None:
+    """``given`` (systems or splits) as a list of names; refused with what it is instead
+    (``ne_distribution_figure(scores, conventions)`` had iterated the conventions)."""
+    if given is None:
+        return None
+    if isinstance(given, str):
+        raise MetricInputError(f"{what} must be a list of names: write [{given!r}]")
+    names = list(given) if isinstance(given, Iterable) else None
+    if names is None or not all(isinstance(n, str) for n in names):
+        raise MetricInputError(f"{what} must be a list of names, got {type(given).__name__}")
+    return names
+
+
 def _selected(
     scores: pd.DataFrame,
     systems: Sequence[str] | None,
@@ -107,6 +120,7 @@ def _selected(
     no scores there, naming those there are. Without named systems, those with no scores
     on ``splits`` are left out, with a warning (a reproduction's Table II rows ran
     test_unseen only)."""
+    systems, splits = _names(systems, "systems"), _names(splits, "splits")
     scores = _of_one_mode(scores, mode)
     names = _systems(scores, systems)
     scores = scores[scores["system"].isin(names)]

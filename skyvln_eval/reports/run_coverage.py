@@ -29,7 +29,14 @@ from skyvln_eval.errors import (
     listed,
 )
 from skyvln_eval.harness.config import RunConfig, run_config_from_mapping
-from skyvln_eval.harness.run import CONFIG_FILE, REPORT_FILE, check_own_rows, selected
+from skyvln_eval.harness.run import (
+    CONFIG_FILE,
+    REPORT_FILE,
+    check_own_rows,
+    is_relative_data,
+    recorded_data_dir,
+    selected,
+)
 from skyvln_eval.harness.store import RESULTS_FILE, RowKey
 from skyvln_eval.metrics.records import EpisodeResult
 from skyvln_eval.metrics.results_io import stopped_run_error
@@ -72,7 +79,9 @@ def run_data_dir(config: RunConfig, run_dir: Path) -> Path:
         path = cache_root() / dataset_dir_name(SPECS[data])
         found = is_complete(path)
     else:
-        path = Path(data).expanduser()
+        # A relative path names the folder it named where the run was launched.
+        path = recorded_data_dir(run_dir) if is_relative_data(data) else None
+        path = path or Path(data).expanduser()
         found = (path / "annotations").is_dir()
     if not found:
         raise DataError(

@@ -213,10 +213,13 @@ def fixed(value: float, digits: int) -> str:
 def nonzero_digits(value: float, digits: int) -> int:
     """``digits``, or more decimals (two significant digits, at most 8) for a value other
     than zero that ``digits`` would show as zero: a cost of $0.00004 per episode is not
-    "0.0000", nor its known part "≥0.0000"."""
+    "0.0000", nor its known part "≥0.0000". A value that even 8 decimals show as zero (a
+    rounding residue, e.g. the oracle's NE of 6e-10 m) keeps ``digits``: "0.00000000"
+    would say no more than "0.00"."""
     if value == 0.0 or not math.isfinite(value) or fixed(value, digits).strip("-0."):
         return digits
-    return min(8, max(digits, 1 - math.floor(math.log10(abs(value)))))
+    wanted = min(8, max(digits, 1 - math.floor(math.log10(abs(value)))))
+    return wanted if fixed(value, wanted).strip("-0.") else digits
 
 
 def nonzero_fixed(value: float, digits: int) -> str:

@@ -17,7 +17,7 @@ from skyvln_eval.avdn import load_split, view_centre
 from skyvln_eval.converters import topics as t
 from skyvln_eval.converters.reader import read_episode, read_log
 from skyvln_eval.converters.validate import check_log
-from skyvln_eval.errors import ConfigError, IncompleteRunError
+from skyvln_eval.errors import ConfigError, IncompleteRunError, ResultRecordError
 from skyvln_eval.harness import RunConfig, load_run_config, make_executor, run, run_results
 from skyvln_eval.harness.config import run_config_from_mapping
 from skyvln_eval.harness.run import error_verdict
@@ -373,6 +373,28 @@ def test_rows_another_configuration_made_are_refused_by_resume_and_score(
     assert alone.code == 2 and "has rows made by different settings" in alone.err, alone
 
 
+def test_one_systems_runs_of_different_configurations_are_not_pooled(
+    tmp_path: Path, small_config: MakeConfig, cli: Any
+) -> None:
+    # An audit scored an official run on val_unseen and another configuration's run on
+    # val_seen under one label: one table row, its columns made by different settings.
+    from skyvln_eval.metrics import score_results
+
+    unseen, seen, other = tmp_path / "unseen", tmp_path / "seen", tmp_path / "other"
+    assert run(small_config(limit=1), unseen).complete
+    assert run(small_config(limit=1, splits=("val_seen",)), seen).complete
+    assert run(small_config(limit=1, splits=("val_seen",), max_action_len=3), other).complete
+    # The same configuration on two splits, in two runs: one system, scored together.
+    same = cli("score", str(unseen), str(seen), "--out", str(tmp_path / "s1"))
+    assert same.code == 0, same
+    mixed = cli("score", str(unseen), str(other), "--out", str(tmp_path / "s2"))
+    assert mixed.code == 2, mixed
+    assert "has rows made by different run configurations" in mixed.err, mixed
+    rows = read_results(unseen / RESULTS_FILE) + read_results(other / RESULTS_FILE)
+    with pytest.raises(ResultRecordError, match="give the runs different system labels"):
+        score_results(rows)
+
+
 def test_an_official_run_records_no_flight_settings_and_keeps_rows_made_with_them(
     tmp_path: Path, small_config: MakeConfig
 ) -> None:
@@ -525,3 +547,27 @@ def test_score_reads_the_runs_below_a_folder_and_drops_a_layout_of_other_systems
     again = cli("score", str(tmp_path / "rep" / "runs"), "--out", str(out), "--resamples", "0")
     assert again.code == 0, again
     assert (out / LAYOUT_FILE).is_file()
+
+
+def test_a_relative_data_path_names_the_folder_it_named_when_the_run_was_launched(
+    tmp_path: Path, small_config: MakeConfig, sample_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # An audit grew a run with `data: ds` from another directory, where `ds` was a copy
+    # with other dialogs: accepted without a word, the new rows flown on other data.
+    from skyvln_eval.reports.run_coverage import run_data_dir
+
+    name = sample_dir.name  # relative, from the folder that holds the sample
+    elsewhere = tmp_path / "elsewhere"
+    (elsewhere / name / "annotations").mkdir(parents=True)  # another folder of that name
+    run_dir = tmp_path / "run"
+    monkeypatch.chdir(sample_dir.parent)
+    assert run(small_config(data=name, limit=1), run_dir).complete
+    report = json.loads((run_dir / "run.json").read_text())
+    assert report["relative_data_dir"] == str(sample_dir.resolve())
+    monkeypatch.chdir(elsewhere)
+    with pytest.raises(ConfigError, match=rf"from here '{name}' is .*elsewhere/{name}: run the"):
+        run(small_config(data=name, limit=2), run_dir)
+    # Scored from elsewhere, the run's rows are checked against the folder it ran on.
+    assert run_data_dir(small_config(data=name, limit=1), run_dir) == sample_dir.resolve()
+    monkeypatch.chdir(sample_dir.parent)
+    assert run(small_config(data=name, limit=2), run_dir).ran_now == 1

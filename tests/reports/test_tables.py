@@ -17,7 +17,7 @@ import pytest
 from skyvln_eval.errors import MetricInputError
 from skyvln_eval.metrics import MetricConventions, score_results, summarise
 from skyvln_eval.reports import TABLE_I, TABLE_II, build_table, to_csv, to_latex, to_markdown
-from skyvln_eval.reports.tables import Table, latex_escape
+from skyvln_eval.reports.tables import Table, latex_escape, nonzero_fixed
 from tests.metrics.helpers import result, square
 
 EXPECTED = Path(__file__).parent / "expected"
@@ -408,3 +408,11 @@ def test_cells_round_halves_away_from_zero_as_a_reader_does() -> None:
     assert fixed(2.675, 2) == "2.68"  # its shortest repr, not its binary value 2.67499...
     assert fixed(-0.001, 2) == "0.00" and fixed(46.666666, 2) == "46.67"
     assert fixed(math.inf, 1) == "inf"
+
+
+def test_a_rounding_residue_is_shown_as_zero_and_a_small_cost_is_not() -> None:
+    # An oracle's NE of 6e-10 m showed as "0.00000000"; a cost of $0.00004 must not be 0.
+    assert nonzero_fixed(5.9e-10, 2) == "0.00"
+    assert nonzero_fixed(-3e-12, 2) == "0.00"
+    assert nonzero_fixed(4e-5, 4) == "0.000040"
+    assert nonzero_fixed(1.2e-8, 2) == "0.00000001"
