@@ -174,13 +174,44 @@ def undecodable_at(raw: bytes, error: UnicodeDecodeError) -> str:
     return f"byte 0x{raw[error.start]:02x} on line {line}, byte offset {error.start}"
 
 
+class _StrictLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that refuses a key given twice in one mapping: YAML keeps the
+    last one without a word (``system: a`` then ``system: b`` ran as "b"), where the JSON
+    readers here refuse repeated keys. Keys merged in with ``<<`` may still be overridden."""
+
+    def construct_mapping(self, node: yaml.Node, deep: bool = False) -> dict[Any, Any]:
+        if isinstance(node, yaml.MappingNode):
+            first_line: dict[Any, int] = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                if not isinstance(key, str | int | float | bool):
+                    continue  # not a key a mapping of settings has; PyYAML says what it is
+                if key not in first_line:
+                    first_line[key] = key_node.start_mark.line + 1
+                    continue
+                raise yaml.constructor.ConstructorError(
+                    "while reading a mapping",
+                    node.start_mark,
+                    f"found the key {key!r} twice (first on line {first_line[key]}): YAML "
+                    "would keep the last one without a word; give it once",
+                    key_node.start_mark,
+                )
+        return super().construct_mapping(node, deep)
+
+
 def load_yaml(text: str, path: str | Path) -> Any:
     """``yaml.safe_load`` of ``text``, read from ``path``: a syntax error's marks name the
-    file (given text, PyYAML names it "<unicode string>")."""
-    loader = yaml.SafeLoader(text)
+    file (given text, PyYAML names it "<unicode string>"); a key given twice in a mapping,
+    or a number Python will not read (an integer of thousands of digits), is a
+    ``yaml.YAMLError`` too."""
+    loader = _StrictLoader(text)
     loader.name = str(path)
     try:
         return loader.get_single_data()
+    except ValueError as error:  # int() refuses more than 4300 digits
+        raise yaml.YAMLError(f'in "{path}": a value that cannot be read: {error}') from None
     finally:
         loader.dispose()
 

@@ -236,7 +236,7 @@ class SensorConfig(BaseModel):
     (semantic classes and landmark instances with their categories) when enabled, sharing
     the camera's optics. Runs, their provenance and their tables say which were on."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     depth: bool = True
     semantic: bool = True

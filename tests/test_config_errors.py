@@ -176,6 +176,14 @@ def test_a_backend_spec_is_checked_whole_in_backends_files_and_the_environment(
     monkeypatch.setenv("SKYVLN_TEST_BACKENDS", "openai:")
     with pytest.raises(ConfigError, match=r"^\$SKYVLN_TEST_BACKENDS: 'openai:' is not"):
         environment_backends("SKYVLN_TEST_BACKENDS", BackendsFile())
+    # An entry that names no backend was the rule stand-in, its server ignored: a Table II
+    # row labelled as a model that no model answered.
+    backends.write_text(
+        "format: skyvln-eval/llm-backends\nversion: 1\n"
+        "backends: {g: {base_url: 'http://127.0.0.1:8080/v1'}}\n"
+    )
+    with pytest.raises(ConfigError, match=r"backend 'g' does not say which backend it is"):
+        load_backends_file(backends)
 
 
 def test_the_shipped_backends_file_loads_and_asks_the_local_server_as_the_plan_does() -> None:

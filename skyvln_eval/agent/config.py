@@ -35,7 +35,7 @@ class DetectorConfig(BaseModel):
     """Which detector, and its settings: imperfections (``simulated``), weights
     (``grounding_dino``) or the vision-language model to ask (``vlm``)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     name: str = "simulated"
     miss_rate: float = Field(default=0.1, ge=0.0, le=1.0)
@@ -99,7 +99,7 @@ class DetectorConfig(BaseModel):
 class AgentConfig(BaseModel):
     """One agent: its kind (``name``), ablation switches, perception, detector and LLM."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     name: str = "skyvln"
     hsd: bool = True

@@ -32,7 +32,7 @@ _FOUR_VIEWS = ("front", "right", "back", "left")
 class PerceptionConfig(BaseModel):
     """How the agent looks around (angles in degrees, distances in metres)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     headings: int = Field(default=4, ge=1, le=16, description="panorama headings, evenly spaced")
     pitch_deg: float = Field(

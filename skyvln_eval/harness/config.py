@@ -39,7 +39,7 @@ ExecutionMode = Literal["official", "dynamics"]
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class ObstacleSettings(_Strict):
@@ -227,6 +227,13 @@ class RunConfig(_Strict):
                 f"episode ids are text, but {numbers[0]!r} is a number: YAML reads an unquoted "
                 'id such as 9101__6_1 as the number 910161; quote each id: ["9101__6_1", ...]'
             )
+        return ids
+
+    @field_validator("episodes")
+    @classmethod
+    def _some_episodes(cls, ids: tuple[str, ...] | None) -> tuple[str, ...] | None:
+        if ids is not None and not ids:
+            raise ValueError("an empty list selects no episode: list some, or leave it out")
         return ids
 
     @field_validator("splits")

@@ -66,6 +66,14 @@ def check_run_directory(run_dir: Path) -> RunCheck:
     results_file = run_dir / RESULTS_FILE
     for row in store.recovery.damaged:
         check.problems.append(f"{results_file} line {row.line}: damaged row ({row.reason})")
+    superseded = store.recovery.superseded
+    if superseded:  # score refuses such a file: which row would count is not its to guess
+        split, episode_id = superseded[0]
+        check.problems.append(
+            f"{results_file}: {len(superseded)} episode row(s) repeated (e.g. "
+            f"{split}/{episode_id}); `score` refuses the file, and resuming the run (the same "
+            "command) keeps each episode's latest row"
+        )
     leftovers = leftover_temporaries(run_dir, RUN_FILES, RUN_FOLDERS)
     if leftovers:  # a state, not damage: what a killed writer left, never renamed into place
         check.notes.append(

@@ -86,7 +86,13 @@ def load_backends_file(path: str | Path) -> BackendsFile:
     for name, entry in entries.items():
         if not isinstance(entry, dict):
             raise ConfigError(f"backends file {file}: backend {name!r} must be a mapping")
-        backends[str(name)] = _config({**defaults, **entry}, f"backends file {file}: {name}")
+        config = _config({**defaults, **entry}, f"backends file {file}: {name}")
+        if "backend" not in entry:  # LLMConfig's default would make it the rule stand-in
+            raise ConfigError(
+                f"backends file {file}: backend {name!r} does not say which backend it is "
+                "(backend: openai:<model>, or rule / random for a stand-in)"
+            )
+        backends[str(name)] = config
     return BackendsFile(str(file), dict(defaults), backends)
 
 

@@ -21,7 +21,7 @@ from skyvln_eval.llm.types import GenerationConfig
 
 
 class RetryConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     max_attempts: int = Field(default=4, ge=1, le=20)
     initial_delay_s: float = Field(default=0.5, ge=0.0)
@@ -106,7 +106,7 @@ class LLMConfig(BaseModel):
     ``repair_budget_factor`` times the budget.
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     backend: str = "rule"
     base_url: str | None = None

@@ -202,7 +202,7 @@ def read_predictions_json(path: str | Path) -> dict[str, Prediction]:
         raise DataError(f"{path}: predictions file not found")
     try:
         data = json.loads(path.read_bytes(), object_pairs_hook=object_keeping_repeats)
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+    except ValueError as exc:  # not JSON, not UTF-8, an integer of thousands of digits
         raise DataError(f"{path}: not valid JSON ({exc})") from None
     if not isinstance(data, dict) or data.get("format") != PREDICTIONS_FORMAT:
         raise DataError(f'{path}: not a predictions file (needs "format": "{PREDICTIONS_FORMAT}")')

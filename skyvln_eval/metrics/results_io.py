@@ -27,6 +27,7 @@ from __future__ import annotations
 import dataclasses
 import io
 import json
+import math
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
@@ -147,7 +148,8 @@ def result_from_json_dict(
         )
         if not isinstance(data["extra"], dict):
             raise error("extra", "must be a JSON object")
-        return EpisodeResult(
+        _check_extra(data["extra"])
+        result = EpisodeResult(
             episode_id=data["episode_id"],
             split=data["split"],
             mode=data["mode"],
@@ -163,10 +165,59 @@ def result_from_json_dict(
             module_failures=failures,
             extra=data["extra"],
         )
+        _check_starts_at_start(result)
+        return result
     except ResultRecordError as exc:
         raise error(exc.issue.field or "", exc.issue.message) from None
     except (TypeError, ValueError) as exc:  # not one of the checks above: no field to name
         raise error("", str(exc)) from None
+
+
+#: How far (degrees, about a centimetre) a row's first view may be from its start view.
+START_VIEW_TOLERANCE_DEG = 1e-7
+
+
+def _check_starts_at_start(result: EpisodeResult) -> None:
+    """A row's path begins at its start view (a row whose first view was cut off, by hand,
+    scored a shorter path and a higher SPL without a word)."""
+    visited, start = result.visited_views, result.gt_path_corners[0]
+    if len(visited) and not np.allclose(visited[0], start, rtol=0.0, atol=START_VIEW_TOLERANCE_DEG):
+        raise ResultRecordError(
+            ValidationIssue(
+                "<json>",
+                f"must be the episode's start view (gt_path_corners[0], {start.tolist()}), got "
+                f"{visited[0].tolist()}: a path lists every view from the start on",
+                field="visited_views[0]",
+            )
+        )
+
+
+def _check_extra(extra: dict[str, Any]) -> None:
+    """The facts of ``extra`` that scores are made of have their types (a hand edit's
+    ``"wall_s": "slow"`` was a traceback in ``score``, after ``validate`` said ok)."""
+
+    def problem(key: str, message: str) -> ResultRecordError:
+        return ResultRecordError(ValidationIssue("<json>", message, field=f"extra.{key}"))
+
+    wall = extra.get("wall_s")
+    if wall is not None and (
+        isinstance(wall, bool)
+        or not isinstance(wall, int | float)
+        or not math.isfinite(wall)
+        or wall < 0
+    ):
+        raise problem("wall_s", f"must be a number of seconds >= 0, got {wall!r}")
+    for key in ("oracle", "llm_use_recorded"):
+        if extra.get(key) is not None and not isinstance(extra[key], bool):
+            raise problem(key, f"must be true or false, got {extra[key]!r}")
+    for key in ("llm_backend", "detector", "settings_digest", "system_digest", "execution_mode"):
+        if extra.get(key) is not None and not isinstance(extra[key], str):
+            raise problem(key, f"must be a string, got {extra[key]!r}")
+    questions = extra.get("questions")
+    if questions is not None and (
+        not isinstance(questions, list) or not all(isinstance(q, dict) for q in questions)
+    ):
+        raise problem("questions", f"must be a list of question objects, got {questions!r}")
 
 
 def _control_summary(data: Any) -> ControlSummary | None:
@@ -260,6 +311,17 @@ def _check_header(header: Any, file: str) -> None:
         raise FormatVersionError(file, header.get("version"), RESULTS_VERSION, _UPGRADE_HINT)
 
 
+def _object_without_repeats(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """A JSON object whose keys are each given once (``json`` keeps the last of a repeated
+    key without a word: ``"status": "error", "status": "ok"`` read as ok)."""
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise ValueError(f"the key {key!r} is given twice")
+        out[key] = value
+    return out
+
+
 def results_from_jsonl_bytes(data: bytes, file: str = "<jsonl>") -> list[EpisodeResult]:
     try:
         lines = data.decode("utf-8").splitlines()
@@ -272,12 +334,14 @@ def results_from_jsonl_bytes(data: bytes, file: str = "<jsonl>") -> list[Episode
         _check_header(json.loads(lines[0]), file)
     except json.JSONDecodeError as exc:
         raise DataError(f"{file}: header line is not JSON ({exc.msg})") from None
+    except ValueError as exc:  # an integer of thousands of digits
+        raise DataError(f"{file}: header line is not usable JSON ({exc})") from None
     results = []
     for row, line in enumerate(lines[1:]):
         if not line.strip():
             continue
         try:
-            obj = json.loads(line)
+            obj = json.loads(line, object_pairs_hook=_object_without_repeats)
         except json.JSONDecodeError as exc:
             message = f"not valid JSON (column {exc.colno}: {exc.msg})"
             if row + 2 == len(lines) and not data.endswith(b"\n"):
@@ -288,6 +352,8 @@ def results_from_jsonl_bytes(data: bytes, file: str = "<jsonl>") -> list[Episode
                     "and run its episode again"
                 )
             raise _where(file, row, None, "", message, line=row + 2) from None
+        except ValueError as exc:  # a key given twice, an integer of thousands of digits
+            raise _where(file, row, None, "", f"not usable JSON: {exc}", line=row + 2) from None
         results.append(result_from_json_dict(obj, file, row, line=row + 2))
     check_unique(results, file)
     return results

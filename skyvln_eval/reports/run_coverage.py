@@ -80,8 +80,8 @@ def run_data_dir(config: RunConfig, run_dir: Path) -> Path:
         found = is_complete(path)
     else:
         # A relative path names the folder it named where the run was launched.
-        path = recorded_data_dir(run_dir) if is_relative_data(data) else None
-        path = path or Path(data).expanduser()
+        recorded = recorded_data_dir(run_dir) if is_relative_data(data) else None
+        path = recorded or Path(data).expanduser()
         found = (path / "annotations").is_dir()
     if not found:
         raise DataError(

@@ -433,3 +433,30 @@ def test_a_local_model_server_that_is_not_running_is_refused_before_any_episode(
         server.bind(("127.0.0.1", port))
         server.listen()
         preflight(load_run_config(path), sample_dir, [])
+
+
+@pytest.mark.parametrize(
+    ("lines", "needle"),
+    [
+        # NaN and infinity passed the range checks and became null in the copy each
+        # episode reads: a raw ValidationError from inside the run, a run.json left behind.
+        ("sensors: {max_depth_m: .inf}", "sensors.max_depth_m: Input should be a finite number"),
+        (
+            "mode: dynamics\ndynamics: {plant: {wind_mean_m_s: [.nan, 0, 0]}}",
+            "dynamics.plant.wind_mean_m_s.0: Input should be a finite number",
+        ),
+        ("agent: {detector: {close_look_m: .inf}}", "agent.detector.close_look_m"),
+        # YAML keeps the last of a repeated key without a word: the run was 'b'.
+        ("system: b", "found the key 'system' twice (first on line "),
+        ("seed: " + "7" * 5000, "a value that cannot be read: Exceeds the limit"),
+        ("episodes: []", "episodes: an empty list selects no episode"),
+    ],
+    ids=["inf", "nan", "nested-inf", "repeated-key", "huge-integer", "no-episodes"],
+)
+def test_values_no_setting_can_take_are_refused_on_load(
+    tmp_path: Path, sample_dir: Path, cli: Cli, lines: str, needle: str
+) -> None:
+    path = tmp_path / "config.yaml"
+    path.write_text(yaml.safe_dump(_config(sample_dir)) + lines + "\n")
+    _refused(cli("run", str(path), "--out", str(tmp_path / "run")), str(path), needle)
+    assert not (tmp_path / "run").exists(), "no episode may run"

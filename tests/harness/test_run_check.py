@@ -72,3 +72,21 @@ def test_an_unfinished_run_is_a_note_not_a_problem(
     said = " ".join(result.output.split())
     assert "1 temporary file(s) of writers stopped before they finished" in said
     assert "(the next run or resume removes them)" in said
+
+
+def test_a_repeated_row_is_a_problem_that_score_would_refuse(
+    tmp_path: Path, small_config: Callable[..., RunConfig]
+) -> None:
+    # An audit's results.jsonl with a row given twice: validate said ok, score refused it.
+    run_dir = tmp_path / "run"
+    assert run(small_config(limit=1), run_dir).complete
+    results = run_dir / RESULTS_FILE
+    (row,) = read_results(results)
+    lines = results.read_bytes().splitlines(keepends=True)
+    results.write_bytes(b"".join([*lines, lines[1]]))
+    check = check_run_directory(run_dir)
+    assert check.problems == [
+        f"{results}: 1 episode row(s) repeated (e.g. {row.split}/{row.episode_id}); `score` "
+        "refuses the file, and resuming the run (the same command) keeps each episode's "
+        "latest row"
+    ]

@@ -255,3 +255,11 @@ def test_prediction_errors_name_the_file_and_the_view(tmp_path: Path) -> None:
     with pytest.raises(DataError, match="does not begin with the episode's start view") as moved:
         results_from_predictions(read_predictions(npy), elsewhere, "x", "test_unseen")
     assert f"predictions of 'x' on test_unseen ({npy})" in str(moved.value)
+
+
+def test_a_number_python_will_not_read_is_no_predictions_file(tmp_path: Path) -> None:
+    # An integer of 5000 digits was a raw ValueError traceback.
+    path = tmp_path / "preds.json"
+    path.write_text('{"format": "skyvln-eval.predictions", "version": ' + "1" * 5000 + "}")
+    with pytest.raises(DataError, match=r"preds.json: not valid JSON \(Exceeds the limit"):
+        read_predictions(path)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -210,3 +211,44 @@ def test_a_directory_is_not_a_missing_file(tmp_path: Path) -> None:
     assert f"{tmp_path}: a directory, not a results file; pass the file in it " in str(folder.value)
     assert str(tmp_path / "results.jsonl") in str(folder.value)
     assert "run_results" in str(folder.value)
+
+
+@pytest.mark.parametrize(
+    ("edit", "needle"),
+    [
+        # A path without its start view was scored as a shorter path: a higher SPL.
+        (lambda row: row["visited_views"].pop(0), r"field 'visited_views\[0\]': must be the"),
+        # Scores are made of these: a hand edit was a traceback in score.
+        (lambda row: row["extra"].update(wall_s="slow"), r"'extra.wall_s': must be a number"),
+        (lambda row: row["extra"].update(wall_s=-100), r"'extra.wall_s': must be a number"),
+        (lambda row: row["extra"].update(questions="abc"), r"'extra.questions': must be a list"),
+        (lambda row: row["extra"].update(oracle="no"), r"'extra.oracle': must be true or false"),
+        (lambda row: row["extra"].update(llm_backend=5), r"'extra.llm_backend': must be a str"),
+    ],
+    ids=["no-start", "wall-text", "wall-negative", "questions", "oracle", "backend"],
+)
+def test_rows_whose_scores_would_be_wrong_are_refused_naming_line_and_field(
+    tmp_path: Path, edit: Any, needle: str
+) -> None:
+    path = tmp_path / "run.jsonl"
+    write_results(path, rich_results())
+    lines = path.read_text().splitlines()
+    row = json.loads(lines[1])
+    edit(row)
+    lines[1] = json.dumps(row)
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ResultRecordError, match=r"run.jsonl, record 0 on line 2 .*" + needle):
+        read_results(path)
+
+
+def test_a_key_given_twice_or_an_unreadable_number_is_no_usable_row(tmp_path: Path) -> None:
+    path = tmp_path / "run.jsonl"
+    write_results(path, rich_results())
+    lines = path.read_text().splitlines()
+    twice = lines[1].replace('"status": "degraded"', '"status": "error", "status": "degraded"')
+    assert twice != lines[1]
+    huge = lines[1].replace('"decisions": 3', '"decisions": ' + "9" * 5000)
+    for line, needle in ((twice, "the key 'status' is given twice"), (huge, "Exceeds the limit")):
+        path.write_text("\n".join([lines[0], line, *lines[2:]]) + "\n")
+        with pytest.raises(ResultRecordError, match=rf"line 2: not usable JSON: .*{needle}"):
+            read_results(path)
