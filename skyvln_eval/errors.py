@@ -115,6 +115,17 @@ class MapImageError(DataError):
         self.path = path
 
 
+class MapShapeError(MapImageError):
+    """A map decodes, but its width-resized raster has a shape it cannot be used in: too
+    large or small to make, or not that of its world layers. ``map_shape_px`` is the
+    (height, width) the resized map has or would have: ``validate`` compares it with the
+    records' bounds to tell a record's wrong geo-reference from a wrong image."""
+
+    def __init__(self, path: str, message: str, map_shape_px: tuple[int, int]) -> None:
+        super().__init__(path, message)
+        self.map_shape_px = map_shape_px
+
+
 class NoGroundTruthError(SkyvlnError):
     """Scoring was asked for episodes whose ground truth is withheld (real AVDN test_unseen)."""
 

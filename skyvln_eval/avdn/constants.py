@@ -25,6 +25,11 @@ MAX_VIEW_EDGE_M: Final = 400.0
 #: ``target_edge_m = round(ALTITUDE_SPAN_M * clip(a, 0, 1)) + MIN_VIEW_EDGE_M``.
 ALTITUDE_SPAN_M: Final = 360.0
 
+#: Largest side, pixels, of a map (original or width-resized) the toolkit makes: the
+#: synthetic maps are 2,500 px and xView's images a few thousand. A record's ratios that
+#: describe a larger map are wrong (a 2500 x 549,822 px resize took 4 GB).
+MAX_MAP_SIDE_PX: Final = 20_000
+
 #: Side of the heading-up observation image, pixels.
 OBSERVATION_SIZE_PX: Final = 224
 

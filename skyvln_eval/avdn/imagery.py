@@ -16,10 +16,16 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from skyvln_eval.avdn.constants import OBSERVATION_SIZE_PX
-from skyvln_eval.errors import MapImageError
+from skyvln_eval.avdn.constants import MAX_MAP_SIDE_PX, OBSERVATION_SIZE_PX
+from skyvln_eval.errors import MapImageError, MapShapeError
 
 LatLng = tuple[float, float]
+
+#: How far (relative, plus one pixel for the resize's truncation) a width-resized map's
+#: size may be from the one its record's bounds give in ``lat_ratio``-degree pixels. The
+#: ratios are degrees per image pixel and the bounds the image's corners, so the two
+#: agree up to rounding; a wrong ratio or map is off by far more (10% and more).
+GEOREF_SIZE_TOLERANCE = 0.01
 
 
 @dataclass(frozen=True)
@@ -38,6 +44,12 @@ class MapGeoref:
     def resized_width(self, original_width_px: int) -> int:
         """Width of the official width-resized image, pixels."""
         return int(original_width_px * self.lng_ratio / self.lat_ratio)
+
+    def described_shape_px(self) -> tuple[float, float]:
+        """(height, width) of the width-resized map the bounds span in pixels of
+        ``lat_ratio`` degrees: the shape the map image must resize to (pixels)."""
+        (lat0, lng0), (lat1, lng1) = self.gps_botm_left, self.gps_top_right
+        return (lat1 - lat0) / self.lat_ratio, (lng1 - lng0) / self.lat_ratio
 
     def contains(self, points: ArrayLike) -> Any:
         """Whether ``[lat, lng]`` points lie strictly inside the map box (official test)."""
@@ -74,27 +86,66 @@ def map_image_path(images_dir: str | Path, map_name: str) -> Path:
     return Path(images_dir) / f"{map_name}.tif"
 
 
-def resize_to_degree_grid(image: NDArray[Any], georef: MapGeoref) -> NDArray[Any]:
-    """The official width resize (INTER_AREA), making pixels square in degree space."""
+def georef_misfit(georef: MapGeoref, map_shape_px: tuple[int, int]) -> tuple[str, str] | None:
+    """(field, problem) when a map whose width-resized raster is ``map_shape_px`` (height,
+    width) is not the image ``georef`` describes, else None.
+
+    The height is the image's own, so it tests ``lat_ratio`` against the bounds; the width
+    is ``int(W * lng_ratio / lat_ratio)``, so with ``lat_ratio`` right it tests ``lng_ratio``.
+    """
+    described = georef.described_shape_px()
+    for axis, field, extent in ((0, "lat_ratio", "latitude"), (1, "lng_ratio", "longitude")):
+        have, want = map_shape_px[axis], described[axis]
+        if abs(have - want) > GEOREF_SIZE_TOLERANCE * want + 1.0:
+            side = "high" if axis == 0 else "wide once width-resized (W x lng_ratio / lat_ratio)"
+            return field, (
+                f"the map image is {have} px {side}, but the record's {extent} bounds span "
+                f"{want:.1f} px of lat_ratio degrees: {field} ({getattr(georef, field)!r}) "
+                "is not the bounds' extent per image pixel (or map_name names another map)"
+            )
+    return None
+
+
+def resize_to_degree_grid(
+    image: NDArray[Any], georef: MapGeoref, path: str = "<image>"
+) -> NDArray[Any]:
+    """The official width resize (INTER_AREA), making pixels square in degree space.
+
+    Raises :class:`MapShapeError` naming ``path`` for a width below 1 px (OpenCV's own
+    error, a traceback) or above ``MAX_MAP_SIDE_PX`` (gigabytes).
+    """
     height, width = image.shape[:2]
     new_width = georef.resized_width(width)
     if new_width == width:
         return image
+    if not 1 <= new_width <= MAX_MAP_SIDE_PX:
+        raise MapShapeError(
+            path,
+            f"lng_ratio / lat_ratio ({georef.lng_ratio!r} / {georef.lat_ratio!r}) resize this "
+            f"{width} px wide image to {new_width} px (1 to {MAX_MAP_SIDE_PX} allowed): the "
+            "records' ratios do not describe this image (`skyvln-eval validate` names them)",
+            (height, new_width),
+        )
     return cv2.resize(image, (new_width, height), interpolation=cv2.INTER_AREA)
 
 
 def load_map_bgr(path: str | Path, georef: MapGeoref) -> NDArray[np.uint8]:
     """Read a map as 8-bit BGR and apply the official width resize.
 
-    Raises :class:`MapImageError` naming the file when it is missing or not an image.
+    Raises :class:`MapImageError` naming the file when it is missing or not an image, and
+    :class:`MapShapeError` when the record's ratios resize it to no usable width.
     """
     path = Path(path)
     if not path.is_file():
         raise MapImageError(str(path), "map image not found")
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if image is None:
-        raise MapImageError(str(path), "not a readable image (OpenCV could not decode it)")
-    return resize_to_degree_grid(image, georef)
+    try:
+        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if image is None:
+            raise MapImageError(str(path), "not a readable image (OpenCV could not decode it)")
+        return resize_to_degree_grid(image, georef, str(path))
+    except cv2.error as exc:  # a damaged file OpenCV half-reads: its text, not a traceback
+        reason = str(exc).strip().splitlines()[-1]
+        raise MapImageError(str(path), f"OpenCV could not read it ({reason})") from None
 
 
 def observation_transform(corners: ArrayLike, georef: MapGeoref, size_px: int) -> Any:

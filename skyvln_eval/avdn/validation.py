@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from skyvln_eval.avdn.constants import METERS_PER_DEGREE
+from skyvln_eval.avdn.constants import MAX_MAP_SIDE_PX, METERS_PER_DEGREE
 from skyvln_eval.avdn.geometry import view_heading_deg
 from skyvln_eval.avdn.json_values import (
     locate_bad_number,
@@ -223,15 +223,16 @@ def _check_scalars(raw: dict[str, Any], report: Any) -> bool:
             if found := unwritable(raw[key], key):
                 report(*found)
                 ok = False
+    ratios_ok = True
     for key in ("lng_ratio", "lat_ratio", "angle"):
         v = raw[key]
         problem = number_problem(v)
         if problem is not None:
             report(key, problem)
-            ok = False
+            ok = ratios_ok = False
         elif key != "angle" and v <= 0:
             report(key, f"expected degrees per pixel > 0, got {v!r}")
-            ok = False
+            ok = ratios_ok = False
     corners_ok = _check_latlng(raw["gps_botm_left"], "gps_botm_left", report)
     corners_ok &= _check_latlng(raw["gps_top_right"], "gps_top_right", report)
     if corners_ok:
@@ -239,10 +240,42 @@ def _check_scalars(raw: dict[str, Any], report: Any) -> bool:
         if not (lat0 < lat1 and lng0 < lng1):
             report("gps_top_right", "must lie north-east of gps_botm_left")
             corners_ok = False
+    if corners_ok and ratios_ok:
+        ok &= _check_map_size(raw, report)
     if ok and isinstance(route, str) and type(last) is int and last < int(route.split("_")[1]):
         report("last_round_idx", f"{last} is smaller than the round in route_index {route!r}")
         ok = False
     return ok and corners_ok
+
+
+def _check_map_size(raw: dict[str, Any], report: Any) -> bool:
+    """Whether the map the record describes has a size the toolkit can make.
+
+    The ratios are degrees per original image pixel and the bounds the image's corners
+    (AVDN.md), so bounds over ratio are the image's size in pixels, and the longitude span
+    over ``lat_ratio`` the width the official resize gives it. Only ``> 0`` was checked:
+    1e300 made a 0 px wide resize (an OpenCV traceback) and 1e-12 one of 10^9 px. Whether
+    the image has that size is checked where it is decoded (``validate``).
+    """
+    (lat0, lng0), (lat1, lng1) = raw["gps_botm_left"], raw["gps_top_right"]
+    sizes = (
+        ("lat_ratio", "image height (latitude span / lat_ratio)", (lat1 - lat0) / raw["lat_ratio"]),
+        ("lng_ratio", "image width (longitude span / lng_ratio)", (lng1 - lng0) / raw["lng_ratio"]),
+        (
+            "lat_ratio",
+            "resized map width (longitude span / lat_ratio)",
+            (lng1 - lng0) / raw["lat_ratio"],
+        ),
+    )
+    for field, what, size_px in sizes:
+        if not 1.0 <= size_px <= MAX_MAP_SIDE_PX:
+            report(
+                field,
+                f"{raw[field]!r} degrees per pixel makes the map's {what} {size_px:.3g} px, "
+                f"not 1 to {MAX_MAP_SIDE_PX}: ratios are degrees per image pixel",
+            )
+            return False
+    return True
 
 
 def _check_attention(value: Any, report: Any) -> tuple[AttentionCircle, ...] | None:

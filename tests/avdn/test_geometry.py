@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -23,7 +24,7 @@ from skyvln_eval.avdn import (
     view_edge_m,
     view_from_pose,
 )
-from skyvln_eval.errors import MapImageError
+from skyvln_eval.errors import MapImageError, MapShapeError
 
 
 def square(x0: float, y0: float, side: float) -> np.ndarray:
@@ -135,3 +136,35 @@ def test_observation_puts_the_front_at_the_top() -> None:
     outside = view_from_pose((0.0, 0.0), 0.0, 400 * 1e-5 * METERS_PER_DEGREE)
     assert observe_view(image, outside, georef)[200, 20].tolist() == [0, 0, 0]
     assert math.isclose(float(view_edge_m(view_north)), 445.2)
+
+
+def test_a_resize_to_no_usable_width_names_the_file_and_ratios(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A width of 0 px was OpenCV's traceback ("inv_scale_x > 0"); of 549,822 px, 4 GB.
+    path = tmp_path / "7.tif"
+    cv2.imwrite(str(path), np.zeros((40, 60, 3), np.uint8))
+    zero = MapGeoref((10.0, 20.0), (10.01, 20.02), lng_ratio=1e-3, lat_ratio=1.0)
+    with pytest.raises(MapShapeError) as info:
+        load_map_bgr(path, zero)
+    assert str(info.value) == (
+        f"{path}: lng_ratio / lat_ratio (0.001 / 1.0) resize this 60 px wide image to 0 px "
+        "(1 to 20000 allowed): the records' ratios do not describe this image "
+        "(`skyvln-eval validate` names them)"
+    )
+    assert info.value.map_shape_px == (40, 0)
+    huge = MapGeoref((10.0, 20.0), (10.01, 20.02), lng_ratio=1e-3, lat_ratio=1e-6)
+    with pytest.raises(MapShapeError, match="to 60000 px") as info:
+        load_map_bgr(path, huge)
+    assert info.value.map_shape_px == (40, 60000)
+
+    def damaged(*_: object) -> None:
+        raise cv2.error("OpenCV(4.10.0) grfmt_tiff.cpp:1: error: (-2:Unspecified) bad strip")
+
+    monkeypatch.setattr(cv2, "imread", damaged)
+    with pytest.raises(MapImageError) as failed:
+        load_map_bgr(path, zero)
+    assert str(failed.value) == (
+        f"{path}: OpenCV could not read it (OpenCV(4.10.0) grfmt_tiff.cpp:1: error: "
+        "(-2:Unspecified) bad strip)"
+    )

@@ -568,3 +568,44 @@ def test_a_last_round_before_a_round_the_file_holds_is_refused(
     issue = only_issue(dataset_factory, rounds)
     assert (issue.record_index, issue.field) == (0, "last_round_idx")
     assert issue.message == "1, but record 2 holds round 3 of this trajectory"
+
+
+@pytest.mark.parametrize(
+    ("changes", "field", "message"),
+    [
+        (  # 0 px high: the resize to a 0 px wide map was an OpenCV traceback
+            {"lat_ratio": 1e300},
+            "lat_ratio",
+            "1e+300 degrees per pixel makes the map's image height (latitude span / "
+            "lat_ratio) 1e-302 px, not 1 to 20000: ratios are degrees per image pixel",
+        ),
+        (  # 10^10 px high: a resize of gigabytes
+            {"lat_ratio": 1e-12},
+            "lat_ratio",
+            "1e-12 degrees per pixel makes the map's image height (latitude span / "
+            "lat_ratio) 1e+10 px, not 1 to 20000: ratios are degrees per image pixel",
+        ),
+        (
+            {"lng_ratio": 1e300},
+            "lng_ratio",
+            "1e+300 degrees per pixel makes the map's image width (longitude span / "
+            "lng_ratio) 1e-302 px, not 1 to 20000: ratios are degrees per image pixel",
+        ),
+        (  # each ratio fits its own span, but the resize makes 1,000 x 100,000 px
+            {"lng_ratio": 1e-3, "gps_top_right": [30.01, 41.0]},
+            "lat_ratio",
+            "1e-05 degrees per pixel makes the map's resized map width (longitude span / "
+            "lat_ratio) 1e+05 px, not 1 to 20000: ratios are degrees per image pixel",
+        ),
+    ],
+)
+def test_ratios_must_make_a_map_of_a_usable_size(
+    dataset_factory: Callable[..., Path], changes: dict[str, Any], field: str, message: str
+) -> None:
+    # Only '> 0' was checked: validate said ok, then crashed on the map's resize.
+    root = dataset_factory({"val_seen": [make_record(), make_record(route_index="1_1", **changes)]})
+    records, issues = check_split(root, "val_seen")
+    assert [r.route_index for r in records] == ["0_1"]
+    assert [(i.record_index, i.episode_id, i.field, i.message) for i in issues] == [
+        (1, "1913__1_1", field, message)
+    ]
