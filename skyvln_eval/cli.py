@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import os
 import sys
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
@@ -26,7 +26,7 @@ from typer.core import TyperCommand
 from skyvln_eval.errors import ConfigError, RunStoppedError, SkyvlnError, UnknownNameError
 
 if TYPE_CHECKING:
-    from skyvln_eval.avdn import AvdnRecord, SplitSummary
+    from skyvln_eval.avdn import SplitSummary
     from skyvln_eval.harness.progress import RichRunProgress
 
 app = typer.Typer(
@@ -249,30 +249,6 @@ def summary(
     console.print(_split_table(_summarise(data_dir_argument(data_dir), skip_invalid)))
 
 
-def _undecodable_maps(
-    data_dir: Path, records: Sequence[AvdnRecord], checked: set[tuple[Path, str]]
-) -> list[str]:
-    """The map images (and world layers) of ``records`` that exist but do not decode (a
-    truncated download), each named once with how many records use it; ``checked``
-    holds the maps already decoded (another split's)."""
-    from skyvln_eval.errors import FormatVersionError, MapImageError
-    from skyvln_eval.worlds.loading import load_world
-
-    users: dict[str, list[AvdnRecord]] = {}
-    for record in records:
-        users.setdefault(record.map_name, []).append(record)
-    problems = []
-    for map_name, using in users.items():
-        if (data_dir, map_name) in checked:
-            continue
-        checked.add((data_dir, map_name))
-        try:
-            load_world(data_dir, map_name, using[0].georef)
-        except (MapImageError, FormatVersionError) as exc:
-            problems.append(f"{exc} ({len(using)} record(s) use map {map_name})")
-    return problems
-
-
 def _validate_run_directory(run_dir: Path) -> int:
     """Print what checking a run directory's rows and episode files found; the problems."""
     from skyvln_eval.harness.run_check import check_run_directory
@@ -311,12 +287,14 @@ def validate(
     directory's result rows are parsed, and each recorded episode's run log must be there
     and its control log read.
     """
-    from skyvln_eval.avdn import SPLITS, annotation_file_name, check_split, undefined_fields_note
+    from skyvln_eval.avdn import SPLITS, annotation_file_name, undefined_fields_note
+    from skyvln_eval.avdn.loader import check_split_indexed
     from skyvln_eval.converters.commands import is_mcap_target, run_validate_mcap
     from skyvln_eval.harness.run_check import run_directories_at
+    from skyvln_eval.worlds.checks import MapCheck
 
     problems = unreadable = 0
-    checked_maps: set[tuple[Path, str]] = set()
+    map_check = MapCheck()  # each map decoded once, whichever splits use it
     for target in targets:
         path = data_dir_argument(target)  # "sample" as summary and convert read it
         runs = run_directories_at(path)
@@ -332,24 +310,31 @@ def validate(
                 continue
             found = True
             try:
-                records, issues = check_split(path, split, check_map_images=not no_images)
+                indices, records, issues = check_split_indexed(path, split, not no_images)
             except SkyvlnError as exc:
                 _echo_problem(str(exc))
                 problems += 1
                 continue
+            map_problems: list[str] = []
+            if not no_images:  # before the verdict: a record whose map misfits is no valid one
+                file = str(path / "annotations" / annotation_file_name(split))
+                map_issues, map_problems = map_check.check(path, file, records, indices)
+                misfit = {i.record_index for i in map_issues}
+                records = [r for r, i in zip(records, indices, strict=True) if i not in misfit]
+                issues = sorted(issues + map_issues, key=lambda i: i.record_index or 0)
             for issue in issues:
                 _echo_problem(str(issue))
-            problems += len(issues)
+            for problem in map_problems:
+                _echo_problem(problem)
+            problems += len(issues) + len(map_problems)
             bad = len({i.record_index for i in issues})
-            status = "ok" if not issues else f"{len(issues)} problem(s) in {bad} record(s)"
+            verdict = [f"{len(issues)} problem(s) in {bad} record(s)"] if issues else []
+            verdict += [f"{len(map_problems)} map image problem(s)"] if map_problems else []
+            status = "; ".join(verdict) or "ok"
             typer.echo(f"{path} {split}: {len(records)} valid record(s), {status}")
             note = undefined_fields_note(records)
             if note is not None:
                 typer.echo(f"{path} {split}: note: {note}")
-            if not no_images:
-                for problem in _undecodable_maps(path, records, checked_maps):
-                    _echo_problem(problem)
-                    problems += 1
         if not found:
             _echo_problem(_not_validated(Path(path)))
             unreadable += 1

@@ -88,14 +88,17 @@ def make_record(
 
 
 def write_dataset(
-    root: Path, splits: dict[str, list[Any]], maps: tuple[str, ...] = ("1913",)
+    root: Path, splits: dict[str, list[Any]], maps: tuple[str, ...] = ("1913",), image_px: int = 100
 ) -> Path:
-    """Write annotation files (any JSON, valid or not) and small map images."""
+    """Write annotation files (any JSON, valid or not) and small map images.
+
+    The images are ``image_px`` square; :func:`make_record`'s bounds and ratios describe a
+    1000 px one, which ``validate`` (it compares the two) needs."""
     (root / "annotations").mkdir(parents=True, exist_ok=True)
     (root / "train_images").mkdir(parents=True, exist_ok=True)
     for split, data in splits.items():
         (root / "annotations" / f"{split}_data.json").write_text(json.dumps(data))
-    image = np.full((100, 100, 3), 128, np.uint8)
+    image = np.full((image_px, image_px, 3), 128, np.uint8)
     for name in maps:
         cv2.imwrite(str(root / "train_images" / f"{name}.tif"), image)
     return root
@@ -105,8 +108,10 @@ def write_dataset(
 def dataset_factory(tmp_path: Path) -> Callable[..., Path]:
     counter = iter(range(1000))
 
-    def factory(splits: dict[str, list[Any]], maps: tuple[str, ...] = ("1913",)) -> Path:
-        return write_dataset(tmp_path / f"ds{next(counter)}", splits, maps)
+    def factory(
+        splits: dict[str, list[Any]], maps: tuple[str, ...] = ("1913",), image_px: int = 100
+    ) -> Path:
+        return write_dataset(tmp_path / f"ds{next(counter)}", splits, maps, image_px)
 
     return factory
 

@@ -8,6 +8,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import cv2
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -25,7 +27,8 @@ def test_validate_reports_every_problem_and_exits_non_zero(
     bad = make_record(route_index="1_1", angle=math.nan)
     missing = make_record(route_index="2_1")
     del missing["gt_path_corners"]
-    root = dataset_factory({"val_seen": [make_record(), bad, missing], "train": [make_record()]})
+    splits = {"val_seen": [make_record(), bad, missing], "train": [make_record()]}
+    root = dataset_factory(splits, image_px=1000)  # the image the records describe
     result = runner.invoke(app, ["validate", str(root)])
     assert result.exit_code == 1
     output = result.output
@@ -41,7 +44,8 @@ def test_validate_notes_fields_the_format_does_not_define(
     # passed without a word.
     typo = make_record(route_index="1_1")
     typo["destinaton"] = typo.pop("destination")
-    root = dataset_factory({"val_seen": [make_record(), typo, make_record(route_index="2_1", x=1)]})
+    splits = {"val_seen": [make_record(), typo, make_record(route_index="2_1", x=1)]}
+    root = dataset_factory(splits, image_px=1000)
     result = runner.invoke(app, ["validate", str(root)])
     assert result.exit_code == 0, result.output  # a note, not a problem
     assert (
@@ -60,7 +64,7 @@ def test_validate_notes_fields_the_format_does_not_define(
 
 
 def test_validate_passes_on_a_clean_dataset(dataset_factory: Callable[..., Path]) -> None:
-    root = dataset_factory({"val_unseen": [make_record()]})
+    root = dataset_factory({"val_unseen": [make_record()]}, image_px=1000)
     result = runner.invoke(app, ["validate", str(root)])
     assert result.exit_code == 0, result.output
 
@@ -75,6 +79,49 @@ def test_validate_decodes_the_map_images(dataset_factory: Callable[..., Path]) -
     assert runner.invoke(app, ["validate", str(root), "--no-images"]).exit_code == 0
 
 
+def test_validate_names_the_record_whose_ratio_does_not_describe_its_map(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    # lng_ratio ten times too large passed validate on xView-style data (no world layers);
+    # on synthetic data it read as "the layers belong to another version of this map".
+    wide = [make_record(lng_ratio=1e-4), make_record(route_index="1_1", lng_ratio=1e-4)]
+    root = dataset_factory({"val_unseen": wide}, image_px=1000)
+    result = runner.invoke(app, ["validate", str(root)])
+    assert result.exit_code == 1, result.output
+    file = root / "annotations" / "val_unseen_data.json"
+    problem = (
+        "field 'lng_ratio': the map image is 10000 px wide once width-resized (W x lng_ratio "
+        "/ lat_ratio), but the record's longitude bounds span 1000.0 px of lat_ratio "
+        "degrees: lng_ratio (0.0001) is not the bounds' extent per image pixel (or map_name "
+        "names another map)"
+    )
+    output = " ".join(result.output.split())
+    assert f"{file}, record 0 (episode 1913__0_1), {problem}" in output
+    assert f"{file}, record 1 (episode 1913__1_1), {problem}" in output
+    assert "val_unseen: 0 valid record(s), 2 problem(s) in 2 record(s)" in output
+
+
+def test_validate_names_a_record_whose_map_name_names_another_map(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    # A record switched to another existing map: the map was blamed ("world layers ...
+    # belong to another version of this map"), naming neither the record nor the field.
+    switched = make_record(route_index="1_1", map_name="2000")
+    root = dataset_factory({"val_seen": [make_record(), switched]}, image_px=1000)
+    cv2.imwrite(str(root / "train_images" / "2000.tif"), np.zeros((1000, 870, 3), np.uint8))
+    result = runner.invoke(app, ["validate", str(root)])
+    assert result.exit_code == 1, result.output
+    file = root / "annotations" / "val_seen_data.json"
+    assert (
+        f"{file}, record 1 (episode 2000__1_1), field 'map_name': map 2000's image is not the "
+        "one this record's geo-reference describes, which is map 1913's (record 0): "
+        "map_name names another map (the map image is 870 px wide once width-resized (W x "
+        "lng_ratio / lat_ratio), but the record's longitude bounds span 1000.0 px of "
+        "lat_ratio degrees)"
+    ) in " ".join(result.output.split())
+    assert "val_seen: 1 valid record(s), 1 problem(s) in 1 record(s)" in result.output
+
+
 def test_validate_names_a_bad_landmarks_file_and_its_field(
     dataset_factory: Callable[..., Path],
 ) -> None:
@@ -82,7 +129,7 @@ def test_validate_names_a_bad_landmarks_file_and_its_field(
     another format version: each is a problem naming the file (it crashed validate)."""
     from skyvln_eval.worlds.layers import LAYERS_FORMAT, LAYERS_FORMAT_VERSION
 
-    root = dataset_factory({"val_unseen": [make_record()]})
+    root = dataset_factory({"val_unseen": [make_record()]}, image_px=1000)
     landmarks = root / "world_layers" / "1913" / "landmarks.json"
     landmarks.parent.mkdir(parents=True)
     header = {"format": LAYERS_FORMAT, "version": LAYERS_FORMAT_VERSION, "map_name": "1913"}

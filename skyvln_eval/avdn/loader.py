@@ -368,13 +368,22 @@ def check_split(
     data_dir: str | Path, split: str, check_map_images: bool = True
 ) -> tuple[list[AvdnRecord], list[ValidationIssue]]:
     """Every valid record of a split and every issue found, without raising on records."""
-    records, issues, _ = _check_split(data_dir, split, check_map_images)
+    _, records, issues = check_split_indexed(data_dir, split, check_map_images)
     return records, issues
+
+
+def check_split_indexed(
+    data_dir: str | Path, split: str, check_map_images: bool = True
+) -> tuple[list[int], list[AvdnRecord], list[ValidationIssue]]:
+    """:func:`check_split`, also returning each valid record's index in the file (for
+    issues found later about a record, such as its map image's)."""
+    indices, records, issues, _ = _check_split(data_dir, split, check_map_images)
+    return indices, records, issues
 
 
 def _check_split(
     data_dir: str | Path, split: str, check_map_images: bool
-) -> tuple[list[AvdnRecord], list[ValidationIssue], list[SkippedRecord]]:
+) -> tuple[list[int], list[AvdnRecord], list[ValidationIssue], list[SkippedRecord]]:
     if split not in SPLITS:
         raise ConfigError(f"unknown split {split!r}; choose one of {', '.join(SPLITS)}")
     data_dir = Path(data_dir)
@@ -385,9 +394,10 @@ def _check_split(
         map_issues = _missing_map_issues(records, data_dir / IMAGES_DIR, str(path), indices)
         if map_issues:
             bad = {i.record_index for i in map_issues}
-            records = [r for r, i in zip(records, indices, strict=True) if i not in bad]
+            kept = [(i, r) for r, i in zip(records, indices, strict=True) if i not in bad]
+            indices, records = [i for i, _ in kept], [r for _, r in kept]
             issues = sorted(issues + map_issues, key=lambda i: i.record_index or 0)
-    return records, issues, _skipped_records(data, issues)
+    return indices, records, issues, _skipped_records(data, issues)
 
 
 def _skipped_records(
@@ -418,7 +428,7 @@ def load_split(
     then invalid records are left out and described in ``AvdnSplit.skipped`` (issues) and
     ``AvdnSplit.skipped_records``.
     """
-    records, issues, skipped = _check_split(data_dir, split, check_map_images)
+    _, records, issues, skipped = _check_split(data_dir, split, check_map_images)
     if issues and not skip_invalid:
         raise AvdnValidationError(issues)
     return AvdnSplit(

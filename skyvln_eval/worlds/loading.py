@@ -6,7 +6,7 @@ from pathlib import Path
 
 from skyvln_eval.avdn.constants import IMAGES_DIR
 from skyvln_eval.avdn.imagery import MapGeoref, load_map_bgr, map_image_path
-from skyvln_eval.errors import MapImageError
+from skyvln_eval.errors import MapShapeError
 from skyvln_eval.worlds.decoded import Rasters, decoded_rasters
 from skyvln_eval.worlds.layers import (
     LAYER_FILES,
@@ -38,10 +38,11 @@ def load_world(data_dir: str | Path, map_name: str, georef: MapGeoref) -> WorldT
             return {"bgr": bgr}
         semantic, instance, height_m = read_layer_rasters(data_dir, map_name)
         if semantic.shape != bgr.shape[:2]:
-            raise MapImageError(
+            raise MapShapeError(
                 str(path),
                 f"world layers have shape {semantic.shape} but the resized map is "
                 f"{bgr.shape[:2]}; the layers belong to another version of this map",
+                (bgr.shape[0], bgr.shape[1]),
             )
         return {"bgr": bgr, "semantic": semantic, "instance": instance, "height_m": height_m}
 
