@@ -389,7 +389,7 @@ def _check_split(
     data_dir = Path(data_dir)
     path = data_dir / ANNOTATIONS_DIR / annotation_file_name(split)
     data = read_annotation_file(path)
-    indices, records, issues = parse_records_indexed(data, str(path))
+    indices, records, issues = parse_records_indexed(data, str(path), split)
     if check_map_images:
         map_issues = _missing_map_issues(records, data_dir / IMAGES_DIR, str(path), indices)
         if map_issues:

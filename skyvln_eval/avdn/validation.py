@@ -609,14 +609,39 @@ def _build(p: _Pending) -> AvdnRecord:
     )
 
 
+def _check_end_views(
+    pending: list[_Pending], split: str | None, file: str, issues: list[ValidationIssue]
+) -> set[int]:
+    """A path of the start view alone is how test_unseen withholds its ground truth
+    (AVDN.md: "In test_unseen, N = 1 (start only)"); in another split it is a record
+    without the end view its metrics score against, which passed as valid."""
+    if split is None or split == "test_unseen":
+        return set()
+    bad: set[int] = set()
+    for p in pending:
+        if len(p.corners) == 1:
+            message = (
+                f"only the start view: a {split} record's ground truth needs its end view "
+                "too (the start view alone is the withheld ground truth of test_unseen)"
+            )
+            episode = episode_id_of(p.raw["map_name"], p.raw["route_index"])
+            issues.append(ValidationIssue(file, message, p.index, episode, "gt_path_corners"))
+            bad.add(p.index)
+    return bad
+
+
 def parse_records_indexed(
-    data: Sequence[Any], file: str
+    data: Sequence[Any], file: str, split: str | None = None
 ) -> tuple[list[int], list[AvdnRecord], list[ValidationIssue]]:
-    """:func:`parse_records`, also returning each valid record's index in ``data``."""
+    """:func:`parse_records`, also returning each valid record's index in ``data``.
+
+    With ``split``, a record of any split but test_unseen needs more than its start view.
+    """
     issues: list[ValidationIssue] = []
     pending = [p for i, raw in enumerate(data) if (p := _check_record(raw, i, file, issues))]
     bad = (
-        _check_view_geometry(pending, file, issues)
+        _check_end_views(pending, split, file, issues)
+        | _check_view_geometry(pending, file, issues)
         | _check_destinations(pending, file, issues)
         | _check_attention_on_map(pending, file, issues)
     )

@@ -146,9 +146,9 @@ def test_a_number_too_small_for_a_float_is_a_problem_not_a_silent_zero(
 def test_an_integer_beyond_int64_that_a_float_holds_is_a_number(
     dataset_factory: Callable[..., Path],
 ) -> None:
-    record = make_record(n_views=1)
+    record = make_record(n_views=1)  # test_unseen: the start view alone is allowed there
     record["gt_path_corners"][0][0][0] = 10**20  # numpy keeps it as an object
-    _, issues = check_split(dataset_factory({"val_seen": [record]}), "val_seen")
+    _, issues = check_split(dataset_factory({"test_unseen": [record]}), "test_unseen")
     # Its geometry is judged (it was 'expected views of shape 4x2 ..., got 1x4x2').
     assert [(i.field, i.message.split(" (")[0]) for i in issues] == [
         ("gt_path_corners[0]", "view is not square"),
@@ -609,3 +609,25 @@ def test_ratios_must_make_a_map_of_a_usable_size(
     assert [(i.record_index, i.episode_id, i.field, i.message) for i in issues] == [
         (1, "1913__1_1", field, message)
     ]
+
+
+def test_a_record_with_its_start_view_alone_is_refused_outside_test_unseen(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    # AVDN.md: "In test_unseen, N = 1 (start only)": its ground truth is withheld. A
+    # val_seen record with no end view passed validate, and was scored against its start.
+    start_only = [make_record(), make_record(route_index="1_1", n_views=1)]
+    root = dataset_factory({"val_seen": start_only, "test_unseen": start_only})
+    records, issues = check_split(root, "val_seen")
+    assert [r.route_index for r in records] == ["0_1"]
+    assert [(i.record_index, i.episode_id, i.field, i.message) for i in issues] == [
+        (
+            1,
+            "1913__1_1",
+            "gt_path_corners",
+            "only the start view: a val_seen record's ground truth needs its end view too "
+            "(the start view alone is the withheld ground truth of test_unseen)",
+        )
+    ]
+    records, issues = check_split(root, "test_unseen")
+    assert len(records) == 2 and issues == []
