@@ -288,7 +288,7 @@ def validate(
     and its control log read.
     """
     from skyvln_eval.avdn import SPLITS, annotation_file_name, undefined_fields_note
-    from skyvln_eval.avdn.loader import check_split_indexed
+    from skyvln_eval.avdn.loader import andh_full_notes, check_split_indexed
     from skyvln_eval.converters.commands import is_mcap_target, run_validate_mcap
     from skyvln_eval.harness.run_check import run_directories_at
     from skyvln_eval.worlds.checks import MapCheck
@@ -309,15 +309,16 @@ def validate(
             if not (path / "annotations" / annotation_file_name(split)).is_file():
                 continue
             found = True
+            file = str(path / "annotations" / annotation_file_name(split))
             try:
-                indices, records, issues = check_split_indexed(path, split, not no_images)
+                checked = check_split_indexed(path, split, not no_images)
             except SkyvlnError as exc:
                 _echo_problem(str(exc))
                 problems += 1
                 continue
+            indices, records, issues = checked.indices, checked.records, checked.issues
             map_problems: list[str] = []
             if not no_images:  # before the verdict: a record whose map misfits is no valid one
-                file = str(path / "annotations" / annotation_file_name(split))
                 map_issues, map_problems = map_check.check(path, file, records, indices)
                 misfit = {i.record_index for i in map_issues}
                 records = [r for r, i in zip(records, indices, strict=True) if i not in misfit]
@@ -335,6 +336,8 @@ def validate(
             note = undefined_fields_note(records)
             if note is not None:
                 typer.echo(f"{path} {split}: note: {note}")
+            for trajectory in andh_full_notes(checked, split, file):
+                typer.echo(f"note: {trajectory}")
         if not found:
             _echo_problem(_not_validated(Path(path)))
             unreadable += 1

@@ -122,6 +122,36 @@ def test_validate_names_a_record_whose_map_name_names_another_map(
     assert "val_seen: 1 valid record(s), 1 problem(s) in 1 record(s)" in result.output
 
 
+def test_validate_notes_trajectories_that_cannot_form_an_andh_full_episode(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    # A dialog without its round 1, or whose rounds disagree on last_round_idx (10**12 and
+    # 2), was "ok"; convert --mode andh-full then failed naming no record. AVDN's ANDH
+    # takes each record alone, so these are notes (exit 0), not problems.
+    lacking = make_record(route_index="4_2", last_round_idx=2)
+    first = make_record(route_index="9_1", last_round_idx=2)
+    claims = make_record(route_index="9_2", last_round_idx=10**12)
+    root = dataset_factory({"val_seen": [make_record(), lacking, first, claims]}, image_px=1000)
+    result = runner.invoke(app, ["validate", str(root)])
+    assert result.exit_code == 0, result.output
+    file = root / "annotations" / "val_seen_data.json"
+    output = " ".join(result.output.split())
+    assert "val_seen: 4 valid record(s), ok" in output
+    assert (
+        f"note: {file}, record 1 (episode 1913__4_2), field 'last_round_idx': trajectory "
+        "1913/4 is missing round(s) 1 (last_round_idx 2 in 1913__4_2; it holds 1913__4_2); "
+        "it cannot form an ANDH-Full episode (ANDH episodes are unaffected)"
+    ) in output
+    assert (
+        f"note: {file}, record 2 (episode 1913__9_1), field 'last_round_idx': trajectory "
+        "1913/9 has rounds that disagree on last_round_idx (2 in 1913__9_1; 1000000000000 in "
+        "1913__9_2); is missing round(s) 3-1000000000000 (last_round_idx 1000000000000 in "
+        "1913__9_2; it holds 1913__9_1, 1913__9_2); it cannot form an ANDH-Full episode "
+        "(ANDH episodes are unaffected)"
+    ) in output
+    assert output.count("note: ") == 2  # trajectory 0 is whole
+
+
 def test_validate_names_a_bad_landmarks_file_and_its_field(
     dataset_factory: Callable[..., Path],
 ) -> None:

@@ -12,10 +12,8 @@ import re
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from itertools import count as count_from
-from itertools import islice
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from skyvln_eval.avdn.constants import (
     ANNOTATIONS_DIR,
@@ -208,20 +206,29 @@ def _incomplete_trajectory(
     unplaced: Sequence[SkippedRecord],
     trajectory: TrajectoryKey,
 ) -> list[str]:
-    """Why a trajectory's valid ``rounds`` are not the whole trajectory (none if they are)."""
+    """Why a trajectory's valid ``rounds`` are not the whole trajectory (none if they are),
+    naming the records (episode ids) that say so."""
     present = {r.round_index for r in rounds}
     invalid_rounds = {s.round_index for s in invalid if s.round_index is not None}
-    declared = [r.last_round_idx for r in rounds if r.last_round_idx is not None]
-    expected = max(declared) if declared else max(present | invalid_rounds)
+    declaring: dict[int, list[str]] = defaultdict(list)  # last_round_idx -> records giving it
+    for r in rounds:
+        if r.last_round_idx is not None:
+            declaring[r.last_round_idx].append(r.episode_id)
+    expected = max(declaring) if declaring else max(present | invalid_rounds)
     problems = []
+    if len(declaring) > 1:  # one trajectory has one number of rounds: all but one are wrong
+        said = "; ".join(f"{n} in {', '.join(ids)}" for n, ids in sorted(declaring.items()))
+        problems.append(f"has rounds that disagree on last_round_idx ({said})")
     missing = _missing_rounds(expected, present | invalid_rounds)
     if missing:
-        problems.append(f"is missing {missing}")
+        declared = f"last_round_idx {expected} in {declaring[expected][0]}; " if declaring else ""
+        held = ", ".join(r.episode_id for r in rounds)
+        problems.append(f"is missing round(s) {missing} ({declared}it holds {held})")
     for s in sorted(invalid, key=lambda s: (s.round_index or 0, s.record_index)):
         problems.append(
             f"round {s.round_index} (record {s.record_index}) was left out as invalid ({s.reason})"
         )
-    if not declared:
+    if not declaring:
         # An invalid record could be this trajectory's final round when what it names
         # (map, trajectory) does not rule it out.
         map_name, traj = trajectory
@@ -238,20 +245,17 @@ def _incomplete_trajectory(
     return problems
 
 
-#: Missing rounds named in an issue; the count says how many more.
-MAX_LISTED_ROUNDS = 10
-
-
 def _missing_rounds(expected: int, have: set[int]) -> str | None:
-    """'round(s) [2, 5]' for rounds 1..expected not in ``have`` (None if none), without
-    listing every round of a trajectory that claims a billion (a wrong last_round_idx)."""
-    count = expected - sum(1 for k in have if 1 <= k <= expected)
-    if count == 0:
-        return None
-    # At most len(have) + MAX_LISTED_ROUNDS candidates are looked at.
-    first = list(islice((k for k in count_from(1) if k not in have), min(count, MAX_LISTED_ROUNDS)))
-    more = f" and {count - len(first)} more" if count > len(first) else ""
-    return f"round(s) {first}{more}"
+    """'2, 5-9' for the rounds 1..expected not in ``have`` (None if none). Spans, not
+    rounds: a wrong last_round_idx of 10^12 is told in a few characters (a count of
+    999999999988 more rounds named no one), and only the rounds held are looked at."""
+    spans = []
+    start = 1
+    for k in [*sorted(k for k in have if 1 <= k <= expected), expected + 1]:
+        if k > start:
+            spans.append(str(start) if k - 1 == start else f"{start}-{k - 1}")
+        start = k + 1
+    return ", ".join(spans) or None
 
 
 class RepeatedKeys(dict[str, Any]):
@@ -368,17 +372,44 @@ def check_split(
     data_dir: str | Path, split: str, check_map_images: bool = True
 ) -> tuple[list[AvdnRecord], list[ValidationIssue]]:
     """Every valid record of a split and every issue found, without raising on records."""
-    _, records, issues = check_split_indexed(data_dir, split, check_map_images)
-    return records, issues
+    checked = check_split_indexed(data_dir, split, check_map_images)
+    return checked.records, checked.issues
+
+
+class SplitCheck(NamedTuple):
+    """What checking a split found: each valid record's index in the file (for issues
+    found later about a record, such as its map image's), the valid records, every issue,
+    and the records left out."""
+
+    indices: list[int]
+    records: list[AvdnRecord]
+    issues: list[ValidationIssue]
+    skipped: list[SkippedRecord]
 
 
 def check_split_indexed(
     data_dir: str | Path, split: str, check_map_images: bool = True
-) -> tuple[list[int], list[AvdnRecord], list[ValidationIssue]]:
-    """:func:`check_split`, also returning each valid record's index in the file (for
-    issues found later about a record, such as its map image's)."""
-    indices, records, issues, _ = _check_split(data_dir, split, check_map_images)
-    return indices, records, issues
+) -> SplitCheck:
+    """:func:`check_split`, with the records' indices and the records left out."""
+    return SplitCheck(*_check_split(data_dir, split, check_map_images))
+
+
+def andh_full_notes(checked: SplitCheck, split: str, file: str) -> list[ValidationIssue]:
+    """Trajectories of a checked split that cannot form an ANDH-Full episode (rounds
+    missing or left out, or disagreeing on last_round_idx), each on its first record.
+
+    Notes, not problems: AVDN's ANDH takes each record alone, and a split may hold
+    only some rounds of a trajectory; only ANDH-Full needs them all (AVDN.md).
+    """
+    index_of = {r.episode_id: i for i, r in zip(checked.indices, checked.records, strict=True)}
+    _, incomplete = build_episodes(checked.records, split, "andh-full", file, checked.skipped)
+    notes = []
+    for issue in incomplete:
+        field = "last_round_idx" if "last_round_idx " in issue.message else "route_index"
+        message = f"{issue.message} (ANDH episodes are unaffected)"
+        record = index_of.get(issue.episode_id or "")
+        notes.append(ValidationIssue(file, message, record, issue.episode_id, field))
+    return notes
 
 
 def _check_split(
