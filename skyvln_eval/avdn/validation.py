@@ -345,6 +345,53 @@ def _check_record(
     return _Pending(index, raw, corners, destination, attention)
 
 
+def _view_shapes(
+    views: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_]]:
+    """Sides and diagonals (metres) of ``(V, 4, 2)`` views, and which are degenerate (an
+    edge under ``MIN_EDGE_M``) or, not degenerate, not square within ``SQUARE_TOLERANCE``."""
+    # Predicted corners may be any finite float (1e300): an overflow is a refused view.
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        sides = np.linalg.norm(views - np.roll(views, -1, axis=1), axis=-1) * METERS_PER_DEGREE
+        diagonals = np.linalg.norm(views[:, [0, 1]] - views[:, [2, 3]], axis=-1) * METERS_PER_DEGREE
+        mean_side = sides.mean(axis=1)
+        degenerate = sides.min(axis=1, initial=math.inf) < MIN_EDGE_M
+        side_err = np.abs(sides / mean_side[:, None] - 1.0).max(axis=1)
+        diag_err = np.abs(diagonals / (mean_side[:, None] * math.sqrt(2.0)) - 1.0).max(axis=1)
+    not_square = ~degenerate & ((side_err > SQUARE_TOLERANCE) | (diag_err > SQUARE_TOLERANCE))
+    return sides, diagonals, degenerate, not_square
+
+
+def view_problems(
+    views: NDArray[np.float64], bounds: tuple[LatLngPair, LatLngPair] | None = None
+) -> list[tuple[int, str]]:
+    """(index, problem) of each of ``(V, 4, 2)`` views the annotation checks refuse:
+    degenerate, not square, or (with the map's ``bounds``, gps_botm_left and gps_top_right)
+    off the map. For views made elsewhere (predictions), judged as the ground truth is."""
+    sides, diagonals, degenerate, not_square = _view_shapes(views)
+    outside: NDArray[np.bool_] = np.zeros(len(views), dtype=bool)
+    if bounds is not None:
+        lo, hi = np.asarray(bounds[0], dtype=np.float64), np.asarray(bounds[1], dtype=np.float64)
+        outside = np.asarray(((views < lo) | (views > hi)).any(axis=(1, 2)), dtype=bool)
+    problems = []
+    for k in range(len(views)):
+        shown_sides = ", ".join(f"{side:.1f}" for side in sides[k])
+        if degenerate[k]:
+            problems.append((k, _DEGENERATE.format(min=MIN_EDGE_M, sides=shown_sides)))
+        elif not_square[k]:
+            diags = ", ".join(f"{d:.1f}" for d in diagonals[k])
+            problems.append((k, _NOT_SQUARE.format(sides=shown_sides, diags=diags)))
+        elif outside[k]:
+            problems.append((k, _OUTSIDE))
+    return problems
+
+
+_DEGENERATE = "degenerate view: an edge is shorter than {min} m (sides {sides} m)"
+_NOT_SQUARE = "view is not square (sides {sides} m, diagonals {diags} m)"
+_OUTSIDE = "view lies outside the map bounds gps_botm_left..gps_top_right"
+LatLngPair = tuple[float, float]
+
+
 def _check_view_geometry(
     pending: list[_Pending], file: str, issues: list[ValidationIssue]
 ) -> set[int]:
@@ -355,14 +402,7 @@ def _check_view_geometry(
     views = np.concatenate([p.corners for p in pending])  # (V, 4, 2)
     owner = np.repeat(np.arange(len(pending)), counts)
     view_k = np.concatenate([np.arange(n) for n in counts])
-    sides = np.linalg.norm(views - np.roll(views, -1, axis=1), axis=-1) * METERS_PER_DEGREE
-    diagonals = np.linalg.norm(views[:, [0, 1]] - views[:, [2, 3]], axis=-1) * METERS_PER_DEGREE
-    mean_side = sides.mean(axis=1)
-    degenerate = sides.min(axis=1) < MIN_EDGE_M
-    with np.errstate(divide="ignore", invalid="ignore"):
-        side_err = np.abs(sides / mean_side[:, None] - 1.0).max(axis=1)
-        diag_err = np.abs(diagonals / (mean_side[:, None] * math.sqrt(2.0)) - 1.0).max(axis=1)
-    not_square = ~degenerate & ((side_err > SQUARE_TOLERANCE) | (diag_err > SQUARE_TOLERANCE))
+    sides, diagonals, degenerate, not_square = _view_shapes(views)
     # FL -> FR -> BR -> BL runs clockwise on a north-up map: negative cross product in
     # (east, north) coordinates.
     a = views[:, 1] - views[:, 0]
@@ -399,10 +439,10 @@ def _check_view_geometry(
         issues.append(ValidationIssue(file, message, p.index, episode, "gt_path_corners"))
         bad.add(p.index)
     problems = (
-        (degenerate, "degenerate view: an edge is shorter than {min} m (sides {sides} m)"),
-        (not_square, "view is not square (sides {sides} m, diagonals {diags} m)"),
+        (degenerate, _DEGENERATE),
+        (not_square, _NOT_SQUARE),
         (mirrored, "corners are not in the order front-left, front-right, back-right, back-left"),
-        (outside, "view lies outside the map bounds gps_botm_left..gps_top_right"),
+        (outside, _OUTSIDE),
         (
             shifted,
             "the first view faces {facing} degrees but angle (the start heading) is "

@@ -42,6 +42,7 @@ from numpy.typing import NDArray
 from skyvln_eval.avdn.constants import EpisodeMode
 from skyvln_eval.avdn.loader import RepeatedKeys, object_keeping_repeats
 from skyvln_eval.avdn.records import Episode
+from skyvln_eval.avdn.validation import view_problems
 from skyvln_eval.errors import (
     DataError,
     FormatVersionError,
@@ -195,6 +196,26 @@ def _prediction(episode_id: str, entry: Any, file: str, row: int) -> Prediction:
     return Prediction(episode_id, views, status, error, source=file)
 
 
+def _check_views(
+    prediction: Prediction, bounds: tuple[tuple[float, float], tuple[float, float]] | None
+) -> None:
+    """Refuse a path view the annotation checks would refuse in the ground truth: one
+    corner moved 0.001 degrees (no square) scored SR 1, four equal corners were a view,
+    and a view 1 degree off the map scored NE 111,300 m. ``bounds`` (the map's
+    gps_botm_left, gps_top_right) are known when the ground truth is the split's episodes."""
+    problems = view_problems(prediction.path_corners, bounds)
+    if problems:
+        k, problem = problems[0]
+        issue = ValidationIssue(
+            prediction.source or "<predictions>",
+            problem,
+            None,
+            prediction.episode_id,
+            f"path_corners[{k}]",
+        )
+        raise ResultRecordError(issue)
+
+
 def read_predictions_json(path: str | Path) -> dict[str, Prediction]:
     """Read the documented JSON predictions format (see the module docstring)."""
     path = Path(path)
@@ -287,10 +308,14 @@ def results_from_predictions(
     :class:`~skyvln_eval.errors.DataError`: without it the path would be shorter and its
     SPL higher.
     """
+    bounds: dict[str, tuple[tuple[float, float], tuple[float, float]]] = {}
     if isinstance(ground_truth, Mapping):
         gt = dict(ground_truth)
     else:
         gt = {ep.episode_id: ep.gt_path_corners for ep in ground_truth}
+        bounds = {
+            ep.episode_id: (ep.georef.gps_botm_left, ep.georef.gps_top_right) for ep in ground_truth
+        }
     sources = sorted({p.source for p in predictions.values() if p.source})
     what = f"predictions of {system!r} on {split}" + (f" ({', '.join(sources)})" if sources else "")
     if allow_missing:
@@ -305,6 +330,7 @@ def results_from_predictions(
                 f"(first view {first}, start {start}); a path lists every view from the start "
                 "on, as the official agent's path_corners do"
             )
+        _check_views(predictions[eid], bounds.get(eid))
     return [
         EpisodeResult(
             episode_id=eid,

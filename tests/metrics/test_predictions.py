@@ -263,3 +263,52 @@ def test_a_number_python_will_not_read_is_no_predictions_file(tmp_path: Path) ->
     path.write_text('{"format": "skyvln-eval.predictions", "version": ' + "1" * 5000 + "}")
     with pytest.raises(DataError, match=r"preds.json: not valid JSON \(Exceeds the limit"):
         read_predictions(path)
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (  # one corner moved 0.001 degrees: scored SR 1
+            lambda v: v[0].__setitem__(0, v[0][0] + 0.001),
+            "view is not square (sides 183.1, 100.0, 100.0, 204.1 m, diagonals 250.6, 141.4 m)",
+        ),
+        (  # four identical corners: accepted as a view
+            lambda v: v.__setitem__(slice(None), [v[0]] * 4),
+            "degenerate view: an edge is shorter than 1.0 m (sides 0.0, 0.0, 0.0, 0.0 m)",
+        ),
+        (  # 1 degree north of the map: scored with NE 111,300 m
+            lambda v: v.__setitem__(slice(None), [[lat + 1.0, lng] for lat, lng in v]),
+            "view lies outside the map bounds gps_botm_left..gps_top_right",
+        ),
+    ],
+)
+def test_a_predicted_view_the_annotation_checks_refuse_is_refused(
+    dataset_factory: Callable[..., Path],
+    tmp_path: Path,
+    change: Callable[[list[list[float]]], None],
+    message: str,
+) -> None:
+    root = dataset_factory({"val_seen": [make_record(), make_record(route_index="1_1")]})
+    episodes = ground_truth_episodes(root, "val_seen")
+    views = {e.episode_id: e.gt_path_corners.tolist() for e in episodes}
+    change(views["1913__1_1"][-1])
+    path = tmp_path / "p.json"
+    path.write_text(
+        json.dumps(
+            {"format": "skyvln-eval.predictions", "version": 1,
+             "episodes": {eid: {"path_corners": v} for eid, v in views.items()}}
+        )
+    )  # fmt: skip
+    with pytest.raises(ResultRecordError) as info:
+        results_from_predictions(read_predictions(path), episodes, "x", "val_seen")
+    assert str(info.value) == f"{path} (episode 1913__1_1), field 'path_corners[2]': {message}"
+    # The ground truth's own views are valid predictions, scored as before.
+    views["1913__1_1"] = [e.gt_path_corners.tolist() for e in episodes][1]
+    path.write_text(
+        json.dumps(
+            {"format": "skyvln-eval.predictions", "version": 1,
+             "episodes": {eid: {"path_corners": v} for eid, v in views.items()}}
+        )
+    )  # fmt: skip
+    results = results_from_predictions(read_predictions(path), episodes, "x", "val_seen")
+    assert score_results(results).success.tolist() == [1.0, 1.0]
