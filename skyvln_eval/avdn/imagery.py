@@ -24,8 +24,10 @@ LatLng = tuple[float, float]
 #: How far (relative, plus one pixel for the resize's truncation) a width-resized map's
 #: size may be from the one its record's bounds give in ``lat_ratio``-degree pixels. The
 #: ratios are degrees per image pixel and the bounds the image's corners, so the two
-#: agree up to rounding; a wrong ratio or map is off by far more (10% and more).
-GEOREF_SIZE_TOLERANCE = 0.01
+#: agree up to rounding; a wrong ratio or map is off by far more (10% and more). 5%, not
+#: less: the real release's images could not be measured here, and a check this loose
+#: cannot call its good records bad on a difference of a few pixels' convention.
+GEOREF_SIZE_TOLERANCE = 0.05
 
 
 @dataclass(frozen=True)
