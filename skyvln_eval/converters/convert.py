@@ -122,7 +122,8 @@ def episode_metadata(
     """
     records = [record.to_json_dict() for record in episode.records]
     try:
-        # Verbatim AVDN JSON: floats keep their shortest repr, so re-parsing is exact.
+        # The records as parsed, as compact JSON: floats keep their shortest repr, so
+        # re-parsing gives the same values.
         # Strict (no NaN) UTF-8, as every message: validation refuses a record that strict
         # JSON cannot hold (NaN, half a surrogate pair).
         records_json = encode_json(records).decode("utf-8")

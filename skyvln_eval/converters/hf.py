@@ -28,6 +28,7 @@ import numpy as np
 from skyvln_eval.converters import topics
 from skyvln_eval.converters.manifest import gt_lengths_m
 from skyvln_eval.converters.reader import episode_from_log, read_log
+from skyvln_eval.errors import DataError
 from skyvln_eval.fileio import usual_permissions
 from skyvln_eval.frames import view_to_pose
 
@@ -113,16 +114,31 @@ def episode_row(path: str | Path, include_observations: bool = False) -> dict[st
     }
     if include_observations:
         images = [m.decode() for m in log.topic(topics.TOPIC_GT_OBSERVATION)]
+        if not images:  # the row would say nothing of why it holds none
+            raise DataError(
+                f"{path}: no ground-truth observations to include (converted with "
+                "--no-observations?): convert with them, or leave include_observations off"
+            )
         row["gt_observations"] = [base64.b64decode(m["data"]) for m in images]
-        row["observation_format"] = images[0]["format"] if images else ""
+        row["observation_format"] = images[0]["format"]
     return row
 
 
 def _log_paths(source: str | Path | Iterable[str | Path]) -> list[Path]:
-    if isinstance(source, str | Path):
-        source = Path(source)
-        return sorted(source.glob("*.mcap")) if source.is_dir() else [source]
-    return [Path(p) for p in source]
+    """The logs of ``source``: a file, a list, or the ``.mcap`` files directly in a folder
+    (one without any is refused, naming the folders below it that hold some: a
+    ``convert --out`` root or its split folder gave an empty table without a word)."""
+    if not isinstance(source, str | Path):
+        return [Path(p) for p in source]
+    source = Path(source)
+    if not source.is_dir():
+        return [source]
+    found = sorted(source.glob("*.mcap"))
+    if not found:
+        below = sorted({str(p.parent.relative_to(source)) for p in source.rglob("*.mcap")})
+        hint = f"; these folders below it hold some: {', '.join(below[:5])}" if below else ""
+        raise DataError(f"{source}: no episode logs (*.mcap) in this folder{hint}")
+    return found
 
 
 def to_hf_dataset(
@@ -150,7 +166,8 @@ DESCRIPTION = (
     "source's terms: the AVDN annotations and xView imagery for the real dataset, the "
     "toolkit's own for its synthetic sample. gt_views_latlng: each view's four corners "
     "[lat, lng] in degrees; gt_poses_enu: x_m, y_m, z_m (height = edge / 2), yaw_rad in "
-    "the map's ENU frame; lengths in metres; records_json: the verbatim source records; "
+    "the map's ENU frame; lengths in metres; records_json: the source records as parsed "
+    "(compact JSON); "
     "input_sha256 / map_image_sha256: the conversion's input and map image."
 )
 

@@ -10,6 +10,7 @@ recomputed from the dataset or the harness. Entity paths are in :mod:`.entities`
 from __future__ import annotations
 
 import binascii
+import hashlib
 import os
 import re
 from collections.abc import Callable, Mapping
@@ -61,10 +62,13 @@ class RecordingSummary:
 
 
 def recording_id(ref: EpisodeLogRef, run: Mapping[str, str], mode: str) -> str:
-    """Unique per (run configuration, split, mode, episode), so several runs, or an episode's
-    ANDH and ANDH-Full logs, can be opened together."""
+    """Unique per log file: the split, mode, episode and run configuration, then a short
+    hash of the log's path, so several runs, an episode's ANDH and ANDH-Full logs, and two
+    runs of one configuration (a copy, or the same run made twice) can be opened together
+    (two such runs were one recording, every row twice, their paths drawn over each other)."""
     digest = run.get("config_digest", "episode-log")
-    return f"{ref.split}/{mode}/{ref.episode_id}@{digest}"
+    where = hashlib.sha256(str(ref.path.resolve()).encode()).hexdigest()[:8]
+    return f"{ref.split}/{mode}/{ref.episode_id}@{digest}:{where}"
 
 
 def application_id(rec_id: str) -> str:
@@ -262,7 +266,7 @@ class _Recorder:
         self.canvas.markdown(f"{e.LLM}/{module}", "\n---\n\n".join(documents))
 
     def _control(self, step: Json) -> None:
-        self.signals.add(step, self.canvas.t_ns, self.canvas.decision)
+        self.signals.add(step, self.canvas.t_ns)
         reference = step.get("reference_position_m")
         if isinstance(reference, list) and len(reference) == 3:
             point = self.rr.Points3D(
@@ -305,13 +309,15 @@ class _Recorder:
             canvas.markdown(f"{e.DIALOG}/all", text.dialog_document(self.dialog), static=True)
         static_content.drone_body(canvas)
         for name, samples in self.signals.series.items():
+            # On simulated time only: the flight between decisions is not a decision's
+            # (on the decision timeline, each segment's samples were stacked on one index,
+            # and decision k read the state at the end of its segment, not when it was made).
             canvas.rec.send_columns(
                 f"{e.CONTROL}/{name}",
                 indexes=[
                     rr.TimeColumn(
                         e.SIM_TIMELINE, duration=np.asarray(samples.t_ns, "timedelta64[ns]")
-                    ),
-                    rr.TimeColumn(e.DECISION_TIMELINE, sequence=samples.decision),
+                    )
                 ],
                 columns=rr.Scalars.columns(scalars=samples.values),
             )

@@ -104,10 +104,9 @@ def _number(value: Any) -> float | None:
 
 @dataclass
 class Series:
-    """Samples of one series: simulated time (ns), decision index and value."""
+    """Samples of one series: simulated time (ns) and value."""
 
     t_ns: list[int] = field(default_factory=list)
-    decision: list[int] = field(default_factory=list)
     values: list[float] = field(default_factory=list)
 
 
@@ -118,7 +117,7 @@ class ControlSignals:
     series: dict[str, Series] = field(default_factory=dict)
     steps: int = 0
 
-    def add(self, step: Json, t_ns: int, decision: int) -> None:
+    def add(self, step: Json, t_ns: int) -> None:
         self.steps += 1
         for name, read in SERIES.items():
             value = _number(read(step))
@@ -126,5 +125,4 @@ class ControlSignals:
                 continue
             samples = self.series.setdefault(name, Series())
             samples.t_ns.append(t_ns)
-            samples.decision.append(decision)
             samples.values.append(value)

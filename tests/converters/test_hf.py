@@ -74,3 +74,17 @@ def test_a_list_of_files_without_observations(converted_sample: ConvertedSample)
     table = to_hf_dataset(paths)
     assert table.num_rows == 3 and "gt_observations" not in table.column_names
     assert table["file_name"] == [p.name for p in paths]
+
+
+def test_a_folder_without_logs_is_refused_naming_the_folders_that_hold_some(
+    converted_sample: ConvertedSample,
+) -> None:
+    # A convert --out root (or its split folder) gave an empty table without a word.
+    import pytest
+
+    from skyvln_eval.errors import DataError
+
+    split_dir = converted_sample.reports[("val_seen", "andh")].out_dir.parent
+    with pytest.raises(DataError, match=r"no episode logs \(\*\.mcap\) in this folder; these "
+                       r"folders below it hold some: andh, andh-full"):  # fmt: skip
+        to_hf_dataset(split_dir)

@@ -176,3 +176,19 @@ def test_the_flight_between_decisions_is_not_put_on_the_decision_timeline() -> N
         assert decision[1] == e.DECISION_TIMELINE and ("set", e.SIM_TIMELINE) in stream.calls
         on_decisions = t_ns in (0, 10_000) or not continuous
         assert decision[0] == ("set" if on_decisions else "off"), (t_ns, continuous)
+
+
+def test_two_runs_of_one_configuration_are_two_recordings(flown_run: Path, tmp_path: Path) -> None:
+    # A run copied beside itself (or one configuration run twice): its episode's two logs
+    # became one recording, every row twice, the two flights drawn over each other.
+    import shutil
+
+    from skyvln_eval.viewer.commands import build_recordings
+
+    for name in ("a", "b"):
+        shutil.copytree(flown_run, tmp_path / "runs" / name)
+    refs = find_episode_logs(tmp_path / "runs")
+    summaries = build_recordings(refs, tmp_path / "rrd")
+    ids = [s.recording_id for s in summaries]
+    assert len(refs) == 2 and len(set(ids)) == 2
+    assert len({i.rsplit(":", 1)[0] for i in ids}) == 1  # the same episode and configuration
