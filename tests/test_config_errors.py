@@ -176,6 +176,9 @@ def test_a_backend_spec_is_checked_whole_in_backends_files_and_the_environment(
     monkeypatch.setenv("SKYVLN_TEST_BACKENDS", "openai:")
     with pytest.raises(ConfigError, match=r"^\$SKYVLN_TEST_BACKENDS: 'openai:' is not"):
         environment_backends("SKYVLN_TEST_BACKENDS", BackendsFile())
+    monkeypatch.setenv("SKYVLN_TEST_BACKENDS", "openai:a, openai:b,openai:a")
+    with pytest.raises(ConfigError, match=r"'openai:a' is named twice \(as 'a'\)"):
+        environment_backends("SKYVLN_TEST_BACKENDS", BackendsFile())
     # An entry that names no backend was the rule stand-in, its server ignored: a Table II
     # row labelled as a model that no model answered.
     backends.write_text(

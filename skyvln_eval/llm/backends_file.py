@@ -127,12 +127,15 @@ def environment_backends(
 ) -> list[tuple[str, LLMConfig]]:
     """Every backend named in the environment variable, resolved (labels, configs)."""
     value = os.environ.get(variable, "") if variable else ""
-    out = []
+    out: list[tuple[str, LLMConfig]] = []
     for entry in (e.strip() for e in value.split(",")):
         if not entry:
             continue
         try:
-            out.append(resolve_backend(entry, backends))
+            label, config = resolve_backend(entry, backends)
         except ConfigError as error:
             raise ConfigError(f"${variable}: {error}") from None
+        if any(label == seen for seen, _ in out):  # one Table II row, run twice over
+            raise ConfigError(f"${variable}: {entry!r} is named twice (as {label!r})")
+        out.append((label, config))
     return out

@@ -150,7 +150,9 @@ class LLMConfig(BaseModel):
         if not isinstance(data, dict) or not isinstance(data.get("backend"), str):
             return data
         spec, at, url = data["backend"].rpartition("@")
-        if at and _SERVER_WITHOUT_SCHEME.fullmatch(url):  # raises, saying how to write it
+        if at and (_SERVER_WITHOUT_SCHEME.fullmatch(url) or "://" in url):
+            # A server without its scheme, or with another than http(s) ('@ftp://x' was
+            # part of a model name, sent to api.openai.com): raises, saying how to write it.
             _checked_server(url, f"backend {data['backend']!r}: the server")
         if not at or not url.startswith(("http://", "https://")):
             return data  # no server named ('@' may be part of a model id: 'model@2024')

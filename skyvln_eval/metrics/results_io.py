@@ -166,6 +166,11 @@ def result_from_json_dict(
             extra=data["extra"],
         )
         _check_starts_at_start(result)
+        if result.status != "error" and result.error:  # which one says what happened?
+            raise error(
+                "error",
+                f"the episode is {result.status!r}, which has no error; got {result.error!r}",
+            )
         return result
     except ResultRecordError as exc:
         raise error(exc.issue.field or "", exc.issue.message) from None

@@ -222,6 +222,9 @@ def test_a_server_without_its_scheme_is_refused_on_load(
     assert (served.backend, served.base_url) == ("openai:m", "https://api.example.com/v1")
     with pytest.raises(Exception, match="a server is an http:// or https:// URL"):
         LLMConfig(base_url="ftp://example.com/v1")
+    # After '@', a server of another scheme was part of the model's name (to OpenAI's).
+    with pytest.raises(Exception, match="the server 'ftp://x' is not an http"):
+        LLMConfig(backend="openai:gpt@ftp://x")
 
 
 def test_known_names_and_aliases_still_load(tmp_path: Path) -> None:

@@ -224,8 +224,12 @@ def test_a_directory_is_not_a_missing_file(tmp_path: Path) -> None:
         (lambda row: row["extra"].update(questions="abc"), r"'extra.questions': must be a list"),
         (lambda row: row["extra"].update(oracle="no"), r"'extra.oracle': must be true or false"),
         (lambda row: row["extra"].update(llm_backend=5), r"'extra.llm_backend': must be a str"),
+        (
+            lambda row: row.update(error="boom"),
+            r"'error': the episode is 'degraded', which has no error",
+        ),
     ],
-    ids=["no-start", "wall-text", "wall-negative", "questions", "oracle", "backend"],
+    ids=["no-start", "wall-text", "wall-negative", "questions", "oracle", "backend", "error"],
 )
 def test_rows_whose_scores_would_be_wrong_are_refused_naming_line_and_field(
     tmp_path: Path, edit: Any, needle: str
