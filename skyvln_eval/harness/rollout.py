@@ -24,6 +24,17 @@ if TYPE_CHECKING:
     from skyvln_eval.llm.client import LLMClient
 
 
+def _failures_at(trace: dict[str, Any], step: int) -> dict[str, Any]:
+    """``trace`` with the module failures it lists numbered by the decision they are of,
+    as the episode's row numbers them (an agent does not know its step: its trace said -1,
+    the row 0, and the viewer showed the trace's)."""
+    listed = trace.get("failures")
+    if not isinstance(listed, list):
+        return trace
+    numbered = [{**f, "step_index": step} if isinstance(f, dict) else f for f in listed]
+    return {**trace, "failures": numbered}
+
+
 class CallsMade:
     """The LLM calls an agent's clients make from now on: how the calls of a decision that
     raised (and handed on no records) are still counted, and paid for."""
@@ -116,7 +127,7 @@ class Rollout:
         self.failures += [replace(f, step_index=step) for f in decision.failures]
         self.thoughts.append(decision.thought)
         self.feedbacks.append(feedback)
-        self.traces.append(decision.trace)
+        self.traces.append(_failures_at(decision.trace, step))
         self.llm_calls.extend(decision.llm_calls)
         self.actions.append(decision.action)
 

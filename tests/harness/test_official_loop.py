@@ -109,3 +109,21 @@ def test_on_the_sample_the_rule_agent_beats_random_and_ground_truth_replay_succe
             wins[name] += view_success(rollout.final_view, episode.gt_end_view)
     assert wins["ground_truth"] == len(episodes)
     assert wins["skyvln"] >= len(episodes) // 2 > wins["random"]
+
+
+def test_a_decisions_trace_numbers_its_module_failures_as_its_row_does() -> None:
+    # An agent does not know its step: its trace listed failures at step -1, the episode's
+    # row at 0, and the viewer showed the trace's.
+    from skyvln_eval.agent import Stop as StopAction
+    from skyvln_eval.agent.base import Decision
+    from skyvln_eval.harness.rollout import Rollout
+    from skyvln_eval.llm_records import ModuleFailure
+
+    failure = ModuleFailure(step_index=-1, module="motion", reason="no", substitute="stop action")
+    rollout = Rollout("e", [np.zeros((4, 2))], [0])
+    for _ in range(2):
+        trace = {"failures": [failure.to_json_dict()], "other": 1}
+        rollout.record(Decision("t", StopAction(), trace, (), (failure,)), None)
+    assert [f.step_index for f in rollout.failures] == [0, 1]
+    assert [t["failures"][0]["step_index"] for t in rollout.traces] == [0, 1]
+    assert all(t["other"] == 1 for t in rollout.traces)
