@@ -169,26 +169,59 @@ def check_file_ends(handle: BinaryIO, name: str) -> None:
 
 def _check_framing(data: bytes, name: str) -> None:
     """Magic at both ends, footer summary CRC, and the data-section CRC."""
-    check_ends(data[: len(MAGIC)], data[-len(MAGIC) :], len(data), name)
-    footer_at = len(data) - len(MAGIC) - _FOOTER_SIZE
-    opcode, length, summary_start, offset_start, summary_crc = struct.unpack_from(
-        "<BQQQI", data, footer_at
+    check_file_framing(io.BytesIO(data), name)
+
+
+def check_file_framing(handle: BinaryIO, name: str) -> None:
+    """Magic at both ends, the footer's summary CRC and the data-section CRC of an open
+    MCAP file, read in pieces (a log too large to hold); the file is left at its start.
+    (The MCAP reader checks each chunk's CRC as it reads it, not these: a changed byte in
+    the header, the summary or the footer passed a viewer's reading without a word.)"""
+    check_file_ends(handle, name)
+    size = handle.seek(0, io.SEEK_END)
+    footer_at = size - len(MAGIC) - _FOOTER_SIZE
+    handle.seek(footer_at)
+    opcode, length, summary_start, offset_start, summary_crc = struct.unpack(
+        "<BQQQI", handle.read(_FOOTER_SIZE)
     )
+    handle.seek(0)
     if opcode != _FOOTER_OPCODE or length != _FOOTER_SIZE - 9:
         raise McapLogError(name, "damaged MCAP file: no footer record before the closing magic")
     covered_from = summary_start if summary_start else footer_at
     if not (len(MAGIC) <= covered_from <= footer_at) or offset_start > footer_at:
         raise McapLogError(name, "damaged MCAP file: the footer points outside the file")
-    if summary_crc and zlib.crc32(data[covered_from : footer_at + _FOOTER_SIZE - 4]) != summary_crc:
+    if summary_crc and _crc32(handle, covered_from, footer_at + _FOOTER_SIZE - 4) != summary_crc:
         raise McapLogError(name, "damaged MCAP file: summary CRC mismatch (the file was altered)")
+    no_data_end = "damaged MCAP file: no data-end record before the summary"
     data_end_at = covered_from - _DATA_END_SIZE
-    if data_end_at < len(MAGIC) or data[data_end_at] != _DATA_END_OPCODE:
-        raise McapLogError(name, "damaged MCAP file: no data-end record before the summary")
-    (data_crc,) = struct.unpack_from("<I", data, data_end_at + 9)
-    if data_crc and zlib.crc32(data[:data_end_at]) != data_crc:
+    if data_end_at < len(MAGIC):
+        raise McapLogError(name, no_data_end)
+    handle.seek(data_end_at)
+    data_end = handle.read(_DATA_END_SIZE)
+    handle.seek(0)
+    if data_end[0] != _DATA_END_OPCODE:
+        raise McapLogError(name, no_data_end)
+    (data_crc,) = struct.unpack_from("<I", data_end, 9)
+    if data_crc and _crc32(handle, 0, data_end_at) != data_crc:
         raise McapLogError(
             name, "damaged MCAP file: data-section CRC mismatch (a byte of the data was changed)"
         )
+
+
+def _crc32(handle: BinaryIO, start: int, end: int, piece: int = 1 << 20) -> int:
+    """CRC-32 of bytes ``start`` to ``end`` of ``handle``, read a piece at a time; the file
+    is left at its start."""
+    crc = 0
+    handle.seek(start)
+    left = end - start
+    while left > 0:
+        block = handle.read(min(piece, left))
+        if not block:
+            break
+        crc = zlib.crc32(block, crc)
+        left -= len(block)
+    handle.seek(0)
+    return crc
 
 
 def _records(data: bytes, name: str) -> list[Any]:

@@ -26,7 +26,7 @@ from skyvln_eval.converters.reader import (
     DECODE_ERRORS,
     LogChannel,
     McapLog,
-    check_file_ends,
+    check_file_framing,
     episode_from_log,
 )
 from skyvln_eval.errors import (
@@ -222,8 +222,10 @@ class RunLogStream:
         except OSError as error:
             raise McapLogError(str(self.path), f"cannot open: {error.strerror}") from error
         try:
-            # The ends first: a cut or foreign file makes the reader fail with no word of why.
-            check_file_ends(self._file, str(self.path))
+            # The ends and the CRCs the reader does not check first: a cut or foreign file
+            # makes the reader fail with no word of why, and a changed byte outside the
+            # chunks passed (a recording made from a damaged log without a word).
+            check_file_framing(self._file, str(self.path))
             reader = make_reader(self._file, validate_crcs=True)
             if not isinstance(reader, SeekingReader):  # a regular file always seeks
                 raise McapLogError(str(self.path), "not a seekable file")

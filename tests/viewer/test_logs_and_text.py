@@ -8,6 +8,7 @@ import sys
 import tracemalloc
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -393,3 +394,27 @@ def test_every_llm_exchange_of_a_decision_stays_readable() -> None:
     canvas.t_ns = 10**9  # the next decision starts a new document
     recorder._exchange({"module": "subgoals", "step_index": 1, "response": "later"})
     assert "first" not in canvas.documents["llm/subgoals"]
+
+
+@pytest.mark.parametrize(
+    ("where", "reason"),
+    [
+        (lambda n: 20, "data-section CRC mismatch"),  # the header record
+        (lambda n: n - 60, "summary CRC mismatch"),  # the summary section's end
+        (lambda n: n - 12, "summary CRC mismatch"),  # the footer's summary CRC itself
+    ],
+    ids=["header", "summary", "footer"],
+)
+def test_a_changed_byte_outside_the_chunks_is_refused_too(
+    flown_run: Path, tmp_path: Path, where: Any, reason: str
+) -> None:
+    # The reader checks each chunk's CRC as it reads it: a byte changed in the header, the
+    # summary or the footer gave a recording without a word (validate named it).
+    (ref,) = find_episode_logs(flown_run)
+    data = bytearray(ref.path.read_bytes())
+    data[where(len(data))] ^= 0x01
+    path = tmp_path / "changed.mcap"
+    path.write_bytes(bytes(data))
+    refused = pytest.raises(McapLogError, match=f"{path}: damaged MCAP file: {reason}")
+    with refused, RunLogStream(path) as stream:
+        list(stream.messages())
