@@ -180,7 +180,10 @@ def episode_logs(config: RunConfig, data_dir: Path) -> dict[RowKey, Path]:
         unknown = wanted - found
         if unknown:
             shown = ", ".join(sorted(unknown)[:10])
-            raise ConfigError(f"episodes not found in {', '.join(config.splits)}: {shown}")
+            raise ConfigError(
+                f"the run config's episodes: not found in split(s) {', '.join(config.splits)} "
+                f"of {config.data!r}: {shown}"
+            )
     return out
 
 

@@ -308,7 +308,8 @@ def test_listed_episodes_past_the_limit_are_found_and_cut_by_it(
     ids = [e.episode_id for e in load_split(sample_dir, "val_unseen").episodes()][:3]
     logs = episode_logs(small_config(episodes=ids, limit=1), sample_dir)
     assert list(logs) == [("val_unseen", ids[0])]  # was: 'episodes not found' for the other two
-    with pytest.raises(ConfigError, match="episodes not found in val_unseen: nope"):
+    unknown = r"the run config's episodes: not found in split\(s\) val_unseen of .*: nope"
+    with pytest.raises(ConfigError, match=unknown):
         episode_logs(small_config(episodes=[*ids, "nope"], limit=1), sample_dir)
 
 
