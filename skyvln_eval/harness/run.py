@@ -560,8 +560,8 @@ def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = Fal
         notes.append(f"removed {leftovers} temporary file(s) left by an interrupted run")
     cap = speed_cap_note(config)
     notes += [cap] if cap else []
-    report = RunReport(run_dir, config.system, list(logs), notes=notes)
-    report.data_dir = str(data_dir) if is_relative_data(config.data) else None
+    relative = str(data_dir) if is_relative_data(config.data) else None
+    report = RunReport(run_dir, config.system, list(logs), notes=notes, data_dir=relative)
     todo = store.missing(logs, retry_failed=retry_failed)
     pending = set(todo)
     lost = lost_files(config, run_dir, store, [key for key in logs if key not in pending])

@@ -53,11 +53,10 @@ from skyvln_eval.errors import (
 from skyvln_eval.fileio import atomic_write_json
 from skyvln_eval.metrics.aggregate import check_complete
 from skyvln_eval.metrics.records import RESULT_STATUSES, EpisodeResult, ResultStatus, as_views
+from skyvln_eval.metrics.results_io import START_VIEW_TOLERANCE_DEG
 
 PREDICTIONS_FORMAT = "skyvln-eval.predictions"
 PREDICTIONS_VERSION = 1
-#: How far (degrees, about a centimetre) a path's first view may be from the start view.
-START_TOLERANCE_DEG = 1e-7
 
 
 @dataclass(frozen=True)
@@ -323,7 +322,9 @@ def results_from_predictions(
     check_complete(predictions, gt, what)
     for eid, views in gt.items():
         path = predictions[eid].path_corners
-        if len(path) and not np.allclose(path[0], views[0], rtol=0.0, atol=START_TOLERANCE_DEG):
+        if len(path) and not np.allclose(
+            path[0], views[0], rtol=0.0, atol=START_VIEW_TOLERANCE_DEG
+        ):
             first, start = np.asarray(path[0]).tolist(), np.asarray(views[0]).tolist()
             raise DataError(
                 f"{what}, episode {eid}: the path does not begin with the episode's start view "

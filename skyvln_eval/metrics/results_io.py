@@ -178,7 +178,8 @@ def result_from_json_dict(
         raise error("", str(exc)) from None
 
 
-#: How far (degrees, about a centimetre) a row's first view may be from its start view.
+#: How far (degrees, about a centimetre) a path's first view (a results row's, a
+#: prediction's) may be from the episode's start view.
 START_VIEW_TOLERANCE_DEG = 1e-7
 
 
