@@ -174,6 +174,20 @@ def undecodable_at(raw: bytes, error: UnicodeDecodeError) -> str:
     return f"byte 0x{raw[error.start]:02x} on line {line}, byte offset {error.start}"
 
 
+def object_with_unique_keys(
+    pairs: list[tuple[str, Any]], refuse: Callable[[str], Exception]
+) -> dict[str, Any]:
+    """A JSON object hook (with ``refuse`` bound by ``functools.partial``) that raises
+    ``refuse(key)`` for a key given twice: ``json`` keeps the last of a repeated key
+    without a word (``"status": "error", "status": "ok"`` read as ok)."""
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise refuse(key)
+        out[key] = value
+    return out
+
+
 class _StrictLoader(yaml.SafeLoader):
     """``yaml.SafeLoader`` that refuses a key given twice in one mapping: YAML keeps the
     last one without a word (``system: a`` then ``system: b`` ran as "b"), where the JSON

@@ -9,6 +9,7 @@ which the motion generator sends back to the model once as its repair request.
 
 from __future__ import annotations
 
+import functools
 import json
 import re
 from collections.abc import Mapping
@@ -16,6 +17,7 @@ from typing import Any, Final
 
 from skyvln_eval.agent.actions import Action, action_from_dict
 from skyvln_eval.errors import ActionParseError
+from skyvln_eval.fileio import object_with_unique_keys
 
 MAX_OUTPUT_CHARS: Final = 20_000
 MAX_THOUGHT_CHARS: Final = 4_000
@@ -26,13 +28,11 @@ def _no_constants(name: str) -> Any:
     raise ActionParseError(f"JSON constant {name} is not allowed")
 
 
-def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for key, value in pairs:
-        if key in out:
-            raise ActionParseError(f"duplicate key {key!r} in the JSON object")
-        out[key] = value
-    return out
+def _duplicate_key(key: str) -> ActionParseError:
+    return ActionParseError(f"duplicate key {key!r} in the JSON object")
+
+
+_unique_keys = functools.partial(object_with_unique_keys, refuse=_duplicate_key)
 
 
 def load_json_object(text: str) -> dict[str, Any]:

@@ -93,12 +93,18 @@ def _config_texts(config_json: str) -> tuple[str, str]:
     return config.settings_digest(), config.settings_yaml()
 
 
+@functools.lru_cache(maxsize=4)
+def _system_digest(config_json: str) -> str:
+    """:meth:`RunConfig.system_digest`, made once per run, not once per episode."""
+    return _config(config_json).system_digest()
+
+
 def config_marks(config: RunConfig, config_json: str) -> dict[str, Any]:
     """What a row records of the config that made it: a resume and ``score`` refuse a row
     whose marks are not the run's (:func:`~skyvln_eval.harness.run.foreign_rows`)."""
     return {
         "settings_digest": _config_texts(config_json)[0],
-        "system_digest": _config(config_json).system_digest(),
+        "system_digest": _system_digest(config_json),
         "execution_mode": config.mode,
     }
 

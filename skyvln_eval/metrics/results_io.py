@@ -25,6 +25,7 @@ file, row and field of any problem. Writers write to a temporary name and rename
 from __future__ import annotations
 
 import dataclasses
+import functools
 import io
 import json
 import math
@@ -41,7 +42,7 @@ from skyvln_eval.errors import (
     ResultRecordError,
     ValidationIssue,
 )
-from skyvln_eval.fileio import atomic_write_bytes, undecodable_at
+from skyvln_eval.fileio import atomic_write_bytes, object_with_unique_keys, undecodable_at
 from skyvln_eval.llm_records import LlmCall, ModuleFailure
 from skyvln_eval.metrics.records import ControlSummary, EpisodeResult
 
@@ -317,15 +318,12 @@ def _check_header(header: Any, file: str) -> None:
         raise FormatVersionError(file, header.get("version"), RESULTS_VERSION, _UPGRADE_HINT)
 
 
-def _object_without_repeats(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
-    """A JSON object whose keys are each given once (``json`` keeps the last of a repeated
-    key without a word: ``"status": "error", "status": "ok"`` read as ok)."""
-    out: dict[str, Any] = {}
-    for key, value in pairs:
-        if key in out:
-            raise ValueError(f"the key {key!r} is given twice")
-        out[key] = value
-    return out
+def _given_twice(key: str) -> ValueError:
+    return ValueError(f"the key {key!r} is given twice")
+
+
+#: ``json.loads``' object hook for a results row: each key once.
+_ROW_OBJECT = functools.partial(object_with_unique_keys, refuse=_given_twice)
 
 
 def results_from_jsonl_bytes(data: bytes, file: str = "<jsonl>") -> list[EpisodeResult]:
@@ -347,7 +345,7 @@ def results_from_jsonl_bytes(data: bytes, file: str = "<jsonl>") -> list[Episode
         if not line.strip():
             continue
         try:
-            obj = json.loads(line, object_pairs_hook=_object_without_repeats)
+            obj = json.loads(line, object_pairs_hook=_ROW_OBJECT)
         except json.JSONDecodeError as exc:
             message = f"not valid JSON (column {exc.colno}: {exc.msg})"
             if row + 2 == len(lines) and not data.endswith(b"\n"):
