@@ -50,6 +50,7 @@ from skyvln_eval.harness.run import (
     RunJob,
     RunReport,
     execute_jobs,
+    is_synthetic_data,
     prepare_job,
     resolve_data_dir,
     speed_cap_note,
@@ -485,7 +486,10 @@ def reproduce(
     # First: it refuses a plan whose model lacks its API key before anything is written,
     # and one whose model is served on this machine where nothing listens (each run
     # checks too, but after the run folders before it were made).
-    runs = planned_runs(plan, out_dir, workers, executor, str(data_dir))
+    # A synthetic set is named, not located: its runs' configs read the same on every
+    # machine and from every cache folder (the name resolves to one byte-identical set).
+    run_data = plan.data if is_synthetic_data(plan.data) else str(data_dir)
+    runs = planned_runs(plan, out_dir, workers, executor, run_data)
     for planned in runs:
         check_local_servers(planned.config.agent, repr(planned.config.system))
     datasets = _dataset_summary(data_dir)

@@ -80,9 +80,15 @@ EPISODE_LOG_OPTIONS = ConvertOptions(observations=False, map_tile_max_side_px=0)
 RELATIVE_DATA_KEY = "relative_data_dir"
 
 
+def is_synthetic_data(data: str) -> bool:
+    """Whether ``data`` names a synthetic dataset (``sample`` / ``full``), built into the
+    cache on first use, rather than a folder."""
+    return data in ("sample", "full")
+
+
 def is_relative_data(data: str) -> bool:
     """Whether ``data`` is a folder path relative to the directory a command runs in."""
-    return data not in ("sample", "full") and not Path(data).expanduser().is_absolute()
+    return not is_synthetic_data(data) and not Path(data).expanduser().is_absolute()
 
 
 def recorded_data_dir(run_dir: Path) -> Path | None:
@@ -110,7 +116,7 @@ def check_same_data(config: RunConfig, data_dir: Path, run_dir: Path) -> None:
 
 def resolve_data_dir(data: str) -> Path:
     """``"sample"`` / ``"full"`` (synthetic, built on first use) or an AVDN-format folder."""
-    if data in ("sample", "full"):
+    if is_synthetic_data(data):
         from skyvln_eval.worlds.sample import ensure_dataset
 
         return ensure_dataset(data)

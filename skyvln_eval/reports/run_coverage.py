@@ -34,6 +34,7 @@ from skyvln_eval.harness.run import (
     REPORT_FILE,
     check_own_rows,
     is_relative_data,
+    is_synthetic_data,
     recorded_data_dir,
     selected,
 )
@@ -71,7 +72,7 @@ def read_run_config(run_dir: Path) -> RunConfig:
 def run_data_dir(config: RunConfig, run_dir: Path) -> Path:
     """The dataset the run ran on (``sample`` / ``full``: the cached copy, never built here)."""
     data = config.data
-    if data in ("sample", "full"):
+    if is_synthetic_data(data):
         from skyvln_eval.paths import cache_root
         from skyvln_eval.worlds.sample.build import SPECS
         from skyvln_eval.worlds.sample.cache import dataset_dir_name, is_complete

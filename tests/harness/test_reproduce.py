@@ -15,6 +15,7 @@ from skyvln_eval.errors import ConfigError
 from skyvln_eval.harness import plan as plan_module
 from skyvln_eval.harness.plan import environment_backends, load_plan, planned_runs, slug
 from skyvln_eval.harness.reproduce import CONTROL_COLUMNS, WALL_CLOCK_METRICS, reproduce
+from skyvln_eval.harness.run import CONFIG_FILE
 from skyvln_eval.llm import LLMConfig
 from skyvln_eval.metrics.scores_io import read_scores
 
@@ -185,7 +186,8 @@ def test_a_small_plan_writes_tables_figures_and_summary_and_resumes(
 
 
 def test_reproduce_command_on_a_small_plan(tmp_path: Path, sample_dir: Path) -> None:
-    plan = write_plan(tmp_path / "tiny.yaml", str(sample_dir))
+    # "sample" is the session's cached sample_dir ($SKYVLN_EVAL_CACHE).
+    plan = write_plan(tmp_path / "tiny.yaml", "sample")
     result = CliRunner().invoke(
         app,
         [
@@ -202,6 +204,11 @@ def test_reproduce_command_on_a_small_plan(tmp_path: Path, sample_dir: Path) -> 
     )
     assert result.exit_code == 0, result.output
     assert "NavGPT-style" in result.output and (tmp_path / "cli" / "SUMMARY.md").is_file()
+    # Its runs name the synthetic set, not where this machine's cache keeps it: an output
+    # folder is the same, and resumes, wherever it is made.
+    configs = sorted((tmp_path / "cli" / "runs").rglob(CONFIG_FILE))
+    assert configs and all(yaml.safe_load(path.read_text())["data"] == "sample" for path in configs)
+    assert str(sample_dir) not in "".join(path.read_text() for path in configs)
 
 
 def test_the_default_plan_has_the_papers_rows() -> None:
