@@ -86,6 +86,32 @@ CAMERA_FROM_DRONE_QUATERNION: Final[Json] = {
 IDENTITY_QUATERNION: Final[Json] = {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}
 
 
+def optical_frame_quaternion(
+    forward: Sequence[float], right: Sequence[float], up: Sequence[float]
+) -> Json:
+    """The orientation of a camera's optical frame (x right, y down in the image, z along
+    the optical axis: Foxglove's and ROS's) whose image axes are the orthonormal
+    ``forward``, ``right`` and ``up`` of its parent frame.
+
+    The rotation's columns are the optical axes in the parent: ``right``, ``-up``,
+    ``forward``; its quaternion is read from the largest of its four diagonal terms
+    (Shepperd's method), so it is exact to rounding in every orientation.
+    """
+    m = [[float(right[i]), -float(up[i]), float(forward[i])] for i in range(3)]
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = m
+    # (w, x, y, z) times 4 q_k, for each k: the one whose own term (4 q_k^2) is largest.
+    candidates = (
+        (1.0 + m00 + m11 + m22, m21 - m12, m02 - m20, m10 - m01),
+        (m21 - m12, 1.0 + m00 - m11 - m22, m01 + m10, m02 + m20),
+        (m02 - m20, m01 + m10, 1.0 - m00 + m11 - m22, m12 + m21),
+        (m10 - m01, m02 + m20, m12 + m21, 1.0 - m00 - m11 + m22),
+    )
+    k = max(range(4), key=lambda k: candidates[k][k])
+    norm = math.sqrt(sum(c * c for c in candidates[k]))
+    w, x, y, z = (c / norm for c in candidates[k])
+    return {"x": x, "y": y, "z": z, "w": w}
+
+
 def pose(x_m: float, y_m: float, z_m: float, yaw_rad: float) -> Json:
     return {"position": vector3(x_m, y_m, z_m), "orientation": yaw_quaternion(yaw_rad)}
 

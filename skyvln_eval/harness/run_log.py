@@ -6,7 +6,8 @@ saying what this log holds: observations or not, the map tile's size, 0 for none
 tile at time 0; the dialog at time 0, since the agent is given it at the start) and then,
 on the run's clock (simulated seconds; one second per step in official mode):
 
-- ``/tf`` and ``/run/path``: where the drone was, ``/run/views``: every visited view;
+- ``/tf`` and ``/run/path``: where the drone was (and, at each decision, each captured
+  view's ``camera/<view name>`` optical frame), ``/run/views``: every visited view;
 - ``/camera/observation``: the view below the drone at each decision (224 x 224, JPEG);
 - ``/camera/views``: the camera images the agent captured for each decision (JPEG), each
   with ``frame_id`` ``camera/<view name>`` (the names its trace gives the views, which its
@@ -57,6 +58,7 @@ from skyvln_eval.converters.writer import McapLogWriter
 from skyvln_eval.frames import ViewPose, latlng_to_enu, view_to_pose
 from skyvln_eval.harness.control_messages import control_messages, drone_tf, ns
 from skyvln_eval.harness.crashpoints import crash_point
+from skyvln_eval.sensing import CameraPose, camera_basis
 from skyvln_eval.sim.obstacles import ObstacleScenario
 from skyvln_eval.sim.sensors import Capture
 from skyvln_eval.worlds.tile import WorldTile
@@ -78,14 +80,12 @@ class Step:
     feedback: str | None
     trace: Mapping[str, Any]
     target: ViewPose | None = None
-    camera_views: Sequence[tuple[str, NDArray[np.uint8]]] = ()
+    camera_views: Sequence[tuple[str, Capture]] = ()
 
 
-def named_views(
-    trace: Mapping[str, Any], captures: Sequence[Capture]
-) -> list[tuple[str, NDArray[np.uint8]]]:
-    """The decision's captured images, named as the agent's trace names its views (by
-    heading and pitch), else ``heading <h> pitch <p>``."""
+def named_views(trace: Mapping[str, Any], captures: Sequence[Capture]) -> list[tuple[str, Capture]]:
+    """The decision's captures, named as the agent's trace names its views (by heading and
+    pitch), else ``heading <h> pitch <p>``."""
     names = {
         (round(float(v["heading_deg"]), 1), round(float(v["pitch_deg"]), 1)): str(v["name"])
         for v in trace.get("views") or []
@@ -94,7 +94,7 @@ def named_views(
     named = []
     for capture in captures:
         key = (round(capture.heading_deg, 1), round(capture.pitch_deg, 1))
-        named.append((names.get(key, f"heading {key[0]:g} pitch {key[1]:g}"), capture.rgb))
+        named.append((names.get(key, f"heading {key[0]:g} pitch {key[1]:g}"), capture))
     return named
 
 
@@ -235,15 +235,17 @@ def _agent_messages(
                 t.TOPIC_OBSERVATION,
                 fx.compressed_image_json(t_ns, t.CAMERA_FRAME, image, options.image_format),
             )
-        if observations:
-            for name, rgb in step.camera_views:
-                jpeg = images.encode(rgb, rgb=True)
+        for name, capture in step.camera_views:
+            frame = f"{t.CAMERA_VIEW_FRAME_PREFIX}{name}"
+            # Where the camera was and how it looked, so the 3-D panel places the frame
+            # the image names (with or without the images: the trace's views name it too).
+            out.add(t_ns, t.TOPIC_TF, camera_view_tf(t_ns, frame, capture.pose))
+            if observations:
+                jpeg = images.encode(capture.rgb, rgb=True)
                 out.add(
                     t_ns,
                     t.TOPIC_CAMERA_VIEWS,
-                    fx.compressed_image_json(
-                        t_ns, f"{t.CAMERA_VIEW_FRAME_PREFIX}{name}", jpeg, options.image_format
-                    ),
+                    fx.compressed_image_json(t_ns, frame, jpeg, options.image_format),
                 )
         record = action_record(step.action)
         out.add(t_ns, t.TOPIC_AGENT_STEP, agent_step_json(t_ns, episode.episode_id, step, record))
@@ -266,6 +268,14 @@ def _agent_messages(
         if step.target is not None:
             target = fx.pose(step.target.x_m, step.target.y_m, step.target.z_m, step.target.yaw_rad)
             out.add(t_ns, t.TOPIC_AGENT_TARGET, fx.pose_in_frame(t_ns, t.MAP_FRAME, target))
+
+
+def camera_view_tf(t_ns: int, frame: str, pose: CameraPose) -> Any:
+    """The optical frame of a captured view in the map: at the camera, looking as it did."""
+    translation = fx.vector3(pose.x_m, pose.y_m, pose.z_m)
+    forward, right, up = camera_basis(pose)
+    rotation = fx.optical_frame_quaternion(forward.tolist(), right.tolist(), up.tolist())
+    return fx.frame_transform(t_ns, t.MAP_FRAME, frame, translation, rotation)
 
 
 def _place_drone(

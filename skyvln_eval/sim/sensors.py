@@ -45,12 +45,13 @@ from skyvln_eval.worlds.tile import WorldTile
 
 @dataclass(frozen=True)
 class Capture:
-    """One image the agent captured: the heading and pitch it asked for, and the RGB it got
-    (the harness logs these; the agent never sees this record)."""
+    """One image the agent captured: the heading and pitch it asked for, the RGB it got and
+    the camera's pose (the harness logs these; the agent never sees this record)."""
 
     heading_deg: float
     pitch_deg: float
     rgb: NDArray[np.uint8]
+    pose: CameraPose
 
 
 class SimulatedSensors:
@@ -87,7 +88,8 @@ class SimulatedSensors:
         rendered = RECENT_RENDERS.render(self._world, poses, self._camera)
         images = [_read_only(self._restrict(i)) for i in rendered]
         self.captures += [
-            Capture(float(h), float(p), i.rgb) for (h, p), i in zip(views, images, strict=True)
+            Capture(float(h), float(p), i.rgb, pose)
+            for (h, p), i, pose in zip(views, images, poses, strict=True)
         ]
         return images
 

@@ -84,6 +84,16 @@ def test_entities_and_counts_match_the_run_mcap(recording, rerun_cli: Path) -> N
     # Every image the agent's camera gave it, under the view's name, with that view's boxes.
     steps = [m.decode() for m in log.topic(t.TOPIC_AGENT_STEP)]
     assert counts[t.TOPIC_CAMERA_VIEWS] == sum(len(s["trace"]["views"]) for s in steps) > 0
+    # Each image's frame is in /tf when it was taken, for the 3-D panel to place.
+    frames = {
+        (m.log_time_ns, m.decode()["child_frame_id"])
+        for m in log.topic(t.TOPIC_TF)
+        if m.decode()["child_frame_id"].startswith(t.CAMERA_VIEW_FRAME_PREFIX)
+    }
+    image_frames = {
+        (m.log_time_ns, m.decode()["frame_id"]) for m in log.topic(t.TOPIC_CAMERA_VIEWS)
+    }
+    assert frames == image_frames
     names = {v["name"] for s in steps for v in s["trace"]["views"]}
     images = {
         path: n
