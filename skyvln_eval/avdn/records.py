@@ -17,7 +17,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from skyvln_eval.avdn.constants import EpisodeMode
+from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN, EpisodeMode
 from skyvln_eval.avdn.imagery import MapGeoref
 
 LatLng = tuple[float, float]
@@ -279,6 +279,22 @@ class Episode:
     @property
     def gt_end_view(self) -> NDArray[np.float64]:
         return self.records[-1].gt_path_corners[-1]
+
+    def view_budget(self, max_action_len: int = DEFAULT_MAX_ACTION_LEN) -> int:
+        """The views the episode may have, the start included: AVDN's ``max_action_len``
+        for each dialog round flown (ANDH: one; ANDH-Full: every round of the trajectory).
+
+        AVDN's code gives ANDH-Full one round's budget, in which a long trajectory's own
+        ground-truth route does not fit (11 of the sample's 53 have more than 10 views:
+        replaying the ground truth scored SR 88.7%, not 100); a round's budget per round
+        holds every route (each round's fits in one)."""
+        return max_action_len * self.rounds_flown
+
+    @property
+    def rounds_flown(self) -> int:
+        """The dialog rounds whose routes the episode flies: one (ANDH), or every round of
+        the trajectory (ANDH-Full)."""
+        return len(self.records) if self.mode == "andh-full" else 1
 
     @property
     def has_ground_truth(self) -> bool:

@@ -182,7 +182,12 @@ class RunConfig(_Strict):
     sensors: SensorConfig = SensorConfig()
     commander: CommanderSettings = CommanderSettings()
     dynamics: DynamicsSettings = DynamicsSettings()
-    max_action_len: int = Field(default=DEFAULT_MAX_ACTION_LEN, ge=1, le=100)
+    max_action_len: int = Field(
+        default=DEFAULT_MAX_ACTION_LEN,
+        ge=1,
+        le=100,
+        description="views per dialog round flown, the start included (ANDH-Full: each round)",
+    )
     seed: int = 0
     workers: int = Field(default=2, ge=1, le=256)
     executor: ExecutorKind = "processes"

@@ -1,6 +1,8 @@
 """The minimal official-mode loop: an agent flies one episode with the official AVDN step.
 
-As in AVDN: the episode has at most ``max_steps`` views, the start view included; the
+As in AVDN: the episode has at most ``max_steps`` views, the start view included (by
+default its :meth:`~skyvln_eval.avdn.Episode.view_budget`, AVDN's ``max_action_len`` per
+dialog round flown); the
 agent's STOP ends it; every other action becomes an official action
 (:func:`~skyvln_eval.agent.mapping.to_official_action`) applied by
 :func:`~skyvln_eval.avdn.official_step_detailed` inside the map bounds (a step that
@@ -20,7 +22,6 @@ import numpy as np
 from skyvln_eval.agent.actions import Action, action_to_dict
 from skyvln_eval.agent.base import Agent
 from skyvln_eval.agent.mapping import to_official_action
-from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN
 from skyvln_eval.avdn.records import Episode
 from skyvln_eval.avdn.step import OfficialAction, official_step_detailed
 from skyvln_eval.errors import ConfigError
@@ -65,7 +66,7 @@ def run_official_episode(
     agent: Agent,
     episode: Episode,
     world: WorldTile,
-    max_steps: int = DEFAULT_MAX_ACTION_LEN,
+    max_steps: int | None = None,
     sensors: SensorConfig | None = None,
     commander: SimulatedCommander | None = None,
 ) -> OfficialRollout:
@@ -74,6 +75,8 @@ def run_official_episode(
     The agent is told only the episode's brief; at each step it gets its pose, the
     feedback and the drone's ``sensors`` (RGB, depth and the semantic camera by default).
     """
+    if max_steps is None:
+        max_steps = episode.view_budget()
     if max_steps < 1:
         raise ConfigError(f"max_steps must be >= 1 (views, start included), got {max_steps}")
     georef = episode.georef

@@ -99,7 +99,11 @@ class ReproducePlan(_Strict):
     data: str = "sample"
     episode_mode: EpisodeMode = "andh"
     seed: int = 0
-    max_action_len: int = Field(default=DEFAULT_MAX_ACTION_LEN, ge=1)
+    max_action_len: int = Field(
+        default=DEFAULT_MAX_ACTION_LEN,
+        ge=1,
+        description="views per dialog round flown, the start included (ANDH-Full: each round)",
+    )
     limit: int | None = Field(default=None, ge=1, description="episodes per split (quick plans)")
     resamples: int = Field(default=1000, ge=0)
     ci_unit: CiUnit = Field(

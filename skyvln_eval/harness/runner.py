@@ -200,7 +200,7 @@ def _official(
 ) -> tuple[OfficialRollout, RunLogContent, dict[str, Any]]:
     commander = _commander(config, episode, world, seed)
     rollout = run_official_episode(
-        agent, episode, world, config.max_action_len, config.sensors, commander
+        agent, episode, world, episode.view_budget(config.max_action_len), config.sensors, commander
     )
     times = [k * OFFICIAL_STEP_S for k in range(len(rollout.views))]
     content = RunLogContent(
@@ -235,7 +235,7 @@ def _dynamics(
         controller,
         settings,
         seed,
-        config.max_action_len,
+        episode.view_budget(config.max_action_len),
         config.sensors,
         _commander(config, episode, world, seed),
     )
@@ -315,6 +315,8 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
         extra |= {
             "stop_reason": rollout.stop_reason,
             "actions": len(rollout.actions),
+            # Its view budget is max_action_len per round flown (AVDN's: 10 per round).
+            "rounds_flown": episode.rounds_flown,
             "seed": seed,
             **config_marks(config, task.config_json),
             "oracle": is_oracle(config.agent.name),

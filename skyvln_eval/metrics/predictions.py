@@ -308,6 +308,7 @@ def results_from_predictions(
     SPL higher.
     """
     bounds: dict[str, tuple[tuple[float, float], tuple[float, float]]] = {}
+    rounds: dict[str, int] = {}
     if isinstance(ground_truth, Mapping):
         gt = dict(ground_truth)
     else:
@@ -315,6 +316,7 @@ def results_from_predictions(
         bounds = {
             ep.episode_id: (ep.georef.gps_botm_left, ep.georef.gps_top_right) for ep in ground_truth
         }
+        rounds = {ep.episode_id: ep.rounds_flown for ep in ground_truth}
     sources = sorted({p.source for p in predictions.values() if p.source})
     what = f"predictions of {system!r} on {split}" + (f" ({', '.join(sources)})" if sources else "")
     if allow_missing:
@@ -343,7 +345,8 @@ def results_from_predictions(
             visited_views=predictions[eid].path_corners,
             gt_path_corners=views,
             # The file says where the agent went, not what its model calls cost.
-            extra={"llm_use_recorded": False},
+            extra={"llm_use_recorded": False}
+            | ({"rounds_flown": rounds[eid]} if eid in rounds else {}),
         )
         for eid, views in gt.items()
     ]

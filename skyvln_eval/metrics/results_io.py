@@ -220,6 +220,11 @@ def _check_extra(extra: dict[str, Any]) -> None:
     for key in ("llm_backend", "detector", "settings_digest", "system_digest", "execution_mode"):
         if extra.get(key) is not None and not isinstance(extra[key], str):
             raise problem(key, f"must be a string, got {extra[key]!r}")
+    rounds = extra.get("rounds_flown")
+    if rounds is not None and (
+        isinstance(rounds, bool) or not isinstance(rounds, int) or rounds < 1
+    ):
+        raise problem("rounds_flown", f"must be a whole number >= 1, got {rounds!r}")
     questions = extra.get("questions")
     if questions is not None and (
         not isinstance(questions, list) or not all(isinstance(q, dict) for q in questions)

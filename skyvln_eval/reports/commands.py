@@ -463,7 +463,9 @@ def table(
 
 #: What a table of ANDH-Full episodes says it is over (the task differs from ANDH's).
 ANDH_FULL_NOTE = (
-    "ANDH-Full: one episode per whole trajectory, flown through all of its dialog rounds."
+    "ANDH-Full: one episode per whole trajectory, flown through all of its dialog rounds "
+    "(the toolkit's runs get AVDN's view budget, max_action_len, for each round; AVDN's "
+    "code gives the whole dialog one round's)."
 )
 
 

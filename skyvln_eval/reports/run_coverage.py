@@ -244,18 +244,31 @@ def run_coverage(
 
 def long_path_warnings(sources: list[tuple[str, list[EpisodeResult]]]) -> list[str]:
     """A warning per input whose paths hold more views than AVDN's ``max_action_len`` (10,
-    the start included): OSR and oracle GP count every view visited, so more views make
-    them higher than the paper's protocol allows (a harness run keeps its own limit)."""
+    the start included) for each dialog round they fly (a row's ``rounds_flown``; one in
+    ANDH; an ANDH-Full row that does not say is not checked): OSR and oracle GP count
+    every view visited, so more views make them higher than the paper's protocol allows."""
     warnings = []
     for name, rows in sources:
-        long = [len(r.visited_views) for r in rows if len(r.visited_views) > DEFAULT_MAX_ACTION_LEN]
+        long = [
+            (len(r.visited_views), budget)
+            for r in rows
+            if (budget := _avdn_view_budget(r)) is not None and len(r.visited_views) > budget
+        ]
         if long:
+            budgets = sorted({budget for _, budget in long})
             warnings.append(
-                f"{name}: {len(long)} episode(s) visited more than {DEFAULT_MAX_ACTION_LEN} views "
-                f"(up to {max(long)}; AVDN's max_action_len counts the start): oracle success "
-                "and oracle GP count every view, so they are not comparable with the paper's"
+                f"{name}: {len(long)} episode(s) visited more views than AVDN's "
+                f"max_action_len ({DEFAULT_MAX_ACTION_LEN} per dialog round, the start "
+                f"counted: {', '.join(map(str, budgets))}) allows (up to "
+                f"{max(n for n, _ in long)}): oracle success and oracle GP count every "
+                "view, so they are not comparable with the paper's"
             )
     return warnings
+
+
+def _avdn_view_budget(row: EpisodeResult) -> int | None:
+    rounds = row.extra.get("rounds_flown", 1 if row.mode == "andh" else None)
+    return None if rounds is None else DEFAULT_MAX_ACTION_LEN * int(rounds)
 
 
 def covered_results(

@@ -111,6 +111,22 @@ def test_on_the_sample_the_rule_agent_beats_random_and_ground_truth_replay_succe
     assert wins["skyvln"] >= len(episodes) // 2 > wins["random"]
 
 
+def test_andh_full_gives_each_dialog_round_its_view_budget(sample_dir: Path) -> None:
+    # AVDN's code gives the whole dialog one round's 10 views: replaying the ground truth
+    # of a long trajectory ran out of views (an audit: SR 66.7% on val_unseen's first 3).
+    episodes = load_split(sample_dir, "val_unseen").episodes("andh-full")
+    long = [e for e in episodes if len(e.gt_path_corners) > 10]
+    assert long  # the case at issue is there
+    for episode in episodes:
+        assert episode.view_budget() == 10 * len(episode.records)
+        world = load_world(sample_dir, episode.map_name, episode.georef)
+        rollout = run_official_episode(ground_truth_oracle(episode), episode, world)
+        assert rollout.max_steps == episode.view_budget()
+        assert view_success(rollout.final_view, episode.gt_end_view), episode.episode_id
+    andh = load_split(sample_dir, "val_unseen").episodes("andh")[0]
+    assert andh.view_budget() == 10 and andh.view_budget(7) == 7
+
+
 def test_a_decisions_trace_numbers_its_module_failures_as_its_row_does() -> None:
     # An agent does not know its step: its trace listed failures at step -1, the episode's
     # row at 0, and the viewer showed the trace's.

@@ -8,10 +8,11 @@ from pathlib import Path
 import pandas as pd
 from typer.testing import CliRunner
 
+from skyvln_eval.avdn import load_split
 from skyvln_eval.cli import app
 from skyvln_eval.harness import RunConfig, run
 from skyvln_eval.harness.store import RESULTS_FILE
-from skyvln_eval.metrics import read_results
+from skyvln_eval.metrics import read_results, score_results
 from skyvln_eval.metrics.scores_io import read_scores
 
 MakeConfig = Callable[..., RunConfig]
@@ -89,3 +90,21 @@ def test_score_takes_a_folder_of_runs_and_refuses_options_it_would_ignore(
     # Table II is over test_unseen, which these scores lack: an error, not a table of dashes.
     table2 = runner.invoke(app, ["table", str(out / "scores.csv"), "--kind", "table2"])
     assert "table2 is over 'test_unseen'" in str(table2.exception)
+
+
+def test_an_andh_full_run_gives_each_round_its_views_and_replays_every_route(
+    tmp_path: Path, small_config: MakeConfig
+) -> None:
+    # An audit: with one round's 10 views for the whole dialog, the replay of val_unseen's
+    # first trajectories scored SR 66.7% (a 15-view route ran out of views).
+    config = small_config(
+        system="GT replay", episode_mode="andh-full", limit=3, agent={"name": "ground_truth"}
+    )
+    run(config, tmp_path / "run")
+    rows = read_results(tmp_path / "run" / RESULTS_FILE)
+    assert len(rows) == 3 and any(len(r.visited_views) > 10 for r in rows)
+    dialogs = {e.episode_id: e for e in load_split(config.data, "val_unseen").episodes("andh-full")}
+    assert all(r.extra["rounds_flown"] == len(dialogs[r.episode_id].records) for r in rows)
+    assert all(len(r.visited_views) <= 10 * r.extra["rounds_flown"] for r in rows)
+    scores = score_results(rows)
+    assert scores["success"].tolist() == [1.0, 1.0, 1.0]

@@ -162,5 +162,32 @@ def test_paths_longer_than_avdns_limit_are_warned_of_in_the_scores(tmp_path: Pat
     out = tmp_path / "s"
     scored = CliRunner().invoke(app, ["score", str(results), "--out", str(out), "--resamples", "0"])
     assert scored.exit_code == 0, scored.output
-    warning = f"{results}: 1 episode(s) visited more than 10 views (up to 20;"
+    warning = f"{results}: 1 episode(s) visited more views than AVDN's max_action_len (10 per"
     assert any(w.startswith(warning) for w in scores_warnings(read_scores(out / "scores.csv")[0]))
+    assert any(
+        "allows (up to 20)" in w for w in scores_warnings(read_scores(out / "scores.csv")[0])
+    )
+
+
+def test_an_andh_full_path_is_allowed_ten_views_per_dialog_round(tmp_path: Path) -> None:
+    # The budget of a whole dialog is a round's per round: a 15-view flight of two rounds
+    # is within the protocol, a 25-view one is not (and a row that does not say how many
+    # rounds it flew is not judged).
+    def flight(views: int, episode_id: str, **extra: int) -> object:
+        path = [square(0, 0)] + [square(0, 10 * k) for k in range(1, views)]
+        return result(path, GOAL, episode_id=episode_id, mode="andh-full", extra=extra)
+
+    rows = [
+        flight(15, "1913__0_1", rounds_flown=2),
+        flight(25, "1913__1_1", rounds_flown=2),
+        flight(40, "1913__2_1"),
+    ]
+    results = tmp_path / "results.jsonl"
+    write_results(results, rows)  # type: ignore[arg-type]
+    out = tmp_path / "s"
+    scored = CliRunner().invoke(app, ["score", str(results), "--out", str(out), "--resamples", "0"])
+    assert scored.exit_code == 0, scored.output
+    (warning,) = [w for w in scores_warnings(read_scores(out / "scores.csv")[0]) if "AVDN" in w]
+    assert (
+        "1 episode(s) visited more views" in warning and "counted: 20) allows (up to 25)" in warning
+    )
