@@ -229,7 +229,8 @@ def nonzero_fixed(value: float, digits: int) -> str:
 
 def _ranks(values: dict[str, float], lower_is_better: bool, digits: int) -> dict[str, int]:
     """Best (1) and second best (2) by the shown values; no second when it is the worst."""
-    shown = {row: float(fixed(v, digits)) for row, v in values.items() if not math.isnan(v)}
+    # As the cells show them: a small value keeps the decimals that tell it from 0.
+    shown = {row: float(nonzero_fixed(v, digits)) for row, v in values.items() if not math.isnan(v)}
     distinct = sorted(set(shown.values()), reverse=not lower_is_better)
     marked = 2 if len(distinct) > 2 else 1 if len(distinct) == 2 else 0
     return {row: distinct.index(v) + 1 for row, v in shown.items() if v in distinct[:marked]}
@@ -411,7 +412,10 @@ def _interval_notes(
         span = f"{low}" if low == high else f"{low} to {high}"
         parts.append(f"each over {span} trajector{'y' if high == 1 else 'ies'}")
     if unavailable:
-        parts.append("[n/a]: no interval (a bootstrap needs episodes whose values differ)")
+        parts.append(
+            "[n/a]: no interval (a bootstrap needs units whose values differ: episodes, or "
+            "with trajectories as the unit, trajectories, so none over one trajectory)"
+        )
     return [f"Brackets: {level} intervals; {'; '.join(parts)}."]
 
 

@@ -17,7 +17,7 @@ import pytest
 from skyvln_eval.errors import MetricInputError
 from skyvln_eval.metrics import MetricConventions, score_results, summarise
 from skyvln_eval.reports import TABLE_I, TABLE_II, build_table, to_csv, to_latex, to_markdown
-from skyvln_eval.reports.tables import Table, latex_escape, nonzero_fixed
+from skyvln_eval.reports.tables import Table, _ranks, latex_escape, nonzero_fixed
 from tests.metrics.helpers import result, square
 
 EXPECTED = Path(__file__).parent / "expected"
@@ -143,7 +143,8 @@ def test_a_table_says_how_its_intervals_were_made_and_shows_a_missing_one_as_suc
     assert "| Ten | 0.00 [n/a] | 0.00 [0.00, 27.75] |" in md
     note = (
         "Brackets: 95% intervals; Wilson score interval, the episodes as trials: SR/%; "
-        "[n/a]: no interval (a bootstrap needs episodes whose values differ)."
+        "[n/a]: no interval (a bootstrap needs units whose values differ: episodes, or with "
+        "trajectories as the unit, trajectories, so none over one trajectory)."
     )
     assert note in md and "bootstrap CI" not in md
     assert r"\textbf{100.00}\,{\scriptsize[n/a]}" in to_latex(table)
@@ -171,6 +172,14 @@ def with_errors(data: pd.DataFrame, errors: dict[tuple[str, str], float]) -> pd.
         for (system, split), share in errors.items()
     ]  # fmt: skip
     return pd.concat([data, pd.DataFrame(rows)], ignore_index=True)
+
+
+def test_ranks_are_of_the_values_as_shown_small_ones_with_their_decimals() -> None:
+    # Costs 0.00002 and 0.00004 show as 0.000020 and 0.000040: different, so one is best
+    # (ranked at 4 decimals, both were 0.0000 and both were marked best).
+    costs = {"A": 0.00002, "B": 0.00004, "C": 0.002}
+    assert _ranks(costs, lower_is_better=True, digits=4) == {"A": 1, "B": 2}
+    assert [nonzero_fixed(v, 4) for v in costs.values()] == ["0.000020", "0.000040", "0.0020"]
 
 
 def test_a_cell_whose_every_episode_failed_says_error_and_is_not_ranked() -> None:
