@@ -4,11 +4,12 @@ The summary is a long table, one row per (system, split, mode, metric): ``n`` ep
 ``mean`` (rates in percent, lengths in metres) and, when asked, an interval made as
 ``ci_method`` says (:data:`CI_METHODS`): a seeded percentile bootstrap over whole
 trajectories (the default ``ci_unit``), or over episodes, where a rate of 0/1 values
-(:data:`BINARY_METRICS`) gets the Wilson score interval instead; over trajectories, a
-0/1 rate gets Wilson only where every value is the same (a bootstrap of ten zeros would
-say [0, 0]); NaN (shown "n/a") where a bootstrap has no spread to resample (one episode,
-or values that are all the same: SPL 0 in every episode of an SR of 0/10), and no
-interval at all for an unknown mean. Rules: a frame
+(:data:`BINARY_METRICS`) gets the Wilson score interval instead (a bootstrap of ten
+zeros would say [0, 0]); over trajectories, a 0/1 rate gets the Wilson interval with the
+trajectories as trials, widened to the bootstrap's where that reaches further (Wilson
+alone where every value is the same); NaN (shown "n/a") where a bootstrap has no spread
+to resample (one episode, or values that are all the same: SPL 0 in every episode of an
+SR of 0/10), and no interval at all for an unknown mean. Rules: a frame
 that repeats an episode, or misses an official metric's value, is refused
 (:func:`checked_scores`); a group with no value for a metric (e.g. no control summary)
 has no row for it; NaN / inf never reach a mean (they raise); a metric that can be
@@ -44,6 +45,7 @@ from skyvln_eval.metrics.stats import (
     paired_comparison,
     percentile_interval,
     wilson_interval,
+    wilson_interval_at,
 )
 
 GROUP_KEYS = ["system", "split", "mode"]
@@ -120,17 +122,33 @@ LOWER_IS_BETTER = frozenset(
 #: Metrics whose per-episode values are 0 or 1 by definition (unit "0/1": success, a
 #: status, a collision): over episodes, their rate's interval is the Wilson score
 #: interval, which a bootstrap of ten zeros (every resample 0) would give as [0, 0]; over
-#: trajectories, where every value is the same.
+#: trajectories, the Wilson one with the trajectories as trials, widened to the
+#: trajectory bootstrap's where that reaches further (see :func:`_widened_wilson`).
 BINARY_METRICS = frozenset(m for m, unit in METRIC_UNITS.items() if unit == "0/1")
 
 #: How a summary's interval was made (its ``ci_method``), as a table's note says it.
-CiMethod = Literal["wilson", "bootstrap", "wilson_trajectories", "trajectory_bootstrap"]
+CiMethod = Literal[
+    "wilson",
+    "bootstrap",
+    "wilson_trajectories",
+    "trajectory_bootstrap",
+    "wilson_or_bootstrap",
+    "wilson_or_trajectory_bootstrap",
+]
 CI_METHODS: dict[str, str] = {
     "wilson": "Wilson score interval, the episodes as trials",
     "bootstrap": "percentile bootstrap of the episodes",
     "wilson_trajectories": "Wilson score interval, the trajectories as trials",
     "trajectory_bootstrap": (
         "percentile bootstrap of the trajectories (the rounds of a dialog drawn together)"
+    ),
+    "wilson_or_bootstrap": (
+        "Wilson score interval at the pooled rate, the episodes as trials, each bound "
+        "widened to the percentile bootstrap of the episodes' where that reaches further"
+    ),
+    "wilson_or_trajectory_bootstrap": (
+        "Wilson score interval at the rate, the trajectories as trials, each bound widened "
+        "to the percentile bootstrap of the trajectories' where that reaches further"
     ),
 }
 #: What an interval resamples: episodes, or trajectories (AVDN's ANDH episodes are the
@@ -172,16 +190,22 @@ class _Resampling:
     def wilson(self) -> CiMethod:
         return "wilson" if self.clusters is None else "wilson_trajectories"
 
+    @property
+    def widened_wilson(self) -> CiMethod:
+        return "wilson_or_bootstrap" if self.clusters is None else "wilson_or_trajectory_bootstrap"
+
 
 #: Rates whose summary is the share over all the group's episodes pooled (failed calls of
 #: all calls, fallback decisions of all decisions), not the mean of per-episode rates, in
 #: which an episode of one failed call weighed as much as one of twenty answered ones.
-#: Their intervals resample episodes, the ratio of sums of each resample. When no episode
-#: had a failure (or every call of every episode failed) each resample gives the same 0%
-#: (100%), so the interval is instead the Wilson one of "0 of n episodes had one" (n of
-#: n): the episodes, not the calls, are the trials, since the calls of an episode fail
-#: together (a dead endpoint fails them all). It bounds the share of episodes with a
-#: failure, which bounds the share of calls as far as episodes are alike in size.
+#: Their intervals are the Wilson one at the pooled share with the episodes (or the
+#: trajectories) as trials, widened to the bootstrap's (the ratio of sums of each
+#: resample) where that reaches further. The episodes, not the calls, are the trials,
+#: since the calls of an episode fail together (a dead endpoint fails them all). When no
+#: episode had a failure (or every call of every episode failed) each resample gives the
+#: same 0% (100%): the interval is the Wilson one of "0 of n episodes had one" (n of n),
+#: which bounds the share of episodes with a failure, which bounds the share of calls as
+#: far as episodes are alike in size; one failed call more never narrows it.
 POOLED_RATES: dict[str, tuple[str, str]] = {
     "llm_call_failure_rate": ("llm_failed_calls", "llm_calls"),
     "fallback_rate": ("fallback_decisions", "decisions"),
@@ -346,15 +370,19 @@ def summarise(
                 scaled = values * (100.0 if metric in PERCENT_METRICS else 1.0)
                 row.update(n=len(values), mean=float(scaled.mean()))
                 binary = metric in BINARY_METRICS
-                if n_resamples and binary and (resampling.clusters is None or _alike(values)):
+                if n_resamples and binary:
                     successes = _successes(values, ids, what)
                     trials = resampling.trials(len(values))
-                    # Alike values over trajectories: each trajectory one trial, all alike.
-                    won = successes if resampling.clusters is None else trials * int(values[0])
-                    row.update(_wilson(won, trials, confidence, resampling.wilson))
+                    if resampling.clusters is None:
+                        row.update(_wilson(successes, trials, confidence))
+                    elif _alike(values):  # each trajectory one trial, all alike
+                        won = trials * int(values[0])
+                        row.update(_wilson(won, trials, confidence, resampling.wilson))
+                    else:
+                        estimates = resampling.means(scaled, n_resamples, seed)
+                        rate = successes / len(values)
+                        row.update(_widened_wilson(rate, trials, estimates, confidence, resampling))
                 elif n_resamples:
-                    if binary:
-                        _successes(values, ids, what)  # refuses values other than 0 and 1
                     estimates = resampling.means(scaled, n_resamples, seed)
                     row.update(_percentiles(estimates, confidence, resampling.bootstrap))
             rows.append(row)
@@ -424,6 +452,26 @@ def _wilson(
     return _interval(100.0 * low, 100.0 * high, method, confidence)
 
 
+def _widened_wilson(
+    rate: float, trials: int, estimates: np.ndarray, confidence: float, resampling: _Resampling
+) -> dict[str, object]:
+    """The Wilson interval of ``rate`` (a fraction) over ``trials``, each bound widened to
+    the percentile interval of the bootstrap ``estimates`` (in percent) where that reaches
+    further; the Wilson one alone when the bootstrap has no spread (one trajectory).
+
+    Either alone misleads at a rare event: the bootstrap of a share with one failure is
+    narrower than the Wilson interval of none (an audit: 1 error in 30 episodes over 17
+    trajectories gave [0, 10.7]%, no error [0, 18.4]%), and the Wilson one with the
+    trajectories as trials misses a large trajectory's weight. Widened, a failure more
+    never narrows the interval, and an interval never claims more trials than it has.
+    """
+    low, high = (100.0 * b for b in wilson_interval_at(rate, trials, confidence))
+    b_low, b_high = percentile_interval(estimates, confidence)
+    if math.isnan(b_low):
+        return _interval(low, high, resampling.wilson, confidence)
+    return _interval(min(low, b_low), max(high, b_high), resampling.widened_wilson, confidence)
+
+
 def _alike(values: np.ndarray) -> bool:
     """Whether every value is the same (a bootstrap of them has no spread)."""
     return bool((values == values[0]).all())
@@ -450,9 +498,10 @@ def _pooled_interval(
     resampling: _Resampling = _Resampling(None),
 ) -> dict[str, object]:
     """Interval of a pooled share from the episodes' (numerator, denominator) ``pairs``:
-    the ratio of sums of each bootstrap resample, or Wilson over the episodes (or the
-    trajectories) when every resample would give the same 0% or 100% (see
-    :data:`POOLED_RATES`)."""
+    Wilson over the episodes (or the trajectories) at the pooled share, widened to the
+    percentile interval of the ratio of sums of each bootstrap resample (see
+    :func:`_widened_wilson`); Wilson alone when every resample would give the same 0%
+    or 100% (see :data:`POOLED_RATES`)."""
     failed, total = pairs[:, 0], pairs[:, 1]
     trials = resampling.trials(len(pairs))
     if not failed.any():
@@ -460,7 +509,9 @@ def _pooled_interval(
     if (failed == total).all():
         return _wilson(trials, trials, confidence, resampling.wilson)
     means = resampling.means(pairs, n_resamples, seed)
-    return _percentiles(100.0 * means[:, 0] / means[:, 1], confidence, resampling.bootstrap)
+    estimates = 100.0 * means[:, 0] / means[:, 1]
+    rate = float(failed.sum() / total.sum())
+    return _widened_wilson(rate, trials, estimates, confidence, resampling)
 
 
 def check_complete(

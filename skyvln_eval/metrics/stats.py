@@ -158,16 +158,25 @@ def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[f
         raise MetricInputError(
             f"a proportion needs 0 <= successes <= n and n >= 1, got {successes} of {n}"
         )
+    return wilson_interval_at(successes / n, n, confidence)
+
+
+def wilson_interval_at(rate: float, n: int, confidence: float = 0.95) -> tuple[float, float]:
+    """The Wilson score interval of a proportion ``rate`` observed over ``n`` trials, a
+    fraction of successes that need not be a whole number of them (a rate pooled over
+    episodes, with their trajectories as the trials)."""
+    if n < 1 or not 0.0 <= rate <= 1.0:
+        raise MetricInputError(f"a proportion needs 0 <= rate <= 1 and n >= 1, got {rate} of {n}")
     if not 0 < confidence < 1:
         raise MetricInputError(f"confidence must be in (0, 1), got {confidence}")
     z = NormalDist().inv_cdf(0.5 + confidence / 2.0)
-    p = successes / n
+    p = rate
     z2n = z * z / n
     centre = (p + z2n / 2.0) / (1.0 + z2n)
     half = z / (1.0 + z2n) * math.sqrt(p * (1.0 - p) / n + z2n / (4.0 * n))
-    # At 0 (or n) successes the bound is exactly 0 (or 1); the formula rounds near it.
-    low = 0.0 if successes == 0 else max(0.0, centre - half)
-    high = 1.0 if successes == n else min(1.0, centre + half)
+    # At a rate of 0 (or 1) the bound is exactly 0 (or 1); the formula rounds near it.
+    low = 0.0 if p == 0.0 else max(0.0, centre - half)
+    high = 1.0 if p == 1.0 else min(1.0, centre + half)
     return low, high
 
 

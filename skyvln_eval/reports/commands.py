@@ -389,8 +389,9 @@ def table(
         typer.Option(
             "--ci",
             help="Show 95% confidence intervals (percentile bootstrap, over whole "
-            "trajectories by default; Wilson for a 0/1 rate whose values are all alike, or "
-            "with --ci-unit episode; a note says which cells used which)",
+            "trajectories by default; for a 0/1 rate, Wilson with the trajectories as "
+            "trials widened to the bootstrap's, or Wilson with --ci-unit episode; a note "
+            "says which cells used which)",
         ),
     ] = False,
     resamples: Annotated[

@@ -413,8 +413,10 @@ def _interval_notes(
         parts.append(f"each over {span} trajector{'y' if high == 1 else 'ies'}")
     if unavailable:
         parts.append(
-            "[n/a]: no interval (a bootstrap needs units whose values differ: episodes, or "
-            "with trajectories as the unit, trajectories, so none over one trajectory)"
+            "[n/a]: no interval (a bootstrap needs trajectories whose values differ, so none "
+            "over one trajectory)"
+            if units
+            else "[n/a]: no interval (a bootstrap needs episodes whose values differ)"
         )
     return [f"Brackets: {level} intervals; {'; '.join(parts)}."]
 

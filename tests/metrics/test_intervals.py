@@ -10,6 +10,7 @@ import pytest
 
 from skyvln_eval.errors import MetricInputError
 from skyvln_eval.metrics import BINARY_METRICS, bootstrap_ci, summarise, wilson_interval
+from skyvln_eval.metrics.stats import wilson_interval_at
 
 
 def frame(**columns: list[float]) -> pd.DataFrame:
@@ -98,7 +99,25 @@ def test_a_pooled_share_with_no_failure_is_wilson_over_the_episodes() -> None:
     low, high, method = interval(
         summarise(one_failed, rates, n_resamples=100, ci_unit="episode"), rates[0]
     )
-    assert method == "bootstrap" and low < 100 / 30 < high
+    # One failed call never narrows the interval of none: the Wilson one at the pooled
+    # share, widened to the bootstrap's (which alone gave a bound below the none's).
+    assert method == "wilson_or_bootstrap" and low < 100 / 30 < high
+    assert high >= 27.75
+
+
+def test_a_failure_more_never_narrows_a_rates_trajectory_interval() -> None:
+    # An audit: 1 error in 30 episodes over 17 trajectories had the bootstrap's
+    # [0, 10.7]%, none the Wilson [0, 18.4]%: a failure made the interval tighter.
+    rounds = [[0.0, 0.0]] * 13 + [[0.0]] * 4  # 30 episodes, 17 trajectories
+    none = summarise(rounds_frame(rounds, "status_error"), ["status_error"], 1000)
+    one = [[1.0, 0.0], *rounds[1:]]
+    once = summarise(rounds_frame(one, "status_error"), ["status_error"], 1000)
+    _, high_none, method_none = interval(none, "status_error")
+    low, high, method = interval(once, "status_error")
+    assert method_none == "wilson_trajectories" and method == "wilson_or_trajectory_bootstrap"
+    assert high >= high_none and low < 100 / 30 < high
+    # Never claiming more trials than there are trajectories.
+    assert high >= 100 * wilson_interval_at(1 / 30, 17)[1]
 
 
 def test_a_continuous_metric_without_spread_has_no_interval() -> None:
@@ -129,10 +148,13 @@ def test_trajectory_intervals_draw_the_rounds_of_a_dialog_together() -> None:
     scores = rounds_frame(outcomes, "success").assign(spl=lambda f: f["success"] * 0.8)
     by_episode = summarise(scores, ["success", "spl"], n_resamples=2000, ci_unit="episode")
     by_trajectory = summarise(scores, ["success", "spl"], n_resamples=2000, ci_unit="trajectory")
-    for metric in ("success", "spl"):
+    for metric, made in (
+        ("success", "wilson_or_trajectory_bootstrap"),
+        ("spl", "trajectory_bootstrap"),
+    ):
         low_e, high_e, _ = interval(by_episode, metric)
         low_t, high_t, method = interval(by_trajectory, metric)
-        assert method == "trajectory_bootstrap"
+        assert method == made
         # 20 independent trials, not 60: the honest interval is about sqrt(3) wider.
         assert (high_t - low_t) > 1.4 * (high_e - low_e), metric
     same = by_trajectory.set_index("metric")

@@ -143,8 +143,7 @@ def test_a_table_says_how_its_intervals_were_made_and_shows_a_missing_one_as_suc
     assert "| Ten | 0.00 [n/a] | 0.00 [0.00, 27.75] |" in md
     note = (
         "Brackets: 95% intervals; Wilson score interval, the episodes as trials: SR/%; "
-        "[n/a]: no interval (a bootstrap needs units whose values differ: episodes, or with "
-        "trajectories as the unit, trajectories, so none over one trajectory)."
+        "[n/a]: no interval (a bootstrap needs episodes whose values differ)."
     )
     assert note in md and "bootstrap CI" not in md
     assert r"\textbf{100.00}\,{\scriptsize[n/a]}" in to_latex(table)
