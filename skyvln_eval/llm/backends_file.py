@@ -17,7 +17,9 @@ An entry of ``$SKYVLN_EVAL_BACKENDS`` (comma-separated) is either the name of su
 backend or a spec ``openai:<model>[@<base_url>]``; both resolve to a full
 :class:`~skyvln_eval.llm.config.LLMConfig` (cache, timeout, key variable, structured
 output, prices, concurrency, images), the spec with the file's defaults. The API key is
-never in the file: ``api_key_env`` names the variable it is read from.
+never in the file: ``api_key_env`` names the variable it is read from. A server's URL
+with credentials or a query is refused, in a file and in a spec (it would be the Table II
+row's label), and messages show it redacted.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ from pydantic import ValidationError
 
 from skyvln_eval.errors import ConfigError, UnknownNameError, describe_validation_error
 from skyvln_eval.fileio import load_yaml
-from skyvln_eval.llm.config import LLMConfig
+from skyvln_eval.llm.config import LLMConfig, shown_backend
 
 BACKENDS_FORMAT: Final = "skyvln-eval/llm-backends"
 BACKENDS_VERSION: Final = 1
@@ -106,16 +108,17 @@ def resolve_backend(entry: str, backends: BackendsFile) -> tuple[str, LLMConfig]
     """A table label and the full configuration of one backend entry (name or spec)."""
     if entry in backends.backends:
         return entry, backends.backends[entry]
+    shown = shown_backend(entry)  # the server's credentials or query (refused) left out
     if _SPEC.fullmatch(entry) is None:
         if backends.backends:
             raise UnknownNameError(
-                f"backend (in {backends.path})", entry, sorted(backends.backends)
+                f"backend (in {backends.path})", shown, sorted(backends.backends)
             )
         raise ConfigError(
-            f"{entry!r} is not 'openai:<model>' or 'openai:<model>@<base_url>', and no "
+            f"{shown!r} is not 'openai:<model>' or 'openai:<model>@<base_url>', and no "
             f"backends file names it (set ${BACKENDS_FILE_ENV})"
         )
-    where = f"backend {entry!r} with the defaults of {backends.path or 'the toolkit'}"
+    where = f"backend {shown!r} with the defaults of {backends.path or 'the toolkit'}"
     # The server is the entry's (none: OpenAI's), whatever the defaults say.
     config = _config({**backends.defaults, "backend": entry, "base_url": None}, where)
     label = config.backend.split(":", 1)[1] + (f" @ {config.base_url}" if config.base_url else "")

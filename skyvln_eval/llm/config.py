@@ -15,6 +15,7 @@ from skyvln_eval.llm.cache import ResponseCache
 from skyvln_eval.llm.client import LLMClient
 from skyvln_eval.llm.negotiation import StructuredSetting
 from skyvln_eval.llm.prices import load_prices
+from skyvln_eval.llm.redact import redacted_url, refuse_secrets_in_url
 from skyvln_eval.llm.registry import check_spec, create_backend
 from skyvln_eval.llm.retry import RetryPolicy
 from skyvln_eval.llm.types import GenerationConfig
@@ -73,9 +74,18 @@ _SERVER_WITHOUT_SCHEME = re.compile(
 )
 
 
+#: A URL's scheme and "://": a backend spec's server starts at the first one.
+_SCHEME = re.compile(r"[A-Za-z][A-Za-z0-9+.-]*://")
+
+
 def _checked_server(url: str, where: str) -> str:
-    """``url`` if it is an http(s) URL with a host; else the error says how to write it (a
-    server without its scheme went to OpenAI's as a model name, or failed every call)."""
+    """``url`` if it is an http(s) URL with a host and nothing secret in it (no credentials,
+    query or fragment); else the error says how to write it (a server without its scheme
+    went to OpenAI's as a model name, or failed every call). Errors show it redacted."""
+    try:
+        refuse_secrets_in_url(url, where)
+    except ConfigError as error:
+        raise ValueError(str(error)) from None
     parts = urllib.parse.urlsplit(url)
     if parts.scheme in ("http", "https") and parts.netloc:
         return url
@@ -84,6 +94,27 @@ def _checked_server(url: str, where: str) -> str:
     else:
         hint = ": a server is an http:// or https:// URL"
     raise ValueError(f"{where} {url!r} is not an http(s) URL with a host{hint}")
+
+
+def shown_backend(spec: str) -> str:
+    """A backend spec (or what was given as one) as messages show it: from its first URL
+    scheme on, else after its first '@', the server, perhaps with credentials or a query,
+    redacted by :func:`~skyvln_eval.llm.redact.redacted_url`."""
+    found = _SCHEME.search(spec)
+    if found is not None:
+        return spec[: found.start()] + redacted_url(spec[found.start() :])
+    name, at, rest = spec.partition("@")
+    return name + at + redacted_url(rest) if at else spec
+
+
+def _split_server(backend: str) -> tuple[str, str, str]:
+    """``backend`` as (spec, '@', server) like ``str.rpartition('@')``, but a server given
+    with its scheme starts at the '@' before its first scheme: the server may have an '@'
+    of its own ('openai:m@http://user:pw@host/v1' names 'http://user:pw@host/v1', refused)."""
+    found = _SCHEME.search(backend)
+    if found is None or not backend[: found.start()].endswith("@"):
+        return backend.rpartition("@")
+    return backend[: found.start() - 1], "@", backend[found.start() :]
 
 
 #: How :attr:`LLMConfig.answered_by` marks a backend whose server is sent the task data.
@@ -95,10 +126,14 @@ class LLMConfig(BaseModel):
     server and decoding settings, retries, repair, concurrency, cache and price table.
 
     The API key is never part of the configuration: ``api_key_env`` names the environment
-    variable it is read from. ``timeout_s`` bounds one attempt from connect to last byte
-    (a server that answers a byte at a time cannot stretch it), ``retry.deadline_s`` the
-    whole call with its retries (default ``timeout_s`` times ``retry.max_attempts``).
-    ``max_tokens`` is the budget of a call; ``budgets`` gives agent modules (those of
+    variable it is read from. A server (``base_url``, or the one a spec names after '@')
+    with credentials, a query or a fragment is refused: its URL is written into run
+    configs, episode logs, table labels and messages.
+
+    ``timeout_s`` bounds one attempt from connect to last byte (a server that answers a
+    byte at a time cannot stretch it), ``retry.deadline_s`` the whole call with its
+    retries (default ``timeout_s`` times ``retry.max_attempts``). ``max_tokens`` is the
+    budget of a call; ``budgets`` gives agent modules (those of
     :data:`LLM_MODULES`) their own, over :data:`DEFAULT_BUDGETS` (e.g. ``{motion: 1024}``
     changes only the motion module's). An unusable answer is asked for again ``repairs``
     times, at ``repair_temperature`` (above the first try's, so that the same mistake is not
@@ -149,20 +184,22 @@ class LLMConfig(BaseModel):
         server part was sent to api.openai.com."""
         if not isinstance(data, dict) or not isinstance(data.get("backend"), str):
             return data
-        spec, at, url = data["backend"].rpartition("@")
+        spec, at, url = _split_server(data["backend"])
+        shown = shown_backend(data["backend"])
         if at and (_SERVER_WITHOUT_SCHEME.fullmatch(url) or "://" in url):
             # A server without its scheme, or with another than http(s) ('@ftp://x' was
-            # part of a model name, sent to api.openai.com): raises, saying how to write it.
-            _checked_server(url, f"backend {data['backend']!r}: the server")
+            # part of a model name, sent to api.openai.com), or with credentials or a
+            # query: raises, saying how to write it.
+            _checked_server(url, f"backend {shown!r}: the server")
         if not at or not url.startswith(("http://", "https://")):
             return data  # no server named ('@' may be part of a model id: 'model@2024')
         if not spec.partition(":")[2]:
-            raise ValueError(f"backend {data['backend']!r}: expected '<backend>:<model>@<url>'")
+            raise ValueError(f"backend {shown!r}: expected '<backend>:<model>@<url>'")
         given = data.get("base_url")
         if given is not None and given != url:
             raise ValueError(
-                f"backend {data['backend']!r} names the server {url!r} and base_url is "
-                f"{given!r}: give it once"
+                f"backend {shown!r} names the server {url!r} and base_url is "
+                f"{redacted_url(str(given))!r}: give it once"
             )
         return {**data, "backend": spec, "base_url": url}
 

@@ -57,7 +57,6 @@ import os
 import ssl
 import threading
 import time
-import urllib.parse
 from collections.abc import Sequence
 from typing import Any, Final
 
@@ -101,7 +100,13 @@ from skyvln_eval.llm.openai_request import (
     reported_usage,
 )
 from skyvln_eval.llm.prices import VENDOR_SERVERS
-from skyvln_eval.llm.redact import excerpt, readable_body, scrub
+from skyvln_eval.llm.redact import (
+    excerpt,
+    readable_body,
+    redacted_url,
+    refuse_secrets_in_url,
+    scrub,
+)
 from skyvln_eval.llm.types import (
     STRUCTURED_LEVELS,
     Completion,
@@ -183,6 +188,8 @@ class OpenAIBackend(LLMBackend):
                 f"structured_output must be one of {', '.join(STRUCTURED_SETTINGS)}, "
                 f"got {structured_output!r}"
             )
+        if base_url is not None:  # as LLMConfig refuses it, for backends made without one
+            refuse_secrets_in_url(base_url, "base_url")
         self.model = model
         self.base_url = (base_url or OPENAI_BASE_URL).rstrip("/")
         self.api_key_env = api_key_env
@@ -251,14 +258,9 @@ class OpenAIBackend(LLMBackend):
         return scrub(text, self._secret())
 
     def _where(self) -> str:
-        """:attr:`endpoint` for messages: a password or query in the URL left out, the API
-        key never in it."""
-        url = urllib.parse.urlsplit(self.base_url)
-        netloc = url.netloc
-        if url.password:
-            netloc = netloc.replace(f":{url.password}@", ":[password]@", 1)
-        shown = urllib.parse.urlunsplit((url.scheme, netloc, url.path, "", ""))
-        return self._scrub(f"openai:{self.model}@{shown}{'?[query]' if url.query else ''}")
+        """:attr:`endpoint` for messages, the API key never in it (credentials and a query
+        are refused in ``base_url``; were one there, it would be left out too)."""
+        return self._scrub(f"openai:{self.model}@{redacted_url(self.base_url)}")
 
     def missing_key(self) -> str | None:
         # OpenAI's own server needs a key; local servers usually take any, or none.

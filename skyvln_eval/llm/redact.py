@@ -6,6 +6,10 @@ or form field percent-encodes it, Python's ``repr`` (the openai client's error m
 shows the parsed body so) escapes quotes and backslashes. Replacing the key's exact text
 misses all of those, so :func:`scrub` matches the key with every character in any of its
 forms, mixed as a server may mix them.
+
+Nothing in a server's URL is hidden this way: :func:`refuse_secrets_in_url` refuses a URL
+with credentials or a query as a server's, and :func:`redacted_url` is how
+messages show a URL that may hold either.
 """
 
 from __future__ import annotations
@@ -14,6 +18,8 @@ import functools
 import json
 import re
 from typing import Final
+
+from skyvln_eval.errors import ConfigError
 
 #: What the key is replaced by.
 REDACTED: Final = "[API key]"
@@ -70,3 +76,69 @@ def excerpt(raw: str, key: str | None, chars: int = EXCERPT_CHARS) -> str:
     cleaned = scrub(raw, key)
     shown = cleaned[:chars] + ("…" if len(cleaned) > chars else "")
     return repr(shown)
+
+
+def _url_parts(url: str) -> tuple[str, str, str, str, str]:
+    """``url`` as (scheme with "://", credentials, the rest of its server and path, query,
+    fragment), split by hand: ``urllib.parse`` raises on some malformed URLs (a bad port,
+    an unclosed '['), and a message about a URL must never fail. The credentials are all
+    up to the last '@' before the path ends, so a password with a '/' in it is all in
+    them."""
+    scheme, sep, rest = url.partition("://")
+    if not sep:
+        scheme, rest = "", url
+    rest, hash_sign, fragment = rest.partition("#")
+    rest, question_mark, query = rest.partition("?")
+    credentials, at, address = rest.rpartition("@")
+    return (
+        scheme + sep,
+        credentials + at,
+        address,
+        question_mark + query,
+        hash_sign + fragment,
+    )
+
+
+def redacted_url(url: str) -> str:
+    """``url`` as messages show it: its credentials ("user:password@") as
+    ``[credentials]@``, its query as ``?[query]``, its fragment as ``#[fragment]``."""
+    scheme, credentials, address, query, fragment = _url_parts(url)
+    return (
+        scheme
+        + ("[credentials]@" if credentials else "")
+        + address
+        + ("?[query]" if query else "")
+        + ("#[fragment]" if fragment else "")
+    )
+
+
+def refuse_secrets_in_url(url: str, where: str) -> None:
+    """Raise :class:`ConfigError` when ``url``, which names a server, holds credentials, a
+    query or a fragment, saying what to use instead; the error shows the URL redacted.
+    What a server's URL holds is written everywhere the server is named (run configs, the
+    episode logs, table labels, run folder names, messages), so none of it may be secret;
+    refused on load, nothing of it reaches any of those. A '@' in a path (which no server
+    of the toolkit's needs) reads as credentials too: written ``%40``, it is accepted."""
+    _, credentials, _, query, fragment = _url_parts(url)
+    held, instead = [], []
+    if credentials:
+        held.append("credentials (user:password@)")
+        instead.append(
+            "the API key comes from the environment variable named by api_key_env (default "
+            "OPENAI_API_KEY) and is sent as a bearer token"
+        )
+    if query:
+        held.append("a query string")
+        instead.append(
+            "query parameters are not supported (fields to add to every request body go in "
+            "extra_body)"
+        )
+    if fragment:
+        held.append("a fragment")
+        instead.append("a fragment is no part of a server's address")
+    if held:
+        raise ConfigError(
+            f"{where} {redacted_url(url)!r} has {' and '.join(held)} in it, which would be "
+            f"written wherever the server is named (configs, logs, labels, messages): "
+            f"{'; '.join(instead)}"
+        )

@@ -7,7 +7,7 @@ import ssl
 
 import pytest
 
-from skyvln_eval.errors import LLMAuthError, LLMError
+from skyvln_eval.errors import ConfigError, LLMAuthError, LLMError
 from skyvln_eval.llm import (
     GenerationConfig,
     ImagePart,
@@ -113,22 +113,36 @@ def test_refused_credentials_stop_at_once_naming_the_key_variable() -> None:
     assert "HTTP 401" in str(refused.value)
 
 
-def test_a_dead_endpoint_is_named_without_its_secrets(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_dead_endpoint_is_named_without_the_key(monkeypatch: pytest.MonkeyPatch) -> None:
     import socket
 
     with socket.socket() as probe:  # a port nothing listens on
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
     monkeypatch.setenv("DEAD_KEY", "sk-very-secret")
-    base_url = f"http://user:hunter2@127.0.0.1:{port}/v1?api-key=sk-in-the-url"
+    base_url = f"http://127.0.0.1:{port}/v1"
     backend = create_backend("openai:gpt-4o-mini", base_url=base_url, api_key_env="DEAD_KEY")
     retry = RetryPolicy(max_attempts=2, initial_delay_s=0.0, max_delay_s=0.0)
     result = LLMClient(backend, retry=retry, sleep=lambda _: None).call("motion", HELLO, CONFIG)
     assert result.completion is None and result.error is not None
-    where = f"openai:gpt-4o-mini@http://user:[password]@127.0.0.1:{port}/v1?[query]"
+    where = f"openai:gpt-4o-mini@{base_url}"
     assert f"{where}: connection failed or body cut short" in result.error
     for text in [result.error, *(r.error or "" for r in result.records)]:
-        assert "hunter2" not in text and "sk-" not in text
+        assert "sk-" not in text
+
+
+def test_a_server_url_with_a_password_or_a_query_is_refused_without_showing_them() -> None:
+    # Before, a backend made with one masked them in its own messages only: the price
+    # warning, run configs, labels and logs had them, and the client sent the password as
+    # Basic auth instead of the key. Refused, they reach nothing.
+    base_url = "http://user:hunter2@127.0.0.1:9/v1?api-key=sk-in-the-url"
+    with pytest.raises(ConfigError) as refused:
+        create_backend("openai:gpt-4o-mini", base_url=base_url, api_key_env="DEAD_KEY")
+    assert str(refused.value).startswith(
+        "base_url 'http://[credentials]@127.0.0.1:9/v1?[query]' has credentials "
+        "(user:password@) and a query string in it"
+    )
+    assert "hunter2" not in str(refused.value) and "sk-" not in str(refused.value)
 
 
 def test_a_context_overflow_is_its_own_failure_and_keeps_structured_output() -> None:
