@@ -168,8 +168,10 @@ def refuse_schema(content: str) -> Reply:
 
 def key_forms(key: str) -> dict[str, str]:
     """The forms :func:`echo_key` writes the key in: as sent, JSON-escaped with ``/`` as
-    ``\\/``, every character ``\\uXXXX``-escaped, half of them so (mixed), and URL-encoded
-    as a path (``quote``) and as a form field (``quote_plus``)."""
+    ``\\/``, every character ``\\uXXXX``-escaped, half of them so (mixed), URL-encoded
+    as a path (``quote``) and as a form field (``quote_plus``), and in base64 as a server
+    that echoes the ``Authorization`` header may show it: the key's own (standard, and
+    URL-safe without padding) and the token of Basic auth with the key as password."""
     slashed = json.dumps(key)[1:-1].replace("/", "\\/")
     mixed = "".join(f"\\u{ord(c):04x}" if k % 2 else json.dumps(c)[1:-1] for k, c in enumerate(key))
     return {
@@ -179,6 +181,9 @@ def key_forms(key: str) -> dict[str, str]:
         "mixed": mixed,
         "url": urllib.parse.quote(key, safe=""),
         "url_plus": urllib.parse.quote_plus(key),
+        "base64": base64.b64encode(key.encode()).decode(),
+        "base64_url": base64.urlsafe_b64encode(key.encode()).decode().rstrip("="),
+        "basic_auth": base64.b64encode(f"user:{key}".encode()).decode(),
     }
 
 
@@ -190,7 +195,9 @@ def _key_echo_body(authorization: str) -> bytes:
     text = (
         '{"error": {"message": "Incorrect API key provided: '
         + forms["json_slash"]
-        + '", '
+        + " (Authorization: Basic "
+        + forms["basic_auth"]
+        + ')", '
         + fields
         + ', "code": "invalid_api_key"}}'
     )

@@ -5,18 +5,22 @@ always as typed: JSON may escape any character as ``\\uXXXX`` and ``/`` as ``\\/
 or form field percent-encodes it, Python's ``repr`` (the openai client's error message
 shows the parsed body so) escapes quotes and backslashes. Replacing the key's exact text
 misses all of those, so :func:`scrub` matches the key with every character in any of its
-forms, mixed as a server may mix them.
+forms, mixed as a server may mix them. A server that echoes the ``Authorization`` header
+shows the key in base64 (``Basic base64(user:key)``, or the key alone): any base64 text
+(standard or URL-safe, padded or not) that holds the key is replaced too.
 
 Nothing in a server's URL is hidden this way: :func:`refuse_secrets_in_url` refuses a URL
-with credentials or a query as a server's, and :func:`redacted_url` is how
-messages show a URL that may hold either.
+with credentials or a query as a server's, and :func:`redacted_url` is how messages show
+a URL that may hold either.
 """
 
 from __future__ import annotations
 
+import base64
 import functools
 import json
 import re
+import string
 from typing import Final
 
 from skyvln_eval.errors import ConfigError
@@ -51,14 +55,66 @@ def _key_pattern(key: str) -> re.Pattern[str]:
     return re.compile("".join(parts), re.IGNORECASE)
 
 
+#: The characters of base64 text, standard or URL-safe, and its padding.
+_BASE64_CHARS: Final = frozenset(string.ascii_letters + string.digits + "+/-_")
+
+
+def _base64_cores(key: str) -> list[str]:
+    """The base64 characters that the key's bytes alone decide, wherever it starts in the
+    encoded text: base64 packs 3 bytes into 4 characters, so the key's encoding depends on
+    its offset modulo 3 (after "user:" in a Basic header it is not the key's own). The 1-3
+    characters at each end that share bits with the text around the key are left out."""
+    raw = key.encode("utf-8")
+    cores = []
+    for offset in range(3):
+        encoded = base64.b64encode(bytes(offset) + raw).decode("ascii")
+        start = -(-8 * offset // 6)  # characters that hold a bit of the bytes before the key
+        end = 8 * (offset + len(raw)) // 6  # characters made of those bytes only
+        cores.append(encoded[start:end])
+    return cores
+
+
+@functools.lru_cache(maxsize=8)
+def _base64_pattern(key: str) -> re.Pattern[str]:
+    """The key's :func:`_base64_cores`, standard and URL-safe, in any of
+    :func:`_char_forms`' escapings (JSON may write ``/`` as ``\\/``)."""
+    cores = []
+    for core in _base64_cores(key):
+        for alphabet in (core, core.translate(str.maketrans("+/", "-_"))):
+            cores.append("".join("(?:" + "|".join(_char_forms(char)) + ")" for char in alphabet))
+    return re.compile("|".join(cores), re.IGNORECASE)
+
+
+def _scrub_base64(text: str, key: str) -> str:
+    """``text`` with each base64 run that holds the key replaced whole, its ends (which hold
+    bits of the key too) and padding included. The run is widened by hand, not by the
+    pattern: a leading ``[A-Za-z0-9+/_-]*`` would make the search quadratic in a long run."""
+    pieces = []
+    done = 0
+    for found in _base64_pattern(key).finditer(text):
+        if found.start() < done:  # inside the run replaced last
+            continue
+        start, end = found.start(), found.end()
+        while start > done and text[start - 1] in _BASE64_CHARS:
+            start -= 1
+        while end < len(text) and text[end] in _BASE64_CHARS:
+            end += 1
+        while end < len(text) and text[end] == "=":
+            end += 1
+        pieces += [text[done:start], REDACTED]
+        done = end
+    return "".join(pieces) + text[done:]
+
+
 def scrub(text: str, key: str | None) -> str:
-    """``text`` with every occurrence of ``key`` replaced, in whatever escaping (see the
-    module docstring). Matching ignores case: a hex escape may be written either way, and
-    hiding a look-alike of the key costs nothing. A key shorter than
-    :data:`SHORTEST_SECRET` characters is a placeholder and is left as it is."""
+    """``text`` with every occurrence of ``key`` replaced, in whatever escaping, and every
+    base64 text that holds it (see the module docstring). Matching ignores case: a hex
+    escape may be written either way, and hiding a look-alike of the key costs nothing. A
+    key shorter than :data:`SHORTEST_SECRET` characters is a placeholder and is left as it
+    is."""
     if not key or len(key) < SHORTEST_SECRET:
         return text
-    return _key_pattern(key).sub(REDACTED, text)
+    return _scrub_base64(_key_pattern(key).sub(REDACTED, text), key)
 
 
 def readable_body(raw: str) -> str:

@@ -4,6 +4,7 @@ HTTP 200, a ``finish_reason`` of null."""
 
 from __future__ import annotations
 
+import base64
 import json
 from pathlib import Path
 from typing import Any
@@ -51,6 +52,27 @@ def test_every_escaped_form_of_the_key_is_scrubbed() -> None:
     # would garble the error ("chatcmpl-fa[API key]e" once for a key "k").
     assert scrub("chatcmpl-fake: max tokens exceeded", "x") == "chatcmpl-fake: max tokens exceeded"
     assert scrub("key abcd1234 refused", "abcd1234") == f"key {REDACTED} refused"
+
+
+def test_every_base64_form_of_the_key_is_scrubbed_whole() -> None:
+    # A server that echoed "Authorization: Basic base64(user:key)" put the key into
+    # stderr, run.json, results.jsonl and the MCAPs: the scrub knew the key's text only.
+    for prefix in ["", "u:", "us:", "user:"]:  # each offset of the key in base64's 3 bytes
+        raw = (prefix + KEY).encode()
+        encoded = {
+            "standard": base64.b64encode(raw).decode(),
+            "unpadded": base64.b64encode(raw).decode().rstrip("="),
+            "url_safe": base64.urlsafe_b64encode(raw).decode(),
+            "url_safe_unpadded": base64.urlsafe_b64encode(raw).decode().rstrip("="),
+        }
+        for name, form in encoded.items():
+            header = f'{{"echo": "Authorization: Basic {form}"}}'
+            assert scrub(header, KEY) == f'{{"echo": "Authorization: Basic {REDACTED}"}}', name
+            slashed = header.replace("/", "\\/")  # JSON's \/ inside the base64 text
+            assert form[4:-4] not in scrub(slashed, KEY).replace("\\/", "/"), name
+    # Base64 of something else is left as it is.
+    other = base64.b64encode(b"user:another-key-entirely").decode()
+    assert scrub(f"Basic {other}", KEY) == f"Basic {other}"
 
 
 @pytest.mark.parametrize("code", [400, 401, 500])
