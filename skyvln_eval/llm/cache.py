@@ -16,7 +16,10 @@ in WAL mode with a busy timeout, the schema and format record are created if abs
 one ``BEGIN IMMEDIATE`` transaction, and the decision to move a file aside is taken under
 an OS lock on ``<cache>.lock``, after opening again, so that a database another process
 has just created (or repaired) is never mistaken for a corrupt one. A cache that is only
-busy or unwritable is left as it is and this process runs without it.
+busy or unwritable is left as it is. This process then reads it without writing (a
+read-only file, folder or file system: its answers are served, new ones not stored;
+said once per file, and :attr:`ResponseCache.read_only`), or runs without it when even
+that fails (:attr:`ResponseCache.problem` says why).
 """
 
 from __future__ import annotations
@@ -91,6 +94,28 @@ def _checksum(payload: str) -> str:
     return hashlib.sha256(payload.encode("utf-8")).hexdigest()
 
 
+def _check_format(conn: sqlite3.Connection) -> None:
+    """Raise :class:`_NotOurCache` unless ``conn``'s meta table names this format and version."""
+    found = dict(conn.execute("SELECT key, value FROM meta").fetchall())
+    if found.get("format") != CACHE_FORMAT or found.get("version") != str(CACHE_VERSION):
+        raise _NotOurCache(
+            f"format {found.get('format')!r} version {found.get('version')!r}, "
+            f"expected {CACHE_FORMAT!r} version {CACHE_VERSION}"
+        )
+
+
+def resolve_cache_path(cache_path: str, out_dir: str | Path) -> str:
+    """Where ``cache_path`` is: a relative path is taken inside the output folder
+    ``out_dir`` (a run's ``--out``, a plan's), with everything else the run writes, not in
+    the working directory; an absolute one is kept. The one rule for runs and plans."""
+    return cache_path if Path(cache_path).is_absolute() else str(Path(out_dir) / cache_path)
+
+
+#: The caches said to be read-only in this process: said once, not once per client.
+_told_read_only: set[Path] = set()
+_told_lock = threading.Lock()
+
+
 class ResponseCache:
     """SQLite-backed cache of completions, safe to share between threads."""
 
@@ -98,13 +123,20 @@ class ResponseCache:
         self.path = Path(path)
         self._lock = threading.Lock()
         self._conn: sqlite3.Connection | None = None
+        #: Answers are read from the file but not stored (it cannot be written).
+        self.read_only = False
+        #: Why the cache cannot be written (read-only) or used at all (``usable`` false).
+        self.problem: str | None = None
         try:
             self._conn = self._open_when_free()
-        except (_NotOurCache, sqlite3.DatabaseError) as error:
+        except (_NotOurCache, sqlite3.DatabaseError, OSError) as error:  # OSError: no folder
             if _corrupt(error):
-                self._conn = self._repair(error)
+                try:
+                    self._conn = self._repair(error)
+                except OSError as unrepaired:  # no lock nor rename in a read-only folder
+                    self._conn = self._open_for_reading(error, unrepaired)
             else:  # busy, read-only, I/O: not the file's fault, so it is left alone
-                log.error("LLM cache %s cannot be opened (%s); caching is off", self.path, error)
+                self._conn = self._open_for_reading(error)
 
     def _open_when_free(self) -> sqlite3.Connection:
         """:meth:`_open`, tried again while another connection holds the file: switching
@@ -144,16 +176,63 @@ class ResponseCache:
                 "INSERT OR IGNORE INTO meta VALUES (?, ?)",
                 [("format", CACHE_FORMAT), ("version", str(CACHE_VERSION))],
             )
-            found = dict(conn.execute("SELECT key, value FROM meta").fetchall())
             conn.execute("COMMIT")
-            if found.get("format") != CACHE_FORMAT or found.get("version") != str(CACHE_VERSION):
-                raise _NotOurCache(
-                    f"format {found.get('format')!r} version {found.get('version')!r}, "
-                    f"expected {CACHE_FORMAT!r} version {CACHE_VERSION}"
-                )
+            _check_format(conn)
         except BaseException:
             conn.close()
             raise
+        return conn
+
+    def _open_read_only(self) -> sqlite3.Connection:
+        """The file opened for reading only (``mode=ro``, never created). A WAL database
+        also needs its ``-shm`` index, which a read-only folder cannot hold; without a
+        ``-wal`` file (whose answers the main file would lack) it is then read as
+        ``immutable``: nothing else can be writing it."""
+        uri = self.path.resolve().as_uri()
+        try:
+            return self._connect_for_reading(f"{uri}?mode=ro")
+        except sqlite3.Error:
+            if self.path.with_name(self.path.name + "-wal").exists():
+                raise
+        return self._connect_for_reading(f"{uri}?mode=ro&immutable=1")
+
+    @staticmethod
+    def _connect_for_reading(uri: str) -> sqlite3.Connection:
+        conn = sqlite3.connect(
+            uri, uri=True, check_same_thread=False, timeout=BUSY_TIMEOUT_S, isolation_level=None
+        )
+        try:
+            _check_format(conn)  # the first read opens the file
+        except BaseException:
+            conn.close()
+            raise
+        return conn
+
+    def _open_for_reading(
+        self, error: BaseException, also: BaseException | None = None
+    ) -> sqlite3.Connection | None:
+        """After ``error`` (and ``also``) kept the cache from being opened for writing: the
+        cache read-only, its answers served but new ones not stored, or ``None`` (caching
+        off) when it cannot even be read."""
+        reason = str(error) + (f"; {also}" if also is not None else "")
+        try:
+            conn = self._open_read_only()
+        except (_NotOurCache, sqlite3.Error) as unread:
+            self.problem = f"{reason}; read-only too: {unread}"
+            log.error("LLM cache %s cannot be opened (%s); caching is off", self.path, self.problem)
+            return None
+        self.read_only = True
+        self.problem = reason
+        with _told_lock:
+            told = self.path.resolve() in _told_read_only
+            _told_read_only.add(self.path.resolve())
+        if not told:
+            log.warning(
+                "LLM cache %s cannot be written (%s): it is read-only, its answers are read "
+                "from it and new ones are not stored",
+                self.path,
+                reason,
+            )
         return conn
 
     def _repair(self, error: BaseException) -> sqlite3.Connection | None:
@@ -163,15 +242,13 @@ class ResponseCache:
                 return self._open()  # another process may have repaired it meanwhile
             except (_NotOurCache, sqlite3.DatabaseError) as again:
                 if not _corrupt(again):
-                    log.error(
-                        "LLM cache %s cannot be opened (%s); caching is off", self.path, again
-                    )
-                    return None
+                    return self._open_for_reading(again)
             aside = self._move_aside()
             log.warning("LLM cache %s is unusable (%s); moved to %s", self.path, error, aside)
             try:
                 return self._open()
             except sqlite3.Error as fresh:  # e.g. a read-only folder: run without a cache
+                self.problem = f"cannot be created: {fresh}"
                 log.error("LLM cache %s cannot be created (%s); caching is off", self.path, fresh)
                 return None
 
@@ -221,8 +298,9 @@ class ResponseCache:
             return None
 
     def put(self, key: str, completion: Completion) -> None:
-        """Store ``completion`` under ``key`` (replacing any corrupt entry); never raises."""
-        if self._conn is None:
+        """Store ``completion`` under ``key`` (replacing any corrupt entry); never raises.
+        A read-only cache stores nothing (it said so when opened)."""
+        if self._conn is None or self.read_only:
             return
         payload = json.dumps(
             {name: getattr(completion, name) for name in (*_FIELDS, *_LATER_FIELDS, *_LATER_COUNTS)}

@@ -107,6 +107,13 @@ class LLMClient:
             raise ConfigError(f"max_concurrency must be >= 1, got {self.max_concurrency}")
         if self.backend.kind == "replay" and self.cache is None:
             raise ConfigError("the replay backend answers only from a cache: set a cache path")
+        if self.backend.kind == "replay" and self.cache is not None and not self.cache.usable:
+            # Refused here, with the reason: every call would miss, and each miss would
+            # blame the cache's contents ("no cached answer") for what its file did.
+            raise ConfigError(
+                f"the replay backend answers only from a cache, and {self.cache.path} cannot "
+                f"be opened ({self.cache.problem or 'closed'})"
+            )
         self._slots = threading.BoundedSemaphore(self.max_concurrency)
         self._made: list[LlmCall] = []
         self._made_lock = threading.Lock()
