@@ -41,6 +41,7 @@ from skyvln_eval.harness.executors import ExecutorKind
 from skyvln_eval.harness.preflight import check_keys
 from skyvln_eval.llm.backends_file import backends_file_from_env
 from skyvln_eval.llm.backends_file import environment_backends as _environment_backends
+from skyvln_eval.llm.cache import resolve_cache_path
 from skyvln_eval.metrics.aggregate import CiUnit
 from skyvln_eval.sensing import SensorConfig
 
@@ -237,9 +238,9 @@ def _kept_answers(llm: dict[str, Any], out_dir: Path) -> dict[str, Any]:
     ``cache_path`` is taken inside ``--out``, with everything else the plan writes, not in
     the working directory."""
     cache = llm.get("cache_path")
-    if cache and not Path(cache).is_absolute():
-        return {**llm, "cache_path": str(out_dir / cache)}
-    if not cache and str(llm.get("backend", "")).startswith(("openai:", "replay:")):
+    if cache:
+        return {**llm, "cache_path": resolve_cache_path(str(cache), out_dir)}
+    if str(llm.get("backend", "")).startswith(("openai:", "replay:")):
         return {**llm, "cache_path": str(out_dir / "llm-cache.sqlite")}
     return llm
 

@@ -46,6 +46,7 @@ from skyvln_eval.fileio import (
 )
 from skyvln_eval.harness.config import HOW_IT_RUNS, RunConfig, run_config_from_mapping
 from skyvln_eval.harness.executors import Executor, NoWorkerLeft, make_executor
+from skyvln_eval.harness.llm_caches import cache_notes
 from skyvln_eval.harness.lock import RunDirLock, hold_run_dir, remove_leftover_temporaries
 from skyvln_eval.harness.preflight import preflight
 from skyvln_eval.harness.provenance import mixed_versions_note, record_launch
@@ -558,10 +559,12 @@ def prepare_job(config: RunConfig, run_dir: str | Path, retry_failed: bool = Fal
         leftovers = remove_leftover_temporaries(run_dir, RUN_FILES, RUN_FOLDERS)
         store = ResultStore(run_dir)
         check_own_rows(config, store.results(), run_dir / RESULTS_FILE)
+        # In the run directory, which exists now: a relative cache_path is placed there.
+        said_of_caches = cache_notes(config.agent, run_dir, f"run {config.system!r}")
     except BaseException:
         lock.release()
         raise
-    notes = store.recovery.messages()
+    notes = store.recovery.messages() + said_of_caches
     if leftovers:
         notes.append(f"removed {leftovers} temporary file(s) left by an interrupted run")
     cap = speed_cap_note(config)

@@ -43,6 +43,7 @@ from skyvln_eval.harness.config import RunConfig
 from skyvln_eval.harness.control_messages import ns
 from skyvln_eval.harness.dynamics_loop import DynamicsRollout, run_dynamics_episode
 from skyvln_eval.harness.executors import TASK_FAILURES
+from skyvln_eval.harness.llm_caches import caches_in
 from skyvln_eval.harness.official_loop import OfficialRollout, run_official_episode
 from skyvln_eval.harness.oracle import ground_truth_oracle, is_oracle
 from skyvln_eval.harness.rollout import CallsMade
@@ -146,12 +147,13 @@ def _controller(name: str, settings_json: str) -> Controller:
     return cache[key]
 
 
-def _agent(config: RunConfig, episode: Episode, seed: int) -> Agent:
-    """The run's agent for ``episode``; the ground-truth replay is an oracle the harness
-    builds from the episode (no agent is given the route)."""
+def _agent(config: RunConfig, episode: Episode, seed: int, run_dir: str) -> Agent:
+    """The run's agent for ``episode``, its relative response cache paths taken inside
+    ``run_dir``; the ground-truth replay is an oracle the harness builds from the episode
+    (no agent is given the route)."""
     if is_oracle(config.agent.name):
         return ground_truth_oracle(episode)
-    return build_agent(config.agent.model_copy(update={"seed": seed}))
+    return build_agent(caches_in(config.agent.model_copy(update={"seed": seed}), run_dir))
 
 
 def log_path(run_dir: str | Path, split: str, episode_id: str) -> Path:
@@ -286,7 +288,7 @@ def run_episode_task(task: EpisodeTask) -> EpisodeResult:
             )
         world = _world(task.data_dir, episode.map_name, episode.georef)
         seed = run_episode_seed(config.seed, task.split, task.episode_id)
-        agent = _agent(config, episode, seed)
+        agent = _agent(config, episode, seed, task.run_dir)
         if task.fresh_answers:
             for client in agent.llm_clients():
                 client.read_cache = False
