@@ -315,7 +315,7 @@ def _print_summary(
         oracle_label,
         stand_in_systems,
     )
-    from skyvln_eval.reports.tables import ERRORS_MEANING, SOME_ERRORS
+    from skyvln_eval.reports.tables import ERRORS_MEANING, SOME_ERRORS, cached_calls_note
 
     title = "scores"
     if warnings:
@@ -336,6 +336,7 @@ def _print_summary(
     stand_ins = stand_in_systems(scores)
     stand_in_labels = marked_labels(stand_ins)
     printed_cells: list[str] = []
+    cached: list[str] = []
     for (sys_name, split_name, mode_name), group in summary.groupby(
         ["system", "split", "mode"], sort=True
     ):
@@ -346,6 +347,10 @@ def _print_summary(
         name = oracle_label(name) if name in oracles else stand_in_labels.get(name, name)
         where = (name, str(split_name), *((str(mode_name),) if modes else ()))
         table.add_row(*where, str(int(group.n.max())), *cells)
+        share = _cached_share(scores, (sys_name, split_name, mode_name))
+        if share is not None:
+            in_mode = f" ({mode_name})" if modes else ""
+            cached.append(f"{name} on {split_name}{in_mode}: {share:.0f}%")
     console = Console(width=160)
     for warning in warnings:
         console.print(f"WARNING: {warning}", style="bold red", markup=False, highlight=False)
@@ -358,8 +363,26 @@ def _print_summary(
         console.print(STAND_IN_MARKERS[kind][1], markup=False, highlight=False)
     if any(cell.endswith(SOME_ERRORS) or cell == "error" for cell in printed_cells):
         console.print(ERRORS_MEANING, markup=False, highlight=False)
+    if cached:  # as Table II says it: a cached answer counts the cost of the call that made it
+        note = cached_calls_note(cached, "their Cost is that")
+        console.print(note, markup=False, highlight=False)
     for warning in warnings:  # again below the table, where the eye lands
         console.print(f"WARNING: {warning}", style="bold red", markup=False, highlight=False)
+
+
+def _cached_share(scores: pd.DataFrame, row: tuple[Any, Any, Any]) -> float | None:
+    """The share (%) of the LLM calls of ``row`` (system, split, mode) answered from the
+    response cache, or ``None`` when none was (or the scores do not count calls)."""
+    if "llm_cached_calls" not in scores or "llm_calls" not in scores:
+        return None
+    system, split, mode = (str(value) for value in row)
+    episodes = scores[
+        (scores["system"].astype(str) == system)
+        & (scores["split"].astype(str) == split)
+        & (scores["mode"].astype(str) == mode)
+    ]
+    calls, cached = episodes["llm_calls"].sum(), episodes["llm_cached_calls"].sum()
+    return 100.0 * cached / calls if calls > 0 and cached > 0 else None
 
 
 def _ci_unit(text: str | None) -> CiUnit:

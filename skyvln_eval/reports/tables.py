@@ -521,13 +521,17 @@ def _cached_notes(
             calls, cached = (_summary_mean(index, (row, split, metric)) for metric in CACHE_METRICS)
             if calls and cached:
                 parts.append(f"{row} on {titles[split]}: {100.0 * cached / calls:.0f}%")
-    if not parts:
-        return []
-    return [
-        "Replayed from the response cache (their Cost and LLM s are those of the calls "
-        f"that made them; this run neither paid nor waited for them): {'; '.join(parts)} "
-        "of the LLM calls."
-    ]
+    return [cached_calls_note(parts, "their Cost and LLM s are those")] if parts else []
+
+
+def cached_calls_note(parts: Sequence[str], counted: str) -> str:
+    """The note on answers replayed from the response cache: ``parts`` their share of each
+    row's calls ("sys on split: 40%"), ``counted`` the columns they count in ("their Cost
+    is that"). Said by the tables and the score printout alike."""
+    return (
+        f"Replayed from the response cache ({counted} of the calls that made them; this run "
+        f"neither paid nor waited for them): {'; '.join(parts)} of the LLM calls."
+    )
 
 
 def _error_notes(

@@ -1,7 +1,8 @@
 """What the scores, the plan and the printouts refuse or say, where a table would
 otherwise show a number that is not what it claims: a row cut short, a cell that is not
 a number, a split no table has, two rows of a plan in one folder; the score printout's
-error cells and stand-in markers, an interval note that names the cells of each method."""
+error cells, stand-in markers and answers from the cache, an interval note that names the
+cells of each method."""
 
 from __future__ import annotations
 
@@ -9,11 +10,12 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from typer.testing import CliRunner
+from typer.testing import CliRunner, Result
 
 from skyvln_eval.cli import app
 from skyvln_eval.errors import ConfigError, DataError, ResultRecordError
 from skyvln_eval.harness.plan import load_plan, planned_runs
+from skyvln_eval.llm_records import LlmCall
 from skyvln_eval.metrics import MetricConventions, score_results
 from skyvln_eval.metrics.results_io import write_results
 from skyvln_eval.metrics.scores_io import read_scores, scores_warnings, write_scores
@@ -115,6 +117,34 @@ def test_the_score_printout_shows_errors_and_stand_ins_as_the_tables_do(tmp_path
     assert "rule †" in table_rows
     assert "† LLM modules answered by the rule-based stand-in" in scored.output
     assert "'error': every episode of the cell did." in scored.output
+
+
+def _score(results: Path, out: Path) -> Result:
+    return CliRunner().invoke(app, ["score", str(results), "--out", str(out), "--resamples", "0"])
+
+
+def test_the_score_printout_says_which_costs_came_from_the_cache(tmp_path: Path) -> None:
+    """As Table II's note and the run's progress line do: a replayed answer counts the
+    cost of the call that made it (an audit: the printout's Cost column said nothing)."""
+
+    def call(cached: bool) -> LlmCall:
+        return LlmCall(module="motion", backend="openai", model="m", cost_usd=0.01, cached=cached)
+
+    rows = [
+        result(GOAL, GOAL, system="replayed", episode_id=f"1913__{k}_1", llm_calls=calls)
+        for k, calls in enumerate([(call(True), call(False)), (call(True), call(True))])
+    ]
+    rows += [result(GOAL, GOAL, system="paid", llm_calls=(call(False),))]
+    write_results(tmp_path / "results.jsonl", rows)
+    scored = _score(tmp_path / "results.jsonl", tmp_path / "s")
+    assert scored.exit_code == 0, scored.output
+    text = " ".join(scored.output.split())  # the console wraps long lines
+    assert "Replayed from the response cache (their Cost is that of the calls that made" in text
+    assert "replayed on val_seen: 75% of the LLM calls." in text
+    assert "paid on" not in text  # a row with no cached answer is not named
+    write_results(tmp_path / "paid.jsonl", rows[2:])
+    paid = _score(tmp_path / "paid.jsonl", tmp_path / "p")
+    assert paid.exit_code == 0 and "response cache" not in paid.output
 
 
 def _two_models() -> pd.DataFrame:
