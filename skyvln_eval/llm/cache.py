@@ -185,9 +185,9 @@ class ResponseCache:
 
     def _open_read_only(self) -> sqlite3.Connection:
         """The file opened for reading only (``mode=ro``, never created). A WAL database
-        also needs its ``-shm`` index, which a read-only folder cannot hold; without a
-        ``-wal`` file (whose answers the main file would lack) it is then read as
-        ``immutable``: nothing else can be writing it."""
+        also needs its ``-shm`` index, which a read-only folder cannot hold: it is then read
+        as ``immutable`` (without locks: on a read-only file system no one else writes it),
+        unless a ``-wal`` file exists, whose answers that would not see."""
         uri = self.path.resolve().as_uri()
         try:
             return self._connect_for_reading(f"{uri}?mode=ro")
