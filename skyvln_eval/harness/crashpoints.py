@@ -9,7 +9,8 @@ process with SIGKILL, which nothing can catch or clean up after. Without the var
 
 Sites: ``results-row`` (a row appended to ``results.jsonl``), ``run-log-start`` and
 ``run-log-end`` (an episode's run MCAP, still under its temporary name, after its static
-content and after its last message).
+content and after its last message), ``run-log-written`` (the run MCAP renamed into
+place, before its episode's row is recorded).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from collections import Counter
 from typing import BinaryIO, Final
 
 CRASH_ENV: Final = "SKYVLN_EVAL_CRASH_AT"
-SITES: Final = ("results-row", "run-log-start", "run-log-end")
+SITES: Final = ("results-row", "run-log-start", "run-log-end", "run-log-written")
 _passed: Counter[str] = Counter()
 
 

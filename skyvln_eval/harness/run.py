@@ -94,12 +94,23 @@ def is_relative_data(data: str) -> bool:
 
 def recorded_data_dir(run_dir: Path) -> Path | None:
     """The folder a relative ``data:`` path named when the run in ``run_dir`` was launched
-    (its ``run.json``), if recorded."""
-    try:
-        recorded = json.loads((run_dir / REPORT_FILE).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+    (its ``run.json``), if recorded; :class:`ConfigError` naming the file when it is there
+    but cannot be read (a damaged record silently lifted the check it is for, and a resume
+    then wrote the other folder into it)."""
+    path = run_dir / REPORT_FILE
+    if not path.exists():
         return None
-    value = recorded.get(RELATIVE_DATA_KEY) if isinstance(recorded, dict) else None
+    try:
+        recorded = json.loads(path.read_text(encoding="utf-8"))
+        if not isinstance(recorded, dict):
+            raise ValueError(f"a JSON {type(recorded).__name__}, not an object")
+    except (OSError, ValueError) as error:
+        raise ConfigError(
+            f"{path}: cannot be read ({error}); it records the folder the run's relative "
+            "data path named where it was launched, so the run cannot be checked against "
+            "it: restore the file, or give data as an absolute path"
+        ) from None
+    value = recorded.get(RELATIVE_DATA_KEY)
     return Path(value) if isinstance(value, str) else None
 
 

@@ -8,6 +8,7 @@ found, and its control log (dynamics mode) is read and checked, as ``score`` rea
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -15,10 +16,12 @@ from skyvln_eval.errors import AlteredGroundTruthError, ForeignRowsError, Skyvln
 from skyvln_eval.harness.lock import leftover_temporaries
 from skyvln_eval.harness.run import (
     CONFIG_FILE,
+    REPORT_FILE,
     RUN_FILES,
     RUN_FOLDERS,
     episode_files,
     file_damage,
+    log_path,
 )
 from skyvln_eval.harness.run_reading import is_run_directory
 from skyvln_eval.harness.store import RESULTS_FILE, ResultStore
@@ -64,6 +67,13 @@ def check_run_directory(run_dir: Path) -> RunCheck:
     results = store.results()
     check.rows = len(results)
     results_file = run_dir / RESULTS_FILE
+    report = run_dir / REPORT_FILE
+    if report.exists():  # rewritten by every launch, but its record of the data is read
+        try:
+            if not isinstance(json.loads(report.read_text(encoding="utf-8")), dict):
+                raise ValueError("not a JSON object")
+        except (OSError, ValueError) as error:
+            check.problems.append(f"{report}: cannot be read ({error})")
     for row in store.recovery.damaged:
         check.problems.append(f"{results_file} line {row.line}: damaged row ({row.reason})")
     superseded = store.recovery.superseded
@@ -81,9 +91,17 @@ def check_run_directory(run_dir: Path) -> RunCheck:
             f"e.g. {leftovers[0].relative_to(run_dir)} (the next run or resume removes them)"
         )
     for result in results:
-        if result.status == "error" or result.stopped_the_run:
-            continue  # an episode that raised wrote no files
         episode = f"episode {result.split}/{result.episode_id}"
+        if result.status == "error" or result.stopped_the_run:
+            # An episode that raised keeps no files (its row's are removed as it is made).
+            stray = log_path(run_dir, result.split, result.episode_id)
+            if stray.is_file():
+                check.problems.append(
+                    f"{stray}: a run log of {episode}, whose row says it ended in error (a "
+                    "worker that died after writing it): the viewer would show it as it "
+                    "was written; resuming with --retry-failed runs the episode again"
+                )
+            continue
         for path in episode_files(config, run_dir, result):
             if path.suffix == ".mcap":  # its bytes are the MCAP validator's to check
                 if not path.is_file():

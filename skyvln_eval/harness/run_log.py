@@ -438,3 +438,4 @@ def _write_run_log(
             write_dialog_turn(writer, episode.episode_id, turn, index, 0)
         out.write(writer)
         crash_point("run-log-end")
+    crash_point("run-log-written")  # renamed into place: a worker that dies after it

@@ -400,9 +400,12 @@ def failed_result(
     every score as a failure, never dropped), the error with its traceback and the LLM
     calls it made (their cost and tokens count; see :class:`~.rollout.CallsMade`).
     ``fatal`` says why no further episode can succeed either (refused credentials, a
-    replay's cache miss): the run stops. The row has no control log, so a control log the
-    episode wrote before it raised or its worker died is removed: no orphan beside it."""
+    replay's cache miss): the run stops. The row has no control log nor run log, so those
+    the episode wrote before it raised or its worker died are removed: no orphan beside it
+    (a worker that died after writing its run log left a log saying ``ok`` beside a row
+    saying ``error``)."""
     (Path(task.run_dir) / control_log_name(task.split, task.episode_id)).unlink(missing_ok=True)
+    log_path(task.run_dir, task.split, task.episode_id).unlink(missing_ok=True)
     extra: dict[str, Any] = {
         **config_marks(config, task.config_json),
         "oracle": is_oracle(config.agent.name),

@@ -18,6 +18,8 @@ import yaml
 from skyvln_eval.converters.validate import check_log
 from skyvln_eval.harness import RunConfig, make_executor, run
 from skyvln_eval.harness.crashpoints import CRASH_ENV, SITES
+from skyvln_eval.harness.run_check import check_run_directory
+from skyvln_eval.harness.runner import log_path
 from skyvln_eval.harness.store import DAMAGED_FILE, RESULTS_FILE, ResultStore
 from skyvln_eval.metrics import read_results
 from tests.conftest import CliOutcome
@@ -128,6 +130,24 @@ def test_a_worker_process_killed_in_an_episode_costs_that_episode_and_the_run_go
         read_results(tmp_path / "killed" / RESULTS_FILE),
         read_results(tmp_path / "reference" / RESULTS_FILE),
     )
+
+
+def test_a_worker_that_dies_after_writing_its_run_log_leaves_no_log_beside_its_error_row(
+    tmp_path: Path, small_config: MakeConfig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # An audit: the log said ok, the row error, and `validate` said ok; the viewer would
+    # have shown the episode as it was written.
+    config = small_config(limit=4, agent={"name": "random"}, workers=2, executor="processes")
+    monkeypatch.setenv(CRASH_ENV, "run-log-written:2")
+    run(config, tmp_path / "killed")
+    rows = read_results(tmp_path / "killed" / RESULTS_FILE)
+    errors = [r for r in rows if r.status == "error"]
+    assert errors and len(rows) == 4
+    for row in rows:
+        assert log_path(tmp_path / "killed", row.split, row.episode_id).is_file() == (
+            row.status != "error"
+        )
+    assert not check_run_directory(tmp_path / "killed").problems
 
 
 def test_episodes_no_worker_process_could_run_are_not_recorded_and_a_resume_runs_them(

@@ -572,3 +572,11 @@ def test_a_relative_data_path_names_the_folder_it_named_when_the_run_was_launche
     assert run_data_dir(small_config(data=name, limit=1), run_dir) == sample_dir.resolve()
     monkeypatch.chdir(sample_dir.parent)
     assert run(small_config(data=name, limit=2), run_dir).ran_now == 1
+    # A damaged record is refused, naming it (an audit: it lifted the check, and a resume
+    # from elsewhere then wrote the other folder into run.json).
+    (run_dir / "run.json").write_text('{"system": "aud')
+    monkeypatch.chdir(elsewhere)
+    with pytest.raises(ConfigError, match=r"run\.json: cannot be read .* restore the file"):
+        run(small_config(data=name, limit=3), run_dir)
+    with pytest.raises(ConfigError, match=r"run\.json: cannot be read"):
+        run_data_dir(small_config(data=name, limit=1), run_dir)

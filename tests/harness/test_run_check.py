@@ -90,3 +90,16 @@ def test_a_repeated_row_is_a_problem_that_score_would_refuse(
         "refuses the file, and resuming the run (the same command) keeps each episode's "
         "latest row"
     ]
+
+
+def test_a_damaged_run_json_is_a_problem(
+    tmp_path: Path, small_config: Callable[..., RunConfig]
+) -> None:
+    # It records the folder a relative data path named at launch: damaged, that check
+    # went without a word (an audit), and validate said ok.
+    run_dir = tmp_path / "run"
+    assert run(small_config(splits=("val_seen",), limit=1), run_dir).complete
+    assert not check_run_directory(run_dir).problems
+    (run_dir / "run.json").write_text('{"system": "aud')
+    (problem,) = check_run_directory(run_dir).problems
+    assert problem.startswith(f"{run_dir / 'run.json'}: cannot be read (")
