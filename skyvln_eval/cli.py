@@ -2,8 +2,8 @@
 
 Commands only parse options, call the library and format its results; everything they
 do is available from Python too. Errors the user can fix (``SkyvlnError``, and the
-machine's ``OSError``: a full disk, a permission) print as one clear message and exit with
-status 2; validation problems exit with status 1.
+machine's ``OSError``: a full disk, a permission; and running out of memory) print as one
+clear message and exit with status 2; validation problems exit with status 1.
 """
 
 from __future__ import annotations
@@ -624,6 +624,12 @@ def main() -> None:
         from skyvln_eval.errors import describe_os_error
 
         _echo_problem(f"error: {describe_os_error(exc)}")
+        raise SystemExit(2) from None
+    except MemoryError:  # the machine's too: exit 1 would read as "episodes in error"
+        _echo_problem(
+            "error: out of memory (a memory limit, e.g. `ulimit -v`, or a full machine): "
+            "free some memory or run with fewer workers; a run resumes where it stopped"
+        )
         raise SystemExit(2) from None
 
 

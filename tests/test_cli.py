@@ -299,3 +299,19 @@ def test_help_texts_read_as_written() -> None:
             for word in (getattr(param, "help", None) or "").split():
                 if "[" in word:  # e.g. G[N-2]: escaped for Rich, shown as written
                     assert word.replace("\\[", "[") in shown, (path, word)
+
+
+def test_running_out_of_memory_is_a_message_and_exit_2_not_a_traceback(
+    cli: Callable[..., CliOutcome], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # An audit under `ulimit -v`: a MemoryError traceback and exit 1, the code of a run
+    # with episodes in error.
+    import skyvln_eval.cli as command
+
+    def out_of_memory() -> None:
+        raise MemoryError
+
+    monkeypatch.setattr(command, "app", out_of_memory)
+    outcome = cli("summary", "sample")
+    assert outcome.code == 2 and "Traceback" not in outcome.err
+    assert outcome.err.startswith("error: out of memory (a memory limit")

@@ -151,7 +151,8 @@ def check_ends(head: bytes, tail: bytes, size: int, name: str) -> None:
         raise McapLogError(
             name,
             "truncated or unfinished MCAP file (no closing magic): the write was interrupted "
-            "or the file was cut; convert or copy it again",
+            "or the file was cut; write it again (convert an episode log, resume the run "
+            "of a run log) or copy it again",
         )
 
 

@@ -19,6 +19,7 @@ that have no row; the result rows (and so the scores) are those of an uninterrup
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import io
 import json
@@ -38,6 +39,7 @@ from skyvln_eval.errors import (
     DataError,
     ForeignRowsError,
     McapLogError,
+    ResultsWriteError,
 )
 from skyvln_eval.fileio import (
     atomic_write_json,
@@ -728,6 +730,11 @@ def _execute_jobs(
     except KeyboardInterrupt:  # Ctrl-C, SIGTERM: each run.json says where the launch got
         for job in jobs:
             _finish(job, time.perf_counter() - started, len(jobs), finished=False)
+        raise
+    except ResultsWriteError:  # a full disk: run.json too says where it got, if it can
+        for job in jobs:
+            with contextlib.suppress(OSError):  # the disk that refused the row may refuse it
+                _finish(job, time.perf_counter() - started, len(jobs), finished=False)
         raise
     wall_s = time.perf_counter() - started
     for job in jobs:

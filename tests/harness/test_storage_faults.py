@@ -5,6 +5,7 @@ nothing already done is lost or duplicated: the same command then resumes."""
 
 from __future__ import annotations
 
+import json
 import os
 import resource
 import subprocess
@@ -132,6 +133,10 @@ def test_a_full_disk_while_results_are_appended_keeps_every_completed_row(
     kept = (run_dir / RESULTS_FILE).read_bytes()
     assert kept.endswith(b"\n") and kept.count(b"\n") == 3  # header and two whole rows
     assert not (run_dir / "run.lock").read_bytes(), "the lock is let go"
+    # run.json says where the launch got (an audit: it said what the launch began with,
+    # every episode missing).
+    report = json.loads((run_dir / "run.json").read_text())
+    assert report["finished"] is False and len(report["missing"]) == 2
 
     resumed = cli("run", str(config_file), "--out", str(run_dir))
     assert resumed.code == 0, resumed
