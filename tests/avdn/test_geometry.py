@@ -168,3 +168,12 @@ def test_a_resize_to_no_usable_width_names_the_file_and_ratios(
         f"{path}: OpenCV could not read it (OpenCV(4.10.0) grfmt_tiff.cpp:1: error: "
         "(-2:Unspecified) bad strip)"
     )
+
+    def out_of_memory(*_: object) -> None:  # the machine's, not a bad map (an audit)
+        error = cv2.error("OpenCV(4.10.0) alloc.cpp:73: error: (-4:Insufficient memory)")
+        error.code = cv2.Error.StsNoMem
+        raise error
+
+    monkeypatch.setattr(cv2, "imread", out_of_memory)
+    with pytest.raises(MemoryError, match="OpenCV ran out of memory reading it"):
+        load_map_bgr(path, zero)
