@@ -146,9 +146,8 @@ def load_map_bgr(path: str | Path, georef: MapGeoref) -> NDArray[np.uint8]:
             raise MapImageError(str(path), "not a readable image (OpenCV could not decode it)")
         return resize_to_degree_grid(image, georef, str(path))
     except cv2.error as exc:  # a damaged file OpenCV half-reads: its text, not a traceback
-        if (
-            getattr(exc, "code", None) == cv2.Error.StsNoMem
-        ):  # the machine's, not the file's (an audit)
+        # Out of memory is the machine's, not the file's.
+        if getattr(exc, "code", None) == cv2.Error.StsNoMem:
             raise MemoryError(f"{path}: OpenCV ran out of memory reading it") from None
         reason = str(exc).strip().splitlines()[-1]
         raise MapImageError(str(path), f"OpenCV could not read it ({reason})") from None
