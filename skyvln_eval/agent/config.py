@@ -170,6 +170,18 @@ def _ground_truth(config: AgentConfig, client: LLMClient | None) -> Agent:
 #: Agents whose modules call an LLM backend (the others never do).
 LLM_AGENTS = frozenset({"skyvln", "navgpt"})
 
+
+def models_called(agent: AgentConfig) -> dict[str, LLMConfig]:
+    """The models ``agent`` calls, by their config field (``agent.llm``, and a VLM
+    detector's ``agent.detector.llm``): none for random actions and the oracle."""
+    if agent.name not in LLM_AGENTS:
+        return {}
+    models = {"agent.llm": agent.llm}
+    if agent.detector.name == "vlm" and agent.detector.llm is not None:
+        models["agent.detector.llm"] = agent.detector.llm
+    return models
+
+
 AGENTS: dict[str, Callable[[AgentConfig, LLMClient | None], Agent]] = {
     "skyvln": _skyvln,
     "navgpt": _navgpt,

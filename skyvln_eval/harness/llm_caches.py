@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from skyvln_eval.agent.config import LLM_AGENTS, AgentConfig
+from skyvln_eval.agent.config import AgentConfig, models_called
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.llm.cache import ResponseCache, resolve_cache_path
 from skyvln_eval.llm.config import LLMConfig
@@ -38,22 +38,12 @@ def caches_in(agent: AgentConfig, out_dir: str | Path) -> AgentConfig:
     return agent.model_copy(update={"llm": _placed(agent.llm, out_dir), "detector": detector})
 
 
-def _models(agent: AgentConfig) -> dict[str, LLMConfig]:
-    """The models ``agent`` calls, by their config field (as the preflight names them)."""
-    if agent.name not in LLM_AGENTS:
-        return {}
-    models = {"agent.llm": agent.llm}
-    if agent.detector.name == "vlm" and agent.detector.llm is not None:
-        models["agent.detector.llm"] = agent.detector.llm
-    return models
-
-
 def cache_notes(agent: AgentConfig, out_dir: str | Path, source: str) -> list[str]:
     """Open the caches ``agent``'s models use (placed in ``out_dir``): refuse a replay
     whose cache cannot be opened (``ConfigError``, naming ``source`` and the reason);
     a note for each other cache that cannot be opened, or can only be read."""
     notes = []
-    for field, llm in _models(caches_in(agent, out_dir)).items():
+    for field, llm in models_called(caches_in(agent, out_dir)).items():
         if not llm.cache_path:
             continue
         cache = ResponseCache(llm.cache_path)

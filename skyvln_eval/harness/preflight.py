@@ -21,10 +21,9 @@ import urllib.parse
 from collections.abc import Iterable
 from pathlib import Path
 
-from skyvln_eval.agent.config import LLM_AGENTS, AgentConfig
+from skyvln_eval.agent.config import LLM_AGENTS, AgentConfig, models_called
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.harness.config import RunConfig
-from skyvln_eval.llm.config import LLMConfig
 from skyvln_eval.worlds.layers import has_world_layers
 
 ALTERNATIVES = (
@@ -42,20 +41,10 @@ class PreflightError(ConfigError):
 CONNECT_TIMEOUT_S = 2.0
 
 
-def _models(agent: AgentConfig) -> dict[str, LLMConfig]:
-    """The models ``agent`` calls, by their config field."""
-    if agent.name not in LLM_AGENTS:
-        return {}  # random actions and the oracle call no model
-    llms = {"agent.llm": agent.llm}
-    if agent.detector.name == "vlm" and agent.detector.llm is not None:
-        llms["agent.detector.llm"] = agent.detector.llm
-    return llms
-
-
 def missing_keys(agent: AgentConfig) -> list[str]:
     """``"field: what to set"`` for each model ``agent`` calls whose API key is not in the
     environment (each backend's own rule: OpenAI's server needs one, a local server not)."""
-    found = ((field, llm.missing_key()) for field, llm in _models(agent).items())
+    found = ((field, llm.missing_key()) for field, llm in models_called(agent).items())
     return [f"{field}: {missing}" for field, missing in found if missing]
 
 
@@ -63,7 +52,7 @@ def absent_local_servers(agent: AgentConfig) -> list[str]:
     """``"field: what is wrong"`` for each model ``agent`` calls on a loopback address
     where nothing accepts a connection."""
     absent = []
-    for field, llm in _models(agent).items():
+    for field, llm in models_called(agent).items():
         if not llm.backend.startswith("openai:") or not llm.base_url:
             continue  # a stand-in, a replay of the cache, or OpenAI's own server
         url = urllib.parse.urlsplit(llm.base_url)
