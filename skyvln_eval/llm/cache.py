@@ -111,9 +111,19 @@ def resolve_cache_path(cache_path: str, out_dir: str | Path) -> str:
     return cache_path if Path(cache_path).is_absolute() else str(Path(out_dir) / cache_path)
 
 
-#: The caches said to be read-only in this process: said once, not once per client.
-_told_read_only: set[Path] = set()
+#: What was said of which cache in this process (read-only, caching off): said once,
+#: not once per client (a run builds one per episode).
+_told: set[tuple[Path, str]] = set()
 _told_lock = threading.Lock()
+
+
+def _first_time(path: Path, what: str) -> bool:
+    """Whether ``what`` is said of the cache at ``path`` for the first time here."""
+    key = (path.resolve(), what)
+    with _told_lock:
+        told = key in _told
+        _told.add(key)
+    return not told
 
 
 class ResponseCache:
@@ -219,14 +229,14 @@ class ResponseCache:
             conn = self._open_read_only()
         except (_NotOurCache, sqlite3.Error) as unread:
             self.problem = f"{reason}; read-only too: {unread}"
-            log.error("LLM cache %s cannot be opened (%s); caching is off", self.path, self.problem)
+            if _first_time(self.path, "off"):
+                log.error(
+                    "LLM cache %s cannot be opened (%s); caching is off", self.path, self.problem
+                )
             return None
         self.read_only = True
         self.problem = reason
-        with _told_lock:
-            told = self.path.resolve() in _told_read_only
-            _told_read_only.add(self.path.resolve())
-        if not told:
+        if _first_time(self.path, "read-only"):
             log.warning(
                 "LLM cache %s cannot be written (%s): it is read-only, its answers are read "
                 "from it and new ones are not stored",
@@ -249,7 +259,10 @@ class ResponseCache:
                 return self._open()
             except sqlite3.Error as fresh:  # e.g. a read-only folder: run without a cache
                 self.problem = f"cannot be created: {fresh}"
-                log.error("LLM cache %s cannot be created (%s); caching is off", self.path, fresh)
+                if _first_time(self.path, "off"):
+                    log.error(
+                        "LLM cache %s cannot be created (%s); caching is off", self.path, fresh
+                    )
                 return None
 
     def _move_aside(self) -> Path:

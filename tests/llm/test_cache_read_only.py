@@ -143,3 +143,15 @@ def test_replay_refuses_a_cache_it_cannot_open_saying_why(tmp_path: Path) -> Non
         build_client(LLMConfig(backend="replay:openai:m", cache_path=str(folder)))
     # An ordinary backend runs without it, as before.
     assert build_client(LLMConfig(backend="rule", cache_path=str(folder))).cache is not None
+
+
+def test_a_cache_that_cannot_be_opened_is_said_once_not_once_per_client(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # A run builds a client per episode: "caching is off" was logged for every episode.
+    folder = tmp_path / "a-folder-not-a-file"
+    folder.mkdir()
+    with caplog.at_level(logging.ERROR, logger=LOGGER):
+        caches = [ResponseCache(folder) for _ in range(3)]
+    assert not any(cache.usable for cache in caches)
+    assert sum("caching is off" in r.getMessage() for r in caplog.records) == 1
