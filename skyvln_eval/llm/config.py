@@ -76,6 +76,9 @@ _SERVER_WITHOUT_SCHEME = re.compile(
 
 #: A URL's scheme and "://": a backend spec's server starts at the first one.
 _SCHEME = re.compile(r"[A-Za-z][A-Za-z0-9+.-]*://")
+#: 'user:password@host' after a spec's '@', written without a scheme: a model id has no
+#: such part, and the password would be sent to api.openai.com in the model's name.
+_CREDENTIALS_WITHOUT_SCHEME = re.compile(r"@[^@\s/]*:[^@\s/]*@[\w.-]+")
 
 
 def _checked_server(url: str, where: str) -> str:
@@ -186,6 +189,10 @@ class LLMConfig(BaseModel):
             return data
         spec, at, url = _split_server(data["backend"])
         shown = shown_backend(data["backend"])
+        if not _SCHEME.search(data["backend"]) and _CREDENTIALS_WITHOUT_SCHEME.search(
+            data["backend"]
+        ):
+            _checked_server(data["backend"].partition("@")[2], f"backend {shown!r}: the server")
         if at and (_SERVER_WITHOUT_SCHEME.fullmatch(url) or "://" in url):
             # A server without its scheme, or with another than http(s) ('@ftp://x' was
             # part of a model name, sent to api.openai.com), or with credentials or a

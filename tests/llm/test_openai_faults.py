@@ -30,7 +30,9 @@ from skyvln_eval.llm.openai_errors import retry_after_s
 from skyvln_eval.llm.openai_request import without_system_role
 
 FAST_RETRY = RetryPolicy(max_attempts=8, initial_delay_s=0.01, max_delay_s=0.05, jitter=0.5)
-CONFIG = GenerationConfig(timeout_s=0.5)
+# Room for an answer on a loaded machine (at 0.5 s, one came too late under a load of
+# 4.6 on 2 cores: an 8th attempt); the hang below outlasts it.
+CONFIG = GenerationConfig(timeout_s=2.0)
 HELLO = [Message("system", "You answer in JSON."), Message("user", "Say hello.")]
 
 
@@ -43,7 +45,7 @@ def test_every_transport_fault_is_retried_recorded_and_survived() -> None:
     script = [
         status(429, Retry_After="0.02"),
         status(500),
-        hang(2.0),  # past the 0.5 s timeout
+        hang(4.0),  # past the 2 s timeout
         malformed(),
         truncated(),
         status(503),

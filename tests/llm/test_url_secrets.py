@@ -85,11 +85,15 @@ def test_an_entry_that_is_no_spec_is_named_redacted(monkeypatch: pytest.MonkeyPa
     with pytest.raises(ConfigError) as refused:
         environment_backends("SKYVLN_TEST_BACKENDS", BackendsFile())
     assert "'http://[credentials]@127.0.0.1:8799/v1' is not 'openai:<model>'" in str(refused.value)
-    # A server without its scheme, with credentials: told to add the scheme, not shown them.
-    monkeypatch.setenv("SKYVLN_TEST_BACKENDS", f"openai:m@u:{PASSWORD}@127.0.0.1:8799/v1")
-    with pytest.raises(ConfigError, match=r"write http://127\.0\.0\.1:8799/v1") as refused:
-        environment_backends("SKYVLN_TEST_BACKENDS", BackendsFile())
-    assert PASSWORD not in str(refused.value)
+    # A server without its scheme, with credentials, refused as such, with or without a
+    # port or path (without, it was read as a model id, the password sent to OpenAI's
+    # server as part of the model's name).
+    for server in ("127.0.0.1:8799/v1", "host.example.com"):
+        monkeypatch.setenv("SKYVLN_TEST_BACKENDS", f"openai:m@u:{PASSWORD}@{server}")
+        with pytest.raises(ConfigError) as refused:
+            environment_backends("SKYVLN_TEST_BACKENDS", BackendsFile())
+        _assert_refusal_hides_secrets(str(refused.value), "credentials (user:password@)")
+        assert f"'openai:m@[credentials]@{server}'" in str(refused.value)
 
 
 @pytest.mark.parametrize(("url", "held"), SECRET_URLS.items())
