@@ -21,7 +21,7 @@ import numpy as np
 
 from skyvln_eval.agent.actions import Action, action_to_dict
 from skyvln_eval.agent.base import Agent
-from skyvln_eval.agent.mapping import to_official_action
+from skyvln_eval.agent.mapping import official_shortfall, to_official_action
 from skyvln_eval.avdn.records import Episode
 from skyvln_eval.avdn.step import OfficialAction, official_step_detailed
 from skyvln_eval.errors import ConfigError
@@ -43,7 +43,9 @@ class OfficialRollout(Rollout):
     step_outcomes: list[str] = field(default_factory=list)
 
 
-def _feedback(action: Action, outcome: str, turn_deg: int) -> str:
+def _feedback(action: Action, outcome: str, turn_deg: int, shortfall: str | None = None) -> str:
+    """What became of ``action``, as the agent is told: done (how it turned, and what the
+    step could not do of it: ``shortfall``), or what the map's border kept it from."""
     what = json.dumps(action_to_dict(action))
     if outcome == "full":
         # The step's turn is clockwise in [0, 360] (360 from its rounded pi): said as the
@@ -54,7 +56,9 @@ def _feedback(action: Action, outcome: str, turn_deg: int) -> str:
             if signed == 0
             else f"turned {abs(signed)} deg {'right' if signed > 0 else 'left'}"
         )
-        return f"done: {what} ({turned})"
+        # A move past one step's reach was said done in full (an audit: 390 m asked, 88 m
+        # flown, and the next prompt said "done").
+        return f"done: {what} ({turned}{f'; {shortfall}' if shortfall else ''})"
     if outcome == "cancelled":
         return f"not done: {what} would have left the map; nothing changed"
     if outcome == "zoom_only":
@@ -97,10 +101,11 @@ def run_official_episode(
         if action is None:
             break
         official = to_official_action(action, view)
+        shortfall = official_shortfall(action, view)
         result = official_step_detailed(view, official.waypoint, official.altitude, *bounds)
         rollout.official_actions.append(official)
         rollout.step_outcomes.append(result.outcome)
-        feedback = _feedback(action, result.outcome, result.turn_deg)
+        feedback = _feedback(action, result.outcome, result.turn_deg, shortfall)
         view = result.corners
         rollout.views.append(view)
         rollout.headings_deg.append(result.heading_deg)

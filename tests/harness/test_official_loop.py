@@ -11,6 +11,7 @@ from skyvln_eval.agent import (
     Action,
     Agent,
     AgentConfig,
+    Climb,
     Decision,
     Move,
     Observation,
@@ -69,6 +70,24 @@ def test_each_action_moves_the_view_by_the_official_step_and_the_agent_is_told()
     run_official_episode(left, town_episode("go"), town_world())
     assert str(left.observations[1].feedback).endswith("(turned 90 deg left)")  # not 270
     assert rollout.official_actions[1].waypoint == pytest.approx((20.0 / 60.0, 0.0))
+
+
+def test_what_the_step_cannot_do_of_an_action_is_said_not_reported_done() -> None:
+    # An audit: 390 m asked, 88 m flown (one step reaches half the view's edge), and the
+    # next prompt said "done: ... 390" with nothing to tell the model otherwise.
+    agent = Scripted(Move("forward", 200.0), Climb(500.0), Move("forward", 30.0), Stop())
+    rollout = run_official_episode(agent, town_episode("go"), town_world())
+    moved = np.linalg.norm(rollout.views[1].mean(axis=0) - rollout.views[0].mean(axis=0)) * 111_300
+    assert moved == pytest.approx(60.0, abs=0.01)
+    told = [str(o.feedback) for o in agent.observations[1:]]
+    assert told[0].endswith(
+        "(no turn; shortened to 60 m of the 200 m asked: one step reaches half the view's "
+        "edge (60 m))"
+    )
+    assert told[1].endswith(
+        "(no turn; height kept at 200 m, not 560 m: the drone flies at 20-200 m)"
+    )
+    assert told[2].endswith("(no turn)")  # within reach: done as asked
 
 
 def test_a_step_that_would_leave_the_map_is_cut_short_and_reported() -> None:
