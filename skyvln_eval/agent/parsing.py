@@ -1,10 +1,14 @@
 """Strict parsing of LLM output: one JSON object, nothing else, never executed.
 
 The whole answer must be a single JSON object, optionally inside one Markdown code fence
-(```` ```json ... ``` ````), which many models add even when told not to. Prose around
-it, several objects, NaN / Infinity, duplicate keys or an answer longer than
-:data:`MAX_OUTPUT_CHARS` are rejected with an :class:`ActionParseError` that says why,
-which the motion generator sends back to the model once as its repair request.
+(```` ```json ... ``` ````), which many models add even when told not to. A reasoning
+model served without a reasoning parser starts its answer with its reasoning in one
+``<think>...</think>`` block, which no repair request can take out (its chat template
+writes it): that block is left out, and the rest parsed as any answer (the record keeps
+the answer as given). Prose around the object, several objects, NaN / Infinity,
+duplicate keys or an answer longer than :data:`MAX_OUTPUT_CHARS` are rejected with an
+:class:`ActionParseError` that says why, which the motion generator sends back to the
+model once as its repair request.
 """
 
 from __future__ import annotations
@@ -21,7 +25,8 @@ from skyvln_eval.fileio import object_with_unique_keys
 
 MAX_OUTPUT_CHARS: Final = 20_000
 MAX_THOUGHT_CHARS: Final = 4_000
-_FENCE = re.compile(r"^```(?:json|JSON)?[ \t]*\n(.*)\n```$", re.DOTALL)
+_FENCE = re.compile(r"^```(?:json|JSON)?\s*(.*?)\s*```$", re.DOTALL)
+_REASONING = re.compile(r"^<think>.*?</think>", re.DOTALL)
 
 
 def _no_constants(name: str) -> Any:
@@ -39,7 +44,7 @@ def load_json_object(text: str) -> dict[str, Any]:
     """The single JSON object ``text`` consists of (fence allowed); raises otherwise."""
     if len(text) > MAX_OUTPUT_CHARS:
         raise ActionParseError(f"output is {len(text)} characters, more than {MAX_OUTPUT_CHARS}")
-    body = text.strip()
+    body = _REASONING.sub("", text.strip(), count=1).strip()
     fenced = _FENCE.match(body)
     if fenced:
         body = fenced.group(1).strip()

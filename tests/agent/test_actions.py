@@ -57,6 +57,16 @@ def test_structured_output_nulls_and_a_code_fence_are_accepted() -> None:
     action = {"type": "turn", "degrees": 45, "distance_m": None, "landmark": None, "x": None}
     fenced = "```json\n" + decision(action) + "\n```"
     assert parse_decision(fenced, {})[1] == Turn(45.0)
+    # A fence on one line, and the reasoning block a reasoning model served without a
+    # reasoning parser writes first (an audit: every episode an error; no repair can
+    # take it out), are read as the answer they hold.
+    assert parse_decision("```json " + decision(action) + " ```", {})[1] == Turn(45.0)
+    thinking = "<think>The user wants JSON. {not this}</think>\n\n" + decision(action)
+    assert parse_decision(thinking, {})[1] == Turn(45.0)
+    with pytest.raises(ActionParseError, match="not a JSON object"):
+        parse_decision("<think>only reasoning</think>", {})
+    with pytest.raises(ActionParseError, match="not a JSON object"):  # prose is still prose
+        parse_decision("Here it is: ```json\n" + decision(action) + "\n```", {})
 
 
 @pytest.mark.parametrize(
