@@ -378,7 +378,9 @@ class OpenAIBackend(LLMBackend):
             latency = time.perf_counter() - started  # the answered request's own time
             if unexplained is not None:
                 remember_level(keep_at, unexplained)
-            return self._completion(response, body, latency, level, unsent, tuple(refused))
+            return self._completion(
+                response, body, latency, level, unsent, tuple(refused), config.max_tokens
+            )
         except LLMError as error:
             # The requests refused before this failure were sent all the same: the client
             # records them from here.
@@ -521,10 +523,11 @@ class OpenAIBackend(LLMBackend):
         level: StructuredLevel | None,
         server_defaults: tuple[str, ...],
         refused: tuple[RefusedRequest, ...] = (),
+        budget: int | None = None,
     ) -> Completion:
         # Usage first: a response that fails below may still say what it billed, and the
         # failed attempt's record counts it.
-        usage = reported_usage(response)
+        usage = reported_usage(response, budget)
         try:
             choice = response.choices[0]
             content = choice.message.content

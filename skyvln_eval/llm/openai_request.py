@@ -131,8 +131,11 @@ def _detail(usage: Any, group: str, name: str) -> int | None:
     return _token_count(getattr(details, name, None))
 
 
-def reported_usage(response: Any) -> Usage:
-    """The token counts a response reports (see :class:`Usage`)."""
+def reported_usage(response: Any, completion_budget: int | None = None) -> Usage:
+    """The token counts a response reports (see :class:`Usage`); a completion count above
+    ``completion_budget``, the most the request let the model write (``max_tokens``, or
+    ``max_completion_tokens``, which counts reasoning too), is no count of this answer
+    (an audit's server said 90 million tokens for a 1024-token budget: $8910 an episode)."""
     usage = getattr(response, "usage", None)
     if usage is None:
         return Usage()
@@ -149,6 +152,8 @@ def reported_usage(response: Any) -> Usage:
         prompt, cached = None, None
         if completion == 0:
             completion, reasoning = None, None
+    if completion is not None and completion_budget is not None and completion > completion_budget:
+        completion, reasoning = None, None
     if cached is not None and prompt is not None and cached > prompt:
         cached = None  # more cached than sent: not a count of this prompt
     if reasoning is not None and completion is not None and reasoning > completion:

@@ -93,9 +93,24 @@ def test_reasoning_tokens_are_recorded() -> None:
         "completion_tokens": 900,
         "completion_tokens_details": {"reasoning_tokens": 870},
     }
+    budget = GenerationConfig(timeout_s=5.0, max_tokens=1024)
     with LoopbackOpenAIServer([answer(GREETING, usage=usage)]) as server:
-        [record] = loopback_client(server, 1).call("motion", HELLO, CONFIG).records
+        [record] = loopback_client(server, 1).call("motion", HELLO, budget).records
     assert (record.completion_tokens, record.reasoning_tokens) == (900, 870)
+
+
+def test_a_completion_longer_than_its_budget_is_no_count() -> None:
+    # An audit's server said 90 million tokens for a 1024-token budget: $8910 an episode,
+    # ranked in Table II. The model cannot write more than the request let it.
+    usage = {"prompt_tokens": 1800, "completion_tokens": 90_000_000}
+    fine = {"prompt_tokens": 1800, "completion_tokens": 1024}
+    with LoopbackOpenAIServer([answer(GREETING, usage=u) for u in (usage, fine)]) as server:
+        client = loopback_client(server, 1, _priced(server, Price(1.0, 2.0)))
+        budget = GenerationConfig(max_tokens=1024)
+        [record] = client.call("motion", HELLO, budget).records
+        [at_budget] = client.call("subgoals", HELLO, budget).records
+    assert (record.prompt_tokens, record.completion_tokens, record.cost_usd) == (1800, None, None)
+    assert at_budget.completion_tokens == 1024 and at_budget.cost_usd is not None
 
 
 def test_a_prompt_of_zero_tokens_leaves_the_completion_count_known() -> None:
