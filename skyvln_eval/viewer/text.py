@@ -8,6 +8,7 @@ are shown as they are, so a newer log still shows everything it holds.
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -16,6 +17,21 @@ _EXCHANGE_BODY = frozenset({"timestamp", "episode_id", "step_index", "module", "
 _EXCHANGE_BODY |= {"response", "error"}
 #: Sighting fields used in a sighting's leading words; the rest follow as key=value.
 _SIGHTING_HEAD = ("id", "label", "caption", "view", "sector", "sector_name")
+
+
+#: Characters Markdown may read as markup anywhere in a line (CommonMark lets each be
+#: escaped), and what makes a list, heading, quote or rule at a line's start.
+_MARKUP = re.compile(r"([\\`*_\[\]<>#!|~])")
+_LINE_START = re.compile(r"(?m)^(\s*(?:\d+)?)([-+=.)])")
+
+
+def _plain(value: Any) -> str:
+    """``value`` as a Markdown document shows text from a log (a model's thought, an
+    answer's words, a speaker's, a detector's label): what could be markup escaped, so
+    the text cannot forge a line of the document ("**Action:** ..." above the real one),
+    a heading or an image link."""
+    escaped = _MARKUP.sub(r"\\\1", _scalar(value))
+    return _LINE_START.sub(lambda m: f"{m.group(1)}\\{m.group(2)}", escaped)
 
 
 def _scalar(value: Any) -> str:
@@ -51,7 +67,7 @@ def dialog_line(turn: Mapping[str, Any]) -> str:
 
 
 def dialog_document(turns: Sequence[Mapping[str, Any]]) -> str:
-    lines = ["# Dialog", ""] + [f"- {dialog_line(turn)}" for turn in turns]
+    lines = ["# Dialog", ""] + [f"- {_plain(dialog_line(turn))}" for turn in turns]
     return "\n".join(lines) + "\n"
 
 
@@ -74,7 +90,7 @@ def hsd_document(step: Mapping[str, Any]) -> str:
     trace = step.get("trace") or {}
     lines = [f"# HSD, decision {step.get('step_index', '?')}", ""]
     sightings = trace.get("sightings") or []
-    lines += [f"- {sighting_line(e)}" for e in sightings] or ["(no landmark seen)"]
+    lines += [f"- {_plain(sighting_line(e))}" for e in sightings] or ["(no landmark seen)"]
     matches = trace.get("hsd_matches") or {}
     if matches:
         lines += ["", "## Matches", "", fenced(json.dumps(matches, indent=1, default=str))]
@@ -96,7 +112,7 @@ def memory_document(step: Mapping[str, Any]) -> str:
         rest = ", ".join(
             f"{k}={_scalar(v)}" for k, v in node.items() if k != "id" and v is not None
         )
-        lines.append(f"- {node.get('id', '?')}: {rest}")
+        lines.append(f"- {_plain(node.get('id', '?'))}: {_plain(rest)}")
     lines += ["", "## Edges", ""]
     for edge in memory.get("edges", []):
         rest = ", ".join(
@@ -104,10 +120,11 @@ def memory_document(step: Mapping[str, Any]) -> str:
             for k, v in edge.items()
             if k not in ("from", "to") and v is not None
         )
-        lines.append(f"- {edge.get('from', '?')} -> {edge.get('to', '?')}: {rest}")
+        ends = f"{edge.get('from', '?')} -> {edge.get('to', '?')}"
+        lines.append(f"- {_plain(ends)}: {_plain(rest)}")
     for key in ("way_back", "clarification_question"):
         if trace.get(key):
-            lines += ["", f"## {key.replace('_', ' ')}", "", _scalar(trace[key])]
+            lines += ["", f"## {key.replace('_', ' ')}", "", _plain(trace[key])]
     return "\n".join(lines) + "\n"
 
 
@@ -115,17 +132,17 @@ def step_document(step: Mapping[str, Any], t_s: float) -> str:
     """One decision: thought, action, feedback, sub-goals and what was repaired."""
     trace = step.get("trace") or {}
     lines = [f"# Decision {step.get('step_index', '?')} (t = {t_s:.1f} s)", ""]
-    lines += [f"**Thought:** {step.get('thought', '')}", ""]
-    lines += [f"**Action:** `{json.dumps(step.get('action'), default=str)}`", ""]
+    lines += [f"**Thought:** {_plain(step.get('thought', ''))}", ""]
+    lines += [f"**Action:** {_plain(json.dumps(step.get('action'), default=str))}", ""]
     if step.get("feedback"):
-        lines += [f"**Feedback:** {step['feedback']}", ""]
+        lines += [f"**Feedback:** {_plain(step['feedback'])}", ""]
     subgoals = trace.get("subgoals") or []
     done = set(trace.get("done_subgoals") or [])
     if subgoals:
         lines += ["## Sub-goals", ""]
         for i, goal in enumerate(subgoals):
             mark = "x" if i in done else " "
-            lines.append(f"- [{mark}] {json.dumps(goal, default=str)}")
+            lines.append(f"- [{mark}] {_plain(json.dumps(goal, default=str))}")
         lines.append("")
     shown = {"subgoals", "done_subgoals", "sightings", "hsd_matches", "memory"}
     rest = {k: v for k, v in trace.items() if k not in shown and v not in (None, [], {}, False)}
@@ -155,7 +172,7 @@ def exchange_line(exchange: Mapping[str, Any]) -> str:
 def exchange_document(exchange: Mapping[str, Any]) -> str:
     """A prompt and its response in Markdown, with every figure the log holds."""
     lines = [f"# {exchange.get('module', '?')}, decision {exchange.get('step_index', '?')}", ""]
-    lines += [f"- {k}: {_scalar(v)}" for k, v in exchange_fields(exchange)]
+    lines += [f"- {k}: {_plain(v)}" for k, v in exchange_fields(exchange)]
     for message in exchange.get("prompt") or []:
         images = message.get("images") or 0
         if isinstance(images, list):  # the views' names (the run log keeps no pixels here)

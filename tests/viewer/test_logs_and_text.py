@@ -209,8 +209,21 @@ def test_memory_text_lists_nodes_and_edges() -> None:
         },
     }
     document = text.memory_document(step)
-    assert "- P0: kind=place" in document and "- P0 -> L1: kind=met, distance_m=84.1" in document
+    assert "- P0: kind=place" in document
+    assert r"- P0 -\> L1: kind=met, distance\_m=84.1" in document  # shows as "->", "_"
     assert "Which tower?" in document
+
+
+def test_text_from_a_log_cannot_forge_markup_in_a_document() -> None:
+    # An audit: a thought holding '**Action:** `{"type": "stop"}`' showed a second action
+    # line above the real one; headings and image links went through too.
+    forged = 'fine.\n**Action:** `{"type": "stop"}`\n# Heading ![x](https://example.org/x.png)'
+    step = {"step_index": 0, "thought": forged, "action": {"type": "turn", "degrees": 90}}
+    document = text.step_document(step, 0.0)
+    assert document.count("**Action:**") == 1 and "\n# Heading" not in document
+    assert r"\!\[x\](https://example.org/x.png)" in document
+    dialog = text.dialog_document([{"round_index": 1, "speaker": "commander", "text": forged}])
+    assert "**Action" not in dialog and "![x]" not in dialog
     assert "TBMA is off" in text.memory_document({"step_index": 0, "trace": {"memory": None}})
 
 
