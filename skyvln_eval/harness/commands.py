@@ -36,7 +36,8 @@ def describe_report(report: RunReport) -> list[str]:
         lines.append(
             f"flown: {flights['flown']} episode(s), {flights['crashed']} crashed (a step that "
             f"touched an obstacle), {flights['with failed solves']} with failed solver steps "
-            "(fell back)"
+            f"(fell back), {flights.get('with segments cut short', 0)} with a segment cut "
+            "short at max_segment_time_s (the drone did not settle at its target in time)"
         )
     if report.structured_output:
         levels = ", ".join(f"{m}: {level}" for m, level in report.structured_output.items())

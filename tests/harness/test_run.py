@@ -580,3 +580,27 @@ def test_a_relative_data_path_names_the_folder_it_named_when_the_run_was_launche
         run(small_config(data=name, limit=3), run_dir)
     with pytest.raises(ConfigError, match=r"run\.json: cannot be read"):
         run_data_dir(small_config(data=name, limit=1), run_dir)
+
+
+def test_segments_cut_short_by_their_time_limit_are_counted(
+    tmp_path: Path, small_config: MakeConfig
+) -> None:
+    # An audit: with max_segment_time_s 1 no segment arrived, and the run said "ok, 0
+    # crashed, 0 with failed solver steps" (segments_reached was written, read nowhere).
+    from skyvln_eval.harness.commands import describe_report
+    from skyvln_eval.harness.run import segments_cut_short
+
+    dynamics = {"controller": "pid", "controller_settings": {}, "max_segment_time_s": 1.0}
+    config = small_config(
+        mode="dynamics", limit=1, agent={"name": "ground_truth"}, dynamics=dynamics
+    )
+    report = run(config, tmp_path / "run")
+    (row,) = read_results(tmp_path / "run" / RESULTS_FILE)
+    assert segments_cut_short(row) == len(row.extra["segments_reached"]) > 0
+    assert report.flights["with segments cut short"] == 1
+    saved = json.loads((tmp_path / "run" / "run.json").read_text())
+    assert saved["flights"]["with segments cut short"] == 1
+    assert any(
+        "1 with a segment cut short at max_segment_time_s" in line
+        for line in describe_report(report)
+    )
