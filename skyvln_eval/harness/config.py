@@ -12,7 +12,7 @@ import hashlib
 import math
 from collections.abc import Collection
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Final, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
@@ -59,6 +59,10 @@ class CommanderSettings(_Strict):
     max_questions: int = Field(default=2, ge=0, le=20, description="answers per episode")
 
 
+#: The strongest mean wind or gust a plant takes, m/s (a category 5 hurricane's is 70).
+MAX_WIND_M_S: Final = 100.0
+
+
 class PlantSettings(_Strict):
     """What the simulated drone adds to the controller's model (dynamics mode).
 
@@ -69,11 +73,17 @@ class PlantSettings(_Strict):
     AVDN agent's view centre) stays the flown one.
     """
 
-    wind_mean_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    gust_std_m_s: float = Field(default=0.0, ge=0.0)
-    position_noise_std_m: float = Field(default=0.0, ge=0.0)
-    velocity_noise_std_m_s: float = Field(default=0.0, ge=0.0)
-    attitude_noise_std_rad: float = Field(default=0.0, ge=0.0)
+    # Bounds far past any flyable case (a hurricane's wind, noise of a lost sensor): a
+    # wind of 1e200 m/s was an episode error naming only numpy's "Maximum allowed size".
+    wind_mean_m_s: tuple[
+        Annotated[float, Field(ge=-MAX_WIND_M_S, le=MAX_WIND_M_S)],
+        Annotated[float, Field(ge=-MAX_WIND_M_S, le=MAX_WIND_M_S)],
+        Annotated[float, Field(ge=-MAX_WIND_M_S, le=MAX_WIND_M_S)],
+    ] = (0.0, 0.0, 0.0)
+    gust_std_m_s: float = Field(default=0.0, ge=0.0, le=MAX_WIND_M_S)
+    position_noise_std_m: float = Field(default=0.0, ge=0.0, le=1000.0)
+    velocity_noise_std_m_s: float = Field(default=0.0, ge=0.0, le=MAX_WIND_M_S)
+    attitude_noise_std_rad: float = Field(default=0.0, ge=0.0, le=math.pi)
 
     @property
     def nominal(self) -> bool:
@@ -93,7 +103,8 @@ class PlantSettings(_Strict):
         """The plant in words, for the tables' captions."""
         if self.nominal:
             return "nominal plant (the controller's model, no wind, exact state)"
-        wind = math.hypot(*self.wind_mean_m_s[:2])
+        # Its speed in 3-D: a vertical wind is wind too (it was said "wind 0 m/s").
+        wind = math.hypot(*self.wind_mean_m_s)
         return (
             f"plant with wind {wind:g} m/s (gusts {self.gust_std_m_s:g} m/s) and feedback noise "
             f"{self.position_noise_std_m:g} m, {self.velocity_noise_std_m_s:g} m/s, "

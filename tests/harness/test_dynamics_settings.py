@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
 from skyvln_eval.control import load_flight_log
 from skyvln_eval.errors import ConfigError
@@ -45,6 +46,25 @@ def test_the_plant_is_nominal_unless_wind_and_noise_are_set() -> None:
     assert not windy.nominal and "wind 5 m/s (gusts 1 m/s)" in windy.describe()
     config = windy.plant_config()
     assert config.wind.mean_m_s == (3.0, 4.0, 0.0) and config.noise.position_std_m == 0.05
+    # A vertical wind is wind (an audit's caption said "wind 0 m/s" for [0, 0, 15]).
+    assert "wind 15 m/s" in PlantSettings(wind_mean_m_s=(0.0, 0.0, 15.0)).describe()
+
+
+@pytest.mark.parametrize(
+    "settings",
+    [
+        {"wind_mean_m_s": [1e200, 0, 0]},
+        {"wind_mean_m_s": [0, 0, -101]},
+        {"gust_std_m_s": 1e9},
+        {"position_noise_std_m": 1e6},
+        {"attitude_noise_std_rad": 4.0},
+    ],
+)
+def test_wind_and_noise_past_any_flyable_case_are_refused(settings: dict[str, object]) -> None:
+    # An audit: a wind of 1e200 m/s passed, and each episode's error named only numpy's
+    # "Maximum allowed size exceeded".
+    with pytest.raises(ValidationError, match="than or equal to"):
+        PlantSettings.model_validate(settings)
 
 
 def test_wind_and_noise_reach_the_flown_drone(tmp_path: Path, small_config: MakeConfig) -> None:
