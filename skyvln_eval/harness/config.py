@@ -47,8 +47,15 @@ class ObstacleSettings(_Strict):
 
     kind: ScenarioKind = "crossing"
     n_obstacles: int = Field(default=2, ge=0, le=8)
-    radius_m: float = Field(default=1.0, gt=0.0, description="r_obs: another drone, a bird flock")
-    safety_radius_m: float = Field(default=0.5, ge=0.0, description="r_s added by the controller")
+    # At most 10 m each: the scenarios meet the route in a segment's cruise part, and a
+    # wider sphere can hold the segment's start or target (an audit's 30 m one held the
+    # drone at t = 0: a crash charged to the controller, its tracking "perfect").
+    radius_m: float = Field(
+        default=1.0, gt=0.0, le=10.0, description="r_obs: another drone, a bird flock"
+    )
+    safety_radius_m: float = Field(
+        default=0.5, ge=0.0, le=10.0, description="r_s added by the controller"
+    )
     obstacle_speed_m_s: float = Field(default=1.0, gt=0.0)
 
 

@@ -67,6 +67,13 @@ def test_wind_and_noise_past_any_flyable_case_are_refused(settings: dict[str, ob
         PlantSettings.model_validate(settings)
 
 
+@pytest.mark.parametrize("field", ["radius_m", "safety_radius_m"])
+def test_an_obstacle_sphere_wider_than_a_segments_cruise_is_refused(field: str) -> None:
+    # An audit's 30 m sphere held the drone at t = 0: a crash charged to the controller.
+    with pytest.raises(ValidationError, match="less than or equal to 10"):
+        DynamicsSettings.model_validate({"obstacles": {field: 30.0}})
+
+
 def test_wind_and_noise_reach_the_flown_drone(tmp_path: Path, small_config: MakeConfig) -> None:
     def flown(name: str, plant: dict[str, object]) -> np.ndarray:
         dynamics = {
