@@ -14,7 +14,7 @@ from typing import Any, Final
 
 from skyvln_eval.agent.calls import call_json
 from skyvln_eval.agent.motion import SYSTEM_PROMPT
-from skyvln_eval.agent.parsing import load_json_object
+from skyvln_eval.agent.parsing import load_json_object, refuse_other_fields
 from skyvln_eval.errors import ActionParseError
 from skyvln_eval.llm.client import LLMClient
 from skyvln_eval.llm.config import LLMConfig
@@ -43,6 +43,7 @@ class Clarification:
 
 def _parse_question(text: str) -> str:
     data = load_json_object(text)
+    refuse_other_fields(data, ("question",))
     question = data.get("question")
     if not isinstance(question, str) or not 0 < len(question) <= MAX_QUESTION_CHARS:
         raise ActionParseError(

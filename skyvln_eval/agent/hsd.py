@@ -22,7 +22,7 @@ from typing import Any, Final, Literal, TypeVar
 
 from skyvln_eval.agent.calls import JsonCall, call_json
 from skyvln_eval.agent.images import jpeg_image
-from skyvln_eval.agent.parsing import load_json_object
+from skyvln_eval.agent.parsing import load_json_object, refuse_other_fields
 from skyvln_eval.agent.perception import Panorama, Sighting
 from skyvln_eval.agent.subgoals import SubGoal
 from skyvln_eval.errors import ActionParseError
@@ -234,6 +234,7 @@ def rank_schema(ids: Sequence[str]) -> dict[str, Any]:
 
 def _parse_description(text: str) -> tuple[str, Match]:
     data = load_json_object(text)
+    refuse_other_fields(data, ("description", "match"))
     description, match = data.get("description"), data.get("match")
     if not isinstance(description, str) or len(description) > MAX_DESCRIPTION_CHARS:
         raise ActionParseError(
@@ -247,6 +248,7 @@ def _parse_description(text: str) -> tuple[str, Match]:
 def _rank_parser(ids: Sequence[str]) -> Callable[[str], tuple[list[str], str | None, float]]:
     def parse(text: str) -> tuple[list[str], str | None, float]:
         data = load_json_object(text)
+        refuse_other_fields(data, ("ranking", "best", "confidence"))
         ranking, best, confidence = data.get("ranking"), data.get("best"), data.get("confidence")
         if (
             not isinstance(ranking, list)

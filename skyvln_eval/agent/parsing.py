@@ -16,7 +16,7 @@ from __future__ import annotations
 import functools
 import json
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any, Final
 
 from skyvln_eval.agent.actions import Action, action_from_dict
@@ -68,16 +68,23 @@ def load_json_object(text: str) -> dict[str, Any]:
     return data
 
 
+def refuse_other_fields(data: Mapping[str, Any], allowed: Sequence[str]) -> None:
+    """Refuse top-level fields of an answer other than ``allowed``, as its schema does
+    (``additionalProperties: false``): the same rule for every module (the motion
+    generator's refused them while the others took them without a word)."""
+    unknown = sorted(set(data) - set(allowed))
+    if unknown:
+        raise ActionParseError(
+            f"unexpected top-level field(s) {', '.join(unknown)}; only {', '.join(allowed)}"
+        )
+
+
 def parse_decision(
     text: str, landmark_offsets: Mapping[str, tuple[float, float]]
 ) -> tuple[str, Action]:
     """``{"thought": str, "action": {...}}`` -> (thought, validated action)."""
     data = load_json_object(text)
-    unknown = sorted(set(data) - {"thought", "action"})
-    if unknown:
-        raise ActionParseError(
-            f"unexpected top-level field(s) {', '.join(unknown)}; only thought and action"
-        )
+    refuse_other_fields(data, ("thought", "action"))
     if "action" not in data:
         raise ActionParseError("the JSON object has no 'action'")
     thought = data.get("thought", "")

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Any, Final, Literal
 
-from skyvln_eval.agent.parsing import load_json_object
+from skyvln_eval.agent.parsing import load_json_object, refuse_other_fields
 from skyvln_eval.avdn.records import DialogTurn
 from skyvln_eval.errors import ActionParseError
 from skyvln_eval.llm.taskdata import task_message
@@ -344,6 +344,7 @@ def parse_subgoals(text: str, dialog: DialogText) -> SubGoalPlan:
             "the field 'subgoals' (a list of sub-goal objects) is missing"
             + (f"; unknown field(s) {', '.join(others)}" if others else "")
         )
+    refuse_other_fields(data, ("subgoals", "context_landmarks"))
     items = data.get("subgoals")
     if not isinstance(items, list) or len(items) > MAX_SUBGOALS:
         raise ActionParseError(f"'subgoals' must be a list of at most {MAX_SUBGOALS} items")

@@ -347,3 +347,26 @@ def test_the_schema_of_a_dialog_without_words_gives_every_array_its_items() -> N
     validator = jsonschema.Draft202012Validator(schema)
     assert validator.is_valid({"subgoals": [], "context_landmarks": []})
     assert not validator.is_valid({"subgoals": [], "context_landmarks": ["x"]})
+
+
+def test_every_modules_parser_refuses_fields_its_schema_does_not_have() -> None:
+    # An audit: the motion parser refused an extra top-level field while the sub-goal,
+    # HSD and clarification parsers took it without a word. One rule, the schemas'.
+    from skyvln_eval.agent.clarify import _parse_question
+    from skyvln_eval.agent.hsd import _parse_description, _rank_parser
+
+    dialog = DialogText(("commander: Go west.",), None, "Stop when you reach the church.")
+    subgoals = {"subgoals": [{"kind": "stop_at", "landmark": "the church"}], "reasoning": "x"}
+    answers = [
+        (lambda text: parse_subgoals(text, dialog), subgoals),
+        (_parse_description, {"description": "a church", "match": "strong", "notes": ""}),
+        (_rank_parser(["L1"]), {"ranking": ["L1"], "best": "L1", "confidence": 1, "why": ""}),
+        (_parse_question, {"question": "Which church?", "thought": ""}),
+    ]
+    for parse, answer in answers:
+        with pytest.raises(ActionParseError, match=r"unexpected top-level field\(s\)"):
+            parse(json.dumps(answer))
+        fine = {
+            k: v for k, v in answer.items() if k not in ("reasoning", "notes", "why", "thought")
+        }
+        parse(json.dumps(fine))  # the same answer without it is taken
