@@ -60,31 +60,30 @@ def _within_reach(x: float, y: float) -> tuple[float, float]:
     return x / scale, y / scale
 
 
-def official_shortfall(action: Action, current_view: ArrayLike) -> str | None:
-    """What the official step will do short of ``action`` from ``current_view``, said for
-    the agent's feedback, or ``None`` when it does what was asked: a move or ``fly_to``
-    beyond one step's reach (half the view's edge) is shortened to it, and a height out
-    of 20-200 m is kept within it. The step's own border outcomes are said apart."""
-    view = np.asarray(current_view, dtype=np.float64)
-    edge_m = float(view_edge_m(view))
-    reach_m = edge_m / 2.0
+def official_shortfall(
+    action: Action, current_view: ArrayLike, official: OfficialAction
+) -> str | None:
+    """What ``official`` (:func:`to_official_action` of ``action`` from ``current_view``)
+    does short of ``action``, said for the agent's feedback, or ``None`` when it does what
+    was asked: a move or ``fly_to`` beyond one step's reach (half the view's edge) is
+    shortened to it, and a height out of 20-200 m is kept within it. The step's own border
+    outcomes are said apart."""
+    reach_m = official_reach_m(current_view)
     if isinstance(action, Move | FlyTo):
         asked_m = (
             action.distance_m
             if isinstance(action, Move)
             else math.hypot(action.east_m, action.north_m)
         )
-        x, y = to_official_action(action, view).waypoint
-        flown_m = math.hypot(x, y) * reach_m
+        flown_m = math.hypot(*official.waypoint) * reach_m
         if asked_m > flown_m + 0.5:
             return (
                 f"shortened to {flown_m:.0f} m of the {asked_m:.0f} m asked: one step reaches "
                 f"half the view's edge ({reach_m:.0f} m)"
             )
     if isinstance(action, Climb | FlyTo):
-        height_m = (
-            edge_m / 2.0 + action.distance_m if isinstance(action, Climb) else action.height_m
-        )
+        # The drone's height is half its view's edge too (a 90 degree camera looking down).
+        height_m = reach_m + action.distance_m if isinstance(action, Climb) else action.height_m
         if height_m is not None and not MIN_HEIGHT_M <= height_m <= MAX_HEIGHT_M:
             kept = _clip_height(height_m)
             return (

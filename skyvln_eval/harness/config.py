@@ -68,6 +68,8 @@ class CommanderSettings(_Strict):
 
 #: The strongest mean wind or gust a plant takes, m/s (a category 5 hurricane's is 70).
 MAX_WIND_M_S: Final = 100.0
+#: One axis (east, north, up) of the mean wind, m/s.
+_WindAxis = Annotated[float, Field(ge=-MAX_WIND_M_S, le=MAX_WIND_M_S)]
 
 
 class PlantSettings(_Strict):
@@ -82,11 +84,7 @@ class PlantSettings(_Strict):
 
     # Bounds far past any flyable case (a hurricane's wind, noise of a lost sensor): a
     # wind of 1e200 m/s was an episode error naming only numpy's "Maximum allowed size".
-    wind_mean_m_s: tuple[
-        Annotated[float, Field(ge=-MAX_WIND_M_S, le=MAX_WIND_M_S)],
-        Annotated[float, Field(ge=-MAX_WIND_M_S, le=MAX_WIND_M_S)],
-        Annotated[float, Field(ge=-MAX_WIND_M_S, le=MAX_WIND_M_S)],
-    ] = (0.0, 0.0, 0.0)
+    wind_mean_m_s: tuple[_WindAxis, _WindAxis, _WindAxis] = (0.0, 0.0, 0.0)
     gust_std_m_s: float = Field(default=0.0, ge=0.0, le=MAX_WIND_M_S)
     position_noise_std_m: float = Field(default=0.0, ge=0.0, le=1000.0)
     velocity_noise_std_m_s: float = Field(default=0.0, ge=0.0, le=MAX_WIND_M_S)

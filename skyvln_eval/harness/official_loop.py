@@ -101,7 +101,7 @@ def run_official_episode(
         if action is None:
             break
         official = to_official_action(action, view)
-        shortfall = official_shortfall(action, view)
+        shortfall = official_shortfall(action, view, official)
         result = official_step_detailed(view, official.waypoint, official.altitude, *bounds)
         rollout.official_actions.append(official)
         rollout.step_outcomes.append(result.outcome)

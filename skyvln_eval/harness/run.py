@@ -94,11 +94,9 @@ def is_relative_data(data: str) -> bool:
     return not is_synthetic_data(data) and not Path(data).expanduser().is_absolute()
 
 
-def recorded_data_dir(run_dir: Path) -> Path | None:
-    """The folder a relative ``data:`` path named when the run in ``run_dir`` was launched
-    (its ``run.json``), if recorded; :class:`ConfigError` naming the file when it is there
-    but cannot be read (a damaged record silently lifted the check it is for, and a resume
-    then wrote the other folder into it)."""
+def read_run_report(run_dir: Path) -> dict[str, Any] | None:
+    """The ``run.json`` of ``run_dir`` as written, ``None`` when there is none;
+    :class:`ConfigError` naming the file when it is there but is no JSON object."""
     path = run_dir / REPORT_FILE
     if not path.exists():
         return None
@@ -107,12 +105,24 @@ def recorded_data_dir(run_dir: Path) -> Path | None:
         if not isinstance(recorded, dict):
             raise ValueError(f"a JSON {type(recorded).__name__}, not an object")
     except (OSError, ValueError) as error:
+        raise ConfigError(f"{path}: cannot be read ({error})") from None
+    return recorded
+
+
+def recorded_data_dir(run_dir: Path) -> Path | None:
+    """The folder a relative ``data:`` path named when the run in ``run_dir`` was launched
+    (its ``run.json``), if recorded; :class:`ConfigError` naming the file when it is there
+    but cannot be read (a damaged record silently lifted the check it is for, and a resume
+    then wrote the other folder into it)."""
+    try:
+        recorded = read_run_report(run_dir)
+    except ConfigError as error:
         raise ConfigError(
-            f"{path}: cannot be read ({error}); it records the folder the run's relative "
-            "data path named where it was launched, so the run cannot be checked against "
-            "it: restore the file, or give data as an absolute path"
+            f"{error}; it records the folder the run's relative data path named where it "
+            "was launched, so the run cannot be checked against it: restore the file, or "
+            "give data as an absolute path"
         ) from None
-    value = recorded.get(RELATIVE_DATA_KEY)
+    value = None if recorded is None else recorded.get(RELATIVE_DATA_KEY)
     return Path(value) if isinstance(value, str) else None
 
 

@@ -8,7 +8,6 @@ found, and its control log (dynamics mode) is read and checked, as ``score`` rea
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -16,12 +15,12 @@ from skyvln_eval.errors import AlteredGroundTruthError, ForeignRowsError, Skyvln
 from skyvln_eval.harness.lock import leftover_temporaries
 from skyvln_eval.harness.run import (
     CONFIG_FILE,
-    REPORT_FILE,
     RUN_FILES,
     RUN_FOLDERS,
     episode_files,
     file_damage,
     log_path,
+    read_run_report,
 )
 from skyvln_eval.harness.run_reading import is_run_directory
 from skyvln_eval.harness.store import RESULTS_FILE, ResultStore
@@ -67,13 +66,10 @@ def check_run_directory(run_dir: Path) -> RunCheck:
     results = store.results()
     check.rows = len(results)
     results_file = run_dir / RESULTS_FILE
-    report = run_dir / REPORT_FILE
-    if report.exists():  # rewritten by every launch, but its record of the data is read
-        try:
-            if not isinstance(json.loads(report.read_text(encoding="utf-8")), dict):
-                raise ValueError("not a JSON object")
-        except (OSError, ValueError) as error:
-            check.problems.append(f"{report}: cannot be read ({error})")
+    try:  # rewritten by every launch, but its record of the data is read
+        read_run_report(run_dir)
+    except SkyvlnError as error:
+        check.problems.append(str(error))
     for row in store.recovery.damaged:
         check.problems.append(f"{results_file} line {row.line}: damaged row ({row.reason})")
     superseded = store.recovery.superseded
