@@ -86,6 +86,8 @@ class Reply:
     finish_reason: str | None = "stop"
     content_type: str = "application/json"
     usage: dict[str, Any] | None = field(default_factory=lambda: dict(USAGE))
+    #: A refusal's message content beside its ``refusal`` (``None``: content null).
+    content_beside: str | None = None
 
 
 def answer(
@@ -113,10 +115,10 @@ def echo_key(code: int = 400) -> Reply:
     return Reply("echo_key", status=code)
 
 
-def refusal(text: str, task: str | None = None) -> Reply:
-    """The model declines, as OpenAI's structured outputs report it: no content, the
-    reason in the message's ``refusal``."""
-    return Reply("refusal", content=text, task=task)
+def refusal(text: str, task: str | None = None, content: str | None = None) -> Reply:
+    """The model declines, as OpenAI's structured outputs report it: the reason in the
+    message's ``refusal``, no content (or ``content`` beside it, as a server may send)."""
+    return Reply("refusal", content=text, task=task, content_beside=content)
 
 
 def error_body(message: str, task: str | None = None) -> Reply:
@@ -445,7 +447,9 @@ class LoopbackOpenAIServer:
                     empty = json.loads(_completion_body("", model)) | {"choices": []}
                     self._send(200, json.dumps(empty).encode())
                 elif reply.kind == "refusal":
-                    self._send(200, _completion_body(None, model, refused=reply.content))
+                    self._send(
+                        200, _completion_body(reply.content_beside, model, refused=reply.content)
+                    )
                 elif reply.kind == "answer":
                     self._send(
                         200,

@@ -546,9 +546,13 @@ class OpenAIBackend(LLMBackend):
             reason = getattr(choice, "finish_reason", None)
             finish = None if reason is None else str(reason)
             declined = getattr(choice.message, "refusal", None)
-            if not text and isinstance(declined, str) and declined:
-                # OpenAI's structured outputs: the model declined; its reason is the answer.
-                text, finish = self._scrub(declined), "refusal"
+            if isinstance(declined, str) and declined.strip():
+                # OpenAI's structured outputs: the model declined; its reason is what it
+                # said. Content beside a refusal is not an answer either: it is kept after
+                # the reason, for the record, and never parsed.
+                reason = self._scrub(declined)
+                text = f"{reason}\n[content beside the refusal] {text}" if text else reason
+                finish = "refusal"
             if finish == "error":
                 # Gateways end a generation that failed on their side with this reason:
                 # what came before it is not an answer. Retried as a fault.

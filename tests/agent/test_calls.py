@@ -61,8 +61,15 @@ def _go_north(llm: LLMConfig) -> JsonCall[SubGoalPlan]:
         (answer(GOOD, finish_reason="content_filter"), "content_filter", "content filter"),
         # OpenAI's structured outputs: no content, the model's reason in ``refusal``.
         (refusal("I cannot help with drones."), "refusal", "declined to answer: 'I cannot"),
+        # A server that sends a refusal and content: the content is no answer, even if it
+        # parses; the refusal is what the model said.
+        (
+            refusal("I cannot help with drones.", content=GOOD),
+            "refusal",
+            "declined to answer: 'I cannot help with drones.\\n[content beside the refusal] {",
+        ),
     ],
-    ids=["content-filter", "refusal"],
+    ids=["content-filter", "refusal", "refusal-beside-content"],
 )
 def test_a_filtered_or_refused_answer_is_invalid_with_its_reason_and_repaired(
     first_reply: Reply, finish: str, reason: str
