@@ -100,6 +100,11 @@ CONTROL_COLUMNS: tuple[tuple[str, str, Aggregate], ...] = (
         "steps inside the keep-out clearance or past a limit, per episode",
         "mean",
     ),
+    (
+        "segments_cut_short",
+        "segments ended at the time limit short of their target, per episode",
+        "mean",
+    ),
     ("rmse_x_m", "RMSE x/m, episode mean", "mean"),
     ("rmse_y_m", "RMSE y/m, episode mean", "mean"),
     ("rmse_z_m", "RMSE z/m, episode mean", "mean"),

@@ -637,15 +637,6 @@ def _recorded_error(store: ResultStore, key: RowKey) -> bool:
     return row is not None and row.status == "error"
 
 
-def segments_cut_short(row: EpisodeResult) -> int:
-    """How many of a flown episode's segments ended at ``max_segment_time_s`` without the
-    drone settling at their target (a crash's last segment is the crash, not counted)."""
-    reached = row.extra.get("segments_reached") or []
-    if row.control is not None and row.control.collided and reached and not reached[-1]:
-        reached = reached[:-1]
-    return sum(not r for r in reached)
-
-
 def _finish(job: RunJob, wall_s: float, runs_in_pass: int = 1, finished: bool = True) -> None:
     """The job's report from its rows, written to ``run.json``; ``wall_s`` is the pass's
     (shared by its ``runs_in_pass`` runs, whose episodes ran interleaved)."""
@@ -668,7 +659,7 @@ def _finish(job: RunJob, wall_s: float, runs_in_pass: int = 1, finished: bool = 
             "flown": len(flown),
             "crashed": sum(c.collided for c in flown),
             "with failed solves": sum(c.solve_failures > 0 for c in flown),
-            "with segments cut short": sum(segments_cut_short(r) > 0 for r in flown_rows),
+            "with segments cut short": sum((r.segments_cut_short or 0) > 0 for r in flown_rows),
         }
     report.errors = {
         key: (results[key].error or "error").splitlines()[0]

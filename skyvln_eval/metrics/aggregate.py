@@ -103,6 +103,7 @@ LOWER_IS_BETTER = frozenset(
         "collided",
         "constraint_violation_steps",
         "solve_failures",
+        "segments_cut_short",
         "rmse_x_m",
         "rmse_y_m",
         "rmse_z_m",

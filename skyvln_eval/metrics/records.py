@@ -288,6 +288,18 @@ class EpisodeResult:
         return len(self.gt_path_corners) >= 2
 
     @property
+    def segments_cut_short(self) -> int | None:
+        """How many of a flown episode's segments ended at ``max_segment_time_s`` without
+        the drone settling at their target (a crash's last segment is the crash, not
+        counted); ``None`` when the row does not say (not flown, or an older run)."""
+        reached = self.extra.get("segments_reached")
+        if self.control is None or not isinstance(reached, list):
+            return None
+        if self.control.collided and reached and not reached[-1]:
+            reached = reached[:-1]
+        return sum(not r for r in reached)
+
+    @property
     def llm_use_recorded(self) -> bool:
         """Whether ``llm_calls`` (and the questions asked) are the agent's record: an empty
         one then means no call, at no cost; otherwise nothing is known of them."""

@@ -40,6 +40,7 @@ CONTROL_COLUMNS: dict[str, str] = {
     "constraint_violation_steps": "steps",
     "solve_failures": "steps",
     "soft_steps": "steps",
+    "segments_cut_short": "segments",
     "rmse_x_m": "m",
     "rmse_y_m": "m",
     "rmse_z_m": "m",
@@ -183,7 +184,13 @@ def score_results(
         for k in with_control:  # only rows with dynamics; the rest stay empty
             control = results[k].control
             assert control is not None
-            cells[k] = float(control.collided) if column == "collided" else getattr(control, column)
+            if column == "collided":
+                cells[k] = float(control.collided)
+            elif column == "segments_cut_short":  # of the rollout, not the control summary
+                cut = results[k].segments_cut_short
+                cells[k] = None if cut is None else float(cut)
+            else:
+                cells[k] = getattr(control, column)
         frame[column] = pd.array(cells, dtype="Float64")
     bad = [c for c in metrics if not np.isfinite(frame[c].to_numpy(np.float64)).all()]
     if bad:  # a bug, never user input (inputs are checked finite): fail loudly

@@ -32,7 +32,8 @@ SUMMARY_METRICS = ("success", "oracle_success", "spl", "gp_m", "oracle_gp_m", "n
                    "ndtw", "sdtw", "cls",
                    "status_error", "status_degraded", "fallback_rate", "llm_call_failure_rate",
                    "llm_cost_usd", "llm_latency_s", "collided", "min_clearance_m",
-                   "solve_failures", "soft_steps", "constraint_violation_steps")  # fmt: skip
+                   "solve_failures", "soft_steps", "constraint_violation_steps",
+                   "segments_cut_short")  # fmt: skip
 #: What the terminal table shows (summary.csv has every metric above).
 #: The metrics the score printout shows, under short headers (the tables' names): the
 #: column names of scores.csv would be cut to fit ("oracle_succe…"); the note under the

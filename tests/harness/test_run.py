@@ -588,7 +588,6 @@ def test_segments_cut_short_by_their_time_limit_are_counted(
     # An audit: with max_segment_time_s 1 no segment arrived, and the run said "ok, 0
     # crashed, 0 with failed solver steps" (segments_reached was written, read nowhere).
     from skyvln_eval.harness.commands import describe_report
-    from skyvln_eval.harness.run import segments_cut_short
 
     dynamics = {"controller": "pid", "controller_settings": {}, "max_segment_time_s": 1.0}
     config = small_config(
@@ -596,7 +595,7 @@ def test_segments_cut_short_by_their_time_limit_are_counted(
     )
     report = run(config, tmp_path / "run")
     (row,) = read_results(tmp_path / "run" / RESULTS_FILE)
-    assert segments_cut_short(row) == len(row.extra["segments_reached"]) > 0
+    assert row.segments_cut_short == len(row.extra["segments_reached"]) > 0
     assert report.flights["with segments cut short"] == 1
     saved = json.loads((tmp_path / "run" / "run.json").read_text())
     assert saved["flights"]["with segments cut short"] == 1
@@ -604,3 +603,10 @@ def test_segments_cut_short_by_their_time_limit_are_counted(
         "1 with a segment cut short at max_segment_time_s" in line
         for line in describe_report(report)
     )
+    # The scores carry the count (the control table's column), an episode not flown none.
+    scores = score_results([row], MetricConventions())
+    assert scores["segments_cut_short"].tolist() == [row.segments_cut_short]
+    official = small_config(limit=1, agent={"name": "ground_truth"})
+    run(official, tmp_path / "official")
+    (unflown,) = read_results(tmp_path / "official" / RESULTS_FILE)
+    assert unflown.segments_cut_short is None
