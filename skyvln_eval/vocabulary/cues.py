@@ -80,6 +80,10 @@ STOP_CUES: Final[tuple[Cue, ...]] = (
     ("come", "to"),
     ("end", "up"),
     ("finish",),
+    ("until", "you", "are", "above"),
+    ("until", "you", "are", "over"),
+    ("until", "you're", "above"),
+    ("until", "you're", "over"),
 )
 #: Saying that something is the destination.
 DESTINATION_CUES: Final[tuple[Cue, ...]] = (
@@ -92,6 +96,10 @@ DESTINATION_CUES: Final[tuple[Cue, ...]] = (
     ("searching", "for"),
     ("trip", "ends"),
     ("where", "you", "finish"),
+    ("final", "spot"),
+    ("where", "we", "are", "going"),
+    ("where", "we're", "going"),
+    ("place", "you", "want"),
 )
 #: Saying a landmark is to be passed.
 PASS_CUES: Final[tuple[Cue, ...]] = (

@@ -63,7 +63,8 @@ def goal(kind: str, landmark: str, **fields: Any) -> dict[str, Any]:
         ),
         (
             "Turn around and fly to the house with the blue roof",
-            [head("west"), goal("pass", "the house with the blue roof")],
+            # Sent there last, with nowhere else to stop: where to stop.
+            [head("west"), goal("stop_at", "the house with the blue roof")],
         ),
         # More in the same style.
         ("You are almost there, keep going straight.", [head("ahead")]),

@@ -124,6 +124,66 @@ PACKAGE = REPO / "skyvln_eval"
         # of "ahead" made "On target, hold" fly on, the episode still "ok").
         ("Yes, that's right. No idea what else to say", None, []),
         ("On target, hold", None, []),
+        # Sent to a landmark last, with nowhere else to stop: stop there (it was one to
+        # pass, and the drone flew on by dead reckoning).
+        ("Fly to the red building.", None, [{"kind": "stop_at", "landmark": "the red building"}]),
+        (
+            "Please head straight over to the big grey parking lot at 2 o'clock.",
+            None,
+            [
+                {"kind": "turn", "direction": "right"},
+                {"kind": "stop_at", "landmark": "the big grey parking lot"},
+            ],
+        ),
+        # Something said after it, or "to" saying where: still one to pass.
+        (
+            "Go to the pond and turn left.",
+            None,
+            [{"kind": "pass", "landmark": "the pond"}, {"kind": "turn", "direction": "left"}],
+        ),
+        (
+            "Fly to the red building, keep it on your left.",
+            None,
+            [{"kind": "pass", "landmark": "the red building", "side": "left"}],
+        ),
+        (
+            "Fly close to the church.",
+            None,
+            [{"kind": "pass", "landmark": "the church"}],
+        ),
+        # Ordinary ways to name the stop or the destination (an audit: read as passing).
+        (
+            "Go north until you are above the church with a red roof.",
+            None,
+            [
+                {"kind": "head", "direction": "north"},
+                {"kind": "stop_at", "landmark": "the church with a red roof"},
+            ],
+        ),
+        (
+            "Go north. The church with a red roof is the final spot.",
+            None,
+            [
+                {"kind": "head", "direction": "north"},
+                {"kind": "destination", "landmark": "the church with a red roof"},
+            ],
+        ),
+        (
+            "Go north, the place you want is a church with a red roof.",
+            None,
+            [
+                {"kind": "head", "direction": "north"},
+                {"kind": "destination", "landmark": "a church with a red roof"},
+            ],
+        ),
+        (
+            "Head east; the pond is where we're going.",
+            None,
+            [
+                {"kind": "head", "direction": "east"},
+                {"kind": "destination", "landmark": "the pond"},
+            ],
+        ),
     ],
 )
 def test_the_reader_understands_phrasings_it_was_not_written_for(

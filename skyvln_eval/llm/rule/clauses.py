@@ -114,6 +114,9 @@ class ClauseReading:
     destination: bool = False
     passing: bool = False
     negated: bool = False
+    #: A verb of motion sends the drone *to* a landmark of the clause ("fly over to the
+    #: church"): where it is to get to, unless a cue says otherwise.
+    reach: bool = False
 
     @property
     def roundabout(self) -> Mention | None:
@@ -228,6 +231,24 @@ def _left_right(words: Sequence[str], turning: bool) -> tuple[str | None, str | 
     return turn, side
 
 
+#: Words before "to" that make it say where something is, not where to go ("next to").
+NEAR_BEFORE_TO: Final = frozenset(
+    {"next", "close", "closer", "near", "nearer", "adjacent", "parallel", "due", "up"}
+)
+
+
+def _sent_to_landmark(words: Sequence[str], mentions: Sequence[Mention]) -> bool:
+    """Whether a verb of motion and then "to" come before one of the clause's landmarks
+    ("go to the red roof", "head north to the pond"), "to" not saying where something is
+    ("next to", "close to")."""
+    for i, word in enumerate(words):
+        if word != "to" or (i and words[i - 1] in NEAR_BEFORE_TO):
+            continue
+        if any(w in MOTION_VERBS for w in words[:i]) and any(m.start > i for m in mentions):
+            return True
+    return False
+
+
 def read_clause(clause: Sequence[Word]) -> ClauseReading:
     """The reading of one clause (see the module docstring)."""
     all_words = [w.low for w in clause]
@@ -250,6 +271,7 @@ def read_clause(clause: Sequence[Word]) -> ClauseReading:
     reading.destination = _has_cue(words, DESTINATION_CUES) is not None
     reading.stop = _has_cue(words, STOP_CUES) is not None
     reading.passing = _has_cue(words, PASS_CUES) is not None
+    reading.reach = _sent_to_landmark(all_words, reading.mentions)
     turn_verb = any(w in TURN_VERBS for w in words)
     # A roundabout is where to turn unless the clause says to stop at it, pass it, ...
     roundabout_only = not (reading.destination or reading.stop or reading.passing)

@@ -18,6 +18,8 @@ order a commander chooses does not matter:
 - a landmark is the destination, a place to stop at, or one to pass by the cues of its
   clause, or by a cue elsewhere in the sentence ("Target: a red church"), or by a later
   "that is your destination";
+- a landmark the drone is sent to ("fly to the red roof") is where to stop when it is the
+  instruction's last landmark and nothing else says where to stop;
 - a distance belongs to the sentence's stop or destination, or is a stop of its own;
 - a sentence that only says to stop, in an instruction without another stop, is a stop
   where the drone is ("you are there, stop").
@@ -40,6 +42,7 @@ from skyvln_eval.vocabulary.words import phrase_words
 Goal = dict[str, Any]
 _ROLELESS = "mention"  # a landmark no cue has given a role yet
 _JUNCTION = "junction"  # a junction said before (or without) its turn
+_REACH = "_reach"  # marks a landmark the drone is sent to ("fly to the church")
 
 
 class _Sentence:
@@ -125,6 +128,8 @@ class _Sentence:
             goal = self.add({"kind": kind, "landmark": m.phrase}, k)
             if kind == "pass" and r.side is not None:
                 goal["side"] = r.side
+            if kind == _ROLELESS and r.reach:
+                goal[_REACH] = True
         for name in r.names:  # a name follows the landmark it names
             named = [g for g in self.own() if g.get("landmark") and g["kind"] != "turn"]
             if named and "name" not in named[-1]:
@@ -225,12 +230,24 @@ def parse_instruction(
         for k, clause in enumerate(clauses):
             sentence.read(k, read_clause(clause))
         sentence.settle()
+    _stop_at_last_reached(goals)
     if not goals and MOTION_VERBS & set(phrase_words(text)):
         # Told to go on without where ("Yes, keep going"): a sub-goal too. Words with no
         # cue at all ("On target, hold") give no plan: a failed reading, which the agent
         # records (a guess of "ahead" there made a failure look like a reading).
         goals.append({"kind": "head", "direction": "ahead"})
     return goals
+
+
+def _stop_at_last_reached(goals: list[Goal]) -> None:
+    """An instruction that says nowhere to stop but ends by sending the drone to a landmark
+    ("Fly to the red building."): that landmark is where to stop, not one to pass (with
+    anything said after it, "go to the pond and turn left", it stays one to pass)."""
+    reached = [g for g in goals if g.pop(_REACH, False)]
+    if _has_stop(goals) or not reached or goals[-1] is not reached[-1]:
+        return
+    if reached[-1]["kind"] == "pass" and "side" not in reached[-1]:
+        reached[-1]["kind"] = "stop_at"
 
 
 def landmark_phrases(text: str) -> list[str]:
