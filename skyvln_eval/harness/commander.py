@@ -34,8 +34,10 @@ from skyvln_eval.avdn.records import DialogTurn, Episode
 from skyvln_eval.frames import latlng_to_enu, view_to_pose
 from skyvln_eval.harness.seeds import derived_seed
 from skyvln_eval.metrics.official import view_success
-from skyvln_eval.vocabulary import compass_word
 from skyvln_eval.worlds.sample import SPLIT_FAMILIES, AnswerFacts, commander_answer, seen_families
+# The generator's own compass names: the commander's writing shares no code with the
+# stand-in's reader (skyvln_eval.vocabulary).
+from skyvln_eval.worlds.sample.facts import cardinal
 from skyvln_eval.worlds.tile import WorldTile
 
 #: A heading more than this far off the way to the destination is a wrong heading.
@@ -95,11 +97,11 @@ class SimulatedCommander:
         off = abs((here.heading_deg - bearing + 180.0) % 360.0 - 180.0)
         distance_m = math.hypot(east, north)
         facts = AnswerFacts(
-            direction=compass_word(bearing),
+            direction=cardinal(bearing),
             distance_m=distance_m,
             landmark=self._destination,
             is_destination=self._destination is not None,
-            wrong_heading=compass_word(here.heading_deg) if off > WRONG_HEADING_DEG else None,
+            wrong_heading=cardinal(here.heading_deg) if off > WRONG_HEADING_DEG else None,
             arrived=view_success(view, self.episode.gt_end_view),
         )
         seed = derived_seed(self.seed, "commander", self.episode.episode_id, step_index)
