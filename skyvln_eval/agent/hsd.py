@@ -72,7 +72,9 @@ def relative_bearing_deg(bearing_deg: float, heading_deg: float) -> float:
 
 
 def fine_entry(s: Sighting, heading_deg: float) -> dict[str, Any]:
-    """A sighting as HSD gives it to the LLM."""
+    """A sighting as HSD gives it to the LLM: its numbers as the prose says them (whole
+    metres and degrees, the score to two places), so that task data is no more precise
+    than what a model reads."""
     sector = sector_of(s.box_px, s.image_size_px)
     return {
         "id": s.landmark_id,
@@ -82,12 +84,12 @@ def fine_entry(s: Sighting, heading_deg: float) -> dict[str, Any]:
         "view_heading_deg": s.view_heading_deg,
         "sector": sector,
         "sector_name": SECTOR_NAMES[sector],
-        "distance_m": round(s.distance_m, 1),
-        "bearing_deg": round(s.bearing_deg, 1),
-        "relative_bearing_deg": round(relative_bearing_deg(s.bearing_deg, heading_deg), 1),
-        "size_m": round(s.size_m, 1),
+        "distance_m": round(s.distance_m),
+        "bearing_deg": round(s.bearing_deg),
+        "relative_bearing_deg": round(relative_bearing_deg(s.bearing_deg, heading_deg)),
+        "size_m": round(s.size_m),
         "clipped": s.clipped,
-        "score": s.score,
+        "score": round(s.score, 2),
     }
 
 
@@ -101,7 +103,7 @@ def coarse_entry(s: Sighting) -> dict[str, Any]:
         "caption": s.caption,
         "view": s.view_name,
         "position": coarse_position(s.box_px, s.image_size_px),
-        "score": s.score,
+        "score": round(s.score, 2),
     }
 
 

@@ -287,7 +287,8 @@ class SkyVLNAgent(Agent):
         # far is left (the instruction's whole distance would be a false "left to fly").
         remaining = None
         if distance is not None and self.memory is not None:
-            remaining = max(0.0, distance - st.odometer.travelled_m)
+            # Whole metres, as the prompt's prose says it.
+            remaining = round(max(0.0, distance - st.odometer.travelled_m))
         hint = {"direction_deg": direction, "remaining_m": remaining}
         notes = None if self.memory is None else self.memory.notes
         heading = observation.pose.heading_deg

@@ -35,6 +35,7 @@ from skyvln_eval.frames import latlng_to_enu, view_to_pose
 from skyvln_eval.harness.seeds import derived_seed
 from skyvln_eval.metrics.official import view_success
 from skyvln_eval.worlds.sample import SPLIT_FAMILIES, AnswerFacts, commander_answer, seen_families
+
 # The generator's own compass names: the commander's writing shares no code with the
 # stand-in's reader (skyvln_eval.vocabulary).
 from skyvln_eval.worlds.sample.facts import cardinal

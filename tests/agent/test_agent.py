@@ -109,6 +109,17 @@ def test_the_ranking_prompt_tells_the_model_every_value_the_stand_in_ranks_by() 
         for c in candidates:
             line = next(line for line in text.splitlines() if line.startswith(f"- {c['id']}:"))
             assert f"{c['distance_m']:.0f} m away at bearing {c['bearing_deg']:.0f} deg" in line
+            # No more precise than the prose (an audit: 83.4 m in the data, "83 m" told).
+            assert c["distance_m"] == round(c["distance_m"])
+            assert c["bearing_deg"] == round(c["bearing_deg"])
+        remaining = hint.get("remaining_m")
+        assert remaining is None or remaining == round(remaining)
+    entries = [e for data, _ in backend.requests for e in data.get("landmarks") or []]
+    assert entries
+    for e in entries:
+        for key in ("distance_m", "bearing_deg", "relative_bearing_deg", "size_m"):
+            assert e[key] == round(e[key]), (key, e)
+        assert e["score"] == round(e["score"], 2)
 
 
 def test_the_motion_prompt_says_how_many_actions_were_taken() -> None:

@@ -111,9 +111,12 @@ PANORAMA = Panorama(
 def test_fine_entries_carry_sector_distance_and_bearing_and_coarse_ones_do_not() -> None:
     entry = fine_entry(PANORAMA.sightings[1], heading_deg=30.0)
     assert entry["sector"] == 8 and entry["sector_name"] == "lower-right"
-    assert entry["distance_m"] == pytest.approx(100.0)
-    assert entry["bearing_deg"] == pytest.approx(53.1, abs=0.1)
-    assert entry["relative_bearing_deg"] == pytest.approx(23.1, abs=0.1)
+    # Whole metres and degrees, as the prose says them (53.13 deg -> 53).
+    assert (entry["distance_m"], entry["bearing_deg"], entry["relative_bearing_deg"]) == (
+        100,
+        53,
+        23,
+    )
     coarse = SpatialDescriptor(LLMClient(ScriptedBackend()), LLMConfig(), enabled=False)
     [first, *_] = coarse.entries(PANORAMA, 30.0)
     assert first == {
