@@ -38,11 +38,11 @@ class EpisodeBrief:
     the episode's id and map name are not given, since they are the keys of its
     annotations (the route and the goal). The key is a function of the id, so whoever
     holds the dataset can find the episode from it, as from the dialog: it is for seeding
-    only, a rule (like the sensor handle's), not a wall. ``dialog`` is every turn so far (earlier rounds
-    and the current round's question and instruction); ``current_round`` the round the
-    agent now follows. ``start_pose`` and ``start_view`` are where it starts (the view's
-    ``[lat, lng]`` corners), ``georef`` the map's georeference, ``max_steps`` the view
-    budget, start included.
+    only, a rule (like the sensor handle's), not a wall. ``dialog`` is every turn so far
+    (earlier rounds and the current round's question and instruction); ``current_round``
+    the round the agent now follows. ``start_pose`` and ``start_view`` are where it starts
+    (the view's ``[lat, lng]`` corners), ``georef`` the map's georeference, ``max_steps``
+    the view budget, start included.
     """
 
     episode_key: int
