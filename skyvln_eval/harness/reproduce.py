@@ -63,6 +63,7 @@ from skyvln_eval.reports import TABLE_I, TABLE_II, to_csv, to_latex, to_markdown
 from skyvln_eval.reports.paper_tables import (
     STAND_IN_MARKERS,
     model_label,
+    oracle_label,
     paper_table,
     stand_in_kind,
     table_metrics,
@@ -184,9 +185,13 @@ def _data_note(data: str) -> str:
 def table1_label(label: str, agent: AgentConfig) -> tuple[str, str | None]:
     """A Table I row label that says what answered the agent's LLM calls, and its footnote.
 
-    Agents without LLM modules keep their label; stand-ins get a marker whose footnote says
-    so; a real model is named (``Full (openai:gpt-4o)``) unless the label already names it.
+    The oracle is marked as such wherever its row is shown (the control table and
+    SUMMARY.md too, not only Table I); other agents without LLM modules keep their label;
+    stand-ins get a marker whose footnote says so; a real model is named
+    (``Full (openai:gpt-4o)``) unless the label already names it.
     """
+    if is_oracle(agent.name):
+        return oracle_label(label), None
     if agent.name not in LLM_AGENTS:
         return label, None
     backend = agent.llm.answered_by

@@ -420,3 +420,16 @@ def test_control_md_counts_the_episodes_that_flew() -> None:
     table = _metric_table(scores, ["a", "b"], CONTROL_COLUMNS, "control", counted="has_control")
     assert "| a | 2 of 3 | 1.000 |" in table and "| b | 1 | 1.000 |" in table
     assert "| a | 3 | 1.000 |" in _metric_table(scores, ["a"], CONTROL_COLUMNS, "control")
+
+
+def test_the_oracle_is_marked_in_every_row_label_reproduce_writes() -> None:
+    # An audit: an oracle flown in dynamics mode was marked in Table I (at render time) but
+    # not in control.md or SUMMARY.md's run list, which take their labels from here.
+    from skyvln_eval.agent.config import AgentConfig
+    from skyvln_eval.harness.reproduce import table1_label
+
+    oracle = AgentConfig.model_validate({"name": "ground_truth"})
+    assert table1_label("Route follower", oracle) == ("Route follower (oracle)", None)
+    assert table1_label("GT replay (oracle)", oracle) == ("GT replay (oracle)", None)
+    random = AgentConfig.model_validate({"name": "random"})
+    assert table1_label("Random", random) == ("Random", None)
