@@ -14,7 +14,9 @@ every pair; scoring a large run spent most of its time there. Here:
 The result agrees with the shapely definition to about 1e-12; wherever it lands within
 :data:`THRESHOLD_BAND` of the success threshold, and wherever a view is not a convex
 quadrilateral in corner order, the shapely definition itself is used, so success and
-oracle-success decisions are exactly the official ones.
+oracle-success decisions are exactly those of the shapely definition (AVDN.md's rules on
+the float64 IoU; see :mod:`skyvln_eval.metrics.official` for the official code's float32
+store, which differs within 3e-9 of the threshold).
 """
 
 from __future__ import annotations

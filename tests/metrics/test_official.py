@@ -85,7 +85,7 @@ def test_iou_values_at_the_threshold_or_from_odd_corner_orders_are_the_official_
     p, g = iou_exactly_04()
     bowtie = p[[1, 0, 3, 2]]  # not a convex quad in corner order: shapely decides
     got = sparse_hull_iou(np.stack([p, bowtie]), np.stack([g, g]))
-    assert got[0] == 0.4  # exactly, so success (>= 0.4) and oracle (> 0.4) are official
+    assert got[0] == 0.4  # exactly, so success (>= 0.4) and oracle (> 0.4) are AVDN.md's
     assert got[1] == hull_iou(bowtie, g)
 
 
