@@ -198,11 +198,13 @@ class OpenAIBackend(LLMBackend):
         self.send_task_data = send_task_data
         self.system_role = system_role
         self.extra_body = checked_extra_body(extra_body or {})
-        # Imported now, not in the first call, whose deadline would pay for it (~0.5 s).
+        # Imported now, not in the first call, whose deadline would pay for it (~0.5 s);
+        # the TLS context and the request code too (~0.1-0.2 s once per process).
         try:
-            import openai  # noqa: F401
+            import openai.resources.chat.completions  # noqa: F401
         except ImportError as error:  # pragma: no cover - the test extra installs openai
             raise MissingExtraError("the openai backend", "openai", str(error)) from error
+        _tls_context()
 
     @classmethod
     def checked_model(cls, model: str | None) -> str:
@@ -351,9 +353,12 @@ class OpenAIBackend(LLMBackend):
                     if fmt is not None:
                         request["response_format"] = fmt
                 unsent = tuple(sorted(p for p in adapted.server_defaults if p in kwargs))
+                # Timed from here: making a client (a process's first also loads the
+                # library's request code) is set-up, not the model's latency.
+                client = self._checkout()
                 started = time.perf_counter()
                 try:
-                    response, body = self._create_by(ends_at, request)
+                    response, body = self._create_by(ends_at, request, client)
                     break
                 except FormatRefused as refusal:
                     lower = self._step_down(level, refusal)  # raises when nothing is left
@@ -428,11 +433,11 @@ class OpenAIBackend(LLMBackend):
         )
         return lower
 
-    def _create_by(self, ends_at: float, kwargs: dict[str, Any]) -> tuple[Any, str]:
-        """One request, answered in full before ``ends_at`` (``time.monotonic``) or given up:
-        the parsed answer and its body."""
+    def _create_by(self, ends_at: float, kwargs: dict[str, Any], client: Any) -> tuple[Any, str]:
+        """One request on ``client`` (checked out; checked in again unless abandoned),
+        answered in full before ``ends_at`` (``time.monotonic``) or given up: the parsed
+        answer and its body."""
         timeout_s = kwargs["timeout"]
-        client = self._checkout()
         left = ends_at - time.monotonic()
         if left <= 0.0:
             self._checkin(client)

@@ -350,3 +350,30 @@ def test_a_refusal_or_a_cut_off_answer_is_not_cached(
     assert first is not None and first.finish_reason == finish
     assert second is not None and not second.cached and second.text == '{"greeting": "hello"}'
     assert sent == 2 and len(cache) == 1
+
+
+def test_a_calls_latency_is_its_request_not_the_making_of_a_client(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # An audit: each process's first call counted its client's set-up (~0.2 s of a
+    # 0.06 s request) as the model's latency. A clock that moves only while a client is
+    # made: the latency recorded must not see it.
+    from skyvln_eval.llm import openai_backend
+
+    clock = [0.0]
+
+    def perf_counter() -> float:  # a millisecond a reading, and 5 s to make a client
+        clock[0] += 0.001
+        return clock[0]
+
+    monkeypatch.setattr(openai_backend.time, "perf_counter", perf_counter)
+    checkout = openai_backend.OpenAIBackend._checkout
+
+    def slow_checkout(self: openai_backend.OpenAIBackend) -> Any:
+        clock[0] += 5.0
+        return checkout(self)
+
+    monkeypatch.setattr(openai_backend.OpenAIBackend, "_checkout", slow_checkout)
+    with LoopbackOpenAIServer([answer('{"greeting": "hello"}')]) as server:
+        completion = _client(server).call("motion", HELLO, CONFIG).completion
+    assert completion is not None and completion.latency_s < 5.0
