@@ -287,7 +287,12 @@ def validate(
     directory's result rows are parsed, and each recorded episode's run log must be there
     and its control log read.
     """
-    from skyvln_eval.avdn import SPLITS, annotation_file_name, undefined_fields_note
+    from skyvln_eval.avdn import (
+        SPLITS,
+        annotation_file_name,
+        start_heading_note,
+        undefined_fields_note,
+    )
     from skyvln_eval.avdn.loader import andh_full_notes, check_split_indexed
     from skyvln_eval.converters.commands import is_mcap_target, run_validate_mcap
     from skyvln_eval.harness.run_check import run_directories_at
@@ -333,9 +338,9 @@ def validate(
             verdict += [f"{len(map_problems)} map image problem(s)"] if map_problems else []
             status = "; ".join(verdict) or "ok"
             typer.echo(f"{path} {split}: {len(records)} valid record(s), {status}")
-            note = undefined_fields_note(records)
-            if note is not None:
-                typer.echo(f"{path} {split}: note: {note}")
+            for note in (undefined_fields_note(records), start_heading_note(records)):
+                if note is not None:
+                    typer.echo(f"{path} {split}: note: {note}")
             for trajectory in andh_full_notes(checked, split, file):
                 typer.echo(f"note: {trajectory}")
         if not found:

@@ -63,6 +63,21 @@ def test_validate_notes_fields_the_format_does_not_define(
     )
 
 
+def test_validate_notes_a_start_angle_the_official_step_would_add_to_the_first_turn(
+    dataset_factory: Callable[..., Path],
+) -> None:
+    # An audit: the official agent adds a stored heading more than 2 degrees off the first
+    # view's to the first turn; a record with one passed validate without a word.
+    off = make_record(route_index="1_1", angle=40.0)  # its views face 30 degrees
+    splits = {"val_seen": [make_record(), off]}
+    result = runner.invoke(app, ["validate", str(dataset_factory(splits, image_px=1000))])
+    assert result.exit_code == 0, result.output  # a note, not a problem
+    assert (
+        "val_seen: note: 1 record(s) start at an angle more than 2 degrees off their first "
+        "view's heading: 1913__1_1 (40 vs 30 deg). The official agent adds such an angle"
+    ) in " ".join(result.output.split())
+
+
 def test_validate_passes_on_a_clean_dataset(dataset_factory: Callable[..., Path]) -> None:
     root = dataset_factory({"val_unseen": [make_record()]}, image_px=1000)
     result = runner.invoke(app, ["validate", str(root)])

@@ -71,6 +71,7 @@ from skyvln_eval.avdn.summary import SplitSummary, summarise_split
 from skyvln_eval.avdn.validation import (
     parse_record,
     parse_records,
+    start_heading_note,
     undefined_fields,
     undefined_fields_note,
 )
@@ -124,6 +125,7 @@ __all__ = [
     "replay_actions",
     "replay_ground_truth",
     "resize_to_degree_grid",
+    "start_heading_note",
     "summarise_split",
     "undefined_fields",
     "undefined_fields_note",

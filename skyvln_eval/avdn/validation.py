@@ -734,3 +734,33 @@ def undefined_fields_note(records: Sequence[AvdnRecord]) -> str | None:
     if not undefined:
         return None
     return f"fields the AVDN format does not define (kept as they are): {'; '.join(undefined)}"
+
+
+#: The official agent's step, given a stored heading that differs from its view's (both
+#: rounded, compared without wrapping) by more than this, adds the stored heading to the
+#: turn (``move_view_corners``; it prints "warning, currencting the view area").
+OFFICIAL_HEADING_GAP_DEG = 2
+
+
+def start_heading_note(records: Sequence[AvdnRecord], shown: int = 3) -> str | None:
+    """A note on records whose ``angle`` (as the official loader rounds it) is more than
+    :data:`OFFICIAL_HEADING_GAP_DEG` off their first view's rounded heading, or None: the
+    official agent turns their first step by the stored heading as well (a defect of its
+    step that AVDN.md's step, and this toolkit's, do not have), so official figures for
+    them are not comparable. The check has no wrap-round, as the official one has none
+    (359 against 0 is off)."""
+    off = []
+    for record in records:
+        stored = round(record.angle) % 360
+        facing = round(float(view_heading_deg(record.gt_path_corners[0]))) % 360
+        if abs(stored - facing) > OFFICIAL_HEADING_GAP_DEG:
+            off.append(f"{record.episode_id} ({stored} vs {facing} deg)")
+    if not off:
+        return None
+    more = f" and {len(off) - shown} more" if len(off) > shown else ""
+    return (
+        f"{len(off)} record(s) start at an angle more than {OFFICIAL_HEADING_GAP_DEG} degrees "
+        f"off their first view's heading: {', '.join(off[:shown])}{more}. The official "
+        "agent adds such an angle to the first turn (a defect of its step); this toolkit "
+        "steps from the view, as AVDN.md does, so their official figures may differ"
+    )
