@@ -319,7 +319,7 @@ def _check_record(
     missing = [key for key in REQUIRED_KEYS if key not in raw]
     for key in missing:
         report(key, "missing required key")
-    if missing or len(issues) > count:
+    if missing:  # what the checks below read is not there; a repeated key is, as its last value
         return None
     _check_scalars(raw, report)
     for key, value in raw.items():

@@ -335,6 +335,11 @@ def test_a_key_given_twice_is_refused_not_silently_the_last(
     path.write_text(text.replace('"angle": 30.0', '"angle": 30.0, "angle": 120.0'))
     _, issues = check_split(root, "val_seen")
     assert [(i.field, "more than once" in i.message) for i in issues] == [("angle", True)]
+    # Every problem of the record is reported, not the repeated key alone (an audit).
+    path.write_text(text.replace('"angle": 30.0', '"angle": 30.0, "angle": 30.0, "lat_ratio": -1'))
+    _, issues = check_split(root, "val_seen")
+    said = [(i.field, "more than once" in i.message) for i in issues]
+    assert said == [("angle", True), ("lat_ratio", True), ("lat_ratio", False)]
 
 
 @pytest.mark.parametrize(
