@@ -46,6 +46,10 @@ from skyvln_eval.metrics.conventions import CONVENTIONS_ATTR, MetricConventions,
 from skyvln_eval.metrics.records import KEY_COLUMNS
 from skyvln_eval.metrics.scoring import CONTROL_COLUMNS, METRIC_UNITS, TEXT_COLUMNS
 
+#: Metric columns added since the scores format's version: a file scored before has none,
+#: read as unknown (empty) values rather than refused.
+ADDED_METRICS = ("segments_cut_short",)
+
 SCORES_FORMAT = "skyvln-eval.scores"
 SCORES_VERSION = 3
 #: Versions :func:`read_scores` reads (see the module docstring).
@@ -157,6 +161,9 @@ def read_scores(path: str | Path) -> tuple[pd.DataFrame, MetricConventions]:
     # Its old name: it always counted requests (attempts), not calls.
     frame = frame.rename(columns={"llm_unpriced_calls": "llm_unpriced_requests"})
     said = ("oracle",) if version != "1" else ()
+    for column in ADDED_METRICS:
+        if column not in frame.columns:  # scored before the scores had it: not known
+            frame[column] = pd.array([None] * len(frame), dtype="Float64")
     missing = [c for c in (*KEY_COLUMNS, "status", *said, *METRIC_UNITS) if c not in frame.columns]
     if missing:
         shown = ", ".join(missing[:8]) + (

@@ -276,3 +276,21 @@ def test_a_scores_file_with_the_old_name_of_unpriced_requests_reads(tmp_path: Pa
     old, _ = read_scores(tmp_path / "old.csv")
     assert "llm_unpriced_calls" not in old.columns
     assert old["llm_unpriced_requests"].tolist() == scores["llm_unpriced_requests"].tolist()
+
+
+def test_a_scores_file_from_before_segments_cut_short_reads_it_as_unknown(
+    tmp_path: Path,
+) -> None:
+    # The column came after the format's version: a file scored before is read, not refused
+    # ("lacks column(s) segments_cut_short"), and says nothing of it.
+    g = [square(0, 0), square(50, 0)]
+    write_scores(tmp_path / "s.csv", score_results([result(g, g)]), MetricConventions())
+    header, *rows = (tmp_path / "s.csv").read_text().splitlines()[2:]
+    at = header.split(",").index("segments_cut_short")
+    kept = [
+        ",".join(c for k, c in enumerate(line.split(",")) if k != at) for line in [header, *rows]
+    ]
+    head = (tmp_path / "s.csv").read_text().splitlines()[:2]
+    (tmp_path / "old.csv").write_text("\n".join([*head, *kept]) + "\n")
+    old, _ = read_scores(tmp_path / "old.csv")
+    assert old["segments_cut_short"].isna().all()
