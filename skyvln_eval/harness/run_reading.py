@@ -10,11 +10,22 @@ from __future__ import annotations
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from skyvln_eval.errors import DataError, IncompleteRunError, listed
+from skyvln_eval.errors import (
+    AlteredGroundTruthError,
+    ConfigError,
+    DataError,
+    ForeignRowsError,
+    IncompleteRunError,
+    listed,
+)
 from skyvln_eval.harness.run import CONFIG_FILE
 from skyvln_eval.harness.store import RESULTS_FILE, ResultStore, RowKey, key_of
 from skyvln_eval.metrics.records import EpisodeResult
+
+if TYPE_CHECKING:
+    from skyvln_eval.reports.run_coverage import RunCoverage
 
 
 def run_results(
@@ -33,6 +44,13 @@ def run_results(
     ``keys``, those recorded). A row that only records the run stopping (refused
     credentials, a full disk) is never returned: it is no episode's result.
 
+    Whatever is asked, and allowed incomplete or not, the run's rows are checked as
+    ``score`` checks them: rows another config made (:class:`ForeignRowsError`), rows whose
+    ground truth is not their episode's in the dataset (:class:`AlteredGroundTruthError`)
+    and rows of episodes its config does not select raise. A run whose episodes cannot be
+    known (no ``config.yaml``, its data moved) raises, or with ``allow_incomplete`` warns
+    that its rows are not checked.
+
     ``run_dir`` may also be a folder of run directories, as ``reproduce`` writes a
     system's splits (``runs/full/val_seen``, ...): each is read and checked as above, and
     their rows returned together, in the folders' name order.
@@ -43,7 +61,11 @@ def run_results(
         return [r for one in runs for r in _all_rows(one, allow_incomplete)]
     rows: dict[RowKey, EpisodeResult] = {}
     for one in runs:
-        for row in _opened(one).results():
+        results = _opened(one).results()
+        # Checked as a whole run is, its completeness aside: a row edited by hand or made
+        # by another config was returned for its key as if it were this run's.
+        _checked_coverage(one, results, allow_incomplete)
+        for row in results:
             key = key_of(row)
             if key in rows:  # e.g. two systems' runs in one folder
                 raise DataError(
@@ -117,14 +139,38 @@ def _opened(run_dir: Path) -> ResultStore:
 
 def _all_rows(run_dir: Path, allow_incomplete: bool) -> list[EpisodeResult]:
     results = _opened(run_dir).results()
-    if allow_incomplete:
-        return [r for r in results if not r.stopped_the_run]
+    coverage = _checked_coverage(run_dir, results, allow_incomplete)
+    if coverage is not None and not coverage.complete and not allow_incomplete:
+        raise coverage.error()
+    return [r for r in results if not r.stopped_the_run]
+
+
+def _checked_coverage(
+    run_dir: Path, results: Sequence[EpisodeResult], allow_incomplete: bool
+) -> RunCoverage | None:
+    """How ``results`` cover the run's episodes, as ``score`` checks them whether or not
+    incomplete runs are allowed: rows another config made, rows whose ground truth is not
+    their episode's and rows outside the run's selection always raise. When which episodes
+    the run covers is unknown (no config, its data moved), that raises too, unless
+    ``allow_incomplete`` (then a warning says the rows are not checked, and ``None``)."""
     from skyvln_eval.reports.run_coverage import run_coverage  # it reads harness.run
 
-    coverage = run_coverage(run_dir, results)
-    if not coverage.complete:
+    try:
+        coverage = run_coverage(run_dir, results)
+    except (ForeignRowsError, AlteredGroundTruthError):
+        raise  # allowed incomplete or not, as `score`
+    except (ConfigError, DataError) as error:
+        if not allow_incomplete:
+            raise
+        warnings.warn(
+            f"NOT CHECKED whether run {run_dir} is complete and its rows its own: {error}",
+            UserWarning,
+            stacklevel=3,
+        )
+        return None
+    if coverage.unexpected:
         raise coverage.error()
-    return results
+    return coverage
 
 
 def _rows_of(

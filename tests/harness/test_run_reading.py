@@ -7,9 +7,16 @@ from pathlib import Path
 
 import pytest
 
-from skyvln_eval.errors import DataError, IncompleteRunError
+from skyvln_eval.errors import (
+    AlteredGroundTruthError,
+    DataError,
+    ForeignRowsError,
+    IncompleteRunError,
+)
 from skyvln_eval.harness import run_results
+from skyvln_eval.metrics import read_results, write_results
 from tests.conftest import make_record
+from tests.metrics.helpers import result
 from tests.reports.test_run_coverage import IDS, config, run_dir
 
 
@@ -97,3 +104,47 @@ def test_damaged_lines_are_told_not_read_past_in_silence(two_splits: Path, tmp_p
     assert [r.episode_id for r in rows] == [IDS[0]]
     with pytest.warns(UserWarning, match="counts as not run"), pytest.raises(IncompleteRunError):
         run_results(run)
+
+
+def test_allowed_incomplete_or_asked_by_key_the_rows_are_still_checked(
+    two_splits: Path, tmp_path: Path
+) -> None:
+    """An audit: a row whose ground truth was edited to the drone's last view (SR 0 -> 1),
+    and rows another config made, were refused by run_results(run) but returned with
+    allow_incomplete=True or keys=, where `score` refuses them either way."""
+    run = run_dir(tmp_path / "run", config(two_splits, limit=3), IDS[:2])  # incomplete
+    rows = read_results(run / "results.jsonl")
+    goal = rows[1].gt_path_corners.copy()
+    goal[-1] += 0.001  # the goal moved by about 100 m
+    write_results(
+        run / "results.jsonl", [rows[0], result(rows[1].visited_views, goal, episode_id=IDS[1])]
+    )
+    for ask in ({"allow_incomplete": True}, {"keys": [("val_seen", IDS[1])]}):
+        with pytest.raises(AlteredGroundTruthError, match=f"run {run}: 1 row.*val_seen/{IDS[1]}"):
+            run_results(run, **ask)  # type: ignore[arg-type]
+
+    other = run_dir(tmp_path / "other", config(two_splits, limit=2, system="another"), IDS[:2])
+    for ask in ({"allow_incomplete": True}, {"keys": [("val_seen", IDS[0])]}):
+        with pytest.raises(ForeignRowsError, match="system 'agent', not 'another'"):
+            run_results(other, **ask)  # type: ignore[arg-type]
+
+    # Rows outside the run's selection are refused too; a missing one only without
+    # allow_incomplete.
+    beyond = run_dir(tmp_path / "beyond", config(two_splits, limit=1), IDS[:2])
+    for ask in ({"allow_incomplete": True}, {"keys": [("val_seen", IDS[0])]}):
+        with pytest.raises(IncompleteRunError, match=f"not in the run's selection.*{IDS[1]}"):
+            run_results(beyond, **ask)  # type: ignore[arg-type]
+    partial = run_dir(tmp_path / "partial", config(two_splits, limit=3), IDS[:2])
+    assert len(run_results(partial, allow_incomplete=True)) == 2
+    assert [r.episode_id for r in run_results(partial, [("val_seen", IDS[1])])] == [IDS[1]]
+
+
+def test_unknown_coverage_is_refused_or_allowed_with_a_warning(
+    two_splits: Path, tmp_path: Path
+) -> None:
+    gone = run_dir(tmp_path / "gone", config(tmp_path / "moved", limit=2), IDS[:2])
+    for ask in ({}, {"keys": [("val_seen", IDS[0])]}):
+        with pytest.raises(DataError, match=f"the data of run {gone}"):
+            run_results(gone, **ask)  # type: ignore[arg-type]
+    with pytest.warns(UserWarning, match=f"NOT CHECKED whether run {gone} is complete"):
+        assert len(run_results(gone, allow_incomplete=True)) == 2
