@@ -73,18 +73,43 @@ def run_results(
                     "directories; ask one run directory for keys"
                 )
             rows[key] = row
-    return _rows_of(folder, rows, [_row_key(folder, key) for key in keys], allow_incomplete)
+    asked = [_row_key(folder, key) for key in keys]
+    for given in keys:
+        _check_system_and_mode(folder, given, rows)
+    return _rows_of(folder, rows, asked, allow_incomplete)
 
 
 def _row_key(folder: Path, key: Sequence[str]) -> RowKey:
     """A key as ``(split, episode_id)``; :attr:`EpisodeResult.key`'s ``(system, split,
-    mode, episode_id)`` is taken too (a run directory holds one system and mode)."""
+    mode, episode_id)`` is taken too, its system and mode the run's
+    (:func:`_check_system_and_mode`)."""
     if isinstance(key, str) or len(key) not in (2, 4):
         raise DataError(
             f"{folder}: a key is (split, episode_id) or an EpisodeResult.key "
             f"(system, split, mode, episode_id), got {key!r}"
         )
     return (key[0], key[1]) if len(key) == 2 else (key[1], key[3])
+
+
+def _check_system_and_mode(
+    folder: Path, key: Sequence[str], rows: dict[RowKey, EpisodeResult]
+) -> None:
+    """Refuse an :attr:`EpisodeResult.key` of another system or episode mode than the
+    run's: it is another run's episode, and the run's own row was returned for it."""
+    if len(key) != 4:
+        return
+    system, split, mode, episode_id = key
+    row = rows.get((split, episode_id))
+    # An episode without a row is checked against the run's other rows.
+    runs = {(r.system, r.mode) for r in ([row] if row is not None else rows.values())}
+    if not runs or (system, mode) in runs:
+        return
+    theirs = "; ".join(f"system {s!r}, mode {m!r}" for s, m in sorted(runs))
+    raise DataError(
+        f"{folder}: key {tuple(key)!r} is of system {system!r}, mode {mode!r}, but the "
+        f"run's rows are of {theirs}; ask for (split, episode_id), or for this run's "
+        "EpisodeResult.key"
+    )
 
 
 def is_run_directory(folder: Path) -> bool:

@@ -148,3 +148,21 @@ def test_unknown_coverage_is_refused_or_allowed_with_a_warning(
             run_results(gone, **ask)  # type: ignore[arg-type]
     with pytest.warns(UserWarning, match=f"NOT CHECKED whether run {gone} is complete"):
         assert len(run_results(gone, allow_incomplete=True)) == 2
+
+
+def test_a_key_of_another_system_or_mode_is_refused(two_splits: Path, tmp_path: Path) -> None:
+    """An audit: ("SOME OTHER SYSTEM", "val_seen", "andh-full", id) returned the run's
+    'agent'/'andh' row for that episode, the key's system and mode ignored."""
+    run = run_dir(tmp_path / "run", config(two_splits, limit=2), IDS[:2])
+    for key in [
+        ("SOME OTHER SYSTEM", "val_seen", "andh", IDS[0]),
+        ("agent", "val_seen", "andh-full", IDS[0]),
+        ("agent", "val_seen", "andh-full", "1913__9_9"),  # no row: the run's rows say
+    ]:
+        with pytest.raises(DataError) as refused:
+            run_results(run, [key], allow_incomplete=True)
+        assert f"is of system {key[0]!r}, mode {key[2]!r}" in str(refused.value)
+        assert "the run's rows are of system 'agent', mode 'andh'" in str(refused.value)
+    assert [r.episode_id for r in run_results(run, [("agent", "val_seen", "andh", IDS[1])])] == [
+        IDS[1]
+    ]
