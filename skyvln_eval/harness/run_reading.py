@@ -21,7 +21,13 @@ from skyvln_eval.errors import (
     listed,
 )
 from skyvln_eval.harness.run import CONFIG_FILE
-from skyvln_eval.harness.store import RESULTS_FILE, ResultStore, RowKey, key_of
+from skyvln_eval.harness.store import (
+    RESULTS_FILE,
+    RecoveryReport,
+    ResultStore,
+    RowKey,
+    key_of,
+)
 from skyvln_eval.metrics.records import EpisodeResult
 
 if TYPE_CHECKING:
@@ -60,8 +66,11 @@ def run_results(
     if keys is None:
         return [r for one in runs for r in _all_rows(one, allow_incomplete)]
     rows: dict[RowKey, EpisodeResult] = {}
+    recoveries: list[RecoveryReport] = []
     for one in runs:
-        results = _opened(one).results()
+        store = _opened(one)
+        recoveries.append(store.recovery)
+        results = store.results()
         # Checked as a whole run is, its completeness aside: a row edited by hand or made
         # by another config was returned for its key as if it were this run's.
         _checked_coverage(one, results, allow_incomplete)
@@ -76,7 +85,7 @@ def run_results(
     asked = [_row_key(folder, key) for key in keys]
     for given in keys:
         _check_system_and_mode(folder, given, rows)
-    return _rows_of(folder, rows, asked, allow_incomplete)
+    return _rows_of(folder, rows, asked, allow_incomplete, recoveries)
 
 
 def _row_key(folder: Path, key: Sequence[str]) -> RowKey:
@@ -163,10 +172,11 @@ def _opened(run_dir: Path) -> ResultStore:
 
 
 def _all_rows(run_dir: Path, allow_incomplete: bool) -> list[EpisodeResult]:
-    results = _opened(run_dir).results()
+    store = _opened(run_dir)
+    results = store.results()
     coverage = _checked_coverage(run_dir, results, allow_incomplete)
     if coverage is not None and not coverage.complete and not allow_incomplete:
-        raise coverage.error()
+        raise coverage.error(store.recovery.why_missing(coverage.missing))
     return [r for r in results if not r.stopped_the_run]
 
 
@@ -203,12 +213,16 @@ def _rows_of(
     rows: dict[RowKey, EpisodeResult],
     keys: Sequence[RowKey],
     allow_incomplete: bool,
+    recoveries: Sequence[RecoveryReport],
 ) -> list[EpisodeResult]:
     """The rows of ``keys``; one without a row (or with one that only records the run
-    stopping) raises, naming them, unless ``allow_incomplete`` leaves it out."""
+    stopping) raises, naming them and the damaged lines that may be theirs
+    (``recoveries``: what reading each run directory found), unless ``allow_incomplete``
+    leaves it out."""
     found = {k: r for k, r in rows.items() if not r.stopped_the_run}
     missing = ["/".join(key) for key in keys if key not in found]
     if missing and not allow_incomplete:
+        damaged = "".join(r.why_missing(k for k in keys if k not in found) for r in recoveries)
         stopped = [k for k in keys if k in rows and k not in found]
         why = (
             f" ({len(stopped)} of them have a row that only records the run stopping there)"
@@ -218,8 +232,8 @@ def _rows_of(
         raise IncompleteRunError(
             f"run {folder} (asked for {len(keys)} episode(s))",
             missing,
-            hint=f"Those have no result row{why}. Keys are (split, episode_id); it has rows "
-            f"of {len(found)} episode(s), e.g. "
+            hint=f"Those have no usable result row{why}. {damaged}Keys are (split, episode_id); "
+            f"it has rows of {len(found)} episode(s), e.g. "
             + listed(sorted("/".join(key_of(r)) for r in found.values()), 3)
             + ". Pass allow_incomplete=True to get the rows it has",
         )

@@ -78,6 +78,10 @@ class DamagedRow:
             return None
         return f"{self.split}/{self.episode_id}" if self.split else self.episode_id
 
+    def is_of(self, key: RowKey) -> bool:
+        """Whether it seems to be the row of episode ``key`` (a cut row may lack its split)."""
+        return self.episode_id == key[1] and self.split in (None, key[0])
+
     def to_json(self) -> dict[str, object]:
         return {
             "line": self.line,
@@ -107,12 +111,35 @@ class RecoveryReport:
     def _fate(self, row: DamagedRow) -> str:
         if row.episode is None:
             return "its episode runs again"
-        if any(
-            row.episode_id == episode_id and row.split in (None, split)
-            for split, episode_id in self.kept_keys
-        ):
+        if any(row.is_of(key) for key in self.kept_keys):
             return f"episode {row.episode} has another row, which counts"
         return f"episode {row.episode} runs again"
+
+    def why_missing(self, keys: Iterable[RowKey]) -> str:
+        """A sentence naming, of ``keys`` (episodes without a usable row), those whose only
+        row is damaged, with the file, line and reason, and the damaged lines of no known
+        episode, which may be theirs; empty when there are none. Without it a damaged row
+        read as an episode never run, its reason only in a separate warning."""
+        keys = list(keys)
+        theirs = [row for row in self.damaged if any(row.is_of(key) for key in keys)]
+        unknown = [row for row in self.damaged if row.episode is None]
+        if not theirs and not unknown:
+            return ""
+        where = self.path if self.path is not None else RESULTS_FILE
+        said = []
+        if theirs:
+            said.append(f"{len({row.episode for row in theirs})} of them have only a damaged row")
+        if unknown:
+            said.append(f"{len(unknown)} damaged line(s) of no known episode may be theirs")
+        shown = [
+            f"line {row.line}, {row.episode or 'episode unknown'}: {row.reason}"
+            for row in theirs + unknown
+        ]
+        more = f"; and {len(shown) - 5} more" if len(shown) > 5 else ""
+        return (
+            f"{' and '.join(said)} in {where}, read past ({'; '.join(shown[:5])}{more}); a "
+            "line mended by hand counts again. "
+        )
 
     def messages(self) -> list[str]:
         out = []

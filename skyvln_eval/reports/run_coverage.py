@@ -177,12 +177,14 @@ class RunCoverage:
             f"the missing episodes{stopped}"
         )
 
-    def error(self) -> IncompleteRunError:
+    def error(self, why_missing: str = "") -> IncompleteRunError:
+        """The error of an incomplete run; ``why_missing`` says why some of the missing
+        have no row, e.g. only a damaged one (:meth:`RecoveryReport.why_missing`)."""
         if self.unexpected:
             hint = f"Is {self.data_dir} the dataset the run ran on? (--data-dir gives another)"
         else:
             hint = (
-                f"{self._finish_it()}, or pass --allow-incomplete (in Python, "
+                f"{why_missing}{self._finish_it()}, or pass --allow-incomplete (in Python, "
                 f"allow_incomplete=True) to score the {self.recorded} recorded episode(s) "
                 "as they are"
             )

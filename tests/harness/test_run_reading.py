@@ -166,3 +166,28 @@ def test_a_key_of_another_system_or_mode_is_refused(two_splits: Path, tmp_path: 
     assert [r.episode_id for r in run_results(run, [("agent", "val_seen", "andh", IDS[1])])] == [
         IDS[1]
     ]
+
+
+def test_an_episode_whose_only_row_is_damaged_is_named_with_its_line_and_reason(
+    two_splits: Path, tmp_path: Path
+) -> None:
+    """An audit: a row with status 'okay' made run_results say '1 missing episode(s) ...
+    Finish it with skyvln-eval run', the line and reason only in a separate warning."""
+    run = run_dir(tmp_path / "run", config(two_splits, limit=2), IDS[:2])
+    results = run / "results.jsonl"
+    lines = results.read_text().splitlines(keepends=True)
+    lines[2] = lines[2].replace('"status": "ok"', '"status": "okay"')
+    results.write_text("".join(lines))
+    said = (
+        f"1 of them have only a damaged row in {results}, read past (line 3, "
+        f"val_seen/{IDS[1]}: not a valid row: status: must be one of ('ok', 'degraded', "
+        "'error'), got 'okay')"
+    )
+    for keys in (None, [("val_seen", IDS[1])]):
+        with pytest.warns(UserWarning), pytest.raises(IncompleteRunError) as refused:
+            run_results(run, keys)
+        assert f"1 missing episode(s): val_seen/{IDS[1]}. " in str(refused.value)
+        assert said in str(refused.value)
+    # Allowed incomplete, it counts as not run, as the warning says.
+    with pytest.warns(UserWarning, match="line 3: not a valid row: status"):
+        assert [r.episode_id for r in run_results(run, allow_incomplete=True)] == [IDS[0]]
