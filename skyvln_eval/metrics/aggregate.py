@@ -601,6 +601,11 @@ def compare_systems(
         seed=seed,
         clusters=clusters,
         cluster_unit="trajectory",
+        # Unknown values (e.g. a cost not reported) are refused naming what they are of.
+        names=(
+            f"compare_systems: {metric} of system {system_a!r} on {split}/{mode}",
+            f"compare_systems: {metric} of system {system_b!r} on {split}/{mode}",
+        ),
     )
     return pd.Series(
         {

@@ -69,8 +69,12 @@ def finite_values(values: ArrayLike, what: str = "values") -> FloatArray:
     arr = np.asarray(values, dtype=np.float64)
     if arr.shape[0] == 0:
         raise MetricInputError(f"{what}: no values (an average over zero episodes is undefined)")
-    if not np.isfinite(arr).all():
-        raise MetricInputError(f"{what}: non-finite values (NaN or inf) cannot be averaged")
+    finite = np.isfinite(arr)
+    if not finite.all():
+        raise MetricInputError(
+            f"{what}: non-finite values (NaN or inf: {int((~finite).sum())} of {arr.size}) "
+            "cannot be averaged"
+        )
     return arr
 
 
@@ -252,12 +256,14 @@ def paired_comparison(
     seed: int = 0,
     clusters: ArrayLike | None = None,
     cluster_unit: str = "cluster",
+    names: tuple[str, str] = ("system A", "system B"),
 ) -> PairedComparison:
     """Compare paired per-episode values ``a[i]`` and ``b[i]`` (same episode ``i``); with
     ``clusters`` (one label per episode, e.g. its trajectory) the interval resamples and
-    the test flips whole clusters, which the result's ``unit`` calls ``cluster_unit``."""
-    a_arr = finite_values(a, "system A")
-    b_arr = finite_values(b, "system B")
+    the test flips whole clusters, which the result's ``unit`` calls ``cluster_unit``.
+    ``names`` says what ``a`` and ``b`` are in an error (e.g. a metric of a system)."""
+    a_arr = finite_values(a, names[0])
+    b_arr = finite_values(b, names[1])
     if a_arr.shape != b_arr.shape or a_arr.ndim != 1:
         raise MetricInputError(
             f"paired values need equal 1-D shapes, got {a_arr.shape} and {b_arr.shape}"

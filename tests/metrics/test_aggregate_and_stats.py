@@ -160,6 +160,20 @@ def test_paired_test_finds_a_real_difference_and_not_a_null_one() -> None:
         compare_systems(missing, "A", "B", "success", "val_seen")
 
 
+def test_compare_systems_names_the_system_and_metric_of_unknown_values() -> None:
+    # An audit: 'system A: non-finite values (NaN or inf) cannot be averaged', for
+    # llm_cost_usd of the second system given.
+    scores = scores_of_two_systems()
+    scores["llm_cost_usd"] = 0.01
+    scores.loc[(scores.system == "B") & (scores.episode_id == "e3"), "llm_cost_usd"] = np.nan
+    with pytest.raises(MetricInputError) as unknown:
+        compare_systems(scores, "B", "A", "llm_cost_usd", "val_seen", n_resamples=100)
+    assert str(unknown.value).startswith(
+        "compare_systems: llm_cost_usd of system 'B' on val_seen/andh: non-finite values "
+        f"(NaN or inf: 1 of {(scores.system == 'B').sum()}) cannot be averaged"
+    )
+
+
 def test_compare_systems_names_the_systems_there_are_and_says_how_many_it_cut() -> None:
     # An audit asked for 'Full' where the system is 'Full †': the error named neither.
     scores = scores_of_two_systems()
