@@ -164,9 +164,9 @@ def score_results(
         frame[name] = values
     for status in RESULT_STATUSES:  # rates of each status, reported like any metric
         frame[f"status_{status}"] = [float(r.status == status) for r in results]
-    frame["wall_s"] = pd.array(
-        [r.extra.get("wall_s") for r in results], dtype="Float64"
-    )  # episode wall time, where the run recorded it
+    # Episode wall time where the run recorded it, else NaN: float64 as the cost columns,
+    # and as read_scores reads it back (it was Float64 here, float64 there).
+    frame["wall_s"] = [_wall_s(r) for r in results]
     questions = [r.extra.get("questions") or [] for r in results]  # asked of the commander
     recorded = [r.llm_use_recorded for r in results]  # else how many is unknown
     frame["questions_asked"] = [
@@ -198,6 +198,11 @@ def score_results(
     # The frame says which conventions scored it, so a table of it cannot say others.
     frame.attrs[CONVENTIONS_ATTR] = conventions
     return frame
+
+
+def _wall_s(result: EpisodeResult) -> float:
+    wall = result.extra.get("wall_s")  # a number >= 0 or absent: checked on reading
+    return math.nan if wall is None else float(wall)
 
 
 def _oracle(result: EpisodeResult) -> bool | None:

@@ -294,3 +294,15 @@ def test_a_scores_file_from_before_segments_cut_short_reads_it_as_unknown(
     (tmp_path / "old.csv").write_text("\n".join([*head, *kept]) + "\n")
     old, _ = read_scores(tmp_path / "old.csv")
     assert old["segments_cut_short"].isna().all()
+
+
+def test_scores_have_the_same_column_types_scored_or_read_back(tmp_path: Path) -> None:
+    """An audit: score_results gave wall_s as Float64 (pd.NA where not recorded) and
+    read_scores as float64 (NaN), so one frame compared unequal to itself saved."""
+    g = [square(0, 0), square(50, 0)]
+    scores = score_results([result(g, g, extra={"wall_s": 2}), result(g, g, episode_id="e2")])
+    assert scores.wall_s.dtype == np.float64
+    assert scores.wall_s.iloc[0] == 2.0 and math.isnan(scores.wall_s.iloc[1])
+    write_scores(tmp_path / "s.csv", scores, MetricConventions())
+    again, _ = read_scores(tmp_path / "s.csv")
+    assert {c: str(again[c].dtype) for c in scores} == {c: str(scores[c].dtype) for c in scores}
