@@ -21,6 +21,7 @@ from pydantic_core import PydanticCustomError
 
 from skyvln_eval.agent.config import AgentConfig
 from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN, EpisodeMode, Split
+from skyvln_eval.bounds import MAX_BOOTSTRAP_RESAMPLES, MAX_BOOTSTRAP_SEED
 from skyvln_eval.configs import config_path
 from skyvln_eval.control.registry import controller_config
 from skyvln_eval.errors import (
@@ -99,14 +100,16 @@ class ReproducePlan(_Strict):
     name: str = "default"
     data: str = "sample"
     episode_mode: EpisodeMode = "andh"
-    seed: int = 0
+    # Bounded as score's --seed and --resamples: the plan's bootstrap is score's, and out of
+    # bounds it failed with a traceback after every run had flown.
+    seed: int = Field(default=0, ge=0, le=MAX_BOOTSTRAP_SEED)
     max_action_len: int = Field(
         default=DEFAULT_MAX_ACTION_LEN,
         ge=1,
         description="views per dialog round flown, the start included (ANDH-Full: each round)",
     )
     limit: int | None = Field(default=None, ge=1, description="episodes per split (quick plans)")
-    resamples: int = Field(default=1000, ge=0)
+    resamples: int = Field(default=1000, ge=0, le=MAX_BOOTSTRAP_RESAMPLES)
     ci_unit: CiUnit = Field(
         default="trajectory", description="what intervals resample: trajectories or episodes"
     )

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from skyvln_eval.avdn.constants import EpisodeMode
+from skyvln_eval.bounds import MAX_BOOTSTRAP_RESAMPLES, MAX_BOOTSTRAP_SEED
 from skyvln_eval.errors import ConfigError, DataError, listed
 
 if TYPE_CHECKING:
@@ -249,9 +250,14 @@ def score(
         ),
     ] = False,
     resamples: Annotated[
-        int, typer.Option(min=0, help="Bootstrap resamples for the 95% CIs (0: no CIs)")
+        int,
+        typer.Option(
+            min=0,
+            max=MAX_BOOTSTRAP_RESAMPLES,
+            help="Bootstrap resamples for the 95% CIs (0: no CIs)",
+        ),
     ] = 1000,
-    seed: Annotated[int, typer.Option(help="Bootstrap seed")] = 0,
+    seed: Annotated[int, typer.Option(min=0, max=MAX_BOOTSTRAP_SEED, help="Bootstrap seed")] = 0,
     ci_unit: CiUnitOption = None,
     allow_incomplete: Annotated[
         bool,
@@ -420,10 +426,17 @@ def table(
     ] = False,
     resamples: Annotated[
         int | None,
-        typer.Option(min=1, help="Bootstrap resamples with --ci (default: reproduce's, else 1000)"),
+        typer.Option(
+            min=1,
+            max=MAX_BOOTSTRAP_RESAMPLES,
+            help="Bootstrap resamples with --ci (default: reproduce's, else 1000)",
+        ),
     ] = None,
     seed: Annotated[
-        int | None, typer.Option(help="Bootstrap seed (default: reproduce's, else 0)")
+        int | None,
+        typer.Option(
+            min=0, max=MAX_BOOTSTRAP_SEED, help="Bootstrap seed (default: reproduce's, else 0)"
+        ),
     ] = None,
     digits: Annotated[int, typer.Option(min=0, max=6, help="Decimals")] = 2,
     ci_unit: CiUnitOption = None,

@@ -463,3 +463,25 @@ def test_values_no_setting_can_take_are_refused_on_load(
     path.write_text(yaml.safe_dump(_config(sample_dir)) + lines + "\n")
     _refused(cli("run", str(path), "--out", str(tmp_path / "run")), str(path), needle)
     assert not (tmp_path / "run").exists(), "no episode may run"
+
+
+@pytest.mark.parametrize(
+    ("setting", "needle"),
+    [
+        ({"seed": -1}, "seed: Input should be greater than or equal to 0"),
+        ({"seed": 2**80}, "seed: Input should be less than or equal to 9223372036854775807"),
+        ({"resamples": 10**23}, "resamples: Input should be less than or equal to 1000000"),
+    ],
+    ids=["negative-seed", "huge-seed", "huge-resamples"],
+)
+def test_a_plans_bootstrap_numpy_cannot_take_is_refused_before_any_run(
+    tmp_path: Path, cli: Cli, setting: dict[str, int], needle: str
+) -> None:
+    # An audit: `seed: -1` flew every run, then scoring failed with a traceback.
+    from tests.harness.test_reproduce import TINY_PLAN
+
+    plan = tmp_path / "plan.yaml"
+    plan.write_text(yaml.safe_dump(TINY_PLAN | setting))
+    out = tmp_path / "out"
+    _refused(cli("reproduce", "--plan", str(plan), "--out", str(out)), f"{plan}: {needle}")
+    assert not out.exists(), "no episode may run"

@@ -451,3 +451,26 @@ def test_tables_and_the_score_printout_keep_the_two_modes_apart(tmp_path: Path) 
         assert refused.exit_code != 0
         told = f"{option[0]} set how --ci intervals are made: add --ci"
         assert told in str(refused.exception)
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "needle"),
+    [
+        ("--seed", "-1", "greater than or equal to 0"),
+        ("--seed", "99999999999999999999999", "less than or equal to"),
+        ("--resamples", "99999999999999999999999", "less than or equal to"),
+    ],
+)
+def test_a_bootstrap_seed_or_resamples_numpy_cannot_take_is_refused_before_scoring(
+    tmp_path: Path, cli: Cli, option: str, value: str, needle: str
+) -> None:
+    # An audit: each was a traceback (exit 1) from numpy or pandas after the scoring.
+    run = write_run(tmp_path / "run.jsonl")
+    out = tmp_path / "scores"
+    scored = cli("score", str(run), "--out", str(out), option, value)
+    assert scored.code == 2 and "Traceback" not in scored.err, scored
+    assert option in scored.err and needle in scored.err
+    assert not out.exists()
+    assert cli("score", str(run), "--out", str(out), "--resamples", "0").code == 0
+    tabled = cli("table", str(out / "scores.csv"), "--ci", option, value)
+    assert tabled.code == 2 and "Traceback" not in tabled.err, tabled
