@@ -171,6 +171,10 @@ class DynamicsSettings(_Strict):
         return self
 
 
+#: The most views per dialog round a run flies (AVDN's is 10).
+MAX_ACTION_LEN: Final = 100
+
+
 #: Settings that say how a run runs, not what it computes: no digest covers them, and a
 #: run directory may be resumed with others.
 HOW_IT_RUNS = frozenset({"workers", "executor", "threads_per_worker", "ray_address", "write_logs"})
@@ -201,7 +205,7 @@ class RunConfig(_Strict):
     max_action_len: int = Field(
         default=DEFAULT_MAX_ACTION_LEN,
         ge=1,
-        le=100,
+        le=MAX_ACTION_LEN,
         description="views per dialog round flown, the start included (ANDH-Full: each round)",
     )
     seed: int = 0

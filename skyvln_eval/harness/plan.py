@@ -33,6 +33,7 @@ from skyvln_eval.errors import (
 )
 from skyvln_eval.fileio import read_yaml_mapping
 from skyvln_eval.harness.config import (
+    MAX_ACTION_LEN,
     CommanderSettings,
     DynamicsSettings,
     ExecutionMode,
@@ -66,6 +67,39 @@ class PlanSystem(_Strict):
         "{max_obstacles: 0} for an MPC that ignores obstacles",
     )
     agent: dict[str, Any] = Field(default_factory=dict)
+
+
+class PlanDynamicsSettings(DynamicsSettings):
+    """A plan's dynamics settings: every flying system's, each with its own controller.
+
+    No ``controller`` here: each system names its own (``nmpc`` when it names none), so a
+    plan-wide one would be ignored (an audit: ``dynamics.controller: pid`` flew NMPCs).
+    Refused rather than made the systems' default: a second default beside the systems'
+    own would make which controller flies a row depend on two places of the file.
+    """
+
+    @model_validator(mode="before")
+    @classmethod
+    def _no_controller(cls, data: Any) -> Any:
+        if isinstance(data, dict) and "controller" in data:
+            raise PydanticCustomError(
+                "plan_controller",
+                "{problem}",
+                {
+                    "problem": "a plan sets each system's controller (table1.systems.N."
+                    "controller, table2.system.controller; nmpc where none is named), not "
+                    "one for all: remove it and name the controller in each system",
+                    FIELD_PATH_CONTEXT: "controller",
+                },
+            )
+        return data
+
+    @model_validator(mode="after")
+    def _every_obstacle_planned_around(self) -> PlanDynamicsSettings:
+        # Replaces the run's check: here it would judge the obstacles against a controller
+        # no system flies (the unused default nmpc). Each system's run settings, its
+        # controller with these, are checked when the plan loads (ReproducePlan).
+        return self
 
 
 class Table1Plan(_Strict):
@@ -106,6 +140,7 @@ class ReproducePlan(_Strict):
     max_action_len: int = Field(
         default=DEFAULT_MAX_ACTION_LEN,
         ge=1,
+        le=MAX_ACTION_LEN,  # a run's bounds: out of them, every planned run was refused
         description="views per dialog round flown, the start included (ANDH-Full: each round)",
     )
     limit: int | None = Field(default=None, ge=1, description="episodes per split (quick plans)")
@@ -115,7 +150,7 @@ class ReproducePlan(_Strict):
     )
     sensors: SensorConfig = SensorConfig()
     commander: CommanderSettings = CommanderSettings()
-    dynamics: DynamicsSettings = DynamicsSettings()
+    dynamics: PlanDynamicsSettings = PlanDynamicsSettings()
     table1: Table1Plan
     table2: Table2Plan
     control_figures: ControlFiguresPlan = ControlFiguresPlan()
@@ -180,6 +215,25 @@ class ReproducePlan(_Strict):
                     "agent",
                     "{problem}",
                     {"problem": problem, FIELD_PATH_CONTEXT: f"{where}.{inside}"},
+                ) from None
+        return self
+
+    @model_validator(mode="after")
+    def _valid_runs(self) -> ReproducePlan:
+        # Each system's run, made as planned_runs makes it, is validated on load: the
+        # plan's dynamics with the system's controller are checked together (obstacles
+        # beyond its max_obstacles), and against a run's bounds. Unchecked, an invalid run
+        # was a traceback when reproduce made it, leaving an empty output folder.
+        where = [f"table1.systems.{i}" for i in range(len(self.table1.systems))]
+        systems = [*self.table1.systems, self.table2.system]
+        first = self.table1.splits[0] if self.table1.splits else self.table2.split
+        splits = [*[first] * len(self.table1.systems), self.table2.split]
+        for place, system, split in zip([*where, "table2.system"], systems, splits, strict=True):
+            try:
+                run_config(self, system, system.label, system.agent, split)
+            except ConfigError as error:
+                raise PydanticCustomError(
+                    "run", "{problem}", {"problem": str(error), FIELD_PATH_CONTEXT: place}
                 ) from None
         return self
 
@@ -292,31 +346,10 @@ def planned_runs(
     _check_distinct_rows(wanted, out_dir, in_plan)
     runs: dict[str, PlannedRun] = {}
     for table, label, system, agent, split, run_dir in wanted:
-        config = RunConfig(
-            system=label,
-            data=data or plan.data,
-            splits=(split,),
-            episode_mode=plan.episode_mode,
-            limit=plan.limit,
-            mode=system.mode,
-            agent=agent,
-            sensors=plan.sensors,
-            commander=plan.commander,
-            dynamics=plan.dynamics.model_copy(
-                update={
-                    "controller": system.controller,
-                    "controller_settings": {
-                        **plan.dynamics.controller_settings,
-                        **system.controller_settings,
-                    },
-                }
-            ),
-            max_action_len=plan.max_action_len,
-            seed=plan.seed,
-            workers=workers,
-            executor=executor,
-            observations_in_logs=plan.observations_in_logs,
-        )
+        try:
+            config = run_config(plan, system, label, agent, split, data, workers, executor)
+        except ConfigError as error:  # the plan was checked on load: a --data-dir, --workers
+            raise ConfigError(f"{in_plan}: {error}") from None
         key = results_digest(config)
         if key in runs:
             existing = runs[key]
@@ -326,6 +359,65 @@ def planned_runs(
         else:
             runs[key] = PlannedRun(config, run_dir, ((table, label),))
     return list(runs.values())
+
+
+def run_config(
+    plan: ReproducePlan,
+    system: PlanSystem,
+    label: str,
+    agent: AgentConfig | dict[str, Any],
+    split: Split,
+    data: str | None = None,
+    workers: int | None = None,
+    executor: ExecutorKind | None = None,
+) -> RunConfig:
+    """The settings of ``system``'s run on ``split``, labelled ``label``: the plan's with
+    the system's mode, agent and controller; a :class:`ConfigError` naming the system
+    (and, in dynamics mode, its controller) when they make no valid run."""
+    how = {"workers": workers, "executor": executor}
+    try:
+        return RunConfig.model_validate(
+            {
+                "system": label,
+                "data": data or plan.data,
+                "splits": (split,),
+                "episode_mode": plan.episode_mode,
+                "limit": plan.limit,
+                "mode": system.mode,
+                "agent": agent,
+                "sensors": plan.sensors,
+                "commander": plan.commander,
+                "dynamics": _run_dynamics(plan, system),
+                "max_action_len": plan.max_action_len,
+                "seed": plan.seed,
+                "observations_in_logs": plan.observations_in_logs,
+                **{k: v for k, v in how.items() if v is not None},
+            }
+        )
+    except ValidationError as error:
+        flies = f" flying {system.controller}" if system.mode == "dynamics" else ""
+        raise ConfigError(
+            f"system {label!r}{flies} with the plan's settings: "
+            f"{describe_validation_error(error, RunConfig)}"
+        ) from None
+
+
+def _run_dynamics(plan: ReproducePlan, system: PlanSystem) -> dict[str, Any] | DynamicsSettings:
+    """A system's dynamics settings: the plan's with its controller and settings, as a
+    mapping that the run validates whole (a copy of the plan's settings was never checked
+    with the system's controller). An official-mode system flies nothing: it gets the
+    defaults, which it neither records nor digests, and the plan's obstacles are not
+    judged against a controller it never builds."""
+    if system.mode == "official":
+        return DynamicsSettings()
+    return {
+        **plan.dynamics.model_dump(),
+        "controller": system.controller,
+        "controller_settings": {
+            **plan.dynamics.controller_settings,
+            **system.controller_settings,
+        },
+    }
 
 
 def _check_distinct_rows(

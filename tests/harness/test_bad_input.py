@@ -485,3 +485,42 @@ def test_a_plans_bootstrap_numpy_cannot_take_is_refused_before_any_run(
     out = tmp_path / "out"
     _refused(cli("reproduce", "--plan", str(plan), "--out", str(out)), f"{plan}: {needle}")
     assert not out.exists(), "no episode may run"
+
+
+@pytest.mark.parametrize(
+    ("change", "needle"),
+    [
+        # An audit: each loaded, then a raw pydantic traceback when the runs were made.
+        ({"max_action_len": 200}, "max_action_len: Input should be less than or equal to 100"),
+        (
+            {"dynamics": {"obstacles": {"n_obstacles": 3}}},
+            "table1.systems.1: system 'Full' flying nmpc with the plan's settings: dynamics: "
+            "controller 'nmpc' plans around its 2 nearest obstacles",
+        ),
+        # An audit: a plan's controller was ignored, every system flying its own.
+        (
+            {"dynamics": {"controller": "pid"}},
+            "dynamics.controller: a plan sets each system's controller",
+        ),
+    ],
+    ids=["max-action-len", "obstacles-beyond-slots", "plan-controller"],
+)
+def test_a_plan_whose_runs_would_be_invalid_is_refused_on_load(
+    tmp_path: Path, cli: Cli, change: dict[str, Any], needle: str
+) -> None:
+    from tests.harness.test_reproduce import TINY_PLAN
+
+    plan = tmp_path / "plan.yaml"
+    plan.write_text(yaml.safe_dump(TINY_PLAN | change))
+    out = tmp_path / "out"
+    _refused(cli("reproduce", "--plan", str(plan), "--out", str(out)), f"{plan}: {needle}")
+    assert not out.exists(), "no episode may run, no folder be made"
+
+
+def test_a_planned_run_the_options_make_invalid_is_a_config_error(tmp_path: Path) -> None:
+    from tests.harness.test_reproduce import TINY_PLAN
+
+    plan = tmp_path / "plan.yaml"
+    plan.write_text(yaml.safe_dump(TINY_PLAN))
+    with pytest.raises(ConfigError, match=r"^reproduce plan 'tiny': system 'NavGPT-style' with "):
+        planned_runs(load_plan(plan), tmp_path / "out", 1000, "serial")  # at most 256 workers

@@ -11,6 +11,7 @@ import yaml
 from typer.testing import CliRunner
 
 from skyvln_eval.cli import app
+from skyvln_eval.configs import config_path
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.harness import plan as plan_module
 from skyvln_eval.harness.plan import environment_backends, load_plan, planned_runs, slug
@@ -256,6 +257,35 @@ def test_a_system_can_override_its_controller_settings(tmp_path: Path) -> None:
     assert runs["w MPC"].dynamics.controller_settings == {}
     # Different settings are different runs, never merged into one.
     assert runs["w MPC, no obstacles"].digest() != runs["w MPC"].digest()
+
+
+def test_the_default_plan_takes_three_obstacles_with_three_slots_per_mpc(tmp_path: Path) -> None:
+    # An audit: following the error's advice was refused, the plan's dynamics checked
+    # against a controller no system flies (with max_obstacles set per system), or the
+    # PID row given an MPC's setting (set for the plan).
+    data = yaml.safe_load(config_path("reproduce", "default.yaml").read_text())
+    data["dynamics"]["obstacles"] = {"n_obstacles": 3}
+    slots = {"mpc", "nmpc"}
+    for system in [*data["table1"]["systems"], data["table2"]["system"]]:
+        if system.get("mode") == "dynamics" and system.get("controller", "nmpc") in slots:
+            system["controller_settings"] = {"max_obstacles": 3}
+    path = tmp_path / "three.yaml"
+    path.write_text(yaml.safe_dump(data))
+    runs = [r.config for r in planned_runs(load_plan(path), tmp_path / "out", 1, "serial")]
+    flown = [c for c in runs if c.mode == "dynamics"]
+    assert {c.dynamics.obstacles.n_obstacles for c in flown} == {3}
+    pid = next(c for c in flown if c.dynamics.controller == "pid")
+    assert pid.dynamics.controller_settings == {"max_speed_m_s": 15.0}
+    # Left at two slots, the MPC row is named, with what to set.
+    data["table1"]["systems"][3]["controller_settings"] = {}
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError) as refused:
+        load_plan(path)
+    assert str(refused.value).startswith(
+        f"reproduce plan {path}: table1.systems.3: system 'w MPC' flying mpc with the plan's "
+        "settings: dynamics: controller 'mpc' plans around its 2 nearest obstacles"
+    )
+    assert "Set controller_settings: {max_obstacles: 3}" in str(refused.value)
 
 
 def test_a_plan_can_leave_the_images_out_of_its_run_logs(tmp_path: Path) -> None:
