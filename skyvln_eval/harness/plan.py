@@ -16,7 +16,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 from pydantic_core import PydanticCustomError
 
 from skyvln_eval.agent.config import AgentConfig
@@ -123,9 +130,27 @@ class Table2Plan(_Strict):
     backends_file: str | None = None
 
 
+#: The paper's control figures' cases (:data:`skyvln_eval.control.recordings.PAPER_CASES`).
+PaperCase = Literal["static", "dynamic"]
+
+
 class ControlFiguresPlan(_Strict):
     controllers: tuple[str, ...] = ("pid", "nmpc")
-    cases: tuple[str, ...] = ("static", "dynamic")
+    cases: tuple[PaperCase, ...] = ("static", "dynamic")
+
+    @field_validator("controllers")
+    @classmethod
+    def _known_controllers(cls, names: tuple[str, ...]) -> tuple[str, ...]:
+        # Checked on load (no solver is built): a misspelt one failed after every run,
+        # naming neither the file nor the field.
+        for i, name in enumerate(names):
+            try:
+                controller_config(name)
+            except UnknownNameError as error:
+                raise PydanticCustomError(
+                    "controller", "{problem}", {"problem": str(error), FIELD_PATH_CONTEXT: str(i)}
+                ) from None
+        return names
 
 
 class ReproducePlan(_Strict):

@@ -502,10 +502,25 @@ def test_a_plans_bootstrap_numpy_cannot_take_is_refused_before_any_run(
             {"dynamics": {"controller": "pid"}},
             "dynamics.controller: a plan sets each system's controller",
         ),
+        # An audit: the first failed after every run, the second was a traceback.
+        (
+            {"control_figures": {"controllers": ["nmcp"], "cases": ["static"]}},
+            "control_figures.controllers.0: unknown controller 'nmcp'. Did you mean 'nmpc'?",
+        ),
+        (
+            {"control_figures": {"controllers": ["pid"], "cases": ["dynmic"]}},
+            "control_figures.cases.0: Input should be 'static' or 'dynamic'",
+        ),
     ],
-    ids=["max-action-len", "obstacles-beyond-slots", "plan-controller"],
+    ids=[
+        "max-action-len",
+        "obstacles-beyond-slots",
+        "plan-controller",
+        "figure-controller",
+        "figure-case",
+    ],
 )
-def test_a_plan_whose_runs_would_be_invalid_is_refused_on_load(
+def test_a_plan_whose_runs_or_figures_would_fail_is_refused_on_load(
     tmp_path: Path, cli: Cli, change: dict[str, Any], needle: str
 ) -> None:
     from tests.harness.test_reproduce import TINY_PLAN
@@ -524,3 +539,12 @@ def test_a_planned_run_the_options_make_invalid_is_a_config_error(tmp_path: Path
     plan.write_text(yaml.safe_dump(TINY_PLAN))
     with pytest.raises(ConfigError, match=r"^reproduce plan 'tiny': system 'NavGPT-style' with "):
         planned_runs(load_plan(plan), tmp_path / "out", 1000, "serial")  # at most 256 workers
+
+
+def test_a_plans_figure_cases_are_the_papers() -> None:
+    from typing import get_args
+
+    from skyvln_eval.control import PAPER_CASES
+    from skyvln_eval.harness.plan import PaperCase
+
+    assert set(get_args(PaperCase)) == set(PAPER_CASES)
