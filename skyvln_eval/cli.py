@@ -475,8 +475,11 @@ def reproduce(
         int, typer.Option(min=1, help="With processes: episodes run in threads in each worker")
     ] = 1,
     data_dir: Annotated[
-        Path | None,
-        typer.Option(help="AVDN-format dataset (default: the plan's, the bundled sample)"),
+        str | None,
+        typer.Option(
+            help="AVDN-format dataset folder, or sample / full (default: the plan's, the "
+            "bundled sample)"
+        ),
     ] = None,
     limit: Annotated[
         int | None, typer.Option(min=1, help="Episodes per split (a quick look)")
@@ -503,8 +506,9 @@ def reproduce(
     if executor not in EXECUTOR_KINDS:  # checked before anything is written
         raise ConfigError(f"--executor: {UnknownNameError('executor', executor, EXECUTOR_KINDS)}")
     chosen = load_plan(plan, limit=limit, recordings=None if recordings else 0)
-    if data_dir is None and chosen.data == "sample":
-        _build_dataset("sample", None, False, 1)  # with a progress bar on first use
+    # Text, not a Path, which drops the "./" of ./sample: that folder was taken for the
+    # synthetic sample. The synthetic sets are built here, with a progress bar on first use.
+    data_dir_argument(data_dir if data_dir is not None else chosen.data)
     progress = RichRunProgress(err_console)
     with _stoppable(progress):
         try:
@@ -513,7 +517,7 @@ def reproduce(
                 out,
                 workers,
                 executor,
-                str(data_dir) if data_dir else None,
+                data_dir,
                 progress,
                 threads_per_worker=threads_per_worker,
             )

@@ -548,3 +548,25 @@ def test_a_plans_figure_cases_are_the_papers() -> None:
     from skyvln_eval.harness.plan import PaperCase
 
     assert set(get_args(PaperCase)) == set(PAPER_CASES)
+
+
+def test_reproduce_data_dir_dot_sample_is_the_folder_not_the_synthetic_sample(
+    tmp_path: Path, cli: Cli, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # An audit: --data-dir was a Path, which drops the "./": ./sample became "sample".
+    from skyvln_eval.harness import reproduce as reproduce_module
+    from tests.harness.test_reproduce import TINY_PLAN
+
+    given: list[str | None] = []
+
+    def recorded(plan: Any, out: Path, workers: int, executor: str, data: str | None,
+                 *args: Any, **kwargs: Any) -> Any:  # fmt: skip
+        given.append(data)
+        raise ConfigError("stopped here")
+
+    monkeypatch.setattr(reproduce_module, "reproduce", recorded)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "sample").mkdir()
+    (tmp_path / "plan.yaml").write_text(yaml.safe_dump(TINY_PLAN))
+    _refused(cli("reproduce", "--plan", "plan.yaml", "--data-dir", "./sample"), "stopped here")
+    assert given == ["./sample"]
