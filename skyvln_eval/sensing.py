@@ -26,8 +26,9 @@ from typing import Any, Final, Literal, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
+from skyvln_eval.config_model import StrictModel
 from skyvln_eval.errors import ConfigError
 
 SensorKind = Literal["rgb", "depth", "semantic"]
@@ -231,12 +232,10 @@ class CameraImages:
         return cached
 
 
-class SensorConfig(BaseModel):
+class SensorConfig(StrictModel):
     """The drone's sensors: an RGB camera always; a depth sensor and a semantic camera
     (semantic classes and landmark instances with their categories) when enabled, sharing
     the camera's optics. Runs, their provenance and their tables say which were on."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     depth: bool = True
     semantic: bool = True

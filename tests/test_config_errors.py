@@ -217,3 +217,37 @@ def test_a_misspelt_plan_name_lists_the_shipped_plans() -> None:
 
     with pytest.raises(ConfigError, match=r"unknown plan 'defualt'\. Did you mean 'default'\?"):
         load_plan("defualt")
+
+
+@pytest.mark.parametrize(
+    ("model", "where", "value"),
+    [
+        (RunConfig, "workers", True),
+        (RunConfig, "limit", True),
+        (RunConfig, "agent.detector.miss_rate", True),
+        (RunConfig, "agent.perception.headings", True),
+        (RunConfig, "dynamics.obstacles.n_obstacles", True),
+        (RunConfig, "dynamics.plant.wind_mean_m_s", [True, False, False]),
+        (RunConfig, "sensors.max_depth_m", True),
+        (LLMConfig, "timeout_s", True),
+        (LLMConfig, "max_concurrency", False),
+    ],
+)
+def test_a_boolean_is_not_taken_for_a_number(model: type, where: str, value: object) -> None:
+    # An audit: pydantic's lax mode read YAML's true as 1 and false as 0, without a word.
+    data: dict[str, object] = {"system": "s"} if model is RunConfig else {}
+    *parents, leaf = where.split(".")
+    inner = data
+    for key in parents:
+        inner = inner.setdefault(key, {})  # type: ignore[assignment]
+    inner[leaf] = value
+    index = ".0" if isinstance(value, list) else ""
+    assert _problems(model, data) == (
+        f"{where}{index}: expected a number, got a boolean (YAML reads unquoted true / false / "
+        "yes / no / on / off as booleans)"
+    )
+
+
+def test_boolean_settings_still_take_booleans() -> None:
+    config = RunConfig.model_validate({"system": "s", "write_logs": False, "agent": {"hsd": False}})
+    assert not config.write_logs and not config.agent.hsd

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import Field, ValidationError, field_validator
 
 from skyvln_eval.agent.base import Agent
 from skyvln_eval.agent.detectors import (
@@ -24,6 +24,7 @@ from skyvln_eval.agent.detectors import (
     known_detectors,
 )
 from skyvln_eval.agent.perception import Perception, PerceptionConfig
+from skyvln_eval.config_model import StrictModel
 from skyvln_eval.errors import ConfigError, UnknownNameError, describe_validation_error
 from skyvln_eval.fileio import load_yaml
 from skyvln_eval.llm.client import LLMClient
@@ -31,11 +32,9 @@ from skyvln_eval.llm.config import LLMConfig, build_client
 from skyvln_eval.sensing import SensorKind
 
 
-class DetectorConfig(BaseModel):
+class DetectorConfig(StrictModel):
     """Which detector, and its settings: imperfections (``simulated``), weights
     (``grounding_dino``) or the vision-language model to ask (``vlm``)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     name: str = "simulated"
     miss_rate: float = Field(default=0.1, ge=0.0, le=1.0)
@@ -96,10 +95,8 @@ class DetectorConfig(BaseModel):
         return create_detector(self.name, **options)
 
 
-class AgentConfig(BaseModel):
+class AgentConfig(StrictModel):
     """One agent: its kind (``name``), ablation switches, perception, detector and LLM."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     name: str = "skyvln"
     hsd: bool = True

@@ -19,20 +19,19 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from skyvln_eval.agent.detectors import Box, Detection, Detector
 from skyvln_eval.agent.order_stats import column_median_and_percentiles
+from skyvln_eval.config_model import StrictModel
 from skyvln_eval.frames import ViewPose, enu_yaw_to_compass_deg
 from skyvln_eval.sensing import CameraImages, Sensors
 
 _FOUR_VIEWS = ("front", "right", "back", "left")
 
 
-class PerceptionConfig(BaseModel):
+class PerceptionConfig(StrictModel):
     """How the agent looks around (angles in degrees, distances in metres)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     headings: int = Field(default=4, ge=1, le=16, description="panorama headings, evenly spaced")
     pitch_deg: float = Field(

@@ -15,11 +15,12 @@ from pathlib import Path
 from typing import Annotated, Any, Final, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
 from skyvln_eval.agent.config import AGENTS, AgentConfig
 from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN, EpisodeMode, Split
+from skyvln_eval.config_model import StrictModel
 from skyvln_eval.control.registry import controller_config, controller_names, make_controller
 from skyvln_eval.errors import (
     FIELD_PATH_CONTEXT,
@@ -38,8 +39,8 @@ from skyvln_eval.sim.scenarios import ScenarioKind
 ExecutionMode = Literal["official", "dynamics"]
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+class _Strict(StrictModel):
+    pass
 
 
 class ObstacleSettings(_Strict):

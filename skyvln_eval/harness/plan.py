@@ -17,8 +17,6 @@ from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import (
-    BaseModel,
-    ConfigDict,
     Field,
     ValidationError,
     field_validator,
@@ -29,6 +27,7 @@ from pydantic_core import PydanticCustomError
 from skyvln_eval.agent.config import AgentConfig
 from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN, EpisodeMode, Split
 from skyvln_eval.bounds import MAX_BOOTSTRAP_RESAMPLES, MAX_BOOTSTRAP_SEED
+from skyvln_eval.config_model import StrictModel
 from skyvln_eval.configs import config_path
 from skyvln_eval.control.registry import controller_config
 from skyvln_eval.errors import (
@@ -58,8 +57,8 @@ DEFAULT_PLAN = "default"
 TableName = Literal["table1", "table2"]
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+class _Strict(StrictModel):
+    pass
 
 
 class PlanSystem(_Strict):

@@ -8,8 +8,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
 
+from skyvln_eval.config_model import StrictModel
 from skyvln_eval.errors import ConfigError, UnknownNameError
 from skyvln_eval.llm.cache import ResponseCache
 from skyvln_eval.llm.client import LLMClient
@@ -21,9 +22,7 @@ from skyvln_eval.llm.retry import RetryPolicy
 from skyvln_eval.llm.types import GenerationConfig
 
 
-class RetryConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
+class RetryConfig(StrictModel):
     max_attempts: int = Field(default=4, ge=1, le=20)
     initial_delay_s: float = Field(default=0.5, ge=0.0)
     multiplier: float = Field(default=2.0, ge=1.0)
@@ -124,7 +123,7 @@ def _split_server(backend: str) -> tuple[str, str, str]:
 TASK_DATA_PREFIX: Final = "task-data:"
 
 
-class LLMConfig(BaseModel):
+class LLMConfig(StrictModel):
     """Which backend (``"rule"``, ``"openai:gpt-4o"``, ``"replay:openai:gpt-4o"``, ...), its
     server and decoding settings, retries, repair, concurrency, cache and price table.
 
@@ -143,8 +142,6 @@ class LLMConfig(BaseModel):
     simply repeated) and, when the answer was cut off at the budget, with
     ``repair_budget_factor`` times the budget.
     """
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     backend: str = "rule"
     base_url: str | None = None
