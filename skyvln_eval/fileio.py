@@ -7,6 +7,7 @@ renamed into place, so an interrupted write never leaves a half file under the f
 from __future__ import annotations
 
 import contextlib
+import errno
 import functools
 import hashlib
 import json
@@ -46,6 +47,8 @@ def atomic_write_bytes(path: str | Path, data: bytes, durable: bool = False) -> 
     for files whose loss loses work, e.g. a run's results rewritten.
     """
     path = Path(path)
+    if path.is_dir():  # else the rename names the temporary file: ".x.abc.tmp: Is a directory"
+        raise IsADirectoryError(errno.EISDIR, "a folder, not a file: name a file", str(path))
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:

@@ -59,6 +59,7 @@ from skyvln_eval.converters.reader import read_log
 from skyvln_eval.converters.writer import McapLogWriter
 from skyvln_eval.errors import AvdnValidationError, SkyvlnError, ValidationIssue
 from skyvln_eval.fileio import (
+    ensure_directory,
     ensure_writable_directory,
     exclusive_lock,
     sha256_bytes,
@@ -400,6 +401,9 @@ def convert_split(
     # One conversion of a split and mode into a folder at a time: each removes the stale
     # logs and temporary files it finds there, which another's may be (a run converting
     # into the shared cache while `convert` writes the same folder lost logs to it).
+    # The folder first: its lock file would otherwise fail on a file of that name, naming
+    # neither (an audit: "afile: File exists").
+    ensure_directory(out_dir, "output folder")
     with exclusive_lock(Path(out_dir) / f".{split}-{mode}.lock"):
         target = ensure_writable_directory(split_output_dir(out_dir, split, mode), "output folder")
         report = ConvertReport(

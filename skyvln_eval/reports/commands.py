@@ -274,12 +274,14 @@ def score(
     splits, episodes and limit); other results, given --data-dir, every episode of their
     split. An incomplete run is refused unless --allow-incomplete.
     """
-    from skyvln_eval.fileio import atomic_write_text
+    from skyvln_eval.fileio import atomic_write_text, ensure_directory
     from skyvln_eval.metrics import score_results, summarise
     from skyvln_eval.metrics.scores_io import summary_csv_text, write_scores
     from skyvln_eval.reports.run_coverage import covered_results, long_path_warnings
     from skyvln_eval.reports.table_layout import LAYOUT_FILE, read_layout
 
+    if out.exists() and not out.is_dir():  # said now, not after the scoring
+        raise ConfigError(f"--out {out} is an existing file, not a folder: name a folder")
     data_dir = None if data_dir_text is None else _data_dir(data_dir_text)
     conventions = _conventions(threshold_m, distance, non_strict, legacy_gp, collisions_succeed)
     sources = _load_results(results, data_dir, split, mode, system, allow_incomplete)
@@ -290,7 +292,7 @@ def score(
     summary = summarise(  # its printout shows the errors: no warning
         scores, metrics, resamples, seed=seed, ci_unit=_ci_unit(ci_unit), warn_errors=False
     )
-    out.mkdir(parents=True, exist_ok=True)
+    ensure_directory(out, "--out")
     # Reproduce's layout of the scores these replace: kept while it places every system
     # scored (the same runs scored again, say with another threshold), else removed: the
     # tables made from these scores left the systems it did not know out, without a word.

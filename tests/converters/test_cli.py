@@ -10,6 +10,7 @@ from typer.testing import CliRunner
 from skyvln_eval.cli import app
 from skyvln_eval.converters.left_out import LEFT_OUT_NAME, LeftOut, write_left_out
 from skyvln_eval.converters.manifest import MANIFEST_NAME
+from skyvln_eval.errors import ConfigError
 from tests.conftest import CliOutcome, make_record
 from tests.converters.conftest import ConvertedSample
 
@@ -147,3 +148,19 @@ def test_an_episode_the_conversion_failed_is_a_problem_of_its_folder(
     assert result.code == 1
     expected = "(episode 1913__1_1): its conversion failed: the map image does not decode"
     assert expected in result.out + result.err
+
+
+def test_convert_names_an_out_that_is_a_file(
+    tmp_path: Path, dataset_factory: Callable[..., Path]
+) -> None:
+    # An audit: "afile: File exists (EEXIST)", from the lock file made inside it.
+    root = dataset_factory({"val_seen": [make_record()]})
+    afile = tmp_path / "afile"
+    afile.write_text("mine")
+    result = runner.invoke(
+        app, ["convert", "--data-dir", str(root), "--split", "val_seen", "--out", str(afile)]
+    )
+    # The CLI's entry point prints a ConfigError and exits 2; the runner hands it over.
+    assert isinstance(result.exception, ConfigError), result.output
+    assert f"output folder {afile} is an existing file, not a folder" in str(result.exception)
+    assert afile.read_text() == "mine"

@@ -474,3 +474,18 @@ def test_a_bootstrap_seed_or_resamples_numpy_cannot_take_is_refused_before_scori
     assert cli("score", str(run), "--out", str(out), "--resamples", "0").code == 0
     tabled = cli("table", str(out / "scores.csv"), "--ci", option, value)
     assert tabled.code == 2 and "Traceback" not in tabled.err, tabled
+
+
+def test_an_out_of_the_wrong_kind_is_named_before_any_work(tmp_path: Path, cli: Cli) -> None:
+    # An audit: "afile: File exists (EEXIST)" after the scoring, and a table written over a
+    # folder named a temporary file (".tiny.rqhbu2h7.tmp: Is a directory").
+    run = write_run(tmp_path / "run.jsonl")
+    afile = tmp_path / "afile"
+    afile.write_text("mine")
+    scored = cli("score", str(run), "--out", str(afile))
+    assert scored.code == 2 and f"--out {afile} is an existing file, not a folder" in scored.err
+    assert afile.read_text() == "mine"
+    assert cli("score", str(run), "--out", str(tmp_path / "scores"), "--resamples", "0").code == 0
+    tabled = cli("table", str(tmp_path / "scores" / "scores.csv"), "--out", str(tmp_path))
+    assert tabled.code == 2 and f"{tmp_path}: a folder, not a file: name a file" in tabled.err
+    assert not list(tmp_path.glob(".*.tmp"))
