@@ -187,6 +187,18 @@ def test_a_backend_spec_is_checked_whole_in_backends_files_and_the_environment(
     )
     with pytest.raises(ConfigError, match=r"backend 'g' does not say which backend it is"):
         load_backends_file(backends)
+    # A name YAML reads as a boolean was the backend "False" (an audit).
+    backends.write_text(
+        "format: skyvln-eval/llm-backends\nversion: 1\nbackends: {no: {backend: rule}}\n"
+    )
+    with pytest.raises(ConfigError, match=r"backend name False is not text .*: quote it"):
+        load_backends_file(backends)
+    # With a file that names none, a bad spec says so, not "set the file" (an audit).
+    backends.write_text("format: skyvln-eval/llm-backends\nversion: 1\n")
+    loaded = load_backends_file(backends)
+    monkeypatch.setenv("SKYVLN_TEST_BACKENDS", "gemma")
+    with pytest.raises(ConfigError, match=rf"and the backends file {backends} names no backend"):
+        environment_backends("SKYVLN_TEST_BACKENDS", loaded)
 
 
 def test_the_shipped_backends_file_loads_and_asks_the_local_server_as_the_plan_does() -> None:

@@ -109,8 +109,17 @@ class PlanDynamicsSettings(DynamicsSettings):
 
 
 class Table1Plan(_Strict):
-    splits: tuple[Split, ...] = ("val_seen", "val_unseen", "test_unseen")
+    splits: tuple[Split, ...] = Field(("val_seen", "val_unseen", "test_unseen"), min_length=1)
     systems: tuple[PlanSystem, ...]
+
+    @field_validator("splits")
+    @classmethod
+    def _each_split_once(cls, splits: tuple[Split, ...]) -> tuple[Split, ...]:
+        # Else reported as a row label given twice, which it is not (an audit).
+        twice = sorted({s for s in splits if splits.count(s) > 1})
+        if twice:
+            raise ValueError(f"split(s) {', '.join(twice)} listed more than once")
+        return splits
 
 
 class BackendPlan(_Strict):

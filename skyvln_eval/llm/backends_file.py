@@ -86,6 +86,11 @@ def load_backends_file(path: str | Path) -> BackendsFile:
     _config({**defaults, "backend": "rule"}, f"backends file {file}: defaults")
     backends = {}
     for name, entry in entries.items():
+        if not isinstance(name, str):  # YAML reads no / on / 1.5 unquoted as bool / number
+            raise ConfigError(
+                f"backends file {file}: backend name {name!r} is not text (YAML reads "
+                f"unquoted true / false / yes / no / on / off and numbers as such): quote it"
+            )
         if not isinstance(entry, dict):
             raise ConfigError(f"backends file {file}: backend {name!r} must be a mapping")
         config = _config({**defaults, **entry}, f"backends file {file}: {name}")
@@ -94,7 +99,7 @@ def load_backends_file(path: str | Path) -> BackendsFile:
                 f"backends file {file}: backend {name!r} does not say which backend it is "
                 "(backend: openai:<model>, or rule / random for a stand-in)"
             )
-        backends[str(name)] = config
+        backends[name] = config
     return BackendsFile(str(file), dict(defaults), backends)
 
 
@@ -114,9 +119,13 @@ def resolve_backend(entry: str, backends: BackendsFile) -> tuple[str, LLMConfig]
             raise UnknownNameError(
                 f"backend (in {backends.path})", shown, sorted(backends.backends)
             )
+        named = (
+            f"the backends file {backends.path} names no backend"
+            if backends.path
+            else f"no backends file names it (set ${BACKENDS_FILE_ENV})"
+        )
         raise ConfigError(
-            f"{shown!r} is not 'openai:<model>' or 'openai:<model>@<base_url>', and no "
-            f"backends file names it (set ${BACKENDS_FILE_ENV})"
+            f"{shown!r} is not 'openai:<model>' or 'openai:<model>@<base_url>', and {named}"
         )
     where = f"backend {shown!r} with the defaults of {backends.path or 'the toolkit'}"
     # The server is the entry's (none: OpenAI's), whatever the defaults say.

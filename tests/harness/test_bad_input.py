@@ -17,6 +17,9 @@ from skyvln_eval.harness.plan import load_plan, planned_runs
 from skyvln_eval.harness.preflight import PreflightError, preflight
 from skyvln_eval.llm import LLMConfig
 from tests.conftest import CliOutcome
+from tests.harness.test_reproduce import TINY_PLAN
+
+TINY_TABLE1 = TINY_PLAN["table1"]
 
 Cli = Callable[..., CliOutcome]
 
@@ -511,6 +514,11 @@ def test_a_plans_bootstrap_numpy_cannot_take_is_refused_before_any_run(
             {"control_figures": {"controllers": ["pid"], "cases": ["dynmic"]}},
             "control_figures.cases.0: Input should be 'static' or 'dynamic'",
         ),
+        # An audit: said as a row label given twice.
+        (
+            {"table1": {**TINY_TABLE1, "splits": ["val_seen", "val_seen"]}},
+            "table1.splits: split(s) val_seen listed more than once",
+        ),
     ],
     ids=[
         "max-action-len",
@@ -518,6 +526,7 @@ def test_a_plans_bootstrap_numpy_cannot_take_is_refused_before_any_run(
         "plan-controller",
         "figure-controller",
         "figure-case",
+        "split-twice",
     ],
 )
 def test_a_plan_whose_runs_or_figures_would_fail_is_refused_on_load(
