@@ -11,3 +11,5 @@ MAX_BOOTSTRAP_SEED: Final = 2**63 - 1
 #: The most bootstrap resamples: each is one row of floats per metric in memory (a million
 #: is about 0.2 GB for a summary; far more was numpy's "Maximum allowed dimension").
 MAX_BOOTSTRAP_RESAMPLES: Final = 1_000_000
+#: The most parallel episodes a run (or a reproduction) takes.
+MAX_WORKERS: Final = 256

@@ -23,6 +23,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 from typer.core import TyperCommand
 
+from skyvln_eval.bounds import MAX_WORKERS
 from skyvln_eval.errors import ConfigError, RunStoppedError, SkyvlnError, UnknownNameError
 
 if TYPE_CHECKING:
@@ -424,7 +425,8 @@ def run_(
         Path | None, typer.Option(help="Run directory (default: runs/<config name>)")
     ] = None,
     workers: Annotated[
-        int | None, typer.Option(min=1, help="Parallel episodes (overrides the config)")
+        int | None,
+        typer.Option(min=1, max=MAX_WORKERS, help="Parallel episodes (overrides the config)"),
     ] = None,
     executor: Annotated[
         str | None, typer.Option(help="serial, processes, threads or ray (overrides the config)")
@@ -469,7 +471,7 @@ def reproduce(
     out: Annotated[Path, typer.Option(help="Folder for everything reproduce writes")] = Path(
         "reproduce-output"
     ),
-    workers: Annotated[int, typer.Option(min=1, help="Parallel episodes")] = 2,
+    workers: Annotated[int, typer.Option(min=1, max=MAX_WORKERS, help="Parallel episodes")] = 2,
     executor: Annotated[str, typer.Option(help="processes, threads, serial or ray")] = "processes",
     threads_per_worker: Annotated[
         int, typer.Option(min=1, help="With processes: episodes run in threads in each worker")

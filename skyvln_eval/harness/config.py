@@ -20,6 +20,7 @@ from pydantic_core import PydanticCustomError
 
 from skyvln_eval.agent.config import AGENTS, AgentConfig
 from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN, EpisodeMode, Split
+from skyvln_eval.bounds import MAX_WORKERS
 from skyvln_eval.config_model import StrictModel
 from skyvln_eval.control.registry import controller_config, controller_names, make_controller
 from skyvln_eval.errors import (
@@ -210,7 +211,7 @@ class RunConfig(_Strict):
         description="views per dialog round flown, the start included (ANDH-Full: each round)",
     )
     seed: int = 0
-    workers: int = Field(default=2, ge=1, le=256)
+    workers: int = Field(default=2, ge=1, le=MAX_WORKERS)
     executor: ExecutorKind = "processes"
     threads_per_worker: int = Field(
         default=1, ge=1, le=64, description="processes executor: episodes in threads per worker"
