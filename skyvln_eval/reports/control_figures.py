@@ -212,7 +212,8 @@ def _plot_pair(
     ax_error.set_title(
         f"{axis} minus command"
         if is_command
-        else f"{axis} error (the plant's heading loop, under every controller)"
+        # Two lines: on one, a panel's width cut it off.
+        else f"{axis} error\n(the plant's heading loop, under every controller)"
         if axis == "yaw"
         else f"{axis} error"
     )

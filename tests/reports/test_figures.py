@@ -65,7 +65,7 @@ def test_control_figure_layout_lines_and_determinism(tmp_path: Path) -> None:
     assert titles[9:12] == [
         "roll minus command",
         "pitch minus command",
-        "yaw error (the plant's heading loop, under every controller)",
+        "yaw error\n(the plant's heading loop, under every controller)",
     ]
     assert "not a like-for-like" not in figure.get_suptitle()  # one reference
     labels = [line.get_label() for line in axes[0].get_lines()]
