@@ -119,6 +119,11 @@ def describe(summary: RecordingSummary, show_path: bool = True) -> str:
             f"{rows.get(e.WORLD_DRONE, 0)} pose(s)",
             f"{rows.get(e.WORLD_OBSTACLES, 0)} obstacle sample(s)",
         ]
+    if summary.merged_decisions:
+        parts.append(
+            f"{summary.merged_decisions} decision(s) at a time another has: merged on the "
+            "decision timeline"
+        )
     where = f" -> {summary.path}" if show_path else ""
     return f"{summary.episode.key}: {', '.join(parts)}{where}"
 

@@ -59,6 +59,9 @@ class RecordingSummary:
     rows: dict[str, int]
     run_log: bool
     gt_views: int
+    #: Decisions at a time another one has too (logs of older runs): merged on the
+    #: decision timeline.
+    merged_decisions: int = 0
 
 
 def recording_id(ref: EpisodeLogRef, run: Mapping[str, str], mode: str) -> str:
@@ -123,6 +126,8 @@ class _Recorder:
         self.detection_views: list[str] = []
         self.last_view: tuple[scene.Strip, int] | None = None
         self.views_seen = 0
+        #: Decisions the decision timeline merged with another at the same time.
+        self.merged_decisions = 0
         self.horizon_shown = False
         #: The heading frame's last rotation (x, y, z, w): the body's tilt is relative to it.
         self.heading_xyzw = [0.0, 0.0, 0.0, 1.0]
@@ -360,6 +365,21 @@ def _record(rr: ModuleType, rec: Any, log: RunLogStream, episode: Episode) -> _R
     blueprint = episode_blueprint(
         rr, recorder.modules, recorder.detection_views, recorder.focus(), recorder.run_log
     )
+    # Logs of runs from before every segment took a control step may have two decisions
+    # at one time: the timeline cannot tell them apart, so it says so.
+    decisions = log.topic_counts.get(t.TOPIC_AGENT_STEP, 0)
+    recorder.merged_decisions = max(0, decisions - len(canvas.decision_times_ns))
+    if recorder.merged_decisions:
+        merged = recorder.merged_decisions
+        canvas.at(canvas.decision_times_ns[0])
+        canvas.put(
+            e.AGENT_LOG,
+            rr.TextLog(
+                f"{merged} decision(s) share their time with another: the decision timeline "
+                "shows each such group as one (sim_time keeps their order)",
+                level="WARN",
+            ),
+        )
     rec.send_blueprint(blueprint)
     return recorder
 
@@ -394,4 +414,6 @@ def write_recording(ref: EpisodeLogRef, out: str | Path) -> RecordingSummary:
             tmp.unlink(missing_ok=True)
             raise
     rows = dict(recorder.canvas.rows)
-    return RecordingSummary(out, ref, rec_id, decisions, rows, run_log, gt_views)
+    return RecordingSummary(
+        out, ref, rec_id, decisions, rows, run_log, gt_views, recorder.merged_decisions
+    )

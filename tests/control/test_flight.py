@@ -173,6 +173,17 @@ def test_a_long_segment_gets_the_time_it_needs_by_default() -> None:
     assert result.reached and result.t_end_s > 150.0
 
 
+def test_a_segment_to_where_the_drone_is_still_takes_a_control_step() -> None:
+    # An audit: a move to the drone's own pose took 0 steps, so the next decision had the
+    # same time as this one, and the viewer's decision timeline merged the two.
+    flight = Flight(controller("pid"), START)
+    here = ViewPose(START.x_m, START.y_m, START.z_m, START.yaw_rad)
+    before = flight.t_s
+    result = flight.fly_to(here)
+    assert result.reached and len(result.rows) == 1
+    assert result.t_end_s == pytest.approx(before + flight.dt_s)
+
+
 def test_step_windows_come_in_growing_batches_with_the_steps_own_clock() -> None:
     # A flight asks for windows as it flies: one that arrives early has not paid for the
     # rest of the time it was allowed, and every window's times are the ones one batch of

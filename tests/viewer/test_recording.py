@@ -202,3 +202,48 @@ def test_two_runs_of_one_configuration_are_two_recordings(flown_run: Path, tmp_p
     ids = [s.recording_id for s in summaries]
     assert len(refs) == 2 and len(set(ids)) == 2
     assert len({i.rsplit(":", 1)[0] for i in ids}) == 1  # the same episode and configuration
+
+
+def test_decisions_that_share_a_time_are_said_to_be_merged(flown_run: Path, tmp_path: Path) -> None:
+    # An audit: a log with two decisions at one time (a segment of no step, before every
+    # segment took one) shifted every later decision on the timeline, without a word.
+    from mcap.reader import make_reader
+    from mcap.writer import CompressionType, Writer
+
+    from skyvln_eval.viewer import write_recording
+    from skyvln_eval.viewer.commands import describe
+    from skyvln_eval.viewer.logs import EpisodeLogRef
+
+    (ref,) = find_episode_logs(flown_run)
+    with ref.path.open("rb") as source:
+        times = sorted(m.log_time for _, c, m in make_reader(source).iter_messages()
+                       if c.topic == t.TOPIC_AGENT_STEP)  # fmt: skip
+    first, second = times[:2]
+    retimed = tmp_path / ref.path.name
+    with ref.path.open("rb") as source, retimed.open("wb") as out:
+        reader = make_reader(source)
+        summary = reader.get_summary()
+        assert summary is not None
+        writer = Writer(out, compression=CompressionType.ZSTD)
+        writer.start()
+        schemas = {i: writer.register_schema(s.name, s.encoding, s.data)
+                   for i, s in summary.schemas.items()}  # fmt: skip
+        channels = {
+            i: writer.register_channel(
+                c.topic, c.message_encoding, schemas[c.schema_id], dict(c.metadata)
+            )
+            for i, c in summary.channels.items()
+        }
+        for record in reader.iter_metadata():
+            writer.add_metadata(record.name, dict(record.metadata))
+        for _, channel, message in reader.iter_messages(log_time_order=True):
+            at = first if message.log_time == second else message.log_time
+            writer.add_message(channels[channel.id], at, message.data, at)
+        writer.finish()
+    merged = write_recording(EpisodeLogRef(retimed, ref.split, ref.episode_id), tmp_path / "m.rrd")
+    assert merged.merged_decisions == 1
+    assert "1 decision(s) at a time another has: merged on the decision timeline" in describe(
+        merged
+    )
+    plain = write_recording(ref, tmp_path / "p.rrd")
+    assert plain.merged_decisions == 0
