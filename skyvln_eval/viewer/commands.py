@@ -22,7 +22,7 @@ from skyvln_eval.errors import ConfigError
 from skyvln_eval.interrupts import terminate_like_ctrl_c
 from skyvln_eval.viewer import entities as e
 from skyvln_eval.viewer.deps import rerun_cli_path
-from skyvln_eval.viewer.logs import EpisodeLogRef, find_episode_logs
+from skyvln_eval.viewer.logs import EpisodeLogRef, find_episode_logs, unlogged_note
 from skyvln_eval.viewer.privacy import USER_OPT_OUT, rerun_environment
 from skyvln_eval.viewer.recording import RecordingSummary, write_recording
 from skyvln_eval.viewer.serve import serve_recordings
@@ -184,6 +184,9 @@ def _view(target: Path, episodes: Sequence[str], save: Path | None, serve: bool,
         _serve([target], port)
         return
     refs = find_episode_logs(target, episodes)
+    unlogged = None if episodes else unlogged_note(target)
+    if unlogged is not None:  # a batch says what it leaves out: here, what it cannot show
+        typer.echo(f"not shown: {unlogged}", err=True)
     with tempfile.TemporaryDirectory(prefix="skyvln-view-") as work:
         if save is not None:
             paths = _save(refs, save, Path(work))

@@ -115,6 +115,17 @@ def find_episode_logs(target: str | Path, episodes: Sequence[str] = ()) -> list[
     return refs
 
 
+def unlogged_note(target: str | Path) -> str | None:
+    """For a run directory (or a folder of them) shown whole: the episodes its rows say
+    ended in error before writing a run log, which no recording can show; None when there
+    are none (or ``target`` is a file)."""
+    target = Path(target)
+    if target.is_file():
+        return None
+    said = _raised_before_logging(_log_dirs(target), None, None)
+    return said.removeprefix("; ") or None
+
+
 def _raised_before_logging(
     log_dirs: Sequence[Path], split: str | None, episode_id: str | None
 ) -> str:

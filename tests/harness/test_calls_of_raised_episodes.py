@@ -89,6 +89,31 @@ def test_view_says_an_episode_raised_before_writing_its_log(
         )
 
 
+def test_viewing_a_whole_run_says_which_episodes_it_cannot_show(
+    tmp_path: Path, small_config: MakeConfig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # An audit: the episode that raised (its log removed) was left out without a word.
+    from skyvln_eval.harness import runner
+    from skyvln_eval.viewer.logs import find_episode_logs, unlogged_note
+
+    build, built = runner.build_agent, []
+
+    def broken_once(config: Any, *args: Any) -> Any:
+        built.append(config)
+        if len(built) == 1:
+            raise RuntimeError("a bug before the first decision")
+        return build(config, *args)
+
+    monkeypatch.setattr(runner, "build_agent", broken_once)
+    run(small_config(limit=2, workers=1, executor="serial"), tmp_path / "run")
+    rows = read_results(tmp_path / "run" / RESULTS_FILE)
+    [raised] = [r for r in rows if r.status == "error"]
+    assert len(find_episode_logs(tmp_path / "run")) == 1
+    note = unlogged_note(tmp_path / "run") or ""
+    assert note.startswith("1 episode(s) ended in error before writing one, e.g. ")
+    assert f"{raised.split}/{raised.episode_id}: RuntimeError" in note
+
+
 def test_an_episode_that_calls_sys_exit_is_an_error_row_and_the_run_goes_on(
     tmp_path: Path, small_config: MakeConfig, monkeypatch: pytest.MonkeyPatch
 ) -> None:
