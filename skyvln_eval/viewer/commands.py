@@ -18,7 +18,7 @@ from pathlib import Path
 
 import typer
 
-from skyvln_eval.errors import ConfigError
+from skyvln_eval.errors import ConfigError, McapLogError
 from skyvln_eval.interrupts import terminate_like_ctrl_c
 from skyvln_eval.viewer import entities as e
 from skyvln_eval.viewer.deps import rerun_cli_path
@@ -57,11 +57,21 @@ def build_recordings(
     refs: Sequence[EpisodeLogRef],
     out_dir: Path,
     on_done: Callable[[RecordingSummary], None] | None = None,
+    on_damaged: Callable[[McapLogError], None] | None = None,
 ) -> list[RecordingSummary]:
-    """One ``.rrd`` per episode in ``out_dir``, built one after the other (streaming each)."""
+    """One ``.rrd`` per episode in ``out_dir``, built one after the other (streaming each).
+
+    A damaged log stops the batch unless ``on_damaged`` is given: then it is handed the
+    error and the batch goes on without that episode."""
     summaries = []
     for ref, name in zip(refs, recording_file_names(refs), strict=True):
-        summary = write_recording(ref, out_dir / name)
+        try:
+            summary = write_recording(ref, out_dir / name)
+        except McapLogError as error:
+            if on_damaged is None:
+                raise
+            on_damaged(error)
+            continue
         summaries.append(summary)
         if on_done is not None:
             on_done(summary)
@@ -128,18 +138,25 @@ def describe(summary: RecordingSummary, show_path: bool = True) -> str:
     return f"{summary.episode.key}: {', '.join(parts)}{where}"
 
 
-def _save(refs: Sequence[EpisodeLogRef], save: Path, work: Path) -> list[Path]:
+def _save(
+    refs: Sequence[EpisodeLogRef],
+    save: Path,
+    work: Path,
+    on_damaged: Callable[[McapLogError], None],
+) -> list[Path]:
     if save.suffix == ".rrd":
         if len(refs) == 1:
             summary = write_recording(refs[0], save)
             typer.echo(describe(summary))
             return [save]
-        built = build_recordings(refs, work, lambda s: typer.echo(describe(s, False)))
+        built = build_recordings(refs, work, lambda s: typer.echo(describe(s, False)), on_damaged)
+        if not built:
+            return []
         save.parent.mkdir(parents=True, exist_ok=True)
         merge_recordings([s.path for s in built], save)
         typer.echo(f"saved {len(built)} recording(s) in {save}")
         return [save]
-    built = build_recordings(refs, save, lambda s: typer.echo(describe(s)))
+    built = build_recordings(refs, save, lambda s: typer.echo(describe(s)), on_damaged)
     return [s.path for s in built]
 
 
@@ -187,18 +204,36 @@ def _view(target: Path, episodes: Sequence[str], save: Path | None, serve: bool,
     unlogged = None if episodes else unlogged_note(target)
     if unlogged is not None:  # a batch says what it leaves out: here, what it cannot show
         typer.echo(f"not shown: {unlogged}", err=True)
+    damaged: list[McapLogError] = []
+
+    def skip(error: McapLogError) -> None:  # one damaged log of many: the rest are shown
+        damaged.append(error)
+        typer.echo(f"skipped: {error}", err=True)
+
     with tempfile.TemporaryDirectory(prefix="skyvln-view-") as work:
         if save is not None:
-            paths = _save(refs, save, Path(work))
+            paths = _save(refs, save, Path(work), skip)
         else:
-            built = build_recordings(refs, Path(work), lambda s: typer.echo(describe(s, False)))
+            built = build_recordings(
+                refs, Path(work), lambda s: typer.echo(describe(s, False)), skip
+            )
             paths = [s.path for s in built]
+        if not paths:  # every log damaged: nothing to show
+            raise damaged[0]
+        if damaged:
+            typer.echo(
+                f"{len(damaged)} of {len(refs)} episode log(s) skipped as damaged "
+                "(`skyvln-eval validate` checks them)",
+                err=True,
+            )
         if save is None or serve:
             if len(paths) > MANY_RECORDINGS:
                 typer.echo(f"serving {len(paths)} recordings; --episode picks a few", err=True)
             _serve(paths, port)
         else:
             typer.echo(open_hint(paths, save))
+    if damaged:  # shown what could be, and said: the exit code says it too
+        raise typer.Exit(1)
 
 
 def open_hint(paths: Sequence[Path], save: Path) -> str:

@@ -199,6 +199,24 @@ def test_several_episodes_saved_as_one_file_keep_one_recording_each(
     assert refused.returncode == 2 and f"{fake}: not a Rerun recording" in refused.stderr
 
 
+def test_one_damaged_log_of_a_run_is_skipped_and_said_the_rest_saved(
+    flown_run: Path, tmp_path: Path
+) -> None:
+    # An audit: one cut-off log stopped the whole view; the episodes after it were lost.
+    (ref,) = find_episode_logs(flown_run)
+    data = ref.path.read_bytes()
+    for split, body in (("val_seen", data[: len(data) // 2]), ("test_unseen", data)):
+        copy = tmp_path / "run" / "logs" / split / ref.path.name
+        copy.parent.mkdir(parents=True)
+        copy.write_bytes(body)
+    out = tmp_path / "out"
+    result = run_skyvln_eval("view", str(tmp_path / "run"), "--save", str(out))
+    assert result.returncode == 1, result.stderr
+    assert "skipped: " in result.stderr and "truncated or unfinished MCAP file" in result.stderr
+    assert "1 of 2 episode log(s) skipped as damaged" in result.stderr
+    assert [p.name for p in out.iterdir()] == [f"test_unseen__{ref.episode_id}.rrd"]
+
+
 def test_runs_of_one_folder_that_flew_the_same_episode_keep_a_file_each(
     flown_run: Path, tmp_path: Path
 ) -> None:
