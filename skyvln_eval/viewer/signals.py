@@ -90,7 +90,7 @@ PLOTS: tuple[tuple[str, str], ...] = (
     ("thrust (m/s²)", "thrust_m_s2"),
     ("solve time (ms)", "solve_time_ms"),
     ("QP iterations", "iterations"),
-    ("clearance (m)", "min_clearance_m"),
+    ("keep-out clearance (m)", "min_clearance_m"),  # to radius + safety margin
     ("flagged steps (0/1)", "flags"),
 )
 
