@@ -412,9 +412,12 @@ def _write_run_log(
     log = content.control_log
     flown_at = frozenset(ns(s) for s in log["t_s"].tolist()) if log is not None else frozenset()
     _agent_messages(out, episode, world, content.steps, options, observations, flown_at)
-    _path_messages(out, episode, content, flown_at | {ns(step.t_s) for step in content.steps})
+    # The control steps before the path at one time: a reader that draws the path flown
+    # so far when the path message comes has the drone's pose of that time by then (an
+    # audit: the viewer's flown path ended a control step short of the drone).
     if log is not None and len(log):
         _control_messages(out, log)
+    _path_messages(out, episode, content, flown_at | {ns(step.t_s) for step in content.steps})
     _obstacle_messages(out, content.obstacle_segments)
     # Said as written, not as asked: the converter's defaults (observations, a 384 px
     # tile, one view a second) were claimed for logs without images and for dynamics runs.

@@ -247,3 +247,20 @@ def test_decisions_that_share_a_time_are_said_to_be_merged(flown_run: Path, tmp_
     )
     plain = write_recording(ref, tmp_path / "p.rrd")
     assert plain.merged_decisions == 0
+
+
+def test_at_a_flown_time_the_control_step_comes_before_the_path_so_far(flown_run: Path) -> None:
+    # An audit: the path was written first, so the viewer's flown path at decision k ended
+    # one control step short of the drone.
+    from mcap.reader import make_reader
+
+    (ref,) = find_episode_logs(flown_run)
+    with ref.path.open("rb") as source:
+        order = [(m.log_time, c.topic) for _, c, m in make_reader(source).iter_messages()]
+    controlled = {at for at, topic in order if topic == t.TOPIC_CONTROL_STEP}
+    paths = [k for k, (at, topic) in enumerate(order) if topic == t.TOPIC_RUN_PATH]
+    flown = [k for k in paths if order[k][0] in controlled]
+    assert flown  # the decisions after the first were flown to
+    for k in flown:
+        at = order[k][0]
+        assert any(order[j] == (at, t.TOPIC_CONTROL_STEP) for j in range(k)), at
