@@ -13,3 +13,5 @@ MAX_BOOTSTRAP_SEED: Final = 2**63 - 1
 MAX_BOOTSTRAP_RESAMPLES: Final = 1_000_000
 #: The most parallel episodes a run (or a reproduction) takes.
 MAX_WORKERS: Final = 256
+#: The most episodes a worker process runs in threads at once.
+MAX_THREADS_PER_WORKER: Final = 64

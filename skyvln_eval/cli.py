@@ -23,7 +23,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 from typer.core import TyperCommand
 
-from skyvln_eval.bounds import MAX_WORKERS
+from skyvln_eval.bounds import MAX_THREADS_PER_WORKER, MAX_WORKERS
 from skyvln_eval.errors import ConfigError, RunStoppedError, SkyvlnError, UnknownNameError
 
 if TYPE_CHECKING:
@@ -436,7 +436,11 @@ def run_(
     ] = None,
     threads_per_worker: Annotated[
         int | None,
-        typer.Option(min=1, help="With processes: episodes run in threads in each worker"),
+        typer.Option(
+            min=1,
+            max=MAX_THREADS_PER_WORKER,
+            help="With processes: episodes run in threads in each worker",
+        ),
     ] = None,
     retry_failed: Annotated[
         bool, typer.Option(help="Run episodes that ended in error before again")
@@ -474,7 +478,12 @@ def reproduce(
     workers: Annotated[int, typer.Option(min=1, max=MAX_WORKERS, help="Parallel episodes")] = 2,
     executor: Annotated[str, typer.Option(help="processes, threads, serial or ray")] = "processes",
     threads_per_worker: Annotated[
-        int, typer.Option(min=1, help="With processes: episodes run in threads in each worker")
+        int,
+        typer.Option(
+            min=1,
+            max=MAX_THREADS_PER_WORKER,
+            help="With processes: episodes run in threads in each worker",
+        ),
     ] = 1,
     data_dir: Annotated[
         str | None,

@@ -20,7 +20,7 @@ from pydantic_core import PydanticCustomError
 
 from skyvln_eval.agent.config import AGENTS, AgentConfig
 from skyvln_eval.avdn.constants import DEFAULT_MAX_ACTION_LEN, EpisodeMode, Split
-from skyvln_eval.bounds import MAX_WORKERS
+from skyvln_eval.bounds import MAX_THREADS_PER_WORKER, MAX_WORKERS
 from skyvln_eval.config_model import StrictModel
 from skyvln_eval.control.registry import controller_config, controller_names, make_controller
 from skyvln_eval.errors import (
@@ -214,7 +214,10 @@ class RunConfig(_Strict):
     workers: int = Field(default=2, ge=1, le=MAX_WORKERS)
     executor: ExecutorKind = "processes"
     threads_per_worker: int = Field(
-        default=1, ge=1, le=64, description="processes executor: episodes in threads per worker"
+        default=1,
+        ge=1,
+        le=MAX_THREADS_PER_WORKER,
+        description="processes executor: episodes in threads per worker",
     )
     ray_address: str | None = None
     write_logs: bool = Field(default=True, description="one run MCAP per episode")

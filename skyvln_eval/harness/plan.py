@@ -193,7 +193,7 @@ class ReproducePlan(_Strict):
     )
     observations_in_logs: bool = Field(
         default=True,
-        description="images in the run MCAPs (the default plan: about 700 MB with, 270 without)",
+        description="images in the run MCAPs (the default plan: about 610 MB with, 265 without)",
     )
 
     @model_validator(mode="after")
