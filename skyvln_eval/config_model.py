@@ -21,9 +21,9 @@ from skyvln_eval.errors import FIELD_PATH_CONTEXT
 _NUMBERS = (int, float)
 
 
-def _numbers_in(annotation: Any) -> bool | None:
+def _numbers_in(annotation: Any) -> bool:
     """Whether ``annotation`` takes numbers and never a boolean (``int``, ``float | None``,
-    ``Annotated[float, ...]``): ``True``; ``None`` for a tuple of such; else ``False``."""
+    ``Annotated[float, ...]``; a tuple of them is :func:`_tuple_of_numbers`)."""
     if annotation in _NUMBERS:
         return True
     origin = typing.get_origin(annotation)
@@ -31,7 +31,7 @@ def _numbers_in(annotation: Any) -> bool | None:
     if origin is typing.Annotated:
         return _numbers_in(args[0])
     if origin in (Union, types.UnionType):
-        return bool(args) and all(_numbers_in(a) is True for a in args)
+        return bool(args) and all(_numbers_in(a) for a in args)
     return False
 
 
@@ -41,7 +41,7 @@ def _tuple_of_numbers(annotation: Any) -> bool:
     args = [a for a in typing.get_args(annotation) if a not in (type(None), Ellipsis)]
     if origin in (Union, types.UnionType):
         return any(_tuple_of_numbers(a) for a in args)
-    return origin is tuple and bool(args) and all(_numbers_in(a) is True for a in args)
+    return origin is tuple and bool(args) and all(_numbers_in(a) for a in args)
 
 
 def _boolean(where: str | None) -> PydanticCustomError:
