@@ -247,6 +247,11 @@ PREPOSITIONS: Final = frozenset(
     }
 )
 DETERMINERS: Final = frozenset({"a", "an", "the", "this", "that", "these", "those", "its"})
+#: Verbs of seeing: what follows them may be a landmark, never part of its name ("you
+#: should see Eagle Arena").
+PERCEPTION_VERBS: Final = frozenset(
+    {"see", "sees", "seeing", "spot", "notice", "find", "observe", "look", "watch"}
+)
 PRONOUNS: Final = frozenset(
     {"i", "you", "it", "we", "they", "he", "she", "your", "my", "our", "their", "me", "us"}
 )

@@ -176,6 +176,8 @@ PACKAGE = REPO / "skyvln_eval"
                 {"kind": "destination", "landmark": "a church with a red roof"},
             ],
         ),
+        # A verb of seeing is no part of the landmark's name (an audit: "see eagle arena").
+        ("You will see Eagle Arena.", None, [{"kind": "pass", "landmark": "eagle arena"}]),
         (
             "Head east; the pond is where we're going.",
             None,

@@ -27,6 +27,7 @@ from skyvln_eval.vocabulary import (
     MOTION_VERBS,
     NEGATIONS,
     PASS_CUES,
+    PERCEPTION_VERBS,
     PREPOSITIONS,
     PRONOUNS,
     RIGHT_AS_CORRECT_AFTER,
@@ -56,7 +57,15 @@ _CATEGORY_WORDS: list[tuple[tuple[str, ...], str | None]] = sorted(
 # First words of stop and destination cues end a description ("a red church where you
 # stop"); "get" is left out, too common a word to end one.
 _CUE_STARTS = frozenset(c[0] for c in (*STOP_CUES, *DESTINATION_CUES) if c[0] != "get")
-_LEFT_STOPS = PREPOSITIONS | PRONOUNS | TURN_VERBS | MOTION_VERBS | DESCRIPTION_ENDS | _CUE_STARTS
+_LEFT_STOPS = (
+    PREPOSITIONS
+    | PRONOUNS
+    | TURN_VERBS
+    | MOTION_VERBS
+    | PERCEPTION_VERBS
+    | DESCRIPTION_ENDS
+    | _CUE_STARTS
+)
 _TRAILING = PREPOSITIONS | DETERMINERS | frozenset({"and", "or", "it", "straight", "just"})
 #: Words that place one landmark by another ("the house next to the pond").
 _LOCATING: Final = frozenset(
