@@ -22,6 +22,7 @@ phrase those tokens belong to (:func:`match_phrase`).
 
 from __future__ import annotations
 
+import os
 import re
 import threading
 from collections.abc import Sequence
@@ -32,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from skyvln_eval.agent.detectors import Detection, Detector, clip_box
-from skyvln_eval.errors import MissingExtraError
+from skyvln_eval.errors import ConfigError, MissingExtraError
 from skyvln_eval.sensing import CameraImages
 from skyvln_eval.vocabulary.landmarks import CATEGORY_LABELS
 
@@ -75,8 +76,8 @@ def _model_key(model: str) -> str:
 def load_model(model: str, device: str = "cpu") -> LoadedModel:
     """The processor and weights of ``model`` on ``device``, loaded once per process.
 
-    Raises :class:`MissingExtraError` when transformers or torch are not installed, or
-    the weights are not on this machine.
+    Raises :class:`MissingExtraError` when transformers or torch are not installed, and
+    :class:`ConfigError` when the weights are not on this machine or are incomplete.
     """
     key = (_model_key(model), device)
     with _LOAD_LOCK:  # thread executors build detectors concurrently: load only once
@@ -96,18 +97,83 @@ def _load(model: str, device: str) -> LoadedModel:
         raise MissingExtraError(
             "the GroundingDINO detector", "vision", f"cannot import {error.name}"
         ) from error
+    check_weights_present(model)
     try:
         processor = AutoProcessor.from_pretrained(model, local_files_only=True)
-        weights = AutoModelForZeroShotObjectDetection.from_pretrained(model, local_files_only=True)
+        weights, info = AutoModelForZeroShotObjectDetection.from_pretrained(
+            model, local_files_only=True, output_loading_info=True
+        )
     except OSError as error:
-        raise MissingExtraError(
-            "the GroundingDINO detector",
-            "vision",
-            f"weights for {model!r} are not on this machine and are never downloaded at run "
-            f"time; download them once or pass a local folder as model ({error})",
-        ) from error
+        raise ConfigError(f"{_not_found(model)} ({type(error).__name__})") from None
+    _refuse_incomplete(model, info)
     return LoadedModel(
         processor, weights.to(device).eval(), torch, device, transformers.__version__
+    )
+
+
+def _looks_local(model: str) -> bool:
+    """Whether ``model`` is written as a folder (``/``, ``./``, ``../``, ``~``), not a hub id."""
+    return model.startswith(("/", "./", "../", "~")) or Path(model).expanduser().is_dir()
+
+
+def _not_found(model: str) -> str:
+    """Why the weights of ``model`` cannot be used, and what to do: never "check your
+    internet connection" (nothing is downloaded at run time), nor "pip install"."""
+    if _looks_local(model):
+        return f"detector model folder {model} does not exist or holds no GroundingDINO weights"
+    cache = os.environ.get("HF_HUB_CACHE") or os.environ.get("HF_HOME") or "~/.cache/huggingface"
+    return (
+        f"the weights of detector model {model!r} are not in the Hugging Face cache ({cache}); "
+        "the toolkit never downloads at run time: run `huggingface-cli download "
+        f"{model}` on a machine with a connection (and copy the cache here), or set "
+        "agent.detector.model to a local folder"
+    )
+
+
+def check_weights_present(model: str) -> None:
+    """Refuse ``model`` unless its config and weights are on this machine (a local folder,
+    or the Hugging Face cache), without loading them: what a run checks before flying."""
+    path = Path(model).expanduser()
+    if path.is_dir():
+        if (path / "config.json").is_file() and any(path.glob(_WEIGHT_FILES)):
+            return
+        raise ConfigError(_not_found(model))
+    if _looks_local(model):
+        raise ConfigError(_not_found(model))
+    try:
+        from huggingface_hub import try_to_load_from_cache
+    except ImportError as error:  # transformers brings it; without it, nothing loads
+        raise MissingExtraError(
+            "the GroundingDINO detector", "vision", f"cannot import {error.name}"
+        ) from error
+    found = [try_to_load_from_cache(model, name) for name in ("config.json", *_WEIGHT_NAMES)]
+    if not isinstance(found[0], str) or not any(isinstance(f, str) for f in found[1:]):
+        raise ConfigError(_not_found(model))
+
+
+#: Where a checkpoint's weights are, by the names transformers saves them under.
+_WEIGHT_NAMES = ("model.safetensors", "model.safetensors.index.json", "pytorch_model.bin")
+_WEIGHT_FILES = "*.safetensors*"
+
+
+def _refuse_incomplete(model: str, info: dict[str, Any]) -> None:
+    """A checkpoint that lacks tensors, or holds some of another shape, loads with those
+    layers at random (transformers says so on stderr alone): its boxes would be scored as
+    a trained detector's. Refused, naming a few."""
+    missing = list(info.get("missing_keys") or [])
+    mismatched = [
+        str(m[0]) if isinstance(m, tuple) else str(m) for m in info.get("mismatched_keys") or []
+    ]
+    if not missing and not mismatched:
+        return
+    parts = []
+    if missing:
+        parts.append(f"{len(missing)} tensor(s) missing (e.g. {', '.join(missing[:3])})")
+    if mismatched:
+        parts.append(f"{len(mismatched)} of another shape (e.g. {', '.join(mismatched[:3])})")
+    raise ConfigError(
+        f"detector model {model!r} is incomplete: {'; '.join(parts)}; those layers would run "
+        "with random weights. Fetch the checkpoint again"
     )
 
 

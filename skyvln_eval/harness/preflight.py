@@ -21,7 +21,7 @@ import urllib.parse
 from collections.abc import Iterable
 from pathlib import Path
 
-from skyvln_eval.agent.config import LLM_AGENTS, AgentConfig, models_called
+from skyvln_eval.agent.config import LLM_AGENTS, AgentConfig, DetectorConfig, models_called
 from skyvln_eval.errors import ConfigError
 from skyvln_eval.harness.config import RunConfig
 from skyvln_eval.worlds.layers import has_world_layers
@@ -97,6 +97,32 @@ def check_local_servers(agent: AgentConfig, source: str) -> None:
         raise PreflightError(f"{source}: {'; '.join(absent)}")
 
 
+def check_detector_weights(detector: DetectorConfig, source: str) -> None:
+    """Refuse a GroundingDINO detector whose weights are not on this machine, or whose
+    device torch cannot use, before any episode: else every episode ended in error, each
+    trying to load them again (an audit)."""
+    from skyvln_eval.agent.grounding_dino import DEFAULT_MODEL, check_weights_present
+
+    try:
+        check_weights_present(detector.model or DEFAULT_MODEL)
+    except ConfigError as error:
+        raise PreflightError(f"{source}: {error}") from None
+    try:
+        import torch
+    except ImportError:
+        return  # said by the detector when it is built, with the extra to install
+    try:
+        device = torch.device(detector.device)
+    except RuntimeError as error:
+        raise PreflightError(
+            f"{source}: detector device {detector.device!r} is not a torch device ({error})"
+        ) from None
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise PreflightError(
+            f"{source}: detector device {detector.device!r}: torch has no CUDA here; use 'cpu'"
+        )
+
+
 def preflight(config: RunConfig, data_dir: Path, map_names: Iterable[str]) -> None:
     """Refuse ``config`` if a model its agent calls lacks its API key or is served on this
     machine where nothing listens, its detector needs a sensor that is off, or the data
@@ -106,6 +132,8 @@ def preflight(config: RunConfig, data_dir: Path, map_names: Iterable[str]) -> No
     if config.agent.name not in LLM_AGENTS:
         return  # random actions and the oracle do not look
     detector = config.agent.detector
+    if detector.name == "grounding_dino":
+        check_detector_weights(detector, f"run {config.system!r}")
     off = sorted(detector.requires - config.sensors.kinds)
     if off:
         raise PreflightError(

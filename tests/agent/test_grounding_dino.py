@@ -119,3 +119,22 @@ def test_boxes_are_clipped_to_the_image_in_whole_pixels() -> None:
     assert clip_box((10.0, 10.0, 10.4, 20.0), 224, 224) == (10, 10, 11, 20)
     assert clip_box((230.0, 10.0, 260.0, 20.0), 224, 224) is None  # right of the image
     assert clip_box((5.0, 5.0, math.nan, 9.0), 224, 224) is None
+
+
+def test_a_checkpoint_missing_tensors_is_refused_not_run_with_random_layers(
+    tiny_model: Path, tmp_path: Path
+) -> None:
+    # An audit: without its box heads the model loaded with those layers at random
+    # (transformers said so on stderr alone), detected with scores near 1 and the run was ok.
+    from safetensors.torch import load_file, save_file
+
+    from skyvln_eval.errors import ConfigError
+
+    partial = tmp_path / "partial"
+    shutil.copytree(tiny_model, partial)
+    state = load_file(str(tiny_model / "model.safetensors"))
+    kept = {k: v for k, v in state.items() if "bbox_embed" not in k}
+    assert len(kept) < len(state)
+    save_file(kept, str(partial / "model.safetensors"), metadata={"format": "pt"})
+    with pytest.raises(ConfigError, match=r"is incomplete: \d+ tensor\(s\) missing \(e\.g\. "):
+        create_detector("grounding_dino", model=str(partial))

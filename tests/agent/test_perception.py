@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 import sys
 import types
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,7 +15,7 @@ import pytest
 from skyvln_eval.agent import Perception, PerceptionConfig, SimulatedDetector, create_detector
 from skyvln_eval.agent.detectors import _NAMED_COLOURS, Detection, colour_name, road_bearings
 from skyvln_eval.agent.perception import LandmarkTracker
-from skyvln_eval.errors import MissingExtraError, PerceptionError, UnknownNameError
+from skyvln_eval.errors import ConfigError, MissingExtraError, PerceptionError, UnknownNameError
 from skyvln_eval.frames import ViewPose
 from skyvln_eval.sensing import SemanticClass, SensorConfig
 from skyvln_eval.sim.sensors import SimulatedSensors
@@ -193,10 +194,12 @@ def test_grounding_dino_without_the_vision_extra_says_how_to_install_it(
         create_detector("grounding_dino")
 
 
-def test_grounding_dino_without_weights_says_they_are_missing(
-    monkeypatch: pytest.MonkeyPatch,
+def test_grounding_dino_without_weights_says_where_they_are_looked_for_and_how_to_get_them(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
-    def no_weights(name: str, local_files_only: bool = False) -> object:
+    # An audit: "needs the optional 'vision' dependencies ... Check your internet
+    # connection ...: pip install" with the extra installed and nothing ever downloaded.
+    def no_weights(name: str, **_: object) -> object:
         raise OSError(f"{name} is not in the local cache and local_files_only is set")
 
     loader = types.SimpleNamespace(from_pretrained=no_weights)
@@ -205,8 +208,18 @@ def test_grounding_dino_without_weights_says_they_are_missing(
     fake.AutoModelForZeroShotObjectDetection = loader  # type: ignore[attr-defined]
     monkeypatch.setitem(sys.modules, "transformers", fake)
     monkeypatch.setitem(sys.modules, "torch", types.ModuleType("torch"))
-    with pytest.raises(MissingExtraError, match="weights for 'IDEA-Research/grounding-dino-tiny'"):
+    monkeypatch.setenv("HF_HUB_CACHE", str(tmp_path))
+    import huggingface_hub.constants
+
+    monkeypatch.setattr(huggingface_hub.constants, "HF_HUB_CACHE", str(tmp_path))
+    with pytest.raises(ConfigError) as hub:
         create_detector("grounding_dino")
+    said = str(hub.value)
+    assert "the weights of detector model 'IDEA-Research/grounding-dino-tiny' are not in" in said
+    assert "huggingface-cli download IDEA-Research/grounding-dino-tiny" in said
+    assert "pip install" not in said and "internet" not in said
+    with pytest.raises(ConfigError, match=r"detector model folder \./models/gd does not exist"):
+        create_detector("grounding_dino", model="./models/gd")
 
 
 def test_a_detection_keeps_its_mask_and_box() -> None:

@@ -79,6 +79,23 @@ def test_a_detector_whose_sensor_is_off_is_refused_naming_the_sensor(rgb_only_da
         preflight(config, rgb_only_data, ["9101"])
 
 
+def test_grounding_dino_without_weights_or_with_a_bad_device_is_refused_before_flying(
+    rgb_only_data: Path, tmp_path: Path
+) -> None:
+    # An audit: every episode ended in error (each trying to load the weights again)
+    # where the run could have been refused at once.
+    absent = {"name": "grounding_dino", "model": str(tmp_path / "no-such-model")}
+    settings = {"system": "gd", "data": str(rgb_only_data), "sensors": {"semantic": False}}
+    config = RunConfig.model_validate(settings | {"agent": {"detector": absent}})
+    with pytest.raises(PreflightError, match=r"detector model folder .*no-such-model does not"):
+        preflight(config, rgb_only_data, ["9101"])
+    model = build_tiny_grounding_dino(tmp_path / "grounding-dino-tiny")
+    bad = {"name": "grounding_dino", "model": str(model), "device": "gpu0"}
+    config = RunConfig.model_validate(settings | {"agent": {"detector": bad}})
+    with pytest.raises(PreflightError, match=r"detector device 'gpu0' is not a torch device"):
+        preflight(config, rgb_only_data, ["9101"])
+
+
 def test_grounding_dino_runs_on_rgb_only_data_and_episodes_are_scored(
     rgb_only_data: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
