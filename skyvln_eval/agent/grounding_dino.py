@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from skyvln_eval.agent.detectors import Detection, Detector, clip_box
+from skyvln_eval.agent.detectors import Detection, Detector, clip_box, colour_name
 from skyvln_eval.errors import ConfigError, MissingExtraError
 from skyvln_eval.sensing import CameraImages
 from skyvln_eval.vocabulary.landmarks import CATEGORY_LABELS
@@ -213,7 +213,8 @@ def match_phrase(text_label: str, prompts: Sequence[str]) -> str | None:
 
 
 class GroundingDinoDetector(Detector):
-    """Text-prompted boxes on RGB; label and caption are the phrase matched."""
+    """Text-prompted boxes on RGB; the label is the phrase matched, the caption the colour
+    measured in the box."""
 
     name = "grounding_dino"
     requires = frozenset({"rgb"})
@@ -283,5 +284,9 @@ class GroundingDinoDetector(Detector):
             if prompt is None or clipped is None:
                 continue  # tokens of no phrase (only separators), or a box off the image
             phrase = prompts[prompt]
-            out.append(Detection(phrase, clipped, float(np.clip(score, 0.0, 1.0)), phrase))
+            x0, y0, x1, y1 = clipped
+            # The label is what the model matched; the caption only what the pixels show
+            # (the phrase's own words there claimed a colour no one measured, an audit).
+            caption = f"{colour_name(images.rgb[y0:y1, x0:x1])} in its box"
+            out.append(Detection(phrase, clipped, float(np.clip(score, 0.0, 1.0)), caption))
         return out

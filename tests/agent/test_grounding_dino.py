@@ -11,7 +11,7 @@ import pytest
 
 from skyvln_eval.agent import create_detector
 from skyvln_eval.agent.config import DetectorConfig
-from skyvln_eval.agent.detectors import clip_box
+from skyvln_eval.agent.detectors import clip_box, colour_name
 from skyvln_eval.agent.grounding_dino import (
     OPEN_VOCABULARY,
     GroundingDinoDetector,
@@ -56,7 +56,10 @@ def test_detect_on_rendered_pixels_gives_well_formed_detections(tiny_model: Path
         assert 0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height
         assert 0.0 <= detection.score <= 1.0
         assert detection.label in PHRASES  # the phrase as given ("Church", not "church")
-        assert detection.caption == detection.label and detection.mask is None
+        # The caption is measured, not the phrase again (it claimed the phrase's colour).
+        assert detection.caption.endswith(" in its box") and detection.mask is None
+        x0, y0, x1, y1 = detection.box_px
+        assert detection.caption == f"{colour_name(view.rgb[y0:y1, x0:x1])} in its box"
     # Seeded weights in eval mode: the same pixels give the same detections.
     again = detector.detect(view, PHRASES)
     assert [(d.label, d.box_px, d.score) for d in again] == [
