@@ -22,6 +22,7 @@ phrase those tokens belong to (:func:`match_phrase`).
 
 from __future__ import annotations
 
+import hashlib
 import os
 import re
 import threading
@@ -53,13 +54,15 @@ _SPECIAL_TOKEN = re.compile(r"\[[A-Z]+\]")  # [CLS], [SEP], [PAD] in decoded tex
 
 @dataclass(frozen=True)
 class LoadedModel:
-    """A processor and model pair, ready for inference on ``device``."""
+    """A processor and model pair, ready for inference on ``device``; ``weights_sha256``
+    the digest of its weight files (two checkpoints in one folder are told apart)."""
 
     processor: Any
     model: Any
     torch: Any
     device: str
     transformers_version: str
+    weights_sha256: str = ""
 
 
 _LOADED: dict[tuple[str, str], LoadedModel] = {}
@@ -107,8 +110,36 @@ def _load(model: str, device: str) -> LoadedModel:
         raise ConfigError(f"{_not_found(model)} ({type(error).__name__})") from None
     _refuse_incomplete(model, info)
     return LoadedModel(
-        processor, weights.to(device).eval(), torch, device, transformers.__version__
+        processor,
+        weights.to(device).eval(),
+        torch,
+        device,
+        transformers.__version__,
+        weights_digest(model),
     )
+
+
+def _weight_files(model: str) -> list[Path]:
+    """The files holding ``model``'s weights: in its folder, or in the Hugging Face cache."""
+    path = Path(model).expanduser()
+    if path.is_dir():
+        return sorted(p for p in path.iterdir() if p.suffix in (".safetensors", ".bin"))
+    from huggingface_hub import try_to_load_from_cache
+
+    found = [try_to_load_from_cache(model, name) for name in _WEIGHT_NAMES]
+    return [Path(f) for f in found if isinstance(f, str) and not f.endswith(".json")]
+
+
+def weights_digest(model: str) -> str:
+    """SHA-256 of ``model``'s weight files, in name order (read once per process, about a
+    second for the tiny model's 700 MB): what a run's settings record of its detector."""
+    digest = hashlib.sha256()
+    for path in _weight_files(model):
+        digest.update(path.name.encode())
+        with path.open("rb") as handle:
+            for block in iter(lambda: handle.read(1 << 20), b""):
+                digest.update(block)
+    return digest.hexdigest()
 
 
 def _looks_local(model: str) -> bool:
@@ -245,6 +276,7 @@ class GroundingDinoDetector(Detector):
             "device": self.device,
             "threads": self.threads,
             "transformers": self._loaded.transformers_version,
+            "weights_sha256": self._loaded.weights_sha256,
         }
 
     def detect(self, images: CameraImages, phrases: Sequence[str] = ()) -> list[Detection]:

@@ -268,8 +268,17 @@ def detector_name(config: RunConfig) -> str | None:
     """The detector that found the agent's landmarks (``simulated``, ``grounding_dino``,
     ``vlm``), recorded in every result so that a table can say which rows read the
     simulator's landmark segmentation rather than pixels; ``None`` for an agent that does
-    not perceive (the perceiving agents are the LLM agents)."""
-    return config.agent.detector.name if config.agent.name in LLM_AGENTS else None
+    not perceive (the perceiving agents are the LLM agents). GroundingDINO is named with
+    its weights (``grounding_dino:IDEA-Research/grounding-dino-tiny``): a table says
+    which model found a row's landmarks."""
+    if config.agent.name not in LLM_AGENTS:
+        return None
+    detector = config.agent.detector
+    if detector.name == "grounding_dino":
+        from skyvln_eval.agent.grounding_dino import DEFAULT_MODEL
+
+        return f"grounding_dino:{detector.model or DEFAULT_MODEL}"
+    return detector.name
 
 
 def run_episode_task(task: EpisodeTask) -> EpisodeResult:

@@ -289,7 +289,18 @@ def _detector_note(
     sel = _shown_cells(scores, spec, mode)
     simulated = sel.loc[sel["detector"] == "simulated", "system"]
     named = [row for row in rows if row in set(simulated)]
-    return [f"{SIMULATED_DETECTOR_NOTE} ({', '.join(named)})."] if named else []
+    notes = [f"{SIMULATED_DETECTOR_NOTE} ({', '.join(named)})."] if named else []
+    # A detector on pixels, by its weights: a random or another checkpoint is not this one.
+    on_pixels = sel.loc[sel["detector"].fillna("").str.startswith("grounding_dino:")]
+    for detector, group in on_pixels.groupby("detector", sort=True):
+        shown = [row for row in rows if row in set(group["system"])]
+        if shown:
+            model = str(detector).split(":", 1)[1]
+            notes.append(
+                f"Landmarks found on the camera's RGB pixels by GroundingDINO, weights "
+                f"{model} ({', '.join(shown)})."
+            )
+    return notes
 
 
 def _degraded_note(

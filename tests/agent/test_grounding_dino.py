@@ -141,3 +141,14 @@ def test_a_checkpoint_missing_tensors_is_refused_not_run_with_random_layers(
     save_file(kept, str(partial / "model.safetensors"), metadata={"format": "pt"})
     with pytest.raises(ConfigError, match=r"is incomplete: \d+ tensor\(s\) missing \(e\.g\. "):
         create_detector("grounding_dino", model=str(partial))
+
+
+def test_the_settings_name_the_weights_by_their_digest(tiny_model: Path) -> None:
+    import hashlib
+
+    detector = create_detector("grounding_dino", model=str(tiny_model))
+    files = sorted(p for p in tiny_model.iterdir() if p.suffix in (".safetensors", ".bin"))
+    digest = hashlib.sha256()
+    for path in files:
+        digest.update(path.name.encode() + path.read_bytes())
+    assert files and detector.settings()["weights_sha256"] == digest.hexdigest()

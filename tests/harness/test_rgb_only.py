@@ -116,6 +116,7 @@ def test_grounding_dino_runs_on_rgb_only_data_and_episodes_are_scored(
     assert len(results) == 2 and all(r.status != "error" for r in results)
     scores = score_results(results, MetricConventions())
     assert len(scores) == 2
+    assert set(scores["detector"]) == {f"grounding_dino:{model}"}  # named with its weights
     assert set(scores["success"]) <= {0.0, 1.0} and all(math.isfinite(v) for v in scores["ne_m"])
     assert loads == [str(model.resolve())]  # the serial worker loaded the weights once
     resolved = yaml.safe_load((out / "config.yaml").read_text(encoding="utf-8"))

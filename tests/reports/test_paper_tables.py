@@ -279,16 +279,26 @@ def test_rows_whose_landmarks_the_simulated_detector_found_say_so() -> None:
             episode_id=f"1913__{k}_1",
             extra={"detector": detector},
         )
-        for system, detector in (("Full", "simulated"), ("DINO", "grounding_dino"), ("PID", None))
+        for system, detector in (
+            ("Full", "simulated"),
+            ("DINO", "grounding_dino:models/tiny"),
+            ("PID", None),
+        )
         for k in range(2)
     ]
     scores = score_results(results)
     said = scores.drop_duplicates("system").set_index("system").detector
-    assert said["Full"] == "simulated" and said["DINO"] == "grounding_dino"
+    assert said["Full"] == "simulated" and said["DINO"] == "grounding_dino:models/tiny"
     assert pd.isna(said["PID"])
     md = to_markdown(paper_table(scores, TABLE_I, MetricConventions()))
     note = next(line for line in md.splitlines() if "simulated detector" in line)
     assert note.endswith("not a detector on pixels (Full).")
+    # A detector on pixels is named with its weights (an audit: a random checkpoint's
+    # rows read as a trained detector's, the model said nowhere).
+    assert (
+        "Landmarks found on the camera's RGB pixels by GroundingDINO, weights models/tiny (DINO)."
+        in md
+    )
     # Scores made before the column: nothing is said.
     assert "simulated detector" not in to_markdown(
         paper_table(scores.drop(columns="detector"), TABLE_I, MetricConventions())
