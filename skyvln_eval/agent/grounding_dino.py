@@ -127,7 +127,7 @@ def _weight_files(model: str) -> list[Path]:
     from huggingface_hub import try_to_load_from_cache
 
     found = [try_to_load_from_cache(model, name) for name in _WEIGHT_NAMES]
-    return [Path(f) for f in found if isinstance(f, str) and not f.endswith(".json")]
+    return [Path(f) for f in found if isinstance(f, str)]
 
 
 def weights_digest(model: str) -> str:
@@ -166,7 +166,7 @@ def check_weights_present(model: str) -> None:
     or the Hugging Face cache), without loading them: what a run checks before flying."""
     path = Path(model).expanduser()
     if path.is_dir():
-        if (path / "config.json").is_file() and any(path.glob(_WEIGHT_FILES)):
+        if (path / "config.json").is_file() and _weight_files(model):
             return
         raise ConfigError(_not_found(model))
     if _looks_local(model):
@@ -184,7 +184,6 @@ def check_weights_present(model: str) -> None:
 
 #: Where a checkpoint's weights are, by the names transformers saves them under.
 _WEIGHT_NAMES = ("model.safetensors", "model.safetensors.index.json", "pytorch_model.bin")
-_WEIGHT_FILES = "*.safetensors*"
 
 
 def _refuse_incomplete(model: str, info: dict[str, Any]) -> None:

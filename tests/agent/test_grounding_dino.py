@@ -152,3 +152,18 @@ def test_the_settings_name_the_weights_by_their_digest(tiny_model: Path) -> None
     for path in files:
         digest.update(path.name.encode() + path.read_bytes())
     assert files and detector.settings()["weights_sha256"] == digest.hexdigest()
+
+
+def test_a_local_folder_is_checked_for_a_config_and_weights_of_either_format(
+    tmp_path: Path,
+) -> None:
+    from skyvln_eval.agent.grounding_dino import check_weights_present
+    from skyvln_eval.errors import ConfigError
+
+    folder = tmp_path / "model"
+    folder.mkdir()
+    (folder / "config.json").write_text("{}")
+    with pytest.raises(ConfigError, match="holds no GroundingDINO weights"):
+        check_weights_present(str(folder))
+    (folder / "pytorch_model.bin").write_bytes(b"weights")  # the older format is found too
+    check_weights_present(str(folder))
