@@ -424,9 +424,9 @@ def run_(
     out: Annotated[
         Path | None, typer.Option(help="Run directory (default: runs/<config name>)")
     ] = None,
+    # Bounded by the run config, which names the option with every other bad setting.
     workers: Annotated[
-        int | None,
-        typer.Option(min=1, max=MAX_WORKERS, help="Parallel episodes (overrides the config)"),
+        int | None, typer.Option(min=1, help="Parallel episodes (overrides the config)")
     ] = None,
     executor: Annotated[
         str | None, typer.Option(help="serial, processes, threads or ray (overrides the config)")
@@ -436,11 +436,7 @@ def run_(
     ] = None,
     threads_per_worker: Annotated[
         int | None,
-        typer.Option(
-            min=1,
-            max=MAX_THREADS_PER_WORKER,
-            help="With processes: episodes run in threads in each worker",
-        ),
+        typer.Option(min=1, help="With processes: episodes run in threads in each worker"),
     ] = None,
     retry_failed: Annotated[
         bool, typer.Option(help="Run episodes that ended in error before again")
