@@ -119,15 +119,24 @@ def _load(model: str, device: str) -> LoadedModel:
     )
 
 
+def _model_file(model: str, name: str) -> Path | None:
+    """The file ``name`` of ``model``: in its folder, or in the Hugging Face cache; None
+    when it is not on this machine."""
+    path = Path(model).expanduser()
+    if path.is_dir():
+        return path / name if (path / name).is_file() else None
+    from huggingface_hub import try_to_load_from_cache
+
+    found = try_to_load_from_cache(model, name)
+    return Path(found) if isinstance(found, str) else None
+
+
 def _weight_files(model: str) -> list[Path]:
     """The files holding ``model``'s weights: in its folder, or in the Hugging Face cache."""
     path = Path(model).expanduser()
     if path.is_dir():
         return sorted(p for p in path.iterdir() if p.suffix in (".safetensors", ".bin"))
-    from huggingface_hub import try_to_load_from_cache
-
-    found = [try_to_load_from_cache(model, name) for name in _WEIGHT_NAMES]
-    return [Path(f) for f in found if isinstance(f, str)]
+    return [f for name in _WEIGHT_NAMES if (f := _model_file(model, name)) is not None]
 
 
 def weights_digest(model: str) -> str:
@@ -164,21 +173,15 @@ def _not_found(model: str) -> str:
 def check_weights_present(model: str) -> None:
     """Refuse ``model`` unless its config and weights are on this machine (a local folder,
     or the Hugging Face cache), without loading them: what a run checks before flying."""
-    path = Path(model).expanduser()
-    if path.is_dir():
-        if (path / "config.json").is_file() and _weight_files(model):
-            return
-        raise ConfigError(_not_found(model))
-    if _looks_local(model):
+    if _looks_local(model) and not Path(model).expanduser().is_dir():
         raise ConfigError(_not_found(model))
     try:
-        from huggingface_hub import try_to_load_from_cache
-    except ImportError as error:  # transformers brings it; without it, nothing loads
+        present = _model_file(model, "config.json") is not None and bool(_weight_files(model))
+    except ImportError as error:  # transformers brings huggingface_hub; without it, no load
         raise MissingExtraError(
             "the GroundingDINO detector", "vision", f"cannot import {error.name}"
         ) from error
-    found = [try_to_load_from_cache(model, name) for name in ("config.json", *_WEIGHT_NAMES)]
-    if not isinstance(found[0], str) or not any(isinstance(f, str) for f in found[1:]):
+    if not present:
         raise ConfigError(_not_found(model))
 
 

@@ -40,11 +40,7 @@ from skyvln_eval.sim.scenarios import ScenarioKind
 ExecutionMode = Literal["official", "dynamics"]
 
 
-class _Strict(StrictModel):
-    pass
-
-
-class ObstacleSettings(_Strict):
+class ObstacleSettings(StrictModel):
     """Obstacles met on every flown segment (dynamics mode), placed against its reference."""
 
     kind: ScenarioKind = "crossing"
@@ -61,7 +57,7 @@ class ObstacleSettings(_Strict):
     obstacle_speed_m_s: float = Field(default=1.0, gt=0.0)
 
 
-class CommanderSettings(_Strict):
+class CommanderSettings(StrictModel):
     """The simulated commander that answers the agent's clarification questions from the
     ground truth (:mod:`skyvln_eval.harness.commander`); ``max_questions: 0`` turns it off."""
 
@@ -74,7 +70,7 @@ MAX_WIND_M_S: Final = 100.0
 _WindAxis = Annotated[float, Field(ge=-MAX_WIND_M_S, le=MAX_WIND_M_S)]
 
 
-class PlantSettings(_Strict):
+class PlantSettings(StrictModel):
     """What the simulated drone adds to the controller's model (dynamics mode).
 
     All zero by default: the nominal plant, the controller's own equations integrated more
@@ -119,7 +115,7 @@ class PlantSettings(_Strict):
         )
 
 
-class DynamicsSettings(_Strict):
+class DynamicsSettings(StrictModel):
     """How actions are flown in dynamics mode: controller, reference, arrival, obstacles,
     and what the plant adds to the controller's model (``plant``: nominal by default)."""
 
@@ -184,7 +180,7 @@ HOW_IT_RUNS = frozenset({"workers", "executor", "threads_per_worker", "ray_addre
 SELECTION = frozenset({"limit", "episodes"})
 
 
-class RunConfig(_Strict):
+class RunConfig(StrictModel):
     """One run: a system on some splits of a dataset.
 
     ``system`` labels the run's rows in tables. ``data`` is ``"sample"`` (the bundled

@@ -57,11 +57,7 @@ DEFAULT_PLAN = "default"
 TableName = Literal["table1", "table2"]
 
 
-class _Strict(StrictModel):
-    pass
-
-
-class PlanSystem(_Strict):
+class PlanSystem(StrictModel):
     """One system: its label, execution mode, controller and agent settings."""
 
     label: str = Field(min_length=1)
@@ -108,7 +104,7 @@ class PlanDynamicsSettings(DynamicsSettings):
         return self
 
 
-class Table1Plan(_Strict):
+class Table1Plan(StrictModel):
     splits: tuple[Split, ...] = Field(("val_seen", "val_unseen", "test_unseen"), min_length=1)
     systems: tuple[PlanSystem, ...]
 
@@ -122,12 +118,12 @@ class Table1Plan(_Strict):
         return splits
 
 
-class BackendPlan(_Strict):
+class BackendPlan(StrictModel):
     label: str = Field(min_length=1)
     llm: dict[str, Any]
 
 
-class Table2Plan(_Strict):
+class Table2Plan(StrictModel):
     """Table II: one system with each backend (listed, and named in the environment
     variable; ``backends_file`` resolves names there, as ``$SKYVLN_EVAL_BACKENDS_FILE``)."""
 
@@ -142,7 +138,7 @@ class Table2Plan(_Strict):
 PaperCase = Literal["static", "dynamic"]
 
 
-class ControlFiguresPlan(_Strict):
+class ControlFiguresPlan(StrictModel):
     controllers: tuple[str, ...] = ("pid", "nmpc")
     cases: tuple[PaperCase, ...] = ("static", "dynamic")
 
@@ -161,7 +157,7 @@ class ControlFiguresPlan(_Strict):
         return names
 
 
-class ReproducePlan(_Strict):
+class ReproducePlan(StrictModel):
     """Everything ``skyvln-eval reproduce`` runs and writes."""
 
     name: str = "default"

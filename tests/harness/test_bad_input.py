@@ -35,6 +35,16 @@ def _config(sample_dir: Path, **overrides: Any) -> dict[str, Any]:
     }
 
 
+def _plan_refused_on_load(tmp_path: Path, cli: Cli, change: dict[str, Any], needle: str) -> None:
+    """``reproduce`` of the tiny plan with ``change`` is refused, naming the plan file and
+    ``needle``, before any episode runs or its output folder is made."""
+    plan = tmp_path / "plan.yaml"
+    plan.write_text(yaml.safe_dump(TINY_PLAN | change))
+    out = tmp_path / "out"
+    _refused(cli("reproduce", "--plan", str(plan), "--out", str(out)), f"{plan}: {needle}")
+    assert not out.exists(), "no episode may run, no folder be made"
+
+
 def _refused(outcome: CliOutcome, *needles: str) -> str:
     """The one-line message of a refused command (exit 2, no traceback)."""
     assert outcome.code == 2, outcome
@@ -297,8 +307,6 @@ def test_bad_controller_settings_are_refused_on_load(
 
 
 def test_bad_controller_settings_in_a_plan_are_refused_on_load(tmp_path: Path, cli: Cli) -> None:
-    from tests.harness.test_reproduce import TINY_PLAN
-
     plan = tmp_path / "plan.yaml"
     systems = [
         {"label": "w PID", "controller": "pid", "controller_settings": {"max_speed": 3}},
@@ -481,13 +489,7 @@ def test_a_plans_bootstrap_numpy_cannot_take_is_refused_before_any_run(
     tmp_path: Path, cli: Cli, setting: dict[str, int], needle: str
 ) -> None:
     # An audit: `seed: -1` flew every run, then scoring failed with a traceback.
-    from tests.harness.test_reproduce import TINY_PLAN
-
-    plan = tmp_path / "plan.yaml"
-    plan.write_text(yaml.safe_dump(TINY_PLAN | setting))
-    out = tmp_path / "out"
-    _refused(cli("reproduce", "--plan", str(plan), "--out", str(out)), f"{plan}: {needle}")
-    assert not out.exists(), "no episode may run"
+    _plan_refused_on_load(tmp_path, cli, setting, needle)
 
 
 @pytest.mark.parametrize(
@@ -532,18 +534,10 @@ def test_a_plans_bootstrap_numpy_cannot_take_is_refused_before_any_run(
 def test_a_plan_whose_runs_or_figures_would_fail_is_refused_on_load(
     tmp_path: Path, cli: Cli, change: dict[str, Any], needle: str
 ) -> None:
-    from tests.harness.test_reproduce import TINY_PLAN
-
-    plan = tmp_path / "plan.yaml"
-    plan.write_text(yaml.safe_dump(TINY_PLAN | change))
-    out = tmp_path / "out"
-    _refused(cli("reproduce", "--plan", str(plan), "--out", str(out)), f"{plan}: {needle}")
-    assert not out.exists(), "no episode may run, no folder be made"
+    _plan_refused_on_load(tmp_path, cli, change, needle)
 
 
 def test_a_planned_run_the_options_make_invalid_is_a_config_error(tmp_path: Path) -> None:
-    from tests.harness.test_reproduce import TINY_PLAN
-
     plan = tmp_path / "plan.yaml"
     plan.write_text(yaml.safe_dump(TINY_PLAN))
     with pytest.raises(ConfigError, match=r"^reproduce plan 'tiny': system 'NavGPT-style' with "):
@@ -564,7 +558,6 @@ def test_reproduce_data_dir_dot_sample_is_the_folder_not_the_synthetic_sample(
 ) -> None:
     # An audit: --data-dir was a Path, which drops the "./": ./sample became "sample".
     from skyvln_eval.harness import reproduce as reproduce_module
-    from tests.harness.test_reproduce import TINY_PLAN
 
     given: list[str | None] = []
 
